@@ -1,0 +1,359 @@
+"""Command line: ``vrcorrect <command> ...``.
+
+Library errors (:class:`vrcorrect.errors.VrcorrectError`) become one line on
+stderr and exit status 2; a command-line user never sees a traceback
+(``VRCORRECT_DEBUG=1`` shows it for bug reports).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Sequence
+
+from .errors import InputError, ValidationError, VrcorrectError
+
+EXIT_USAGE = 2
+EXIT_INTERNAL = 3
+
+
+def _progress(desc: str):
+    """A tqdm progress callback for kernel builds (silent when stderr is not a terminal)."""
+    from tqdm import tqdm
+
+    bar = tqdm(desc=desc, unit="PSF", disable=None, leave=False, file=sys.stderr)
+
+    def update(done: int, total: int) -> None:
+        bar.update(1)
+
+    update.close = bar.close  # type: ignore[attr-defined]
+    return update
+
+
+def _load_eye(args: argparse.Namespace):
+    from .prescription import bundled_sample_path, load_prescription
+
+    path = Path(args.rx) if args.rx else bundled_sample_path()
+    return path, load_prescription(path).eye(args.eye)
+
+
+def _kernel_options(args: argparse.Namespace):
+    from .kernel import KernelOptions
+    from .optics import OpticsOptions
+
+    distance = None
+    if getattr(args, "distance_m", None) is not None:
+        distance = math.inf if args.distance_m in ("inf", "infinity") else _positive_float("--distance-m", args.distance_m)
+    optics = OpticsOptions(chromatic_aberration=not args.no_lca, viewing_distance_m=distance,
+                           reference_wavelength_nm=args.reference_wavelength_nm)
+    return KernelOptions(energy_fraction=args.energy_fraction, wavelength_tolerance=args.wavelength_tolerance,
+                         wavelength_step_nm=args.wavelength_step_nm, optics=optics)
+
+
+def _positive_float(field: str, text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValidationError(field, text, "a number of metres or 'inf'") from None
+    return value
+
+
+def _build(args: argparse.Namespace, eye, display):
+    from .kernel import build_kernel
+
+    bar = _progress("building eye kernel")
+    try:
+        return build_kernel(eye, display, _kernel_options(args), progress=bar)
+    finally:
+        bar.close()
+
+
+# ---------------------------------------------------------------- simulate
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from .display import decode, encode, get_display
+    from .fileio import check_writable
+    from .forward import what_the_eye_sees
+    from .imageio import read_image, write_png
+
+    out = Path(args.output)
+    if out.suffix.lower() != ".png":
+        raise ValidationError("--output", str(out), "a path ending in .png")
+    check_writable(out, force=args.force)
+    rx_path, eye = _load_eye(args)
+    display = get_display(args.display)
+    image = read_image(args.input)
+    t0 = time.perf_counter()
+    kernel = _build(args, eye, display)
+    t1 = time.perf_counter()
+    seen, info = what_the_eye_sees(decode(display, image), kernel, method=args.method)
+    t2 = time.perf_counter()
+    write_png(out, encode(display, seen), bits=16 if args.sixteen_bit else 8, force=args.force)
+    if args.explain:
+        print(f"prescription {rx_path} ({args.eye} eye): sphere {eye.sphere_D:+.2f} D, cylinder "
+              f"{eye.cylinder_D:+.2f} D, axis {eye.axis_deg:g} deg, pupil {eye.pupil_diameter_mm:g} mm")
+        print(f"display {display.name} ({display.title}): {display.pixels_per_degree:.1f} pixels per degree, "
+              f"transfer {display.transfer}")
+        for line in kernel.decisions:
+            print(f"  - {line}")
+        shortcut = "grey image: exact achromatic shortcut" if info.achromatic else "colour image"
+        print(f"  - forward model: {info.path} path, {shortcut}, {info.convolutions} convolution(s) of "
+              f"{image.shape[1]}x{image.shape[0]} px")
+        print(f"  - time: kernel {t1 - t0:.2f} s, simulation {t2 - t1:.2f} s")
+    print(f"wrote {out}: what the {args.eye} eye sees on {display.title}")
+    return 0
+
+
+# ---------------------------------------------------------------- psf
+
+def cmd_psf(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .display import get_display
+    from .fileio import check_writable, write_text_atomic, write_with
+    from .kernel import build_kernel, monochromatic_psf
+
+    out = Path(args.output)
+    if out.suffix.lower() != ".npy":
+        raise ValidationError("--output", str(out), "a path ending in .npy")
+    sidecar = out.with_suffix(".json")
+    check_writable(out, force=args.force)
+    check_writable(sidecar, force=args.force)
+    if args.png:
+        check_writable(Path(args.png), force=args.force)
+    rx_path, eye = _load_eye(args)
+    display = get_display(args.display)
+    options = _kernel_options(args)
+    meta: dict = {"prescription": str(rx_path), "eye": args.eye, "display": display.name,
+                  "pixels_per_degree": display.pixels_per_degree,
+                  "reference_wavelength_nm": options.optics.reference_wavelength_nm,
+                  "chromatic_aberration": options.optics.chromatic_aberration,
+                  "energy_fraction": options.energy_fraction}
+    if args.wavelength_nm is not None:
+        psf, full, state = monochromatic_psf(eye, display, args.wavelength_nm, options)
+        array = psf
+        meta.update(kind="monochromatic PSF", axes=["y (rows, down the display)", "x (columns, to the right)"],
+                    wavelength_nm=args.wavelength_nm, wavelengths_nm=[args.wavelength_nm],
+                    kernel_size=int(psf.shape[0]), sum=float(psf.sum()),
+                    fft_grid=full.sampling.grid, fine_samples_per_pixel=full.sampling.oversample)
+    else:
+        kernel = _build(args, eye, display)
+        array = kernel.kernel
+        meta.update(kind="LMS kernel K[cone, primary, y, x]", axes=["cone (L, M, S)", "primary (R, G, B)",
+                    "y (rows, down the display)", "x (columns, to the right)"],
+                    kernel_size=kernel.size, wavelengths_nm=list(kernel.node_wavelengths_nm),
+                    wavelength_step_nm=kernel.wavelength_step_nm, identity=kernel.identity,
+                    rgb_to_lms=kernel.matrix.tolist(), decisions=list(kernel.decisions))
+    write_with(out, lambda tmp: np.save(tmp.open("wb"), array), force=args.force)
+    write_text_atomic(sidecar, json.dumps(meta, indent=2) + "\n", force=args.force)
+    if args.png:
+        from .plots import plot_psf
+
+        write_with(Path(args.png), lambda tmp: plot_psf(array, meta, tmp), force=args.force)
+    print(f"wrote {out} ({'x'.join(map(str, array.shape))}) and {sidecar}" + (f" and {args.png}" if args.png else ""))
+    return 0
+
+
+# ---------------------------------------------------------------- rx
+
+def cmd_rx_new(args: argparse.Namespace) -> int:
+    from .prescription import write_template
+
+    write_template(Path(args.path), force=args.force)
+    print(f"wrote {args.path}: a commented prescription template; fill in both eyes, then run "
+          f"'vrcorrect rx validate {args.path}'")
+    return 0
+
+
+def cmd_rx_validate(args: argparse.Namespace) -> int:
+    from .prescription import validate_file
+
+    problems = validate_file(Path(args.path))
+    if problems:
+        print(f"{args.path}: {len(problems)} problem{'s' if len(problems) != 1 else ''}:", file=sys.stderr)
+        for p in problems:
+            print(f"  - {p}", file=sys.stderr)
+        return 1
+    from .prescription import load_prescription
+
+    rx = load_prescription(Path(args.path))
+    print(f"{args.path}: valid")
+    for name in ("right", "left"):
+        e = rx.eye(name)
+        pv = e.power_vector()
+        print(f"  {name:5s} {e.sphere_D:+.2f} / {e.cylinder_D:+.2f} x {e.axis_deg:g}, pupil {e.pupil_diameter_mm:g} mm"
+              f"  (M {pv.M_D:+.2f}, J0 {pv.J0_D:+.2f}, J45 {pv.J45_D:+.2f} D)")
+    return 0
+
+
+# ---------------------------------------------------------------- displays
+
+def cmd_displays(args: argparse.Namespace) -> int:
+    from .bench import markdown_table
+    from .display import get_display, preset_names
+
+    if args.fit:
+        return _displays_fit(args)
+    rows = []
+    for name in preset_names():
+        d = get_display(name)
+        dist = "inf" if math.isinf(d.distance_m) else f"{d.distance_m:.2f}"
+        res = "x".join(map(str, d.resolution_px)) if d.resolution_px else "-"
+        rows.append([name, d.title, d.kind, f"{d.pixels_per_degree:.1f}", dist, res, d.transfer])
+    print(markdown_table(["preset", "display", "kind", "px/deg", "distance m", "resolution", "transfer"], rows))
+    if args.verbose:
+        for name in preset_names():
+            d = get_display(name)
+            print(f"\n{name}: {d.sources}")
+    else:
+        print("\n(sources and estimates: vrcorrect displays -v)")
+    return 0
+
+
+def _displays_fit(args: argparse.Namespace) -> int:
+    from .display import fit_spectra, read_spectra_csv
+
+    measured = read_spectra_csv(Path(args.fit))
+    fit = fit_spectra(measured)
+    print(f"{args.fit}: {len(measured.wavelength_nm)} samples, "
+          f"{measured.wavelength_nm[0]:.0f}-{measured.wavelength_nm[-1]:.0f} nm")
+    for label, rms, mx in zip(measured.labels, fit.rms_error, fit.max_error):
+        print(f"  {label:6s} smooth non-negative fit: rms error {rms * 100:.2f}% of peak, max {mx * 100:.2f}%")
+    if args.plot:
+        from .fileio import write_with
+        from .plots import plot_spectra_fit
+
+        write_with(Path(args.plot), lambda tmp: plot_spectra_fit(measured, fit, tmp), force=args.force)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+# ---------------------------------------------------------------- demo
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import run_demo
+
+    for line in run_demo(Path(args.out), display_name=args.display, force=args.force):
+        print(line)
+    return 0
+
+
+# ---------------------------------------------------------------- bench
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from .bench_kernel import run_kernel_bench
+
+    if args.what != "kernel":
+        raise ValidationError("bench", args.what, "kernel")
+    print(run_kernel_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
+    return 0
+
+
+# ---------------------------------------------------------------- parser
+
+def _add_model_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rx", metavar="RX.json", help="prescription file (default: the bundled sample)")
+    p.add_argument("--eye", choices=("right", "left"), default="right", help="which eye (default right)")
+    p.add_argument("--display", default="quest2", metavar="PRESET",
+                   help="display preset or profile .json (default quest2; list: vrcorrect displays)")
+    g = p.add_argument_group("model")
+    g.add_argument("--no-lca", action="store_true", help="leave out the eye's longitudinal chromatic aberration")
+    g.add_argument("--distance-m", metavar="M",
+                   help="viewing distance in metres, or 'inf' for the paper's setting (default: the display's)")
+    g.add_argument("--reference-wavelength-nm", type=float, default=555.0,
+                   help="wavelength at which the prescription holds (default 555)")
+    g.add_argument("--energy-fraction", type=float, default=0.995,
+                   help="fraction of PSF energy the kernel keeps (default 0.995)")
+    g.add_argument("--wavelength-tolerance", type=float, default=1 / 255,
+                   help="accepted error of the wavelength step against 1 nm (default 1/255)")
+    g.add_argument("--wavelength-step-nm", type=int, choices=(80, 40, 20, 10, 5, 1),
+                   help="force a wavelength step instead of choosing one")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="vrcorrect", description=(
+        "Pre-correct displays for eyes that need glasses (ChromaCorrect: display spectra, Zernike PSFs per "
+        "wavelength, cone responses)."))
+    sub = ap.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    p = sub.add_parser("simulate", help="what an eye sees of an image on a display")
+    p.add_argument("input", metavar="IN", help="image file (PNG, JPEG, ...; sRGB code values)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.png")
+    _add_model_options(p)
+    p.add_argument("--method", choices=("auto", "fft", "direct"), default="auto", help="convolution path")
+    p.add_argument("--explain", action="store_true", help="print every modelling decision")
+    p.add_argument("--16bit", dest="sixteen_bit", action="store_true", help="write a 16-bit PNG")
+    p.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("psf", help="write an eye's PSF (one wavelength) or full LMS kernel as .npy + .json")
+    _add_model_options(p)
+    p.add_argument("--wavelength-nm", type=float, help="monochromatic PSF at this wavelength (default: full kernel)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.npy")
+    p.add_argument("--png", metavar="PLOT.png", help="also draw it")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.set_defaults(func=cmd_psf)
+
+    p = sub.add_parser("rx", help="prescription files")
+    rsub = p.add_subparsers(dest="rx_command", metavar="ACTION")
+    rsub.required = True
+    q = rsub.add_parser("new", help="write a commented prescription template")
+    q.add_argument("path", metavar="PATH")
+    q.add_argument("--force", action="store_true", help="overwrite PATH if it exists")
+    q.set_defaults(func=cmd_rx_new)
+    q = rsub.add_parser("validate", help="check a prescription file and report every problem")
+    q.add_argument("path", metavar="PATH")
+    q.set_defaults(func=cmd_rx_validate)
+
+    p = sub.add_parser("displays", help="list display presets, or fit measured spectra")
+    p.add_argument("-v", "--verbose", action="store_true", help="show each preset's sources")
+    p.add_argument("--fit", metavar="SPECTRA.csv", help="fit a measured wavelength_nm,r,g,b CSV and report the error")
+    p.add_argument("--plot", metavar="FIT.png", help="with --fit: draw the fit")
+    p.add_argument("--force", action="store_true", help="overwrite the plot if it exists")
+    p.set_defaults(func=cmd_displays)
+
+    p = sub.add_parser("demo", help="the bundled default: what the sample eyes see of the sample image")
+    p.add_argument("--out", default="out", help="output folder (default ./out)")
+    p.add_argument("--display", default="quest2", metavar="PRESET")
+    p.add_argument("--force", action="store_true", help="overwrite earlier demo outputs")
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md")
+    p.add_argument("what", choices=("kernel",), help="what to measure")
+    p.add_argument("--repeats", type=int, default=5, help="timed runs per case (median reported)")
+    p.add_argument("--out", default="docs/benchmarks.md", help="benchmarks file to update")
+    p.add_argument("--no-write", action="store_true", help="print only")
+    p.set_defaults(func=cmd_bench)
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except VrcorrectError as exc:
+        print(f"vrcorrect: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("vrcorrect: interrupted", file=sys.stderr)
+        return 130
+    except MemoryError:
+        print("vrcorrect: error: out of memory; try a smaller image or pupil", file=sys.stderr)
+        return EXIT_INTERNAL
+    except Exception as exc:  # never a traceback for a command-line user
+        if os.environ.get("VRCORRECT_DEBUG"):
+            raise
+        print(f"vrcorrect: internal error: {type(exc).__name__}: {exc} (set VRCORRECT_DEBUG=1 for details)",
+              file=sys.stderr)
+        return EXIT_INTERNAL
+
+
+if __name__ == "__main__":
+    sys.exit(main())

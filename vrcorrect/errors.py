@@ -1,0 +1,77 @@
+"""Typed errors.
+
+Every error a user can cause names the field, the value and what is allowed,
+in one line.  Library code raises these; only :mod:`vrcorrect.cli` turns them
+into an exit status.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Iterable
+
+
+class VrcorrectError(Exception):
+    """Base class of every error vrcorrect raises on purpose."""
+
+
+def _show(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+class ValidationError(VrcorrectError, ValueError):
+    """One bad value.
+
+    Parameters
+    ----------
+    field
+        Dotted path of the offending field, e.g. ``"right.sphere_D"``.
+    value
+        The value that was given.
+    allowed
+        What would have been accepted, in words (``"-20 to 20 D"``).
+    source
+        Optional file (and line) the value came from.
+    """
+
+    def __init__(self, field: str, value: Any, allowed: str, source: str | None = None):
+        self.field = field
+        self.value = value
+        self.allowed = allowed
+        self.source = source
+        prefix = f"{source}: " if source else ""
+        super().__init__(f"{prefix}{field} = {_show(value)} is not allowed; expected {allowed}")
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One problem found while validating a document (kept to report all at once)."""
+
+    field: str
+    value: Any
+    allowed: str
+
+    def __str__(self) -> str:
+        return f"{self.field} = {_show(self.value)} is not allowed; expected {self.allowed}"
+
+
+class ValidationErrors(VrcorrectError, ValueError):
+    """Several problems in one document, reported together."""
+
+    def __init__(self, problems: Iterable[Problem], source: str | None = None):
+        self.problems = list(problems)
+        self.source = source
+        head = f"{source}: " if source else ""
+        n = len(self.problems)
+        lines = [f"{head}{n} problem{'s' if n != 1 else ''}:"]
+        lines += [f"  - {p}" for p in self.problems]
+        super().__init__("\n".join(lines))
+
+
+class InputError(VrcorrectError, OSError):
+    """A file that cannot be read, parsed or written as asked."""
+
+
+class ModelLimitError(VrcorrectError, ValueError):
+    """A request the model cannot honour within its resource limits."""

@@ -1,0 +1,59 @@
+"""Safe file output: atomic writes that never leave a partial file and never
+overwrite a user's file unless asked."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from pathlib import Path
+from typing import Callable, Iterator
+
+from .errors import InputError
+
+
+def check_writable(path: Path, *, force: bool) -> Path:
+    """Fail early, before any work, if ``path`` may not be written."""
+    path = Path(path)
+    if path.exists() and not force:
+        raise InputError(f"{path}: file exists; pass --force to overwrite it")
+    if path.exists() and path.is_dir():
+        raise InputError(f"{path}: is a directory, expected a file path")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError(f"{path}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise InputError(f"{path}: folder {parent} is not writable")
+    return path
+
+
+@contextlib.contextmanager
+def atomic_path(path: Path, *, force: bool = False) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success rename it into place.
+
+    On any exception the temporary file is removed and ``path`` is untouched.
+    """
+    path = check_writable(Path(path), force=force)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
+                               dir=path.parent if str(path.parent) else ".")
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        if path.exists() and not force:  # appeared while we worked
+            raise InputError(f"{path}: file exists; pass --force to overwrite it")
+        os.replace(tmp_path, path)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
+
+
+def write_text_atomic(path: Path, text: str, *, force: bool = False) -> None:
+    with atomic_path(path, force=force) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def write_with(path: Path, writer: Callable[[Path], None], *, force: bool = False) -> None:
+    """Call ``writer(tmp_path)`` and move the result to ``path`` atomically."""
+    with atomic_path(path, force=force) as tmp:
+        writer(tmp)

@@ -1,0 +1,518 @@
+"""Optics of the eye: Zernike wavefronts, chromatic aberration and the
+pixel-sampled point-spread function.
+
+Conventions (see DESIGN.md):
+
+* Zernike polynomials follow OSA/ANSI Z80.28: single index ``j = (n(n+2)+m)/2``,
+  each term normalised to unit RMS over the unit disc, ``Z_n^m = N R_n^|m|(rho)
+  cos(m theta)`` for ``m >= 0`` and ``-N R_n^|m|(rho) sin(m theta)`` for
+  ``m < 0``.  Coefficients are in micrometres for a stated pupil radius.
+* Pupil coordinates ``(x, y)`` are in the OSA/ISO 8429 frame: the eye as seen
+  by the examiner, ``x`` to the examiner's right (the subject's left), ``y``
+  up, angles counter-clockwise.  Spectacle axes (TABO) use the same frame.
+* PSFs are returned in *display* coordinates as the subject sees the display:
+  array rows go down the screen, columns go to the subject's right.  The map
+  from the OSA frame is therefore a mirror in ``x`` (an optometric axis
+  ``alpha`` appears on the display at ``180 - alpha``) and a flip of ``y`` for
+  row order.
+* Second-order terms from a power vector (Thibos 1997):
+  ``c(2,0) = -M r^2/(4 sqrt 3)``, ``c(2,2) = -J0 r^2/(2 sqrt 6)``,
+  ``c(2,-2) = -J45 r^2/(2 sqrt 6)`` with ``r`` in mm, powers in dioptres and
+  ``c`` in micrometres.  The resulting wavefront is
+  ``W(x, y) = -(M (x^2+y^2) + J0 (x^2-y^2) + 2 J45 x y) / 2`` (+ piston).
+* Viewing distance ``d``: the refraction that would make the display sharp is
+  ``R = M + 1/d``.  Accommodation removes positive ``R`` up to its amplitude,
+  never negative ``R``.
+* Longitudinal chromatic aberration: Thibos et al. (1992) "chromatic eye",
+  ``Rx(lambda) = p - q / (lambda - c)`` with ``p = 1.68524 D``,
+  ``q = 633.46 D nm``, ``c = 214.102 nm``: about -1.0 D at 450 nm and +0.23 D
+  at 650 nm relative to 590 nm (short wavelengths are focused in front of the
+  retina, i.e. the eye is more myopic for blue).  The prescription holds at
+  the reference wavelength (default 555 nm, the peak of photopic
+  sensitivity V(lambda)).
+* PSF: pupil function ``A exp(i 2 pi W / lambda)``, ``PSF = |FFT|^2``
+  normalised to sum 1, computed on an angular grid ``oversample`` times finer
+  than a display pixel and integrated over each pixel; centred on the centre
+  pixel of an odd-sized array.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Iterable
+
+import numpy as np
+import scipy.fft
+
+from .errors import ModelLimitError, ValidationError
+from .prescription import EyeRx, PowerVector
+
+# Thibos, Ye, Zhang & Bradley (1992), Applied Optics 31(19):3594, chromatic eye.
+LCA_P_D = 1.68524
+LCA_Q_D_NM = 633.46
+LCA_C_NM = 214.102
+
+DEFAULT_REFERENCE_WAVELENGTH_NM = 555.0
+ARCMIN_RAD = math.radians(1.0 / 60.0)
+
+
+# --------------------------------------------------------------------------
+# Zernike polynomials (OSA/ANSI)
+# --------------------------------------------------------------------------
+
+def osa_index(n: int, m: int) -> int:
+    """OSA/ANSI single index ``j`` of ``Z_n^m``."""
+    if n < 0 or abs(m) > n or (n - m) % 2:
+        raise ValidationError("zernike (n, m)", (n, m), "n >= 0, |m| <= n, n - m even")
+    return (n * (n + 2) + m) // 2
+
+
+def osa_nm(j: int) -> tuple[int, int]:
+    """Radial order ``n`` and azimuthal frequency ``m`` of OSA/ANSI index ``j``."""
+    if j < 0:
+        raise ValidationError("zernike j", j, "an integer >= 0")
+    n = int(math.ceil((-3 + math.sqrt(9 + 8 * j)) / 2))
+    m = 2 * j - n * (n + 2)
+    return n, m
+
+
+def _radial(n: int, m_abs: int, rho: np.ndarray) -> np.ndarray:
+    out = np.zeros_like(rho)
+    for s in range((n - m_abs) // 2 + 1):
+        coef = ((-1) ** s * math.factorial(n - s)
+                / (math.factorial(s) * math.factorial((n + m_abs) // 2 - s)
+                   * math.factorial((n - m_abs) // 2 - s)))
+        out += coef * rho ** (n - 2 * s)
+    return out
+
+
+def zernike(n: int, m: int, rho: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """OSA/ANSI normalised Zernike polynomial ``Z_n^m(rho, theta)``.
+
+    Parameters
+    ----------
+    n, m
+        Radial order and azimuthal frequency.
+    rho
+        Normalised radius (0..1 inside the pupil); float64 array.
+    theta
+        Azimuth in radians, counter-clockwise from +x (OSA frame).
+
+    Returns
+    -------
+    numpy.ndarray
+        Values with unit RMS over the unit disc (not masked outside it).
+    """
+    osa_index(n, m)  # validates
+    rho = np.asarray(rho, dtype=np.float64)
+    theta = np.asarray(theta, dtype=np.float64)
+    norm = math.sqrt((2 * (n + 1)) / (2.0 if m == 0 else 1.0))
+    radial = _radial(n, abs(m), rho)
+    if m > 0:
+        return norm * radial * np.cos(m * theta)
+    if m < 0:
+        return -norm * radial * np.sin(m * theta)
+    return norm * radial
+
+
+# --------------------------------------------------------------------------
+# Refraction: power vectors, distance, accommodation, chromatic aberration
+# --------------------------------------------------------------------------
+
+def power_vector_to_zernike_um(pv: PowerVector, pupil_radius_mm: float) -> dict[tuple[int, int], float]:
+    """Second-order Zernike coefficients (um) of a power vector over a pupil radius (mm)."""
+    r2 = pupil_radius_mm ** 2
+    return {
+        (2, 0): -pv.M_D * r2 / (4.0 * math.sqrt(3.0)),
+        (2, 2): -pv.J0_D * r2 / (2.0 * math.sqrt(6.0)),
+        (2, -2): -pv.J45_D * r2 / (2.0 * math.sqrt(6.0)),
+    }
+
+
+def zernike_um_to_power_vector(coefficients: dict[tuple[int, int], float],
+                               pupil_radius_mm: float) -> PowerVector:
+    """Inverse of :func:`power_vector_to_zernike_um` (second order only)."""
+    r2 = pupil_radius_mm ** 2
+    return PowerVector(
+        M_D=-coefficients.get((2, 0), 0.0) * 4.0 * math.sqrt(3.0) / r2,
+        J0_D=-coefficients.get((2, 2), 0.0) * 2.0 * math.sqrt(6.0) / r2,
+        J45_D=-coefficients.get((2, -2), 0.0) * 2.0 * math.sqrt(6.0) / r2,
+    )
+
+
+def chromatic_refraction_D(wavelength_nm: np.ndarray | float) -> np.ndarray:
+    """Refractive error of the Thibos (1992) chromatic eye at ``wavelength_nm`` (D).
+
+    Zero near 590 nm; negative (myopic) at short wavelengths.
+    """
+    lam = np.asarray(wavelength_nm, dtype=np.float64)
+    return LCA_P_D - LCA_Q_D_NM / (lam - LCA_C_NM)
+
+
+def lca_defocus_D(wavelength_nm: np.ndarray | float, reference_wavelength_nm: float) -> np.ndarray:
+    """Change in the eye's refraction at ``wavelength_nm`` relative to the reference (D)."""
+    return chromatic_refraction_D(wavelength_nm) - chromatic_refraction_D(reference_wavelength_nm)
+
+
+@dataclass(frozen=True)
+class OpticsOptions:
+    """How the eye's optics are modelled.
+
+    Attributes
+    ----------
+    chromatic_aberration
+        Include the eye's longitudinal chromatic aberration.
+    reference_wavelength_nm
+        Wavelength at which the prescription holds (nm).
+    viewing_distance_m
+        Distance of the display (or the headset's virtual image) in metres;
+        ``None`` takes the display profile's, ``math.inf`` is the paper's
+        setting (no vergence).
+    oversample
+        Minimum number of fine angular samples per display pixel and axis
+        (odd, >= 3).  More are used when diffraction needs them.
+    pupil_padding
+        Fine angular step is at most ``lambda / (pupil_padding * D)``; 2 is the
+        Nyquist rate of the intensity PSF.
+    min_pupil_samples
+        Minimum samples across the pupil (sets the angular field that holds
+        diffraction tails).
+    max_grid
+        Largest FFT grid (per side) allowed before refusing (memory bound).
+    """
+
+    chromatic_aberration: bool = True
+    reference_wavelength_nm: float = DEFAULT_REFERENCE_WAVELENGTH_NM
+    viewing_distance_m: float | None = None
+    oversample: int = 3
+    pupil_padding: float = 2.0
+    min_pupil_samples: int = 128
+    max_grid: int = 6144
+
+    def __post_init__(self) -> None:
+        if not (380.0 <= self.reference_wavelength_nm <= 780.0):
+            raise ValidationError("reference_wavelength_nm", self.reference_wavelength_nm, "380 to 780 nm")
+        if self.viewing_distance_m is not None and not (self.viewing_distance_m > 0.05):
+            raise ValidationError("viewing_distance_m", self.viewing_distance_m,
+                                  "a distance > 0.05 m, or inf for optical infinity")
+        if not (isinstance(self.oversample, int) and self.oversample >= 3 and self.oversample % 2 == 1):
+            raise ValidationError("oversample", self.oversample, "an odd integer >= 3")
+        if not (1.0 <= self.pupil_padding <= 8.0):
+            raise ValidationError("pupil_padding", self.pupil_padding, "1 to 8")
+        if not (32 <= self.min_pupil_samples <= 2048):
+            raise ValidationError("min_pupil_samples", self.min_pupil_samples, "32 to 2048")
+
+
+@dataclass(frozen=True)
+class RefractiveState:
+    """The eye's residual refractive error while looking at the display (D)."""
+
+    residual: PowerVector          # at the reference wavelength, after distance and accommodation
+    accommodation_used_D: float
+    vergence_D: float              # 1/d of the display (0 at infinity)
+
+    def at_wavelength(self, wavelength_nm: float, options: OpticsOptions) -> PowerVector:
+        """Residual power vector at another wavelength (adds chromatic defocus)."""
+        dM = float(lca_defocus_D(wavelength_nm, options.reference_wavelength_nm)) if options.chromatic_aberration else 0.0
+        return PowerVector(self.residual.M_D + dM, self.residual.J0_D, self.residual.J45_D)
+
+
+def refractive_state(eye: EyeRx, distance_m: float) -> RefractiveState:
+    """Residual refraction of ``eye`` looking at a display at ``distance_m``.
+
+    ``R = M + 1/d``; accommodation removes positive ``R`` up to
+    ``eye.accommodation_D``, never negative ``R``.
+    """
+    pv = eye.power_vector()
+    vergence = 0.0 if math.isinf(distance_m) else 1.0 / distance_m
+    R = pv.M_D + vergence
+    used = min(max(R, 0.0), eye.accommodation_D)
+    return RefractiveState(PowerVector(R - used, pv.J0_D, pv.J45_D), used, vergence)
+
+
+def max_meridian_power_D(pv: PowerVector) -> float:
+    """Largest refractive error over all meridians, in magnitude (D)."""
+    return abs(pv.M_D) + math.hypot(pv.J0_D, pv.J45_D)
+
+
+def meridian_power_D(pv: PowerVector, meridian_deg: float) -> float:
+    """Refractive error along one meridian (OSA/TABO angle, degrees)."""
+    a = math.radians(2.0 * meridian_deg)
+    return pv.M_D + pv.J0_D * math.cos(a) + pv.J45_D * math.sin(a)
+
+
+# --------------------------------------------------------------------------
+# Wavefront
+# --------------------------------------------------------------------------
+
+def wavefront_um(eye: EyeRx, pv: PowerVector, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+    """Wavefront error (um) over pupil coordinates (mm, OSA frame).
+
+    Second order from the residual power vector ``pv``; higher orders from the
+    prescription's measured coefficients, evaluated in physical coordinates of
+    the pupil they were measured at (so no rescaling formula is needed when the
+    eye's pupil is smaller).
+    """
+    x = np.asarray(x_mm, dtype=np.float64)
+    y = np.asarray(y_mm, dtype=np.float64)
+    w = -0.5 * (pv.M_D * (x * x + y * y) + pv.J0_D * (x * x - y * y) + 2.0 * pv.J45_D * x * y)
+    ho = eye.higher_order
+    if ho is not None and ho.coefficients_um:
+        radius = ho.pupil_diameter_mm / 2.0
+        rho = np.hypot(x, y) / radius
+        theta = np.arctan2(y, x)
+        for j, c in ho.coefficients_um:
+            n, m = osa_nm(int(j))
+            w = w + c * zernike(n, m, rho, theta)
+    return w
+
+
+def wavefront_from_zernike_um(coefficients: dict[tuple[int, int], float], pupil_radius_mm: float,
+                              x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+    """Wavefront (um) from OSA Zernike coefficients (um) for a pupil radius (mm)."""
+    rho = np.hypot(x_mm, y_mm) / pupil_radius_mm
+    theta = np.arctan2(y_mm, x_mm)
+    out = np.zeros(np.broadcast(rho, theta).shape)
+    for (n, m), c in coefficients.items():
+        out = out + c * zernike(n, m, rho, theta)
+    return out
+
+
+def max_wavefront_slope_rad(eye: EyeRx, pv: PowerVector) -> float:
+    """Largest wavefront slope over the pupil (radians; um/mm = mrad).
+
+    Exact for second order; higher orders are sampled on a 129x129 grid.
+    """
+    radius_mm = eye.pupil_diameter_mm / 2.0
+    slope = max_meridian_power_D(pv) * radius_mm * 1e-3  # D * mm -> mrad * 1e-3 = rad
+    if eye.higher_order is not None and eye.higher_order.coefficients_um:
+        n = 129
+        c = np.linspace(-radius_mm, radius_mm, n)
+        X, Y = np.meshgrid(c, c)
+        inside = X * X + Y * Y <= radius_mm ** 2
+        zero = PowerVector(0.0, 0.0, 0.0)
+        w = wavefront_um(eye, zero, X, Y)
+        gy, gx = np.gradient(w, c, c)
+        ho_slope = float(np.max(np.hypot(gx, gy)[inside])) * 1e-3
+        slope += ho_slope
+    return slope
+
+
+# --------------------------------------------------------------------------
+# PSF
+# --------------------------------------------------------------------------
+
+_FAST_ODD = None
+
+
+def _fast_odd_sizes() -> np.ndarray:
+    """Odd 3-5-7-smooth integers up to 20000 (good FFT sizes)."""
+    global _FAST_ODD
+    if _FAST_ODD is None:
+        vals = []
+        for a in range(0, 10):
+            for b in range(0, 7):
+                for c in range(0, 6):
+                    v = 3 ** a * 5 ** b * 7 ** c
+                    if v <= 20000:
+                        vals.append(v)
+        _FAST_ODD = np.array(sorted(set(vals)))
+    return _FAST_ODD
+
+
+def _next_fast_odd(n: float) -> int:
+    sizes = _fast_odd_sizes()
+    i = int(np.searchsorted(sizes, math.ceil(n)))
+    if i >= len(sizes):
+        return int(math.ceil(n)) | 1
+    return int(sizes[i])
+
+
+@dataclass(frozen=True)
+class PsfSampling:
+    """How one monochromatic PSF was sampled (for --explain and tests)."""
+
+    wavelength_nm: float
+    oversample: int              # fine samples per pixel per axis
+    grid: int                    # FFT size per side
+    pupil_samples: float         # samples across the pupil diameter
+    fine_step_rad: float
+    max_phase_step_rad: float    # worst phase step between neighbours in the pupil
+    refinements: int             # times the pupil grid was refined for a steep wavefront
+    slope_rad: float             # largest wavefront slope
+
+
+@dataclass(frozen=True, eq=False)
+class PixelPsf:
+    """A PSF integrated over display pixels: odd square array summing to 1."""
+
+    values: np.ndarray           # (n, n) float64, rows down / columns right as seen on the display
+    pixels_per_degree: float
+    sampling: PsfSampling
+
+    @property
+    def size(self) -> int:
+        return int(self.values.shape[0])
+
+
+def pixel_angle_rad(pixels_per_degree: float) -> float:
+    return math.radians(1.0 / pixels_per_degree)
+
+
+def psf_pixels(eye: EyeRx, pv: PowerVector, wavelength_nm: float, pixels_per_degree: float,
+               options: OpticsOptions = OpticsOptions()) -> PixelPsf:
+    """Monochromatic PSF of ``eye`` with residual power vector ``pv``, integrated over pixels.
+
+    Parameters
+    ----------
+    eye
+        Supplies pupil diameter and higher-order terms.
+    pv
+        Residual second-order refraction at this wavelength (D).
+    wavelength_nm
+        Wavelength (nm), 300..1000.
+    pixels_per_degree
+        Display sampling (pixels per degree of visual angle).
+    options
+        Sampling options.
+
+    Returns
+    -------
+    PixelPsf
+        Odd-sized float64 array centred on its centre pixel, summing to 1,
+        covering the whole computed angular field (crop with
+        :func:`crop_to_energy`).
+    """
+    if not (300.0 <= wavelength_nm <= 1000.0):
+        raise ValidationError("wavelength_nm", wavelength_nm, "300 to 1000 nm")
+    if not (1.0 <= pixels_per_degree <= 500.0):
+        raise ValidationError("pixels_per_degree", pixels_per_degree, "1 to 500")
+    lam_mm = wavelength_nm * 1e-6
+    D = eye.pupil_diameter_mm
+    radius = D / 2.0
+    p = pixel_angle_rad(pixels_per_degree)
+
+    # Fine angular step: at most p/oversample and at most lambda/(padding*D).
+    q = max(options.oversample, int(math.ceil(options.pupil_padding * D * p / lam_mm)))
+    if q % 2 == 0:
+        q += 1
+    q = _next_fast_odd(q)
+    fine = p / q
+    L = lam_mm / fine  # pupil-plane grid length (mm) so that the FFT step is `fine`
+
+    slope = max_wavefront_slope_rad(eye, pv)  # rad
+    # Pupil sample spacing: phase step < pi/2 needs slope*dx < lambda/4; keep some margin,
+    # and at least min_pupil_samples across the pupil for the diffraction tails.
+    dx = min(lam_mm / (4.0 * 1.25 * slope) if slope > 0 else math.inf, D / options.min_pupil_samples)
+    refinements = 0
+    while True:
+        n_pix = _next_fast_odd(max(L / dx / q, 3.0))
+        N = n_pix * q
+        if N > options.max_grid:
+            raise ModelLimitError(
+                f"the PSF at {wavelength_nm:.0f} nm needs a {N}x{N} pupil grid (limit {options.max_grid}): "
+                f"the wavefront is too steep ({max_meridian_power_D(pv):.1f} D over a {D:g} mm pupil) "
+                f"for {pixels_per_degree:g} pixels per degree; use a smaller pupil_diameter_mm or a lower "
+                f"pixels_per_degree")
+        dxe = L / N
+        coords = (np.arange(N) - (N - 1) / 2.0) * dxe
+        half = int(math.ceil(radius / dxe)) + 1
+        c0 = (N - 1) // 2
+        sl = slice(max(c0 - half, 0), min(c0 + half + 1, N))
+        xs = coords[sl]
+        X, Y = np.meshgrid(xs, xs)          # rows: y ascending, columns: x ascending (OSA frame)
+        inside = X * X + Y * Y <= radius * radius
+        w_mm = wavefront_um(eye, pv, X, Y) * 1e-3
+        phase = (2.0 * math.pi / lam_mm) * w_mm
+        # worst phase step between neighbours that are both inside the pupil
+        step = 0.0
+        both = inside[:, 1:] & inside[:, :-1]
+        if both.any():
+            step = max(step, float(np.max(np.abs(np.diff(phase, axis=1))[both])))
+        both = inside[1:, :] & inside[:-1, :]
+        if both.any():
+            step = max(step, float(np.max(np.abs(np.diff(phase, axis=0))[both])))
+        if step < math.pi / 2.0:
+            break
+        refinements += 1
+        dx = dxe / 1.4
+        if refinements > 12:
+            raise ModelLimitError("could not sample the pupil finely enough (wavefront too steep)")
+
+    field = np.zeros((N, N), dtype=np.complex128)
+    pupil = np.where(inside, np.exp(1j * phase), 0.0)
+    field[sl, sl] = pupil
+    spectrum = scipy.fft.fft2(scipy.fft.ifftshift(field), workers=-1)
+    intensity = spectrum.real ** 2 + spectrum.imag ** 2
+    intensity = scipy.fft.fftshift(intensity)  # zero angle at index (N-1)/2; rows theta_y up, cols theta_x (OSA)
+    # To display orientation: mirror x (OSA x is the subject's left), flip y (rows go down).
+    intensity = intensity[::-1, ::-1]
+    # Integrate over pixels: blocks of q x q fine samples, centre block on centre sample.
+    pix = intensity.reshape(n_pix, q, n_pix, q).sum(axis=(1, 3))
+    total = pix.sum()
+    if not (total > 0 and math.isfinite(total)):
+        raise ModelLimitError("PSF computation produced no energy (check the pupil sampling)")
+    pix /= total
+    sampling = PsfSampling(wavelength_nm=float(wavelength_nm), oversample=q, grid=N,
+                           pupil_samples=D / dxe, fine_step_rad=fine, max_phase_step_rad=step,
+                           refinements=refinements, slope_rad=slope)
+    return PixelPsf(pix, float(pixels_per_degree), sampling)
+
+
+def energy_size(arrays: np.ndarray, fraction: float) -> int:
+    """Smallest odd size ``s`` whose centred ``s x s`` window holds ``fraction``
+    of the energy of every array in ``arrays`` (shape ``(..., n, n)``)."""
+    if not (0.5 < fraction <= 1.0):
+        raise ValidationError("energy_fraction", fraction, "a fraction in (0.5, 1]")
+    a = np.abs(np.asarray(arrays, dtype=np.float64))
+    n = a.shape[-1]
+    flat = a.reshape(-1, n, n)
+    totals = flat.sum(axis=(1, 2))
+    totals = np.where(totals > 0, totals, 1.0)
+    c = n // 2
+    # energy inside growing squares via cumulative sums of rings
+    for r in range(0, c + 1):
+        win = flat[:, c - r:c + r + 1, c - r:c + r + 1].sum(axis=(1, 2))
+        if np.all(win >= fraction * totals - 1e-15):
+            return 2 * r + 1
+    return n
+
+
+def crop_center(array: np.ndarray, size: int) -> np.ndarray:
+    """Centred ``size x size`` crop (or zero-pad) of the last two axes."""
+    n = array.shape[-1]
+    if size == n:
+        return array
+    if size < n:
+        s = (n - size) // 2
+        return array[..., s:s + size, s:s + size]
+    out = np.zeros(array.shape[:-2] + (size, size), dtype=array.dtype)
+    s = (size - n) // 2
+    out[..., s:s + n, s:s + n] = array
+    return out
+
+
+def crop_to_energy(psf: np.ndarray, fraction: float) -> np.ndarray:
+    """Crop a PSF to the smallest odd window holding ``fraction`` of its energy and renormalise to sum 1."""
+    size = energy_size(psf, fraction)
+    out = crop_center(psf, size).copy()
+    return out / out.sum()
+
+
+def depth_of_focus_D(pupil_diameter_mm: float, pixels_per_degree: float) -> float:
+    """Half-width of the eye's depth of focus at this display (D).
+
+    A blur disc is invisible on this display when its angular diameter is
+    below the larger of one display pixel and the eye's 1 arcmin acuity limit;
+    the geometric blur diameter of a defocus ``F`` (D) through a pupil of
+    diameter ``D`` (m) is ``F * D`` radians.
+    """
+    tol = max(pixel_angle_rad(pixels_per_degree), ARCMIN_RAD)
+    return tol / (pupil_diameter_mm * 1e-3)
+
+
+def diffraction_blur_rad(wavelength_nm: float, pupil_diameter_mm: float) -> float:
+    """Diameter of the Airy disc's first dark ring (radians)."""
+    return 2.44 * wavelength_nm * 1e-9 / (pupil_diameter_mm * 1e-3)
