@@ -122,11 +122,15 @@ def cmd_psf(args: argparse.Namespace) -> int:
     if out.suffix.lower() != ".npy":
         raise ValidationError("--output", str(out), "a path ending in .npy")
     sidecar = out.with_suffix(".json")
+    if args.png and Path(args.png).suffix.lower() != ".png":
+        raise ValidationError("--png", args.png, "a path ending in .png")
     check_writable(out, force=args.force)
     check_writable(sidecar, force=args.force)
     if args.png:
         check_writable(Path(args.png), force=args.force)
     rx_path, eye = _load_eye(args)
+    if sidecar.resolve() == rx_path.resolve():
+        raise ValidationError("--output", str(out), f"a name whose .json sidecar is not the prescription {rx_path}")
     display = get_display(args.display)
     options = _kernel_options(args)
     meta: dict = {"prescription": str(rx_path), "eye": args.eye, "display": display.name,
@@ -217,7 +221,12 @@ def cmd_displays(args: argparse.Namespace) -> int:
 
 def _displays_fit(args: argparse.Namespace) -> int:
     from .display import fit_spectra, read_spectra_csv
+    from .fileio import check_writable
 
+    if args.plot:
+        if Path(args.plot).suffix.lower() != ".png":
+            raise ValidationError("--plot", args.plot, "a path ending in .png")
+        check_writable(Path(args.plot), force=args.force)
     measured = read_spectra_csv(Path(args.fit))
     fit = fit_spectra(measured)
     print(f"{args.fit}: {len(measured.wavelength_nm)} samples, "

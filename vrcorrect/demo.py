@@ -55,10 +55,10 @@ def run_demo(out: Path, display_name: str = "quest2", force: bool = False) -> It
     names = ["right_eye_sees.png", "left_eye_sees.png", "demo_panel.png", "dioptre_sweep.png"]
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder")
+    display = get_display(display_name)  # before creating the folder: a bad name leaves nothing behind
     out.mkdir(parents=True, exist_ok=True)
     for n in names:
         check_writable(out / n, force=force)
-    display = get_display(display_name)
     rx = load_prescription(bundled_sample_path())
     image = read_image(sample_image_path())
     linear = decode(display, image)

@@ -27,6 +27,12 @@ def check_writable(path: Path, *, force: bool) -> Path:
     return path
 
 
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_path(path: Path, *, force: bool = False) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success rename it into place.
@@ -38,6 +44,13 @@ def atomic_path(path: Path, *, force: bool = False) -> Iterator[Path]:
                                dir=path.parent if str(path.parent) else ".")
     os.close(fd)
     tmp_path = Path(tmp)
+    # mkstemp creates 0600; give the output the mode a plain open() would
+    # (or keep the mode of the file being replaced).
+    try:
+        mode = path.stat().st_mode & 0o7777 if path.exists() else 0o666 & ~_umask()
+        os.chmod(tmp_path, mode)
+    except OSError:
+        pass
     try:
         yield tmp_path
         if path.exists() and not force:  # appeared while we worked

@@ -51,7 +51,7 @@ def read_image(path: str | Path) -> np.ndarray:
         raise InputError(f"{path}: not an image file Pillow can read") from None
     except Image.DecompressionBombError:
         raise InputError(f"{path}: image larger than {MAX_PIXELS} pixels") from None
-    except (OSError, ValueError, SyntaxError) as exc:
+    except (OSError, ValueError, SyntaxError, zlib.error) as exc:
         raise InputError(f"{path}: cannot read image ({exc})") from None
 
 
@@ -76,7 +76,8 @@ def _png_rgb16(path: Path) -> np.ndarray | None:
             break
         pos += 12 + length
     channels = 3 if ctype == 2 else 4
-    raw = zlib.decompress(b"".join(idat))
+    # Tolerate a stream without its final checksum, as Pillow does.
+    raw = zlib.decompressobj().decompress(b"".join(idat))
     stride = width * channels * 2
     bpp = channels * 2
     rows = np.frombuffer(raw, dtype=np.uint8).reshape(height, stride + 1)
