@@ -9,7 +9,7 @@ from .display import get_display, preset_names
 from .kernel import build_kernel
 from .prescription import EyeRx
 
-HEADSETS = ("quest2", "quest3", "index")
+HEADSETS = ("quest2", "quest3", "index", "vivepro")
 
 
 def run_kernel_bench(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), write: bool = True) -> str:

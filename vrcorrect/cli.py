@@ -203,6 +203,8 @@ def cmd_displays(args: argparse.Namespace) -> int:
 
     if args.fit:
         return _displays_fit(args)
+    if args.plot:
+        raise ValidationError("--plot", args.plot, "only together with --fit SPECTRA.csv")
     rows = []
     for name in preset_names():
         d = get_display(name)

@@ -1,0 +1,62 @@
+"""The layering of DESIGN.md: a module imports only from layers below it, and nothing on the
+model or real-time path imports torch."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PKG = Path(__file__).resolve().parents[1] / "vrcorrect"
+
+LAYER = {
+    "errors": 0, "fileio": 0,
+    "prescription": 1, "display": 1, "imageio": 1, "charts": 1,
+    "optics": 2, "perception": 2, "kernel": 2,
+    "forward": 3, "metrics": 3,
+    "solvers": 4, "learn": 4,
+    "runtime": 5,
+    "cli": 6, "demo": 6, "plots": 6, "bench": 6, "bench_kernel": 6,
+}
+
+
+def _vrcorrect_imports(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text())
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            if node.level == 1 and node.module:
+                names.add(node.module.split(".")[0])
+            elif node.level == 1:
+                names.update(a.name for a in node.names)
+            elif node.module and node.module.startswith("vrcorrect."):
+                names.add(node.module.split(".")[1])
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name.startswith("vrcorrect."):
+                    names.add(a.name.split(".")[1])
+    return names
+
+
+def test_every_module_has_a_layer():
+    modules = {p.stem for p in PKG.glob("*.py") if p.stem != "__init__"}
+    modules |= {p.name for p in PKG.iterdir() if p.is_dir() and (p / "__init__.py").exists()}
+    assert modules <= set(LAYER), f"modules without a layer: {sorted(modules - set(LAYER))}"
+
+
+@pytest.mark.parametrize("module", sorted(p.stem for p in PKG.glob("*.py") if p.stem != "__init__"))
+def test_imports_go_down_the_layers(module):
+    own = LAYER[module]
+    for dep in _vrcorrect_imports(PKG / f"{module}.py"):
+        assert LAYER[dep] < own or (LAYER[dep] == own and own in (0, 1, 2, 3, 6)), \
+            f"{module} (layer {own}) imports {dep} (layer {LAYER[dep]})"
+
+
+def test_model_path_does_not_import_torch():
+    code = ("import sys; import vrcorrect.cli, vrcorrect.forward, vrcorrect.kernel, vrcorrect.demo; "
+            "from vrcorrect.cli import build_parser; build_parser(); "
+            "sys.exit(1 if 'torch' in sys.modules else 0)")
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
