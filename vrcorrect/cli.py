@@ -109,6 +109,77 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------- correct
+
+def cmd_correct(args: argparse.Namespace) -> int:
+    from .display import decode, encode, get_display
+    from .fileio import check_writable, write_text_atomic
+    from .imageio import read_image, write_png
+    from .kernel import build_reference_kernel
+    from .metrics import evaluate_seen
+    from .solvers import make_problem, solve
+
+    out = Path(args.output)
+    if out.suffix.lower() != ".png":
+        raise ValidationError("--output", str(out), "a path ending in .png")
+    check_writable(out, force=args.force)
+    if args.report:
+        if Path(args.report).suffix.lower() != ".json":
+            raise ValidationError("--report", args.report, "a path ending in .json")
+        check_writable(Path(args.report), force=args.force)
+    if args.iterations is not None and not (1 <= args.iterations <= 100000):
+        raise ValidationError("--iterations", args.iterations, "1 to 100000")
+    if not (0.0 < args.contrast <= 1.0):
+        raise ValidationError("--contrast", args.contrast, "a number in (0, 1]")
+    rx_path, eye = _load_eye(args)
+    display = get_display(args.display)
+    image = read_image(args.input)
+    target = decode(display, image)
+    t0 = time.perf_counter()
+    kernel = _build(args, eye, display)
+    reference = build_reference_kernel(eye, display, _kernel_options(args)) if args.reference == "glasses" else None
+    t1 = time.perf_counter()
+    problem = make_problem(target, kernel, reference, contrast=args.contrast)
+    options: dict = {}
+    if args.iterations is not None:
+        options["iterations" if args.method == "paper" else "max_iterations"] = args.iterations
+        if args.method == "wiener":
+            raise ValidationError("--iterations", args.iterations, "nothing: wiener is closed-form")
+    bar = None
+    if args.method in ("paper", "fast", "conventional"):
+        from tqdm import tqdm
+
+        bar = tqdm(desc=f"{args.method}", unit="it", disable=None, leave=False, file=sys.stderr)
+    def progress(done: int, total: int) -> None:
+        if bar is not None:
+            bar.total = total
+            bar.n = done
+            bar.refresh()
+    try:
+        result = solve(problem, args.method, progress=progress, **options)
+    finally:
+        if bar is not None:
+            bar.close()
+    write_png(out, encode(display, result.image), bits=16 if args.sixteen_bit else 8, force=args.force)
+    if args.report:
+        corrected, _ = evaluate_seen(result.image, target, kernel, display, target_lms=problem.target_lms)
+        uncorrected, _ = evaluate_seen(target, target, kernel, display, target_lms=problem.target_lms)
+        report = {
+            "input": str(args.input), "output": str(out), "prescription": str(rx_path), "eye": args.eye,
+            "display": display.name, "method": result.method, "reference": problem.reference,
+            "contrast": args.contrast, "iterations": result.iterations,
+            "seconds": {"kernel": t1 - t0, "solve": result.seconds},
+            "objective": result.objective, "objective_uncorrected": uncorrected.objective,
+            "metrics": corrected.__dict__, "metrics_uncorrected": uncorrected.__dict__,
+            "settings": result.settings, "kernel_decisions": list(kernel.decisions),
+        }
+        write_text_atomic(Path(args.report), json.dumps(report, indent=2, default=float) + "\n", force=args.force)
+    print(f"wrote {out}: {result.method} correction for the {args.eye} eye on {display.title} "
+          f"(objective {result.objective:.3g}, {result.iterations} iterations, {result.seconds:.2f} s)"
+          + (f"; report {args.report}" if args.report else ""))
+    return 0
+
+
 # ---------------------------------------------------------------- psf
 
 def cmd_psf(args: argparse.Namespace) -> int:
@@ -302,6 +373,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--16bit", dest="sixteen_bit", action="store_true", help="write a 16-bit PNG")
     p.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("correct", help="pre-correct an image for an eye (the displayed image)")
+    p.add_argument("input", metavar="IN", help="image file (sRGB code values)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.png")
+    _add_model_options(p)
+    p.add_argument("--method", choices=("conventional", "paper", "fast", "wiener"), default="fast",
+                   help="correction method (default fast)")
+    p.add_argument("--iterations", type=int, help="iterations (paper) or iteration limit (fast, conventional)")
+    p.add_argument("--contrast", type=float, default=1.0, help="scale the target's contrast (0, 1] (default 1)")
+    p.add_argument("--reference", choices=("glasses", "ideal"), default="glasses",
+                   help="target: what the eye sees with glasses (default) or the paper's blur-free A t")
+    p.add_argument("--report", metavar="REPORT.json", help="write metrics, timings and settings")
+    p.add_argument("--16bit", dest="sixteen_bit", action="store_true", help="write a 16-bit PNG")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.set_defaults(func=cmd_correct)
 
     p = sub.add_parser("psf", help="write an eye's PSF (one wavelength) or full LMS kernel as .npy + .json")
     _add_model_options(p)

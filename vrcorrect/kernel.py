@@ -295,3 +295,19 @@ def monochromatic_psf(eye: EyeRx, display: DisplayProfile, wavelength_nm: float,
     size = energy_size(psf.values, options.energy_fraction)
     cropped = crop_center(psf.values, size).copy()
     return cropped / cropped.sum(), psf, state
+
+
+def build_reference_kernel(eye: EyeRx, display: DisplayProfile, options: KernelOptions | None = None) -> EyeKernel:
+    """Kernel of the same eye wearing its glasses, focused on the display.
+
+    Sphere and cylinder are fully corrected (residual zero at the reference
+    wavelength); the pupil, higher-order terms, chromatic aberration and
+    diffraction remain - glasses do not remove them.  This is what "a sharp
+    eye would see", the target of the product's corrections.
+    """
+    import dataclasses
+
+    options = options or KernelOptions()
+    corrected = dataclasses.replace(eye, sphere_D=0.0, cylinder_D=0.0, axis_deg=0.0, accommodation_D=0.0)
+    optics = dataclasses.replace(options.optics, viewing_distance_m=math.inf)
+    return build_kernel(corrected, display, dataclasses.replace(options, optics=optics))

@@ -1,0 +1,127 @@
+"""Correction methods: find the displayed image whose retinal image matches the target's.
+
+All methods share one problem statement (:class:`Problem`): a linear RGB
+target, the eye's kernel, and the target's cone image; and one objective,
+the mean squared error between the simulated retinal cone image of the
+displayed image and the target cone image (:func:`objective`).
+
+``none`` and ``wiener`` are numpy only (the real-time path uses the same
+mathematics); ``fast``, ``paper`` and ``conventional`` import torch lazily.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ..errors import ValidationError
+from ..forward import check_image, simulate_lms
+from ..kernel import EyeKernel
+
+METHODS = ("none", "wiener", "fast", "paper", "conventional")
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """What a correction method is asked to solve.
+
+    Attributes
+    ----------
+    target
+        ``(H, W, 3)`` linear display RGB in [0, 1] (float32): the image the user wants to see.
+    kernel
+        The eye's kernel.
+    target_lms
+        ``(H, W, 3)`` cone image the retina should receive.
+    contrast
+        Contrast scale applied to the target before its cone image was taken (1 = none).
+    reference
+        ``"glasses"`` (the same eye with its sphere and cylinder corrected: its own chromatic
+        aberration and diffraction remain) or ``"ideal"`` (the paper's ``A t``, no blur at all).
+    """
+
+    target: np.ndarray
+    kernel: EyeKernel
+    target_lms: np.ndarray
+    contrast: float = 1.0
+    reference: str = "ideal"
+
+
+def scale_contrast(image: np.ndarray, contrast: float) -> np.ndarray:
+    """Compress contrast about the image's mean (mean-preserving): ``m + c (t - m)``."""
+    if not (0.0 < contrast <= 1.0):
+        raise ValidationError("contrast", contrast, "a number in (0, 1]")
+    if contrast == 1.0:
+        return image
+    m = image.mean(axis=(0, 1), keepdims=True)
+    return (m + contrast * (image - m)).astype(image.dtype)
+
+
+def make_problem(target: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel | None = None,
+                 contrast: float = 1.0) -> Problem:
+    """Build a :class:`Problem`; ``reference_kernel`` is the eye with glasses on (None: ideal ``A t``)."""
+    t = check_image(target, "target").astype(np.float32)
+    if t.min() < 0 or t.max() > 1:
+        raise ValidationError("target", f"values from {t.min():.3g} to {t.max():.3g}", "linear RGB in [0, 1]")
+    ts = scale_contrast(t, contrast)
+    if reference_kernel is None:
+        tl = (ts @ kernel.matrix.T.astype(np.float32)).astype(np.float32)
+        ref = "ideal"
+    else:
+        tl, _ = simulate_lms(ts, reference_kernel)
+        ref = "glasses"
+    return Problem(target=t, kernel=kernel, target_lms=tl, contrast=contrast, reference=ref)
+
+
+def objective(displayed: np.ndarray, problem: Problem) -> float:
+    """Mean squared error between the retinal cone image of ``displayed`` and the target's (float64)."""
+    lms, _ = simulate_lms(displayed.astype(np.float32), problem.kernel, "fft" if problem.kernel.size > 1 else "auto")
+    d = lms.astype(np.float64) - problem.target_lms.astype(np.float64)
+    return float(np.mean(d * d))
+
+
+@dataclass
+class SolveResult:
+    """A displayable image and how it was found."""
+
+    image: np.ndarray                 # (H, W, 3) float32 linear RGB in [0, 1]
+    method: str
+    seconds: float
+    iterations: int
+    objective: float
+    settings: dict = field(default_factory=dict)
+    history: list[float] = field(default_factory=list)
+
+
+def solve(problem: Problem, method: str = "fast", progress: Callable[[int, int], None] | None = None,
+          **options) -> SolveResult:
+    """Run one correction method on ``problem``.
+
+    Options by method: ``wiener``: ``regularisation`` (list of relative values),
+    ``fast``: ``tolerance``, ``max_iterations``, ``rho``;
+    ``paper``: ``iterations``, ``learning_rate``, ``opponent``, ``seed``;
+    ``conventional``: ``max_iterations``, ``tolerance``.
+    """
+    if method not in METHODS:
+        raise ValidationError("method", method, "one of " + ", ".join(METHODS))
+    from .wiener import wiener
+
+    if method in ("fast", "paper", "conventional"):
+        from . import iterative  # imports torch: outside the timed region
+
+        fn = {"fast": iterative.fast, "paper": iterative.paper, "conventional": iterative.conventional}[method]
+    t0 = time.perf_counter()
+    if method == "none":
+        image, iters, settings, history = problem.target.copy(), 0, {}, []
+    elif method == "wiener":
+        image, settings = wiener(problem, **options)
+        iters, history = 0, []
+    else:
+        image, iters, settings, history = fn(problem, progress=progress, **options)
+    seconds = time.perf_counter() - t0
+    image = np.clip(image, 0.0, 1.0).astype(np.float32)
+    return SolveResult(image=image, method=method, seconds=seconds, iterations=iters,
+                       objective=objective(image, problem), settings=settings, history=history)

@@ -1,0 +1,229 @@
+"""Iterative correction methods (torch, CPU or GPU; float32 images).
+
+* ``fast``: box-constrained least squares solved properly - ADMM with a
+  boundary-aware split (exact per-frequency 3x3 solves, the penalty scaled by
+  the kernel's spectral norm), warm-started from
+  :func:`vrcorrect.solvers.wiener.wiener`, stopping on a relative tolerance.
+* ``paper``: ChromaCorrect as published - Adam on the displayed image,
+  initialised at the target, clamped to [0, 1] after each step, loss = MSE of
+  retinal LMS (or opponent) against the target, learning rate 0.01, 100
+  iterations.
+* ``conventional``: Montalto et al. (2015) constrained total variation with a
+  per-primary RGB PSF and no cone model,
+  ``||k * x - t||^2 + theta TV(x) + tau sum(exp(-L x) + exp(-L (1 - x)))``,
+  theta = 1e-6, tau = 2e-5, L = 65 (sums over pixels; isotropic TV smoothed
+  with eps = 1e-8), solved by L-BFGS with strong-Wolfe line search from the
+  target, stopping on relative change < ``tolerance`` or ``max_iterations``;
+  then clipped.  The per-primary PSF is the kernel's luminance (L + M) part:
+  ``k_c = (K[L, c] + K[M, c]) / sum``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numpy as np
+import scipy.fft
+import torch
+
+from . import Problem, objective
+
+
+class FftOperator:
+    """``y_k = sum_c K[k, c] * x_c`` (linear convolution, zero outside, same size) and its adjoint."""
+
+    def __init__(self, kernel: np.ndarray, height: int, width: int, dtype=torch.float32, device="cpu"):
+        s = kernel.shape[-1]
+        self.r = s // 2
+        self.H, self.W = height, width
+        self.P = (scipy.fft.next_fast_len(height + s - 1, real=True), scipy.fft.next_fast_len(width + s - 1, real=True))
+        k = torch.as_tensor(np.ascontiguousarray(kernel), dtype=dtype, device=device)
+        self.Kf = torch.fft.rfft2(k, s=self.P)                 # (n_out, n_in, P0, F1)
+        self.Kf_conj = self.Kf.conj()
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        X = torch.fft.rfft2(x, s=self.P)
+        Y = torch.einsum("kcyx,cyx->kyx", self.Kf, X)
+        y = torch.fft.irfft2(Y, s=self.P)
+        return y[..., self.r:self.r + self.H, self.r:self.r + self.W]
+
+    def adjoint(self, z: torch.Tensor) -> torch.Tensor:
+        Zp = torch.zeros(z.shape[:-2] + self.P, dtype=z.dtype, device=z.device)
+        Zp[..., self.r:self.r + self.H, self.r:self.r + self.W] = z
+        Z = torch.fft.rfft2(Zp)
+        X = torch.einsum("kcyx,kyx->cyx", self.Kf_conj, Z)
+        return torch.fft.irfft2(X, s=self.P)[..., :self.H, :self.W]
+
+    def norm_squared(self) -> float:
+        """Largest eigenvalue of K^T K over all frequencies (bounds the operator norm squared)."""
+        Km = self.Kf.permute(2, 3, 0, 1).to(torch.complex128)
+        KhK = Km.conj().transpose(-1, -2) @ Km
+        return float(torch.linalg.eigvalsh(KhK).max())
+
+
+def _chw(image: np.ndarray, dtype=torch.float32) -> torch.Tensor:
+    return torch.as_tensor(np.ascontiguousarray(np.moveaxis(image, 2, 0)), dtype=dtype)
+
+
+def _hwc(x: torch.Tensor) -> np.ndarray:
+    return np.moveaxis(x.detach().cpu().numpy(), 0, 2).astype(np.float32)
+
+
+def fast(problem: Problem, tolerance: float = 2e-3, max_iterations: int = 200, rho: float = 0.1,
+         relaxation: float = 1.8, warm_start: bool = True, progress: Callable[[int, int], None] | None = None
+         ) -> tuple[np.ndarray, int, dict, list[float]]:
+    """ADMM for ``min ||C K x - t||^2`` subject to ``0 <= x <= 1`` inside the image, ``x = 0`` outside.
+
+    Split (Almeida & Figueiredo 2013, boundary-aware deconvolution): on a padded
+    periodic domain, ``v = K u`` (the retina, cropped by ``C`` only in the data
+    term) and ``z = u`` (the box and the black surround).  Each step is exact
+    and cheap: ``u`` by one 3x3 solve per frequency, ``(K^H K + n I)^-1`` with
+    ``n = ||K||^2`` the kernel's spectral norm squared (precomputed), ``v`` per
+    pixel, ``z`` by clipping.  Stops when the data term's relative decrease over
+    an iteration falls below ``tolerance`` (checked after 3 iterations).
+    """
+    from .wiener import wiener
+
+    H, W = problem.target.shape[:2]
+    x0, wsettings = wiener(problem, regularisation=(0.03,)) if warm_start else (problem.target, {})
+    K = problem.kernel.kernel
+    s = K.shape[-1]
+    r = s // 2
+    P = (scipy.fft.next_fast_len(H + s - 1, real=True), scipy.fft.next_fast_len(W + s - 1, real=True))
+    Kp = np.zeros((3, 3) + P)
+    Kp[..., :s, :s] = K
+    Kp = np.roll(Kp, (-r, -r), axis=(2, 3))                       # centred at the origin: no shift
+    Kf = torch.fft.rfft2(torch.as_tensor(Kp, dtype=torch.float32))  # (cones, primaries, P0, F1)
+    from .wiener import gram, inv3
+
+    Kf64 = Kf.numpy().astype(np.complex128)                        # planes (cones, primaries, P0, F1)
+    M = gram(Kf64)
+    norm2 = float(np.linalg.norm(K.sum(axis=(2, 3)), 2) ** 2)      # spectral norm squared (at DC: K >= 0)
+    for c in range(3):
+        M[c, c] += norm2
+    G = inv3(M)                                                      # (primaries, primaries, P0, F1)
+    GKh = torch.as_tensor(np.einsum("cd...,kd...->ck...", G, np.conj(Kf64)), dtype=torch.complex64)
+    Gn = torch.as_tensor(G * norm2, dtype=torch.complex64)
+    mask = torch.zeros(P, dtype=torch.bool)
+    mask[:H, :W] = True
+    t = torch.zeros((3,) + P)
+    t[:, :H, :W] = _chw(problem.target_lms)
+    z = torch.zeros((3,) + P)
+    z[:, :H, :W] = _chw(x0)
+    Ku = torch.fft.irfft2(torch.einsum("kcyx,cyx->kyx", Kf, torch.fft.rfft2(z)), s=P)
+    v = Ku.clone()
+    d1 = torch.zeros_like(v)
+    d2 = torch.zeros_like(z)
+    n = float(H * W * 3)
+    rho_eff = rho * norm2
+    history: list[float] = []
+    iterations = 0
+    for it in range(1, max_iterations + 1):
+        A = torch.fft.rfft2(v - d1)
+        B = torch.fft.rfft2(z - d2)
+        U = (GKh * A.unsqueeze(0)).sum(1) + (Gn * B.unsqueeze(0)).sum(1)
+        u = torch.fft.irfft2(U, s=P)
+        Ku = torch.fft.irfft2((Kf * U.unsqueeze(0)).sum(1), s=P)
+        if relaxation != 1.0:                                      # over-relaxation (Eckstein & Bertsekas)
+            Ku = relaxation * Ku + (1.0 - relaxation) * v
+            u = relaxation * u + (1.0 - relaxation) * z
+        sv = Ku + d1
+        v = torch.where(mask, (2.0 * t + rho_eff * sv) / (2.0 + rho_eff), sv)
+        z = (u + d2).clamp(0.0, 1.0) * mask
+        d1 += Ku - v
+        d2 += u - z
+        data = float(((Ku - t)[:, :H, :W] ** 2).sum()) / n
+        iterations = it
+        if progress is not None:
+            progress(it, max_iterations)
+        if it > 3 and history and 0 <= (history[-1] - data) / max(history[-1], 1e-30) < tolerance:
+            history.append(data)
+            break
+        history.append(data)
+    settings = {"solver": "ADMM (boundary-aware split)", "rho": rho, "spectral_norm_squared": norm2,
+                "tolerance": tolerance, "warm_start": "wiener" if warm_start else "target",
+                "wiener": {k: v for k, v in wsettings.items() if k != "candidates"}}
+    return _hwc(z[:, :H, :W]), iterations, settings, history
+
+
+def paper(problem: Problem, iterations: int = 100, learning_rate: float = 0.01, opponent: bool = False,
+          seed: int = 0, progress: Callable[[int, int], None] | None = None
+          ) -> tuple[np.ndarray, int, dict, list[float]]:
+    """ChromaCorrect's published optimisation: Adam from the target, clamped, LMS (or opponent) MSE."""
+    from ..perception import OPPONENT_MATRIX
+
+    torch.manual_seed(seed)
+    H, W = problem.target.shape[:2]
+    op = FftOperator(problem.kernel.kernel, H, W)
+    t = _chw(problem.target_lms)
+    x = _chw(problem.target).clone().requires_grad_(True)
+    opt = torch.optim.Adam([x], lr=learning_rate)
+    O = torch.tensor(np.array(OPPONENT_MATRIX), dtype=torch.float32)
+    history = []
+    for it in range(iterations):
+        opt.zero_grad()
+        sim = op.forward(x)
+        if opponent:
+            loss = torch.mean((torch.einsum("ok,kyx->oyx", O, sim - t)) ** 2)
+        else:
+            loss = torch.mean((sim - t) ** 2)
+        loss.backward()
+        opt.step()
+        with torch.no_grad():
+            x.clamp_(0.0, 1.0)
+        history.append(float(loss.detach()))
+        if progress is not None:
+            progress(it + 1, iterations)
+    settings = {"optimizer": "Adam", "learning_rate": learning_rate, "iterations": iterations,
+                "loss": "opponent MSE" if opponent else "LMS MSE", "seed": seed}
+    return _hwc(x), iterations, settings, history
+
+
+def conventional(problem: Problem, max_iterations: int = 300, tolerance: float = 1e-7,
+                 theta: float = 1e-6, tau: float = 2e-5, barrier: float = 65.0,
+                 progress: Callable[[int, int], None] | None = None) -> tuple[np.ndarray, int, dict, list[float]]:
+    """Montalto et al. (2015) constrained TV deconvolution per RGB primary (no cone model)."""
+    H, W = problem.target.shape[:2]
+    K = problem.kernel.kernel
+    lum = K[0] + K[1]                                             # (primaries, s, s)
+    psf = lum / lum.sum(axis=(1, 2), keepdims=True)
+    diag = np.zeros((3, 3) + psf.shape[-2:])
+    for c in range(3):
+        diag[c, c] = psf[c]
+    op = FftOperator(diag, H, W, dtype=torch.float64)
+    from . import scale_contrast
+
+    t = _chw(scale_contrast(problem.target, problem.contrast), dtype=torch.float64)
+    x = t.clone().requires_grad_(True)
+    opt = torch.optim.LBFGS([x], lr=1.0, max_iter=20, history_size=10, line_search_fn="strong_wolfe",
+                            tolerance_grad=1e-12, tolerance_change=1e-14)
+
+    def energy():
+        d = op.forward(x) - t
+        data = (d * d).sum()
+        dx = x[:, :, 1:] - x[:, :, :-1]
+        dy = x[:, 1:, :] - x[:, :-1, :]
+        tv = torch.sqrt(dx[:, :-1, :] ** 2 + dy[:, :, :-1] ** 2 + 1e-8).sum()
+        box = torch.exp(-barrier * x).sum() + torch.exp(-barrier * (1.0 - x)).sum()
+        return data + theta * tv + tau * box
+
+    def closure():
+        opt.zero_grad()
+        e = energy()
+        e.backward()
+        return e
+
+    history = []
+    rounds = max(1, max_iterations // 20)
+    for i in range(rounds):
+        e = float(opt.step(closure))
+        history.append(e)
+        if progress is not None:
+            progress(i + 1, rounds)
+        if len(history) > 1 and abs(history[-2] - history[-1]) <= tolerance * max(abs(history[-2]), 1e-30):
+            break
+    iters = opt.state[opt._params[0]].get("n_iter", len(history) * 20)
+    settings = {"solver": "L-BFGS (strong Wolfe)", "theta": theta, "tau": tau, "Lambda": barrier,
+                "psf": "per primary, luminance (L+M) weighted", "tolerance": tolerance}
+    return _hwc(x), int(iters), settings, history

@@ -1,0 +1,146 @@
+"""Closed-form correction in one pass (numpy only; the GLSL fallback's mathematics).
+
+Per spatial frequency f, with the eye's 3x3 kernel spectrum ``K(f)`` (cones x
+primaries), solve the regularised system
+
+    (K^H K + mu I) x(f) = K^H t'(f),      (t: target cone image)
+
+then clip ``v = W t`` to [0, 1] and blend it with the target by the weight that
+minimises the true objective (closed form).  ``mu`` (relative to the largest
+eigenvalue of ``K^H K``) is chosen from a few values; the blend weight 0 is no
+correction, so the result is never worse than no correction.  Contrast
+compression of the target is the separate ``contrast`` option of every method.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import scipy.fft
+
+from . import Problem, objective
+
+DEFAULT_REGULARISATION = (0.01, 0.03, 0.1, 0.3)
+
+
+def _padded_spectra(problem: Problem):
+    H, W = problem.target.shape[:2]
+    K = problem.kernel.kernel
+    s = K.shape[-1]
+    r = s // 2
+    P = (scipy.fft.next_fast_len(H + s - 1, real=True), scipy.fft.next_fast_len(W + s - 1, real=True))
+    # kernel centred at the origin (wrapped), so the circular model has no shift
+    Kp = np.zeros((3, 3) + P)
+    Kp[..., :s, :s] = K
+    Kp = np.roll(Kp, (-r, -r), axis=(2, 3))
+    Kf = scipy.fft.rfft2(Kp, axes=(2, 3), workers=-1)                  # (3, 3, P0, F1)
+    # target cone image extended by mirror reflection, so the borders do not ring
+    t = np.pad(problem.target_lms.astype(np.float64), ((0, P[0] - H), (0, P[1] - W), (0, 0)), mode="symmetric")
+    Tf = scipy.fft.rfft2(np.moveaxis(t, 2, 0), axes=(1, 2), workers=-1)  # (3, P0, F1)
+    return Kf, Tf, P
+
+
+def inverse_filters(kernel: np.ndarray, shape: tuple[int, int], mu_rel: float) -> np.ndarray:
+    """Spectra of the regularised inverse ``W = (K^H K + mu I)^-1 K^H``: (3 primaries, 3 cones, P0, F1).
+
+    ``shape`` is the padded FFT size; ``mu = mu_rel * max eig(K^H K)``.
+    """
+    s = kernel.shape[-1]
+    r = s // 2
+    Kp = np.zeros((3, 3) + tuple(shape))
+    Kp[..., :s, :s] = kernel
+    Kp = np.roll(Kp, (-r, -r), axis=(2, 3))
+    Kf = scipy.fft.rfft2(Kp, axes=(2, 3), workers=-1)
+    return _inverse_from_spectrum(Kf, mu_rel, _lam_max(Kf))
+
+
+def _lam_max(Kf: np.ndarray) -> float:
+    """Largest eigenvalue of K^H K over all frequencies (the kernel's spectral norm squared).
+
+    The kernel is non-negative, so ``|K(f)| <= K(0) = A`` entrywise and, by
+    Perron-Frobenius monotonicity, ``||K(f)|| <= ||A||``: the maximum is at DC.
+    """
+    A = np.real(Kf[:, :, 0, 0])
+    return float(np.linalg.norm(A, 2) ** 2)
+
+
+def inv3(M: np.ndarray) -> np.ndarray:
+    """Inverse of 3x3 matrices stored as planes ``(3, 3, ...)``, by cofactors (vectorised)."""
+    a, b, c = M[0, 0], M[0, 1], M[0, 2]
+    d, e, f = M[1, 0], M[1, 1], M[1, 2]
+    g, h, i = M[2, 0], M[2, 1], M[2, 2]
+    A_, B_, C_ = e * i - f * h, f * g - d * i, d * h - e * g
+    inv_det = 1.0 / (a * A_ + b * B_ + c * C_)
+    return np.stack([np.stack([A_, c * h - b * i, b * f - c * e]),
+                     np.stack([B_, a * i - c * g, c * d - a * f]),
+                     np.stack([C_, b * g - a * h, a * e - b * d])]) * inv_det
+
+
+def gram(Kf: np.ndarray) -> np.ndarray:
+    """``K^H K`` per frequency for spectra stored as planes ``(cones, primaries, ...)``."""
+    return np.einsum("kc...,kd...->cd...", np.conj(Kf), Kf)
+
+
+def _inverse_from_spectrum(Kf: np.ndarray, mu_rel: float, lam_max: float) -> np.ndarray:
+    """``W = (K^H K + mu I)^-1 K^H`` as planes (primaries, cones, ...)."""
+    M = gram(Kf)
+    for c in range(3):
+        M[c, c] += mu_rel * lam_max
+    return np.einsum("cd...,kd...->ck...", inv3(M), np.conj(Kf))
+
+
+class _FastObjective:
+    """The objective with the kernel's spectrum computed once (exact linear convolution, zero outside)."""
+
+    def __init__(self, problem: Problem, Kf: np.ndarray, P: tuple[int, int]):
+        self.Kf, self.P = Kf, P
+        self.H, self.W = problem.target.shape[:2]
+        self.t = np.moveaxis(problem.target_lms.astype(np.float64), 2, 0)
+
+    def residual(self, x_chw: np.ndarray, offset: bool = True) -> np.ndarray:
+        """``K x - t`` on the image (or ``K x`` without ``offset``), (3, H, W)."""
+        X = scipy.fft.rfft2(x_chw, s=self.P, axes=(1, 2), workers=-1)
+        y = scipy.fft.irfft2(np.einsum("kcyx,cyx->kyx", self.Kf, X), s=self.P, axes=(1, 2), workers=-1)
+        y = y[:, :self.H, :self.W]
+        return y - self.t if offset else y
+
+
+def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARISATION) -> tuple[np.ndarray, dict]:
+    """Best blend of the target and the clipped regularised inverse; returns (image, settings).
+
+    For each ``mu_rel`` in ``regularisation``: ``v = W t`` clipped to [0, 1],
+    then ``x = t + beta (clip(v) - t)`` with ``beta`` in [0, 1] minimising the
+    objective in closed form (it is quadratic in ``beta``, and every blend of two
+    images in [0, 1] stays in [0, 1]).  ``beta = 0`` is no correction, so the
+    result is never worse than no correction.
+    """
+    H, W = problem.target.shape[:2]
+    if problem.kernel.size == 1:
+        x = np.clip(problem.target_lms @ np.linalg.inv(problem.kernel.matrix).T, 0, 1).astype(np.float32)
+        return x, {"chosen": "colour matrix (identity kernel)", "beta": 1.0, "mu_rel": 0.0}
+    Kf, Tf, P = _padded_spectra(problem)
+    f = _FastObjective(problem, Kf, P)
+    t_rgb = np.moveaxis(problem.target.astype(np.float64), 2, 0)
+    r0 = f.residual(t_rgb)
+    best = (float(np.mean(r0 * r0)), t_rgb, {"chosen": "no correction", "beta": 0.0, "mu_rel": None})
+    lam_max = _lam_max(Kf)
+    tried = []
+    for mu_rel in regularisation:
+        Wf = _inverse_from_spectrum(Kf, mu_rel, lam_max)                 # (3 prim, 3 cones, P0, F1)
+        v = scipy.fft.irfft2(np.einsum("ckyx,kyx->cyx", Wf, Tf), s=P, axes=(1, 2), workers=-1)[:, :H, :W]
+        d = np.clip(v, 0.0, 1.0) - t_rgb
+        Kd = f.residual(d, offset=False)
+        denom = float(np.sum(Kd * Kd))
+        beta = float(np.clip(-np.sum(r0 * Kd) / denom, 0.0, 1.0)) if denom > 0 else 0.0
+        x = t_rgb + beta * d
+        res = r0 + beta * Kd
+        obj = float(np.mean(res * res))
+        tried.append({"mu_rel": mu_rel, "beta": beta, "objective": obj,
+                      "clipped_fraction": float(np.mean((v < 0) | (v > 1)))})
+        if obj < best[0]:
+            best = (obj, x, {"chosen": "blend of target and clipped regularised inverse", "beta": beta,
+                             "mu_rel": mu_rel})
+    settings = dict(best[2])
+    settings["candidates"] = tried
+    return np.clip(np.moveaxis(best[1], 0, 2), 0.0, 1.0).astype(np.float32), settings
