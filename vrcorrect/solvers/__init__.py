@@ -48,6 +48,7 @@ class Problem:
     target_lms: np.ndarray
     contrast: float = 1.0
     reference: str = "ideal"
+    reference_kernel: EyeKernel | None = None
 
 
 def scale_contrast(image: np.ndarray, contrast: float) -> np.ndarray:
@@ -73,7 +74,8 @@ def make_problem(target: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKer
     else:
         tl, _ = simulate_lms(ts, reference_kernel)
         ref = "glasses"
-    return Problem(target=t, kernel=kernel, target_lms=tl, contrast=contrast, reference=ref)
+    return Problem(target=t, kernel=kernel, target_lms=tl, contrast=contrast, reference=ref,
+                   reference_kernel=reference_kernel)
 
 
 def objective(displayed: np.ndarray, problem: Problem) -> float:

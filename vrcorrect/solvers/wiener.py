@@ -65,21 +65,48 @@ def _lam_max(Kf: np.ndarray) -> float:
     return float(np.linalg.norm(A, 2) ** 2)
 
 
-def inv3(M: np.ndarray) -> np.ndarray:
-    """Inverse of 3x3 matrices stored as planes ``(3, 3, ...)``, by cofactors (vectorised)."""
+def inv3(M):
+    """Inverse of 3x3 matrices stored as planes ``(3, 3, ...)``, by cofactors (numpy or torch)."""
     a, b, c = M[0, 0], M[0, 1], M[0, 2]
     d, e, f = M[1, 0], M[1, 1], M[1, 2]
     g, h, i = M[2, 0], M[2, 1], M[2, 2]
     A_, B_, C_ = e * i - f * h, f * g - d * i, d * h - e * g
     inv_det = 1.0 / (a * A_ + b * B_ + c * C_)
-    return np.stack([np.stack([A_, c * h - b * i, b * f - c * e]),
-                     np.stack([B_, a * i - c * g, c * d - a * f]),
-                     np.stack([C_, b * g - a * h, a * e - b * d])]) * inv_det
+    out = M * 0
+    out[0, 0], out[0, 1], out[0, 2] = A_ * inv_det, (c * h - b * i) * inv_det, (b * f - c * e) * inv_det
+    out[1, 0], out[1, 1], out[1, 2] = B_ * inv_det, (a * i - c * g) * inv_det, (c * d - a * f) * inv_det
+    out[2, 0], out[2, 1], out[2, 2] = C_ * inv_det, (b * g - a * h) * inv_det, (a * e - b * d) * inv_det
+    return out
 
 
-def gram(Kf: np.ndarray) -> np.ndarray:
+def matmul3(A, B, conj_a: bool = False, transpose_a: bool = False):
+    """Per-frequency product of 3x3 plane stacks: ``out[i, j] = sum_k op(A)[i, k] B[k, j]``
+    with ``op`` an optional conjugate and/or transpose (numpy or torch)."""
+    out = B * 0
+    for i in range(3):
+        for j in range(3):
+            acc = None
+            for k in range(3):
+                a = A[k, i] if transpose_a else A[i, k]
+                if conj_a:
+                    a = a.conj()
+                term = a * B[k, j]
+                acc = term if acc is None else acc + term
+            out[i, j] = acc
+    return out
+
+
+def apply3(M, x):
+    """Per-frequency matrix-vector product ``out[i] = sum_j M[i, j] x[j]`` (numpy or torch)."""
+    out = x * 0
+    for i in range(3):
+        out[i] = M[i, 0] * x[0] + M[i, 1] * x[1] + M[i, 2] * x[2]
+    return out
+
+
+def gram(Kf):
     """``K^H K`` per frequency for spectra stored as planes ``(cones, primaries, ...)``."""
-    return np.einsum("kc...,kd...->cd...", np.conj(Kf), Kf)
+    return matmul3(Kf, Kf, conj_a=True, transpose_a=True)
 
 
 def _inverse_from_spectrum(Kf: np.ndarray, mu_rel: float, lam_max: float) -> np.ndarray:
@@ -87,7 +114,7 @@ def _inverse_from_spectrum(Kf: np.ndarray, mu_rel: float, lam_max: float) -> np.
     M = gram(Kf)
     for c in range(3):
         M[c, c] += mu_rel * lam_max
-    return np.einsum("cd...,kd...->ck...", inv3(M), np.conj(Kf))
+    return matmul3(inv3(M), np.conj(np.swapaxes(Kf, 0, 1)))
 
 
 class _FastObjective:
@@ -101,7 +128,7 @@ class _FastObjective:
     def residual(self, x_chw: np.ndarray, offset: bool = True) -> np.ndarray:
         """``K x - t`` on the image (or ``K x`` without ``offset``), (3, H, W)."""
         X = scipy.fft.rfft2(x_chw, s=self.P, axes=(1, 2), workers=-1)
-        y = scipy.fft.irfft2(np.einsum("kcyx,cyx->kyx", self.Kf, X), s=self.P, axes=(1, 2), workers=-1)
+        y = scipy.fft.irfft2(apply3(self.Kf, X), s=self.P, axes=(1, 2), workers=-1)
         y = y[:, :self.H, :self.W]
         return y - self.t if offset else y
 
@@ -128,7 +155,7 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
     tried = []
     for mu_rel in regularisation:
         Wf = _inverse_from_spectrum(Kf, mu_rel, lam_max)                 # (3 prim, 3 cones, P0, F1)
-        v = scipy.fft.irfft2(np.einsum("ckyx,kyx->cyx", Wf, Tf), s=P, axes=(1, 2), workers=-1)[:, :H, :W]
+        v = scipy.fft.irfft2(apply3(Wf, Tf), s=P, axes=(1, 2), workers=-1)[:, :H, :W]
         d = np.clip(v, 0.0, 1.0) - t_rgb
         Kd = f.residual(d, offset=False)
         denom = float(np.sum(Kd * Kd))
