@@ -19,7 +19,7 @@ LAYER = {
     "forward": 3, "metrics": 3,
     "solvers": 4, "learn": 4,
     "runtime": 5,
-    "cli": 6, "demo": 6, "plots": 6, "bench": 6, "bench_kernel": 6,
+    "cli": 6, "demo": 6, "plots": 6, "bench": 6, "bench_kernel": 6, "bench_solvers": 6, "evaluate": 6,
 }
 
 
@@ -53,6 +53,22 @@ def test_imports_go_down_the_layers(module):
     for dep in _vrcorrect_imports(PKG / f"{module}.py"):
         assert LAYER[dep] < own or (LAYER[dep] == own and own in (0, 1, 2, 3, 6)), \
             f"{module} (layer {own}) imports {dep} (layer {LAYER[dep]})"
+
+
+@pytest.mark.parametrize("module", sorted(p.stem for p in (PKG / "solvers").glob("*.py")))
+def test_solvers_import_only_lower_layers(module):
+    tree = ast.parse((PKG / "solvers" / f"{module}.py").read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.level == 2 and node.module:
+            dep = node.module.split(".")[0]
+            assert LAYER[dep] < LAYER["solvers"], f"solvers/{module} imports {dep}"
+
+
+def test_wiener_is_torch_free():
+    """The GLSL fallback's mathematics must be usable on the real-time path."""
+    code = ("import sys; import vrcorrect.solvers.wiener; from vrcorrect.solvers import solve, make_problem; "
+            "sys.exit(1 if 'torch' in sys.modules else 0)")
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 
 
 def test_model_path_does_not_import_torch():

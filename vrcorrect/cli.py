@@ -131,6 +131,13 @@ def cmd_correct(args: argparse.Namespace) -> int:
         raise ValidationError("--iterations", args.iterations, "1 to 100000")
     if not (0.0 < args.contrast <= 1.0):
         raise ValidationError("--contrast", args.contrast, "a number in (0, 1]")
+    if args.tolerance is not None:
+        if args.method not in ("fast", "conventional"):
+            raise ValidationError("--tolerance", args.tolerance, "only with --method fast or conventional")
+        if not (0.0 <= args.tolerance < 1.0):
+            raise ValidationError("--tolerance", args.tolerance, "a number from 0 to 1")
+    if args.iterations is not None and args.method == "wiener":
+        raise ValidationError("--iterations", args.iterations, "nothing: wiener is closed-form")
     rx_path, eye = _load_eye(args)
     display = get_display(args.display)
     image = read_image(args.input)
@@ -143,8 +150,8 @@ def cmd_correct(args: argparse.Namespace) -> int:
     options: dict = {}
     if args.iterations is not None:
         options["iterations" if args.method == "paper" else "max_iterations"] = args.iterations
-        if args.method == "wiener":
-            raise ValidationError("--iterations", args.iterations, "nothing: wiener is closed-form")
+    if args.tolerance is not None:
+        options["tolerance"] = args.tolerance
     bar = None
     if args.method in ("paper", "fast", "conventional"):
         from tqdm import tqdm
@@ -328,11 +335,21 @@ def cmd_demo(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------- bench
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from .bench_kernel import run_kernel_bench
+    if args.what == "kernel":
+        from .bench_kernel import run_kernel_bench
 
-    if args.what != "kernel":
-        raise ValidationError("bench", args.what, "kernel")
-    print(run_kernel_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
+        print(run_kernel_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
+    elif args.what == "solvers":
+        from .bench_solvers import RESOLUTIONS, run_solver_bench
+
+        res = args.resolutions or list(RESOLUTIONS)
+        for r in res:
+            if r not in RESOLUTIONS:
+                raise ValidationError("--resolutions", r, "some of " + ", ".join(RESOLUTIONS))
+        print(run_solver_bench(out=Path(args.out), plot=Path(args.out).with_name("solver_tradeoff.png"),
+                               resolutions=res, repeats=args.repeats, write=not args.no_write))
+    else:
+        raise ValidationError("bench", args.what, "kernel or solvers")
     return 0
 
 
@@ -381,6 +398,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=("conventional", "paper", "fast", "wiener"), default="fast",
                    help="correction method (default fast)")
     p.add_argument("--iterations", type=int, help="iterations (paper) or iteration limit (fast, conventional)")
+    p.add_argument("--tolerance", type=float, help="fast, conventional: relative stopping tolerance")
     p.add_argument("--contrast", type=float, default=1.0, help="scale the target's contrast (0, 1] (default 1)")
     p.add_argument("--reference", choices=("glasses", "ideal"), default="glasses",
                    help="target: what the eye sees with glasses (default) or the paper's blur-free A t")
@@ -422,8 +440,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md")
-    p.add_argument("what", choices=("kernel",), help="what to measure")
-    p.add_argument("--repeats", type=int, default=5, help="timed runs per case (median reported)")
+    p.add_argument("what", choices=("kernel", "solvers"), help="what to measure")
+    p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
+    p.add_argument("--resolutions", nargs="+", metavar="R",
+                   help="solvers: image sizes to sweep (256 512 1024 1832x1920; default all)")
     p.add_argument("--out", default="docs/benchmarks.md", help="benchmarks file to update")
     p.add_argument("--no-write", action="store_true", help="print only")
     p.set_defaults(func=cmd_bench)

@@ -1,0 +1,730 @@
+"""The paper's evaluation: every correction method on every refractive problem.
+
+``vrcorrect evaluate`` reproduces the comparison of ChromaCorrect (Güzel et
+al. 2023, Sec. 4 and Fig. 6): five refractive problems at ±1.5 D, several
+images, the conventional method (Montalto et al. 2015), the paper's
+optimisation and the product's ``fast`` solver, scored by FLIP, SSIM and PSNR
+of what the eye sees.
+
+Layer 6 (like the command line).  Imports numpy, Pillow, matplotlib (its
+colour map only), scikit-image and tqdm, each inside the function that needs
+it; torch only indirectly, through :func:`vrcorrect.solvers.solve`.
+
+The refractive problems
+-----------------------
+Minus-cylinder form; pupil 4 mm; the display at optical infinity (no
+vergence, the paper's setting); accommodation 0; the eye's longitudinal
+chromatic aberration on; the prescription holds at 555 nm.  Principal
+meridian powers are ``M ± sqrt(J0² + J45²)`` of the power vector (Thibos
+1997): the correcting lens's power in its two principal meridians (negative:
+that meridian of the eye is myopic, positive: hyperopic).
+
+=====================  ===========================  ======  ========  ====  ========================
+key                    problem                      sphere  cylinder  axis  principal meridians
+=====================  ===========================  ======  ========  ====  ========================
+``myopia``             myopia                       -1.50   0.00      0     -1.50 and -1.50 D
+``hyperopia``          hyperopia                    +1.50   0.00      0     +1.50 and +1.50 D
+``myopic_astig``       myopic astigmatism           0.00    -1.50     90    0.00 (90°), -1.50 (180°)
+``hyperopic_astig``    hyperopic astigmatism        +1.50   -1.50     90    +1.50 (90°), 0.00 (180°)
+``mixed_astig``        myopia with hyperopic        +0.75   -1.50     90    +0.75 (90°), -0.75 (180°)
+                       astigmatism (mixed)
+=====================  ===========================  ======  ========  ====  ========================
+
+The target is the paper's ideal ``A t`` (the target's cone image with no
+blur at all: ``make_problem(target, kernel, reference_kernel=None)``).
+
+Outputs (in ``out_dir``; nothing is overwritten without ``force``, which is
+checked before any work; every file is written atomically):
+
+* ``results.csv``: one row per image x prescription x method (``none`` is
+  the uncorrected image), columns :data:`CSV_COLUMNS`;
+* ``results.md``: the machine, the per-row table, the mean per prescription
+  x method and, per prescription, whether ``paper`` and ``fast`` beat
+  ``conventional`` on mean FLIP (lower is better), SSIM and PSNR (higher);
+* ``panels/<image>_<rx>.png``: columns target | uncorrected | each method,
+  each as the eye sees it (the target column: the target as a sharp eye sees
+  it), the FLIP error map (magma, 0..1) under each, captions with the
+  method and its FLIP/SSIM/PSNR.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import math
+import re
+import time
+from pathlib import Path
+from typing import Any, Iterable, Mapping, NamedTuple, Sequence
+
+import numpy as np
+
+from .errors import InputError, ValidationError
+
+__all__ = [
+    "EvalPrescription",
+    "PRESCRIPTIONS",
+    "PUPIL_DIAMETER_MM",
+    "DEFAULT_METHODS",
+    "CSV_COLUMNS",
+    "principal_meridians_D",
+    "prescription_eye",
+    "prepare_image",
+    "bundled_images",
+    "folder_images",
+    "panel_size",
+    "run_evaluation",
+    "add_parser",
+    "cmd_evaluate",
+]
+
+
+class EvalPrescription(NamedTuple):
+    """One refractive problem of the evaluation (minus-cylinder form)."""
+
+    key: str
+    title: str
+    sphere_D: float
+    cylinder_D: float
+    axis_deg: float
+
+
+#: The paper's five refractive problems at ±1.5 D (see the module docstring's table).
+PRESCRIPTIONS: tuple[EvalPrescription, ...] = (
+    EvalPrescription("myopia", "myopia", -1.5, 0.0, 0.0),
+    EvalPrescription("hyperopia", "hyperopia", 1.5, 0.0, 0.0),
+    EvalPrescription("myopic_astig", "myopic astigmatism", 0.0, -1.5, 90.0),
+    EvalPrescription("hyperopic_astig", "hyperopic astigmatism", 1.5, -1.5, 90.0),
+    EvalPrescription("mixed_astig", "myopia with hyperopic astigmatism (mixed)", 0.75, -1.5, 90.0),
+)
+
+#: Pupil diameter of every evaluated eye (mm).
+PUPIL_DIAMETER_MM = 4.0
+#: Methods run by default (``none``, the uncorrected image, is always scored as well).
+DEFAULT_METHODS: tuple[str, ...] = ("conventional", "paper", "fast")
+#: Columns of ``results.csv``.
+CSV_COLUMNS: tuple[str, ...] = ("image", "prescription", "method", "flip", "ssim", "psnr", "objective",
+                                "flip_lms", "ssim_lms", "psnr_lms", "seconds", "iterations")
+#: Image side lengths accepted (pixels).
+SIZE_RANGE = (16, 4096)
+#: File suffixes read from an ``--images`` folder.
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+#: scikit-image's colour photographs used by default (those present are used).
+SKIMAGE_PHOTOS = ("astronaut", "coffee", "chelsea", "rocket")
+
+_LABELS = {"target": "target (sharp eye)", "none": "uncorrected"}
+
+
+# --------------------------------------------------------------------------
+# Prescriptions
+# --------------------------------------------------------------------------
+
+
+def prescription_eye(rx: EvalPrescription):
+    """The :class:`vrcorrect.prescription.EyeRx` of ``rx``: 4 mm pupil, no accommodation."""
+    from .prescription import EyeRx
+
+    return EyeRx(sphere_D=rx.sphere_D, cylinder_D=rx.cylinder_D, axis_deg=rx.axis_deg,
+                 pupil_diameter_mm=PUPIL_DIAMETER_MM, accommodation_D=0.0)
+
+
+def principal_meridians_D(rx: EvalPrescription) -> tuple[float, float]:
+    """Powers of the two principal meridians, ``M ± sqrt(J0² + J45²)`` (D), larger first."""
+    pv = prescription_eye(rx).power_vector()
+    j = math.hypot(pv.J0_D, pv.J45_D)
+    return pv.M_D + j, pv.M_D - j
+
+
+def _rx_label(rx: EvalPrescription) -> str:
+    return f"{rx.sphere_D:+.2f} / {rx.cylinder_D:+.2f} x {rx.axis_deg:g}"
+
+
+# --------------------------------------------------------------------------
+# Images
+# --------------------------------------------------------------------------
+
+
+def _check_size(size: Any) -> int:
+    lo, hi = SIZE_RANGE
+    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or not (lo <= int(size) <= hi):
+        raise ValidationError("size", size, f"an integer from {lo} to {hi} pixels")
+    return int(size)
+
+
+def prepare_image(image: np.ndarray, size: int, name: str = "image") -> np.ndarray:
+    """Centre-crop ``image`` to a square and resize it to ``size x size`` (anti-aliased).
+
+    Parameters
+    ----------
+    image
+        ``(H, W, 3)`` (or ``(H, W)``, replicated) sRGB code values in [0, 1], or uint8.
+    size
+        Side of the result in pixels.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 ``(size, size, 3)`` in [0, 1].
+    """
+    from skimage.transform import resize
+    from skimage.util import img_as_float32
+
+    size = _check_size(size)
+    a = np.asarray(image)
+    if a.ndim == 2:
+        a = np.repeat(a[..., None], 3, axis=2)
+    if a.ndim != 3 or a.shape[2] not in (3, 4) or a.shape[0] < 1 or a.shape[1] < 1:
+        raise ValidationError(f"{name}.shape", a.shape, "(height, width, 3)")
+    a = img_as_float32(a[..., :3]) if a.dtype.kind in "ui" else a[..., :3].astype(np.float32)
+    if not np.all(np.isfinite(a)):
+        raise ValidationError(name, "NaN/inf values", "finite sRGB code values in [0, 1]")
+    h, w = a.shape[:2]
+    side = min(h, w)
+    y0, x0 = (h - side) // 2, (w - side) // 2
+    a = a[y0:y0 + side, x0:x0 + side]
+    if side != size:
+        a = resize(a, (size, size), order=1, mode="reflect", anti_aliasing=side > size,
+                   preserve_range=True)
+    return np.ascontiguousarray(np.clip(a, 0.0, 1.0), dtype=np.float32)
+
+
+def bundled_images(size: int = 256) -> list[tuple[str, np.ndarray]]:
+    """The default evaluation images at ``size x size``: sRGB float32 ``(size, size, 3)``.
+
+    scikit-image's colour photographs (:data:`SKIMAGE_PHOTOS`, those this
+    scikit-image ships), centre-cropped and resized, then the procedural
+    charts: ``text`` (:func:`vrcorrect.charts.text_chart`), ``siemens_star``
+    and ``colour_bars``.
+    """
+    from .charts import colour_bars, siemens_star, text_chart
+
+    size = _check_size(size)
+    images: list[tuple[str, np.ndarray]] = []
+    try:
+        import skimage.data as skdata
+    except ImportError:  # pragma: no cover - scikit-image is a dependency
+        skdata = None
+    for name in SKIMAGE_PHOTOS:
+        loader = getattr(skdata, name, None) if skdata is not None else None
+        if loader is None:
+            continue
+        try:
+            photo = loader()
+        except Exception:  # pragma: no cover - a data file missing from this install
+            continue
+        images.append((name, prepare_image(photo, size, name)))
+    images.append(("text", text_chart(size, size)))
+    images.append(("siemens_star", siemens_star(size)))
+    images.append(("colour_bars", colour_bars(size, size)))
+    return images
+
+
+def folder_images(folder: str | Path, size: int = 256) -> list[tuple[str, np.ndarray]]:
+    """Every PNG/JPEG in ``folder`` (sorted by name), centre-cropped and resized to ``size``.
+
+    Raises
+    ------
+    InputError
+        The folder is missing, not a folder, or holds no PNG/JPEG image; or an
+        image cannot be read.
+    """
+    from .imageio import read_image
+
+    size = _check_size(size)
+    folder = Path(folder)
+    if not folder.exists():
+        raise InputError(f"{folder}: no such folder (--images expects a folder of PNG or JPEG images)")
+    if not folder.is_dir():
+        raise InputError(f"{folder}: is not a folder (--images expects a folder of PNG or JPEG images)")
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise InputError(f"{folder}: no PNG or JPEG images in this folder")
+    images = []
+    used: set[str] = set()
+    for path in files:
+        name = _safe_name(path.stem)
+        if name in used:
+            name = _safe_name(f"{path.stem}_{path.suffix.lstrip('.')}")
+        n = 2
+        base = name
+        while name in used:
+            name, n = f"{base}_{n}", n + 1
+        used.add(name)
+        images.append((name, prepare_image(read_image(path), size, str(path))))
+    return images
+
+
+def _safe_name(text: str) -> str:
+    """A file-name-safe version of an image name (letters, digits, ``-``, ``_``, ``.``)."""
+    name = re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("._")
+    return name or "image"
+
+
+# --------------------------------------------------------------------------
+# Panels
+# --------------------------------------------------------------------------
+
+_GAP_PX = 6
+
+
+def _font_px(size: int) -> int:
+    return int(min(14, max(8, size // 18)))
+
+
+def _caption_px(size: int) -> int:
+    return 3 * (_font_px(size) + 3) + 4
+
+
+def _header_px(size: int) -> int:
+    return _font_px(size) + 10
+
+
+def panel_size(size: int, columns: int, height: int | None = None) -> tuple[int, int]:
+    """``(width, height)`` in pixels of a panel of ``columns`` columns of ``size``-pixel images.
+
+    Layout: a title strip; then per column a caption (3 lines), the image as
+    seen, a gap and the FLIP error map; columns separated by a gap.  Images
+    ``size`` wide and ``height`` (default ``size``) tall.
+    """
+    h = size if height is None else height
+    width = columns * size + (columns - 1) * _GAP_PX
+    return width, _header_px(size) + _caption_px(size) + 2 * h + _GAP_PX
+
+
+def _font(px: int):
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=px)
+    except TypeError:  # pragma: no cover - Pillow without FreeType sizes
+        return ImageFont.load_default()
+
+
+def _fitted_font(draw, text: str, px: int, width: int):
+    """The default font at ``px`` or smaller (down to 6) so that ``text`` fits ``width``."""
+    while True:
+        font = _font(px)
+        if px <= 6 or draw.textlength(text, font=font) <= width:
+            return font
+        px -= 1
+
+
+def _to_uint8(rgb: np.ndarray) -> np.ndarray:
+    return np.round(np.clip(np.asarray(rgb, dtype=np.float64), 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def _magma(error_map: np.ndarray) -> np.ndarray:
+    """An ``(H, W)`` FLIP map in [0, 1] as magma-coloured uint8 RGB."""
+    from matplotlib import colormaps
+
+    rgba = colormaps["magma"](np.clip(np.asarray(error_map, dtype=np.float64), 0.0, 1.0))
+    return _to_uint8(rgba[..., :3])
+
+
+def _legend(height: int, size: int) -> np.ndarray:
+    """What goes under the target column (``height x size``): the colour bar of the FLIP maps."""
+    from PIL import Image, ImageDraw
+
+    im = Image.new("RGB", (size, height), "white")
+    draw = ImageDraw.Draw(im)
+    px = _font_px(size)
+    bar_h = max(4, height // 10)
+    x0, x1 = max(2, size // 16), size - max(2, size // 16)
+    y0 = height // 2 - bar_h // 2
+    ramp = _magma(np.tile(np.linspace(0.0, 1.0, max(x1 - x0, 1))[None, :], (bar_h, 1)))
+    im.paste(Image.fromarray(ramp, "RGB"), (x0, y0))
+    title = "FLIP error (below)"
+    draw.text((x0, max(0, y0 - 2 * px - 4)), title, fill="black", font=_fitted_font(draw, title, px, size - x0))
+    font = _font(px)
+    draw.text((x0, y0 + bar_h + 2), "0", fill="black", font=font)
+    one_w = draw.textlength("1", font=font)
+    draw.text((x1 - one_w, y0 + bar_h + 2), "1", fill="black", font=font)
+    return np.asarray(im)
+
+
+def _compose_panel(title: str, columns: Sequence[tuple[list[str], np.ndarray, np.ndarray]]):
+    """A PIL image: ``columns`` of (caption lines, seen sRGB, image under it as uint8 RGB), one shape."""
+    from PIL import Image, ImageDraw
+
+    h, size = columns[0][1].shape[:2]
+    width, height = panel_size(size, len(columns), h)
+    im = Image.new("RGB", (width, height), "white")
+    draw = ImageDraw.Draw(im)
+    px = _font_px(size)
+    header = _header_px(size)
+    draw.text((4, 4), title, fill="black", font=_fitted_font(draw, title, px, width - 8))
+    caption = _caption_px(size)
+    for i, (lines, seen, under) in enumerate(columns):
+        x = i * (size + _GAP_PX)
+        for j, line in enumerate(lines[:3]):
+            draw.text((x + 2, header + 2 + j * (px + 3)), line, fill="black",
+                      font=_fitted_font(draw, line, px, size - 4))
+        y = header + caption
+        im.paste(Image.fromarray(_to_uint8(seen), "RGB"), (x, y))
+        im.paste(Image.fromarray(np.asarray(under, dtype=np.uint8), "RGB"), (x, y + h + _GAP_PX))
+    return im
+
+
+def _score_lines(label: str, m) -> list[str]:
+    return [label, f"FLIP {m.flip:.3f}  SSIM {m.ssim:.3f}", f"PSNR {m.psnr:.2f} dB"]
+
+
+# --------------------------------------------------------------------------
+# Tables
+# --------------------------------------------------------------------------
+
+
+def _fmt(value: float, spec: str) -> str:
+    return "inf" if math.isinf(value) else format(value, spec)
+
+
+def _summarise(rows: Sequence[Mapping[str, Any]], methods: Sequence[str]) -> list[dict[str, Any]]:
+    """Mean FLIP/SSIM/PSNR/objective/seconds per prescription x method (in run order)."""
+    out = []
+    for rx in PRESCRIPTIONS:
+        for method in methods:
+            sel = [r for r in rows if r["prescription"] == rx.key and r["method"] == method]
+            if not sel:
+                continue
+            mean = {k: float(np.mean([r[k] for r in sel])) for k in ("flip", "ssim", "psnr", "objective", "seconds")}
+            out.append({"prescription": rx.key, "method": method, "images": len(sel), **mean})
+    return out
+
+
+def _verdicts(summary: Sequence[Mapping[str, Any]]) -> list[str]:
+    """Per prescription: do ``paper`` and ``fast`` beat ``conventional`` on mean FLIP, SSIM, PSNR?"""
+    lines = []
+    for rx in PRESCRIPTIONS:
+        by = {s["method"]: s for s in summary if s["prescription"] == rx.key}
+        base = by.get("conventional")
+        rivals = [m for m in ("paper", "fast") if m in by]
+        if base is None or not rivals:
+            continue
+        parts = []
+        for m in rivals:
+            s = by[m]
+            wins = {"FLIP": s["flip"] < base["flip"], "SSIM": s["ssim"] > base["ssim"],
+                    "PSNR": s["psnr"] > base["psnr"]}
+            n = sum(wins.values())
+            if n == 3:
+                verdict = "beats conventional on FLIP, SSIM and PSNR"
+            elif n == 0:
+                verdict = "does not beat conventional on FLIP, SSIM or PSNR"
+            else:
+                won = [k for k, v in wins.items() if v]
+                lost = [k for k, v in wins.items() if not v]
+                verdict = f"beats conventional on {', '.join(won)}, not on {', '.join(lost)}"
+            parts.append(f"{m} {verdict} (FLIP {s['flip']:.4f} vs {base['flip']:.4f}, SSIM {s['ssim']:.4f} vs "
+                         f"{base['ssim']:.4f}, PSNR {_fmt(s['psnr'], '.2f')} vs {_fmt(base['psnr'], '.2f')} dB)")
+        lines.append(f"- **{rx.key}**: " + "; ".join(parts) + ".")
+    return lines
+
+
+def summary_table(summary: Sequence[Mapping[str, Any]]) -> str:
+    """The Markdown table of :func:`run_evaluation`'s ``summary``."""
+    from .bench import markdown_table
+
+    return markdown_table(
+        ["prescription", "method", "FLIP ↓", "SSIM ↑", "PSNR dB ↑", "objective ↓", "seconds"],
+        [[s["prescription"], s["method"], f"{s['flip']:.4f}", f"{s['ssim']:.4f}", _fmt(s["psnr"], ".2f"),
+          f"{s['objective']:.3e}", f"{s['seconds']:.2f}"] for s in summary])
+
+
+def _rows_table(rows: Sequence[Mapping[str, Any]]) -> str:
+    from .bench import markdown_table
+
+    return markdown_table(
+        ["image", "prescription", "method", "FLIP", "SSIM", "PSNR dB", "objective", "FLIP (LMS)", "SSIM (LMS)",
+         "PSNR (LMS) dB", "seconds", "iterations"],
+        [[r["image"], r["prescription"], r["method"], f"{r['flip']:.4f}", f"{r['ssim']:.4f}",
+          _fmt(r["psnr"], ".2f"), f"{r['objective']:.3e}", f"{r['flip_lms']:.4f}", f"{r['ssim_lms']:.4f}",
+          _fmt(r["psnr_lms"], ".2f"), f"{r['seconds']:.2f}", r["iterations"]] for r in rows])
+
+
+def _csv_text(rows: Sequence[Mapping[str, Any]]) -> str:
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(CSV_COLUMNS), lineterminator="\n")
+    writer.writeheader()
+    for r in rows:
+        writer.writerow({k: (repr(float(r[k])) if isinstance(r[k], float) else r[k]) for k in CSV_COLUMNS})
+    return buf.getvalue()
+
+
+def _markdown(rows, summary, verdicts, display, size, images, methods, seconds_total) -> str:
+    from .bench import machine_description, markdown_table
+
+    rx_table = markdown_table(
+        ["key", "problem", "sphere D", "cylinder D", "axis deg", "principal meridians D"],
+        [[rx.key, rx.title, f"{rx.sphere_D:+.2f}", f"{rx.cylinder_D:+.2f}", f"{rx.axis_deg:g}",
+          " / ".join(f"{p:+.2f}" for p in principal_meridians_D(rx))] for rx in PRESCRIPTIONS])
+    parts = [
+        "# vrcorrect evaluation",
+        "",
+        f"Machine: {machine_description()}.",
+        "",
+        f"Display `{display.name}` ({display.title}, {display.pixels_per_degree:.1f} pixels per degree); "
+        f"{len(images)} images of {size}x{size} px ({', '.join(n for n, _ in images)}); methods: "
+        f"{', '.join(methods)} (`none` is the uncorrected image). Eyes: {PUPIL_DIAMETER_MM:g} mm pupil, "
+        "display at optical infinity, no accommodation, chromatic aberration on. Target: the paper's ideal "
+        "`A t` (the target's cone image without blur). Scores compare what the eye sees with the target, "
+        "both rendered to display sRGB (FLIP at the display's pixels per degree); the `(LMS)` columns score "
+        "the cone images directly, as the paper reported. "
+        f"Total time {seconds_total:.1f} s.",
+        "",
+        "## Refractive problems (minus-cylinder form)",
+        "",
+        rx_table,
+        "",
+        "## Mean per prescription and method",
+        "",
+        summary_table(summary),
+        "",
+    ]
+    if verdicts:
+        parts += ["Against the conventional method (mean over the images; FLIP lower is better, SSIM and "
+                  "PSNR higher):", "", *verdicts, ""]
+    parts += ["## Every image", "", _rows_table(rows), ""]
+    return "\n".join(parts)
+
+
+# --------------------------------------------------------------------------
+# The evaluation
+# --------------------------------------------------------------------------
+
+
+def _check_methods(methods: Iterable[str]) -> tuple[str, ...]:
+    from .solvers import METHODS
+
+    allowed = tuple(m for m in METHODS if m != "none")
+    if isinstance(methods, str):
+        methods = (methods,)
+    out: list[str] = []
+    for m in methods:
+        if m not in allowed:
+            raise ValidationError("methods", m, "one of " + ", ".join(allowed))
+        if m not in out:
+            out.append(m)
+    if not out:
+        raise ValidationError("methods", list(methods), "at least one of " + ", ".join(allowed))
+    return tuple(out)
+
+
+def _check_images(images: Sequence[tuple[str, np.ndarray]], size: int | None) -> list[tuple[str, np.ndarray]]:
+    if not images:
+        raise ValidationError("images", "none", "at least one (name, image) pair")
+    out, seen = [], set()
+    for item in images:
+        try:
+            name, image = item
+        except (TypeError, ValueError):
+            raise ValidationError("images", type(item).__name__, "(name, image) pairs") from None
+        if not isinstance(name, str) or _safe_name(name) != name:
+            raise ValidationError("image name", name, "letters, digits, '-', '_' or '.' (a file-name-safe name)")
+        if name in seen:
+            raise ValidationError("image name", name, "names that differ from one another")
+        seen.add(name)
+        if size is not None:
+            img = prepare_image(image, size, name)
+        else:
+            img = np.asarray(image)
+            if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 1:
+                raise ValidationError(f"{name}.shape", img.shape, "(height, width, 3)")
+            img = np.clip(img.astype(np.float32), 0.0, 1.0)
+            if not np.all(np.isfinite(img)):
+                raise ValidationError(name, "NaN/inf values", "finite sRGB code values in [0, 1]")
+        out.append((name, img))
+    return out
+
+
+def output_paths(out_dir: str | Path, image_names: Sequence[str]) -> dict[str, Any]:
+    """Where :func:`run_evaluation` writes: ``csv``, ``markdown`` and ``panels`` (a list)."""
+    out = Path(out_dir)
+    return {"csv": out / "results.csv", "markdown": out / "results.md",
+            "panels": [out / "panels" / f"{name}_{rx.key}.png" for name in image_names for rx in PRESCRIPTIONS]}
+
+
+def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]], display,
+                   methods: Sequence[str] = DEFAULT_METHODS, size: int | None = 256, progress: bool = True,
+                   force: bool = False, solver_options: Mapping[str, Mapping[str, Any]] | None = None
+                   ) -> dict[str, Any]:
+    """Run every method on every image for every prescription and write the results.
+
+    Parameters
+    ----------
+    out_dir
+        Output folder (created if missing).
+    images
+        ``(name, image)`` pairs: file-name-safe unique names and sRGB code
+        values in [0, 1] ``(H, W, 3)`` (e.g. :func:`bundled_images`).
+    display
+        A :class:`vrcorrect.display.DisplayProfile` or a preset name / profile path.
+    methods
+        Correction methods to run, in panel order (any of
+        :data:`vrcorrect.solvers.METHODS` except ``none``, which is always
+        scored as "uncorrected").
+    size
+        Centre-crop and resize every image to ``size x size`` first (no-op
+        when it already is); ``None`` uses the images as given.
+    progress
+        Show a tqdm bar over the image x prescription cases (only on a terminal).
+    force
+        Overwrite earlier outputs; otherwise any existing output file makes
+        this refuse before any work.
+    solver_options
+        Optional per-method keyword options for :func:`vrcorrect.solvers.solve`,
+        e.g. ``{"conventional": {"max_iterations": 40}}``.
+
+    Returns
+    -------
+    dict
+        ``rows`` (one dict per image x prescription x method with the
+        :data:`CSV_COLUMNS`), ``summary`` (means per prescription x method),
+        ``summary_markdown`` (that as a table), ``verdicts`` (the lines
+        comparing with ``conventional``), ``files`` (see :func:`output_paths`)
+        and ``seconds`` (total wall time).
+
+    Raises
+    ------
+    ValidationError
+        A bad method, size, image or display.
+    InputError
+        An output exists (without ``force``) or cannot be written.
+    """
+    from tqdm import tqdm
+
+    from .display import DisplayProfile, decode, get_display
+    from .fileio import check_writable, write_text_atomic, write_with
+    from .kernel import KernelOptions, build_kernel
+    from .metrics import evaluate_seen
+    from .optics import OpticsOptions
+    from .solvers import make_problem, solve
+
+    t_start = time.perf_counter()
+    methods = _check_methods(methods)
+    options = {m: dict(o) for m, o in (solver_options or {}).items()}
+    for m in options:
+        if m not in methods:
+            raise ValidationError("solver_options", m, "options only for methods being run: " + ", ".join(methods))
+    if size is not None:
+        size = _check_size(size)
+    if not isinstance(display, DisplayProfile):
+        display = get_display(display)
+    images = _check_images(images, size)
+
+    # Every output is checked before any work.
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder")
+    files = output_paths(out, [n for n, _ in images])
+    panel_dir = out / "panels"
+    if panel_dir.exists() and not panel_dir.is_dir():
+        raise InputError(f"{panel_dir}: exists and is not a folder")
+    targets = [files["csv"], files["markdown"], *files["panels"]]
+    if not force:
+        existing = [p for p in targets if p.exists()]
+        if existing:
+            more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
+            raise InputError(f"{existing[0]}: file exists{more}; pass --force to overwrite earlier results")
+    panel_dir.mkdir(parents=True, exist_ok=True)
+    for p in targets:
+        check_writable(p, force=force)
+
+    kernel_options = KernelOptions(optics=OpticsOptions(viewing_distance_m=math.inf))
+    scored = ("none", *methods)
+    rows: list[dict[str, Any]] = []
+    cases = [(rx, name, img) for rx in PRESCRIPTIONS for name, img in images]
+    bar = tqdm(total=len(cases), desc="evaluate", unit="case", disable=None if progress else True, leave=False)
+    kernel = None
+    kernel_rx = None
+    try:
+        for rx, name, img in cases:
+            bar.set_postfix_str(f"{rx.key} / {name}", refresh=False)
+            if kernel_rx is not rx:                       # one kernel per prescription
+                kernel = build_kernel(prescription_eye(rx), display, kernel_options)
+                kernel_rx = rx
+            target = decode(display, img)
+            problem = make_problem(target, kernel, reference_kernel=None)
+            columns = []
+            for method in scored:
+                result = solve(problem, method, **options.get(method, {}))
+                metrics, seen = evaluate_seen(result.image, target, kernel, display, target_lms=problem.target_lms)
+                rows.append({"image": name, "prescription": rx.key, "method": method,
+                             "flip": metrics.flip, "ssim": metrics.ssim, "psnr": metrics.psnr,
+                             "objective": metrics.objective, "flip_lms": metrics.flip_lms,
+                             "ssim_lms": metrics.ssim_lms, "psnr_lms": metrics.psnr_lms,
+                             "seconds": float(result.seconds), "iterations": int(result.iterations)})
+                if not columns:
+                    columns.append(([_LABELS["target"], "as a sharp eye sees it", "(ideal A t)"],
+                                    seen["target_srgb"], _legend(*img.shape[:2])))
+                columns.append((_score_lines(_LABELS.get(method, method), metrics), seen["seen_srgb"],
+                                _magma(seen["flip_map"])))
+            title = (f"{name}: {rx.title} {_rx_label(rx)} (pupil {PUPIL_DIAMETER_MM:g} mm, at infinity), "
+                     f"as the eye sees it on {display.name}")
+            panel = _compose_panel(title, columns)
+            path = panel_dir / f"{name}_{rx.key}.png"
+            write_with(path, lambda tmp, im=panel: im.save(tmp, format="PNG"), force=force)
+            bar.update(1)
+    finally:
+        bar.close()
+
+    summary = _summarise(rows, scored)
+    verdicts = _verdicts(summary)
+    seconds_total = time.perf_counter() - t_start
+    write_text_atomic(files["csv"], _csv_text(rows), force=force)
+    write_text_atomic(files["markdown"],
+                      _markdown(rows, summary, verdicts, display, size if size is not None else "as given",
+                                images, scored, seconds_total), force=force)
+    return {"rows": rows, "summary": summary, "summary_markdown": summary_table(summary), "verdicts": verdicts,
+            "files": files, "seconds": seconds_total}
+
+
+# --------------------------------------------------------------------------
+# Command line
+# --------------------------------------------------------------------------
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``evaluate`` sub-command to an argparse ``subparsers`` object."""
+    p = subparsers.add_parser(
+        "evaluate", help="the paper's evaluation: every method on five refractive problems, FLIP/SSIM/PSNR",
+        description=("Run the correction methods on five refractive problems at +-1.5 D (myopia, hyperopia, "
+                     "myopic, hyperopic and mixed astigmatism; 4 mm pupil, display at optical infinity) and "
+                     "score what the eye sees: results.csv, results.md and panels/*.png in --out."))
+    p.add_argument("--images", metavar="DIR",
+                   help="folder of PNG/JPEG images (default: scikit-image's colour photos and the charts)")
+    p.add_argument("--out", default="evaluation", metavar="DIR", help="output folder (default ./evaluation)")
+    p.add_argument("--size", type=int, default=256, metavar="N",
+                   help="centre-crop and resize each image to N x N pixels (default 256)")
+    p.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), metavar="METHOD",
+                   choices=("conventional", "paper", "fast", "wiener"),
+                   help="methods to compare (default: conventional paper fast); the uncorrected image is "
+                        "always scored")
+    p.add_argument("--display", default="desktop", metavar="PRESET",
+                   help="display preset or profile .json (default desktop; list: vrcorrect displays)")
+    p.add_argument("--force", action="store_true", help="overwrite earlier results in --out")
+    p.set_defaults(func=cmd_evaluate)
+    return p
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """``vrcorrect evaluate``: run :func:`run_evaluation` and print where the outputs are and the summary."""
+    from .display import get_display
+
+    size = _check_size(args.size)
+    methods = _check_methods(args.methods)
+    display = get_display(args.display)
+    images = folder_images(args.images, size) if args.images else bundled_images(size)
+    result = run_evaluation(Path(args.out), images, display, methods=methods, size=size,
+                            progress=True, force=args.force)
+    files = result["files"]
+    print(f"wrote {files['csv']}, {files['markdown']} and {len(files['panels'])} panels in "
+          f"{Path(args.out) / 'panels'} ({len(images)} images x {len(PRESCRIPTIONS)} prescriptions x "
+          f"{len(methods) + 1} methods, {result['seconds']:.1f} s)")
+    print()
+    print(result["summary_markdown"])
+    if result["verdicts"]:
+        print()
+        for line in result["verdicts"]:
+            print(line)
+    return 0
