@@ -407,6 +407,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     p.set_defaults(func=cmd_correct)
 
+    from .evaluate import add_parser as add_evaluate_parser
+
+    add_evaluate_parser(sub)
+
     p = sub.add_parser("psf", help="write an eye's PSF (one wavelength) or full LMS kernel as .npy + .json")
     _add_model_options(p)
     p.add_argument("--wavelength-nm", type=float, help="monochromatic PSF at this wavelength (default: full kernel)")

@@ -113,7 +113,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 #: scikit-image's colour photographs used by default (those present are used).
 SKIMAGE_PHOTOS = ("astronaut", "coffee", "chelsea", "rocket")
 
-_LABELS = {"target": "target (sharp eye)", "none": "uncorrected"}
+_LABELS = {"target": "target", "none": "uncorrected"}
 
 
 # --------------------------------------------------------------------------
@@ -334,7 +334,7 @@ def _legend(height: int, size: int) -> np.ndarray:
     y0 = height // 2 - bar_h // 2
     ramp = _magma(np.tile(np.linspace(0.0, 1.0, max(x1 - x0, 1))[None, :], (bar_h, 1)))
     im.paste(Image.fromarray(ramp, "RGB"), (x0, y0))
-    title = "FLIP error (below)"
+    title = "FLIP error maps"
     draw.text((x0, max(0, y0 - 2 * px - 4)), title, fill="black", font=_fitted_font(draw, title, px, size - x0))
     font = _font(px)
     draw.text((x0, y0 + bar_h + 2), "0", fill="black", font=font)
@@ -655,7 +655,7 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
                              "ssim_lms": metrics.ssim_lms, "psnr_lms": metrics.psnr_lms,
                              "seconds": float(result.seconds), "iterations": int(result.iterations)})
                 if not columns:
-                    columns.append(([_LABELS["target"], "as a sharp eye sees it", "(ideal A t)"],
+                    columns.append(([_LABELS["target"], "ideal A t (no blur)"],
                                     seen["target_srgb"], _legend(*img.shape[:2])))
                 columns.append((_score_lines(_LABELS.get(method, method), metrics), seen["seen_srgb"],
                                 _magma(seen["flip_map"])))
