@@ -25,7 +25,6 @@ import math
 from typing import Callable
 
 import numpy as np
-import scipy.fft
 import torch
 
 from . import Problem, objective
@@ -38,10 +37,11 @@ class FftOperator:
         s = kernel.shape[-1]
         self.r = s // 2
         self.H, self.W = height, width
-        self.P = (scipy.fft.next_fast_len(height + s - 1, real=True), scipy.fft.next_fast_len(width + s - 1, real=True))
+        from .wiener import padded_shape
+
+        self.P = padded_shape(height, width, s)
         k = torch.as_tensor(np.ascontiguousarray(kernel), dtype=dtype, device=device)
         self.Kf = torch.fft.rfft2(k, s=self.P)                 # (n_out, n_in, P0, F1)
-        self.Kf_conj = self.Kf.conj()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         X = torch.fft.rfft2(x, s=self.P)
@@ -53,14 +53,8 @@ class FftOperator:
         Zp = torch.zeros(z.shape[:-2] + self.P, dtype=z.dtype, device=z.device)
         Zp[..., self.r:self.r + self.H, self.r:self.r + self.W] = z
         Z = torch.fft.rfft2(Zp)
-        X = torch.einsum("kcyx,kyx->cyx", self.Kf_conj, Z)
+        X = torch.einsum("kcyx,kyx->cyx", self.Kf.conj(), Z)
         return torch.fft.irfft2(X, s=self.P)[..., :self.H, :self.W]
-
-    def norm_squared(self) -> float:
-        """Largest eigenvalue of K^T K over all frequencies (bounds the operator norm squared)."""
-        Km = self.Kf.permute(2, 3, 0, 1).to(torch.complex128)
-        KhK = Km.conj().transpose(-1, -2) @ Km
-        return float(torch.linalg.eigvalsh(KhK).max())
 
 
 def _chw(image: np.ndarray, dtype=torch.float32) -> torch.Tensor:
@@ -75,19 +69,13 @@ def _admm(kernel: np.ndarray, t_lms: torch.Tensor, z0: torch.Tensor, rho: float,
           balance: float, max_iterations: int, tolerance: float,
           progress: Callable[[int, int], None] | None = None) -> tuple[torch.Tensor, int, list[float], float]:
     """The ADMM iterations of :func:`fast` on (3, H, W) tensors; returns (z, iterations, history, norm2)."""
-    from .wiener import apply3, gram, inv3, matmul3
+    from .wiener import apply3, centred_kernel, gram, inv3, matmul3, padded_shape, spectral_norm_squared
 
     H, W = t_lms.shape[1:]
-    s = kernel.shape[-1]
-    r = s // 2
-    P = (scipy.fft.next_fast_len(H + s - 1, real=True), scipy.fft.next_fast_len(W + s - 1, real=True))
-    Kp = np.zeros((3, 3) + P)
-    Kp[..., :s, :s] = kernel
-    Kp = np.roll(Kp, (-r, -r), axis=(2, 3))                       # centred at the origin: no shift
-    Kf = torch.fft.rfft2(torch.as_tensor(Kp, dtype=torch.float32))  # (cones, primaries, P0, F1)
+    P = padded_shape(H, W, kernel.shape[-1])
+    Kf = torch.fft.rfft2(torch.as_tensor(centred_kernel(kernel, P), dtype=torch.float32))  # (cones, primaries, P0, F1)
     M = gram(Kf)                                                     # planes (primaries, primaries, P0, F1)
-    norm2 = float(np.linalg.norm(kernel.sum(axis=(2, 3)), 2) ** 2)  # spectral norm squared (at DC: K >= 0)
-    norm2 *= balance                                                 # weight of the box split vs the retina split
+    norm2 = spectral_norm_squared(kernel) * balance          # box split weighed against the retina split
     for c in range(3):
         M[c, c] += norm2
     G = inv3(M)

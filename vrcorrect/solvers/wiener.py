@@ -24,45 +24,38 @@ from . import Problem, objective
 DEFAULT_REGULARISATION = (0.01, 0.03, 0.1, 0.3)
 
 
-def _padded_spectra(problem: Problem):
-    H, W = problem.target.shape[:2]
-    K = problem.kernel.kernel
-    s = K.shape[-1]
-    r = s // 2
-    P = (scipy.fft.next_fast_len(H + s - 1, real=True), scipy.fft.next_fast_len(W + s - 1, real=True))
-    # kernel centred at the origin (wrapped), so the circular model has no shift
-    Kp = np.zeros((3, 3) + P)
-    Kp[..., :s, :s] = K
-    Kp = np.roll(Kp, (-r, -r), axis=(2, 3))
-    Kf = scipy.fft.rfft2(Kp, axes=(2, 3), workers=-1)                  # (3, 3, P0, F1)
-    # target cone image extended by mirror reflection, so the borders do not ring
-    t = np.pad(problem.target_lms.astype(np.float64), ((0, P[0] - H), (0, P[1] - W), (0, 0)), mode="symmetric")
-    Tf = scipy.fft.rfft2(np.moveaxis(t, 2, 0), axes=(1, 2), workers=-1)  # (3, P0, F1)
-    return Kf, Tf, P
+def padded_shape(height: int, width: int, kernel_size: int) -> tuple[int, int]:
+    """FFT size that holds a linear convolution of the image with the kernel without wrap-around."""
+    return (scipy.fft.next_fast_len(height + kernel_size - 1, real=True),
+            scipy.fft.next_fast_len(width + kernel_size - 1, real=True))
 
 
-def inverse_filters(kernel: np.ndarray, shape: tuple[int, int], mu_rel: float) -> np.ndarray:
-    """Spectra of the regularised inverse ``W = (K^H K + mu I)^-1 K^H``: (3 primaries, 3 cones, P0, F1).
-
-    ``shape`` is the padded FFT size; ``mu = mu_rel * max eig(K^H K)``.
-    """
+def centred_kernel(kernel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """``(..., s, s)`` kernel zero-padded to ``shape`` with its centre wrapped to the origin,
+    so the circular convolution on that grid has no shift."""
     s = kernel.shape[-1]
-    r = s // 2
-    Kp = np.zeros((3, 3) + tuple(shape))
-    Kp[..., :s, :s] = kernel
-    Kp = np.roll(Kp, (-r, -r), axis=(2, 3))
-    Kf = scipy.fft.rfft2(Kp, axes=(2, 3), workers=-1)
-    return _inverse_from_spectrum(Kf, mu_rel, _lam_max(Kf))
+    out = np.zeros(kernel.shape[:-2] + tuple(shape))
+    out[..., :s, :s] = kernel
+    return np.roll(out, (-(s // 2), -(s // 2)), axis=(-2, -1))
 
 
-def _lam_max(Kf: np.ndarray) -> float:
+def spectral_norm_squared(kernel: np.ndarray) -> float:
     """Largest eigenvalue of K^H K over all frequencies (the kernel's spectral norm squared).
 
     The kernel is non-negative, so ``|K(f)| <= K(0) = A`` entrywise and, by
     Perron-Frobenius monotonicity, ``||K(f)|| <= ||A||``: the maximum is at DC.
     """
-    A = np.real(Kf[:, :, 0, 0])
-    return float(np.linalg.norm(A, 2) ** 2)
+    return float(np.linalg.norm(kernel.sum(axis=(-2, -1)), 2) ** 2)
+
+
+def _padded_spectra(problem: Problem):
+    H, W = problem.target.shape[:2]
+    P = padded_shape(H, W, problem.kernel.size)
+    Kf = scipy.fft.rfft2(centred_kernel(problem.kernel.kernel, P), axes=(2, 3), workers=-1)   # (3, 3, P0, F1)
+    # target cone image extended by mirror reflection, so the borders do not ring
+    t = np.pad(problem.target_lms.astype(np.float64), ((0, P[0] - H), (0, P[1] - W), (0, 0)), mode="symmetric")
+    Tf = scipy.fft.rfft2(np.moveaxis(t, 2, 0), axes=(1, 2), workers=-1)  # (3, P0, F1)
+    return Kf, Tf, P
 
 
 def inv3(M):
@@ -151,7 +144,7 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
     t_rgb = np.moveaxis(problem.target.astype(np.float64), 2, 0)
     r0 = f.residual(t_rgb)
     best = (float(np.mean(r0 * r0)), t_rgb, {"chosen": "no correction", "beta": 0.0, "mu_rel": None})
-    lam_max = _lam_max(Kf)
+    lam_max = spectral_norm_squared(problem.kernel.kernel)
     tried = []
     for mu_rel in regularisation:
         Wf = _inverse_from_spectrum(Kf, mu_rel, lam_max)                 # (3 prim, 3 cones, P0, F1)
