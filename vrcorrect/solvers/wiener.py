@@ -19,7 +19,7 @@ from typing import Sequence
 import numpy as np
 import scipy.fft
 
-from . import Problem, objective
+from . import Problem
 
 DEFAULT_REGULARISATION = (0.01, 0.03, 0.1, 0.3)
 
