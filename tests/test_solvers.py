@@ -179,3 +179,47 @@ def test_memory_at_headset_resolution_does_not_grow_per_iteration(method, arg):
         peaks.append(res["maxrss_kb"] / 1024)
     assert peaks[1] < peaks[0] * 1.10 + 50, f"peak MiB {peaks}"
     assert peaks[1] < 4096
+
+
+def test_correction_filters_dc_gain_and_tail(desktop):
+    """The taps' sums are the regularised inverse at DC, (A^T A + mu I)^-1 A^T A, up to the
+    discarded tail; the tail is within the design tolerance."""
+    from vrcorrect.solvers.wiener import correction_filters, spectral_norm_squared
+
+    k = build_kernel(eye(-1.0), desktop, INF)
+    f = correction_filters(k, 0.1, tolerance=1e-3)
+    A = k.matrix
+    mu = 0.1 * spectral_norm_squared(k.kernel)
+    dc = np.linalg.solve(A.T @ A + mu * np.eye(3), A.T @ A)
+    assert f.size % 2 == 1 and f.tail <= 1e-3
+    assert np.abs(f.taps.sum(axis=(2, 3)) - dc).max() <= 1e-3
+    tighter = correction_filters(k, 0.1, tolerance=1e-4)
+    assert tighter.size > f.size
+
+
+def test_apply_filters_is_a_convolution_with_mirrored_borders():
+    from scipy import ndimage
+
+    from vrcorrect.solvers.wiener import apply_filters
+
+    rng = np.random.default_rng(3)
+    img = rng.random((3, 23, 31)).astype(np.float32)
+    taps = rng.normal(size=(3, 3, 9, 9))
+    taps[0, 1, 0, 0] += 5.0                                   # asymmetric: a flipped kernel would show
+    out = apply_filters(img, taps)
+    ref = np.zeros_like(out, dtype=np.float64)
+    for i in range(3):
+        for j in range(3):
+            ref[i] += ndimage.convolve(img[j].astype(np.float64), taps[i, j], mode="reflect")
+    assert np.abs(out - ref).max() < 1e-4
+
+
+def test_wiener_with_fixed_settings_uses_them(desktop, myope_kernel):
+    target = decode(desktop, photo("coffee", 64))
+    p = make_problem(target, myope_kernel)
+    img, settings = __import__("vrcorrect.solvers.wiener", fromlist=["wiener"]).wiener(
+        p, regularisation=(0.1,), beta=0.25)
+    assert settings["mu_rel"] == 0.1 and settings["beta"] == 0.25
+    auto = solve(p, "wiener", regularisation=(0.1,))
+    assert auto.settings["beta"] != 0.25
+    assert not np.allclose(img, auto.image)

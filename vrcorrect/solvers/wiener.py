@@ -1,11 +1,17 @@
 """Closed-form correction in one pass (numpy only; the GLSL fallback's mathematics).
 
 Per spatial frequency f, with the eye's 3x3 kernel spectrum ``K(f)`` (cones x
-primaries), solve the regularised system
+primaries) and the target operator ``T(f)`` (``A``, the target's cone image with
+no blur, or the glasses-on eye's kernel spectrum), the regularised inverse
 
-    (K^H K + mu I) x(f) = K^H t'(f),      (t: target cone image)
+    F(f) = (K^H K + mu I)^-1 K^H T(f)          (3 x 3: primaries out x primaries in)
 
-then clip ``v = W t`` to [0, 1] and blend it with the target by the weight that
+maps the target RGB image to the displayed one.  :func:`correction_filters`
+designs ``F`` once per eye as a bank of 3 x 3 spatial filters, truncated to the
+smallest square holding all but ``tolerance`` of their absolute sum; the same
+taps run on the CPU (here, by FFT) and on the GPU (the runtime's separable
+low-rank passes), with mirrored image borders in both.  :func:`wiener` then
+clips ``v = F t`` to [0, 1] and blends it with the target by the weight that
 minimises the true objective (closed form).  ``mu`` (relative to the largest
 eigenvalue of ``K^H K``) is chosen from a few values; the blend weight 0 is no
 correction, so the result is never worse than no correction.  Contrast
@@ -16,12 +22,17 @@ from __future__ import annotations
 
 from typing import Sequence
 
+import functools
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.fft
 
+from ..kernel import EyeKernel
 from . import Problem
 
-DEFAULT_REGULARISATION = (0.01, 0.03, 0.1, 0.3)
+DEFAULT_REGULARISATION = (0.03, 0.1, 0.3)
+DESIGN_TOLERANCE = 1e-3       # largest discarded absolute sum of the filters of one output primary
 
 
 def padded_shape(height: int, width: int, kernel_size: int) -> tuple[int, int]:
@@ -34,9 +45,11 @@ def centred_kernel(kernel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """``(..., s, s)`` kernel zero-padded to ``shape`` with its centre wrapped to the origin,
     so the circular convolution on that grid has no shift."""
     s = kernel.shape[-1]
-    out = np.zeros(kernel.shape[:-2] + tuple(shape))
-    out[..., :s, :s] = kernel
-    return np.roll(out, (-(s // 2), -(s // 2)), axis=(-2, -1))
+    out = np.zeros(kernel.shape[:-2] + tuple(shape), dtype=kernel.dtype)
+    ys = (np.arange(s) - s // 2) % shape[0]
+    xs = (np.arange(s) - s // 2) % shape[1]
+    out[..., ys[:, None], xs[None, :]] = kernel
+    return out
 
 
 def spectral_norm_squared(kernel: np.ndarray) -> float:
@@ -46,16 +59,6 @@ def spectral_norm_squared(kernel: np.ndarray) -> float:
     Perron-Frobenius monotonicity, ``||K(f)|| <= ||A||``: the maximum is at DC.
     """
     return float(np.linalg.norm(kernel.sum(axis=(-2, -1)), 2) ** 2)
-
-
-def _padded_spectra(problem: Problem):
-    H, W = problem.target.shape[:2]
-    P = padded_shape(H, W, problem.kernel.size)
-    Kf = scipy.fft.rfft2(centred_kernel(problem.kernel.kernel, P), axes=(2, 3), workers=-1)   # (3, 3, P0, F1)
-    # target cone image extended by mirror reflection, so the borders do not ring
-    t = np.pad(problem.target_lms.astype(np.float64), ((0, P[0] - H), (0, P[1] - W), (0, 0)), mode="symmetric")
-    Tf = scipy.fft.rfft2(np.moveaxis(t, 2, 0), axes=(1, 2), workers=-1)  # (3, P0, F1)
-    return Kf, Tf, P
 
 
 def inv3(M):
@@ -110,6 +113,112 @@ def _inverse_from_spectrum(Kf: np.ndarray, mu_rel: float, lam_max: float) -> np.
     return matmul3(inv3(M), np.conj(np.swapaxes(Kf, 0, 1)))
 
 
+@dataclass(frozen=True, eq=False)
+class CorrectionFilters:
+    """The regularised inverse of one eye as spatial filters (see :func:`correction_filters`).
+
+    Attributes
+    ----------
+    taps
+        ``(3, 3, S, S)`` float64, ``taps[i, j]`` maps input primary ``j`` to output primary ``i``;
+        centred (``S`` odd), applied as a convolution ``out_i = sum_j taps[i, j] * in_j``.
+    mu_rel
+        Regulariser relative to the largest eigenvalue of ``K^H K``.
+    tail
+        Largest discarded absolute sum of one output primary's filters (the truncation error bound
+        for inputs in [0, 1]).
+    design_grid
+        FFT grid on which the filters were designed (``N x N``).
+    """
+
+    taps: np.ndarray
+    mu_rel: float
+    tail: float
+    design_grid: int
+
+    @property
+    def size(self) -> int:
+        return int(self.taps.shape[-1])
+
+
+def _chebyshev_tails(f: np.ndarray) -> np.ndarray:
+    """``tails[r]``: the largest over output primaries of ``sum_j sum_{|y|,|x| > r} |f_ij|`` for an
+    origin-centred (wrapped) ``(3, 3, N, N)`` bank (r = 0 .. N/2)."""
+    N = f.shape[-1]
+    idx = np.minimum(np.arange(N), N - np.arange(N))                     # wrapped distance to 0
+    d = np.maximum(idx[:, None], idx[None, :]).ravel()
+    per_out = np.abs(f).sum(axis=1).reshape(3, -1)                      # (3 out, N*N)
+    tails = []
+    for row in per_out:
+        ring = np.bincount(d, weights=row, minlength=N // 2 + 1)       # mass at Chebyshev radius r
+        tails.append(row.sum() - np.cumsum(ring))                       # mass outside radius r
+    return np.max(tails, axis=0)
+
+
+@functools.lru_cache(maxsize=32)
+def correction_filters(kernel: EyeKernel, mu_rel: float, reference_kernel: EyeKernel | None = None,
+                       tolerance: float = DESIGN_TOLERANCE) -> CorrectionFilters:
+    """Design the regularised inverse ``F = (K^H K + mu I)^-1 K^H T`` as spatial filters.
+
+    Parameters
+    ----------
+    kernel
+        The eye's kernel (not the identity kernel: see :func:`wiener`).
+    mu_rel
+        Regulariser relative to the largest eigenvalue of ``K^H K`` (> 0).
+    reference_kernel
+        The glasses-on eye (``T = K_ref``); ``None``: the ideal target ``T = A``.
+    tolerance
+        Truncation: the filters keep the smallest centred square whose discarded absolute sum
+        is at most this, per output primary (so the error for inputs in [0, 1] is at most this).
+
+    The design grid starts at 8 kernel widths (at least 64) and doubles (to 4096 at most)
+    until the filters' mass near the grid's edge is negligible, so the periodic design
+    does not alias their tails.  Designs are cached per (kernel object, mu_rel, reference,
+    tolerance): one eye's filters are designed once, whatever the number of images.
+    """
+    if not mu_rel > 0:
+        raise ValueError(f"mu_rel must be > 0, got {mu_rel!r}")
+    widths = [kernel.size] + ([reference_kernel.size] if reference_kernel is not None else [])
+    N = max(64, 1 << int(np.ceil(np.log2(8 * max(widths)))))
+    lam_max = spectral_norm_squared(kernel.kernel)
+    while True:
+        # batched 3x3 algebra per frequency: (N, N/2+1, 3, 3)
+        Kb = np.moveaxis(scipy.fft.rfft2(centred_kernel(kernel.kernel, (N, N)), axes=(2, 3), workers=-1), (0, 1), (2, 3))
+        Kh = np.conj(np.swapaxes(Kb, 2, 3))
+        G = Kh @ Kb + (mu_rel * lam_max) * np.eye(3)
+        if reference_kernel is None:
+            rhs = Kh @ kernel.matrix
+        else:
+            Tb = scipy.fft.rfft2(centred_kernel(reference_kernel.kernel, (N, N)), axes=(2, 3), workers=-1)
+            rhs = Kh @ np.moveaxis(Tb, (0, 1), (2, 3))
+        Fb = np.linalg.solve(G, rhs)
+        f = scipy.fft.irfft2(np.moveaxis(Fb, (2, 3), (0, 1)), s=(N, N), axes=(2, 3), workers=-1)
+        tails = _chebyshev_tails(f)
+        edge = tails[N // 2 - N // 8]                                          # mass in the outer eighth
+        if edge <= 0.01 * tolerance or N >= 4096:
+            break
+        N *= 2
+    r = int(np.argmax(tails <= tolerance)) if np.any(tails <= tolerance) else N // 2
+    idx = np.arange(-r, r + 1) % N
+    taps = np.ascontiguousarray(f[:, :, idx[:, None], idx[None, :]])
+    return CorrectionFilters(taps=taps, mu_rel=float(mu_rel), tail=float(tails[r]) if r < len(tails) else 0.0,
+                             design_grid=N)
+
+
+def apply_filters(image_chw: np.ndarray, taps: np.ndarray) -> np.ndarray:
+    """``out_i = sum_j taps[i, j] * image_j`` with mirrored borders (edge pixel repeated:
+    numpy's ``symmetric``, OpenGL's ``MIRRORED_REPEAT``), by FFT; float32 ``(3, H, W)``."""
+    _, H, W = image_chw.shape
+    r = taps.shape[-1] // 2
+    Q = (scipy.fft.next_fast_len(H + 2 * r, real=True), scipy.fft.next_fast_len(W + 2 * r, real=True))
+    x = np.pad(image_chw.astype(np.float32), ((0, 0), (r, r), (r, r)), mode="symmetric")
+    X = scipy.fft.rfft2(x, s=Q, axes=(1, 2), workers=-1)
+    Ff = scipy.fft.rfft2(centred_kernel(taps, Q).astype(np.float32), axes=(2, 3), workers=-1)
+    y = scipy.fft.irfft2(apply3(Ff, X), s=Q, axes=(1, 2), workers=-1)
+    return y[:, r:r + H, r:r + W].astype(np.float32)
+
+
 class _FastObjective:
     """The objective with the kernel's spectrum computed once (exact linear convolution, zero outside)."""
 
@@ -126,41 +235,51 @@ class _FastObjective:
         return y - self.t if offset else y
 
 
-def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARISATION) -> tuple[np.ndarray, dict]:
+def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARISATION,
+           beta: float | None = None, tolerance: float = DESIGN_TOLERANCE) -> tuple[np.ndarray, dict]:
     """Best blend of the target and the clipped regularised inverse; returns (image, settings).
 
-    For each ``mu_rel`` in ``regularisation``: ``v = W t`` clipped to [0, 1],
-    then ``x = t + beta (clip(v) - t)`` with ``beta`` in [0, 1] minimising the
-    objective in closed form (it is quadratic in ``beta``, and every blend of two
-    images in [0, 1] stays in [0, 1]).  ``beta = 0`` is no correction, so the
-    result is never worse than no correction.
+    For each ``mu_rel`` in ``regularisation``: ``v = F t'`` (:func:`correction_filters`,
+    :func:`apply_filters`; ``t'`` the contrast-scaled target) clipped to [0, 1], then
+    ``x = t + beta (clip(v) - t)`` with ``beta`` in [0, 1] minimising the objective in closed
+    form (it is quadratic in ``beta``, and every blend of two images in [0, 1] stays in
+    [0, 1]); ``beta = 0`` is no correction, so the result is never worse than no correction.
+    A fixed ``beta`` (the real-time path's, chosen once per eye) skips that choice.
     """
+    from . import scale_contrast
+
     H, W = problem.target.shape[:2]
     if problem.kernel.size == 1:
         x = np.clip(problem.target_lms @ np.linalg.inv(problem.kernel.matrix).T, 0, 1).astype(np.float32)
         return x, {"chosen": "colour matrix (identity kernel)", "beta": 1.0, "mu_rel": 0.0}
-    Kf, Tf, P = _padded_spectra(problem)
+    if beta is not None and not 0.0 <= beta <= 1.0:
+        raise ValueError(f"beta must be in [0, 1], got {beta!r}")
+    P = padded_shape(H, W, problem.kernel.size)
+    Kf = scipy.fft.rfft2(centred_kernel(problem.kernel.kernel, P), axes=(2, 3), workers=-1)   # (3, 3, P0, F1)
     f = _FastObjective(problem, Kf, P)
     t_rgb = np.moveaxis(problem.target.astype(np.float64), 2, 0)
+    t_in = np.moveaxis(scale_contrast(problem.target, problem.contrast), 2, 0)
     r0 = f.residual(t_rgb)
     best = (float(np.mean(r0 * r0)), t_rgb, {"chosen": "no correction", "beta": 0.0, "mu_rel": None})
-    lam_max = spectral_norm_squared(problem.kernel.kernel)
     tried = []
     for mu_rel in regularisation:
-        Wf = _inverse_from_spectrum(Kf, mu_rel, lam_max)                 # (3 prim, 3 cones, P0, F1)
-        v = scipy.fft.irfft2(apply3(Wf, Tf), s=P, axes=(1, 2), workers=-1)[:, :H, :W]
+        filters = correction_filters(problem.kernel, mu_rel, problem.reference_kernel, tolerance)
+        v = apply_filters(t_in, filters.taps).astype(np.float64)
         d = np.clip(v, 0.0, 1.0) - t_rgb
         Kd = f.residual(d, offset=False)
-        denom = float(np.sum(Kd * Kd))
-        beta = float(np.clip(-np.sum(r0 * Kd) / denom, 0.0, 1.0)) if denom > 0 else 0.0
-        x = t_rgb + beta * d
-        res = r0 + beta * Kd
+        if beta is None:
+            denom = float(np.sum(Kd * Kd))
+            b = float(np.clip(-np.sum(r0 * Kd) / denom, 0.0, 1.0)) if denom > 0 else 0.0
+        else:
+            b = float(beta)
+        x = t_rgb + b * d
+        res = r0 + b * Kd
         obj = float(np.mean(res * res))
-        tried.append({"mu_rel": mu_rel, "beta": beta, "objective": obj,
+        tried.append({"mu_rel": mu_rel, "beta": b, "objective": obj, "filter_size": filters.size,
                       "clipped_fraction": float(np.mean((v < 0) | (v > 1)))})
-        if obj < best[0]:
-            best = (obj, x, {"chosen": "blend of target and clipped regularised inverse", "beta": beta,
-                             "mu_rel": mu_rel})
+        if obj < best[0] or beta is not None:
+            best = (obj, x, {"chosen": "blend of target and clipped regularised inverse", "beta": b,
+                             "mu_rel": mu_rel, "filter_size": filters.size, "filter_tail": filters.tail})
     settings = dict(best[2])
     settings["candidates"] = tried
     return np.clip(np.moveaxis(best[1], 0, 2), 0.0, 1.0).astype(np.float32), settings
