@@ -10,15 +10,30 @@ if ! "$PY" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; th
   exit 1
 fi
 
-# Debian packages: the venv module (and, from the renderer on, GL/X libraries).
+# Debian packages: the venv module; for the real-time renderer's tests, Mesa's EGL and GL with
+# the llvmpipe software rasteriser (moderngl's headless context: libEGL.so.1 + libEGL_mesa,
+# libGL.so.1 + libGLX_mesa, swrast_dri.so), and Xvfb with the X libraries the glfw wheel's
+# libglfw.so loads at run time (X11, X11-xcb, Xext, Xrender, Xrandr, Xinerama, Xcursor, Xi,
+# Xxf86vm). One dpkg-query for all of them, so a set-up that changed nothing stays quick.
 need_apt=()
 "$PY" -c 'import ensurepip, venv' 2>/dev/null || need_apt+=(python3-venv)
+gl_debs=(libegl1 libegl-mesa0 libgl1 libglx-mesa0 libgl1-mesa-dri xvfb
+         libx11-6 libx11-xcb1 libxext6 libxrender1 libxrandr2 libxinerama1 libxcursor1 libxi6 libxxf86vm1)
+if command -v dpkg-query >/dev/null; then
+  have=$(dpkg-query -W -f='${Package} ${db:Status-Abbrev}\n' "${gl_debs[@]}" 2>/dev/null | awk '$2 == "ii" {print $1}' || true)
+  for p in "${gl_debs[@]}"; do
+    grep -qx "$p" <<<"$have" || need_apt+=("$p")
+  done
+else
+  echo "note: not a Debian/Ubuntu system; the GL tests need Mesa EGL/GL (llvmpipe), Xvfb and the X11 libraries GLFW loads" >&2
+fi
 if [ ${#need_apt[@]} -gt 0 ]; then
   if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
     echo "installing Debian packages: ${need_apt[*]}"
-    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need_apt[@]}" >/dev/null
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${need_apt[@]}" >/dev/null
   else
     echo "please install the Debian packages: ${need_apt[*]}" >&2
+    echo "  (as root: apt-get install --no-install-recommends ${need_apt[*]})" >&2
     exit 1
   fi
 fi
@@ -32,9 +47,9 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "installing Python packages into .venv (first run takes a few minutes) ..."
   .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip 2>&1 | grep -v "^WARNING: Location" || true
   # torch==2.13.0 (CPU build) is pinned in the 'solve' extra: pip takes it from this machine's disk.
-  .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[solve,metrics,test]" 2>&1 \
+  .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[solve,metrics,test,realtime]" 2>&1 \
     | grep -v -e "^WARNING: Location" -e "BuildBackendWarning" || true
-  .venv/bin/python -c "import vrcorrect, numpy, scipy, colour, PIL, torch, pytest, hypothesis" \
+  .venv/bin/python -c "import vrcorrect, numpy, scipy, colour, PIL, torch, pytest, hypothesis, moderngl, glfw, onnxruntime, onnx" \
     || { echo "installation failed" >&2; exit 1; }
   echo "$want" > "$stamp"
 fi
