@@ -76,3 +76,63 @@ def test_model_path_does_not_import_torch():
             "from vrcorrect.cli import build_parser; build_parser(); "
             "sys.exit(1 if 'torch' in sys.modules else 0)")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+# --------------------------------------------------------------------------
+# The real-time sub-package (layer 5): layers 0-4 only, never torch, never the torch solvers
+# --------------------------------------------------------------------------
+
+RUNTIME = PKG / "runtime"
+RUNTIME_FORBIDDEN = ("torch", "vrcorrect.solvers.iterative")
+
+
+def _absolute_imports(path: Path, package: str) -> set[str]:
+    """Every module name a file of ``package`` imports, relative imports resolved, including
+    imports inside functions (lazy imports count)."""
+    tree = ast.parse(path.read_text())
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parent = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(parent + ([node.module] if node.module else []))
+            names.add(base)
+            names.update(f"{base}.{a.name}" for a in node.names)  # 'from ..solvers import iterative'
+        elif isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+    return names
+
+
+def _runtime_modules() -> list[str]:
+    return sorted(p.stem for p in RUNTIME.glob("*.py"))
+
+
+def test_runtime_package_exists_at_layer_5():
+    assert (RUNTIME / "__init__.py").exists() and LAYER["runtime"] == 5
+
+
+@pytest.mark.parametrize("module", _runtime_modules())
+def test_runtime_imports_only_layers_up_to_4(module):
+    for name in _absolute_imports(RUNTIME / f"{module}.py", "vrcorrect.runtime"):
+        top = name.split(".")[0]
+        assert not any(name == f or name.startswith(f + ".") for f in RUNTIME_FORBIDDEN), \
+            f"runtime/{module} imports {name} (the real-time path must not import torch)"
+        if top != "vrcorrect" or name == "vrcorrect":
+            continue
+        dep = name.split(".")[1]
+        if dep == "runtime":
+            continue  # within the sub-package
+        assert dep in LAYER, f"runtime/{module} imports {name}: unknown module"
+        assert LAYER[dep] <= 4, f"runtime/{module} (layer 5) imports {name} (layer {LAYER[dep]})"
+
+
+def test_runtime_imports_no_torch_at_run_time():
+    """Importing the sub-package and every module in it, in a fresh interpreter."""
+    modules = ["vrcorrect.runtime"] + [f"vrcorrect.runtime.{m}" for m in _runtime_modules() if m != "__init__"]
+    code = ("import importlib, sys\n"
+            f"for m in {modules!r}: importlib.import_module(m)\n"
+            f"bad = [m for m in {RUNTIME_FORBIDDEN!r} if m in sys.modules]\n"
+            "print(' '.join(bad)); sys.exit(1 if bad else 0)")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, f"importing {modules} imported: {result.stdout}{result.stderr}"

@@ -75,3 +75,39 @@ class InputError(VrcorrectError, OSError):
 
 class ModelLimitError(VrcorrectError, ValueError):
     """A request the model cannot honour within its resource limits."""
+
+
+class ShaderError(VrcorrectError, RuntimeError):
+    """A GLSL program that cannot be assembled: no ``#version``, an include cycle, a bad directive.
+
+    The message starts with the file and line (``passthrough.glsl:3``) and, for problems
+    inside included files, the chain of includes that led there.
+    """
+
+
+class ShaderCompileError(ShaderError):
+    """The GL driver rejected a program; every location in the log is mapped back to its file.
+
+    Attributes
+    ----------
+    program
+        The program file, e.g. ``"passthrough.glsl"``.
+    log
+        The driver's log with each ``source:line`` rewritten as ``file.glsl:line``.
+    raw_log
+        The driver's log as it came.
+    """
+
+    def __init__(self, program: str, log: str, raw_log: str):
+        self.program = program
+        self.log = log
+        self.raw_log = raw_log
+        super().__init__(f"shader program {program} failed to build:\n{log}")
+
+
+class GLError(VrcorrectError, RuntimeError):
+    """OpenGL reported an error (``glGetError``) or an operation the driver refused."""
+
+
+class GLUnavailableError(GLError):
+    """No OpenGL context could be created (library missing, no display, version too old)."""

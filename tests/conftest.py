@@ -1,0 +1,107 @@
+"""Shared fixtures: an X display for GLFW windows (a private Xvfb when none is set) and the
+headless OpenGL context of the real-time tests.
+
+These tests must run, not skip, wherever tools/setup.sh has run (it installs xvfb and Mesa):
+a missing piece fails with what to install.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import shutil
+import subprocess
+import tempfile
+import time
+from typing import Iterator
+
+import pytest
+
+XVFB_START_TIMEOUT_S = 30.0
+
+
+@pytest.fixture(scope="session")
+def x_display() -> Iterator[str]:
+    """An X display name for the session (``DISPLAY`` is set to it while the session runs).
+
+    With ``DISPLAY`` already set, that display is used as it is. Otherwise this starts
+    ``Xvfb`` itself (no ``xvfb-run``): ``-displayfd`` makes Xvfb choose a free display number
+    (it skips numbers whose lock file exists, so parallel sessions and workers do not clash)
+    and report it once the server accepts connections. The server is stopped at the end.
+    """
+    existing = os.environ.get("DISPLAY")
+    if existing:
+        yield existing
+        return
+    xvfb = shutil.which("Xvfb")
+    if xvfb is None:
+        pytest.fail("Xvfb not found: install the Debian package xvfb (tools/setup.sh does)")
+    read_fd, write_fd = os.pipe()
+    log = tempfile.TemporaryFile()
+    proc = subprocess.Popen(
+        [xvfb, "-displayfd", str(write_fd), "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
+        pass_fds=(write_fd,), stdout=log, stderr=log, stdin=subprocess.DEVNULL,
+    )
+    os.close(write_fd)
+    try:
+        number = _read_display_number(read_fd, proc)
+        if number is None:
+            proc.kill()
+            proc.wait()
+            log.seek(0)
+            pytest.fail(f"Xvfb did not start within {XVFB_START_TIMEOUT_S:.0f} s (exit status "
+                        f"{proc.returncode}):\n{log.read().decode(errors='replace')[-2000:]}")
+        display = f":{number}"
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setenv("DISPLAY", display)
+            yield display
+    finally:
+        os.close(read_fd)
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        log.close()
+
+
+def _read_display_number(fd: int, proc: subprocess.Popen) -> int | None:
+    """The display number Xvfb writes to ``-displayfd`` (a line), or None if it never comes."""
+    deadline = time.monotonic() + XVFB_START_TIMEOUT_S
+    data = b""
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([fd], [], [], 0.1)
+        if ready:
+            chunk = os.read(fd, 64)
+            if not chunk:  # Xvfb exited (closed its end) without a number
+                return None
+            data += chunk
+            if b"\n" in data:
+                text = data.split(b"\n", 1)[0].strip()
+                return int(text) if text.isdigit() else None
+        elif proc.poll() is not None:
+            return None
+    return None
+
+
+@pytest.fixture(scope="session")
+def headless_gl():
+    """The session's headless OpenGL context (EGL, Mesa llvmpipe in CI); released at the end."""
+    from vrcorrect.runtime.gl import headless_context
+
+    ctx = headless_context()
+    yield ctx
+    ctx.release()
+
+
+@pytest.fixture
+def gl(headless_gl):
+    """The headless context, made current for one test, with no GL error before or after it."""
+    from vrcorrect.runtime.gl import check_gl_errors
+
+    with headless_gl:  # current again even if a window test made its own context current
+        check_gl_errors(headless_gl, "before the test")
+        yield headless_gl
+        check_gl_errors(headless_gl, "after the test")
