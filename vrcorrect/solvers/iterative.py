@@ -185,7 +185,7 @@ def _coarse_to_fine(problem: Problem, kernel: np.ndarray, target: torch.Tensor, 
         return target.clone(), None, ["target"]
     sub = Problem(target=_hwc(target), kernel=dataclasses.replace(problem.kernel, kernel=kernel),
                   target_lms=_hwc(t_lms))
-    x0, _ = wiener(sub, regularisation=(0.03,))
+    x0, _ = wiener(sub, regularisation=(0.03,), design=False)
     return _chw(x0), None, ["wiener"]
 
 

@@ -32,6 +32,7 @@ from ..kernel import EyeKernel
 from . import Problem
 
 DEFAULT_REGULARISATION = (0.03, 0.1, 0.3)
+MAX_DESIGN_GRID = 2048
 DESIGN_TOLERANCE = 1e-3       # largest discarded absolute sum of the filters of one output primary
 
 
@@ -155,6 +156,44 @@ def _chebyshev_tails(f: np.ndarray) -> np.ndarray:
     return np.max(tails, axis=0)
 
 
+def _inverse_spectrum(kernel: EyeKernel, reference_kernel: EyeKernel | None, mu: float,
+                      shape: tuple[int, int]) -> np.ndarray:
+    """``F(f) = (K^H K + mu I)^-1 K^H T(f)`` on a periodic ``shape`` grid (origin-centred
+    kernels), ``(3, 3, P0, P1 // 2 + 1)`` complex; the 3x3 algebra in blocks of rows (bounded memory)."""
+    Kf = scipy.fft.rfft2(centred_kernel(kernel.kernel, shape), axes=(2, 3), workers=-1)
+    Tf = (scipy.fft.rfft2(centred_kernel(reference_kernel.kernel, shape), axes=(2, 3), workers=-1)
+          if reference_kernel is not None else None)
+    Ff = np.empty_like(Kf)
+    eye = mu * np.eye(3)
+    for r0 in range(0, shape[0], 128):
+        Kb = np.moveaxis(Kf[:, :, r0:r0 + 128], (0, 1), (2, 3))           # (rows, F1, 3, 3)
+        Kh = np.conj(np.swapaxes(Kb, 2, 3))
+        rhs = Kh @ (kernel.matrix if Tf is None else np.moveaxis(Tf[:, :, r0:r0 + 128], (0, 1), (2, 3)))
+        Ff[:, :, r0:r0 + 128] = np.moveaxis(np.linalg.solve(Kh @ Kb + eye, rhs), (2, 3), (0, 1))
+    return Ff
+
+
+def _regularised_inverse(kernel: EyeKernel, reference_kernel: EyeKernel | None, mu: float,
+                         shape: tuple[int, int]) -> np.ndarray:
+    """Spatial ``F`` on a periodic ``shape`` grid, origin-centred, ``(3, 3, *shape)`` float64."""
+    return scipy.fft.irfft2(_inverse_spectrum(kernel, reference_kernel, mu, shape), s=shape, axes=(2, 3),
+                            workers=-1)
+
+
+def _exact_inverse_image(image_chw: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel | None,
+                         mu: float) -> np.ndarray:
+    """``F t`` without truncation: on a periodic grid of the image mirror-padded by one kernel
+    width each side (cheap; the warm start of ``fast``)."""
+    _, H, W = image_chw.shape
+    m = max(kernel.size, reference_kernel.size if reference_kernel is not None else 1)
+    Q = (scipy.fft.next_fast_len(H + 2 * m, real=True), scipy.fft.next_fast_len(W + 2 * m, real=True))
+    x = np.pad(image_chw.astype(np.float64), ((0, 0), (m, m), (m, m)), mode="symmetric")
+    X = scipy.fft.rfft2(x, s=Q, axes=(1, 2), workers=-1)
+    y = scipy.fft.irfft2(apply3(_inverse_spectrum(kernel, reference_kernel, mu, Q), X), s=Q, axes=(1, 2),
+                         workers=-1)
+    return y[:, m:m + H, m:m + W]
+
+
 @functools.lru_cache(maxsize=32)
 def correction_filters(kernel: EyeKernel, mu_rel: float, reference_kernel: EyeKernel | None = None,
                        tolerance: float = DESIGN_TOLERANCE) -> CorrectionFilters:
@@ -172,7 +211,7 @@ def correction_filters(kernel: EyeKernel, mu_rel: float, reference_kernel: EyeKe
         Truncation: the filters keep the smallest centred square whose discarded absolute sum
         is at most this, per output primary (so the error for inputs in [0, 1] is at most this).
 
-    The design grid starts at 8 kernel widths (at least 64) and doubles (to 4096 at most)
+    The design grid starts at 8 kernel widths (at least 64) and doubles (to ``MAX_DESIGN_GRID`` at most)
     until the filters' mass near the grid's edge is negligible, so the periodic design
     does not alias their tails.  Designs are cached per (kernel object, mu_rel, reference,
     tolerance): one eye's filters are designed once, whatever the number of images.
@@ -183,20 +222,10 @@ def correction_filters(kernel: EyeKernel, mu_rel: float, reference_kernel: EyeKe
     N = max(64, 1 << int(np.ceil(np.log2(8 * max(widths)))))
     lam_max = spectral_norm_squared(kernel.kernel)
     while True:
-        # batched 3x3 algebra per frequency: (N, N/2+1, 3, 3)
-        Kb = np.moveaxis(scipy.fft.rfft2(centred_kernel(kernel.kernel, (N, N)), axes=(2, 3), workers=-1), (0, 1), (2, 3))
-        Kh = np.conj(np.swapaxes(Kb, 2, 3))
-        G = Kh @ Kb + (mu_rel * lam_max) * np.eye(3)
-        if reference_kernel is None:
-            rhs = Kh @ kernel.matrix
-        else:
-            Tb = scipy.fft.rfft2(centred_kernel(reference_kernel.kernel, (N, N)), axes=(2, 3), workers=-1)
-            rhs = Kh @ np.moveaxis(Tb, (0, 1), (2, 3))
-        Fb = np.linalg.solve(G, rhs)
-        f = scipy.fft.irfft2(np.moveaxis(Fb, (2, 3), (0, 1)), s=(N, N), axes=(2, 3), workers=-1)
+        f = _regularised_inverse(kernel, reference_kernel, mu_rel * lam_max, (N, N))
         tails = _chebyshev_tails(f)
         edge = tails[N // 2 - N // 8]                                          # mass in the outer eighth
-        if edge <= 0.01 * tolerance or N >= 4096:
+        if edge <= 0.01 * tolerance or N >= MAX_DESIGN_GRID:
             break
         N *= 2
     r = int(np.argmax(tails <= tolerance)) if np.any(tails <= tolerance) else N // 2
@@ -236,7 +265,8 @@ class _FastObjective:
 
 
 def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARISATION,
-           beta: float | None = None, tolerance: float = DESIGN_TOLERANCE) -> tuple[np.ndarray, dict]:
+           beta: float | None = None, tolerance: float = DESIGN_TOLERANCE,
+           design: bool = True) -> tuple[np.ndarray, dict]:
     """Best blend of the target and the clipped regularised inverse; returns (image, settings).
 
     For each ``mu_rel`` in ``regularisation``: ``v = F t'`` (:func:`correction_filters`,
@@ -245,6 +275,8 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
     form (it is quadratic in ``beta``, and every blend of two images in [0, 1] stays in
     [0, 1]); ``beta = 0`` is no correction, so the result is never worse than no correction.
     A fixed ``beta`` (the real-time path's, chosen once per eye) skips that choice.
+    ``design=False`` skips the filter design and applies the untruncated inverse on a
+    mirror-padded FFT grid (cheaper for one image; ``fast`` warm-starts with it).
     """
     from . import scale_contrast
 
@@ -263,8 +295,14 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
     best = (float(np.mean(r0 * r0)), t_rgb, {"chosen": "no correction", "beta": 0.0, "mu_rel": None})
     tried = []
     for mu_rel in regularisation:
-        filters = correction_filters(problem.kernel, mu_rel, problem.reference_kernel, tolerance)
-        v = apply_filters(t_in, filters.taps).astype(np.float64)
+        if design:
+            filters = correction_filters(problem.kernel, mu_rel, problem.reference_kernel, tolerance)
+            v = apply_filters(t_in, filters.taps).astype(np.float64)
+            size, tail = filters.size, filters.tail
+        else:
+            lam_max = spectral_norm_squared(problem.kernel.kernel)
+            v = _exact_inverse_image(t_in, problem.kernel, problem.reference_kernel, mu_rel * lam_max)
+            size, tail = None, 0.0
         d = np.clip(v, 0.0, 1.0) - t_rgb
         Kd = f.residual(d, offset=False)
         if beta is None:
@@ -275,11 +313,11 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
         x = t_rgb + b * d
         res = r0 + b * Kd
         obj = float(np.mean(res * res))
-        tried.append({"mu_rel": mu_rel, "beta": b, "objective": obj, "filter_size": filters.size,
+        tried.append({"mu_rel": mu_rel, "beta": b, "objective": obj, "filter_size": size,
                       "clipped_fraction": float(np.mean((v < 0) | (v > 1)))})
         if obj < best[0] or beta is not None:
             best = (obj, x, {"chosen": "blend of target and clipped regularised inverse", "beta": b,
-                             "mu_rel": mu_rel, "filter_size": filters.size, "filter_tail": filters.tail})
+                             "mu_rel": mu_rel, "filter_size": size, "filter_tail": tail})
     settings = dict(best[2])
     settings["candidates"] = tried
     return np.clip(np.moveaxis(best[1], 0, 2), 0.0, 1.0).astype(np.float32), settings
