@@ -1,0 +1,93 @@
+// Separable low-rank 3x3 filter bank (vrcorrect.runtime.filters): a library for compute programs.
+// Pass selection (define exactly one): PASS_DECODE, PASS_ROWS, PASS_COLS.
+//   PASS_DECODE: u_source (RGBA8 code values or float) -> u_linear image (rgba32f, linear light).
+//   PASS_ROWS:   u_linear -> u_rows_out (image2DArray, layer l holds components 4l..4l+3):
+//                h_c(x, y) = sum_t row_c[t] * in_{channel(c)}(x - (t - R), y)
+//   PASS_COLS:   u_rows_in (sampler2DArray) -> u_out (rgba32f): acc_i(x, Y) =
+//                sum_l sum_t dot(col_{i,l}[t], h_l(x, Y - (t - R))), then combine(acc, target).
+// All indices are GL texel coordinates (row 0 at the bottom; the caller flips the vertical taps).
+// Defines: LAYERS (number of 4-component layers), RADIUS (R), BORDER_ZERO (else mirrored repeat),
+// SOURCE_SRGB (PASS_DECODE: the source holds sRGB code values).
+#ifndef VRCORRECT_FILTER_BANK_GLSL
+#define VRCORRECT_FILTER_BANK_GLSL
+
+layout(local_size_x = 16, local_size_y = 16) in;
+
+// Mirrored repeat (edge texel repeated, period 2n): OpenGL's MIRRORED_REPEAT on texel indices.
+int mirror_index(int i, int n) {
+    int m = i % (2 * n);
+    if (m < 0) m += 2 * n;
+    return m < n ? m : 2 * n - 1 - m;
+}
+
+#if defined PASS_DECODE
+uniform sampler2D u_source;
+layout(rgba32f, binding = 0) writeonly uniform image2D u_linear;
+void main() {
+    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
+    ivec2 size = imageSize(u_linear);
+    if (p.x >= size.x || p.y >= size.y) return;
+    vec4 c = texelFetch(u_source, p, 0);
+#if defined SOURCE_SRGB
+    c.rgb = srgb_to_linear(c.rgb);
+#endif
+    imageStore(u_linear, p, vec4(c.rgb, 1.0));
+}
+#endif
+
+#if defined PASS_ROWS
+uniform sampler2D u_linear_in;          // rgba32f, linear light
+uniform sampler2D u_row_taps;           // width 2R+1, height LAYERS: 4 components' taps per texel
+uniform mat4x3 u_select[LAYERS];        // column c picks the input channel of component 4l+c
+layout(rgba32f, binding = 1) writeonly uniform image2DArray u_rows_out;
+void main() {
+    ivec3 p = ivec3(gl_GlobalInvocationID.xyz);
+    ivec2 size = textureSize(u_linear_in, 0);
+    if (p.x >= size.x || p.y >= size.y || p.z >= LAYERS) return;
+    mat4x3 sel = u_select[p.z];
+    vec4 acc = vec4(0.0);
+    for (int t = 0; t <= 2 * RADIUS; ++t) {
+        int x = p.x - (t - RADIUS);
+#if defined BORDER_ZERO
+        if (x < 0 || x >= size.x) continue;
+#else
+        x = mirror_index(x, size.x);
+#endif
+        vec3 rgb = texelFetch(u_linear_in, ivec2(x, p.y), 0).rgb;
+        acc += texelFetch(u_row_taps, ivec2(t, p.z), 0) * (rgb * sel);
+    }
+    imageStore(u_rows_out, p, acc);
+}
+#endif
+
+#if defined PASS_COLS
+uniform sampler2D u_linear_in;          // the target, for combine()
+uniform sampler2DArray u_rows_in;
+uniform sampler2D u_col_taps;           // width 2R+1, height 3 * LAYERS: row i * LAYERS + l
+layout(rgba32f, binding = 2) writeonly uniform image2D u_out;
+vec3 combine(vec3 filtered, vec3 target);     // defined by the program including this file
+void main() {
+    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
+    ivec2 size = textureSize(u_linear_in, 0);
+    if (p.x >= size.x || p.y >= size.y) return;
+    vec3 acc = vec3(0.0);
+    for (int l = 0; l < LAYERS; ++l) {
+        for (int t = 0; t <= 2 * RADIUS; ++t) {
+            int y = p.y - (t - RADIUS);
+#if defined BORDER_ZERO
+            if (y < 0 || y >= size.y) continue;
+#else
+            y = mirror_index(y, size.y);
+#endif
+            vec4 h = texelFetch(u_rows_in, ivec3(p.x, y, l), 0);
+            acc.r += dot(texelFetch(u_col_taps, ivec2(t, l), 0), h);
+            acc.g += dot(texelFetch(u_col_taps, ivec2(t, LAYERS + l), 0), h);
+            acc.b += dot(texelFetch(u_col_taps, ivec2(t, 2 * LAYERS + l), 0), h);
+        }
+    }
+    vec3 target = texelFetch(u_linear_in, p, 0).rgb;
+    imageStore(u_out, p, vec4(combine(acc, target), 1.0));
+}
+#endif
+
+#endif

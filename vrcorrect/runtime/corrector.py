@@ -1,0 +1,457 @@
+"""The plugin: correct an eye's texture for that eye's prescription, in OpenGL.
+
+``Corrector(ctx, rx, display, eye, backend)`` is built once per prescription and
+eye; ``apply(src_texture, dst_framebuffer)`` then runs every frame:
+
+1. decode the source's sRGB code values to linear light (compute pass);
+2. the correction in linear light: ``backend="glsl"`` runs the ``wiener``
+   method's regularised inverse (designed on the CPU once per eye by
+   :func:`vrcorrect.solvers.wiener.correction_filters`) as a separable low-rank
+   filter bank (:mod:`vrcorrect.runtime.filters`), two compute passes, mirrored
+   borders, then ``x = t + beta (clip(F t) - t)``; ``backend="onnx"`` reads the
+   linear image back, runs an ONNX model through onnxruntime and uploads the
+   result (the learned model's slot, :mod:`vrcorrect.runtime.onnx_backend`);
+3. encode to sRGB into the caller's framebuffer (fragment pass).
+
+``simulate()`` runs the eye's forward model the same way (the bank ``A^-1 K``,
+black outside the image): what the eye sees of the displayed image, for previews.
+
+The regulariser and the blend weight are chosen once per eye, by the CPU
+``wiener`` method on the bundled sample image (so the GPU result equals
+``wiener(problem, regularisation=(mu,), beta=beta)`` on the CPU up to the
+bank's rank tolerance and float32).  All GPU objects are made at build time or
+on the first frame of a given size; later frames allocate nothing.  ``poll()``
+reloads the prescription file when it changes on disk and keeps the last good
+state (with a message in ``status``) when the new file is invalid.
+
+Layer 5: numpy, moderngl (and onnxruntime for that backend); never torch.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ValidationError, VrcorrectError
+from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
+from .gl import check_gl_errors, fullscreen_triangle, release
+from .shaders import compile_compute, compile_program
+
+__all__ = ["CorrectorOptions", "EyeModel", "Corrector", "BACKENDS", "build_eye_model"]
+
+log = logging.getLogger(__name__)
+
+BACKENDS = ("glsl", "onnx")
+_GROUP = 16                                     # local_size of filter_bank.glsl
+
+
+@dataclass(frozen=True)
+class CorrectorOptions:
+    """How the correction is designed (frozen; defaults are the product's).
+
+    Attributes
+    ----------
+    regularisation
+        Candidate regularisers (relative to the kernel's spectral norm squared) tried by the
+        CPU ``wiener`` on the sample image; the best is kept.
+    beta
+        Fixed blend weight in [0, 1]; ``None``: chosen with the regulariser.
+    reference
+        ``"glasses"`` (the target is what the eye sees wearing its glasses) or ``"ideal"``.
+    design_tolerance
+        Truncation of the designed filters (see ``correction_filters``).
+    rank_tolerance
+        Reconstruction error of the separable bank (see ``separable_bank``).
+    choice_size
+        Side of the sample image the regulariser and blend are chosen on (pixels).
+    model
+        ONNX model path for ``backend="onnx"``.
+    """
+
+    regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
+    beta: float | None = None
+    reference: str = "glasses"
+    design_tolerance: float = 1e-3
+    rank_tolerance: float = DEFAULT_RANK_TOLERANCE
+    choice_size: int = 128
+    model: str | None = None
+    kernel_options: Any = None
+
+    def __post_init__(self) -> None:
+        if not self.regularisation or not all(isinstance(m, (int, float)) and m > 0 for m in self.regularisation):
+            raise ValidationError("regularisation", self.regularisation, "one or more numbers > 0")
+        if self.beta is not None and not (isinstance(self.beta, (int, float)) and 0.0 <= self.beta <= 1.0):
+            raise ValidationError("beta", self.beta, "a number in [0, 1] or None")
+        if self.reference not in ("glasses", "ideal"):
+            raise ValidationError("reference", self.reference, "'glasses' or 'ideal'")
+
+
+@dataclass(frozen=True, eq=False)
+class EyeModel:
+    """Everything the GPU needs for one eye, computed on the CPU (numpy)."""
+
+    eye: Any                                     # EyeRx
+    kernel: Any                                  # EyeKernel
+    correction: SeparableBank
+    simulation: SeparableBank
+    mu_rel: float
+    beta: float
+    filter_size: int
+    build_seconds: float
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+
+def _sample_target(size: int) -> np.ndarray:
+    from ..display import decode
+    from ..imageio import read_image
+
+    img = read_image(Path(__file__).resolve().parents[1] / "data" / "sample.png")
+    h, w = img.shape[:2]
+    s = min(h, w)
+    img = img[(h - s) // 2:(h - s) // 2 + s, (w - s) // 2:(w - s) // 2 + s]
+    step = max(1, s // size)
+    n = s // step
+    lin = decode("srgb", img[:n * step, :n * step].astype(np.float64))
+    return lin.reshape(n, step, n, step, 3).mean(axis=(1, 3)).astype(np.float32)      # area average
+
+
+def _identity_bank() -> SeparableBank:
+    return separable_bank(np.eye(3)[:, :, None, None])
+
+
+def build_eye_model(eye_rx, display, options: CorrectorOptions = CorrectorOptions()) -> EyeModel:
+    """Kernel, regulariser, blend weight and both separable banks for one eye (CPU, numpy)."""
+    from ..kernel import KernelOptions, build_kernel, build_reference_kernel
+    from ..solvers import make_problem
+    from ..solvers.wiener import correction_filters, wiener
+
+    t0 = time.perf_counter()
+    kopts = options.kernel_options or KernelOptions()
+    kernel = build_kernel(eye_rx, display, kopts)
+    notes = []
+    A = kernel.matrix
+    sim_taps = np.einsum("ik,kjyx->ijyx", np.linalg.inv(A), kernel.kernel)      # A^-1 K: display RGB seen
+    simulation = separable_bank(sim_taps, options.rank_tolerance)
+    if kernel.identity or kernel.size == 1:
+        notes.append("the eye is sharp at this display (identity kernel): correction is the identity")
+        return EyeModel(eye=eye_rx, kernel=kernel, correction=_identity_bank(), simulation=simulation,
+                        mu_rel=0.0, beta=1.0, filter_size=1, build_seconds=time.perf_counter() - t0,
+                        notes=tuple(notes))
+    reference = build_reference_kernel(eye_rx, display, kopts) if options.reference == "glasses" else None
+    if reference is not None and reference.kernel.shape == kernel.kernel.shape and \
+            np.allclose(reference.kernel, kernel.kernel, rtol=0, atol=1e-9):
+        notes.append("the eye sees as well as with its glasses (nothing to correct): correction is the identity")
+        return EyeModel(eye=eye_rx, kernel=kernel, correction=_identity_bank(), simulation=simulation,
+                        mu_rel=0.0, beta=1.0, filter_size=1, build_seconds=time.perf_counter() - t0,
+                        notes=tuple(notes))
+    problem = make_problem(_sample_target(options.choice_size), kernel, reference)
+    _, settings = wiener(problem, regularisation=options.regularisation, beta=options.beta,
+                         tolerance=options.design_tolerance)
+    mu = settings.get("mu_rel") or options.regularisation[0]
+    beta = float(settings["beta"]) if settings.get("mu_rel") is not None else 0.0
+    notes.append(f"regulariser {mu:g} and blend {beta:.3f} chosen by wiener on the sample image")
+    filters = correction_filters(kernel, mu, reference, options.design_tolerance)
+    correction = separable_bank(filters.taps, options.rank_tolerance)
+    return EyeModel(eye=eye_rx, kernel=kernel, correction=correction, simulation=simulation, mu_rel=float(mu),
+                    beta=beta, filter_size=filters.size, build_seconds=time.perf_counter() - t0,
+                    notes=tuple(notes))
+
+
+class _BankGL:
+    """One separable bank's taps on the GPU and its two compute programs."""
+
+    def __init__(self, ctx, program: str, bank: SeparableBank, border: str):
+        self.ctx, self.bank = ctx, bank
+        C = bank.components
+        self.layers = L = (C + 3) // 4
+        S = bank.size
+        rows = np.zeros((L * 4, S), np.float32)
+        rows[:C] = bank.rows
+        # (L, S, 4): texel (t, l) = the taps at offset t of components 4l..4l+3
+        self.row_taps = ctx.texture((S, L), 4, np.ascontiguousarray(rows.reshape(L, 4, S).transpose(0, 2, 1)),
+                                    dtype="f4")
+        cols = np.zeros((3, L * 4, S), np.float32)
+        cols[:, :C] = bank.cols[:, :, ::-1]           # GL rows run bottom-up: flip the vertical taps
+        self.col_taps = ctx.texture((S, 3 * L), 4,
+                                    np.ascontiguousarray(cols.reshape(3, L, 4, S).transpose(0, 1, 3, 2)), dtype="f4")
+        for t in (self.row_taps, self.col_taps):
+            t.filter = (ctx.NEAREST, ctx.NEAREST)
+        select = np.zeros((L * 4, 3), np.float32)     # mat4x3 per layer: column c = one-hot channel
+        select[np.arange(C), bank.channel] = 1.0
+        defines = {"LAYERS": L, "RADIUS": bank.radius}
+        if border == "zero":
+            defines["BORDER_ZERO"] = None
+        self.rows_prog = compile_compute(ctx, program, defines={**defines, "PASS_ROWS": None})
+        self.cols_prog = compile_compute(ctx, program, defines={**defines, "PASS_COLS": None})
+        self.rows_prog["u_select"].write(select.reshape(L, 4, 3).tobytes())
+
+    def run(self, linear_in, rows_array, out, uniforms: dict[str, float] | None = None) -> None:
+        W, H = linear_in.size
+        ctx = self.ctx
+        linear_in.use(0)
+        self.row_taps.use(1)
+        self.rows_prog["u_linear_in"] = 0
+        self.rows_prog["u_row_taps"] = 1
+        rows_array.bind_to_image(1, read=False, write=True)
+        self.rows_prog.run(math.ceil(W / _GROUP), math.ceil(H / _GROUP), self.layers)
+        ctx.memory_barrier()
+        linear_in.use(0)
+        rows_array.use(2)
+        self.col_taps.use(3)
+        p = self.cols_prog
+        p["u_linear_in"] = 0
+        p["u_rows_in"] = 2
+        p["u_col_taps"] = 3
+        for name, value in (uniforms or {}).items():
+            if name in p:
+                p[name] = value
+        out.bind_to_image(2, read=False, write=True)
+        p.run(math.ceil(W / _GROUP), math.ceil(H / _GROUP), 1)
+        ctx.memory_barrier()
+
+    def release(self) -> None:
+        release(self.row_taps, self.col_taps, self.rows_prog, self.cols_prog)
+
+
+def _load_rx(rx):
+    from ..prescription import Prescription, load_prescription
+
+    if isinstance(rx, Prescription):
+        return rx, None
+    if isinstance(rx, (str, os.PathLike)):
+        return load_prescription(rx), Path(rx)
+    raise ValidationError("rx", type(rx).__name__, "a prescription JSON path or a Prescription")
+
+
+def _file_stamp(path: Path) -> tuple[float, int] | None:
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_mtime_ns, st.st_size)
+
+
+class Corrector:
+    """Corrects one eye's texture for its prescription (see the module docstring).
+
+    Parameters
+    ----------
+    ctx
+        A moderngl context with OpenGL >= 4.3 (compute shaders).
+    rx
+        Prescription JSON path (watched by :meth:`poll`) or a :class:`~vrcorrect.prescription.Prescription`.
+    display
+        Display preset name, profile path or :class:`~vrcorrect.display.DisplayProfile`.
+    eye
+        ``"right"`` or ``"left"``.
+    backend
+        ``"glsl"`` (the wiener fallback) or ``"onnx"`` (a model through onnxruntime; needs ``model=``).
+    **options
+        Fields of :class:`CorrectorOptions`.
+    """
+
+    POLL_INTERVAL_S = 0.25
+
+    def __init__(self, ctx, rx, display, eye: str, backend: str = "glsl", **options):
+        from ..display import DisplayProfile, get_display
+
+        if backend not in BACKENDS:
+            raise ValidationError("backend", backend, "one of " + ", ".join(BACKENDS))
+        if eye not in ("right", "left"):
+            raise ValidationError("eye", eye, "'right' or 'left'")
+        if ctx.version_code < 430:
+            raise ValidationError("ctx", f"OpenGL {ctx.version_code}", "a context with OpenGL 4.3 or newer")
+        self.ctx, self.eye_name, self.backend = ctx, eye, backend
+        self.options = CorrectorOptions(**options)
+        self.display = display if isinstance(display, DisplayProfile) else get_display(display)
+        self.prescription, self.rx_path = _load_rx(rx)
+        self._stamp = _file_stamp(self.rx_path) if self.rx_path else None
+        self._last_poll = time.monotonic()
+        self.enabled = True
+        self.status = ""
+        self.timings_ms: dict[str, float] = {}
+        self._offset = (0.0, 0.0, 0.0)                      # live sphere, cylinder, axis changes
+        self._sized: dict[tuple[int, int], dict[str, Any]] = {}
+        self._decode = {srgb: compile_compute(ctx, "correction.glsl", defines={"PASS_DECODE": None, "LAYERS": 1,
+                                                                          "RADIUS": 0,
+                                                                          **({"SOURCE_SRGB": None} if srgb else {})})
+                        for srgb in (True, False)}
+        self._present = compile_program(ctx, "passthrough.glsl", defines={"ENCODE_SRGB": None})
+        self._present_vao = fullscreen_triangle(ctx, self._present)
+        self._onnx = None
+        if backend == "onnx":
+            from .onnx_backend import OnnxModel
+
+            if not self.options.model:
+                raise ValidationError("model", None, "an ONNX model path for backend 'onnx'")
+            self._onnx = OnnxModel(self.options.model)
+        self._banks: tuple[_BankGL, _BankGL] | None = None
+        self.model: EyeModel | None = None
+        self._rebuild(self.prescription.eye(eye))
+        check_gl_errors(ctx, "Corrector build")
+
+    # ------------------------------------------------------------------ state
+
+    @property
+    def eye_rx(self):
+        """This eye's prescription as corrected now (file plus live changes)."""
+        return self.model.eye
+
+    def _with_offset(self, base):
+        ds, dc, da = self._offset
+        return base.with_changes(sphere_D=base.sphere_D + ds, cylinder_D=base.cylinder_D + dc,
+                                 axis_deg=(base.axis_deg + da) % 180.0)
+
+    def _rebuild(self, base_eye) -> None:
+        model = build_eye_model(self._with_offset(base_eye), self.display, self.options)
+        banks = (_BankGL(self.ctx, "correction.glsl", model.correction, "mirror"),
+                 _BankGL(self.ctx, "simulation.glsl", model.simulation, "zero"))
+        old = self._banks
+        self._banks, self.model = banks, model
+        if old is not None:
+            for b in old:
+                b.release()
+            for res in self._sized.values():          # layer counts may differ: remake per size
+                release(*[v for k, v in res.items()])
+            self._sized.clear()
+
+    def adjust(self, sphere_D: float = 0.0, cylinder_D: float = 0.0, axis_deg: float = 0.0) -> None:
+        """Change this eye's prescription live by these amounts and rebuild (the file is unchanged).
+
+        Raises ``ValidationError`` (and keeps the current state) when the result is out of range.
+        """
+        previous = self._offset
+        self._offset = (previous[0] + sphere_D, previous[1] + cylinder_D, previous[2] + axis_deg)
+        try:
+            self._rebuild(self.prescription.eye(self.eye_name))
+        except VrcorrectError:
+            self._offset = previous
+            raise
+
+    def poll(self) -> bool:
+        """Reload the prescription if its file changed (checked at most every 0.25 s).
+
+        Returns True when a new prescription was loaded.  An unreadable or invalid file leaves
+        the last good state in place and says why in :attr:`status`.
+        """
+        if self.rx_path is None:
+            return False
+        now = time.monotonic()
+        if now - self._last_poll < self.POLL_INTERVAL_S:
+            return False
+        self._last_poll = now
+        stamp = _file_stamp(self.rx_path)
+        if stamp == self._stamp:
+            return False
+        self._stamp = stamp
+        from ..prescription import load_prescription
+
+        try:
+            rx = load_prescription(self.rx_path)
+            self._rebuild(rx.eye(self.eye_name))
+        except VrcorrectError as exc:
+            self.status = f"{self.rx_path}: not reloaded, keeping the last good prescription: {exc}"
+            log.warning(self.status)
+            return False
+        self.prescription = rx
+        self.status = ""
+        log.info("%s: reloaded (%s eye)", self.rx_path, self.eye_name)
+        return True
+
+    # ------------------------------------------------------------------ frames
+
+    def _resources(self, size: tuple[int, int]) -> dict[str, Any]:
+        res = self._sized.get(size)
+        if res is None:
+            ctx = self.ctx
+            W, H = size
+            layers = max(b.layers for b in self._banks)
+
+            def tex():
+                t = ctx.texture(size, 4, dtype="f4")
+                t.filter = (ctx.NEAREST, ctx.NEAREST)
+                return t
+
+            rows = ctx.texture_array((W, H, layers), 4, dtype="f4")
+            rows.filter = (ctx.NEAREST, ctx.NEAREST)
+            res = {"linear": tex(), "corrected": tex(), "seen": tex(), "rows": rows}
+            self._sized[size] = res
+        return res
+
+    def _decode_source(self, src) -> dict[str, Any]:
+        res = self._resources(tuple(src.size))
+        srgb = src.dtype == "f1"
+        prog = self._decode[srgb]
+        src.use(0)
+        prog["u_source"] = 0
+        res["linear"].bind_to_image(0, read=False, write=True)
+        W, H = src.size
+        prog.run(math.ceil(W / _GROUP), math.ceil(H / _GROUP), 1)
+        self.ctx.memory_barrier()
+        return res
+
+    def _correct(self, res) -> Any:
+        if not self.enabled:
+            return res["linear"]
+        if self._onnx is not None:
+            self._onnx.run(res["linear"], res["corrected"])
+        else:
+            self._banks[0].run(res["linear"], res["rows"], res["corrected"],
+                               {"u_beta": self.model.beta, "u_enabled": 1.0})
+        return res["corrected"]
+
+    def _present_to(self, texture, dst, viewport) -> None:
+        texture.use(0)
+        self._present["u_source"] = 0
+        dst.use()
+        vp = viewport if viewport is not None else (0, 0, *dst.size)
+        dst.viewport = vp
+        self._present_vao.render(mode=self.ctx.TRIANGLES, vertices=3)
+
+    def apply(self, src_texture, dst_framebuffer, viewport: tuple[int, int, int, int] | None = None) -> None:
+        """Correct ``src_texture`` (RGBA8 sRGB code values, or float linear light) into
+        ``dst_framebuffer`` (sRGB-encoded), in ``viewport`` (GL x, y, width, height) or all of it."""
+        t0 = time.perf_counter()
+        res = self._decode_source(src_texture)
+        out = self._correct(res)
+        self._present_to(out, dst_framebuffer, viewport)
+        self.timings_ms = {"correct": 1e3 * (time.perf_counter() - t0)}
+
+    def simulate(self, src_texture, dst_framebuffer, viewport: tuple[int, int, int, int] | None = None,
+                 corrected: bool = True) -> None:
+        """What this eye sees of ``src_texture`` as displayed (after the correction when
+        ``corrected`` and the correction is enabled), sRGB-encoded into ``dst_framebuffer``."""
+        t0 = time.perf_counter()
+        res = self._decode_source(src_texture)
+        shown = self._correct(res) if corrected else res["linear"]
+        self._banks[1].run(shown, res["rows"], res["seen"])
+        self._present_to(res["seen"], dst_framebuffer, viewport)
+        self.timings_ms = {"simulate": 1e3 * (time.perf_counter() - t0)}
+
+    def describe(self) -> dict[str, Any]:
+        """What was built: prescription, regulariser, blend, filter size, ranks, taps per pixel."""
+        m = self.model
+        return {"eye": self.eye_name, "sphere_D": m.eye.sphere_D, "cylinder_D": m.eye.cylinder_D,
+                "axis_deg": m.eye.axis_deg, "display": self.display.name, "backend": self.backend,
+                "kernel_size": m.kernel.size, "mu_rel": m.mu_rel, "beta": m.beta,
+                "filter_size": m.correction.size, "ranks": list(m.correction.ranks),
+                "taps_per_pixel": m.correction.taps_per_pixel, "rank_error": m.correction.error,
+                "simulation_size": m.simulation.size, "simulation_ranks": list(m.simulation.ranks),
+                "build_seconds": m.build_seconds, "notes": list(m.notes)}
+
+    def release(self) -> None:
+        for b in self._banks or ():
+            b.release()
+        for res in self._sized.values():
+            release(*res.values())
+        self._sized.clear()
+        release(self._present_vao, self._present, *self._decode.values())
+        if self._onnx is not None:
+            self._onnx.release()

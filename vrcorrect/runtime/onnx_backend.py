@@ -1,0 +1,82 @@
+"""The ONNX slot: an eye texture through an ONNX model with onnxruntime (read back, run, upload).
+
+The model contract (what the learned model of the U-Net issue exports):
+
+* one input, float32 ``(1, 3, H, W)`` (or with dynamic ``H``/``W``): linear display RGB in
+  [0, 1], rows top first (image orientation);
+* one output of the same shape: the linear RGB to display (clipped to [0, 1] here).
+
+``OnnxModel.run(src, dst)`` takes and fills rgba32f textures in GL orientation: it
+reads ``src`` back, flips it to image orientation, runs the session on the CPU
+provider (or CUDA where onnxruntime has it), flips back and writes ``dst``.  The
+read-back and upload buffers are allocated once per size.
+
+Layer 5: numpy and onnxruntime only.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError, ValidationError
+
+__all__ = ["OnnxModel"]
+
+
+class OnnxModel:
+    """An onnxruntime session with the model contract checked at load."""
+
+    def __init__(self, path: str | Path, providers: tuple[str, ...] | None = None):
+        try:
+            import onnxruntime as ort
+        except ImportError as exc:  # pragma: no cover - the realtime extra is installed in CI
+            raise InputError(f"onnxruntime is not installed ({exc}); pip install -e '.[realtime]'") from None
+        p = Path(path)
+        if not p.is_file():
+            raise InputError(f"{p}: no such ONNX model file")
+        available = ort.get_available_providers()
+        chosen = [x for x in (providers or ("CUDAExecutionProvider", "CPUExecutionProvider")) if x in available]
+        try:
+            self.session = ort.InferenceSession(str(p), providers=chosen or ["CPUExecutionProvider"])
+        except Exception as exc:                          # onnxruntime raises its own exception types
+            raise InputError(f"{p}: not a loadable ONNX model ({type(exc).__name__}: {exc})") from None
+        inputs, outputs = self.session.get_inputs(), self.session.get_outputs()
+        if len(inputs) != 1 or len(outputs) != 1:
+            raise ValidationError("model", f"{len(inputs)} inputs and {len(outputs)} outputs",
+                                  "exactly one input and one output")
+        shape = inputs[0].shape
+        if len(shape) != 4 or shape[1] != 3 or inputs[0].type != "tensor(float)":
+            raise ValidationError("model input", f"{inputs[0].type} {shape}", "float32 of shape (1, 3, H, W)")
+        self.path = p
+        self.input_name = inputs[0].name
+        self.fixed_hw = tuple(shape[2:]) if all(isinstance(d, int) for d in shape[2:]) else None
+        self.providers = self.session.get_providers()
+        self._buffers: dict[tuple[int, int], np.ndarray] = {}
+
+    def infer(self, image_chw: np.ndarray) -> np.ndarray:
+        """Run on a ``(3, H, W)`` float32 image; returns ``(3, H, W)`` float32 clipped to [0, 1]."""
+        H, W = image_chw.shape[1:]
+        if self.fixed_hw is not None and self.fixed_hw != (H, W):
+            raise ValidationError("image size", f"{W}x{H}", f"{self.fixed_hw[1]}x{self.fixed_hw[0]} (the model's fixed size)")
+        out = self.session.run(None, {self.input_name: image_chw[None]})[0]
+        if out.shape != (1, 3, H, W):
+            raise ValidationError("model output", f"shape {out.shape}", f"(1, 3, {H}, {W})")
+        return np.clip(out[0], 0.0, 1.0).astype(np.float32, copy=False)
+
+    def run(self, src_texture, dst_texture) -> None:
+        """rgba32f ``src`` -> model -> rgba32f ``dst`` (same size, GL orientation)."""
+        W, H = src_texture.size
+        buf = self._buffers.get((W, H))
+        if buf is None:
+            buf = self._buffers[(W, H)] = np.empty((H, W, 4), np.float32)
+        src_texture.read_into(buf)
+        chw = np.ascontiguousarray(buf[::-1, :, :3].transpose(2, 0, 1))        # image orientation
+        out = self.infer(chw)
+        buf[..., :3] = out.transpose(1, 2, 0)[::-1]
+        buf[..., 3] = 1.0
+        dst_texture.write(buf)
+
+    def release(self) -> None:
+        self._buffers.clear()
