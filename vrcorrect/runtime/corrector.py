@@ -271,6 +271,9 @@ class Corrector:
         self.ctx, self.eye_name, self.backend = ctx, eye, backend
         self.options = CorrectorOptions(**options)
         self.display = display if isinstance(display, DisplayProfile) else get_display(display)
+        if self.display.transfer != "srgb":
+            raise ValidationError("display transfer", f"{self.display.transfer} ({self.display.name})",
+                                  "srgb (the real-time path encodes sRGB only so far)")
         self.prescription, self.rx_path = _load_rx(rx)
         self._stamp = _file_stamp(self.rx_path) if self.rx_path else None
         self._last_poll = time.monotonic()
