@@ -267,3 +267,49 @@ def test_bad_arguments_are_named(gl, tmp_path):
         Corrector(gl, SAMPLE_RX, "quest2", "right", backend="onnx")
     with pytest.raises(ValidationError, match="beta"):
         Corrector(gl, SAMPLE_RX, "quest2", "right", beta=2.0)
+
+
+# --------------------------------------------------------------------------
+# vrcorrect render
+# --------------------------------------------------------------------------
+
+
+def test_render_command_writes_each_view(tmp_path, images, capsys):
+    from PIL import Image
+
+    from vrcorrect.cli import main
+
+    src = tmp_path / "in.png"
+    Image.fromarray(images[0][1]).save(src)
+    rx = tmp_path / "rx.json"
+    rx.write_text(json.dumps(rx_doc(-3.0)))
+    outs = {}
+    for view in ("corrected", "seen-corrected", "seen-uncorrected"):
+        out = tmp_path / f"{view}.png"
+        assert main(["render", str(src), "-o", str(out), "--rx", str(rx), "--display", "quest2",
+                     "--distance-m", "inf", "--view", view]) == 0
+        outs[view] = np.asarray(Image.open(out))
+        assert outs[view].shape == images[0][1].shape
+    printed = capsys.readouterr().out
+    assert "taps/pixel" in printed and "wrote" in printed
+    assert not np.array_equal(outs["corrected"], images[0][1])
+    assert not np.array_equal(outs["seen-corrected"], outs["seen-uncorrected"])
+
+
+def test_render_command_errors_are_one_line(tmp_path, images, capsys):
+    from PIL import Image
+
+    from vrcorrect.cli import main
+
+    src = tmp_path / "in.png"
+    Image.fromarray(images[0][1]).save(src)
+    out = tmp_path / "out.png"
+    out.write_bytes(b"keep me")
+    assert main(["render", str(src), "-o", str(out)]) == 2                       # no overwrite
+    assert out.read_bytes() == b"keep me"
+    assert main(["render", str(src), "-o", str(tmp_path / "o.png"), "--backend", "onnx"]) == 2
+    assert main(["render", str(src), "-o", str(tmp_path / "o.png"), "--display", "crt"]) == 2
+    assert main(["render", str(tmp_path / "missing.png"), "-o", str(tmp_path / "o.png")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "--model" in err and "transfer" in err and "missing.png" in err
+    assert not (tmp_path / "o.png").exists()
