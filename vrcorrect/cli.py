@@ -349,16 +349,18 @@ def cmd_render(args: argparse.Namespace) -> int:
     rx_path = args.rx or str(Path(__file__).resolve().parent / "data" / "sample_rx.json")
     rx = load_prescription(rx_path)
     image = read_image(args.input)
-    options = {"kernel_options": _kernel_options(args)}
+    options = {"kernel_options": _kernel_options(args), "filter": args.filter}
     if args.model:
         options["model"] = args.model
     result, info = render_frame(image, rx, args.display, args.eye, args.backend, view=args.view, **options)
     write_png(out, result / 255.0, bits=8, force=args.force)
     print(f"{info['renderer']}: {args.eye} eye, sphere {info['sphere_D']:+.2f} D, cylinder {info['cylinder_D']:+.2f} D, "
           f"axis {info['axis_deg']:g} deg on {info['display']}; backend {info['backend']}")
-    if args.backend == "glsl":
-        print(f"  filters {info['filter_size']} px, ranks {info['ranks']} ({info['taps_per_pixel']} taps/pixel), "
-              f"regulariser {info['mu_rel']:g}, blend {info['beta']:.3f}")
+    if args.backend == "glsl" and "ranks" in info:
+        print(f"  separable filters {info['filter_size']} px, ranks {info['ranks']} ({info['taps_per_pixel']} "
+              f"taps/pixel), regulariser {info['mu_rel']:g}, blend {info['beta']:.3f}")
+    elif args.backend == "glsl":
+        print(f"  FFT filter, margin {info['margin']} px, regulariser {info['mu_rel']:g}, blend {info['beta']:.3f}")
     for note in info["notes"]:
         print(f"  - {note}")
     print(f"  build {info['build_s']:.2f} s, frame {1e3 * info['frame_s']:.1f} ms (incl. upload and read-back)")
@@ -483,10 +485,16 @@ def build_parser() -> argparse.ArgumentParser:
     _add_model_options(p)
     p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl", help="correction backend (default glsl)")
     p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx")
+    p.add_argument("--filter", choices=("fft", "separable"), default="fft",
+                   help="GLSL strategy: FFT compute shaders (default) or separable low-rank filters")
     p.add_argument("--view", choices=("corrected", "seen-corrected", "seen-uncorrected"), default="corrected",
                    help="the displayed image (default) or what the eye sees of it")
     p.add_argument("--force", action="store_true", help="overwrite the output")
     p.set_defaults(func=cmd_render)
+
+    from .runtime.mirror import add_parser as add_mirror_parser
+
+    add_mirror_parser(sub)
 
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md")
     p.add_argument("what", choices=("kernel", "solvers"), help="what to measure")

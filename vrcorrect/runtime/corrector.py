@@ -5,10 +5,14 @@ eye; ``apply(src_texture, dst_framebuffer)`` then runs every frame:
 
 1. decode the source's sRGB code values to linear light (compute pass);
 2. the correction in linear light: ``backend="glsl"`` runs the ``wiener``
-   method's regularised inverse (designed on the CPU once per eye by
-   :func:`vrcorrect.solvers.wiener.correction_filters`) as a separable low-rank
-   filter bank (:mod:`vrcorrect.runtime.filters`), two compute passes, mirrored
-   borders, then ``x = t + beta (clip(F t) - t)``; ``backend="onnx"`` reads the
+   method's regularised inverse ``F`` with mirrored borders, then
+   ``x = t + beta (clip(F t) - t)``, by one of two strategies (``filter=``):
+   ``"fft"`` (default; :mod:`vrcorrect.runtime.fft`): FFT compute shaders on a
+   power-of-two grid, ``O(log N)`` per pixel whatever the filter's size, the
+   inverse not truncated; ``"separable"``: the filters designed on the CPU by
+   :func:`vrcorrect.solvers.wiener.correction_filters` as a separable low-rank
+   bank (:mod:`vrcorrect.runtime.filters`), ``width x rank`` taps per pixel
+   (cheap for small kernels, costly for wide ones); ``backend="onnx"`` reads the
    linear image back, runs an ONNX model through onnxruntime and uploads the
    result (the learned model's slot, :mod:`vrcorrect.runtime.onnx_backend`);
 3. encode to sRGB into the caller's framebuffer (fragment pass).
@@ -18,8 +22,10 @@ black outside the image): what the eye sees of the displayed image, for previews
 
 The regulariser and the blend weight are chosen once per eye, by the CPU
 ``wiener`` method on the bundled sample image (so the GPU result equals
-``wiener(problem, regularisation=(mu,), beta=beta)`` on the CPU up to the
-bank's rank tolerance and float32).  All GPU objects are made at build time or
+``wiener(problem, regularisation=(mu,), beta=beta, design=False, grid=..., margin=...)``
+on the CPU up to float32 with ``filter="fft"``, and ``wiener(problem,
+regularisation=(mu,), beta=beta)`` up to the bank's rank tolerance with
+``"separable"``).  All GPU objects are made at build time or
 on the first frame of a given size; later frames allocate nothing.  ``poll()``
 reloads the prescription file when it changes on disk and keeps the last good
 state (with a message in ``status``) when the new file is invalid.
@@ -40,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ValidationError, VrcorrectError
+from .fft import FftBankGL, fft_grid
 from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
 from .gl import check_gl_errors, fullscreen_triangle, release
 from .shaders import compile_compute, compile_program
@@ -73,6 +80,8 @@ class CorrectorOptions:
         Side of the sample image the regulariser and blend are chosen on (pixels).
     model
         ONNX model path for ``backend="onnx"``.
+    filter
+        ``"fft"`` or ``"separable"`` (see the module docstring).
     """
 
     regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
@@ -83,6 +92,7 @@ class CorrectorOptions:
     choice_size: int = 128
     model: str | None = None
     kernel_options: Any = None
+    filter: str = "fft"
 
     def __post_init__(self) -> None:
         if not self.regularisation or not all(isinstance(m, (int, float)) and m > 0 for m in self.regularisation):
@@ -91,6 +101,8 @@ class CorrectorOptions:
             raise ValidationError("beta", self.beta, "a number in [0, 1] or None")
         if self.reference not in ("glasses", "ideal"):
             raise ValidationError("reference", self.reference, "'glasses' or 'ideal'")
+        if self.filter not in ("fft", "separable"):
+            raise ValidationError("filter", self.filter, "'fft' or 'separable'")
 
 
 @dataclass(frozen=True, eq=False)
@@ -99,13 +111,20 @@ class EyeModel:
 
     eye: Any                                     # EyeRx
     kernel: Any                                  # EyeKernel
-    correction: SeparableBank
-    simulation: SeparableBank
+    reference: Any                               # EyeKernel of the glasses-on eye, or None (ideal)
+    identity: bool                               # nothing to correct
+    correction: SeparableBank | None             # the separable strategy's banks (None for "fft")
+    simulation: SeparableBank | None
     mu_rel: float
     beta: float
     filter_size: int
     build_seconds: float
     notes: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def margin(self) -> int:
+        """Border of the FFT grid around the image (one kernel width)."""
+        return max(self.kernel.size, self.reference.size if self.reference is not None else 1)
 
 
 def _sample_target(size: int) -> np.ndarray:
@@ -127,41 +146,47 @@ def _identity_bank() -> SeparableBank:
 
 
 def build_eye_model(eye_rx, display, options: CorrectorOptions = CorrectorOptions()) -> EyeModel:
-    """Kernel, regulariser, blend weight and both separable banks for one eye (CPU, numpy)."""
+    """Kernel, regulariser, blend weight (and, for the separable strategy, both banks) for one
+    eye (CPU, numpy)."""
     from ..kernel import KernelOptions, build_kernel, build_reference_kernel
     from ..solvers import make_problem
     from ..solvers.wiener import correction_filters, wiener
 
     t0 = time.perf_counter()
+    separable = options.filter == "separable"
     kopts = options.kernel_options or KernelOptions()
     kernel = build_kernel(eye_rx, display, kopts)
     notes = []
-    A = kernel.matrix
-    sim_taps = np.einsum("ik,kjyx->ijyx", np.linalg.inv(A), kernel.kernel)      # A^-1 K: display RGB seen
-    simulation = separable_bank(sim_taps, options.rank_tolerance)
-    if kernel.identity or kernel.size == 1:
-        notes.append("the eye is sharp at this display (identity kernel): correction is the identity")
-        return EyeModel(eye=eye_rx, kernel=kernel, correction=_identity_bank(), simulation=simulation,
-                        mu_rel=0.0, beta=1.0, filter_size=1, build_seconds=time.perf_counter() - t0,
-                        notes=tuple(notes))
+    simulation = None
+    if separable:
+        sim_taps = np.einsum("ik,kjyx->ijyx", np.linalg.inv(kernel.matrix), kernel.kernel)   # A^-1 K
+        simulation = separable_bank(sim_taps, options.rank_tolerance)
     reference = build_reference_kernel(eye_rx, display, kopts) if options.reference == "glasses" else None
+
+    def identity(why: str) -> EyeModel:
+        notes.append(why + ": the correction is the identity")
+        return EyeModel(eye=eye_rx, kernel=kernel, reference=reference, identity=True,
+                        correction=_identity_bank() if separable else None, simulation=simulation, mu_rel=0.0,
+                        beta=1.0, filter_size=1, build_seconds=time.perf_counter() - t0, notes=tuple(notes))
+
+    if kernel.identity or kernel.size == 1:
+        return identity("the eye is sharp at this display (identity kernel)")
     if reference is not None and reference.kernel.shape == kernel.kernel.shape and \
             np.allclose(reference.kernel, kernel.kernel, rtol=0, atol=1e-9):
-        notes.append("the eye sees as well as with its glasses (nothing to correct): correction is the identity")
-        return EyeModel(eye=eye_rx, kernel=kernel, correction=_identity_bank(), simulation=simulation,
-                        mu_rel=0.0, beta=1.0, filter_size=1, build_seconds=time.perf_counter() - t0,
-                        notes=tuple(notes))
+        return identity("the eye sees as well as with its glasses (nothing to correct)")
     problem = make_problem(_sample_target(options.choice_size), kernel, reference)
     _, settings = wiener(problem, regularisation=options.regularisation, beta=options.beta,
-                         tolerance=options.design_tolerance)
+                         tolerance=options.design_tolerance, design=separable)
     mu = settings.get("mu_rel") or options.regularisation[0]
     beta = float(settings["beta"]) if settings.get("mu_rel") is not None else 0.0
     notes.append(f"regulariser {mu:g} and blend {beta:.3f} chosen by wiener on the sample image")
-    filters = correction_filters(kernel, mu, reference, options.design_tolerance)
-    correction = separable_bank(filters.taps, options.rank_tolerance)
-    return EyeModel(eye=eye_rx, kernel=kernel, correction=correction, simulation=simulation, mu_rel=float(mu),
-                    beta=beta, filter_size=filters.size, build_seconds=time.perf_counter() - t0,
-                    notes=tuple(notes))
+    correction, size = None, 0
+    if separable:
+        filters = correction_filters(kernel, mu, reference, options.design_tolerance)
+        correction, size = separable_bank(filters.taps, options.rank_tolerance), filters.size
+    return EyeModel(eye=eye_rx, kernel=kernel, reference=reference, identity=False, correction=correction,
+                    simulation=simulation, mu_rel=float(mu), beta=beta, filter_size=size,
+                    build_seconds=time.perf_counter() - t0, notes=tuple(notes))
 
 
 class _BankGL:
@@ -314,16 +339,21 @@ class Corrector:
 
     def _rebuild(self, base_eye) -> None:
         model = build_eye_model(self._with_offset(base_eye), self.display, self.options)
-        banks = (_BankGL(self.ctx, "correction.glsl", model.correction, "mirror"),
-                 _BankGL(self.ctx, "simulation.glsl", model.simulation, "zero"))
+        banks = None
+        if self.options.filter == "separable":
+            banks = (_BankGL(self.ctx, "correction.glsl", model.correction, "mirror"),
+                     _BankGL(self.ctx, "simulation.glsl", model.simulation, "zero"))
         old = self._banks
         self._banks, self.model = banks, model
-        if old is not None:
-            for b in old:
-                b.release()
-            for res in self._sized.values():          # layer counts may differ: remake per size
-                release(*[v for k, v in res.items()])
-            self._sized.clear()
+        for b in old or ():
+            b.release()
+        self._release_sized()                      # per-size work depends on the eye: remade on use
+
+    def _release_sized(self) -> None:
+        for res in self._sized.values():
+            for v in res.values():
+                v.release() if isinstance(v, FftBankGL) else release(v)
+        self._sized.clear()
 
     def adjust(self, sphere_D: float = 0.0, cylinder_D: float = 0.0, axis_deg: float = 0.0) -> None:
         """Change this eye's prescription live by these amounts and rebuild (the file is unchanged).
@@ -375,18 +405,41 @@ class Corrector:
         if res is None:
             ctx = self.ctx
             W, H = size
-            layers = max(b.layers for b in self._banks)
 
             def tex():
                 t = ctx.texture(size, 4, dtype="f4")
                 t.filter = (ctx.NEAREST, ctx.NEAREST)
                 return t
 
-            rows = ctx.texture_array((W, H, layers), 4, dtype="f4")
-            rows.filter = (ctx.NEAREST, ctx.NEAREST)
-            res = {"linear": tex(), "corrected": tex(), "seen": tex(), "rows": rows}
+            res = {"linear": tex(), "corrected": tex(), "seen": tex()}
+            if self._banks is not None:
+                rows = ctx.texture_array((W, H, max(b.layers for b in self._banks)), 4, dtype="f4")
+                rows.filter = (ctx.NEAREST, ctx.NEAREST)
+                res["rows"] = rows
+            else:
+                res.update(self._fft_banks(size))
             self._sized[size] = res
         return res
+
+    def _fft_banks(self, size: tuple[int, int]) -> dict[str, Any]:
+        """The FFT strategy's banks for this image size (spectra computed on the CPU once per size)."""
+        from ..solvers.wiener import centred_kernel, inverse_spectrum
+
+        m = self.model
+        margin = m.margin
+        grid = fft_grid(*size, margin)
+        k = m.kernel
+        sim = np.einsum("ik,kjyx->ijyx", np.linalg.inv(k.matrix),
+                        np.fft.fft2(centred_kernel(k.kernel, grid), axes=(2, 3)))            # A^-1 K(f)
+        out = {"fft_sim": FftBankGL(self.ctx, sim, size, margin, border="zero", combine="clip")}
+        if not m.identity:
+            spectrum = inverse_spectrum(k, m.mu_rel, grid, m.reference)
+            out["fft_correct"] = FftBankGL(self.ctx, spectrum, size, margin, border="mirror", combine="correct")
+        return out
+
+    def fft_grid_for(self, size: tuple[int, int]) -> tuple[tuple[int, int], int]:
+        """The FFT strategy's ``(NY, NX)`` grid and margin for an image of ``size`` (W, H)."""
+        return fft_grid(*size, self.model.margin), self.model.margin
 
     def _decode_source(self, src) -> dict[str, Any]:
         res = self._resources(tuple(src.size))
@@ -405,9 +458,13 @@ class Corrector:
             return res["linear"]
         if self._onnx is not None:
             self._onnx.run(res["linear"], res["corrected"])
-        else:
+        elif self.model.identity:
+            return res["linear"]
+        elif self._banks is not None:
             self._banks[0].run(res["linear"], res["rows"], res["corrected"],
                                {"u_beta": self.model.beta, "u_enabled": 1.0})
+        else:
+            res["fft_correct"].run(res["linear"], res["corrected"], beta=self.model.beta)
         return res["corrected"]
 
     def _present_to(self, texture, dst, viewport) -> None:
@@ -434,27 +491,32 @@ class Corrector:
         t0 = time.perf_counter()
         res = self._decode_source(src_texture)
         shown = self._correct(res) if corrected else res["linear"]
-        self._banks[1].run(shown, res["rows"], res["seen"])
+        if self._banks is not None:
+            self._banks[1].run(shown, res["rows"], res["seen"])
+        else:
+            res["fft_sim"].run(shown, res["seen"])
         self._present_to(res["seen"], dst_framebuffer, viewport)
         self.timings_ms = {"simulate": 1e3 * (time.perf_counter() - t0)}
 
     def describe(self) -> dict[str, Any]:
-        """What was built: prescription, regulariser, blend, filter size, ranks, taps per pixel."""
+        """What was built: prescription, regulariser, blend, strategy and its cost figures."""
         m = self.model
-        return {"eye": self.eye_name, "sphere_D": m.eye.sphere_D, "cylinder_D": m.eye.cylinder_D,
+        info = {"eye": self.eye_name, "sphere_D": m.eye.sphere_D, "cylinder_D": m.eye.cylinder_D,
                 "axis_deg": m.eye.axis_deg, "display": self.display.name, "backend": self.backend,
-                "kernel_size": m.kernel.size, "mu_rel": m.mu_rel, "beta": m.beta,
-                "filter_size": m.correction.size, "ranks": list(m.correction.ranks),
-                "taps_per_pixel": m.correction.taps_per_pixel, "rank_error": m.correction.error,
-                "simulation_size": m.simulation.size, "simulation_ranks": list(m.simulation.ranks),
-                "build_seconds": m.build_seconds, "notes": list(m.notes)}
+                "filter": self.options.filter, "kernel_size": m.kernel.size, "mu_rel": m.mu_rel, "beta": m.beta,
+                "identity": m.identity, "margin": m.margin, "build_seconds": m.build_seconds,
+                "notes": list(m.notes)}
+        if m.correction is not None:
+            info.update(filter_size=m.correction.size, ranks=list(m.correction.ranks),
+                        taps_per_pixel=m.correction.taps_per_pixel, rank_error=m.correction.error)
+        if m.simulation is not None:
+            info.update(simulation_size=m.simulation.size, simulation_ranks=list(m.simulation.ranks))
+        return info
 
     def release(self) -> None:
         for b in self._banks or ():
             b.release()
-        for res in self._sized.values():
-            release(*res.values())
-        self._sized.clear()
+        self._release_sized()
         release(self._present_vao, self._present, *self._decode.values())
         if self._onnx is not None:
             self._onnx.release()

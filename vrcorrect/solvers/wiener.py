@@ -157,12 +157,14 @@ def _chebyshev_tails(f: np.ndarray) -> np.ndarray:
 
 
 def _inverse_spectrum(kernel: EyeKernel, reference_kernel: EyeKernel | None, mu: float,
-                      shape: tuple[int, int]) -> np.ndarray:
+                      shape: tuple[int, int], full: bool = False) -> np.ndarray:
     """``F(f) = (K^H K + mu I)^-1 K^H T(f)`` on a periodic ``shape`` grid (origin-centred
-    kernels), ``(3, 3, P0, P1 // 2 + 1)`` complex; the 3x3 algebra in blocks of rows (bounded memory)."""
-    Kf = scipy.fft.rfft2(centred_kernel(kernel.kernel, shape), axes=(2, 3), workers=-1)
-    Tf = (scipy.fft.rfft2(centred_kernel(reference_kernel.kernel, shape), axes=(2, 3), workers=-1)
-          if reference_kernel is not None else None)
+    kernels), ``(3, 3, P0, P1 // 2 + 1)`` complex (``full``: ``(3, 3, P0, P1)``); the 3x3 algebra
+    in blocks of rows (bounded memory)."""
+    fft = (lambda a: scipy.fft.fft2(a, axes=(2, 3), workers=-1)) if full else \
+        (lambda a: scipy.fft.rfft2(a, axes=(2, 3), workers=-1))
+    Kf = fft(centred_kernel(kernel.kernel, shape))
+    Tf = fft(centred_kernel(reference_kernel.kernel, shape)) if reference_kernel is not None else None
     Ff = np.empty_like(Kf)
     eye = mu * np.eye(3)
     for r0 in range(0, shape[0], 128):
@@ -173,6 +175,28 @@ def _inverse_spectrum(kernel: EyeKernel, reference_kernel: EyeKernel | None, mu:
     return Ff
 
 
+def inverse_spectrum(kernel: EyeKernel, mu_rel: float, shape: tuple[int, int],
+                     reference_kernel: EyeKernel | None = None) -> np.ndarray:
+    """The regularised inverse's full complex spectrum ``(3, 3, *shape)`` on a periodic grid
+    (the real-time FFT path uploads it); ``mu_rel`` relative to ``||K||^2``."""
+    return _inverse_spectrum(kernel, reference_kernel, mu_rel * spectral_norm_squared(kernel.kernel), shape,
+                             full=True)
+
+
+def mirror_fill(image_chw: np.ndarray, shape: tuple[int, int], margin: int) -> np.ndarray:
+    """The image on a periodic ``shape`` grid at offset ``(margin, margin)``, the rest of the grid
+    filled by mirrored repeat (edge pixel repeated, period twice the image)."""
+    _, H, W = image_chw.shape
+
+    def mirror(i, n):
+        m = np.mod(i, 2 * n)
+        return np.where(m < n, m, 2 * n - 1 - m)
+
+    ys = mirror(np.arange(shape[0]) - margin, H)
+    xs = mirror(np.arange(shape[1]) - margin, W)
+    return image_chw[:, ys[:, None], xs[None, :]]
+
+
 def _regularised_inverse(kernel: EyeKernel, reference_kernel: EyeKernel | None, mu: float,
                          shape: tuple[int, int]) -> np.ndarray:
     """Spatial ``F`` on a periodic ``shape`` grid, origin-centred, ``(3, 3, *shape)`` float64."""
@@ -181,14 +205,15 @@ def _regularised_inverse(kernel: EyeKernel, reference_kernel: EyeKernel | None, 
 
 
 def _exact_inverse_image(image_chw: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel | None,
-                         mu: float) -> np.ndarray:
-    """``F t`` without truncation: on a periodic grid of the image mirror-padded by one kernel
-    width each side (cheap; the warm start of ``fast``)."""
+                         mu: float, grid: tuple[int, int] | None = None, margin: int | None = None) -> np.ndarray:
+    """``F t`` without truncation on a periodic grid holding the image at ``(margin, margin)``
+    and its mirrored repeat around it (default: one kernel width of margin, the next fast FFT
+    size).  The real-time FFT path computes exactly this on its power-of-two grid."""
     _, H, W = image_chw.shape
-    m = max(kernel.size, reference_kernel.size if reference_kernel is not None else 1)
-    Q = (scipy.fft.next_fast_len(H + 2 * m, real=True), scipy.fft.next_fast_len(W + 2 * m, real=True))
-    x = np.pad(image_chw.astype(np.float64), ((0, 0), (m, m), (m, m)), mode="symmetric")
-    X = scipy.fft.rfft2(x, s=Q, axes=(1, 2), workers=-1)
+    m = margin if margin is not None else max(kernel.size, reference_kernel.size if reference_kernel is not None else 1)
+    Q = grid if grid is not None else (scipy.fft.next_fast_len(H + 2 * m, real=True),
+                                       scipy.fft.next_fast_len(W + 2 * m, real=True))
+    X = scipy.fft.rfft2(mirror_fill(image_chw.astype(np.float64), Q, m), axes=(1, 2), workers=-1)
     y = scipy.fft.irfft2(apply3(_inverse_spectrum(kernel, reference_kernel, mu, Q), X), s=Q, axes=(1, 2),
                          workers=-1)
     return y[:, m:m + H, m:m + W]
@@ -266,7 +291,8 @@ class _FastObjective:
 
 def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARISATION,
            beta: float | None = None, tolerance: float = DESIGN_TOLERANCE,
-           design: bool = True) -> tuple[np.ndarray, dict]:
+           design: bool = True, grid: tuple[int, int] | None = None,
+           margin: int | None = None) -> tuple[np.ndarray, dict]:
     """Best blend of the target and the clipped regularised inverse; returns (image, settings).
 
     For each ``mu_rel`` in ``regularisation``: ``v = F t'`` (:func:`correction_filters`,
@@ -276,7 +302,9 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
     [0, 1]); ``beta = 0`` is no correction, so the result is never worse than no correction.
     A fixed ``beta`` (the real-time path's, chosen once per eye) skips that choice.
     ``design=False`` skips the filter design and applies the untruncated inverse on a
-    mirror-padded FFT grid (cheaper for one image; ``fast`` warm-starts with it).
+    mirror-filled FFT grid (cheaper for one image; ``fast`` warm-starts with it; the real-time
+    FFT path computes it on the GPU: ``grid`` and ``margin`` give its grid, see
+    :func:`_exact_inverse_image`).
     """
     from . import scale_contrast
 
@@ -301,7 +329,7 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
             size, tail = filters.size, filters.tail
         else:
             lam_max = spectral_norm_squared(problem.kernel.kernel)
-            v = _exact_inverse_image(t_in, problem.kernel, problem.reference_kernel, mu_rel * lam_max)
+            v = _exact_inverse_image(t_in, problem.kernel, problem.reference_kernel, mu_rel * lam_max, grid, margin)
             size, tail = None, 0.0
         d = np.clip(v, 0.0, 1.0) - t_rgb
         Kd = f.residual(d, offset=False)

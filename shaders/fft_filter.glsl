@@ -1,0 +1,183 @@
+#version 430 core
+// A 3x3 filter bank applied by FFT (compute shaders): cost per pixel O(log N), whatever the
+// filter's size, and no truncation. The image (W x H, linear light) sits on a periodic
+// Nx x Ny grid (powers of two) at offset (MARGIN, MARGIN); the rest of the grid is filled by
+// mirrored repeat of the image (BORDER_ZERO: black). Channels are packed two per complex
+// signal: layer 0 = R + iG, layer 1 = B. Passes (define exactly one):
+//   ROWS_FORWARD  load rows (grid fill) and FFT them           -> u_spec (rg32f array, 2 layers)
+//   COLS          FFT columns of u_spec in place (sign by INVERSE)
+//   MULTIPLY      unpack X_R, X_G, X_B; Y_i = sum_j F_ij X_j; pack -> u_spec_out
+//   ROWS_INVERSE  inverse FFT of rows, keep the image's window  -> u_filtered (rg32f array)
+//   COMBINE       u_filtered + target -> u_out (rgba32f): correction blend or clip
+// Defines: NX, NY, LOG2_MAX (log2 of max(NX, NY)), MARGIN, BORDER_ZERO, COMBINE_CORRECT.
+#include "srgb.glsl"
+
+#if defined COMPUTE_SHADER
+#define WG 256
+#define PI 3.14159265358979323846
+
+#if defined ROWS_FORWARD || defined COLS || defined ROWS_INVERSE
+layout(local_size_x = WG) in;
+shared vec2 buf[1 << LOG2_MAX];
+
+vec2 cmul(vec2 a, vec2 b) { return vec2(a.x * b.x - a.y * b.y, a.x * b.y + a.y * b.x); }
+
+// In-place radix-2 FFT of buf[0..n) whose input was stored in bit-reversed order.
+// sign -1: forward (e^{-i...}); +1: inverse (unscaled).
+void fft_shared(int n, float sign) {
+    for (int len = 2; len <= n; len <<= 1) {
+        int half_len = len >> 1;
+        for (int k = int(gl_LocalInvocationID.x); k < (n >> 1); k += WG) {
+            int j = k % half_len;
+            int i0 = (k / half_len) * len + j;
+            int i1 = i0 + half_len;
+            float a = sign * 2.0 * PI * float(j) / float(len);
+            vec2 w = vec2(cos(a), sin(a));
+            vec2 u = buf[i0];
+            vec2 v = cmul(buf[i1], w);
+            buf[i0] = u + v;
+            buf[i1] = u - v;
+        }
+        barrier();
+    }
+}
+
+int bit_reverse(int i, int log2n) {
+    return int(bitfieldReverse(uint(i)) >> uint(32 - log2n));
+}
+#else
+layout(local_size_x = 16, local_size_y = 16) in;
+#endif
+
+int mirror_index(int i, int n) {
+    int m = i % (2 * n);
+    if (m < 0) m += 2 * n;
+    return m < n ? m : 2 * n - 1 - m;
+}
+
+#if defined ROWS_FORWARD
+uniform sampler2D u_linear_in;
+layout(rg32f, binding = 0) writeonly uniform image2DArray u_spec;
+const int LOG2_NX = LOG2_MAX_X;
+void main() {
+    int row = int(gl_WorkGroupID.x);
+    int layer = int(gl_WorkGroupID.y);
+    ivec2 size = textureSize(u_linear_in, 0);
+    int y = row - MARGIN;
+#if defined BORDER_ZERO
+    bool row_inside = y >= 0 && y < size.y;
+#else
+    y = mirror_index(y, size.y);
+    bool row_inside = true;
+#endif
+    for (int u = int(gl_LocalInvocationID.x); u < NX; u += WG) {
+        int x = u - MARGIN;
+        vec2 value = vec2(0.0);
+#if defined BORDER_ZERO
+        bool inside = row_inside && x >= 0 && x < size.x;
+#else
+        x = mirror_index(x, size.x);
+        bool inside = true;
+#endif
+        if (inside) {
+            vec3 rgb = texelFetch(u_linear_in, ivec2(x, y), 0).rgb;
+            value = layer == 0 ? rgb.rg : vec2(rgb.b, 0.0);
+        }
+        buf[bit_reverse(u, LOG2_NX)] = value;
+    }
+    barrier();
+    fft_shared(NX, -1.0);
+    for (int u = int(gl_LocalInvocationID.x); u < NX; u += WG)
+        imageStore(u_spec, ivec3(u, row, layer), vec4(buf[u], 0.0, 0.0));
+}
+#endif
+
+#if defined COLS
+layout(rg32f, binding = 0) uniform image2DArray u_spec;
+const int LOG2_NY = LOG2_MAX_Y;
+void main() {
+    int col = int(gl_WorkGroupID.x);
+    int layer = int(gl_WorkGroupID.y);
+    for (int v = int(gl_LocalInvocationID.x); v < NY; v += WG)
+        buf[bit_reverse(v, LOG2_NY)] = imageLoad(u_spec, ivec3(col, v, layer)).xy;
+    barrier();
+#if defined INVERSE
+    fft_shared(NY, 1.0);
+#else
+    fft_shared(NY, -1.0);
+#endif
+    for (int v = int(gl_LocalInvocationID.x); v < NY; v += WG)
+        imageStore(u_spec, ivec3(col, v, layer), vec4(buf[v], 0.0, 0.0));
+}
+#endif
+
+#if defined MULTIPLY
+layout(rg32f, binding = 0) readonly uniform image2DArray u_spec;
+layout(rg32f, binding = 1) writeonly uniform image2DArray u_spec_out;
+uniform sampler2DArray u_bank;      // layer 3 i + j: F_ij at (fx, fy), complex in .xy
+vec2 cmul(vec2 a, vec2 b) { return vec2(a.x * b.x - a.y * b.y, a.x * b.y + a.y * b.x); }
+vec2 conj2(vec2 a) { return vec2(a.x, -a.y); }
+void main() {
+    ivec2 f = ivec2(gl_GlobalInvocationID.xy);
+    if (f.x >= NX || f.y >= NY) return;
+    ivec2 g = ivec2((NX - f.x) % NX, (NY - f.y) % NY);            // -f
+    vec2 z = imageLoad(u_spec, ivec3(f, 0)).xy;
+    vec2 zn = conj2(imageLoad(u_spec, ivec3(g, 0)).xy);
+    vec2 x[3];
+    x[0] = 0.5 * (z + zn);                                         // R
+    vec2 d = 0.5 * (z - zn);
+    x[1] = vec2(d.y, -d.x);                                        // G = (z - conj z(-f)) / 2i
+    x[2] = imageLoad(u_spec, ivec3(f, 1)).xy;                      // B
+    vec2 y[3];
+    for (int i = 0; i < 3; ++i) {
+        y[i] = vec2(0.0);
+        for (int j = 0; j < 3; ++j)
+            y[i] += cmul(texelFetch(u_bank, ivec3(f, 3 * i + j), 0).xy, x[j]);
+    }
+    imageStore(u_spec_out, ivec3(f, 0), vec4(y[0] + vec2(-y[1].y, y[1].x), 0.0, 0.0));   // Y_R + i Y_G
+    imageStore(u_spec_out, ivec3(f, 1), vec4(y[2], 0.0, 0.0));
+}
+#endif
+
+#if defined ROWS_INVERSE
+layout(rg32f, binding = 0) readonly uniform image2DArray u_spec;
+layout(rg32f, binding = 1) writeonly uniform image2DArray u_filtered;   // W x H x 2
+uniform ivec2 u_size;
+const int LOG2_NX = LOG2_MAX_X;
+void main() {
+    int row = int(gl_WorkGroupID.x);
+    int layer = int(gl_WorkGroupID.y);
+    int y = row - MARGIN;
+    if (y < 0 || y >= u_size.y) return;                            // uniform per workgroup
+    for (int u = int(gl_LocalInvocationID.x); u < NX; u += WG)
+        buf[bit_reverse(u, LOG2_NX)] = imageLoad(u_spec, ivec3(u, row, layer)).xy;
+    barrier();
+    fft_shared(NX, 1.0);
+    float scale = 1.0 / (float(NX) * float(NY));
+    for (int x = int(gl_LocalInvocationID.x); x < u_size.x; x += WG)
+        imageStore(u_filtered, ivec3(x, y, layer), vec4(buf[x + MARGIN] * scale, 0.0, 0.0));
+}
+#endif
+
+#if defined COMBINE
+layout(rg32f, binding = 0) readonly uniform image2DArray u_filtered;
+layout(rgba32f, binding = 1) writeonly uniform image2D u_out;
+uniform sampler2D u_linear_in;
+uniform float u_beta;
+void main() {
+    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
+    ivec2 size = textureSize(u_linear_in, 0);
+    if (p.x >= size.x || p.y >= size.y) return;
+    vec2 rg = imageLoad(u_filtered, ivec3(p, 0)).xy;
+    float b = imageLoad(u_filtered, ivec3(p, 1)).x;
+    vec3 v = vec3(rg, b);
+#if defined COMBINE_CORRECT
+    vec3 t = texelFetch(u_linear_in, p, 0).rgb;
+    vec3 outc = t + u_beta * (clamp(v, 0.0, 1.0) - t);
+#else
+    vec3 outc = clamp(v, 0.0, 1.0);
+#endif
+    imageStore(u_out, p, vec4(outc, 1.0));
+}
+#endif
+#endif

@@ -1,0 +1,124 @@
+"""A 3x3 filter bank applied by FFT compute shaders (``shaders/fft_filter.glsl``).
+
+The image sits on a periodic ``NX x NY`` grid (powers of two, at least the image plus a
+margin on each side) at offset ``(margin, margin)``; the grid around it holds the image's
+mirrored repeat (``border="mirror"``) or black (``"zero"``).  Two complex signals carry the
+three channels (R + iG, B); rows and columns are transformed by radix-2 FFTs in shared
+memory (one workgroup per line), each frequency multiplied by the 3x3 bank's spectrum, and
+transformed back.  Cost per pixel ``O(log N)``, independent of the filter's size, and the
+filter is not truncated: the GPU computes what
+:func:`vrcorrect.solvers.wiener._exact_inverse_image` computes on the CPU, on the same grid.
+
+GL orientation: textures hold rows bottom-up, so the bank's spectrum is uploaded for the
+vertically flipped filter (``F(fx, -fy)``); the grid fill and the crop are symmetric under
+the flip (see the notes in the code).  Layer 5: numpy and moderngl.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import ValidationError
+from .gl import release
+from .shaders import compile_compute
+
+__all__ = ["fft_grid", "FftBankGL", "MAX_FFT_SIZE"]
+
+MAX_FFT_SIZE = 4096                        # shared memory: 8 bytes per point (32 KiB, the GL minimum)
+
+
+def fft_grid(width: int, height: int, margin: int) -> tuple[int, int]:
+    """The power-of-two grid ``(NY, NX)`` holding the image and ``margin`` on each side."""
+    ny = 1 << max(4, math.ceil(math.log2(height + 2 * margin)))
+    nx = 1 << max(4, math.ceil(math.log2(width + 2 * margin)))
+    if max(nx, ny) > MAX_FFT_SIZE:
+        raise ValidationError("image size", f"{width}x{height} with a {margin} px margin",
+                              f"at most {MAX_FFT_SIZE} px per side including the margins")
+    return ny, nx
+
+
+def gl_spectrum(spectrum_image: np.ndarray) -> np.ndarray:
+    """``(3, 3, NY, NX)`` spectrum of a filter in image orientation -> the spectrum of the
+    vertically flipped filter (GL orientation): ``F(fx, -fy)``."""
+    ny = spectrum_image.shape[2]
+    return spectrum_image[:, :, (-np.arange(ny)) % ny, :]
+
+
+class FftBankGL:
+    """One bank at one grid: the spectrum on the GPU, the five compute passes, the work images."""
+
+    def __init__(self, ctx, spectrum_image: np.ndarray, image_size: tuple[int, int], margin: int,
+                 border: str = "mirror", combine: str = "correct"):
+        if border not in ("mirror", "zero"):
+            raise ValidationError("border", border, "'mirror' or 'zero'")
+        if combine not in ("correct", "clip"):
+            raise ValidationError("combine", combine, "'correct' or 'clip'")
+        W, H = image_size
+        ny, nx = spectrum_image.shape[2:]
+        if (ny, nx) != fft_grid(W, H, margin):
+            raise ValidationError("spectrum", f"grid {nx}x{ny}", f"the grid of fft_grid({W}, {H}, {margin})")
+        self.ctx, self.size, self.margin, self.grid = ctx, (W, H), margin, (ny, nx)
+        defines = {"NX": nx, "NY": ny, "LOG2_MAX": int(math.log2(max(nx, ny))), "LOG2_MAX_X": int(math.log2(nx)),
+                   "LOG2_MAX_Y": int(math.log2(ny)), "MARGIN": margin}
+        if border == "zero":
+            defines["BORDER_ZERO"] = None
+        if combine == "correct":
+            defines["COMBINE_CORRECT"] = None
+        name = "fft_filter.glsl"
+        self.p_rows = compile_compute(ctx, name, defines={**defines, "ROWS_FORWARD": None})
+        self.p_cols = compile_compute(ctx, name, defines={**defines, "COLS": None})
+        self.p_icols = compile_compute(ctx, name, defines={**defines, "COLS": None, "INVERSE": None})
+        self.p_mul = compile_compute(ctx, name, defines={**defines, "MULTIPLY": None})
+        self.p_irows = compile_compute(ctx, name, defines={**defines, "ROWS_INVERSE": None})
+        self.p_combine = compile_compute(ctx, name, defines={**defines, "COMBINE": None})
+        bank = gl_spectrum(spectrum_image).reshape(9, ny, nx)
+        data = np.empty((9, ny, nx, 2), np.float32)
+        data[..., 0], data[..., 1] = bank.real, bank.imag
+        self.bank = ctx.texture_array((nx, ny, 9), 2, data.tobytes(), dtype="f4")
+        self.spec = ctx.texture_array((nx, ny, 2), 2, dtype="f4")
+        self.spec_out = ctx.texture_array((nx, ny, 2), 2, dtype="f4")
+        self.filtered = ctx.texture_array((W, H, 2), 2, dtype="f4")
+        for t in (self.bank, self.spec, self.spec_out, self.filtered):
+            t.filter = (ctx.NEAREST, ctx.NEAREST)
+
+    def run(self, linear_in, out, beta: float = 1.0) -> None:
+        """``linear_in`` (rgba32f, W x H) -> ``out`` (rgba32f): filtered, then combined."""
+        ctx = self.ctx
+        ny, nx = self.grid
+        W, H = self.size
+        linear_in.use(0)
+        self.p_rows["u_linear_in"] = 0
+        self.spec.bind_to_image(0, read=False, write=True)
+        self.p_rows.run(ny, 2, 1)
+        ctx.memory_barrier()
+        self.spec.bind_to_image(0, read=True, write=True)
+        self.p_cols.run(nx, 2, 1)
+        ctx.memory_barrier()
+        self.spec.bind_to_image(0, read=True, write=False)
+        self.spec_out.bind_to_image(1, read=False, write=True)
+        self.bank.use(1)
+        self.p_mul["u_bank"] = 1
+        self.p_mul.run(math.ceil(nx / 16), math.ceil(ny / 16), 1)
+        ctx.memory_barrier()
+        self.spec_out.bind_to_image(0, read=True, write=True)
+        self.p_icols.run(nx, 2, 1)
+        ctx.memory_barrier()
+        self.spec_out.bind_to_image(0, read=True, write=False)
+        self.filtered.bind_to_image(1, read=False, write=True)
+        self.p_irows["u_size"] = (W, H)
+        self.p_irows.run(ny, 2, 1)
+        ctx.memory_barrier()
+        self.filtered.bind_to_image(0, read=True, write=False)
+        out.bind_to_image(1, read=False, write=True)
+        linear_in.use(0)
+        self.p_combine["u_linear_in"] = 0
+        if "u_beta" in self.p_combine:
+            self.p_combine["u_beta"] = float(beta)
+        self.p_combine.run(math.ceil(W / 16), math.ceil(H / 16), 1)
+        ctx.memory_barrier()
+
+    def release(self) -> None:
+        release(self.p_rows, self.p_cols, self.p_icols, self.p_mul, self.p_irows, self.p_combine,
+                self.bank, self.spec, self.spec_out, self.filtered)
