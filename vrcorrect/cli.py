@@ -384,8 +384,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 raise ValidationError("--resolutions", r, "some of " + ", ".join(RESOLUTIONS))
         print(run_solver_bench(out=Path(args.out), plot=Path(args.out).with_name("solver_tradeoff.png"),
                                resolutions=res, repeats=args.repeats, write=not args.no_write))
+    elif args.what == "render":
+        from .bench_render import run_render_bench
+
+        print(run_render_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     else:
-        raise ValidationError("bench", args.what, "kernel or solvers")
+        raise ValidationError("bench", args.what, "kernel, solvers or render")
     return 0
 
 
@@ -497,7 +501,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_mirror_parser(sub)
 
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md")
-    p.add_argument("what", choices=("kernel", "solvers"), help="what to measure")
+    p.add_argument("what", choices=("kernel", "solvers", "render"), help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
     p.add_argument("--resolutions", nargs="+", metavar="R",
                    help="solvers: image sizes to sweep (256 512 1024 1832x1920; default all)")
