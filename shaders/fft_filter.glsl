@@ -8,8 +8,8 @@
 //   COLS          FFT columns of u_spec in place (sign by INVERSE)
 //   MULTIPLY      unpack X_R, X_G, X_B; Y_i = sum_j F_ij X_j; pack -> u_spec_out
 //   ROWS_INVERSE  inverse FFT of rows, keep the image's window  -> u_filtered (rg32f array)
-//   COMBINE       u_filtered + target -> u_out (rgba32f): correction blend or clip
-// Defines: NX, NY, LOG2_MAX (log2 of max(NX, NY)), MARGIN, BORDER_ZERO, COMBINE_CORRECT.
+//   COMBINE       u_filtered + target -> u_out (rgba32f): correction blend, delta, clip or raw
+// Defines: NX, NY, LOG2_MAX (log2 of max(NX, NY)), MARGIN, BORDER_ZERO, and the COMBINE mode.
 #include "srgb.glsl"
 
 #if defined COMPUTE_SHADER
@@ -160,6 +160,8 @@ void main() {
 #endif
 
 #if defined COMBINE
+// COMBINE_CORRECT: t + beta (clip(v) - t) with beta = u_beta; COMBINE_DELTA: clip(v) - t (the
+// per-frame blend, blend.glsl, takes it from there); COMBINE_CLIP: clip(v); else v as it is.
 layout(rg32f, binding = 0) readonly uniform image2DArray u_filtered;
 layout(rgba32f, binding = 1) writeonly uniform image2D u_out;
 uniform sampler2D u_linear_in;
@@ -174,8 +176,12 @@ void main() {
 #if defined COMBINE_CORRECT
     vec3 t = texelFetch(u_linear_in, p, 0).rgb;
     vec3 outc = t + u_beta * (clamp(v, 0.0, 1.0) - t);
-#else
+#elif defined COMBINE_DELTA
+    vec3 outc = clamp(v, 0.0, 1.0) - texelFetch(u_linear_in, p, 0).rgb;
+#elif defined COMBINE_CLIP
     vec3 outc = clamp(v, 0.0, 1.0);
+#else
+    vec3 outc = v;
 #endif
     imageStore(u_out, p, vec4(outc, 1.0));
 }

@@ -7,7 +7,8 @@ regulariser choice, the FFT grid's spectra, GPU allocations), then the median of
 ``repeats`` frames, each ended by ``glFinish`` so the wall clock holds the GPU's work.
 
 Cases: passthrough (sRGB decode + encode: the floor every frame pays), GLSL correction by
-FFT (the default), the eye's forward model (simulation, for previews), the ONNX slot with
+FFT with the per-frame blend (the default: 4 FFT filterings and a reduction), the same with
+the blend fixed at build time, the eye's forward model (simulation, for previews), the ONNX slot with
 a trivial graph (``1 - x``: the read-back, onnxruntime call and upload the learned model
 will pay on top of its own cost), and the separable low-rank strategy at a smaller size for
 comparison (its cost grows with filter width x rank).
@@ -88,7 +89,8 @@ def run_render_bench(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), w
     model = Path(tmp.name) / "one_minus_x.onnx"
     _trivial_onnx(model)
     cases = [("passthrough (decode + encode)", "apply", dict(), size, False),
-             ("GLSL correction, FFT (default)", "apply", dict(), size, True),
+             ("GLSL correction, FFT, per-frame blend (default)", "apply", dict(), size, True),
+             ("GLSL correction, FFT, fixed blend", "apply", dict(blend="fixed"), size, True),
              ("simulation (forward model, FFT)", "simulate", dict(), size, True),
              ("ONNX slot, trivial graph", "apply", dict(backend="onnx", model=str(model)), size, True),
              (f"GLSL correction, separable, {SEPARABLE_SIZE[0]}x{SEPARABLE_SIZE[1]}", "apply",
@@ -120,8 +122,9 @@ def run_render_bench(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), w
                 what = f"kernel {info['kernel_size']} px, FFT grid {grid[1]}x{grid[0]}"
             elif enabled:
                 grid = correctors[1].fft_grid_for((w, h))[0]
-                what = (f"FFT grid {grid[1]}x{grid[0]} (log2 {int(np.log2(max(grid)))} stages), "
-                        f"blend {info['beta']:.2f}, regulariser {info['mu_rel']:g}")
+                beta = correctors[1].last_blend((w, h))
+                what = (f"FFT grid {grid[1]}x{grid[0]} (log2 {int(np.log2(max(grid)))} stages), regulariser "
+                        f"{info['mu_rel']:g}, blend per frame on the GPU (right eye: {beta:.2f})")
             else:
                 what = "-"
             rows.append([label, f"{w}x{h}", f"{ms:.1f}", f"{min(times) * 1e3:.1f}-{max(times) * 1e3:.1f}", ratio,

@@ -82,6 +82,11 @@ class CorrectorOptions:
         ONNX model path for ``backend="onnx"``.
     filter
         ``"fft"`` or ``"separable"`` (see the module docstring).
+    blend
+        ``"frame"`` (FFT strategy, default when ``beta`` is None): the blend weight minimising the
+        objective is computed on the GPU for every frame, as the CPU ``wiener`` does per image, so
+        no frame is made worse than uncorrected (three more FFT filterings and a reduction);
+        ``"fixed"``: the weight chosen once on the sample image (cheaper; a compromise).
     """
 
     regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
@@ -93,6 +98,7 @@ class CorrectorOptions:
     model: str | None = None
     kernel_options: Any = None
     filter: str = "fft"
+    blend: str = "frame"
 
     def __post_init__(self) -> None:
         if not self.regularisation or not all(isinstance(m, (int, float)) and m > 0 for m in self.regularisation):
@@ -103,6 +109,12 @@ class CorrectorOptions:
             raise ValidationError("reference", self.reference, "'glasses' or 'ideal'")
         if self.filter not in ("fft", "separable"):
             raise ValidationError("filter", self.filter, "'fft' or 'separable'")
+        if self.blend not in ("frame", "fixed"):
+            raise ValidationError("blend", self.blend, "'frame' or 'fixed'")
+
+    @property
+    def per_frame_blend(self) -> bool:
+        return self.blend == "frame" and self.beta is None and self.filter == "fft"
 
 
 @dataclass(frozen=True, eq=False)
@@ -187,6 +199,47 @@ def build_eye_model(eye_rx, display, options: CorrectorOptions = CorrectorOption
     return EyeModel(eye=eye_rx, kernel=kernel, reference=reference, identity=False, correction=correction,
                     simulation=simulation, mu_rel=float(mu), beta=beta, filter_size=size,
                     build_seconds=time.perf_counter() - t0, notes=tuple(notes))
+
+
+class _FrameBlend:
+    """The per-frame blend weight (``shaders/blend.glsl``): two reductions and the blend."""
+
+    def __init__(self, ctx, size: tuple[int, int]):
+        self.ctx, self.size = ctx, size
+        W, H = size
+        self.groups = (math.ceil(W / 16), math.ceil(H / 16))
+        self.p_partial = compile_compute(ctx, "blend.glsl", defines={"PARTIAL": None})
+        self.p_final = compile_compute(ctx, "blend.glsl", defines={"FINAL": None})
+        self.p_apply = compile_compute(ctx, "blend.glsl", defines={"APPLY": None})
+        self.result = ctx.buffer(reserve=16)
+        self.partials = ctx.buffer(reserve=8 * self.groups[0] * self.groups[1])
+
+    def run(self, linear, r0, kd, delta, out) -> None:
+        ctx = self.ctx
+        self.result.bind_to_storage_buffer(3)
+        self.partials.bind_to_storage_buffer(4)
+        r0.use(0)
+        kd.use(1)
+        self.p_partial["u_r0"] = 0
+        self.p_partial["u_kd"] = 1
+        self.p_partial.run(*self.groups, 1)
+        ctx.memory_barrier()
+        self.p_final["u_count"] = self.groups[0] * self.groups[1]
+        self.p_final.run(1, 1, 1)
+        ctx.memory_barrier()
+        linear.use(0)
+        delta.use(1)
+        self.p_apply["u_linear_in"] = 0
+        self.p_apply["u_delta"] = 1
+        out.bind_to_image(1, read=False, write=True)
+        self.p_apply.run(*self.groups, 1)
+        ctx.memory_barrier()
+
+    def beta(self) -> float:
+        return float(np.frombuffer(self.result.read(), np.float32)[0])
+
+    def release(self) -> None:
+        release(self.p_partial, self.p_final, self.p_apply, self.result, self.partials)
 
 
 class _BankGL:
@@ -352,7 +405,7 @@ class Corrector:
     def _release_sized(self) -> None:
         for res in self._sized.values():
             for v in res.values():
-                v.release() if isinstance(v, FftBankGL) else release(v)
+                v.release() if isinstance(v, (FftBankGL, _FrameBlend)) else release(v)
         self._sized.clear()
 
     def adjust(self, sphere_D: float = 0.0, cylinder_D: float = 0.0, axis_deg: float = 0.0) -> None:
@@ -412,6 +465,8 @@ class Corrector:
                 return t
 
             res = {"linear": tex(), "corrected": tex(), "seen": tex()}
+            if self._banks is None and self.options.per_frame_blend:
+                res.update(delta=tex(), r0=tex(), kd=tex())
             if self._banks is not None:
                 rows = ctx.texture_array((W, H, max(b.layers for b in self._banks)), 4, dtype="f4")
                 rows.filter = (ctx.NEAREST, ctx.NEAREST)
@@ -434,7 +489,16 @@ class Corrector:
         out = {"fft_sim": FftBankGL(self.ctx, sim, size, margin, border="zero", combine="clip")}
         if not m.identity:
             spectrum = inverse_spectrum(k, m.mu_rel, grid, m.reference)
-            out["fft_correct"] = FftBankGL(self.ctx, spectrum, size, margin, border="mirror", combine="correct")
+            frame = self.options.per_frame_blend
+            out["fft_correct"] = FftBankGL(self.ctx, spectrum, size, margin, border="mirror",
+                                           combine="delta" if frame else "correct")
+            if frame:
+                Kf = np.fft.fft2(centred_kernel(k.kernel, grid), axes=(2, 3))
+                Tf = (np.fft.fft2(centred_kernel(m.reference.kernel, grid), axes=(2, 3)) if m.reference is not None
+                      else k.matrix[:, :, None, None])
+                out["fft_r0"] = FftBankGL(self.ctx, Kf - Tf, size, margin, border="zero", combine="raw")
+                out["fft_k"] = FftBankGL(self.ctx, Kf, size, margin, border="zero", combine="raw")
+                out["blend"] = _FrameBlend(self.ctx, size)
         return out
 
     def fft_grid_for(self, size: tuple[int, int]) -> tuple[tuple[int, int], int]:
@@ -463,9 +527,19 @@ class Corrector:
         elif self._banks is not None:
             self._banks[0].run(res["linear"], res["rows"], res["corrected"],
                                {"u_beta": self.model.beta, "u_enabled": 1.0})
+        elif "blend" in res:                        # per-frame blend weight, on the GPU
+            res["fft_correct"].run(res["linear"], res["delta"])
+            res["fft_r0"].run(res["linear"], res["r0"])
+            res["fft_k"].run(res["delta"], res["kd"])
+            res["blend"].run(res["linear"], res["r0"], res["kd"], res["delta"], res["corrected"])
         else:
             res["fft_correct"].run(res["linear"], res["corrected"], beta=self.model.beta)
         return res["corrected"]
+
+    def last_blend(self, size: tuple[int, int]) -> float | None:
+        """The blend weight of the last frame of ``size`` (per-frame mode; reads it back: a sync)."""
+        res = self._sized.get(tuple(size))
+        return res["blend"].beta() if res is not None and "blend" in res else None
 
     def _present_to(self, texture, dst, viewport) -> None:
         texture.use(0)

@@ -26,6 +26,8 @@ from .shaders import compile_compute
 
 __all__ = ["fft_grid", "FftBankGL", "MAX_FFT_SIZE"]
 
+COMBINES = ("correct", "delta", "clip", "raw")
+"""What the last pass writes: ``t + beta (clip(v) - t)``, ``clip(v) - t``, ``clip(v)`` or ``v``."""
 MAX_FFT_SIZE = 4096                        # shared memory: 8 bytes per point (32 KiB, the GL minimum)
 
 
@@ -53,8 +55,8 @@ class FftBankGL:
                  border: str = "mirror", combine: str = "correct"):
         if border not in ("mirror", "zero"):
             raise ValidationError("border", border, "'mirror' or 'zero'")
-        if combine not in ("correct", "clip"):
-            raise ValidationError("combine", combine, "'correct' or 'clip'")
+        if combine not in COMBINES:
+            raise ValidationError("combine", combine, "one of " + ", ".join(COMBINES))
         W, H = image_size
         ny, nx = spectrum_image.shape[2:]
         if (ny, nx) != fft_grid(W, H, margin):
@@ -64,8 +66,8 @@ class FftBankGL:
                    "LOG2_MAX_Y": int(math.log2(ny)), "MARGIN": margin}
         if border == "zero":
             defines["BORDER_ZERO"] = None
-        if combine == "correct":
-            defines["COMBINE_CORRECT"] = None
+        if combine != "raw":
+            defines["COMBINE_" + combine.upper()] = None
         name = "fft_filter.glsl"
         self.p_rows = compile_compute(ctx, name, defines={**defines, "ROWS_FORWARD": None})
         self.p_cols = compile_compute(ctx, name, defines={**defines, "COLS": None})
