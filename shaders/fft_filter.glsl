@@ -49,11 +49,7 @@ int bit_reverse(int i, int log2n) {
 layout(local_size_x = 16, local_size_y = 16) in;
 #endif
 
-int mirror_index(int i, int n) {
-    int m = i % (2 * n);
-    if (m < 0) m += 2 * n;
-    return m < n ? m : 2 * n - 1 - m;
-}
+#include "borders.glsl"
 
 #if defined ROWS_FORWARD
 uniform sampler2D u_linear_in;

@@ -13,12 +13,7 @@
 
 layout(local_size_x = 16, local_size_y = 16) in;
 
-// Mirrored repeat (edge texel repeated, period 2n): OpenGL's MIRRORED_REPEAT on texel indices.
-int mirror_index(int i, int n) {
-    int m = i % (2 * n);
-    if (m < 0) m += 2 * n;
-    return m < n ? m : 2 * n - 1 - m;
-}
+#include "borders.glsl"
 
 #if defined PASS_DECODE
 uniform sampler2D u_source;

@@ -23,6 +23,7 @@ from vrcorrect.prescription import Prescription
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector
 from vrcorrect.runtime.filters import apply_separable, separable_bank
+from vrcorrect.runtime.onnx_backend import write_one_minus_x_model
 from vrcorrect.solvers import make_problem
 from vrcorrect.solvers.wiener import correction_filters, wiener
 
@@ -238,24 +239,9 @@ def test_hot_reload_and_invalid_file_mid_run(gl, tmp_path, images):
         c.release()
 
 
-def _negate_model(path: Path) -> None:
-    """A tiny ONNX graph built here: y = 1 - x on (1, 3, H, W) float32 with dynamic H, W."""
-    import onnx
-    from onnx import TensorProto, helper
-
-    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 3, "H", "W"])
-    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, "H", "W"])
-    one = helper.make_tensor("one", TensorProto.FLOAT, [], [1.0])
-    graph = helper.make_graph([helper.make_node("Sub", ["one", "x"], ["y"])], "negate", [x], [y], [one])
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    onnx.checker.check_model(model)
-    onnx.save(model, str(path))
-
-
 def test_onnx_slot_runs_a_model_on_the_eye_texture(gl, tmp_path, images):
     model = tmp_path / "negate.onnx"
-    _negate_model(model)
+    write_one_minus_x_model(model)                     # y = 1 - x, built with the onnx package
     c = Corrector(gl, SAMPLE_RX, "quest2", "right", backend="onnx", model=str(model))
     try:
         img = images[2][1]

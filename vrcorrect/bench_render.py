@@ -40,19 +40,6 @@ def _frame_image(width: int, height: int) -> np.ndarray:
     return np.round(img * 255).astype(np.uint8)
 
 
-def _trivial_onnx(path: Path) -> None:
-    import onnx
-    from onnx import TensorProto, helper
-
-    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 3, "H", "W"])
-    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, "H", "W"])
-    one = helper.make_tensor("one", TensorProto.FLOAT, [], [1.0])
-    graph = helper.make_graph([helper.make_node("Sub", ["one", "x"], ["y"])], "one_minus_x", [x], [y], [one])
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    onnx.save(model, str(path))
-
-
 def _time_frames(ctx, correctors, src, fbos, how: str, repeats: int) -> list[float]:
     def frame():
         for c, fbo in zip(correctors, fbos):
@@ -79,6 +66,7 @@ def run_render_bench(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), w
     from .prescription import load_prescription
     from .runtime.corrector import Corrector
     from .runtime.gl import headless_context, release, render_target, upload_texture
+    from .runtime.onnx_backend import write_one_minus_x_model
 
     ctx = headless_context(require=430)
     renderer = ctx.info.get("GL_RENDERER", "?")
@@ -87,7 +75,7 @@ def run_render_bench(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), w
     rows, details = [], []
     tmp = tempfile.TemporaryDirectory()
     model = Path(tmp.name) / "one_minus_x.onnx"
-    _trivial_onnx(model)
+    write_one_minus_x_model(model)
     cases = [("passthrough (decode + encode)", "apply", dict(), size, False),
              ("GLSL correction, FFT, per-frame blend (default)", "apply", dict(), size, True),
              ("GLSL correction, FFT, fixed blend", "apply", dict(blend="fixed"), size, True),

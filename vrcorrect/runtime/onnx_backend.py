@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import InputError, ValidationError
 
-__all__ = ["OnnxModel"]
+__all__ = ["OnnxModel", "write_one_minus_x_model"]
 
 
 class OnnxModel:
@@ -80,3 +80,20 @@ class OnnxModel:
 
     def release(self) -> None:
         self._buffers.clear()
+
+
+def write_one_minus_x_model(path: str | Path) -> None:
+    """Write a trivial model of the slot's contract, ``y = 1 - x`` on float32 ``(1, 3, H, W)``
+    with dynamic ``H`` and ``W`` (needs the ``onnx`` package): to exercise and time the slot
+    before a learned model exists."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 3, "H", "W"])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, "H", "W"])
+    one = helper.make_tensor("one", TensorProto.FLOAT, [], [1.0])
+    graph = helper.make_graph([helper.make_node("Sub", ["one", "x"], ["y"])], "one_minus_x", [x], [y], [one])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
