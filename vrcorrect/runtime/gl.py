@@ -40,7 +40,8 @@ MESA_DEBIAN_PACKAGES = ("libegl1", "libegl-mesa0", "libgl1", "libglx-mesa0", "li
 
 _DTYPES = {np.dtype(np.uint8): "f1", np.dtype(np.float32): "f4"}
 _NUMPY_OF = {"f1": np.dtype(np.uint8), "f4": np.dtype(np.float32)}
-_FILTERS = ("nearest", "linear")
+_FILTERS = ("nearest", "linear", "mipmap")
+_SRGB_FORMATS = {3: 0x8C41, 4: 0x8C43}  # GL_SRGB8, GL_SRGB8_ALPHA8
 
 
 def _moderngl():
@@ -171,13 +172,17 @@ def _set_sampling(texture: "moderngl.Texture", filter: str) -> None:
     moderngl = _moderngl()
     if filter not in _FILTERS:
         raise ValidationError("filter", filter, "one of: " + ", ".join(_FILTERS))
-    mode = moderngl.NEAREST if filter == "nearest" else moderngl.LINEAR
-    texture.filter = (mode, mode)
+    if filter == "mipmap":
+        texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+    else:
+        mode = moderngl.NEAREST if filter == "nearest" else moderngl.LINEAR
+        texture.filter = (mode, mode)
     texture.repeat_x = False  # clamp to edge
     texture.repeat_y = False
 
 
-def upload_texture(ctx: "moderngl.Context", image: np.ndarray, *, filter: str = "nearest") -> "moderngl.Texture":
+def upload_texture(ctx: "moderngl.Context", image: np.ndarray, *, filter: str = "nearest",
+                   srgb: bool = False) -> "moderngl.Texture":
     """A 2D texture holding ``image``.
 
     Parameters
@@ -186,7 +191,11 @@ def upload_texture(ctx: "moderngl.Context", image: np.ndarray, *, filter: str = 
         ``(H, W, C)`` with C = 1 to 4 (RGB: 3, RGBA: 4), top row first, dtype uint8 (shaders
         read ``code / 255``) or float32 (stored as 32-bit floats, read as they are).
     filter
-        ``"nearest"`` (default: exact texel values) or ``"linear"``. Edges clamp.
+        ``"nearest"`` (default: exact texel values), ``"linear"``, or ``"mipmap"`` (trilinear
+        over a mipmap chain built here; :func:`write_texture` rebuilds it). Edges clamp.
+    srgb
+        Store uint8 RGB/RGBA code values as an sRGB texture (``GL_SRGB8``/``GL_SRGB8_ALPHA8``):
+        shaders then read linear light, decoded (and filtered, and mipmapped) by the GPU.
 
     Rows are stored bottom row first (module docstring, "Orientation"): v = 1 samples the
     image's top row.
@@ -197,9 +206,33 @@ def upload_texture(ctx: "moderngl.Context", image: np.ndarray, *, filter: str = 
     code = _texture_code(arr.dtype, "image.dtype")
     height, width, components = arr.shape
     _check_size(ctx, width, height, "image size (width, height)")
-    texture = ctx.texture((width, height), components, _gl_rows(arr).tobytes(), dtype=code, alignment=1)
+    extra = {}
+    if srgb:
+        if code != "f1" or components not in _SRGB_FORMATS:
+            raise ValidationError("srgb", f"{arr.dtype} image with {components} channel(s)",
+                                  "uint8 RGB or RGBA code values for an sRGB texture")
+        extra["internal_format"] = _SRGB_FORMATS[components]
+    texture = ctx.texture((width, height), components, _gl_rows(arr).tobytes(), dtype=code, alignment=1, **extra)
+    if filter == "mipmap":
+        texture.build_mipmaps()
     _set_sampling(texture, filter)
     return texture
+
+
+def write_texture(texture: "moderngl.Texture", image: np.ndarray) -> None:
+    """Replace the contents of a texture made by :func:`upload_texture` with ``image`` of the
+    same shape and dtype (top row first, as there); a mipmap chain is rebuilt. No allocation."""
+    moderngl = _moderngl()
+    arr = np.asarray(image)
+    width, height = texture.size
+    expected = (height, width, texture.components)
+    if arr.shape != expected or texture.dtype not in _NUMPY_OF or arr.dtype != _NUMPY_OF[texture.dtype]:
+        raise ValidationError("image", f"{arr.dtype} array of shape {arr.shape}",
+                              f"{_NUMPY_OF.get(texture.dtype, texture.dtype)} of shape {expected} (the texture's)")
+    texture.write(_gl_rows(arr).tobytes(), alignment=1)
+    if texture.filter[0] == moderngl.LINEAR_MIPMAP_LINEAR:
+        texture.build_mipmaps()
+        texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
 
 
 def download_texture(texture: "moderngl.Texture") -> np.ndarray:
