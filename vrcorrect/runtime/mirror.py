@@ -877,8 +877,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``mirror`` sub-command to an argparse ``subparsers`` object."""
     p = subparsers.add_parser(
         "mirror", help="a window with both eyes side by side, corrected live (keys: press h)",
-        description=("Open a window showing both eyes side by side (left eye on the left): the displayed, "
-                     "pre-corrected image or what each eye sees of it, with live prescription edits, "
+        description=("Open a window showing both eyes side by side (left eye on the left): the displayed,\n"
+                     "pre-corrected image or what each eye sees of it, with live prescription edits,\n"
                      "screenshots and stage timings. Needs a display (X11/Wayland) and OpenGL 4.3."),
         epilog=key_map_text(), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--rx", metavar="RX.json", help="prescription (default: the bundled sample); reloaded when it "
