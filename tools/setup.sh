@@ -49,7 +49,7 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   # torch==2.13.0 (CPU build) is pinned in the 'solve' extra: pip takes it from this machine's disk.
   .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[solve,metrics,test,realtime]" 2>&1 \
     | grep -v -e "^WARNING: Location" -e "BuildBackendWarning" || true
-  .venv/bin/python -c "import vrcorrect, numpy, scipy, colour, PIL, torch, pytest, hypothesis, moderngl, glfw, onnxruntime, onnx" \
+  .venv/bin/python -c "import vrcorrect, numpy, scipy, colour, PIL, torch, pytest, hypothesis, moderngl, glfw, onnxruntime, onnx, imageio_ffmpeg, mss" \
     || { echo "installation failed" >&2; exit 1; }
   echo "$want" > "$stamp"
 fi

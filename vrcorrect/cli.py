@@ -500,6 +500,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_mirror_parser(sub)
 
+    from .runtime.overlay import add_parser as add_overlay_parser
+
+    add_overlay_parser(sub)
+
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md")
     p.add_argument("what", choices=("kernel", "solvers", "render"), help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")

@@ -43,7 +43,8 @@ __all__ = [
     "VIEWS", "VIEW_TITLES", "KEY_MAP", "STEP_SPHERE_D", "STEP_CYLINDER_D", "STEP_AXIS_DEG", "STAGES",
     "MirrorState", "Adjust", "Screenshot", "next_state", "key_map_text", "eye_viewports",
     "Glyph", "FontAtlas", "build_font_atlas", "layout_text", "text_width", "panel_instances",
-    "MirrorConfig", "Mirror", "add_parser", "cmd_mirror",
+    "MirrorConfig", "StageTimes", "TextOverlay", "GlfwSession", "write_screenshot", "Mirror", "add_parser",
+    "cmd_mirror", "parse_frames",
 ]
 
 # --------------------------------------------------------------------------
@@ -172,10 +173,11 @@ def next_state(state: MirrorState, key: int, mods: int = 0) -> tuple[MirrorState
     return state, ()
 
 
-def key_map_text() -> str:
-    """The key map as printed at start: one key a line."""
-    width = max(len(k) for k, _ in KEY_MAP)
-    return "\n".join(["keys:"] + [f"  {k:<{width}}  {what}" for k, what in KEY_MAP])
+def key_map_text(keys: Sequence[tuple[str, str]] = KEY_MAP) -> str:
+    """The key map (``(key, what)`` pairs; the mirror's by default) as printed at start: one
+    key a line."""
+    width = max(len(k) for k, _ in keys)
+    return "\n".join(["keys:"] + [f"  {k:<{width}}  {what}" for k, what in keys])
 
 
 def eye_viewports(width: int, height: int) -> dict[str, tuple[int, int, int, int]]:
@@ -399,12 +401,14 @@ STAGES = ("scene", "correct left", "correct right", "simulate left", "simulate r
 vsync is on) is CPU time only; the others have GPU time (timer queries) and CPU time."""
 
 
-class _StageTimes:
-    """GPU timer queries and CPU clocks per stage. A frame's GPU times are read at the start
-    of the next frame (:meth:`collect`), when they are ready, so nothing waits for the GPU."""
+class StageTimes:
+    """GPU timer queries and CPU clocks per stage (``stages``; those in ``cpu_only`` get no
+    GPU query). A frame's GPU times are read at the start of the next frame (:meth:`collect`),
+    when they are ready, so nothing waits for the GPU."""
 
-    def __init__(self, ctx: "moderngl.Context"):
-        self.queries = {name: ctx.query(time=True) for name in STAGES if name != "present"}
+    def __init__(self, ctx: "moderngl.Context", stages: Sequence[str] = STAGES,
+                 cpu_only: Sequence[str] = ("present",)):
+        self.queries = {name: ctx.query(time=True) for name in stages if name not in cpu_only}
         self._cpu: dict[str, float] = {}
         self._pending: list[str] = []
         self.last: dict[str, tuple[float | None, float]] = {}
@@ -505,6 +509,114 @@ def _glfw():
     return glfw
 
 
+class GlfwSession:
+    """GLFW, initialised for one window with an OpenGL 4.3 core context (moderngl): made in two
+    steps, :meth:`__init__` (GLFW itself: monitors can be asked for) then :meth:`open`; use as
+    a context manager or call :meth:`close` (terminates GLFW).
+
+    Raises :class:`~vrcorrect.errors.GLUnavailableError` when there is no display or no
+    OpenGL 4.3 core context (the corrector's compute shaders need it).
+    """
+
+    def __init__(self, platform: str | None = None):
+        glfw = self.glfw = _glfw()
+        self.errors: list[str] = []
+        self.window = self.ctx = None
+        self.framebuffer_size = (0, 0)
+        self._initialised = False
+        self._previous_error_callback = glfw.set_error_callback(
+            lambda code, text: self.errors.append(text.decode(errors="replace") if isinstance(text, bytes) else text))
+        if platform is not None:
+            glfw.init_hint(glfw.PLATFORM, glfw.PLATFORM_X11 if platform == "x11" else glfw.PLATFORM_WAYLAND)
+        if not glfw.init():
+            reason = "; ".join(self.errors[-2:] or ["glfw.init failed"])
+            self.close()
+            raise GLUnavailableError(f"cannot open a window: GLFW found no display ({reason}); set DISPLAY, "
+                                     "or run under xvfb-run")
+        self._initialised = True
+
+    def open(self, width: int, height: int, title: str, *, visible: bool = True, vsync: bool = True,
+             fullscreen: bool = False, position: tuple[int, int] | None = None,
+             key_callback: Callable[..., None] | None = None) -> None:
+        """Open the window (``fullscreen``: on the primary monitor, at its current video mode,
+        ``width`` and ``height`` ignored; ``position``: top-left corner on the screen) and make
+        its context current."""
+        import moderngl
+
+        glfw = self.glfw
+        glfw.default_window_hints()
+        glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 4)
+        glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
+        glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
+        glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
+        glfw.window_hint(glfw.VISIBLE, False)
+        glfw.window_hint(glfw.RESIZABLE, False)
+        monitor = None
+        if fullscreen:
+            monitor = glfw.get_primary_monitor()
+            mode = glfw.get_video_mode(monitor) if monitor else None
+            if not mode:
+                raise GLUnavailableError("no monitor to go full-screen on; use a window (--window WxH)")
+            width, height = mode.size.width, mode.size.height
+            glfw.window_hint(glfw.REFRESH_RATE, mode.refresh_rate)
+        self.window = glfw.create_window(int(width), int(height), title, monitor, None)
+        if not self.window:
+            raise GLUnavailableError("cannot open a window with an OpenGL 4.3 core context (the corrector's compute "
+                                     "shaders need it): " + "; ".join(self.errors[-2:] or ["no reason given"]))
+        if position is not None and monitor is None:
+            glfw.set_window_pos(self.window, *position)
+        if visible:
+            glfw.show_window(self.window)
+        glfw.make_context_current(self.window)
+        glfw.swap_interval(1 if vsync else 0)
+        try:
+            self.ctx = moderngl.create_context(require=430)
+        except Exception as exc:
+            raise GLUnavailableError(f"no OpenGL 4.3 context on the window ({exc})") from None
+        self.framebuffer_size = tuple(glfw.get_framebuffer_size(self.window))
+        if key_callback is not None:
+            glfw.set_key_callback(self.window, key_callback)
+
+    def close(self) -> None:
+        """Close the window and terminate GLFW (release GL objects first)."""
+        glfw = self.glfw
+        if glfw is None:
+            return
+        if self.window is not None:
+            glfw.destroy_window(self.window)
+            self.window = None
+        if self._initialised:
+            glfw.terminate()
+            self._initialised = False
+        glfw.set_error_callback(self._previous_error_callback)
+        self.glfw = self.ctx = None
+
+    def __enter__(self) -> "GlfwSession":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def write_screenshot(folder: str | Path, prefix: str, pixels: np.ndarray) -> Path:
+    """Write ``pixels`` (``(H, W, 3)`` uint8) to a new ``PREFIX-DATE-TIME-NNN.png`` in
+    ``folder`` (made if needed); returns its path."""
+    from ..imageio import write_png
+
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{folder}: cannot make the screenshot folder ({exc.strerror or exc})") from None
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    for n in range(1000):
+        path = folder / f"{prefix}-{stamp}-{n:03d}.png"
+        if not path.exists():
+            write_png(path, pixels.astype(np.float32) / 255.0)
+            return path
+    raise InputError(f"{folder}: too many screenshots this second")
+
+
 class Mirror:
     """The mirror window (see the module docstring). Use as a context manager, or call
     :meth:`close`.
@@ -560,12 +672,9 @@ class Mirror:
         self._base = {eye: prescription.eye(eye) for eye in EYES}
         self._offsets = {eye: (0.0, 0.0, 0.0) for eye in EYES}
         self._actions: list[Action] = []
-        self._glfw_mod = None
+        self._glfw_mod = self._session = None
         self.window = self.ctx = self.source = self.overlay = self._times = None
         self.correctors: dict[str, Any] = {}
-        self._previous_error_callback = None
-        self._glfw_errors: list[str] = []
-        self._glfw_initialised = False
         self._frame_ms: float | None = None
         self._last_frame_end: float | None = None
         try:
@@ -583,39 +692,12 @@ class Mirror:
             self._echo(text)
 
     def _open_window(self) -> None:
-        glfw = self._glfw_mod = _glfw()
-        import moderngl
-
         cfg = self.config
-        self._previous_error_callback = glfw.set_error_callback(
-            lambda code, text: self._glfw_errors.append(f"{text.decode(errors='replace') if isinstance(text, bytes) else text}"))
-        if cfg.platform is not None:
-            glfw.init_hint(glfw.PLATFORM, glfw.PLATFORM_X11 if cfg.platform == "x11" else glfw.PLATFORM_WAYLAND)
-        if not glfw.init():
-            raise GLUnavailableError("cannot open a window: GLFW found no display ("
-                                     + "; ".join(self._glfw_errors[-2:] or ["glfw.init failed"])
-                                     + "); set DISPLAY, or run under xvfb-run")
-        self._glfw_initialised = True
-        glfw.default_window_hints()
-        glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 4)
-        glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
-        glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
-        glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
-        glfw.window_hint(glfw.VISIBLE, bool(cfg.visible))
-        glfw.window_hint(glfw.RESIZABLE, False)
+        session = self._session = GlfwSession(cfg.platform)
+        self._glfw_mod = session.glfw
         w, h = cfg.eye_size
-        self.window = glfw.create_window(2 * w, h, cfg.title, None, None)
-        if not self.window:
-            raise GLUnavailableError("cannot open a window with an OpenGL 4.3 core context (the corrector's compute "
-                                     "shaders need it): " + "; ".join(self._glfw_errors[-2:] or ["no reason given"]))
-        glfw.make_context_current(self.window)
-        glfw.swap_interval(1 if cfg.vsync else 0)
-        try:
-            self.ctx = moderngl.create_context(require=430)
-        except Exception as exc:
-            raise GLUnavailableError(f"no OpenGL 4.3 context on the window ({exc})") from None
-        self.framebuffer_size = tuple(glfw.get_framebuffer_size(self.window))
-        glfw.set_key_callback(self.window, self.key_callback)
+        session.open(2 * w, h, cfg.title, visible=cfg.visible, vsync=cfg.vsync, key_callback=self.key_callback)
+        self.window, self.ctx, self.framebuffer_size = session.window, session.ctx, session.framebuffer_size
 
     def _build(self) -> None:
         from .corrector import Corrector
@@ -637,7 +719,7 @@ class Mirror:
         number = text_width(atlas, "00000.00") + gap
         self._tab_stops = (first, first + number)
         self._key_tab_stops = (max(text_width(atlas, k) for k, _ in KEY_MAP) + gap,)
-        self._times = _StageTimes(ctx)
+        self._times = StageTimes(ctx)
         check_gl_errors(ctx, "mirror set-up")
 
     # ------------------------------------------------------------ state
@@ -784,22 +866,9 @@ class Mirror:
     def screenshot(self) -> Path:
         """Write the back buffer (both halves, panel included when shown) to a new PNG in
         ``screenshot_dir``; returns its path."""
-        from ..imageio import write_png
-
-        folder = Path(self.config.screenshot_dir)
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise InputError(f"{folder}: cannot make the screenshot folder ({exc.strerror or exc})") from None
-        stamp = time.strftime("%Y%m%d-%H%M%S")
-        pixels = self.read_screen()
-        for n in range(1000):
-            path = folder / f"vrcorrect-mirror-{stamp}-{n:03d}.png"
-            if not path.exists():
-                write_png(path, pixels.astype(np.float32) / 255.0)
-                self.screenshots.append(path)
-                return path
-        raise InputError(f"{folder}: too many screenshots this second")
+        path = write_screenshot(self.config.screenshot_dir, "vrcorrect-mirror", self.read_screen())
+        self.screenshots.append(path)
+        return path
 
     def step(self) -> None:
         """One frame: render, the screenshot if asked for, swap buffers, process events."""
@@ -850,16 +919,9 @@ class Mirror:
                     obj.release()
             release(self.ctx)
         self.correctors, self.overlay, self.source, self._times, self.ctx = {}, None, None, None, None
-        glfw = self._glfw_mod
-        if glfw is not None:
-            if self.window is not None:
-                glfw.destroy_window(self.window)
-                self.window = None
-            if self._glfw_initialised:
-                glfw.terminate()
-                self._glfw_initialised = False
-            glfw.set_error_callback(self._previous_error_callback)
-            self._glfw_mod = None
+        if self._session is not None:
+            self._session.close()
+        self.window, self._session, self._glfw_mod = None, None, None
 
     def __enter__(self) -> "Mirror":
         return self
@@ -896,7 +958,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def _parse_frames(text: str | None) -> int | None:
+def parse_frames(text: str | None, field: str = "--frames") -> int | None:
+    """Check ``--frames``: ``None`` (run until closed) or a whole number from 1 to 10000000."""
     if text is None:
         return None
     try:
@@ -904,13 +967,13 @@ def _parse_frames(text: str | None) -> int | None:
     except ValueError:
         value = 0
     if not 1 <= value <= 10_000_000:
-        raise ValidationError("--frames", text, "a whole number of frames from 1 to 10000000")
+        raise ValidationError(field, text, "a whole number of frames from 1 to 10000000")
     return value
 
 
 def cmd_mirror(args: argparse.Namespace) -> int:
     """``vrcorrect mirror``: check the arguments, open the mirror, run it, print a summary."""
-    frames = _parse_frames(args.frames)
+    frames = parse_frames(args.frames)
     config = MirrorConfig(rx=args.rx, display=args.display, source=args.source, eye_size=parse_size(args.size),
                           frames=frames, screenshot_dir=args.screenshot_dir, vsync=frames is None)
     parse_source(config.source)  # fail on a bad source before anything slow

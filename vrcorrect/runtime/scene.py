@@ -16,19 +16,23 @@ image has another size); rendering a frame allocates nothing.
   :class:`VideoSource`): the picture is fitted into the eye size, aspect kept, centred on
   black (DESIGN.md: outside the image the panel is black), resampled on the GPU in linear
   light; an image of exactly the eye size is shown texel for texel. Both eyes see the same.
+* :class:`ScreenSource` - a region of the X11 screen, grabbed every frame (``mss``; the
+  overlay's source ``screen``), fitted the same way.
 
-Pure helpers (no GL): :func:`parse_size`, :func:`parse_source`, :func:`fit_rect`,
+Pure helpers (no GL): :func:`parse_size`, :func:`parse_source`, :func:`parse_region`, :func:`fit_rect`,
 :func:`frame_index`, :func:`frame_at`, :func:`folder_images`, the matrices
 (:func:`perspective`, :func:`translation`, :func:`rotation_x`, :func:`rotation_y`,
 :func:`scaling`), the meshes and :func:`scene_transforms`.
 
-Layer 5: numpy, Pillow, moderngl; video files through ``imageio-ffmpeg`` when installed.
+Layer 5: numpy, Pillow, moderngl; video files through ``imageio-ffmpeg`` and the screen
+through ``mss`` when installed (both in the ``realtime`` extra).
 """
 
 from __future__ import annotations
 
 import bisect
 import math
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +52,7 @@ __all__ = [
     "folder_images", "perspective", "translation", "rotation_x", "rotation_y", "scaling",
     "cube_mesh", "quad_mesh", "scene_transforms", "chart_atlas", "text_banner",
     "DemoScene", "StillSource", "FolderSource", "AnimatedImageSource", "VideoSource", "open_source",
+    "parse_region", "screen_bounds", "ScreenGrabber", "ScreenSource",
 ]
 
 EYES = ("left", "right")
@@ -83,6 +88,20 @@ def parse_size(text: str, field: str = "--size") -> tuple[int, int]:
     if not (1 <= width <= MAX_EYE_SIZE and 1 <= height <= MAX_EYE_SIZE):
         raise ValidationError(field, text, allowed)
     return width, height
+
+
+def parse_region(text: str, field: str = "--region") -> Rect:
+    """``"X,Y,W,H"`` (pixels; ``(X, Y)`` the top-left corner, from the screen's top-left) as a
+    :class:`~vrcorrect.runtime.gl.Rect`; W and H from 1 to :data:`MAX_EYE_SIZE`."""
+    allowed = f"X,Y,WIDTH,HEIGHT in pixels (X, Y >= 0; WIDTH, HEIGHT 1 to {MAX_EYE_SIZE}), e.g. 0,0,640,480"
+    match = re.fullmatch(r"\s*(\d{1,5})\s*,\s*(\d{1,5})\s*,\s*(\d{1,5})\s*,\s*(\d{1,5})\s*", text) \
+        if isinstance(text, str) else None
+    if not match:
+        raise ValidationError(field, text, allowed)
+    x, y, w, h = (int(g) for g in match.groups())
+    if not (1 <= w <= MAX_EYE_SIZE and 1 <= h <= MAX_EYE_SIZE):
+        raise ValidationError(field, text, allowed)
+    return Rect(x, y, w, h)
 
 
 @dataclass(frozen=True)
@@ -845,6 +864,105 @@ class VideoSource(_PictureSource):
 
     def release(self) -> None:
         self._close()
+        if hasattr(self, "_fitted"):
+            super().release()
+
+
+SCREEN_HINT = "pip install mss (part of the realtime extra: pip install -e '.[realtime]')"
+
+
+def _mss():
+    if not os.environ.get("DISPLAY"):
+        raise InputError("the screen source needs an X11 display, and DISPLAY is not set "
+                         "(under Wayland, only XWayland windows can be grabbed)")
+    try:
+        import mss
+    except ImportError as exc:
+        raise InputError(f"the screen source needs mss ({exc}; {SCREEN_HINT})") from None
+    return mss
+
+
+class ScreenGrabber:
+    """Grabs rectangles of the X11 screen (the root window, all monitors) with ``mss``
+    (XCB ``ShmGetImage``, or ``GetImage`` where shared memory is not available).
+
+    Raises :class:`~vrcorrect.errors.InputError` when there is no X display (or no ``mss``).
+    What is grabbed is what the X server holds: windows above the region are in it, so a
+    window showing the grab must lie outside the region.
+    """
+
+    def __init__(self) -> None:
+        mss = _mss()
+        try:
+            self._mss = mss.MSS()
+            whole = self._mss.monitors[0]
+        except Exception as exc:  # mss raises ScreenShotError and ctypes/XCB errors
+            raise InputError(f"cannot grab the X11 screen {os.environ.get('DISPLAY')!r} "
+                             f"({' '.join(str(exc).split())[:200]})") from None
+        self.bounds = Rect(0, 0, int(whole["width"]), int(whole["height"]))
+        self._origin = (int(whole["left"]), int(whole["top"]))
+
+    def grab(self, region: Rect) -> np.ndarray:
+        """The pixels of ``region`` (screen pixels from the top-left of the whole screen) as
+        ``(H, W, 3)`` uint8 sRGB codes, top row first."""
+        region.check_inside(self.bounds.width, self.bounds.height)
+        box = {"left": self._origin[0] + int(region.x), "top": self._origin[1] + int(region.y),
+               "width": int(region.width), "height": int(region.height)}
+        try:
+            shot = self._mss.grab(box)
+        except Exception as exc:
+            raise InputError(f"grabbing the screen region {box} failed ({' '.join(str(exc).split())[:200]})") from None
+        return np.asarray(shot)[..., 2::-1]  # BGRA -> RGB (a view; _FittedImage copies it once)
+
+    def close(self) -> None:
+        if getattr(self, "_mss", None) is not None:
+            self._mss.close()
+            self._mss = None
+
+
+def screen_bounds() -> Rect:
+    """The whole X11 screen (all monitors) as a rectangle at (0, 0)."""
+    grabber = ScreenGrabber()
+    try:
+        return grabber.bounds
+    finally:
+        grabber.close()
+
+
+class ScreenSource(_PictureSource):
+    """A region of the X11 screen, grabbed every frame and fitted like an image (an output of
+    the region's size shows it pixel for pixel). The picture texture is made on the first
+    frame and rewritten in place after that.
+
+    Raises :class:`~vrcorrect.errors.ValidationError` when ``region`` is not inside the screen.
+    """
+
+    def __init__(self, ctx: "moderngl.Context", width: int, height: int, region: Rect):
+        self.grabber = ScreenGrabber()
+        try:
+            b = self.grabber.bounds
+            if region.x + region.width > b.width or region.y + region.height > b.height:
+                raise ValidationError("--region", f"{region.x},{region.y},{region.width},{region.height}",
+                                      f"a rectangle inside the {b.width}x{b.height} screen")
+            self.region = region
+            self.label = f"screen {region.width}x{region.height}+{region.x}+{region.y}"
+            super().__init__(ctx, width, height)
+        except BaseException:
+            self.grabber.close()
+            raise
+        self._frames = 0
+        try:
+            self._update(0.0)
+        except BaseException:
+            self.release()
+            raise
+
+    def _update(self, t_s: float) -> None:
+        self._frames += 1
+        self._show(self._frames, lambda: self.grabber.grab(self.region))
+
+    def release(self) -> None:
+        self.grabber.close()
         if hasattr(self, "_fitted"):
             super().release()
 

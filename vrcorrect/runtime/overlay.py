@@ -1,0 +1,582 @@
+"""The overlay compositor (``vrcorrect overlay``): for applications that cannot call the library.
+
+It takes frames from an external source - a video file, a folder of images, a still image
+(:mod:`vrcorrect.runtime.scene`), or a region of the X11 screen (:class:`~vrcorrect.runtime.scene.ScreenSource`)
+- corrects each one with one :class:`~vrcorrect.runtime.corrector.Corrector` (a monitor is seen
+by both eyes, so one eye's prescription: the right eye's unless told), and presents it
+full-screen on the primary monitor, or in a window of a given size. Each frame the source is
+fitted (aspect kept, centred on black) into one reused texture of the output size; nothing is
+allocated on the GPU per frame after the first.
+
+The screen grab must not see the overlay's own window, or the picture would feed back into
+itself. So the grabbed region and the window never overlap: in a window the region defaults
+to the top-left of the screen, the window's size, and the window is placed beside the region
+(:func:`place_window`); full-screen, the overlay covers the primary monitor and the region
+defaults to another monitor (:func:`full_screen_region`); with one monitor, full-screen and
+``screen`` cannot go together. A window manager may move the window: a warning says so.
+
+Keys (:data:`KEY_MAP`, printed at start, shown with ``h``) go through a pure state machine,
+:func:`next_state` on a frozen :class:`OverlayState`, as in the mirror. The prescription
+file is polled every frame (:meth:`Corrector.poll <vrcorrect.runtime.corrector.Corrector.poll>`):
+an edit takes effect live, an invalid file keeps the last good prescription and says why (on
+stdout and in the window). Frames per second and milliseconds per stage are printed once per
+second and on exit.
+
+Layer 5: numpy, Pillow, moderngl, glfw, mss; never torch.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from ..errors import ValidationError, VrcorrectError
+from .gl import Rect
+from .mirror import (
+    KEY_ESCAPE, MOD_ALT, MOD_CONTROL, MOD_SUPER, GlfwSession, Screenshot, StageTimes, TextOverlay, _letter,
+    build_font_atlas, key_map_text, panel_instances, parse_frames, text_width, write_screenshot,
+)
+from .scene import parse_region, parse_size, parse_source
+
+__all__ = [
+    "KEY_MAP", "STAGES", "SCREEN", "OverlayState", "next_state", "rects_overlap", "place_window",
+    "full_screen_region", "default_display", "OverlayConfig", "Overlay", "add_parser", "cmd_overlay",
+]
+
+SCREEN = "screen"
+"""The ``--source`` value that grabs the X11 screen."""
+
+KEY_MAP: tuple[tuple[str, str], ...] = (
+    ("c", "correction on/off"),
+    ("p", "screenshot to PNG (as shown)"),
+    ("h", "show/hide this key map"),
+    ("Esc / q", "quit"),
+)
+"""Every key of the overlay, as shown by ``h`` and printed at start."""
+
+STAGES = ("source", "correct", "text", "present")
+"""Timed stages of a frame: getting the source frame into its texture (decoding, grabbing,
+uploading, fitting), the correction, the key map and messages, swapping buffers (CPU only)."""
+
+
+# --------------------------------------------------------------------------
+# Pure parts: keys, placement, defaults
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class OverlayState:
+    """What the user chose with the keys: correction on (``c``), key map shown (``h``),
+    still running (``Esc``/``q`` end it)."""
+
+    correction: bool = True
+    show_keys: bool = False
+    running: bool = True
+
+
+def next_state(state: OverlayState, key: int, mods: int = 0) -> tuple[OverlayState, tuple[Screenshot, ...]]:
+    """The state after pressing ``key`` (a GLFW key code) with modifier bits ``mods``, and the
+    side effects to perform. Keys with Control, Alt or Super, and keys not in
+    :data:`KEY_MAP`, change nothing."""
+    if mods & (MOD_CONTROL | MOD_ALT | MOD_SUPER):
+        return state, ()
+    letter = _letter(key)
+    if key == KEY_ESCAPE or letter == "q":
+        return replace(state, running=False), ()
+    if letter == "c":
+        return replace(state, correction=not state.correction), ()
+    if letter == "h":
+        return replace(state, show_keys=not state.show_keys), ()
+    if letter == "p":
+        return state, (Screenshot(),)
+    return state, ()
+
+
+def rects_overlap(a: Rect, b: Rect) -> bool:
+    """True if the two rectangles share at least one pixel."""
+    return a.x < b.x + b.width and b.x < a.x + a.width and a.y < b.y + b.height and b.y < a.y + a.height
+
+
+def _clamp(value: int, low: int, high: int) -> int:
+    return max(low, min(value, high))
+
+
+def place_window(size: tuple[int, int], region: Rect, screen: Rect) -> tuple[int, int]:
+    """Top-left corner ``(x, y)`` for a window of ``size`` on ``screen`` that does not cover
+    ``region``: right of it, else below, left, above (aligned with the region where it fits).
+
+    Raises
+    ------
+    ValidationError
+        No such place (the window is too big for the room beside the region).
+    """
+    w, h = size
+    sw, sh = screen.width, screen.height
+    candidates = (
+        (region.x + region.width, _clamp(region.y, 0, sh - h)),
+        (_clamp(region.x, 0, sw - w), region.y + region.height),
+        (region.x - w, _clamp(region.y, 0, sh - h)),
+        (_clamp(region.x, 0, sw - w), region.y - h),
+    )
+    for x, y in candidates:
+        if 0 <= x and x + w <= sw and 0 <= y and y + h <= sh and not rects_overlap(Rect(x, y, w, h), region):
+            return x, y
+    raise ValidationError("--window", f"{w}x{h}", f"a window that fits on the {sw}x{sh} screen beside the grabbed "
+                          f"region {region.x},{region.y},{region.width},{region.height} (make one of them smaller)")
+
+
+def default_region(size: tuple[int, int], screen: Rect) -> Rect:
+    """The region grabbed for a window of ``size`` when none is given: the screen's top-left
+    corner, the window's size (at most half the screen's width, so the window fits beside it)."""
+    return Rect(0, 0, max(1, min(size[0], screen.width // 2)), max(1, min(size[1], screen.height)))
+
+
+def full_screen_region(primary: Rect, others: Sequence[Rect], region: Rect | None) -> Rect:
+    """The region to grab while the overlay covers the ``primary`` monitor: ``region`` if it
+    lies off that monitor, else (none given) the first of the ``others`` monitors.
+
+    Raises
+    ------
+    ValidationError
+        The region is on the primary monitor, or there is no other monitor.
+    """
+    if region is not None:
+        if rects_overlap(region, primary):
+            raise ValidationError("--region", f"{region.x},{region.y},{region.width},{region.height}",
+                                  "a region off the primary monitor, which the full-screen overlay covers "
+                                  "(or use --window WxH)")
+        return region
+    for other in others:
+        if not rects_overlap(other, primary):
+            return other
+    raise ValidationError("--source", SCREEN, "another monitor to grab: full-screen on the only monitor would "
+                          "grab itself; use --window WxH (the region then defaults to the screen beside it)")
+
+
+def default_display(source: str) -> str:
+    """``desktop`` for the screen (a monitor), ``quest2`` for files (like the other commands)."""
+    return "desktop" if source == SCREEN else "quest2"
+
+
+# --------------------------------------------------------------------------
+# Configuration
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class OverlayConfig:
+    """How the overlay runs.
+
+    Attributes
+    ----------
+    source
+        ``"screen"``, an image or video file, or a folder of images.
+    region
+        With ``screen``: the grabbed rectangle (default: see the module docstring).
+    rx, eye
+        Prescription JSON (watched for changes; ``None``: the bundled sample) and whose eye.
+    display
+        Display preset or profile path; ``None``: :func:`default_display`.
+    window
+        ``(width, height)`` of a window; ``None``: full-screen on the primary monitor.
+    frames
+        Render this many frames, then stop; ``None``: until quit.
+    screenshot_dir
+        Where ``p`` writes PNGs.
+    backend, corrector_options
+        Passed to the :class:`~vrcorrect.runtime.corrector.Corrector`.
+    visible, vsync, platform
+        Window settings (tests: hidden, no vsync, ``"x11"``).
+    time_step_s
+        Source time per frame (``None``: the wall clock).
+    show_messages
+        Draw status messages (an invalid prescription, a reload) over the picture.
+    report_interval_s
+        How often frames per second and stage times are printed (and on exit).
+    """
+
+    source: str
+    region: Rect | None = None
+    rx: str | Path | None = None
+    eye: str = "right"
+    display: str | None = None
+    window: tuple[int, int] | None = None
+    frames: int | None = None
+    screenshot_dir: str | Path = "."
+    backend: str = "glsl"
+    corrector_options: Mapping[str, Any] = field(default_factory=dict)
+    visible: bool = True
+    vsync: bool = True
+    platform: str | None = None
+    time_step_s: float | None = None
+    show_messages: bool = True
+    report_interval_s: float = 1.0
+    font_px: int = 13
+    folder_interval_s: float = 3.0
+    title: str = "vrcorrect overlay"
+
+    def __post_init__(self) -> None:
+        if self.eye not in ("right", "left"):
+            raise ValidationError("--eye", self.eye, "right or left")
+        if self.backend not in ("glsl", "onnx"):
+            raise ValidationError("--backend", self.backend, "glsl or onnx")
+        if self.region is not None and self.source != SCREEN:
+            raise ValidationError("--region", f"{self.region.x},{self.region.y},{self.region.width},"
+                                  f"{self.region.height}", f"only with --source {SCREEN}")
+        if self.frames is not None and not (isinstance(self.frames, int) and self.frames >= 1):
+            raise ValidationError("frames", self.frames, "None or an integer >= 1")
+        if self.time_step_s is not None and not (math.isfinite(self.time_step_s) and self.time_step_s >= 0):
+            raise ValidationError("time_step_s", self.time_step_s, "None or a number of seconds >= 0")
+        if not (math.isfinite(self.report_interval_s) and self.report_interval_s > 0):
+            raise ValidationError("report_interval_s", self.report_interval_s, "a number of seconds > 0")
+
+
+# --------------------------------------------------------------------------
+# The compositor
+# --------------------------------------------------------------------------
+
+
+class Overlay:
+    """The overlay (see the module docstring). Use as a context manager, or call :meth:`close`.
+
+    Raises
+    ------
+    InputError, ValidationError
+        Bad prescription, display, source, region or window (checked before the window opens
+        where possible); no X display for ``screen``.
+    GLUnavailableError
+        No window with an OpenGL 4.3 core context.
+
+    Attributes
+    ----------
+    state, corrector, source, status, frame, timings_ms, screenshots, region, output_size
+    """
+
+    def __init__(self, config: OverlayConfig, *, echo: Callable[[str], None] | None = print):
+        from ..display import get_display
+        from ..prescription import bundled_sample_path, load_prescription
+        from .scene import screen_bounds
+
+        self.config = config
+        self._echo = echo
+        self.rx_path = Path(config.rx) if config.rx is not None else bundled_sample_path()
+        load_prescription(self.rx_path)  # a bad file fails here, before any window
+        self.display = get_display(config.display or default_display(config.source))
+        if self.display.transfer != "srgb":
+            raise ValidationError("--display", f"{self.display.name} (transfer {self.display.transfer})",
+                                  "a display with the sRGB transfer (the real-time path encodes sRGB only)")
+        self.spec = None
+        if config.source != SCREEN:
+            self.spec = parse_source(config.source)
+            if self.spec.kind == "demo":
+                raise ValidationError("--source", "demo", f"a video, an image, a folder of images or '{SCREEN}' "
+                                      "(the demo scene is the mirror's: vrcorrect mirror)")
+        self.screen = screen_bounds() if config.source == SCREEN else None
+        self.state = OverlayState()
+        self.status = ""
+        self.frame = 0
+        self.timings_ms: dict[str, tuple[float | None, float]] = {}
+        self.screenshots: list[Path] = []
+        self.reports: list[str] = []
+        self.region: Rect | None = None
+        self._actions: list[Screenshot] = []
+        self._session = self.ctx = self.window = self.source = self.corrector = self.text = self._times = None
+        self._sums: dict[str, list[float]] = {}
+        try:
+            self._open_window()
+            self._build()
+        except BaseException:
+            self.close()
+            raise
+        self._t0 = self._report_t0 = time.perf_counter()
+        self._report_frame0 = 0
+
+    def _say(self, text: str) -> None:
+        if self._echo is not None:
+            self._echo(text)
+
+    def _set_status(self, text: str) -> None:
+        if text and text != self.status:
+            self._say(text)
+        self.status = text
+
+    def _open_window(self) -> None:
+        cfg = self.config
+        session = self._session = GlfwSession(cfg.platform)
+        glfw = session.glfw
+        position = None
+        if cfg.window is None:
+            if self.screen is not None:
+                primary, others = self._monitors(glfw)
+                self.region = full_screen_region(primary, others, cfg.region)
+        elif self.screen is not None:
+            self.region = cfg.region or default_region(cfg.window, self.screen)
+            position = place_window(cfg.window, self.region, self.screen)
+        width, height = cfg.window or (1, 1)
+        session.open(width, height, cfg.title, visible=cfg.visible, vsync=cfg.vsync, fullscreen=cfg.window is None,
+                     position=position, key_callback=self.key_callback)
+        self.window, self.ctx = session.window, session.ctx
+        self.output_size = session.framebuffer_size
+        if position is not None and cfg.visible:
+            x, y = glfw.get_window_pos(self.window)
+            if rects_overlap(Rect(max(x, 0), max(y, 0), *cfg.window), self.region):
+                self._say(f"warning: the window manager put the window at {x},{y}, over the grabbed region; "
+                          "move it off the region")
+
+    @staticmethod
+    def _monitors(glfw) -> tuple[Rect, list[Rect]]:
+        def rect(m) -> Rect:
+            x, y = glfw.get_monitor_pos(m)
+            mode = glfw.get_video_mode(m)
+            return Rect(max(int(x), 0), max(int(y), 0), int(mode.size.width), int(mode.size.height))
+
+        primary = glfw.get_primary_monitor()
+        if not primary:
+            raise ValidationError("--window", None, "WxH: GLFW sees no monitor to go full-screen on")
+        return rect(primary), [rect(m) for m in glfw.get_monitors() if m != primary]
+
+    def _build(self) -> None:
+        from .corrector import Corrector
+        from .gl import check_gl_errors
+        from .scene import ScreenSource, open_source
+
+        cfg, ctx = self.config, self.ctx
+        w, h = self.output_size
+        if self.region is not None:
+            self.source = ScreenSource(ctx, w, h, self.region)
+        else:
+            self.source = open_source(ctx, self.spec, w, h, folder_interval_s=cfg.folder_interval_s)
+        self._say(f"building the {cfg.eye} eye's correction for {self.display.name} ({self.source.label}, {w}x{h})...")
+        t0 = time.perf_counter()
+        self.corrector = Corrector(ctx, self.rx_path, self.display, cfg.eye, cfg.backend,
+                                   **dict(cfg.corrector_options))
+        self._say(f"  built in {time.perf_counter() - t0:.1f} s")
+        atlas = build_font_atlas(cfg.font_px)
+        self.text = TextOverlay(ctx, atlas)
+        self._key_tab_stops = (max(text_width(atlas, k) for k, _ in KEY_MAP) + cfg.font_px,)
+        self._times = StageTimes(ctx, STAGES)
+        check_gl_errors(ctx, "overlay set-up")
+
+    # ------------------------------------------------------------ keys and state
+
+    def key_callback(self, window: Any, key: int, scancode: int, action: int, mods: int) -> None:
+        """GLFW key callback: presses go through :func:`next_state` (repeats and releases are ignored)."""
+        if action != 1:  # GLFW_PRESS
+            return
+        new, actions = next_state(self.state, key, mods)
+        if new.show_keys and not self.state.show_keys:
+            self._say(key_map_text(KEY_MAP))
+        self.state = new
+        self._actions.extend(actions)
+        if not new.running and self.window is not None:
+            self._session.glfw.set_window_should_close(self.window, True)
+
+    def _poll(self) -> None:
+        c = self.corrector
+        if c.poll():
+            rx = c.eye_rx
+            self._set_status(f"{self.rx_path.name} reloaded: {self.config.eye} eye {rx.sphere_D:+.2f} / "
+                             f"{rx.cylinder_D:+.2f} x {rx.axis_deg:.0f}")
+            self._status_until = time.perf_counter() + 3.0
+        elif c.status:
+            self._set_status(c.status)
+            self._status_until = math.inf
+        elif self.status and time.perf_counter() > getattr(self, "_status_until", 0.0):
+            self.status = ""
+
+    # ------------------------------------------------------------ frames
+
+    def source_time(self) -> float:
+        step = self.config.time_step_s
+        return self.frame * step if step is not None else time.perf_counter() - self._t0
+
+    def render(self) -> bool:
+        """Draw one frame into the back buffer (no swap); True if a screenshot is due."""
+        from .gl import check_gl_errors
+
+        self._accumulate(self._times.collect())
+        actions, self._actions = self._actions, []
+        self._poll()
+        ctx, state = self.ctx, self.state
+        self.corrector.enabled = state.correction
+        with self._times.stage("source"):
+            texture = self.source.render(self.source_time())[1]
+        with self._times.stage("correct"):
+            self.corrector.apply(texture, ctx.screen)
+        with self._times.stage("text"):
+            quads = []
+            atlas = self.text.atlas
+            if self.status and self.config.show_messages:
+                quads.append(panel_instances(atlas, [self.status[:160]], 8, 8, background=(0.3, 0.0, 0.0, 0.85))[0])
+            if state.show_keys:
+                lines = ["keys"] + [f"{k}\t{what}" for k, what in KEY_MAP]
+                y = 8 + (2 * atlas.line_height if quads else 0)
+                quads.append(panel_instances(atlas, lines, 8, y, background=(0.05, 0.1, 0.25, 0.85),
+                                             tab_stops=self._key_tab_stops)[0])
+            if quads:
+                self.text.draw(np.concatenate(quads), ctx.screen, self.output_size)
+        check_gl_errors(ctx, f"overlay frame {self.frame}")
+        return any(isinstance(a, Screenshot) for a in actions)
+
+    def _accumulate(self, times: Mapping[str, tuple[float | None, float]]) -> None:
+        self.timings_ms = dict(times)
+        for name, (gpu, cpu) in times.items():
+            s = self._sums.setdefault(name, [0.0, 0.0, 0])
+            s[0] += gpu or 0.0
+            s[1] += cpu
+            s[2] += 1
+
+    def report(self) -> str:
+        """Frames per second and mean ms per stage since the last report (printed, kept in
+        :attr:`reports`); starts the next interval."""
+        now = time.perf_counter()
+        frames = self.frame - self._report_frame0
+        fps = frames / max(now - self._report_t0, 1e-9)
+        parts = [f"{fps:.1f} fps"]
+        for name in STAGES:
+            if name in self._sums:
+                gpu, cpu, n = self._sums[name]
+                text = f"{name} {cpu / n:.2f} ms"
+                if name in self._times.queries:
+                    text += f" (gpu {gpu / n:.2f})"
+                parts.append(text)
+        line = "  ".join(parts)
+        self.reports.append(line)
+        self._say(line)
+        self._sums, self._report_t0, self._report_frame0 = {}, now, self.frame
+        return line
+
+    def read_screen(self) -> np.ndarray:
+        """The back buffer as drawn, ``(H, W, 3)`` uint8, top row first."""
+        from .gl import read_framebuffer
+
+        return read_framebuffer(self.ctx.screen, components=3)
+
+    def screenshot(self) -> Path:
+        """Write the back buffer to a new PNG in ``screenshot_dir``; returns its path."""
+        path = write_screenshot(self.config.screenshot_dir, "vrcorrect-overlay", self.read_screen())
+        self.screenshots.append(path)
+        return path
+
+    def step(self) -> None:
+        """One frame: render, a screenshot if asked for, swap, events, the report when due."""
+        glfw = self._session.glfw
+        if self.render():
+            try:
+                self._set_status(f"screenshot {self.screenshot()}")
+                self._status_until = time.perf_counter() + 3.0
+            except VrcorrectError as exc:
+                self._set_status(f"no screenshot: {exc}")
+        with self._times.stage("present"):
+            glfw.swap_buffers(self.window)
+        self.frame += 1
+        glfw.poll_events()
+        if time.perf_counter() - self._report_t0 >= self.config.report_interval_s:
+            self.report()
+
+    @property
+    def running(self) -> bool:
+        if not self.state.running or self.window is None:
+            return False
+        if self.config.frames is not None and self.frame >= self.config.frames:
+            return False
+        return not self._session.glfw.window_should_close(self.window)
+
+    def run(self) -> int:
+        """Render frames until :attr:`running` is False, then report; returns the frame count."""
+        while self.running:
+            self.step()
+        self._accumulate(self._times.collect())
+        if self.frame > self._report_frame0:
+            self.report()
+        return self.frame
+
+    def close(self) -> None:
+        """Release every GL object, close the window and terminate GLFW."""
+        from .gl import release
+
+        if self.ctx is not None:
+            for obj in (self.corrector, self.text, self.source, self._times):
+                if obj is not None:
+                    obj.release()
+            release(self.ctx)
+        self.corrector = self.text = self.source = self._times = self.ctx = None
+        if self._session is not None:
+            self._session.close()
+        self._session = self.window = None
+
+    def __enter__(self) -> "Overlay":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------------
+# Command line: vrcorrect overlay
+# --------------------------------------------------------------------------
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``overlay`` sub-command to an argparse ``subparsers`` object."""
+    p = subparsers.add_parser(
+        "overlay", help="correct frames from a video, images or the screen and show them full-screen",
+        description=("Show frames from an external source (a video, a folder of images, an image, or a\n"
+                     "region of the X11 screen) corrected for one eye, full-screen on the primary monitor\n"
+                     "or in a window. Needs a display (X11) and OpenGL 4.3."),
+        epilog=key_map_text(KEY_MAP), formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--source", required=True, metavar="VIDEO|DIR|IMAGE|screen",
+                   help="a video (or animated GIF/PNG/WebP), a folder of images shown in turn, an image, or "
+                        "'screen' (a region of the X11 screen)")
+    p.add_argument("--region", metavar="X,Y,W,H",
+                   help="with screen: the rectangle to grab (default: another monitor full-screen; with --window, "
+                        "the screen's top-left, the window's size, the window placed beside it)")
+    p.add_argument("--rx", metavar="RX.json", help="prescription (default: the bundled sample); reloaded when it "
+                                                   "changes on disk")
+    p.add_argument("--eye", default="right", metavar="right|left",
+                   help="whose prescription (a monitor is seen by both eyes; default right)")
+    p.add_argument("--display", metavar="PRESET",
+                   help="display preset or profile .json (default: desktop for screen, quest2 otherwise)")
+    p.add_argument("--window", metavar="WxH", help="a window of this size instead of full-screen")
+    p.add_argument("--frames", metavar="N", help="render N frames and exit (tests, CI)")
+    p.add_argument("--backend", default="glsl", metavar="glsl|onnx", help="correction backend (default glsl)")
+    p.add_argument("--model", metavar="M.onnx", help="ONNX model for --backend onnx")
+    p.add_argument("--screenshot-dir", default=".", metavar="DIR", help="where p writes screenshots (default .)")
+    p.set_defaults(func=cmd_overlay)
+    return p
+
+
+def cmd_overlay(args: argparse.Namespace) -> int:
+    """``vrcorrect overlay``: check the arguments, open the overlay, run it, print a summary."""
+    frames = parse_frames(args.frames)
+    options = {}
+    if args.backend == "onnx":
+        if not args.model:
+            raise ValidationError("--model", None, "an ONNX model path with --backend onnx")
+        options["model"] = args.model
+    elif args.model:
+        raise ValidationError("--model", args.model, "only with --backend onnx")
+    config = OverlayConfig(
+        source=args.source, region=None if args.region is None else parse_region(args.region), rx=args.rx,
+        eye=args.eye, display=args.display, window=None if args.window is None else parse_size(args.window, "--window"),
+        frames=frames, screenshot_dir=args.screenshot_dir, backend=args.backend, corrector_options=options,
+        vsync=frames is None)
+    t0 = time.perf_counter()
+    with Overlay(config) as overlay:
+        print(key_map_text(KEY_MAP))
+        t1 = time.perf_counter()
+        overlay.run()
+        t2 = time.perf_counter()
+        n = overlay.frame
+        print(f"{n} frame(s) in {t2 - t1:.2f} s ({1e3 * (t2 - t1) / max(n, 1):.1f} ms per frame; set-up "
+              f"{t1 - t0:.1f} s) at {overlay.output_size[0]}x{overlay.output_size[1]} on "
+              f"{overlay.ctx.info.get('GL_RENDERER', '?')}")
+        for path in overlay.screenshots:
+            print(f"wrote {path}")
+    return 0
