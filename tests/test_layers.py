@@ -136,3 +136,39 @@ def test_runtime_imports_no_torch_at_run_time():
             "print(' '.join(bad)); sys.exit(1 if bad else 0)")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 0, f"importing {modules} imported: {result.stdout}{result.stderr}"
+
+
+# --------------------------------------------------------------------------
+# The learned correction (layer 4, beside solvers): lower layers and solvers only; the
+# conditioning the runtime feeds an exported model with never imports torch
+# --------------------------------------------------------------------------
+
+LEARN = PKG / "learn"
+LEARN_SIBLINGS = ("solvers",)          # same layer: targets from fast, pre-correction from wiener
+
+
+def _learn_modules() -> list[str]:
+    return sorted(p.stem for p in LEARN.glob("*.py"))
+
+
+def test_learn_package_exists_at_layer_4():
+    assert (LEARN / "__init__.py").exists() and LAYER["learn"] == 4
+
+
+@pytest.mark.parametrize("module", _learn_modules())
+def test_learn_imports_only_lower_layers_and_solvers(module):
+    for name in _absolute_imports(LEARN / f"{module}.py", "vrcorrect.learn"):
+        parts = name.split(".")
+        if parts[0] != "vrcorrect" or len(parts) < 2 or parts[1] in ("learn", "__version__"):
+            continue
+        dep = parts[1]
+        if module == "cli" and LAYER.get(dep, 99) == 6:
+            continue  # the sub-commands' parsers load images through evaluate (layer 6)
+        assert dep in LAYER, f"learn/{module} imports {name}: unknown module"
+        assert LAYER[dep] < 4 or dep in LEARN_SIBLINGS, f"learn/{module} (layer 4) imports {name} (layer {LAYER[dep]})"
+
+
+def test_learn_conditioning_is_torch_free():
+    code = ("import sys; import vrcorrect.learn, vrcorrect.learn.conditioning, vrcorrect.learn.dataset; "
+            "sys.exit(1 if 'torch' in sys.modules else 0)")
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0

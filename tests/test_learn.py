@@ -1,0 +1,137 @@
+"""The learned correction's foundations (issue 5): data set, conditioning, model, training, export.
+
+Everything is tiny (32x32 crops, 2-3 samples, a 4-channel U-Net) so each test takes seconds
+on two cores; eyes are drawn from narrow ranges with small pupils so kernels build quickly.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vrcorrect.charts import siemens_star, text_chart
+from vrcorrect.errors import InputError, ValidationError
+from vrcorrect.learn.conditioning import SamplingRanges, check_eye, eye_features
+from vrcorrect.learn.dataset import DatasetConfig, build_dataset, load_shard, read_manifest, sample_spec
+from vrcorrect.prescription import EyeRx
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY_RANGES = SamplingRanges(sphere_D=(-1.5, -0.5), cylinder_D=(-0.5, 0.0), pupil_diameter_mm=(2.0, 3.0))
+
+
+def tiny_config(**kw) -> DatasetConfig:
+    base = dict(samples=3, crop_px=32, samples_per_shard=2, seed=7, ranges=TINY_RANGES, wavelength_step_nm=40)
+    return DatasetConfig(**{**base, **kw})
+
+
+def tiny_images() -> list[tuple[str, np.ndarray]]:
+    return [("star", siemens_star(48)), ("text", text_chart(40, 48))]
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("learn") / "data"
+    build_dataset(out, tiny_images(), tiny_config(), workers=1, progress=False)
+    return out
+
+
+# --------------------------------------------------------------------------
+# Data set
+# --------------------------------------------------------------------------
+
+def test_dataset_builds_shards_and_manifest(tiny_dataset):
+    m = read_manifest(tiny_dataset)
+    assert m["config"]["seed"] == 7 and m["config"]["ranges"]["sphere_D"] == [-1.5, -0.5]
+    assert m["display"]["name"] == "quest2" and [i["name"] for i in m["images"]] == ["star", "text"]
+    samples = [s for e in m["shards"] for s in e["samples"]]
+    assert [s["index"] for s in samples] == [0, 1, 2] and len(m["shards"]) == 2
+    for s in samples:
+        assert -1.5 <= s["sphere_D"] <= -0.5 and -0.5 <= s["cylinder_D"] <= 0 and 2 <= s["pupil_diameter_mm"] <= 3
+        assert s["objective_fast"] <= s["objective_uncorrected"]        # fast never worse than no correction
+    shard = load_shard(tiny_dataset, m["shards"][0])
+    assert shard["target"].shape == (2, 3, 32, 32) and shard["fast"].dtype == np.float32
+    assert shard["kernel"].shape[:3] == (2, 3, 3) and shard["kernel"].shape[-1] == max(shard["kernel_px"])
+    assert 0 <= shard["precorrected"].min() and shard["precorrected"].max() <= 1
+
+
+def test_dataset_resumes_without_recomputing(tiny_dataset, tmp_path):
+    out = tmp_path / "copy"
+    shutil.copytree(tiny_dataset, out)
+    before = {p.name: p.stat().st_mtime_ns for p in out.glob("shard_*.npz")}
+    report = build_dataset(out, tiny_images(), tiny_config(), progress=False)
+    assert (report.computed_shards, report.skipped_shards) == (0, 2)
+    assert {p.name: p.stat().st_mtime_ns for p in out.glob("shard_*.npz")} == before
+    # an interrupted build: shard 1 never written -> only it is computed, and it is the same data
+    m = read_manifest(out)
+    old = load_shard(out, m["shards"][1])
+    (out / "shard_00001.npz").unlink()
+    built: list[int] = []
+    report = build_dataset(out, tiny_images(), tiny_config(), progress=False, on_shard=built.append)
+    assert built == [1] and report.computed_shards == 1
+    new = load_shard(out, read_manifest(out)["shards"][1])
+    np.testing.assert_array_equal(new["target"], old["target"])
+    np.testing.assert_allclose(new["fast"], old["fast"], atol=1e-6)
+
+
+def test_dataset_with_other_settings_is_refused(tiny_dataset, tmp_path):
+    out = tmp_path / "copy"
+    shutil.copytree(tiny_dataset, out)
+    with pytest.raises(InputError, match="other settings.*--force"):
+        build_dataset(out, tiny_images(), tiny_config(seed=8), progress=False)
+
+
+def test_samples_are_deterministic_per_seed():
+    shapes = [(48, 48), (40, 48)]
+    a = [sample_spec(tiny_config(), shapes, i) for i in range(20)]
+    assert a == [sample_spec(tiny_config(), shapes, i) for i in range(20)]
+    assert a != [sample_spec(tiny_config(seed=8), shapes, i) for i in range(20)]
+    # sample i does not depend on how many samples the data set has or how it is sharded
+    assert sample_spec(tiny_config(samples=100, samples_per_shard=7), shapes, 5) == a[5]
+    for s in a:
+        assert 0 <= s.y <= shapes[s.image][0] - 32 and 0 <= s.x <= shapes[s.image][1] - 32
+
+
+def test_default_ranges_are_the_issue_s():
+    r = SamplingRanges()
+    assert (r.sphere_D, r.cylinder_D, r.axis_deg, r.pupil_diameter_mm) == ((-6, 6), (-3, 0), (0, 180), (2, 6))
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        check_eye(r.sample(rng), r)
+    with pytest.raises(ValidationError):
+        SamplingRanges(sphere_D=(2.0, -2.0))
+
+
+def test_ray_is_not_faked(tmp_path):
+    with pytest.raises(InputError, match="not available yet"):
+        build_dataset(tmp_path / "d", tiny_images(), tiny_config(), ray_address="auto")
+
+
+# --------------------------------------------------------------------------
+# Conditioning and the trained range
+# --------------------------------------------------------------------------
+
+@pytest.mark.parametrize("eye, field", [
+    (EyeRx(-8.0, -1.0, 90.0, 4.0), "sphere_D"),
+    (EyeRx(-2.0, -4.0, 10.0, 4.0), "cylinder_D"),
+    (EyeRx(-2.0, -1.0, 10.0, 7.0), "pupil_diameter_mm"),
+])
+def test_out_of_range_eye_is_refused_naming_the_range(eye, field):
+    with pytest.raises(ValidationError) as err:
+        check_eye(eye, SamplingRanges())
+    text = str(err.value)
+    assert err.value.field == field and "wiener" in text and "fast" in text and "trained on" in text
+    lo, hi = getattr(SamplingRanges(), field)
+    assert f"{lo:g} to {hi:g}" in text
+
+
+def test_plus_cylinder_form_is_the_same_eye():
+    plus = EyeRx(-4.0, 2.0, 30.0, 4.0)           # = -2.00 / -2.00 x 120
+    e = check_eye(plus, SamplingRanges())
+    assert e.cylinder_D == -2.0 and e.sphere_D == -2.0
+    np.testing.assert_allclose(eye_features(plus, SamplingRanges()), eye_features(e, SamplingRanges()), atol=1e-6)

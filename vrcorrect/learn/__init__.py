@@ -1,0 +1,14 @@
+"""Layer 4: the learned correction (issue 5) - data set, U-Net, training.
+
+* :mod:`vrcorrect.learn.conditioning` - prescription ranges, the eye's conditioning vector and
+  the pre-correction channels (numpy only: the runtime imports it).
+* :mod:`vrcorrect.learn.dataset` - crops, sampled eyes and ``fast``'s corrections, in ``.npz``
+  shards with a JSON manifest; resumable, parallel on local processes.
+* :mod:`vrcorrect.learn.model` - the conditioned U-Net (torch).
+* :mod:`vrcorrect.learn.train` - training (torch): loss through the eye's kernel, checkpoints,
+  CSV log, resumable.
+* :mod:`vrcorrect.learn.cli` - ``vrcorrect dataset`` and ``vrcorrect train`` (argument parsing
+  only here; torch is imported when a command runs).
+
+Importing this package imports neither torch nor the submodules.
+"""

@@ -1,0 +1,150 @@
+"""What the learned model is told about the eye, and the range it was trained on (numpy only).
+
+The runtime (layer 5, never torch) imports this module to feed an exported model, so it
+must not import torch, directly or through :mod:`vrcorrect.learn.model`.
+
+* :class:`SamplingRanges` - the prescriptions a data set samples and a model is valid for
+  (sphere, minus-form cylinder, axis, pupil); :func:`check_eye` refuses an eye outside them.
+* :func:`eye_features` - the FiLM conditioning vector: the power vector (M, J0, J45, D) and
+  the pupil (mm), each scaled to about [-1, 1] by the training ranges.
+* :func:`precorrect` - the model's extra input channels: the eye's regularised inverse
+  ``(K^H K + mu I)^-1 K^H K_ref`` applied to the image (mirrored borders) and clipped to
+  [0, 1]; the same filters as the ``wiener`` method and the GLSL fallback, without the blend.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..errors import ValidationError
+from ..kernel import EyeKernel
+from ..prescription import EyeRx
+
+#: Regulariser of the pre-correction channels, relative to ``||K||^2`` (one of ``wiener``'s candidates).
+PRECORRECTION_MU_REL = 0.1
+#: Number of conditioning features (M, J0, J45, pupil).
+N_FEATURES = 4
+
+
+@dataclass(frozen=True)
+class SamplingRanges:
+    """Prescription ranges (closed intervals) a data set samples uniformly and a model serves.
+
+    Attributes
+    ----------
+    sphere_D
+        Sphere S, dioptres (minus-cylinder form), default -6 to +6.
+    cylinder_D
+        Cylinder C in minus-cylinder form, dioptres, default -3 to 0 (plus-cylinder eyes are
+        transposed before checking).
+    axis_deg
+        Cylinder axis, degrees, default 0 to 180 (any axis).
+    pupil_diameter_mm
+        Pupil diameter, millimetres, default 2 to 6.
+    """
+
+    sphere_D: tuple[float, float] = (-6.0, 6.0)
+    cylinder_D: tuple[float, float] = (-3.0, 0.0)
+    axis_deg: tuple[float, float] = (0.0, 180.0)
+    pupil_diameter_mm: tuple[float, float] = (2.0, 6.0)
+
+    def __post_init__(self) -> None:
+        limits = {"sphere_D": (-20.0, 20.0), "cylinder_D": (-10.0, 0.0), "axis_deg": (0.0, 180.0),
+                  "pupil_diameter_mm": (1.0, 9.0)}
+        for name, (lo_lim, hi_lim) in limits.items():
+            value = getattr(self, name)
+            try:
+                lo, hi = (float(v) for v in value)
+            except (TypeError, ValueError):
+                raise ValidationError(name, value, "a pair (low, high) of numbers") from None
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo_lim <= lo <= hi <= hi_lim):
+                raise ValidationError(name, value, f"low <= high within {lo_lim:g} to {hi_lim:g}")
+            object.__setattr__(self, name, (lo, hi))
+
+    def as_dict(self) -> dict[str, list[float]]:
+        """JSON-ready: field -> [low, high]."""
+        return {k: list(v) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, doc: Mapping[str, Any]) -> "SamplingRanges":
+        """Inverse of :meth:`as_dict` (missing fields take the defaults)."""
+        known = {k: tuple(v) for k, v in doc.items() if k in cls.__dataclass_fields__}
+        return cls(**known)
+
+    def describe(self) -> str:
+        """One line, e.g. ``sphere -6 to +6 D, cylinder -3 to 0 D, axis 0-180 deg, pupil 2-6 mm``."""
+        return (f"sphere {self.sphere_D[0]:+g} to {self.sphere_D[1]:+g} D, cylinder {self.cylinder_D[0]:+g} to "
+                f"{self.cylinder_D[1]:g} D (minus form), axis {self.axis_deg[0]:g}-{self.axis_deg[1]:g} deg, "
+                f"pupil {self.pupil_diameter_mm[0]:g}-{self.pupil_diameter_mm[1]:g} mm")
+
+    def sample(self, rng: np.random.Generator) -> EyeRx:
+        """One eye drawn uniformly over each range (four draws from ``rng``, in field order)."""
+        s, c, a, p = (float(rng.uniform(lo, hi)) for lo, hi in
+                      (self.sphere_D, self.cylinder_D, self.axis_deg, self.pupil_diameter_mm))
+        return EyeRx(sphere_D=s, cylinder_D=c, axis_deg=min(a, 180.0), pupil_diameter_mm=p)
+
+
+def check_eye(eye: EyeRx, ranges: SamplingRanges, what: str = "the learned model") -> EyeRx:
+    """The eye in minus-cylinder form if ``ranges`` hold it, else a :class:`ValidationError`.
+
+    The error names the field, the value, the range and the methods that have no range
+    limit (``wiener`` or ``fast``).  Accommodation and higher-order aberrations are refused
+    too: the model was trained without them.
+    """
+    e = eye.minus_cylinder()
+    hint = f"(the range {what} was trained on); for other eyes use --method wiener or fast"
+    for name, unit in (("sphere_D", "D"), ("cylinder_D", "D"), ("axis_deg", "deg"), ("pupil_diameter_mm", "mm")):
+        lo, hi = getattr(ranges, name)
+        value = getattr(e, name)
+        if not (lo - 1e-9 <= value <= hi + 1e-9):
+            raise ValidationError(name, value, f"{lo:g} to {hi:g} {unit} {hint}")
+    if e.accommodation_D != 0.0:
+        raise ValidationError("accommodation_D", e.accommodation_D, f"0 {hint}")
+    if e.higher_order is not None and e.higher_order.coefficients_um:
+        raise ValidationError("higher_order", "present", f"none {hint}")
+    return e
+
+
+def eye_features(eye: EyeRx, ranges: SamplingRanges) -> np.ndarray:
+    """FiLM input: ``(M, J0, J45, pupil)`` scaled to about [-1, 1] by the training ranges.
+
+    M and J are divided by the largest |M| and |C|/2 the ranges allow; the pupil is mapped
+    from its range to [-1, 1].  Returns float32 ``(4,)``.
+    """
+    pv = eye.power_vector()
+    m_scale = max(abs(ranges.sphere_D[0] + ranges.cylinder_D[0] / 2), abs(ranges.sphere_D[1]), 1e-3)
+    j_scale = max(abs(ranges.cylinder_D[0]) / 2, 0.25)
+    p_lo, p_hi = ranges.pupil_diameter_mm
+    p = (eye.pupil_diameter_mm - (p_lo + p_hi) / 2) / max((p_hi - p_lo) / 2, 0.5)
+    return np.array([pv.M_D / m_scale, pv.J0_D / j_scale, pv.J45_D / j_scale, p], dtype=np.float32)
+
+
+def precorrect(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel | None,
+               mu_rel: float = PRECORRECTION_MU_REL) -> np.ndarray:
+    """The model's extra input: the regularised inverse of the eye applied to ``image``, clipped.
+
+    Parameters
+    ----------
+    image
+        ``(H, W, 3)`` linear display RGB in [0, 1].
+    kernel, reference_kernel
+        The eye's kernel and its glasses-on kernel (``None``: the ideal target ``A t``).
+    mu_rel
+        Regulariser relative to ``||K||^2``.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 ``(H, W, 3)`` in [0, 1]; the image itself when the eye's kernel is 1x1.
+    """
+    from ..solvers.wiener import apply_filters, correction_filters
+
+    if kernel.size == 1:
+        return np.ascontiguousarray(image, dtype=np.float32)
+    filters = correction_filters(kernel, mu_rel, reference_kernel)
+    out = apply_filters(np.moveaxis(image, 2, 0), filters.taps)
+    return np.ascontiguousarray(np.clip(np.moveaxis(out, 0, 2), 0.0, 1.0), dtype=np.float32)

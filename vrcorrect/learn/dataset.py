@@ -1,0 +1,402 @@
+"""The learned model's data set: image crops, sampled eyes, and ``fast``'s corrections of them.
+
+Sample ``i`` of a data set is a pure function of ``(config, images, i)``: a generator seeded
+with ``(seed, i)`` picks the image, the crop's corner and the eye (uniform over
+:class:`~vrcorrect.learn.conditioning.SamplingRanges`), so the same seed gives the same
+data set whatever the number of workers or the order the shards finish in.  For each
+sample the builder computes, on the crop (linear display RGB, the panel black around it):
+
+* the eye's kernel and its glasses-on reference kernel (:func:`vrcorrect.kernel.build_kernel`,
+  :func:`vrcorrect.kernel.build_reference_kernel`);
+* ``target_lms``, the retinal cone image with glasses (the objective's target);
+* ``precorrected``, the model's extra input (:func:`~vrcorrect.learn.conditioning.precorrect`);
+* ``fast``, the ``fast`` method's correction (``solve(problem, "fast")``), and the objective
+  of the uncorrected crop and of ``fast``.
+
+On disk (``OUT/``): ``shard_00000.npz`` ... each holding ``samples_per_shard`` samples, and
+``manifest.json`` (settings, display, image names and hashes, and per sample its image,
+crop, prescription, power vector and objectives).  A shard is written atomically and then
+recorded in the manifest, so an interrupted build resumes by computing only the shards the
+manifest does not list.  Shards are built on local processes
+(:class:`concurrent.futures.ProcessPoolExecutor`); Ray is not available yet.
+
+Shard arrays (``n`` samples, crop ``h x w``, ``S`` the largest kernel in the shard):
+``index (n,)`` int64, ``target``/``precorrected``/``fast``/``target_lms`` ``(n, 3, h, w)``
+float32, ``eye (n, 4)`` float32 raw ``(M_D, J0_D, J45_D, pupil_mm)``, ``features (n, 4)``
+float32 (:func:`~vrcorrect.learn.conditioning.eye_features`), ``kernel (n, 3, 3, S, S)``
+float32 (each centred, zero-padded to ``S``), ``kernel_px (n,)``, ``objective_uncorrected``,
+``objective_fast (n,)`` float64.
+
+Layer 4: images arrive as arrays (the command line loads bundled or folder images).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..errors import InputError, ValidationError
+from ..fileio import write_text_atomic, write_with
+from .conditioning import PRECORRECTION_MU_REL, SamplingRanges, eye_features, precorrect
+
+FORMAT = "vrcorrect-dataset"
+FORMAT_VERSION = 1
+MANIFEST = "manifest.json"
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    """How a data set is built (everything a sample depends on, besides the images).
+
+    Attributes
+    ----------
+    samples
+        Number of samples (>= 1).
+    crop_px
+        Side of the square crops, pixels (16 to 1024).
+    seed
+        Seed of every random choice.
+    ranges
+        Prescriptions sampled.
+    display
+        Display preset name or profile path the kernels are built for.
+    samples_per_shard
+        Samples per ``.npz`` file (the unit of work and of resumption).
+    fast_tolerance
+        ``fast``'s relative stopping tolerance.
+    precorrection_mu_rel
+        Regulariser of the ``precorrected`` channels (relative to ``||K||^2``).
+    wavelength_step_nm
+        Force the kernels' wavelength step (None: the kernel builder chooses; 40 or 80 is
+        much quicker for tiny test sets).
+    """
+
+    samples: int = 1000
+    crop_px: int = 128
+    seed: int = 0
+    ranges: SamplingRanges = field(default_factory=SamplingRanges)
+    display: str = "quest2"
+    samples_per_shard: int = 32
+    fast_tolerance: float = 1e-2
+    precorrection_mu_rel: float = PRECORRECTION_MU_REL
+    wavelength_step_nm: int | None = None
+
+    def __post_init__(self) -> None:
+        for name, lo, hi in (("samples", 1, 10_000_000), ("crop_px", 16, 1024), ("samples_per_shard", 1, 100_000)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
+                raise ValidationError(name, v, f"an integer from {lo} to {hi}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise ValidationError("seed", self.seed, "a non-negative integer")
+        if not isinstance(self.ranges, SamplingRanges):
+            raise ValidationError("ranges", self.ranges, "a SamplingRanges")
+        if not (0.0 <= self.fast_tolerance < 1.0):
+            raise ValidationError("fast_tolerance", self.fast_tolerance, "a number from 0 to 1")
+        if not self.precorrection_mu_rel > 0:
+            raise ValidationError("precorrection_mu_rel", self.precorrection_mu_rel, "a positive number")
+
+    @property
+    def shards(self) -> int:
+        return -(-self.samples // self.samples_per_shard)
+
+    def shard_indices(self, shard: int) -> range:
+        return range(shard * self.samples_per_shard, min(self.samples, (shard + 1) * self.samples_per_shard))
+
+    def as_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["ranges"] = self.ranges.as_dict()
+        return d
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> "DatasetConfig":
+        d = dict(doc)
+        d["ranges"] = SamplingRanges.from_dict(d.get("ranges", {}))
+        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+
+
+@dataclass(frozen=True)
+class SampleSpec:
+    """Where sample ``index`` comes from (before any optics)."""
+
+    index: int
+    image: int
+    y: int
+    x: int
+    sphere_D: float
+    cylinder_D: float
+    axis_deg: float
+    pupil_diameter_mm: float
+
+
+def sample_spec(config: DatasetConfig, image_shapes: Sequence[tuple[int, int]], index: int) -> SampleSpec:
+    """The image, crop corner and eye of sample ``index`` (a pure function of its arguments)."""
+    rng = np.random.default_rng([int(config.seed), int(index)])
+    k = int(rng.integers(len(image_shapes)))
+    h, w = image_shapes[k]
+    y = int(rng.integers(h - config.crop_px + 1))
+    x = int(rng.integers(w - config.crop_px + 1))
+    eye = config.ranges.sample(rng)
+    return SampleSpec(index=int(index), image=k, y=y, x=x, sphere_D=eye.sphere_D, cylinder_D=eye.cylinder_D,
+                      axis_deg=eye.axis_deg, pupil_diameter_mm=eye.pupil_diameter_mm)
+
+
+def image_digest(image: np.ndarray) -> str:
+    """A short content hash of an image (detects a changed image set on resume)."""
+    a = np.ascontiguousarray(image, dtype=np.float32)
+    return hashlib.sha1(a.tobytes() + str(a.shape).encode()).hexdigest()[:16]
+
+
+# --------------------------------------------------------------------------
+# One shard (runs in a worker process, or in this one with workers=1)
+# --------------------------------------------------------------------------
+
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(images: list[np.ndarray], display: str, threads: int | None) -> None:
+    from ..display import get_display
+
+    if threads is not None:
+        os.environ["OMP_NUM_THREADS"] = str(threads)
+        try:
+            import torch
+
+            torch.set_num_threads(threads)
+        except ImportError:  # pragma: no cover - torch is needed by fast anyway
+            pass
+    _WORKER["display"] = get_display(display)
+    # images are sRGB code values; the model works in linear light
+    from ..display import decode
+
+    _WORKER["images"] = [decode(_WORKER["display"], im).astype(np.float32) for im in images]
+
+
+def _compute_sample(config: DatasetConfig, spec: SampleSpec) -> dict[str, Any]:
+    from ..kernel import KernelOptions, build_kernel, build_reference_kernel
+    from ..prescription import EyeRx
+    from ..solvers import make_problem, objective, solve
+
+    display = _WORKER["display"]
+    image = _WORKER["images"][spec.image]
+    c = config.crop_px
+    crop = np.ascontiguousarray(image[spec.y:spec.y + c, spec.x:spec.x + c])
+    eye = EyeRx(spec.sphere_D, spec.cylinder_D, spec.axis_deg, spec.pupil_diameter_mm)
+    options = KernelOptions(wavelength_step_nm=config.wavelength_step_nm)
+    t0 = time.perf_counter()
+    kernel = build_kernel(eye, display, options)
+    reference = build_reference_kernel(eye, display, options)
+    problem = make_problem(crop, kernel, reference)
+    fast = solve(problem, "fast", tolerance=config.fast_tolerance)
+    pv = eye.power_vector()
+    return {
+        "spec": spec, "target": crop, "target_lms": problem.target_lms,
+        "precorrected": precorrect(crop, kernel, reference, config.precorrection_mu_rel),
+        "fast": fast.image, "kernel": kernel.kernel.astype(np.float32),
+        "eye": np.array([pv.M_D, pv.J0_D, pv.J45_D, eye.pupil_diameter_mm], np.float32),
+        "features": eye_features(eye, config.ranges),
+        "objective_uncorrected": objective(crop, problem), "objective_fast": fast.objective,
+        "fast_iterations": fast.iterations, "seconds": time.perf_counter() - t0,
+    }
+
+
+def _pad_kernel(k: np.ndarray, size: int) -> np.ndarray:
+    p = (size - k.shape[-1]) // 2
+    return np.pad(k, ((0, 0), (0, 0), (p, p), (p, p)))
+
+
+def _build_shard(config: DatasetConfig, out_dir: str, shard: int, specs: list[SampleSpec]) -> dict[str, Any]:
+    """Compute and write one shard; returns its manifest entry."""
+    rows = [_compute_sample(config, s) for s in specs]
+    S = max(r["kernel"].shape[-1] for r in rows)
+    chw = lambda key: np.stack([np.moveaxis(r[key], 2, 0) for r in rows]).astype(np.float32)  # noqa: E731
+    arrays = {
+        "index": np.array([r["spec"].index for r in rows], np.int64),
+        "target": chw("target"), "precorrected": chw("precorrected"), "fast": chw("fast"),
+        "target_lms": chw("target_lms"),
+        "eye": np.stack([r["eye"] for r in rows]), "features": np.stack([r["features"] for r in rows]),
+        "kernel": np.stack([_pad_kernel(r["kernel"], S) for r in rows]),
+        "kernel_px": np.array([r["kernel"].shape[-1] for r in rows], np.int64),
+        "objective_uncorrected": np.array([r["objective_uncorrected"] for r in rows], np.float64),
+        "objective_fast": np.array([r["objective_fast"] for r in rows], np.float64),
+    }
+    name = f"shard_{shard:05d}.npz"
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+
+    write_with(Path(out_dir) / name, write, force=True)
+    samples = []
+    for r in rows:
+        s = r["spec"]
+        M, J0, J45, _ = (float(v) for v in r["eye"])
+        samples.append({**asdict(s), "M_D": M, "J0_D": J0, "J45_D": J45, "kernel_px": int(r["kernel"].shape[-1]),
+                        "objective_uncorrected": float(r["objective_uncorrected"]),
+                        "objective_fast": float(r["objective_fast"]), "fast_iterations": int(r["fast_iterations"]),
+                        "seconds": round(float(r["seconds"]), 3)})
+    return {"shard": shard, "file": name, "samples": samples}
+
+
+# --------------------------------------------------------------------------
+# The builder
+# --------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class BuildReport:
+    """What :func:`build_dataset` did."""
+
+    out_dir: Path
+    computed_shards: int
+    skipped_shards: int
+    samples: int
+    seconds: float
+
+
+def read_manifest(out_dir: str | Path) -> dict[str, Any]:
+    """The data set's manifest (``InputError`` if missing or unreadable)."""
+    path = Path(out_dir) / MANIFEST
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"{path}: no data set manifest here (build one with: vrcorrect dataset OUT)") from None
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: unreadable manifest ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise InputError(f"{path}: not a vrcorrect data set manifest")
+    return doc
+
+
+def _new_manifest(config: DatasetConfig, display, names: Sequence[str], images: Sequence[np.ndarray]) -> dict:
+    from .. import __version__
+
+    return {"format": FORMAT, "format_version": FORMAT_VERSION, "vrcorrect_version": __version__,
+            "config": config.as_dict(),
+            "display": {"name": display.name, "title": display.title,
+                        "pixels_per_degree": display.pixels_per_degree, "distance_m": display.distance_m},
+            "images": [{"name": n, "shape": list(im.shape), "sha1": image_digest(im)} for n, im in zip(names, images)],
+            "reference": "glasses", "solver": "fast", "shards": []}
+
+
+def _same_settings(old: dict, new: dict) -> str | None:
+    for key in ("config", "images", "display"):
+        if old.get(key) != new.get(key):
+            return key
+    return None
+
+
+def build_dataset(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]], config: DatasetConfig,
+                  workers: int = 1, force: bool = False, ray_address: str | None = None,
+                  progress: bool = True, on_shard: Callable[[int], None] | None = None) -> BuildReport:
+    """Build (or resume) a data set in ``out_dir``.
+
+    Parameters
+    ----------
+    out_dir
+        Folder for the shards and ``manifest.json`` (created if missing).
+    images
+        ``(name, image)`` pairs; images ``(H, W, 3)`` sRGB code values in [0, 1], each at least
+        ``crop_px`` on both sides.
+    config
+        Build settings.
+    workers
+        Local processes (1: this process, no pool).
+    force
+        Start again when ``out_dir`` holds a data set built with other settings (its shards
+        are overwritten); without it such a folder is refused.
+    ray_address
+        Not available yet (raises :class:`InputError`).
+    progress
+        Show a tqdm bar (samples) on stderr.
+    on_shard
+        Called with each shard's number after it is written (tests use it).
+
+    Returns
+    -------
+    BuildReport
+    """
+    from ..display import get_display
+
+    if ray_address is not None:
+        raise InputError("--ray is not available yet: building on a Ray cluster is not implemented; "
+                         "use local processes (--workers N)")
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 256:
+        raise ValidationError("workers", workers, "an integer from 1 to 256")
+    if not images:
+        raise ValidationError("images", "none", "at least one image")
+    names = [n for n, _ in images]
+    arrays = [np.ascontiguousarray(im, dtype=np.float32) for _, im in images]
+    for n, im in zip(names, arrays):
+        if im.ndim != 3 or im.shape[2] != 3 or min(im.shape[:2]) < config.crop_px:
+            raise ValidationError(f"images[{n}]", f"shape {im.shape}",
+                                  f"(H, W, 3) with H and W at least the crop size {config.crop_px}")
+    display = get_display(config.display)
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    manifest = _new_manifest(config, display, names, arrays)
+    if (out / MANIFEST).exists():
+        old = read_manifest(out)
+        differs = _same_settings(old, manifest)
+        if differs is None:
+            manifest = old
+        elif not force:
+            raise InputError(f"{out}: holds a data set built with other settings ({differs} differ); "
+                             "use another folder, or --force to rebuild it here")
+    done = {e["shard"] for e in manifest["shards"] if (out / e["file"]).is_file()}
+    manifest["shards"] = [e for e in manifest["shards"] if e["shard"] in done]
+    todo = [k for k in range(config.shards) if k not in done]
+    shapes = [im.shape[:2] for im in arrays]
+    jobs = {k: [sample_spec(config, shapes, i) for i in config.shard_indices(k)] for k in todo}
+
+    from tqdm import tqdm
+
+    n_done = sum(len(config.shard_indices(k)) for k in done)
+    bar = tqdm(total=config.samples, initial=n_done, desc="dataset", unit="sample",
+               disable=None if progress else True, file=sys.stderr)
+    t0 = time.perf_counter()
+
+    def record(entry: dict) -> None:
+        manifest["shards"] = sorted(manifest["shards"] + [entry], key=lambda e: e["shard"])
+        write_text_atomic(out / MANIFEST, json.dumps(manifest, indent=1) + "\n", force=True)
+        bar.update(len(entry["samples"]))
+        if on_shard is not None:
+            on_shard(entry["shard"])
+
+    if not (out / MANIFEST).exists() or manifest["shards"] == []:
+        write_text_atomic(out / MANIFEST, json.dumps(manifest, indent=1) + "\n", force=True)
+    try:
+        if workers == 1 or len(todo) <= 1:
+            _init_worker(arrays, config.display, None)
+            for k in todo:
+                record(_build_shard(config, str(out), k, jobs[k]))
+        else:
+            threads = max(1, (os.cpu_count() or 1) // workers)
+            with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker,
+                                     initargs=(arrays, config.display, threads)) as pool:
+                futures = [pool.submit(_build_shard, config, str(out), k, jobs[k]) for k in todo]
+                for fut in as_completed(futures):
+                    record(fut.result())
+    finally:
+        bar.close()
+    return BuildReport(out_dir=out, computed_shards=len(todo), skipped_shards=len(done),
+                       samples=config.samples, seconds=time.perf_counter() - t0)
+
+
+def load_shard(out_dir: str | Path, entry: dict[str, Any]) -> dict[str, np.ndarray]:
+    """All arrays of one shard (``entry`` from the manifest's ``shards``)."""
+    path = Path(out_dir) / entry["file"]
+    try:
+        with np.load(path) as z:
+            return {k: z[k] for k in z.files}
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: unreadable shard ({exc})") from None
