@@ -20,6 +20,7 @@ LAYER = {
     "solvers": 4, "learn": 4,
     "runtime": 5,
     "cli": 6, "demo": 6, "plots": 6, "bench": 6, "bench_kernel": 6, "bench_solvers": 6, "bench_render": 6, "evaluate": 6,
+    "learn_cli": 6,
 }
 
 
@@ -162,8 +163,6 @@ def test_learn_imports_only_lower_layers_and_solvers(module):
         if parts[0] != "vrcorrect" or len(parts) < 2 or parts[1] in ("learn", "__version__"):
             continue
         dep = parts[1]
-        if module == "cli" and LAYER.get(dep, 99) == 6:
-            continue  # the sub-commands' parsers load images through evaluate (layer 6)
         assert dep in LAYER, f"learn/{module} imports {name}: unknown module"
         assert LAYER[dep] < 4 or dep in LEARN_SIBLINGS, f"learn/{module} (layer 4) imports {name} (layer {LAYER[dep]})"
 

@@ -58,6 +58,13 @@ def test_dataset_builds_shards_and_manifest(tiny_dataset):
     assert shard["target"].shape == (2, 3, 32, 32) and shard["fast"].dtype == np.float32
     assert shard["kernel"].shape[:3] == (2, 3, 3) and shard["kernel"].shape[-1] == max(shard["kernel_px"])
     assert 0 <= shard["precorrected"].min() and shard["precorrected"].max() <= 1
+    # the stored kernel reproduces the stored objective (the forward model training uses)
+    from vrcorrect.learn.train import objective_per_sample
+    import torch
+
+    t = {k: torch.as_tensor(shard[k]) for k in ("fast", "kernel", "target_lms")}
+    np.testing.assert_allclose(objective_per_sample(t["fast"], t["kernel"], t["target_lms"]).numpy(),
+                               shard["objective_fast"], rtol=1e-3)
 
 
 def test_dataset_resumes_without_recomputing(tiny_dataset, tmp_path):
@@ -135,3 +142,81 @@ def test_plus_cylinder_form_is_the_same_eye():
     e = check_eye(plus, SamplingRanges())
     assert e.cylinder_D == -2.0 and e.sphere_D == -2.0
     np.testing.assert_allclose(eye_features(plus, SamplingRanges()), eye_features(e, SamplingRanges()), atol=1e-6)
+
+
+# --------------------------------------------------------------------------
+# Model and training
+# --------------------------------------------------------------------------
+
+TINY_MODEL = dict(width=4, depth=2, film_hidden=8)
+
+
+def tiny_train_config(**kw):
+    from vrcorrect.learn.model import UNetConfig
+    from vrcorrect.learn.train import TrainConfig
+
+    base = dict(steps=12, batch_size=3, learning_rate=1e-3, checkpoint_every=4, seed=3, model=UNetConfig(**TINY_MODEL))
+    return TrainConfig(**{**base, **kw})
+
+
+def _log(run: Path) -> list[dict[str, str]]:
+    import csv
+
+    with open(run / "log.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_untrained_model_is_no_correction_at_any_size():
+    import torch
+
+    from vrcorrect.learn.model import ConditionedUNet, UNetConfig
+
+    model = ConditionedUNet(UNetConfig(**TINY_MODEL)).eval()
+    x = torch.rand(2, 3, 37, 45)
+    with torch.no_grad():
+        y = model(x, torch.rand(2, 3, 37, 45), torch.randn(2, 4))
+    assert y.shape == x.shape
+    torch.testing.assert_close(y, x)
+
+
+def test_tiny_model_trains_and_its_loss_decreases(tiny_dataset, tmp_path):
+    from vrcorrect.learn.train import train
+
+    run = tmp_path / "run"
+    report = train(tiny_dataset, run, tiny_train_config(), progress=False)
+    rows = _log(run)
+    assert [int(r["step"]) for r in rows] == list(range(1, 13))
+    losses = [float(r["loss"]) for r in rows]
+    assert losses[0] == pytest.approx(1.0, abs=1e-4)          # starts as no correction: ratio 1
+    assert np.mean(losses[-3:]) < losses[0] - 0.02
+    assert report.last_loss == pytest.approx(losses[-1], rel=1e-4)
+    assert (run / "checkpoint.pt").is_file() and json.loads((run / "train.json").read_text())["samples"] == 3
+    with pytest.raises(InputError, match="--resume"):
+        train(tiny_dataset, run, tiny_train_config(), progress=False)
+
+
+def test_resumed_training_equals_uninterrupted(tiny_dataset, tmp_path):
+    from vrcorrect.learn.train import load_checkpoint, train
+
+    cfg = dict(steps=4, batch_size=2, checkpoint_every=2)
+    train(tiny_dataset, tmp_path / "a", tiny_train_config(**cfg), progress=False)
+    train(tiny_dataset, tmp_path / "b", tiny_train_config(**{**cfg, "steps": 2}), progress=False)
+    report = train(tiny_dataset, tmp_path / "b", tiny_train_config(**cfg), resume=True, progress=False)
+    assert report.start_step == 2 and load_checkpoint(tmp_path / "b" / "checkpoint.pt")["step"] == 4
+    a, b = _log(tmp_path / "a"), _log(tmp_path / "b")
+    assert [r["step"] for r in b] == ["1", "2", "3", "4"]
+    np.testing.assert_allclose([float(r["loss"]) for r in b], [float(r["loss"]) for r in a], rtol=1e-4)
+    with pytest.raises(InputError, match="other settings"):
+        train(tiny_dataset, tmp_path / "b", tiny_train_config(**{**cfg, "learning_rate": 1e-2}), resume=True,
+              progress=False)
+
+
+def test_cli_one_line_errors(tmp_path):
+    def run(*args):
+        r = subprocess.run([sys.executable, "-m", "vrcorrect.cli", *args], capture_output=True, text=True)
+        return r.returncode, r.stderr.strip().splitlines()
+
+    code, err = run("dataset", str(tmp_path / "d"), "--ray", "auto")
+    assert code == 2 and len(err) == 1 and "not available yet" in err[0]
+    code, err = run("train", str(tmp_path / "none"), "-o", str(tmp_path / "r"))
+    assert code == 2 and len(err) == 1 and "manifest" in err[0]

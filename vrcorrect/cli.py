@@ -451,6 +451,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_evaluate_parser(sub)
 
+    from .learn_cli import add_parser as add_learn_parsers
+
+    add_learn_parsers(sub)
+
     p = sub.add_parser("psf", help="write an eye's PSF (one wavelength) or full LMS kernel as .npy + .json")
     _add_model_options(p)
     p.add_argument("--wavelength-nm", type=float, help="monochromatic PSF at this wavelength (default: full kernel)")

@@ -7,8 +7,9 @@
 * :mod:`vrcorrect.learn.model` - the conditioned U-Net (torch).
 * :mod:`vrcorrect.learn.train` - training (torch): loss through the eye's kernel, checkpoints,
   CSV log, resumable.
-* :mod:`vrcorrect.learn.cli` - ``vrcorrect dataset`` and ``vrcorrect train`` (argument parsing
-  only here; torch is imported when a command runs).
+
+The commands ``vrcorrect dataset`` and ``vrcorrect train`` are in :mod:`vrcorrect.learn_cli`
+(layer 6: it loads the bundled images through :mod:`vrcorrect.evaluate`).
 
 Importing this package imports neither torch nor the submodules.
 """

@@ -293,6 +293,13 @@ def _same_settings(old: dict, new: dict) -> str | None:
     return None
 
 
+def check_ray(ray_address: str | None) -> None:
+    """Refuse a Ray cluster address: building on Ray is not available yet (:class:`InputError`)."""
+    if ray_address is not None:
+        raise InputError(f"--ray {ray_address}: building on a Ray cluster is not available yet; "
+                         "use local processes (--workers N)")
+
+
 def build_dataset(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]], config: DatasetConfig,
                   workers: int = 1, force: bool = False, ray_address: str | None = None,
                   progress: bool = True, on_shard: Callable[[int], None] | None = None) -> BuildReport:
@@ -325,9 +332,7 @@ def build_dataset(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]],
     """
     from ..display import get_display
 
-    if ray_address is not None:
-        raise InputError("--ray is not available yet: building on a Ray cluster is not implemented; "
-                         "use local processes (--workers N)")
+    check_ray(ray_address)
     if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 256:
         raise ValidationError("workers", workers, "an integer from 1 to 256")
     if not images:

@@ -1,0 +1,107 @@
+"""``vrcorrect dataset`` and ``vrcorrect train``: the learned model's data set and training.
+
+Argument parsing only at import (no torch); each command imports what it needs when it runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+from .errors import ValidationError
+
+
+def _pair(field: str, values: list[float] | None, default: tuple[float, float]) -> tuple[float, float]:
+    if values is None:
+        return default
+    lo, hi = values
+    if lo > hi:
+        raise ValidationError(field, f"{lo:g} {hi:g}", "LOW HIGH with LOW <= HIGH")
+    return (lo, hi)
+
+
+def cmd_dataset(args: argparse.Namespace) -> int:
+    from .evaluate import bundled_images, folder_images
+    from .learn.conditioning import SamplingRanges
+    from .learn.dataset import DatasetConfig, build_dataset, check_ray
+
+    d = SamplingRanges()
+    ranges = SamplingRanges(sphere_D=_pair("--sphere-D", args.sphere_D, d.sphere_D),
+                            cylinder_D=_pair("--cylinder-D", args.cylinder_D, d.cylinder_D),
+                            axis_deg=_pair("--axis-deg", args.axis_deg, d.axis_deg),
+                            pupil_diameter_mm=_pair("--pupil-mm", args.pupil_mm, d.pupil_diameter_mm))
+    config = DatasetConfig(samples=args.samples, crop_px=args.crop_px, seed=args.seed, ranges=ranges,
+                           display=args.display, samples_per_shard=args.samples_per_shard,
+                           wavelength_step_nm=args.wavelength_step_nm)
+    check_ray(args.ray)             # before loading any image
+    if args.crop_px > args.image_px:
+        raise ValidationError("--crop-px", args.crop_px, f"at most --image-px ({args.image_px})")
+    images = folder_images(args.images, args.image_px) if args.images else bundled_images(args.image_px)
+    workers = args.workers if args.workers is not None else max(1, os.cpu_count() or 1)
+    report = build_dataset(args.out, images, config, workers=workers, force=args.force)
+    print(f"data set {report.out_dir}: {report.samples} samples in {config.shards} shards "
+          f"({report.computed_shards} computed, {report.skipped_shards} already there) in {report.seconds:.1f} s")
+    return 0
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from .learn.model import UNetConfig
+    from .learn.train import TrainConfig, train
+
+    config = TrainConfig(steps=args.steps, batch_size=args.batch_size, learning_rate=args.learning_rate,
+                         target_weight=args.target_weight, seed=args.seed, checkpoint_every=args.checkpoint_every,
+                         model=UNetConfig(width=args.width, depth=args.depth, film_hidden=args.film_hidden))
+    report = train(args.dataset, args.out, config, resume=args.resume, force=args.force, device=args.device)
+    loss = "" if report.last_loss is None else f"; loss {report.first_loss:.4g} -> {report.last_loss:.4g}"
+    print(f"trained steps {report.start_step}..{report.steps} in {report.seconds:.1f} s{loss}; "
+          f"checkpoint {Path(report.run_dir) / 'checkpoint.pt'}, log {Path(report.run_dir) / 'log.csv'}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    """Register ``dataset`` and ``train`` on the top-level sub-parsers."""
+    p = sub.add_parser("dataset", help="build (or resume) the learned model's training data set",
+                       description="Random crops of images x prescriptions sampled over the ranges, each "
+                                   "corrected by the fast method; .npz shards + manifest.json in OUT. Re-running "
+                                   "the same command resumes: finished shards are skipped.")
+    p.add_argument("out", metavar="OUT", help="data set folder")
+    p.add_argument("--images", metavar="FOLDER", help="PNG/JPEG folder (default: the bundled images)")
+    p.add_argument("--image-px", type=int, default=256, help="images are centre-cropped and resized to this (256)")
+    p.add_argument("--samples", type=int, default=1000, help="number of samples (1000)")
+    p.add_argument("--crop-px", type=int, default=128, help="side of the random crops (128)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random choice (0)")
+    p.add_argument("--display", default="quest2", metavar="PRESET", help="display preset or profile (quest2)")
+    p.add_argument("--sphere-D", type=float, nargs=2, metavar=("LOW", "HIGH"), help="sphere range (-6 6)")
+    p.add_argument("--cylinder-D", type=float, nargs=2, metavar=("LOW", "HIGH"),
+                   help="minus-form cylinder range (-3 0)")
+    p.add_argument("--axis-deg", type=float, nargs=2, metavar=("LOW", "HIGH"), help="axis range (0 180)")
+    p.add_argument("--pupil-mm", type=float, nargs=2, metavar=("LOW", "HIGH"), help="pupil range (2 6)")
+    p.add_argument("--samples-per-shard", type=int, default=32, help="samples per .npz shard (32)")
+    p.add_argument("--wavelength-step-nm", type=int, choices=(80, 40, 20, 10, 5, 1),
+                   help="force the kernels' wavelength step (default: chosen per eye)")
+    p.add_argument("--workers", type=int, help="local processes (default: one per CPU core)")
+    p.add_argument("--ray", metavar="ADDRESS", help="build on a Ray cluster (not available yet)")
+    p.add_argument("--force", action="store_true", help="rebuild a folder that holds a data set with other settings")
+    p.set_defaults(func=cmd_dataset)
+
+    p = sub.add_parser("train", help="train the conditioned U-Net on a data set (torch)",
+                       description="Adam on the LMS objective through each sample's eye kernel (relative to "
+                                   "uncorrected) plus a pull towards fast's solution; checkpoint.pt, log.csv and "
+                                   "train.json in OUT. --resume continues an interrupted run with the same batches.")
+    p.add_argument("dataset", metavar="DATASET", help="data set folder (vrcorrect dataset)")
+    p.add_argument("-o", "--out", required=True, metavar="RUN", help="run folder")
+    p.add_argument("--steps", type=int, default=20000, help="total optimiser steps (20000)")
+    p.add_argument("--batch-size", type=int, default=8, help="samples per step (8)")
+    p.add_argument("--learning-rate", type=float, default=1e-3, help="Adam step size (1e-3)")
+    p.add_argument("--target-weight", type=float, default=0.2,
+                   help="weight of the distance to fast's solution, 0-1 (0.2; 0: objective only)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the weights and the batch order (0)")
+    p.add_argument("--width", type=int, default=16, help="U-Net channels at full resolution (16)")
+    p.add_argument("--depth", type=int, default=3, help="U-Net down-samplings (3)")
+    p.add_argument("--film-hidden", type=int, default=32, help="hidden units of the FiLM MLP (32; 0: no FiLM)")
+    p.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (500)")
+    p.add_argument("--device", help="torch device (default: cuda when available, else cpu)")
+    p.add_argument("--resume", action="store_true", help="continue from RUN/checkpoint.pt")
+    p.add_argument("--force", action="store_true", help="start again although RUN holds a checkpoint")
+    p.set_defaults(func=cmd_train)
