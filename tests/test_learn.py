@@ -220,3 +220,110 @@ def test_cli_one_line_errors(tmp_path):
     assert code == 2 and len(err) == 1 and "not available yet" in err[0]
     code, err = run("train", str(tmp_path / "none"), "-o", str(tmp_path / "r"))
     assert code == 2 and len(err) == 1 and "manifest" in err[0]
+
+
+# --------------------------------------------------------------------------
+# Export to ONNX and the runtime side
+# --------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def perturbed_checkpoint(tiny_dataset, tmp_path_factory) -> Path:
+    """A briefly trained tiny model whose zero-initialised parts (the head and FiLM's last
+    layer) are given random weights, so the export is compared on a model far from the
+    identity it starts as (the other layers keep their random initialisation)."""
+    import torch
+
+    from vrcorrect.learn.train import train
+
+    run = tmp_path_factory.mktemp("learn") / "run"
+    train(tiny_dataset, run, tiny_train_config(steps=3), progress=False)
+    ckpt = torch.load(run / "checkpoint.pt", weights_only=True)
+    g = torch.Generator().manual_seed(0)
+    for k, v in ckpt["model"].items():
+        if k.startswith(("head.", "film.2.")):
+            v += 0.1 * torch.randn(v.shape, generator=g)
+    path = run / "perturbed.pt"
+    torch.save(ckpt, path)
+    return path
+
+
+def test_export_equals_torch_with_metadata_and_dynamic_size(perturbed_checkpoint, tmp_path):
+    import onnx
+    import onnxruntime as ort
+    import torch
+
+    from vrcorrect.learn.export import OPSET, check_against_torch, export_onnx
+    from vrcorrect.learn.train import load_checkpoint, model_from_checkpoint
+
+    out = tmp_path / "tiny.onnx"
+    report = export_onnx(perturbed_checkpoint, out)
+    assert report.max_abs_error_fp32 <= 1e-4 and report.precision == "fp32"
+    proto = onnx.load(out)
+    assert [o.version for o in proto.opset_import if o.domain in ("", "ai.onnx")] == [OPSET]
+    meta = {p.key: p.value for p in proto.metadata_props}
+    assert json.loads(meta["vrcorrect.ranges"]) == TINY_RANGES.as_dict()
+    assert json.loads(meta["vrcorrect.display"])["name"] == "quest2" and meta["vrcorrect.version"]
+    assert json.loads(meta["vrcorrect.train"])["step"] == 3
+    # dynamic H and W: another size, compared with torch again
+    model = model_from_checkpoint(load_checkpoint(perturbed_checkpoint))
+    assert check_against_torch(model, out.read_bytes(), seed=1, size=(64, 24)) <= 1e-4
+    session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    y = session.run(None, {"image": np.zeros((2, 3, 17, 33), np.float32),
+                           "precorrected": np.zeros((2, 3, 17, 33), np.float32),
+                           "eye": np.zeros((2, 4), np.float32)})[0]
+    assert y.shape == (2, 3, 17, 33)
+    x = torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():                                     # the compared model is not the identity
+        assert float((model(x, x, torch.zeros(1, 4)) - x).abs().mean()) > 1e-2
+    with pytest.raises(InputError, match="--force"):
+        export_onnx(perturbed_checkpoint, out)
+
+
+def test_fp16_export_reports_its_error(perturbed_checkpoint, tmp_path):
+    from vrcorrect.learn.export import export_onnx
+
+    r32 = export_onnx(perturbed_checkpoint, tmp_path / "a.onnx")
+    r16 = export_onnx(perturbed_checkpoint, tmp_path / "b.onnx", fp16=True)
+    assert r16.precision == "fp16-weights" and r16.metadata["vrcorrect.precision"] == "fp16-weights"
+    assert 0 < r16.max_abs_error_fp16 < 2e-2 and r16.bytes < r32.bytes
+
+
+def test_export_tool_command_line(perturbed_checkpoint, tmp_path):
+    tool = [sys.executable, str(ROOT / "tools" / "export_onnx.py")]
+    r = subprocess.run(tool + [str(perturbed_checkpoint), "-o", str(tmp_path / "m.onnx"), "--fp16"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0 and "max abs error" in r.stdout and "fp16 weights" in r.stdout
+    r = subprocess.run(tool + [str(tmp_path / "missing.pt"), "-o", str(tmp_path / "n.onnx")],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "no such checkpoint" in r.stderr
+
+
+def test_runtime_learned_model_refuses_out_of_range_and_equals_torch(perturbed_checkpoint, tmp_path):
+    import torch
+
+    from vrcorrect.display import get_display
+    from vrcorrect.kernel import KernelOptions, build_kernel, build_reference_kernel
+    from vrcorrect.learn.export import export_onnx
+    from vrcorrect.learn.train import load_checkpoint, model_from_checkpoint
+    from vrcorrect.runtime.learned import LearnedModel, is_learned_model
+
+    path = tmp_path / "m.onnx"
+    export_onnx(perturbed_checkpoint, path)
+    assert is_learned_model(path)
+    model = LearnedModel(path)
+    display = get_display("quest2")
+    with pytest.raises(ValidationError) as err:
+        model.for_eye(EyeRx(-4.0, 0.0, 0.0, 2.5), display)            # the tiny model knows -1.5..-0.5 D
+    assert "-1.5 to -0.5 D" in str(err.value) and "wiener or fast" in str(err.value)
+    with pytest.raises(ValidationError, match="trained for"):
+        model.for_eye(EyeRx(-1.0, 0.0, 0.0, 2.5), get_display("desktop"))
+    eye = EyeRx(-1.0, -0.25, 30.0, 2.5)
+    opts = KernelOptions(wavelength_step_nm=40)
+    bound = model.for_eye(eye, display, build_kernel(eye, display, opts), build_reference_kernel(eye, display, opts))
+    image = np.moveaxis(siemens_star(40), 2, 0).astype(np.float32) ** 2.2
+    out = bound.infer(image)
+    net = model_from_checkpoint(load_checkpoint(perturbed_checkpoint))
+    with torch.no_grad():
+        ref = net(torch.from_numpy(image)[None], torch.from_numpy(bound.precorrected(image))[None],
+                  torch.from_numpy(eye_features(eye, TINY_RANGES))[None])[0].numpy()
+    assert out.shape == image.shape and np.max(np.abs(out - ref)) <= 1e-4

@@ -1,0 +1,136 @@
+"""The learned correction on the real-time path: an exported model with onnxruntime (no torch).
+
+Why a second kind of ONNX model beside :mod:`vrcorrect.runtime.onnx_backend`'s one-input
+contract: one learned model serves every eye in its training range, so the eye is an input,
+not a constant.  The exported graph (:mod:`vrcorrect.learn.export`) has three inputs -
+``image`` and ``precorrected`` float32 ``(N, 3, H, W)``, ``eye`` float32 ``(N, 4)`` - and one
+output ``displayed`` of the image's shape; its metadata (``vrcorrect.format`` =
+``vrcorrect-learned-v1``) carries the training ranges, the display, the reference and the
+pre-correction's regulariser.  Baking one eye into the graph instead would need a per-user
+export (kernel build, filter design and an export with torch on the user's machine) and an
+in-graph mirrored convolution as wide as the eye's inverse filter; feeding the eye keeps
+one shipped file and lets a prescription change take effect at the next frame.
+
+This module is that contract's runtime side, backwards compatible with the slot:
+
+* :func:`is_learned_model` tells the two kinds apart from the file's metadata (a one-input
+  model is the slot's old contract, used as before);
+* :class:`LearnedModel` loads a learned model, checks its inputs and metadata;
+  :meth:`LearnedModel.for_eye` refuses an eye outside the trained range or a display other
+  than the trained one (naming the range and suggesting ``wiener`` or ``fast``) and returns a
+  :class:`LearnedEye`, whose :meth:`LearnedEye.infer` has the slot's signature: a
+  ``(3, H, W)`` linear RGB image in, the displayed ``(3, H, W)`` out.  The pre-correction
+  channels are computed here with numpy (the ``wiener`` method's filters, designed once per
+  eye; on the GPU path they are the GLSL fallback's own pass).
+
+The change the slot needs (not made here: ``onnx_backend.py``/``corrector.py`` are
+another session's): ``OnnxModel`` should, when :func:`is_learned_model` is true, wrap a
+:class:`LearnedEye` for the Corrector's eye instead of refusing a model with three inputs,
+and feed its ``run`` from ``infer`` (read back, flip, infer, flip, upload) unchanged.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError, ValidationError
+from ..learn.conditioning import SamplingRanges, check_eye, eye_features, precorrect
+from ..prescription import EyeRx
+
+LEARNED_FORMAT = "vrcorrect-learned-v1"
+INPUTS = ("image", "precorrected", "eye")
+
+
+def _session(path: Path, providers: tuple[str, ...] | None):
+    try:
+        import onnxruntime as ort
+    except ImportError as exc:  # pragma: no cover - the realtime extra is installed in CI
+        raise InputError(f"onnxruntime is not installed ({exc}); pip install -e '.[realtime]'") from None
+    if not path.is_file():
+        raise InputError(f"{path}: no such ONNX model file")
+    available = ort.get_available_providers()
+    chosen = [x for x in (providers or ("CUDAExecutionProvider", "CPUExecutionProvider")) if x in available]
+    try:
+        return ort.InferenceSession(str(path), providers=chosen or ["CPUExecutionProvider"])
+    except Exception as exc:                              # onnxruntime raises its own exception types
+        raise InputError(f"{path}: not a loadable ONNX model ({type(exc).__name__}: {exc})") from None
+
+
+def model_metadata(path: str | Path) -> dict[str, str]:
+    """The ``metadata_props`` of an ONNX file (``InputError`` if it cannot be loaded)."""
+    return dict(_session(Path(path), ("CPUExecutionProvider",)).get_modelmeta().custom_metadata_map)
+
+
+def is_learned_model(path: str | Path) -> bool:
+    """True for a model exported by :mod:`vrcorrect.learn.export` (three inputs, eye-conditioned)."""
+    return model_metadata(path).get("vrcorrect.format") == LEARNED_FORMAT
+
+
+class LearnedModel:
+    """A learned-correction ONNX model and what its metadata says about it."""
+
+    def __init__(self, path: str | Path, providers: tuple[str, ...] | None = None):
+        self.path = Path(path)
+        self.session = _session(self.path, providers)
+        meta = dict(self.session.get_modelmeta().custom_metadata_map)
+        if meta.get("vrcorrect.format") != LEARNED_FORMAT:
+            raise ValidationError("model", str(self.path), f"an ONNX model exported by tools/export_onnx.py "
+                                  f"(metadata vrcorrect.format = {LEARNED_FORMAT})")
+        inputs = {i.name: i for i in self.session.get_inputs()}
+        if set(inputs) != set(INPUTS) or len(self.session.get_outputs()) != 1:
+            raise ValidationError("model inputs", sorted(inputs), "image, precorrected and eye, one output")
+        try:
+            self.ranges = SamplingRanges.from_dict(json.loads(meta["vrcorrect.ranges"]))
+            self.display: dict[str, Any] = json.loads(meta["vrcorrect.display"])
+            self.mu_rel = float(meta["vrcorrect.precorrection_mu_rel"])
+            self.reference = meta.get("vrcorrect.reference", "glasses")
+        except (KeyError, ValueError) as exc:
+            raise InputError(f"{self.path}: incomplete vrcorrect metadata ({exc})") from None
+        self.metadata = meta
+        self.providers = self.session.get_providers()
+
+    def for_eye(self, eye: EyeRx, display, kernel=None, reference_kernel=None) -> "LearnedEye":
+        """The model bound to one eye on ``display`` (kernels built here unless given).
+
+        Raises
+        ------
+        ValidationError
+            The eye is outside the trained range, or the display is not the trained one.
+        """
+        from ..kernel import build_kernel, build_reference_kernel
+
+        e = check_eye(eye, self.ranges, f"the model {self.path.name}")
+        if display.name != self.display.get("name"):
+            raise ValidationError("display", display.name, f"{self.display.get('name')} (the display the model "
+                                  f"{self.path.name} was trained for); for other displays use --method wiener or fast")
+        kernel = kernel if kernel is not None else build_kernel(e, display)
+        if reference_kernel is None and self.reference == "glasses":
+            reference_kernel = build_reference_kernel(e, display)
+        return LearnedEye(self, e, kernel, reference_kernel)
+
+
+class LearnedEye:
+    """One eye's learned correction: ``infer(image_chw) -> displayed_chw`` (the slot's signature)."""
+
+    def __init__(self, model: LearnedModel, eye: EyeRx, kernel, reference_kernel):
+        self.model, self.eye, self.kernel, self.reference_kernel = model, eye, kernel, reference_kernel
+        self.features = eye_features(eye, model.ranges)[None]
+
+    def precorrected(self, image_chw: np.ndarray) -> np.ndarray:
+        """The pre-correction channels ``(3, H, W)`` the model is fed with."""
+        hwc = np.moveaxis(np.asarray(image_chw, np.float32), 0, 2)
+        return np.ascontiguousarray(np.moveaxis(precorrect(hwc, self.kernel, self.reference_kernel,
+                                                           self.model.mu_rel), 2, 0))
+
+    def infer(self, image_chw: np.ndarray) -> np.ndarray:
+        """Run on a ``(3, H, W)`` float32 linear RGB image; returns ``(3, H, W)`` float32 in [0, 1]."""
+        x = np.ascontiguousarray(image_chw, dtype=np.float32)
+        if x.ndim != 3 or x.shape[0] != 3:
+            raise ValidationError("image", f"shape {x.shape}", "(3, H, W)")
+        feeds = {"image": x[None], "precorrected": self.precorrected(x)[None], "eye": self.features}
+        out = self.model.session.run(None, feeds)[0]
+        return np.clip(out[0], 0.0, 1.0).astype(np.float32, copy=False)
