@@ -86,6 +86,20 @@ def test_dataset_resumes_without_recomputing(tiny_dataset, tmp_path):
     np.testing.assert_allclose(new["fast"], old["fast"], atol=1e-6)
 
 
+def test_parallel_build_equals_serial(tiny_dataset, tmp_path):
+    """Two local processes, other sharding: every sample is the same as the serial build's."""
+    report = build_dataset(tmp_path / "par", tiny_images(), tiny_config(samples=2, samples_per_shard=1), workers=2,
+                           progress=False)
+    assert report.computed_shards == 2
+    serial = load_shard(tiny_dataset, read_manifest(tiny_dataset)["shards"][0])
+    for entry in read_manifest(tmp_path / "par")["shards"]:
+        par = load_shard(tmp_path / "par", entry)
+        i = int(par["index"][0])
+        for key in ("target", "precorrected", "target_lms", "eye"):
+            np.testing.assert_array_equal(par[key][0], serial[key][i])
+        np.testing.assert_allclose(par["fast"][0], serial["fast"][i], atol=1e-6)
+
+
 def test_dataset_with_other_settings_is_refused(tiny_dataset, tmp_path):
     out = tmp_path / "copy"
     shutil.copytree(tiny_dataset, out)
@@ -209,6 +223,22 @@ def test_resumed_training_equals_uninterrupted(tiny_dataset, tmp_path):
     with pytest.raises(InputError, match="other settings"):
         train(tiny_dataset, tmp_path / "b", tiny_train_config(**{**cfg, "learning_rate": 1e-2}), resume=True,
               progress=False)
+
+
+def test_dataset_and_train_commands_end_to_end(tmp_path, capsys):
+    from vrcorrect.cli import main
+
+    data, run = tmp_path / "data", tmp_path / "run"
+    rng = ["--sphere-D", "-1", "-0.5", "--cylinder-D", "-0.25", "0", "--pupil-mm", "2", "2.5"]
+    args = ["dataset", str(data), "--samples", "2", "--crop-px", "32", "--image-px", "48", "--workers", "1",
+            "--wavelength-step-nm", "80", "--samples-per-shard", "1", *rng]
+    assert main(args) == 0 and "2 computed" in capsys.readouterr().out
+    assert main(args) == 0 and "0 computed, 2 already there" in capsys.readouterr().out     # resumed: nothing to do
+    assert [i["name"] for i in read_manifest(data)["images"]][-1] == "colour_bars"      # the bundled images
+    targs = ["train", str(data), "-o", str(run), "--steps", "2", "--width", "4", "--depth", "2", "--film-hidden", "4"]
+    assert main(targs) == 0 and "checkpoint" in capsys.readouterr().out
+    assert main(targs) == 2 and "--resume" in capsys.readouterr().err
+    assert main(targs[:5] + ["4"] + targs[6:] + ["--resume"]) == 0 and "steps 2..4" in capsys.readouterr().out
 
 
 def test_cli_one_line_errors(tmp_path):

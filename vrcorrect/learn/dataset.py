@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import multiprocessing
 import os
 import sys
 import time
@@ -386,8 +387,9 @@ def build_dataset(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]],
                 record(_build_shard(config, str(out), k, jobs[k]))
         else:
             threads = max(1, (os.cpu_count() or 1) // workers)
-            with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker,
-                                     initargs=(arrays, config.display, threads)) as pool:
+            # spawn, not fork: a forked child of a process whose torch/OpenMP threads have run can hang
+            with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                     initializer=_init_worker, initargs=(arrays, config.display, threads)) as pool:
                 futures = [pool.submit(_build_shard, config, str(out), k, jobs[k]) for k in todo]
                 for fut in as_completed(futures):
                     record(fut.result())
