@@ -357,3 +357,19 @@ def test_runtime_learned_model_refuses_out_of_range_and_equals_torch(perturbed_c
         ref = net(torch.from_numpy(image)[None], torch.from_numpy(bound.precorrected(image))[None],
                   torch.from_numpy(eye_features(eye, TINY_RANGES))[None])[0].numpy()
     assert out.shape == image.shape and np.max(np.abs(out - ref)) <= 1e-4
+
+
+def test_loss_of_an_eye_in_focus_stays_bounded():
+    """An in-focus eye (1x1 kernel) has an uncorrected objective of exactly 0: the floored
+    denominator keeps a small deviation a small loss."""
+    import torch
+
+    from vrcorrect.learn.train import loss_terms
+
+    t = torch.rand(1, 3, 8, 8, generator=torch.Generator().manual_seed(0))
+    A = torch.eye(3)[None, :, :, None, None]                       # (1, 3, 3, 1, 1)
+    batch = {"kernel": A, "target_lms": t, "objective_uncorrected": torch.zeros(1), "fast": t, "target": t}
+    loss, ratio, dratio = loss_terms(t, batch, 0.2)
+    assert float(loss) < 1e-6                                      # FFT round-off only
+    loss, ratio, dratio = loss_terms((t + 1e-3).clamp(0, 1), batch, 0.2)
+    assert 0 < float(loss) < 2.0

@@ -10,7 +10,8 @@ Loss, per sample ``b`` of a batch, averaged over the batch::
   the panel black outside the crop, exactly ``fast``'s forward model - and the glasses-on
   cone image ``target_lms``.  Dividing by the uncorrected crop's objective ``J(t_b)`` makes
   every eye count alike (a -6 D eye's raw objective is far larger than a -0.5 D eye's): the
-  ratio is 1 for no correction and ``fast`` reaches below it.
+  ratio is 1 for no correction and ``fast`` reaches below it.  Denominators are floored at
+  :data:`DENOMINATOR_FLOOR` (an eye in focus has an uncorrected objective of 0).
 * The second term is the distance to ``fast``'s solution ``f_b``, relative to the
   uncorrected image's distance to it (1 at the start).  It is a guide, not the goal:
   the objective alone has many near-equivalent minimisers in frequencies the eye removes,
@@ -55,7 +56,9 @@ LOG = "log.csv"
 SETTINGS = "train.json"
 LOG_COLUMNS = ("step", "loss", "objective_ratio", "distance_ratio", "seconds")
 CHECKPOINT_FORMAT = "vrcorrect-learned-checkpoint"
-_EPS = 1e-12
+#: Floor of the loss's denominators (objective and squared distance units): an eye in focus has an
+#: uncorrected objective of 0, which must not turn a tiny deviation into a huge loss.
+DENOMINATOR_FLOOR = 1e-6
 
 
 @dataclass(frozen=True)
@@ -150,10 +153,10 @@ def loss_terms(x: torch.Tensor, batch: dict[str, torch.Tensor], target_weight: f
                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(loss, objective_ratio, distance_ratio)``, the last two per sample (see the module docstring)."""
     obj = objective_per_sample(x, batch["kernel"], batch["target_lms"])
-    ratio = obj / batch["objective_uncorrected"].clamp_min(_EPS)
+    ratio = obj / batch["objective_uncorrected"].clamp_min(DENOMINATOR_FLOOR)
     dist = ((x - batch["fast"]) ** 2).mean(dim=(1, 2, 3))
     dist0 = ((batch["target"] - batch["fast"]) ** 2).mean(dim=(1, 2, 3))
-    dratio = dist / dist0.clamp_min(_EPS)
+    dratio = dist / dist0.clamp_min(DENOMINATOR_FLOOR)
     loss = ((1.0 - target_weight) * ratio + target_weight * dratio).mean()
     return loss, ratio, dratio
 
@@ -178,6 +181,8 @@ class ShardedSamples:
         self.total = sum(self.sizes)
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
         self._cache_shards = cache_shards
+        self._order_key: tuple[int, int] | None = None
+        self._order: list[tuple[int, int]] = []
 
     def shard(self, i: int) -> dict[str, np.ndarray]:
         if i in self._cache:
@@ -190,12 +195,15 @@ class ShardedSamples:
         return data
 
     def epoch_order(self, seed: int, epoch: int) -> list[tuple[int, int]]:
-        """``(shard, position)`` pairs of one epoch."""
+        """``(shard, position)`` pairs of one epoch (the last epoch's order is kept)."""
+        if self._order_key == (seed, epoch):
+            return self._order
         rng = np.random.default_rng([seed, epoch])
         order = []
         for s in rng.permutation(len(self.entries)):
             within = np.random.default_rng([seed, epoch, int(s)]).permutation(self.sizes[s])
             order += [(int(s), int(j)) for j in within]
+        self._order_key, self._order = (seed, epoch), order
         return order
 
     def batch(self, seed: int, step: int, batch_size: int) -> dict[str, np.ndarray]:
