@@ -7,6 +7,8 @@
 * :mod:`vrcorrect.learn.model` - the conditioned U-Net (torch).
 * :mod:`vrcorrect.learn.train` - training (torch): loss through the eye's kernel, checkpoints,
   CSV log, resumable.
+* :mod:`vrcorrect.learn.export` - ONNX export checked against torch (``tools/export_onnx.py``);
+  :mod:`vrcorrect.runtime.learned` runs the exported model without torch.
 
 The commands ``vrcorrect dataset`` and ``vrcorrect train`` are in :mod:`vrcorrect.learn_cli`
 (layer 6: it loads the bundled images through :mod:`vrcorrect.evaluate`).
