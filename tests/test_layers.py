@@ -72,6 +72,19 @@ def test_wiener_is_torch_free():
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 
 
+def test_fast_and_wiener_solve_without_torch():
+    """fast (ADMM) and wiener are numpy only: a real solve of each leaves torch unimported."""
+    code = ("import sys, numpy as np; from vrcorrect.display import get_display; "
+            "from vrcorrect.kernel import build_kernel; from vrcorrect.prescription import EyeRx; "
+            "from vrcorrect.solvers import make_problem, solve; "
+            "k = build_kernel(EyeRx(sphere_D=-2.0, cylinder_D=0.0, axis_deg=0.0, pupil_diameter_mm=4.0), "
+            "get_display('quest2')); t = np.random.default_rng(0).random((80, 80, 3)).astype(np.float32); "
+            "p = make_problem(t, k); r = solve(p, 'fast'); w = solve(p, 'wiener'); "
+            "assert r.objective < solve(p, 'none').objective; "
+            "sys.exit(1 if 'torch' in sys.modules else 0)")
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
 def test_model_path_does_not_import_torch():
     code = ("import sys; import vrcorrect.cli, vrcorrect.forward, vrcorrect.kernel, vrcorrect.demo; "
             "from vrcorrect.cli import build_parser; build_parser(); "

@@ -5,8 +5,8 @@ target, the eye's kernel, and the target's cone image; and one objective,
 the mean squared error between the simulated retinal cone image of the
 displayed image and the target cone image (:func:`objective`).
 
-``none`` and ``wiener`` are numpy only (the real-time path uses the same
-mathematics); ``fast``, ``paper`` and ``conventional`` import torch lazily.
+``none``, ``wiener`` (the real-time path's mathematics) and ``fast`` are numpy
+only; ``paper`` and ``conventional`` import torch lazily.
 """
 
 from __future__ import annotations
@@ -111,10 +111,12 @@ def solve(problem: Problem, method: str = "fast", progress: Callable[[int, int],
         raise ValidationError("method", method, "one of " + ", ".join(METHODS))
     from .wiener import wiener
 
-    if method in ("fast", "paper", "conventional"):
+    if method == "fast":
+        from .admm import fast as fn                 # numpy only
+    elif method in ("paper", "conventional"):
         from . import iterative  # imports torch: outside the timed region
 
-        fn = {"fast": iterative.fast, "paper": iterative.paper, "conventional": iterative.conventional}[method]
+        fn = {"paper": iterative.paper, "conventional": iterative.conventional}[method]
     t0 = time.perf_counter()
     if method == "none":
         image, iters, settings, history = problem.target.copy(), 0, {}, []
