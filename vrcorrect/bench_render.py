@@ -111,8 +111,10 @@ def run_render_bench(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), w
             elif enabled:
                 grid = correctors[1].fft_grid_for((w, h))[0]
                 beta = correctors[1].last_blend((w, h))
+                blend = (f"blend per frame on the GPU (right eye: {beta:.2f})" if beta is not None
+                         else f"blend fixed at {info['beta']:.2f} (right eye)")
                 what = (f"FFT grid {grid[1]}x{grid[0]} (log2 {int(np.log2(max(grid)))} stages), regulariser "
-                        f"{info['mu_rel']:g}, blend per frame on the GPU (right eye: {beta:.2f})")
+                        f"{info['mu_rel']:g}, {blend}")
             else:
                 what = "-"
             rows.append([label, f"{w}x{h}", f"{ms:.1f}", f"{min(times) * 1e3:.1f}-{max(times) * 1e3:.1f}", ratio,
