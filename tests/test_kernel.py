@@ -11,7 +11,7 @@ import pytest
 from vrcorrect.display import get_display
 from vrcorrect.kernel import KernelOptions, _kernel_norm, build_kernel, hat_weights, monochromatic_psf
 from vrcorrect.optics import OpticsOptions, crop_center
-from vrcorrect.perception import (INTEGRATION_GRID_NM, OPPONENT_MATRIX, from_opponent, normalised_weights,
+from vrcorrect.perception import (OPPONENT_MATRIX, from_opponent, normalised_weights,
                                   rgb_to_lms_matrix, to_opponent)
 from vrcorrect.prescription import EyeRx
 

@@ -10,7 +10,7 @@ import pytest
 import scipy.ndimage
 import skimage.data
 
-from vrcorrect.display import decode, encode, get_display
+from vrcorrect.display import decode, get_display
 from vrcorrect.errors import ValidationError
 from vrcorrect.kernel import KernelOptions, build_kernel
 from vrcorrect.metrics import ImageMetrics, evaluate_seen, flip, lms_objective, psnr, ssim

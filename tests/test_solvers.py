@@ -17,7 +17,7 @@ from vrcorrect.errors import ValidationError
 from vrcorrect.kernel import KernelOptions, build_kernel, build_reference_kernel
 from vrcorrect.optics import OpticsOptions
 from vrcorrect.prescription import EyeRx
-from vrcorrect.solvers import make_problem, objective, solve
+from vrcorrect.solvers import make_problem, solve
 
 INF = KernelOptions(optics=OpticsOptions(viewing_distance_m=math.inf))
 

@@ -72,7 +72,7 @@ def run_render_bench(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), w
     renderer = ctx.info.get("GL_RENDERER", "?")
     rx = load_prescription(Path(__file__).resolve().parent / "data" / "sample_rx.json")
     W, H = size
-    rows, details = [], []
+    rows = []
     tmp = tempfile.TemporaryDirectory()
     model = Path(tmp.name) / "one_minus_x.onnx"
     write_one_minus_x_model(model)

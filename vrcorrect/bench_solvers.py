@@ -11,7 +11,6 @@ what the cheaper model costs.
 from __future__ import annotations
 
 import json
-import math
 import subprocess
 import sys
 from pathlib import Path

@@ -8,8 +8,6 @@ the bundled sample image that combines them with a photograph.
 
 from __future__ import annotations
 
-import math
-from functools import lru_cache
 from importlib import resources
 from pathlib import Path
 

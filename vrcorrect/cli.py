@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from .errors import InputError, ValidationError, VrcorrectError
+from .errors import ValidationError, VrcorrectError
 
 EXIT_USAGE = 2
 EXIT_INTERNAL = 3
@@ -194,7 +194,7 @@ def cmd_psf(args: argparse.Namespace) -> int:
 
     from .display import get_display
     from .fileio import check_writable, write_text_atomic, write_with
-    from .kernel import build_kernel, monochromatic_psf
+    from .kernel import monochromatic_psf
 
     out = Path(args.output)
     if out.suffix.lower() != ".npy":

@@ -39,9 +39,7 @@ Conventions (see DESIGN.md):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from functools import lru_cache
-from typing import Iterable
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.fft
