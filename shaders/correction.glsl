@@ -10,10 +10,8 @@
 
 #if defined PASS_COLS
 uniform float u_beta;                   // blend weight of the correction, in [0, 1]
-uniform float u_enabled;                // 0: pass the target through (correction off)
 vec3 combine(vec3 filtered, vec3 target) {
-    vec3 x = target + u_beta * (clamp(filtered, 0.0, 1.0) - target);
-    return mix(target, x, u_enabled);
+    return target + u_beta * (clamp(filtered, 0.0, 1.0) - target);
 }
 #endif
 #endif

@@ -129,7 +129,6 @@ class EyeModel:
     simulation: SeparableBank | None
     mu_rel: float
     beta: float
-    filter_size: int
     build_seconds: float
     notes: tuple[str, ...] = field(default_factory=tuple)
 
@@ -179,7 +178,7 @@ def build_eye_model(eye_rx, display, options: CorrectorOptions = CorrectorOption
         notes.append(why + ": the correction is the identity")
         return EyeModel(eye=eye_rx, kernel=kernel, reference=reference, identity=True,
                         correction=_identity_bank() if separable else None, simulation=simulation, mu_rel=0.0,
-                        beta=1.0, filter_size=1, build_seconds=time.perf_counter() - t0, notes=tuple(notes))
+                        beta=1.0, build_seconds=time.perf_counter() - t0, notes=tuple(notes))
 
     if kernel.identity or kernel.size == 1:
         return identity("the eye is sharp at this display (identity kernel)")
@@ -192,12 +191,12 @@ def build_eye_model(eye_rx, display, options: CorrectorOptions = CorrectorOption
     mu = settings.get("mu_rel") or options.regularisation[0]
     beta = float(settings["beta"]) if settings.get("mu_rel") is not None else 0.0
     notes.append(f"regulariser {mu:g} and blend {beta:.3f} chosen by wiener on the sample image")
-    correction, size = None, 0
+    correction = None
     if separable:
         filters = correction_filters(kernel, mu, reference, options.design_tolerance)
-        correction, size = separable_bank(filters.taps, options.rank_tolerance), filters.size
+        correction = separable_bank(filters.taps, options.rank_tolerance)
     return EyeModel(eye=eye_rx, kernel=kernel, reference=reference, identity=False, correction=correction,
-                    simulation=simulation, mu_rel=float(mu), beta=beta, filter_size=size,
+                    simulation=simulation, mu_rel=float(mu), beta=beta,
                     build_seconds=time.perf_counter() - t0, notes=tuple(notes))
 
 
@@ -526,7 +525,7 @@ class Corrector:
             return res["linear"]
         elif self._banks is not None:
             self._banks[0].run(res["linear"], res["rows"], res["corrected"],
-                               {"u_beta": self.model.beta, "u_enabled": 1.0})
+                               {"u_beta": self.model.beta})
         elif "blend" in res:                        # per-frame blend weight, on the GPU
             res["fft_correct"].run(res["linear"], res["delta"])
             res["fft_r0"].run(res["linear"], res["r0"])
