@@ -508,6 +508,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_overlay_parser(sub)
 
+    from .runtime.xr import add_parser as add_xr_parser
+
+    add_xr_parser(sub)
+
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md")
     p.add_argument("what", choices=("kernel", "solvers", "render"), help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")

@@ -36,7 +36,7 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -559,8 +559,13 @@ class DemoScene:
         self._objects.append(obj)
         return obj
 
-    def render(self, t_s: float) -> tuple["moderngl.Texture", "moderngl.Texture"]:
-        """Draw the scene at time ``t_s`` for both eyes; ``(left, right)`` RGBA8 textures of sRGB codes."""
+    def render(self, t_s: float, views: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None
+               ) -> tuple["moderngl.Texture", "moderngl.Texture"]:
+        """Draw the scene at time ``t_s`` for both eyes; ``(left, right)`` RGBA8 textures of sRGB codes.
+
+        ``views``: each eye's ``(view_projection (4, 4), camera position (3,) m)``, e.g. from a
+        headset's tracked poses and fields of view (:mod:`vrcorrect.runtime.xr`); by default the
+        fixed eyes of :func:`scene_transforms` (``ipd_m`` apart, ``fov_y_deg``)."""
         import moderngl
 
         ctx, p = self.ctx, self.program
@@ -574,8 +579,12 @@ class DemoScene:
                 ctx.viewport = (0, 0, width, height)
                 fb.clear(*self.sky_codes, 1.0, depth=1.0)
                 transforms = scene_transforms(t_s, eye, width / height, self.config)
-                p["u_view_projection"].write(_gl_matrix(transforms["view_projection"]))
-                p["u_camera"].value = tuple(float(v) for v in eye_position(eye, self.config))
+                if views is None:
+                    view_projection, camera = transforms["view_projection"], eye_position(eye, self.config)
+                else:
+                    view_projection, camera = views[eye]
+                p["u_view_projection"].write(_gl_matrix(np.asarray(view_projection, np.float64)))
+                p["u_camera"].value = tuple(float(v) for v in camera)
                 for name, (vao, tex, count) in self._draws.items():
                     p["u_model"].write(_gl_matrix(transforms[name]))
                     banner = name == "banner"

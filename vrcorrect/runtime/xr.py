@@ -1,0 +1,947 @@
+"""The headset path: an OpenXR session through pyopenxr, each eye corrected before it is
+submitted (``vrcorrect xr``).
+
+The OpenXR instance enables ``XR_KHR_opengl_enable``; the OpenGL context is a GLFW window's
+(X11/GLX: the session is bound with ``XrGraphicsBindingOpenGLXlibKHR``; the window is hidden
+unless ``--mirror`` shows both eyes in it). One swapchain per view, in ``GL_SRGB8_ALPHA8``
+when the runtime offers it (else ``GL_RGBA8``, see :func:`choose_swapchain_format`). Each
+frame: ``xrWaitFrame``, ``xrBeginFrame``, and when the runtime says the frame should be
+rendered, ``xrLocateViews``, the source renders each eye (the demo scene from that eye's
+tracked pose and field of view, or a picture source: image, animated image, folder, video,
+screen region), each eye's :class:`~vrcorrect.runtime.corrector.Corrector` writes the
+corrected image straight into the acquired swapchain image (a framebuffer around the
+runtime's GL texture), and ``xrEndFrame`` submits one projection layer.
+
+Session life cycle (:class:`SessionTracker`, pure): ``READY`` -> ``xrBeginSession``;
+``SYNCHRONIZED`` / ``VISIBLE`` / ``FOCUSED`` -> frames (rendered when the runtime says so);
+``STOPPING`` -> ``xrEndSession``; ``EXITING`` -> done; ``LOSS_PENDING`` (or an instance loss)
+-> the session is destroyed and :data:`EXIT_SESSION_LOST` returned. Ctrl-C, closing the
+mirror window, or ``--frames N`` reached ask the runtime to end the session
+(``xrRequestExitSession``) and the loop runs until ``EXITING``; a second Ctrl-C, or a runtime
+that does not get there within :data:`EXIT_GRACE_S`, ends it at once.
+
+No OpenXR runtime installed: :class:`XrUnavailableError`, one paragraph saying what is missing
+and how to get one (``vrcorrect mirror`` works without), exit status :data:`EXIT_NO_RUNTIME`.
+
+Tests drive it against a small runtime compiled from ``tests/xr_runtime/`` (no headset).
+Layer 5: numpy, moderngl, glfw, pyopenxr; never torch.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import math
+import os
+import signal
+import statistics
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from ..errors import VrcorrectError, ValidationError
+from .scene import EYES, parse_region, parse_source
+
+__all__ = [
+    "EXIT_NO_RUNTIME", "EXIT_SESSION_LOST", "EXIT_GRACE_S", "GL_SRGB8_ALPHA8", "GL_RGBA8", "XR_STAGES",
+    "XrUnavailableError", "XrSessionError", "XrConfig", "SessionTracker", "choose_swapchain_format",
+    "pose_matrix", "view_matrix", "projection_from_fov", "no_runtime_message", "XrApp", "XrRunSummary",
+    "add_parser", "cmd_xr",
+]
+
+EXIT_NO_RUNTIME = 69
+"""Exit status when no OpenXR runtime (or no headset) is available (sysexits' EX_UNAVAILABLE)."""
+EXIT_SESSION_LOST = 75
+"""Exit status when the runtime lost the session (``LOSS_PENDING``; sysexits' EX_TEMPFAIL: try
+again once the runtime is back)."""
+EXIT_GRACE_S = 5.0
+"""Seconds the runtime gets to reach ``EXITING`` after ``xrRequestExitSession``."""
+
+GL_SRGB8_ALPHA8 = 0x8C43
+GL_RGBA8 = 0x8058
+_GL_FRAMEBUFFER_SRGB = 0x8DB9
+_FORMAT_NAMES = {GL_SRGB8_ALPHA8: "GL_SRGB8_ALPHA8", GL_RGBA8: "GL_RGBA8"}
+
+XR_STAGES = ("wait", "begin", "locate", "scene", "acquire", "correct left", "correct right", "convert",
+             "mirror", "release", "end")
+"""Timed stages of a frame, in order. ``wait`` (``xrWaitFrame``, which paces the loop to the
+display), ``begin``, ``locate``, ``acquire`` (acquire + wait for both swapchain images),
+``release`` and ``end`` (``xrEndFrame``) are CPU time; the others have GPU time too.
+``convert`` runs only with ``GL_RGBA8`` swapchains; ``mirror`` only with ``--mirror``."""
+_CPU_ONLY = ("wait", "begin", "locate", "acquire", "release", "end")
+
+
+class XrUnavailableError(VrcorrectError, RuntimeError):
+    """No OpenXR runtime, or no headset: the message is the paragraph shown to the user."""
+
+
+class XrSessionError(VrcorrectError, RuntimeError):
+    """An OpenXR call failed while the session ran (names the call and the runtime's result)."""
+
+
+# --------------------------------------------------------------------------
+# Pure parts: messages, format choice, poses, the session state machine
+# --------------------------------------------------------------------------
+
+
+def no_runtime_message(detail: str = "") -> str:
+    """The paragraph shown when the OpenXR loader finds no runtime (``detail``: what the
+    loader said, if anything)."""
+    runtime_json = os.environ.get("XR_RUNTIME_JSON")
+    where = (f"XR_RUNTIME_JSON points to {runtime_json}, which the loader could not use" if runtime_json else
+             "no active_runtime.json in ~/.config/openxr/1/ or /etc/xdg/openxr/1/ and XR_RUNTIME_JSON is not set")
+    said = f" (the loader said: {detail.strip()})" if detail.strip() else ""
+    return (f"no OpenXR runtime is installed or active: {where}{said}. vrcorrect xr needs one to reach a headset. "
+            "Install one and make it the active runtime: Monado (open source; Debian/Ubuntu: apt-get install "
+            "monado-service, then run monado-service; https://monado.freedesktop.org) or SteamVR (Steam on Linux; "
+            "start SteamVR and choose it as the OpenXR runtime in its settings). Without a headset, vrcorrect "
+            "mirror shows both corrected eyes in a window and needs no runtime.")
+
+
+def no_headset_message(runtime: str) -> str:
+    return (f"the OpenXR runtime ({runtime}) found no head-mounted display: connect and switch on the headset, "
+            "check that the runtime sees it (Monado: monado-service's log; SteamVR: its status window), then try "
+            "again. Without a headset, vrcorrect mirror shows both corrected eyes in a window.")
+
+
+def choose_swapchain_format(offered: Sequence[int]) -> int:
+    """The swapchain format to use from the runtime's list (in its order of preference):
+    ``GL_SRGB8_ALPHA8`` if offered (the corrector's sRGB code values are stored as they are and
+    the compositor decodes them), else ``GL_RGBA8`` (linear: the codes are decoded by a
+    conversion pass).
+
+    Raises
+    ------
+    XrSessionError
+        Neither is offered (names the offered formats).
+    """
+    formats = [int(f) for f in offered]
+    for wanted in (GL_SRGB8_ALPHA8, GL_RGBA8):
+        if wanted in formats:
+            return wanted
+    raise XrSessionError("swapchain format = none usable; the runtime offers "
+                         + (", ".join(f"0x{f:04X}" for f in formats) or "no formats")
+                         + ", vrcorrect needs GL_SRGB8_ALPHA8 (0x8C43) or GL_RGBA8 (0x8058)")
+
+
+def pose_matrix(orientation: Sequence[float], position: Sequence[float]) -> np.ndarray:
+    """The 4x4 matrix of a pose: unit quaternion ``(x, y, z, w)`` then translation (m)."""
+    x, y, z, w = (float(v) for v in orientation)
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if not math.isfinite(n) or n < 1e-6:
+        raise ValidationError("pose.orientation", (x, y, z, w), "a non-zero quaternion (x, y, z, w)")
+    x, y, z, w = x / n, y / n, z / n, w / n
+    m = np.eye(4)
+    m[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+    m[:3, 3] = [float(v) for v in position]
+    return m
+
+
+def view_matrix(orientation: Sequence[float], position: Sequence[float]) -> np.ndarray:
+    """World-to-eye matrix of an eye at a pose (the inverse of :func:`pose_matrix`)."""
+    m = pose_matrix(orientation, position)
+    inv = np.eye(4)
+    inv[:3, :3] = m[:3, :3].T
+    inv[:3, 3] = -m[:3, :3].T @ m[:3, 3]
+    return inv
+
+
+def projection_from_fov(angle_left: float, angle_right: float, angle_up: float, angle_down: float,
+                        near_m: float = 0.05, far_m: float = 60.0) -> np.ndarray:
+    """OpenGL projection (clip z in [-1, 1]) of an OpenXR field of view: four angles in radians
+    (left and down negative for a view that contains the forward axis); may be asymmetric."""
+    angles = (angle_left, angle_right, angle_up, angle_down)
+    if not all(math.isfinite(a) and abs(a) < math.pi / 2 for a in angles) or angle_right <= angle_left \
+            or angle_up <= angle_down:
+        raise ValidationError("fov", angles, "angles in (-pi/2, pi/2) rad with left < right and down < up")
+    if not 0 < near_m < far_m:
+        raise ValidationError("near_m, far_m", (near_m, far_m), "0 < near_m < far_m")
+    left, right = math.tan(angle_left), math.tan(angle_right)
+    up, down = math.tan(angle_up), math.tan(angle_down)
+    p = np.zeros((4, 4))
+    p[0, 0] = 2 / (right - left)
+    p[0, 2] = (right + left) / (right - left)
+    p[1, 1] = 2 / (up - down)
+    p[1, 2] = (up + down) / (up - down)
+    p[2, 2] = -(far_m + near_m) / (far_m - near_m)
+    p[2, 3] = -2 * far_m * near_m / (far_m - near_m)
+    p[3, 2] = -1.0
+    return p
+
+
+SESSION_STATES = ("UNKNOWN", "IDLE", "READY", "SYNCHRONIZED", "VISIBLE", "FOCUSED", "STOPPING", "LOSS_PENDING",
+                  "EXITING")
+"""``XrSessionState`` names by value."""
+
+
+@dataclass
+class SessionTracker:
+    """The application's side of the session state machine (pure: no OpenXR calls).
+
+    :meth:`on_state` takes each state the runtime reports and returns what to do:
+    ``"begin"`` (READY: ``xrBeginSession``), ``"end"`` (STOPPING: ``xrEndSession``), ``"exit"``
+    (EXITING: leave the loop), ``"lost"`` (LOSS_PENDING: destroy the session, leave), or
+    ``None``. :attr:`running` is True between a begin and an end; :attr:`history` lists the
+    states seen.
+    """
+
+    state: str = "UNKNOWN"
+    running: bool = False
+    history: list[str] = field(default_factory=list)
+
+    def on_state(self, state: str) -> str | None:
+        if state not in SESSION_STATES:
+            raise ValidationError("session state", state, "one of " + ", ".join(SESSION_STATES))
+        self.state = state
+        self.history.append(state)
+        if state == "READY" and not self.running:
+            return "begin"
+        if state == "STOPPING" and self.running:
+            return "end"
+        if state == "EXITING":
+            return "exit"
+        if state == "LOSS_PENDING":
+            return "lost"
+        return None
+
+    def began(self) -> None:
+        self.running = True
+
+    def ended(self) -> None:
+        self.running = False
+
+    @property
+    def visible(self) -> bool:
+        return self.state in ("VISIBLE", "FOCUSED")
+
+
+# --------------------------------------------------------------------------
+# Configuration
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class XrConfig:
+    """How ``vrcorrect xr`` runs.
+
+    Attributes
+    ----------
+    rx
+        Prescription JSON (watched for changes); ``None``: the bundled sample.
+    display
+        Display preset or profile path the correction is designed for (the headset's panel).
+    source
+        ``"demo"`` (the 3D scene from the tracked eyes), an image, animated image or video
+        file, a folder of images, or ``"screen"`` (an X11 screen region, ``region``).
+    region
+        ``"X,Y,W,H"`` of the screen for ``source="screen"`` (default: the whole screen).
+    frames
+        Leave (via ``xrRequestExitSession``) after this many rendered frames; ``None``: run
+        until Ctrl-C, the mirror window closes, or the runtime ends the session.
+    mirror
+        Show what is submitted, both eyes side by side, in a window ``mirror_height`` px tall.
+    validation
+        Insert pyopenxr's bundled Khronos core validation layer (messages on stdout).
+    backend, corrector_options
+        Passed to each :class:`~vrcorrect.runtime.corrector.Corrector`.
+    time_step_s
+        Fixed scene time per rendered frame; ``None``: the runtime's predicted display times.
+    """
+
+    rx: str | Path | None = None
+    display: str = "quest2"
+    source: str = "demo"
+    region: str | None = None
+    frames: int | None = None
+    mirror: bool = False
+    mirror_height: int = 480
+    validation: bool = False
+    backend: str = "glsl"
+    corrector_options: Mapping[str, Any] = field(default_factory=dict)
+    time_step_s: float | None = None
+    folder_interval_s: float = 3.0
+    application_name: str = "vrcorrect"
+
+    def __post_init__(self) -> None:
+        if self.frames is not None and not (isinstance(self.frames, int) and 1 <= self.frames <= 10_000_000):
+            raise ValidationError("frames", self.frames, "None or a whole number of frames from 1 to 10000000")
+        if not (isinstance(self.mirror_height, int) and 16 <= self.mirror_height <= 4096):
+            raise ValidationError("mirror_height", self.mirror_height, "a whole number of pixels from 16 to 4096")
+        if self.time_step_s is not None and not (math.isfinite(self.time_step_s) and self.time_step_s >= 0):
+            raise ValidationError("time_step_s", self.time_step_s, "None or a number of seconds >= 0")
+        if self.backend not in ("glsl", "onnx"):
+            raise ValidationError("backend", self.backend, "'glsl' or 'onnx'")
+        if self.region is not None and self.source != "screen":
+            raise ValidationError("--region", self.region, "only with --source screen")
+
+
+@dataclass
+class XrRunSummary:
+    """What a run did: ``frames`` rendered (submitted with a layer), ``frames_total`` (all
+    ``xrEndFrame`` calls), why it stopped (``reason``: ``frames``, ``interrupted``, ``window
+    closed``, ``runtime``, ``session lost``, ``no exit``), the states seen, per-frame stage times
+    ``stage -> [(gpu_ms or None, cpu_ms), ...]`` and frame wall times (ms)."""
+
+    frames: int = 0
+    frames_total: int = 0
+    reason: str = ""
+    states: list[str] = field(default_factory=list)
+    stage_ms: dict[str, list[tuple[float | None, float]]] = field(default_factory=dict)
+    frame_ms: list[float] = field(default_factory=list)
+    runtime: str = ""
+    system: str = ""
+    swapchain_format: str = ""
+    eye_size: tuple[int, int] = (0, 0)
+    renderer: str = ""
+
+    @property
+    def exit_code(self) -> int:
+        return EXIT_SESSION_LOST if self.reason == "session lost" else 0
+
+    def medians(self, skip: int = 1) -> dict[str, tuple[float | None, float]]:
+        """Median ``(gpu_ms, cpu_ms)`` per stage over the rendered frames after the first ``skip``."""
+        out = {}
+        for name in XR_STAGES:
+            values = self.stage_ms.get(name, [])
+            values = values[skip:] if len(values) > skip else values
+            if not values:
+                continue
+            gpus = [g for g, _ in values if g is not None]
+            out[name] = (statistics.median(gpus) if gpus else None, statistics.median(c for _, c in values))
+        return out
+
+
+# --------------------------------------------------------------------------
+# pyopenxr
+# --------------------------------------------------------------------------
+
+
+def _xr():
+    try:
+        import xr
+    except ImportError as exc:  # pragma: no cover - the realtime extra is installed in CI
+        raise XrUnavailableError(f"pyopenxr is not installed ({exc}); install the realtime extra: "
+                                 "pip install -e '.[realtime]' (tools/setup.sh does)") from None
+    return xr
+
+
+class _CapturedStderr:
+    """Collects what C code (the OpenXR loader) writes to file descriptor 2 while active."""
+
+    def __enter__(self) -> "_CapturedStderr":
+        import sys
+
+        sys.stderr.flush()
+        self._file = tempfile.TemporaryFile()
+        self._saved = os.dup(2)
+        os.dup2(self._file.fileno(), 2)
+        self.text = ""
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        os.dup2(self._saved, 2)
+        os.close(self._saved)
+        self._file.seek(0)
+        self.text = self._file.read().decode(errors="replace")
+        self._file.close()
+
+
+def _loader_detail(text: str) -> str:
+    """The loader's first error line, without its ``Error [GENERAL | ...] :`` prefix."""
+    for line in text.splitlines():
+        if "Error" in line and ":" in line:
+            return line.split("] :", 1)[-1].strip().rstrip(".") or line.strip()
+    return ""
+
+
+class XrApp:
+    """The headset application (see the module docstring). Use as a context manager or call
+    :meth:`close`; :meth:`run` runs the session and returns an :class:`XrRunSummary`.
+
+    Raises (from the constructor)
+    -----------------------------
+    XrUnavailableError
+        No OpenXR runtime, or no headset.
+    InputError, ValidationError
+        Bad prescription, display or source (checked before anything is opened).
+    GLUnavailableError
+        No X11 display or no OpenGL 4.3 context.
+    XrSessionError
+        The runtime refused a call while setting up.
+    """
+
+    def __init__(self, config: XrConfig = XrConfig(), *, echo: Callable[[str], None] | None = print):
+        from ..display import get_display
+        from ..prescription import bundled_sample_path, load_prescription
+
+        self.config = config
+        self._echo = echo
+        self.rx_path = Path(config.rx) if config.rx is not None else bundled_sample_path()
+        load_prescription(self.rx_path)  # fail early on a bad file
+        self.display = get_display(config.display)
+        if self.display.transfer != "srgb":
+            raise ValidationError("--display", f"{config.display} (transfer {self.display.transfer})",
+                                  "a display with the sRGB transfer (the real-time path encodes sRGB only)")
+        self.spec = None if config.source == "screen" else parse_source(config.source)
+        self.region = parse_region(config.region) if config.region is not None else None
+        self.xr = _xr()
+        self.tracker = SessionTracker()
+        self.summary = XrRunSummary()
+        self.instance = self.system_id = self.session = self.space = None
+        self.swapchains: list[dict[str, Any]] = []
+        self.correctors: dict[str, Any] = {}
+        self._glfw_session = self.window = self.ctx = self.source = self._times = None
+        self._mirror_prog = self._mirror_vao = self._convert_prog = self._convert_vao = None
+        self._sampler = None
+        self._quit_reason: str | None = None
+        self._interrupts = 0
+        self._exit_requested_at: float | None = None
+        self._last_poll = 0.0
+        self._first_display_time: int | None = None
+        try:
+            self._create_instance()
+            self._open_window()
+            self._create_session()
+            self._build()
+        except BaseException:
+            self.close()
+            raise
+
+    # ------------------------------------------------------------ set-up
+
+    def _say(self, text: str) -> None:
+        if self._echo is not None:
+            self._echo(text)
+
+    def _call(self, what: str, fn: Callable[..., Any], *args: Any) -> Any:
+        """Run a pyopenxr call; its failures become :class:`XrSessionError` naming the call."""
+        xr = self.xr
+        try:
+            return fn(*args)
+        except (xr.SessionLostError, xr.InstanceLostError):
+            raise
+        except xr.XrException as exc:
+            raise XrSessionError(f"{what} failed: {type(exc).__name__}: {exc}") from None
+
+    def _create_instance(self) -> None:
+        xr, cfg = self.xr, self.config
+        if cfg.validation:
+            xr.api_layer.activate_core_validation_layer()
+        info = xr.InstanceCreateInfo(
+            application_info=xr.ApplicationInfo(application_name=cfg.application_name, application_version=1,
+                                                engine_name="vrcorrect", engine_version=1,
+                                                api_version=xr.Version(1, 0, 0)),
+            enabled_extension_names=["XR_KHR_opengl_enable"])
+        with _CapturedStderr() as captured:
+            try:
+                self.instance = xr.create_instance(info)
+                error = None
+            except (xr.RuntimeUnavailableError, xr.RuntimeFailureError, xr.InitializationFailedError) as exc:
+                error = exc
+            except xr.ExtensionNotPresentError:
+                error = "extension"
+        if captured.text and os.environ.get("VRCORRECT_DEBUG"):
+            self._say(captured.text.rstrip())
+        if error == "extension":
+            raise XrUnavailableError("the active OpenXR runtime does not offer XR_KHR_opengl_enable (OpenGL), which "
+                                     "vrcorrect xr needs; Monado and SteamVR do. Without a headset, vrcorrect mirror "
+                                     "shows both corrected eyes in a window.")
+        if error is not None:
+            raise XrUnavailableError(no_runtime_message(_loader_detail(captured.text)))
+        props = xr.get_instance_properties(self.instance)
+        self.summary.runtime = props.runtime_name.decode(errors="replace")
+        try:
+            self.system_id = xr.get_system(self.instance, xr.SystemGetInfo(
+                form_factor=xr.FormFactor.HEAD_MOUNTED_DISPLAY))
+        except xr.FormFactorUnavailableError:
+            raise XrUnavailableError(no_headset_message(self.summary.runtime)) from None
+        except xr.XrException as exc:
+            raise XrSessionError(f"xrGetSystem failed: {type(exc).__name__}: {exc}") from None
+        sp = xr.get_system_properties(self.instance, self.system_id)
+        self.summary.system = sp.system_name.decode(errors="replace")
+        views = self._call("xrEnumerateViewConfigurationViews", xr.enumerate_view_configuration_views,
+                           self.instance, self.system_id, xr.ViewConfigurationType.PRIMARY_STEREO)
+        if len(views) != 2:
+            raise XrSessionError(f"stereo view configuration = {len(views)} views; vrcorrect xr needs 2")
+        sizes = {(v.recommended_image_rect_width, v.recommended_image_rect_height) for v in views}
+        if len(sizes) != 1:
+            raise XrSessionError(f"recommended view sizes = {sorted(sizes)}; vrcorrect xr needs both eyes the same")
+        self.eye_size = sizes.pop()
+        self.summary.eye_size = self.eye_size
+        blend = self._call("xrEnumerateEnvironmentBlendModes", xr.enumerate_environment_blend_modes,
+                           self.instance, self.system_id, xr.ViewConfigurationType.PRIMARY_STEREO)
+        if xr.EnvironmentBlendMode.OPAQUE not in [xr.EnvironmentBlendMode(int(b)) for b in blend]:
+            raise XrSessionError("environment blend modes lack OPAQUE, which a VR projection layer needs")
+        # XR_KHR_opengl_enable: the requirements call must come before xrCreateSession
+        pfn = ctypes.cast(xr.get_instance_proc_addr(self.instance, "xrGetOpenGLGraphicsRequirementsKHR"),
+                          xr.PFN_xrGetOpenGLGraphicsRequirementsKHR)
+        self.gl_requirements = xr.GraphicsRequirementsOpenGLKHR()
+        result = xr.check_result(xr.Result(pfn(self.instance, self.system_id, ctypes.byref(self.gl_requirements))))
+        if result.is_exception():
+            raise XrSessionError(f"xrGetOpenGLGraphicsRequirementsKHR failed: {result}")
+
+    def _open_window(self) -> None:
+        from .mirror import GlfwSession
+
+        cfg = self.config
+        w, h = self.eye_size
+        mh = min(cfg.mirror_height, h)
+        self.mirror_size = (2 * max(1, round(w * mh / h)), mh)
+        session = self._glfw_session = GlfwSession("x11")  # the session binding is Xlib/GLX
+        title = f"vrcorrect xr mirror: what each eye is sent ({self.summary.system})"
+        session.open(*(self.mirror_size if cfg.mirror else (64, 64)), title, visible=cfg.mirror, vsync=False)
+        self.window, self.ctx = session.window, session.ctx
+        self.summary.renderer = self.ctx.info.get("GL_RENDERER", "?")
+        major, minor = self.ctx.version_code // 100, self.ctx.version_code % 100 // 10
+        req = self.gl_requirements
+        have = (major << 48) | (minor << 32)
+        if have < int(req.min_api_version_supported):
+            raise XrSessionError(f"OpenGL {major}.{minor} is older than the runtime's minimum "
+                                 f"{int(req.min_api_version_supported) >> 48}.{(int(req.min_api_version_supported) >> 32) & 0xFFFF}")
+
+    def _create_session(self) -> None:
+        xr, glfw = self.xr, self._glfw_session.glfw
+        glfw.make_context_current(self.window)
+        display = glfw.get_x11_display()
+        context = glfw.get_glx_context(self.window)
+        drawable = glfw.get_glx_window(self.window)
+        binding = xr.GraphicsBindingOpenGLXlibKHR()
+        fields = dict(binding._fields_)
+        binding.x_display = ctypes.cast(ctypes.c_void_p(_address(display)), fields["x_display"])
+        binding.glx_context = ctypes.cast(ctypes.c_void_p(_address(context)), fields["glx_context"])
+        binding.glx_drawable = int(drawable)
+        self._binding = binding  # kept alive for the session
+        info = xr.SessionCreateInfo(system_id=self.system_id,
+                                    next=ctypes.cast(ctypes.pointer(binding), ctypes.c_void_p))
+        self.session = self._call("xrCreateSession", xr.create_session, self.instance, info)
+        self.space = self._call("xrCreateReferenceSpace", xr.create_reference_space, self.session,
+                                xr.ReferenceSpaceCreateInfo(reference_space_type=xr.ReferenceSpaceType.LOCAL))
+        formats = self._call("xrEnumerateSwapchainFormats", xr.enumerate_swapchain_formats, self.session)
+        self.format = choose_swapchain_format(formats)
+        self.summary.swapchain_format = _FORMAT_NAMES[self.format]
+        w, h = self.eye_size
+        for eye in EYES:  # view 0 is the left eye in PRIMARY_STEREO
+            handle = self._call("xrCreateSwapchain", xr.create_swapchain, self.session, xr.SwapchainCreateInfo(
+                usage_flags=xr.SwapchainUsageFlags.COLOR_ATTACHMENT_BIT | xr.SwapchainUsageFlags.SAMPLED_BIT,
+                format=self.format, sample_count=1, width=w, height=h, face_count=1, array_size=1, mip_count=1))
+            chain = {"eye": eye, "handle": handle, "textures": [], "framebuffers": []}
+            self.swapchains.append(chain)
+            images = self._call("xrEnumerateSwapchainImages", xr.enumerate_swapchain_images, handle,
+                                xr.SwapchainImageOpenGLKHR)
+            for image in images:
+                tex = self.ctx.external_texture(int(image.image), (w, h), 4, 0, "f1")
+                chain["textures"].append(tex)
+                chain["framebuffers"].append(self.ctx.framebuffer(color_attachments=[tex]))
+
+    def _build(self) -> None:
+        from .corrector import Corrector
+        from .gl import check_gl_errors, fullscreen_triangle
+        from .mirror import StageTimes
+        from .scene import ScreenSource, open_source, screen_bounds
+        from .shaders import compile_program
+
+        cfg, ctx = self.config, self.ctx
+        w, h = self.eye_size
+        ctx.disable_direct(_GL_FRAMEBUFFER_SRGB)  # sRGB swapchains store the corrector's codes as they are
+        if self.spec is None:
+            self.source = ScreenSource(ctx, w, h, self.region or screen_bounds())
+        else:
+            self.source = open_source(ctx, self.spec, w, h, folder_interval_s=cfg.folder_interval_s)
+        for eye in EYES:
+            self._say(f"building the {eye} eye's correction ({self.display.name}) ...")
+            t0 = time.perf_counter()
+            self.correctors[eye] = Corrector(ctx, self.rx_path, self.display, eye, cfg.backend,
+                                             **dict(cfg.corrector_options))
+            self._say(f"  built in {time.perf_counter() - t0:.1f} s")
+        if self.format == GL_RGBA8:
+            # correct into an sRGB texture; sampling it decodes to linear light, written into the linear swapchain
+            self._staging = ctx.texture((w, h), 4, internal_format=GL_SRGB8_ALPHA8)
+            self._staging_fb = ctx.framebuffer(color_attachments=[self._staging])
+            self._convert_prog = compile_program(ctx, "passthrough.glsl")
+            self._convert_vao = fullscreen_triangle(ctx, self._convert_prog)
+        else:
+            self._staging = self._staging_fb = None
+        if cfg.mirror:
+            # sampling either swapchain format gives linear light: encode it for the window
+            self._mirror_prog = compile_program(ctx, "passthrough.glsl", defines={"ENCODE_SRGB": None})
+            self._mirror_vao = fullscreen_triangle(ctx, self._mirror_prog)
+        self._times = StageTimes(ctx, XR_STAGES, cpu_only=_CPU_ONLY)
+        check_gl_errors(ctx, "xr set-up")
+
+    # ------------------------------------------------------------ events
+
+    def request_quit(self, reason: str) -> None:
+        """Ask the loop to end the session (thread- and signal-safe: only sets flags)."""
+        if self._quit_reason is None:
+            self._quit_reason = reason
+
+    def _on_sigint(self, signum: int, frame: Any) -> None:
+        self._interrupts += 1
+        self.request_quit("interrupted")
+
+    def _poll_events(self) -> str | None:
+        """Handle every queued event; returns ``"exit"`` or ``"lost"`` when the loop must stop."""
+        xr = self.xr
+        while True:
+            try:
+                buffer = xr.poll_event(self.instance)
+            except xr.EventUnavailable:
+                return None
+            except (xr.InstanceLostError, xr.SessionLostError):
+                return "lost"
+            kind = xr.StructureType(buffer.type)
+            if kind == xr.StructureType.EVENT_DATA_INSTANCE_LOSS_PENDING:
+                self._say("the runtime is going away (instance loss pending)")
+                return "lost"
+            if kind != xr.StructureType.EVENT_DATA_SESSION_STATE_CHANGED:
+                continue
+            event = ctypes.cast(ctypes.byref(buffer), ctypes.POINTER(xr.EventDataSessionStateChanged)).contents
+            state = SESSION_STATES[int(event.state)] if 0 <= int(event.state) < len(SESSION_STATES) else "UNKNOWN"
+            self._say(f"session state: {state}")
+            action = self.tracker.on_state(state)
+            if action == "begin":
+                self._call("xrBeginSession", xr.begin_session, self.session, xr.SessionBeginInfo(
+                    primary_view_configuration_type=xr.ViewConfigurationType.PRIMARY_STEREO))
+                self.tracker.began()
+            elif action == "end":
+                self._call("xrEndSession", xr.end_session, self.session)
+                self.tracker.ended()
+            elif action in ("exit", "lost"):
+                return action
+
+    # ------------------------------------------------------------ frames
+
+    def _views(self, display_time: int):
+        xr = self.xr
+        state, views = self._call("xrLocateViews", xr.locate_views, self.session, xr.ViewLocateInfo(
+            view_configuration_type=xr.ViewConfigurationType.PRIMARY_STEREO, display_time=display_time,
+            space=self.space))
+        flags = int(state.view_state_flags)
+        valid = int(xr.ViewStateFlags.ORIENTATION_VALID_BIT) | int(xr.ViewStateFlags.POSITION_VALID_BIT)
+        return (views if (flags & valid) == valid and len(views) == 2 else None)
+
+    def _scene_time(self, display_time: int) -> float:
+        if self.config.time_step_s is not None:
+            return self.summary.frames * self.config.time_step_s
+        if self._first_display_time is None:
+            self._first_display_time = display_time
+        return (display_time - self._first_display_time) / 1e9
+
+    def _frame(self) -> None:
+        xr, ctx, times = self.xr, self.ctx, self._times
+        t_frame = time.perf_counter()
+        with times.stage("wait"):
+            frame_state = self._call("xrWaitFrame", xr.wait_frame, self.session)
+        with times.stage("begin"):
+            self._call("xrBeginFrame", xr.begin_frame, self.session)
+        layers = []
+        views = None
+        if frame_state.should_render:
+            with times.stage("locate"):
+                views = self._views(frame_state.predicted_display_time)
+        if views is not None:
+            t_s = self._scene_time(frame_state.predicted_display_time)
+            with times.stage("scene"):
+                if hasattr(self.source, "_draws"):  # the demo scene: from each tracked eye
+                    eye_views = {}
+                    for eye, v in zip(EYES, views):
+                        o, p = v.pose.orientation, v.pose.position
+                        vm = view_matrix((o.x, o.y, o.z, o.w), (p.x, p.y, p.z))
+                        proj = projection_from_fov(v.fov.angle_left, v.fov.angle_right, v.fov.angle_up,
+                                                   v.fov.angle_down)
+                        eye_views[eye] = (proj @ vm, np.array([p.x, p.y, p.z]))
+                    textures = self.source.render(t_s, views=eye_views)
+                else:
+                    textures = self.source.render(t_s)
+            w, h = self.eye_size
+            indices = []
+            with times.stage("acquire"):
+                for chain in self.swapchains:
+                    index = self._call("xrAcquireSwapchainImage", xr.acquire_swapchain_image, chain["handle"])
+                    self._call("xrWaitSwapchainImage", xr.wait_swapchain_image, chain["handle"],
+                               xr.SwapchainImageWaitInfo(timeout=xr.INFINITE_DURATION))
+                    indices.append(index)
+            for chain, index, texture in zip(self.swapchains, indices, textures):
+                eye = chain["eye"]
+                target = chain["framebuffers"][index]
+                with times.stage(f"correct {eye}"):
+                    self.correctors[eye].apply(texture, self._staging_fb or target)
+                if self._staging_fb is not None:
+                    with times.stage("convert"):
+                        self._staging.use(0)
+                        self._convert_prog["u_source"].value = 0
+                        target.use()
+                        ctx.viewport = (0, 0, w, h)
+                        self._convert_vao.render(vertices=3)
+            if self.config.mirror:
+                with times.stage("mirror"):
+                    self._draw_mirror([c["textures"][i] for c, i in zip(self.swapchains, indices)])
+            with times.stage("release"):
+                for chain in self.swapchains:
+                    self._call("xrReleaseSwapchainImage", xr.release_swapchain_image, chain["handle"])
+            projection_views = []
+            for chain, v in zip(self.swapchains, views):
+                projection_views.append(xr.CompositionLayerProjectionView(
+                    pose=v.pose, fov=v.fov, sub_image=xr.SwapchainSubImage(
+                        swapchain=chain["handle"], image_rect=xr.Rect2Di(extent=xr.Extent2Di(w, h)))))
+            layer = xr.CompositionLayerProjection(space=self.space, views=projection_views)
+            layers = [ctypes.byref(layer)]
+        with times.stage("end"):
+            self._call("xrEndFrame", xr.end_frame, self.session, xr.FrameEndInfo(
+                display_time=frame_state.predicted_display_time,
+                environment_blend_mode=xr.EnvironmentBlendMode.OPAQUE, layers=layers))
+        self.summary.frames_total += 1
+        if layers:
+            if self.config.mirror:
+                self._glfw_session.glfw.swap_buffers(self.window)
+            self.summary.frames += 1
+            self.summary.frame_ms.append(1e3 * (time.perf_counter() - t_frame))
+            for name, value in times.collect().items():
+                self.summary.stage_ms.setdefault(name, []).append(value)
+            frames = self.config.frames
+            if frames is not None and self.summary.frames >= frames:
+                self.request_quit("frames")
+        else:
+            times.collect()
+
+    def _draw_mirror(self, textures: Sequence[Any]) -> None:
+        import moderngl
+
+        ctx = self.ctx
+        screen = ctx.screen
+        screen.use()
+        width, height = self._glfw_session.framebuffer_size
+        half = width // 2
+        if self._sampler is None:
+            self._sampler = ctx.sampler(filter=(moderngl.LINEAR, moderngl.LINEAR), repeat_x=False, repeat_y=False)
+        self._mirror_prog["u_source"].value = 0
+        for i, tex in enumerate(textures):
+            ctx.viewport = (i * half, 0, half, height)
+            self._sampler.use(0)
+            tex.use(0)
+            self._mirror_vao.render(vertices=3)
+        self._sampler.clear(0)
+
+    def _poll_files(self) -> None:
+        now = time.monotonic()
+        if now - self._last_poll < 1.0:
+            return
+        self._last_poll = now
+        for eye, corrector in self.correctors.items():
+            if corrector.poll():
+                self._say(f"{self.rx_path.name} reloaded: {eye} eye rebuilt")
+            elif corrector.status:
+                pass
+
+    def run(self, *, handle_sigint: bool = True) -> XrRunSummary:
+        """Run the session until it ends (see the module docstring); returns the summary."""
+        from .gl import check_gl_errors
+
+        xr = self.xr
+        previous = None
+        if handle_sigint and threading.current_thread() is threading.main_thread():
+            previous = signal.signal(signal.SIGINT, self._on_sigint)
+        glfw = self._glfw_session.glfw
+        try:
+            while True:
+                try:
+                    outcome = self._poll_events()
+                except (xr.InstanceLostError, xr.SessionLostError):
+                    outcome = "lost"
+                if outcome == "exit":
+                    self.summary.reason = self._quit_reason or "runtime"
+                    break
+                if outcome == "lost":
+                    self.summary.reason = "session lost"
+                    break
+                glfw.poll_events()
+                if self.config.mirror and glfw.window_should_close(self.window):
+                    self.request_quit("window closed")
+                if self._quit_reason is not None:
+                    if self._interrupts > 1:
+                        self.summary.reason = "interrupted"
+                        break
+                    if self.tracker.running and self._exit_requested_at is None:
+                        self._say(f"ending the session ({self._quit_reason}) ...")
+                        self._call("xrRequestExitSession", xr.request_exit_session, self.session)
+                        self._exit_requested_at = time.monotonic()
+                    elif not self.tracker.running and self._exit_requested_at is None:
+                        self.summary.reason = self._quit_reason  # never began: nothing to end
+                        break
+                    elif self._exit_requested_at is not None \
+                            and time.monotonic() - self._exit_requested_at > EXIT_GRACE_S:
+                        self._say(f"the runtime did not end the session within {EXIT_GRACE_S:g} s; leaving")
+                        self.summary.reason = "no exit"
+                        break
+                if self.tracker.running:
+                    try:
+                        self._frame()
+                    except (xr.InstanceLostError, xr.SessionLostError):
+                        self.summary.reason = "session lost"
+                        break
+                    self._poll_files()
+                    check_gl_errors(self.ctx, f"xr frame {self.summary.frames_total}")
+                else:
+                    time.sleep(0.005)
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
+            self.summary.states = list(self.tracker.history)
+        return self.summary
+
+    # ------------------------------------------------------------ tear-down
+
+    def close(self) -> None:
+        """Destroy swapchains, space, session and instance; release GL objects; close the window."""
+        from .gl import release
+
+        xr = getattr(self, "xr", None)
+        if self.ctx is not None:
+            for c in self.correctors.values():
+                c.release()
+            self.correctors = {}
+            if self.source is not None:
+                self.source.release()
+                self.source = None
+            release(getattr(self, "_staging_fb", None), getattr(self, "_staging", None), self._convert_vao,
+                    self._convert_prog, self._mirror_vao, self._mirror_prog, self._sampler)
+            self._staging_fb = self._staging = self._convert_vao = self._convert_prog = None
+            self._mirror_vao = self._mirror_prog = self._sampler = None
+            for chain in self.swapchains:
+                release(*chain["framebuffers"])  # the textures are the runtime's: not deleted here
+        if xr is not None:
+            for chain in self.swapchains:
+                _quietly(xr.destroy_swapchain, chain["handle"])
+            self.swapchains = []
+            if self.space is not None:
+                _quietly(xr.destroy_space, self.space)
+                self.space = None
+            if self.session is not None:
+                _quietly(xr.destroy_session, self.session)
+                self.session = None
+            if self.instance is not None:
+                _quietly(xr.destroy_instance, self.instance)
+                self.instance = None
+        if self._glfw_session is not None:
+            self._glfw_session.close()
+            self._glfw_session = None
+        self.window = self.ctx = None
+
+    def __enter__(self) -> "XrApp":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def _address(handle: Any) -> int:
+    """An integer address from what pyGLFW returns for native handles (int, c_void_p, pointer)."""
+    if handle is None:
+        return 0
+    if isinstance(handle, int):
+        return handle
+    if isinstance(handle, ctypes.c_void_p):
+        return handle.value or 0
+    return ctypes.cast(handle, ctypes.c_void_p).value or 0
+
+
+def _quietly(fn: Callable[..., Any], *args: Any) -> None:
+    try:
+        fn(*args)
+    except Exception:  # tear-down: a lost session's handles may already be gone
+        pass
+
+
+# --------------------------------------------------------------------------
+# Command line: vrcorrect xr
+# --------------------------------------------------------------------------
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``xr`` sub-command to an argparse ``subparsers`` object."""
+    p = subparsers.add_parser(
+        "xr", help="the headset: an OpenXR session, each eye corrected before it is submitted",
+        description=("Run an OpenXR session (pyopenxr, XR_KHR_opengl_enable, X11/GLX) and submit each eye's image,\n"
+                     "corrected for that eye's prescription: the 3D demo scene from the tracked eyes, or a\n"
+                     "picture source. Needs an OpenXR runtime (Monado, SteamVR) and a headset; without one it\n"
+                     f"says so and exits with status {EXIT_NO_RUNTIME}. Ctrl-C (or closing the mirror window) ends\n"
+                     f"the session cleanly (status 0); a session the runtime lost exits with status {EXIT_SESSION_LOST}."),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--rx", metavar="RX.json", help="prescription (default: the bundled sample); reloaded when it "
+                                                   "changes on disk")
+    p.add_argument("--display", default="quest2", metavar="PRESET",
+                   help="the headset's display preset or profile .json (default quest2; list: vrcorrect displays)")
+    p.add_argument("--source", default="demo", metavar="demo|IMAGE|VIDEO|DIR|screen",
+                   help="the 3D scene seen from the tracked eyes (default), an image, a video (or animated "
+                        "GIF/PNG/WebP), a folder of images shown in turn, or the X11 screen")
+    p.add_argument("--region", metavar="X,Y,W,H", help="with --source screen: the part of the screen (default all)")
+    p.add_argument("--frames", metavar="N", help="leave after N rendered frames (tests, benchmarks)")
+    p.add_argument("--mirror", action="store_true", help="show what each eye is sent in a window")
+    p.add_argument("--mirror-height", default="480", metavar="PX", help="the mirror window's height (default 480)")
+    p.add_argument("--validation", action="store_true",
+                   help="insert Khronos' core validation layer (bundled with pyopenxr; messages on stdout)")
+    p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl", help="correction backend (default glsl)")
+    p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx")
+    p.set_defaults(func=cmd_xr)
+    return p
+
+
+def _parse_int(text: str, field: str, low: int, high: int, what: str) -> int:
+    try:
+        value = int(text)
+    except (TypeError, ValueError):
+        value = low - 1
+    if not low <= value <= high:
+        raise ValidationError(field, text, f"a whole number of {what} from {low} to {high}")
+    return value
+
+
+def cmd_xr(args: argparse.Namespace) -> int:
+    """``vrcorrect xr``: check the arguments, run the session, print a summary."""
+    import sys
+
+    from .mirror import parse_frames
+
+    frames = parse_frames(args.frames)
+    mirror_height = _parse_int(args.mirror_height, "--mirror-height", 16, 4096, "pixels")
+    if args.region is not None and args.source != "screen":
+        raise ValidationError("--region", args.region, "only with --source screen")
+    if args.source != "screen":
+        parse_source(args.source)
+    options = {}
+    if args.backend == "onnx":
+        if not args.model:
+            raise ValidationError("--model", None, "an ONNX model file with --backend onnx")
+        options["model"] = args.model
+    config = XrConfig(rx=args.rx, display=args.display, source=args.source, region=args.region, frames=frames,
+                      mirror=args.mirror, mirror_height=mirror_height, validation=args.validation,
+                      backend=args.backend, corrector_options=options)
+    try:
+        app = XrApp(config)
+    except XrUnavailableError as exc:
+        print(f"vrcorrect xr: {exc}", file=sys.stderr)
+        return EXIT_NO_RUNTIME
+    with app:
+        s = app.summary
+        print(f"runtime: {s.runtime}; system: {s.system}; {s.eye_size[0]}x{s.eye_size[1]} per eye; swapchains "
+              f"{s.swapchain_format}; OpenGL: {s.renderer}")
+        t0 = time.perf_counter()
+        summary = app.run()
+        wall = time.perf_counter() - t0
+    print(f"session ended ({summary.reason}); states: {' -> '.join(summary.states)}")
+    n = summary.frames
+    print(f"{n} frame(s) rendered, {summary.frames_total} submitted, in {wall:.2f} s"
+          + (f" (median {statistics.median(summary.frame_ms):.1f} ms per rendered frame)" if summary.frame_ms else ""))
+    for name, (gpu, cpu) in summary.medians().items():
+        print(f"  {name:<14} gpu {'-' if gpu is None else f'{gpu:.2f}'} ms, cpu {cpu:.2f} ms (median)")
+    if summary.reason == "session lost":
+        print(f"vrcorrect xr: the runtime lost the session (LOSS_PENDING); exit status {EXIT_SESSION_LOST}",
+              file=sys.stderr)
+    return summary.exit_code
