@@ -11,12 +11,17 @@ and ``z = u`` (the box and the black surround).  Each step is exact and cheap:
 the kernel's spectral norm squared (at DC, since K >= 0), ``v`` per pixel, ``z`` by
 clipping; over-relaxed.
 
-Warm start, coarse to fine: the closed-form ``wiener`` solution on the coarsest of
-``levels`` halvings (2x2 blocks, with the kernel those blocks see:
+Warm start, coarse to fine: a closed-form start on the coarsest of ``levels``
+halvings (the regularised inverse of the cone target, clipped and blended with the
+target as ``wiener`` does: :func:`_ridge_start`) (2x2 blocks, with the kernel those blocks see:
 :func:`coarse_kernel`), ADMM there, then on each finer level, upsampling the image
 and ADMM's scaled duals both (with zero duals the finer level first loses ground;
 with the coarse duals its first iteration is already below what the paper's 100
 Adam steps reach on the evaluation images).
+
+Stopping: the true objective at the feasible ``z`` after every full-resolution
+iteration; stop when one iteration improves it by less than ``tolerance``
+(relative).  The default, 1e-2, stops once the coarse start's gains are taken.
 
 float32 images, complex64 spectra, scipy's FFT (several times faster than torch's on
 this kind of CPU); numpy only, so ``fast`` runs wherever numpy does.
@@ -30,7 +35,7 @@ import numpy as np
 import scipy.fft
 
 from . import Problem
-from .wiener import centred_kernel, gram, inv3, matmul3, padded_shape, spectral_norm_squared
+from .wiener import centred_kernel, gram, inv3, mirror_fill, padded_shape, spectral_norm_squared
 
 __all__ = ["fast", "coarse_kernel"]
 
@@ -43,39 +48,50 @@ def _irfft2(a: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return scipy.fft.irfft2(a, s=shape, axes=(-2, -1), workers=-1)
 
 
-def _apply(M: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Per-frequency ``out[i] = sum_j M[i, j] x[j]`` for ``M`` (3, 3, ...) and ``x`` (3, ...)."""
-    return M[:, 0] * x[0] + M[:, 1] * x[1] + M[:, 2] * x[2]
+def _matvec(M: np.ndarray, x: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> np.ndarray:
+    """Per-frequency ``out[i] = sum_j M[i, j] x[j]`` for ``M`` (3, 3, ...) and ``x`` (3, ...), into
+    preallocated ``out`` (not aliasing ``x``) with one scratch plane ``tmp``."""
+    for i in range(3):
+        np.multiply(M[i, 0], x[0], out=out[i])
+        for j in (1, 2):
+            np.multiply(M[i, j], x[j], out=tmp)
+            out[i] += tmp
+    return out
 
 
 def _admm(kernel: np.ndarray, t_lms: np.ndarray, z0: np.ndarray, rho: float, relaxation: float,
           balance: float, max_iterations: int, tolerance: float,
           progress: Callable[[int, int], None] | None = None,
-          duals: tuple[np.ndarray, np.ndarray] | None = None
+          duals: tuple[np.ndarray, np.ndarray] | None = None, track: bool = True
           ) -> tuple[np.ndarray, int, list[float], float, tuple[np.ndarray, np.ndarray]]:
     """ADMM on (3, H, W) float32 arrays, optionally warm-started in the scaled duals too (inside
     the image; zero outside); returns (z, iterations, history, norm2, duals cropped to the image).
 
-    ``history`` holds the true objective at the feasible ``z``, every second iteration; it stops
-    when two iterations improve it by less than ``tolerance`` (relative; 0: never).
+    With ``track``, ``history`` holds the true objective at the feasible ``z`` after every
+    iteration (one more convolution per step) and the loop stops when one iteration improves it
+    by less than ``tolerance`` (relative; 0: never); without it (the coarse levels) it runs
+    ``max_iterations``.  The loop works in preallocated buffers: fresh multi-megabyte
+    temporaries per step cost more in page faults than the arithmetic.
     """
     H, W = t_lms.shape[1:]
     P = padded_shape(H, W, kernel.shape[-1])
-    Kf = _rfft2(centred_kernel(kernel, P)).astype(np.complex64)           # (cones, primaries, P0, F1)
+    Kf = _rfft2(centred_kernel(kernel.astype(np.float32), P)).astype(np.complex64)  # (cones, primaries, P0, F1)
     norm2 = spectral_norm_squared(kernel) * balance           # box split weighed against the retina split
     M = gram(Kf)                                                           # planes, cofactor algebra:
     for c in range(3):                                                     # far faster than batched
         M[c, c] += norm2                                                   # np.linalg on 3x3 blocks
-    G = inv3(M)
-    GKh = matmul3(G, np.conj(np.swapaxes(Kf, 0, 1)))                       # (primaries, cones, P0, F1)
-    Gn = G * np.float32(norm2)
-    mask = np.zeros(P, dtype=bool)
-    mask[:H, :W] = True
-    t = np.zeros((3,) + P, np.float32)
-    t[:, :H, :W] = t_lms
+    G = inv3(M)                                                            # (K^H K + n I)^-1
+    Kh = np.ascontiguousarray(np.conj(np.swapaxes(Kf, 0, 1)))              # (primaries, cones, P0, F1)
+    del M
+    spec = Kf.shape[2:]
+    R = np.empty((3,) + spec, np.complex64)                               # spectral buffers
+    U = np.empty_like(R)
+    KU = np.empty_like(R)
+    ctmp = np.empty(spec, np.complex64)
+    a = np.empty((3,) + P, np.float32)                                    # spatial buffers
     z = np.zeros((3,) + P, np.float32)
     z[:, :H, :W] = z0
-    v = _irfft2(_apply(Kf, _rfft2(z)), P).astype(np.float32)
+    v = _irfft2(_matvec(Kf, _rfft2(z), KU, ctmp), P).astype(np.float32)
     d1 = np.zeros_like(v)
     d2 = np.zeros_like(z)
     if duals is not None:
@@ -83,31 +99,48 @@ def _admm(kernel: np.ndarray, t_lms: np.ndarray, z0: np.ndarray, rho: float, rel
         d2[:, :H, :W] = duals[1]
     n = float(H * W * 3)
     rho_eff = rho * norm2
+    t_scaled = (2.0 / (2.0 + rho_eff)) * t_lms                             # the v-step inside the image:
+    keep = np.float32(rho_eff / (2.0 + rho_eff))                           # v = (2 t + rho s) / (2 + rho)
+    alpha, beta = np.float32(relaxation), np.float32(1.0 - relaxation)
     history: list[float] = []
     iterations = 0
     for it in range(1, max_iterations + 1):
-        U = _apply(GKh, _rfft2(v - d1)) + _apply(Gn, _rfft2(z - d2))
+        np.subtract(v, d1, out=a)
+        _matvec(Kh, _rfft2(a), R, ctmp)                                    # R = K^H F(v - d1) + n F(z - d2)
+        np.subtract(z, d2, out=a)
+        Fb = _rfft2(a)
+        Fb *= np.float32(norm2)
+        R += Fb
+        _matvec(G, R, U, ctmp)                                             # U = (K^H K + n I)^-1 R
+        _matvec(Kf, U, KU, ctmp)
         u = _irfft2(U, P)
-        Ku = _irfft2(_apply(Kf, U), P)
-        if relaxation != 1.0:                                      # over-relaxation (Eckstein & Bertsekas)
-            Ku = relaxation * Ku + (1.0 - relaxation) * v
-            u = relaxation * u + (1.0 - relaxation) * z
-        sv = Ku + d1
-        v = np.where(mask, (2.0 * t + rho_eff * sv) / (2.0 + rho_eff), sv).astype(np.float32)
-        z = (np.clip(u + d2, 0.0, 1.0) * mask).astype(np.float32)
-        d1 += Ku - v
-        d2 += u - z
+        Ku = _irfft2(KU, P)
+        if relaxation != 1.0:                                              # over-relaxation (Eckstein & Bertsekas)
+            Ku *= alpha
+            Ku += np.multiply(v, beta, out=a)
+            u *= alpha
+            u += np.multiply(z, beta, out=a)
+        np.add(Ku, d1, out=v)                                              # v: retina, data term inside only
+        inner = v[:, :H, :W]
+        inner *= keep
+        inner += t_scaled
+        np.add(u, d2, out=z)                                               # z: box inside, black outside
+        np.clip(z, 0.0, 1.0, out=z)
+        z[:, H:, :] = 0.0
+        z[:, :H, W:] = 0.0
+        d1 += Ku
+        d1 -= v
+        d2 += u
+        d2 -= z
         iterations = it
         if progress is not None:
             progress(it, max_iterations)
-        if it % 2 == 0 or it == max_iterations:         # the true objective at the feasible z, every 2nd step
-            Kz = _irfft2(_apply(Kf, _rfft2(z)), P)[:, :H, :W]
-            obj = float(np.sum((Kz - t_lms) ** 2, dtype=np.float64)) / n
-            previous = history[-1] if history else None
-            history.append(obj)
-            if tolerance > 0 and previous is not None and (previous - obj) <= tolerance * previous:
+        if track:                                                          # the objective at z
+            r = _irfft2(_matvec(Kf, _rfft2(z), KU, ctmp), P)[:, :H, :W] - t_lms
+            history.append(float(np.vdot(r, r)) / n)
+            if tolerance > 0 and len(history) > 1 and history[-2] - history[-1] <= tolerance * history[-2]:
                 break
-    return z[:, :H, :W], iterations, history, norm2, (d1[:, :H, :W], d2[:, :H, :W])
+    return z[:, :H, :W].copy(), iterations, history, norm2, (d1[:, :H, :W].copy(), d2[:, :H, :W].copy())
 
 
 def coarse_kernel(kernel: np.ndarray) -> np.ndarray:
@@ -149,23 +182,20 @@ def _upsample2(a: np.ndarray) -> np.ndarray:
     return axis(axis(a, 1), 2).astype(np.float32)
 
 
-def _coarse_to_fine(problem: Problem, kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray,
-                    levels: int, coarse_iterations: int, level_iterations: int, rho: float, relaxation: float,
+def _coarse_to_fine(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, levels: int, coarse_iterations: int,
+                    level_iterations: int, rho: float, relaxation: float,
                     balance: float, warm_start: bool
                     ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None, list[str]]:
     """Starting point at this resolution, primal and dual (see the module docstring)."""
-    import dataclasses
-
-    from .wiener import wiener
-
     H, W = t_lms.shape[1:]
     if levels > 0 and min(H, W) >= 64 and kernel.shape[-1] >= 9:
         Kc = coarse_kernel(kernel)
-        zc, dc, notes = _coarse_to_fine(problem, Kc, _pool2(target), _pool2(t_lms), levels - 1, coarse_iterations,
+        zc, dc, notes = _coarse_to_fine(Kc, _pool2(target), _pool2(t_lms), levels - 1, coarse_iterations,
                                         level_iterations, rho, relaxation, balance, warm_start)
-        deeper = bool(notes) and notes[-1] not in ("wiener", "target")
+        deeper = dc is not None
         its = level_iterations if deeper else coarse_iterations
-        zc, done, _, _, dc = _admm(Kc, _pool2(t_lms), zc, rho, relaxation, balance, its, 0.0, duals=dc)
+        zc, done, _, _, dc = _admm(Kc, _pool2(t_lms), zc, rho, relaxation, balance, its, 0.0, duals=dc,
+                                   track=False)
         notes.append(f"{done} ADMM iterations at {zc.shape[2]}x{zc.shape[1]}")
         H2, W2 = H // 2 * 2, W // 2 * 2
 
@@ -178,10 +208,35 @@ def _coarse_to_fine(problem: Problem, kernel: np.ndarray, target: np.ndarray, t_
         return np.clip(up(zc, target), 0.0, 1.0), (up(dc[0], zero), up(dc[1], zero)), notes
     if not warm_start:
         return target.copy(), None, ["target"]
-    sub = Problem(target=np.moveaxis(target, 0, 2), kernel=dataclasses.replace(problem.kernel, kernel=kernel),
-                  target_lms=np.moveaxis(t_lms, 0, 2))
-    x0, _ = wiener(sub, regularisation=(0.03,), design=False)
-    return np.ascontiguousarray(np.moveaxis(x0, 2, 0)), None, ["wiener"]
+    return _ridge_start(kernel, target, t_lms), None, ["regularised inverse blended with the target"]
+
+
+def _ridge_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, mu_rel: float = 0.03) -> np.ndarray:
+    """Closed-form start, as ``wiener`` builds it: the regularised inverse
+    ``(K^H K + mu I)^-1 K^H t`` of the cone target (``mu`` relative to ``||K||^2``) on a periodic
+    grid holding ``t`` mirror-filled around the image (one kernel width each side), clipped to
+    the box, then blended with the RGB target by the weight in [0, 1] that minimises the
+    objective (closed form), so the start is never worse than the target itself; float32."""
+    _, H, W = t_lms.shape
+    m = kernel.shape[-1]
+    Q = (scipy.fft.next_fast_len(H + 2 * m, real=True), scipy.fft.next_fast_len(W + 2 * m, real=True))
+    Kf = _rfft2(centred_kernel(kernel.astype(np.float32), Q)).astype(np.complex64)
+    M = gram(Kf)
+    mu = mu_rel * spectral_norm_squared(kernel)
+    for c in range(3):
+        M[c, c] += mu
+    G = inv3(M)
+    tmp = np.empty(Kf.shape[2:], np.complex64)
+    R = _matvec(np.conj(np.swapaxes(Kf, 0, 1)), _rfft2(mirror_fill(t_lms, Q, m)), np.empty_like(Kf[0]), tmp)
+    d = np.clip(_irfft2(_matvec(G, R, np.empty_like(R), tmp), Q)[:, m:m + H, m:m + W], 0.0, 1.0) - target
+
+    def blur(x: np.ndarray) -> np.ndarray:                    # K x with a black surround (Q > H + m)
+        return _irfft2(_matvec(Kf, scipy.fft.rfft2(x, s=Q, axes=(-2, -1), workers=-1), R, tmp), Q)[:, :H, :W]
+
+    r0, Kd = blur(target) - t_lms, blur(d)
+    denom = float(np.vdot(Kd, Kd))
+    beta = min(max(-float(np.vdot(r0, Kd)) / denom, 0.0), 1.0) if denom > 0 else 0.0
+    return (target + np.float32(beta) * d).astype(np.float32)
 
 
 def fast(problem: Problem, tolerance: float = 1e-2, max_iterations: int = 200, rho: float = 0.1,
@@ -194,7 +249,7 @@ def fast(problem: Problem, tolerance: float = 1e-2, max_iterations: int = 200, r
     K = problem.kernel.kernel
     t = np.ascontiguousarray(np.moveaxis(problem.target_lms, 2, 0), dtype=np.float32)
     target = np.ascontiguousarray(np.moveaxis(problem.target, 2, 0), dtype=np.float32)
-    z0, duals, notes = _coarse_to_fine(problem, K, target, t, levels, coarse_iterations, level_iterations,
+    z0, duals, notes = _coarse_to_fine(K, target, t, levels, coarse_iterations, level_iterations,
                                        rho, relaxation, balance, warm_start)
     z, iterations, history, norm2, _ = _admm(K, t, z0, rho, relaxation, balance, max_iterations, tolerance,
                                              progress, duals)
