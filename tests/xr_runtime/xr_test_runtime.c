@@ -705,10 +705,10 @@ static XrResult locate_views(XrHandle session, const XrViewLocateInfo *info, XrV
     if (info->displayTime <= 0) return XR_ERROR_TIME_INVALID;
     if (space_index(info->space) < 0) return XR_ERROR_HANDLE_INVALID;
     state->viewStateFlags = 0xF; /* orientation and position valid and tracked */
-    /* eyes 64 mm apart at 1.6 m, looking down -z; each eye's field wider on its outer side */
+    /* LOCAL space: eyes 64 mm apart about its origin, looking down -z; each field wider on its outer side */
     ENUMERATE(cap, count, 2, {
         float side = i == 0 ? -1.0f : 1.0f;
-        views[i].pose = (XrPosef){{0, 0, 0, 1}, {side * 0.032f, 1.6f, 0}};
+        views[i].pose = (XrPosef){{0, 0, 0, 1}, {side * 0.032f, 0, 0}};
         views[i].fov = i == 0 ? (XrFovf){-0.80f, 0.70f, 0.75f, -0.78f} : (XrFovf){-0.70f, 0.80f, 0.75f, -0.78f};
     });
 }

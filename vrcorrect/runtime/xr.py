@@ -391,7 +391,9 @@ class XrApp:
                                   "a display with the sRGB transfer (the real-time path encodes sRGB only)")
         self.spec = None if config.source == "screen" else parse_source(config.source)
         self.region = parse_region(config.region) if config.region is not None else None
-        self.xr = _xr()
+        self.xr = xr = _xr()
+        # a session or instance on its way out: pyopenxr raises the qualified success too
+        self._lost_errors = (xr.SessionLostError, xr.InstanceLostError, xr.SessionLossPending)
         self.tracker = SessionTracker()
         self.summary = XrRunSummary()
         self.instance = self.system_id = self.session = self.space = None
@@ -425,7 +427,7 @@ class XrApp:
         xr = self.xr
         try:
             return fn(*args)
-        except (xr.SessionLostError, xr.InstanceLostError):
+        except self._lost_errors:
             raise
         except xr.XrException as exc:
             raise XrSessionError(f"{what} failed: {type(exc).__name__}: {exc}") from None
@@ -594,7 +596,7 @@ class XrApp:
                 buffer = xr.poll_event(self.instance)
             except xr.EventUnavailable:
                 return None
-            except (xr.InstanceLostError, xr.SessionLostError):
+            except self._lost_errors:
                 return "lost"
             kind = xr.StructureType(buffer.type)
             if kind == xr.StructureType.EVENT_DATA_INSTANCE_LOSS_PENDING:
@@ -753,7 +755,7 @@ class XrApp:
             while True:
                 try:
                     outcome = self._poll_events()
-                except (xr.InstanceLostError, xr.SessionLostError):
+                except self._lost_errors:
                     outcome = "lost"
                 if outcome == "exit":
                     self.summary.reason = self._quit_reason or "runtime"
@@ -783,7 +785,7 @@ class XrApp:
                 if self.tracker.running:
                     try:
                         self._frame()
-                    except (xr.InstanceLostError, xr.SessionLostError):
+                    except self._lost_errors:
                         self.summary.reason = "session lost"
                         break
                     self._poll_files()
