@@ -53,6 +53,38 @@ def test_wiener_never_worse_than_no_correction(desktop, myope_kernel, name):
     assert w.image.min() >= 0 and w.image.max() <= 1
 
 
+@pytest.mark.parametrize("rx_key", ["myopia", "hyperopia", "myopic_astig", "hyperopic_astig", "mixed_astig"])
+def test_wiener_strictly_better_than_no_correction_on_every_evaluation_image(desktop, rx_key):
+    """The issue's guarantee for the closed form, on the evaluation set (photographs and the
+    binary charts where the clipped inverse alone gets blend weight 0) for the five problems."""
+    from vrcorrect.evaluate import PRESCRIPTIONS, bundled_images, prescription_eye
+
+    rx = next(r for r in PRESCRIPTIONS if r.key == rx_key)
+    k = build_kernel(prescription_eye(rx), desktop, INF)
+    for name, img in bundled_images(96):
+        p = make_problem(decode(desktop, img), k)
+        none = solve(p, "none").objective
+        w = solve(p, "wiener")
+        assert w.objective < (1 - 1e-3) * none, name
+        assert w.image.min() >= 0 and w.image.max() <= 1, name
+
+
+def test_best_blend_on_the_simplex_matches_a_grid_search():
+    from vrcorrect.solvers.wiener import _best_on_simplex
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        r0 = rng.normal(size=(3, 8, 8))
+        a, b = rng.normal(size=(2, 3, 8, 8))
+        a -= 0.3 * r0 * rng.random()
+        (w1, w2), value = _best_on_simplex(r0, [a, b])
+        assert w1 >= 0 and w2 >= 0 and w1 + w2 <= 1 + 1e-12
+        assert value == pytest.approx(np.sum((r0 + w1 * a + w2 * b) ** 2), rel=1e-9)
+        g = np.linspace(0, 1, 101)
+        grid = min(np.sum((r0 + x * a + y * b) ** 2) for x in g for y in g if x + y <= 1 + 1e-12)
+        assert value <= grid + 1e-9
+
+
 def test_fast_reaches_papers_objective(desktop, myope_kernel):
     target = decode(desktop, photo("astronaut", 96))
     p = make_problem(target, myope_kernel)

@@ -25,7 +25,8 @@ The regulariser and the blend weight are chosen once per eye, by the CPU
 ``wiener(problem, regularisation=(mu,), beta=beta, design=False, grid=..., margin=...)``
 on the CPU up to float32 with ``filter="fft"``, and ``wiener(problem,
 regularisation=(mu,), beta=beta)`` up to the bank's rank tolerance with
-``"separable"``).  All GPU objects are made at build time or
+``"separable"``; the GPU blends along the regularised inverse only, as ``wiener`` with
+``descent=False``: the CPU method's extra projected-gradient direction is not computed here).  All GPU objects are made at build time or
 on the first frame of a given size; later frames allocate nothing.  ``poll()``
 reloads the prescription file when it changes on disk and keeps the last good
 state (with a message in ``status``) when the new file is invalid.
@@ -187,7 +188,7 @@ def build_eye_model(eye_rx, display, options: CorrectorOptions = CorrectorOption
         return identity("the eye sees as well as with its glasses (nothing to correct)")
     problem = make_problem(_sample_target(options.choice_size), kernel, reference)
     _, settings = wiener(problem, regularisation=options.regularisation, beta=options.beta,
-                         tolerance=options.design_tolerance, design=separable)
+                         tolerance=options.design_tolerance, design=separable, descent=False)
     mu = settings.get("mu_rel") or options.regularisation[0]
     beta = float(settings["beta"]) if settings.get("mu_rel") is not None else 0.0
     notes.append(f"regulariser {mu:g} and blend {beta:.3f} chosen by wiener on the sample image")

@@ -32,6 +32,7 @@ from ..kernel import EyeKernel
 from . import Problem
 
 DEFAULT_REGULARISATION = (0.03, 0.1, 0.3)
+DESCENT_STEP = 4.0
 MAX_DESIGN_GRID = 2048
 DESIGN_TOLERANCE = 1e-3       # largest discarded absolute sum of the filters of one output primary
 
@@ -288,11 +289,47 @@ class _FastObjective:
         y = y[:, :self.H, :self.W]
         return y - self.t if offset else y
 
+    def adjoint(self, r: np.ndarray) -> np.ndarray:
+        """``K^H C^H r``: the residual (3 cones, H, W) back on the image's primaries (3, H, W)."""
+        R = scipy.fft.rfft2(r, s=self.P, axes=(1, 2), workers=-1)
+        y = scipy.fft.irfft2(apply3(np.conj(np.swapaxes(self.Kf, 0, 1)), R), s=self.P, axes=(1, 2), workers=-1)
+        return y[:, :self.H, :self.W]
+
+
+def _best_on_simplex(r0: np.ndarray, dirs: list[np.ndarray]) -> tuple[list[float], float]:
+    """Minimise ``||r0 + sum_i b_i a_i||^2`` over ``b_i >= 0``, ``sum b_i <= 1`` for one or two
+    directions ``a_i`` (closed form: the convex quadratic's minimum is the interior stationary
+    point or lies on an edge, each a clipped 1-D solve); returns (weights, objective sum)."""
+    c = np.array([float(np.sum(r0 * a)) for a in dirs])
+    A = np.array([[float(np.sum(a * b)) for b in dirs] for a in dirs])
+    base = float(np.sum(r0 * r0))
+
+    def value(b: np.ndarray) -> float:
+        return base + 2.0 * float(c @ b) + float(b @ A @ b)
+
+    def line(p: np.ndarray, q: np.ndarray) -> np.ndarray:           # best point on segment p..q
+        d = q - p
+        curv = float(d @ A @ d)
+        s = 0.0 if curv <= 0 else float(np.clip(-(c @ d + p @ A @ d) / curv, 0.0, 1.0))
+        return p + s * d
+
+    n = len(dirs)
+    vertices = [np.zeros(n)] + [np.eye(n)[i] for i in range(n)]
+    candidates = [line(vertices[0], v) for v in vertices[1:]]
+    if n == 2:
+        candidates.append(line(vertices[1], vertices[2]))
+        if abs(np.linalg.det(A)) > 1e-12 * max(A[0, 0] * A[1, 1], 1e-300):
+            b = np.linalg.solve(A, -c)
+            if b.min() >= 0 and b.sum() <= 1:
+                candidates.append(b)
+    best = min(candidates, key=value)
+    return [float(x) for x in best], value(best)
+
 
 def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARISATION,
            beta: float | None = None, tolerance: float = DESIGN_TOLERANCE,
            design: bool = True, grid: tuple[int, int] | None = None,
-           margin: int | None = None) -> tuple[np.ndarray, dict]:
+           margin: int | None = None, descent: bool = True) -> tuple[np.ndarray, dict]:
     """Best blend of the target and the clipped regularised inverse; returns (image, settings).
 
     For each ``mu_rel`` in ``regularisation``: ``v = F t'`` (:func:`correction_filters`,
@@ -305,6 +342,15 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
     mirror-filled FFT grid (cheaper for one image; ``fast`` warm-starts with it; the real-time
     FFT path computes it on the GPU: ``grid`` and ``margin`` give its grid, see
     :func:`_exact_inverse_image`).
+
+    ``descent`` (with automatic ``beta``) adds a second direction: one projected-gradient step
+    from the target, ``g = clip(t - s K^H (K t - t_lms)) - t`` (step ``s`` = 4 / ||K||^2).  It
+    is a descent direction whenever the target is not already optimal in the box, so the best
+    blend ``x = t + b1 (clip(v) - t) + b2 g`` (``b1, b2 >= 0``, ``b1 + b2 <= 1``: a convex
+    combination of three images in [0, 1], solved in closed form) is *strictly* below no
+    correction, also where the inverse alone clips so hard that its own blend weight is 0
+    (binary charts, strong prescriptions).  The real-time path blends along the inverse only
+    (``descent=False``: one weight per frame, computed on the GPU).
     """
     from . import scale_contrast
 
@@ -321,6 +367,11 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
     t_in = np.moveaxis(scale_contrast(problem.target, problem.contrast), 2, 0)
     r0 = f.residual(t_rgb)
     best = (float(np.mean(r0 * r0)), t_rgb, {"chosen": "no correction", "beta": 0.0, "mu_rel": None})
+    step_dir = step_K = None
+    if descent and beta is None:
+        s = DESCENT_STEP / spectral_norm_squared(problem.kernel.kernel)
+        step_dir = np.clip(t_rgb - s * f.adjoint(r0), 0.0, 1.0) - t_rgb
+        step_K = f.residual(step_dir, offset=False)
     tried = []
     for mu_rel in regularisation:
         if design:
@@ -333,19 +384,25 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
             size, tail = None, 0.0
         d = np.clip(v, 0.0, 1.0) - t_rgb
         Kd = f.residual(d, offset=False)
-        if beta is None:
-            denom = float(np.sum(Kd * Kd))
-            b = float(np.clip(-np.sum(r0 * Kd) / denom, 0.0, 1.0)) if denom > 0 else 0.0
-        else:
+        b2 = 0.0
+        if beta is not None:
             b = float(beta)
+        elif step_dir is not None:
+            (b, b2), _ = _best_on_simplex(r0, [Kd, step_K])
+        else:
+            (b,), _ = _best_on_simplex(r0, [Kd])
         x = t_rgb + b * d
         res = r0 + b * Kd
+        if b2 > 0:
+            x = x + b2 * step_dir
+            res = res + b2 * step_K
         obj = float(np.mean(res * res))
-        tried.append({"mu_rel": mu_rel, "beta": b, "objective": obj, "filter_size": size,
+        tried.append({"mu_rel": mu_rel, "beta": b, "descent_weight": b2, "objective": obj, "filter_size": size,
                       "clipped_fraction": float(np.mean((v < 0) | (v > 1)))})
         if obj < best[0] or beta is not None:
-            best = (obj, x, {"chosen": "blend of target and clipped regularised inverse", "beta": b,
-                             "mu_rel": mu_rel, "filter_size": size, "filter_tail": tail})
+            best = (obj, x, {"chosen": "blend of target and clipped regularised inverse"
+                             + (" and a projected-gradient step" if b2 > 0 else ""), "beta": b,
+                             "descent_weight": b2, "mu_rel": mu_rel, "filter_size": size, "filter_tail": tail})
     settings = dict(best[2])
     settings["candidates"] = tried
     return np.clip(np.moveaxis(best[1], 0, 2), 0.0, 1.0).astype(np.float32), settings
