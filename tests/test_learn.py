@@ -373,3 +373,94 @@ def test_loss_of_an_eye_in_focus_stays_bounded():
     assert float(loss) < 1e-6                                      # FFT round-off only
     loss, ratio, dratio = loss_terms((t + 1e-3).clamp(0, 1), batch, 0.2)
     assert 0 < float(loss) < 2.0
+
+
+# --------------------------------------------------------------------------
+# Use: vrcorrect correct --method learned, and the renderer's ONNX slot
+# --------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def tiny_onnx(perturbed_checkpoint, tmp_path_factory) -> Path:
+    from vrcorrect.learn.export import export_onnx
+
+    path = tmp_path_factory.mktemp("learn") / "tiny.onnx"
+    export_onnx(perturbed_checkpoint, path)
+    return path
+
+
+def _rx_file(path: Path, right: tuple, left: tuple) -> Path:
+    def eye(s, c, a):
+        return {"sphere_D": s, "cylinder_D": c, "axis_deg": a, "pupil_diameter_mm": 2.5}
+    path.write_text(json.dumps({"schema": "vrcorrect.prescription/1", "right": eye(*right), "left": eye(*left)}))
+    return path
+
+
+def test_correct_with_the_learned_method(tiny_onnx, tmp_path, capsys):
+    """The command runs the model bound to the eye and reports it; the written image equals the
+    runtime's own inference; an eye outside the trained range is refused in one line that names
+    the range and the alternatives; --model without --method learned is refused."""
+    from vrcorrect.cli import main
+    from vrcorrect.display import decode, get_display
+    from vrcorrect.imageio import read_image, write_png
+    from vrcorrect.kernel import KernelOptions, build_kernel, build_reference_kernel
+    from vrcorrect.runtime.learned import LearnedModel
+
+    src = tmp_path / "in.png"
+    write_png(src, siemens_star(40))
+    rx = _rx_file(tmp_path / "rx.json", (-1.0, -0.25, 30.0), (-3.0, 0.0, 0.0))
+    out, report = tmp_path / "out.png", tmp_path / "r.json"
+    args = ["correct", str(src), "-o", str(out), "--rx", str(rx), "--display", "quest2", "--method", "learned",
+            "--model", str(tiny_onnx), "--wavelength-step-nm", "40"]
+    assert main(args + ["--report", str(report)]) == 0
+    doc = json.loads(report.read_text())
+    assert doc["method"] == "learned" and doc["settings"]["model"] == str(tiny_onnx)
+    assert doc["settings"]["ranges"] == TINY_RANGES.as_dict()
+    display = get_display("quest2")
+    eye = EyeRx(-1.0, -0.25, 30.0, 2.5)
+    opts = KernelOptions(wavelength_step_nm=40)
+    bound = LearnedModel(tiny_onnx).for_eye(eye, display, build_kernel(eye, display, opts),
+                                            build_reference_kernel(eye, display, opts))
+    expected = bound.infer(np.ascontiguousarray(np.moveaxis(decode(display, read_image(src)), 2, 0)))
+    written = decode(display, read_image(out))
+    assert np.abs(np.moveaxis(written, 2, 0) - expected).max() < 2.5 / 255     # 8-bit quantisation
+    capsys.readouterr()
+    assert main(args[:-2] + ["--eye", "left", "-o", str(tmp_path / "left.png")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "-1.5 to -0.5 D" in err[0] and "wiener or fast" in err[0]
+    assert not (tmp_path / "left.png").exists()
+    assert main(["correct", str(src), "-o", str(tmp_path / "x.png"), "--model", str(tiny_onnx)]) == 2
+    assert "only with --method learned" in capsys.readouterr().err
+
+
+def test_renderer_onnx_backend_runs_the_learned_model_per_eye(gl, tiny_onnx, tmp_path):
+    """The Corrector binds the learned model to its own eye: the frame equals the runtime's
+    inference for that eye (read back, infer, upload, sRGB), each eye gets its own result,
+    and moving the eye out of the trained range is refused with the last state kept."""
+    from vrcorrect.display import decode, encode
+    from vrcorrect.runtime import gl as G
+    from vrcorrect.runtime.corrector import Corrector
+
+    rx = _rx_file(tmp_path / "rx.json", (-1.0, -0.25, 30.0), (-0.6, -0.5, 120.0))
+    img = np.round(siemens_star(40) * 255).astype(np.uint8)
+    outs = {}
+    for side in ("right", "left"):
+        c = Corrector(gl, str(rx), "quest2", side, backend="onnx", model=str(tiny_onnx))
+        try:
+            src = G.upload_texture(gl, img)
+            tex, fbo = G.render_target(gl, width=40, height=40)
+            c.apply(src, fbo)
+            outs[side] = G.read_framebuffer(fbo)
+            G.release(fbo, tex, src)
+            linear = np.moveaxis(decode("srgb", img.astype(np.float32) / 255), 2, 0)
+            expected = np.round(np.clip(encode("srgb", np.moveaxis(c._onnx.infer(linear), 0, 2)), 0, 1) * 255)
+            assert np.abs(outs[side].astype(int) - expected.astype(int)).max() <= 1, side
+            assert c._onnx.eye.sphere_D == c.eye_rx.sphere_D
+            with pytest.raises(ValidationError, match="wiener or fast"):
+                c.adjust(sphere_D=-3.0)
+            assert c.eye_rx.sphere_D == pytest.approx(-1.0 if side == "right" else -0.6)
+        finally:
+            c.release()
+    assert np.abs(outs["right"].astype(int) - outs["left"].astype(int)).max() > 2
+    with pytest.raises(ValidationError, match="-1.5 to -0.5 D"):
+        Corrector(gl, str(_rx_file(tmp_path / "far.json", (-4.0, 0.0, 0.0), (-1.0, 0.0, 0.0))), "quest2",
+                  "right", backend="onnx", model=str(tiny_onnx))

@@ -16,7 +16,9 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from .errors import ValidationError, VrcorrectError
+import numpy as np
+
+from .errors import InputError, ValidationError, VrcorrectError
 
 EXIT_USAGE = 2
 EXIT_INTERNAL = 3
@@ -136,8 +138,11 @@ def cmd_correct(args: argparse.Namespace) -> int:
             raise ValidationError("--tolerance", args.tolerance, "only with --method fast or conventional")
         if not (0.0 <= args.tolerance < 1.0):
             raise ValidationError("--tolerance", args.tolerance, "a number from 0 to 1")
-    if args.iterations is not None and args.method == "wiener":
-        raise ValidationError("--iterations", args.iterations, "nothing: wiener is closed-form")
+    if args.iterations is not None and args.method in ("wiener", "learned"):
+        raise ValidationError("--iterations", args.iterations, f"nothing: {args.method} is one pass")
+    if args.model is not None and args.method != "learned":
+        raise ValidationError("--model", args.model, "only with --method learned")
+    learned = _learned_model(args) if args.method == "learned" else None
     rx_path, eye = _load_eye(args)
     display = get_display(args.display)
     image = read_image(args.input)
@@ -163,7 +168,10 @@ def cmd_correct(args: argparse.Namespace) -> int:
             bar.n = done
             bar.refresh()
     try:
-        result = solve(problem, args.method, progress=progress, **options)
+        if learned is not None:
+            result = _solve_learned(learned, problem, eye, display, kernel, reference)
+        else:
+            result = solve(problem, args.method, progress=progress, **options)
     finally:
         if bar is not None:
             bar.close()
@@ -185,6 +193,39 @@ def cmd_correct(args: argparse.Namespace) -> int:
           f"(objective {result.objective:.3g}, {result.iterations} iterations, {result.seconds:.2f} s)"
           + (f"; report {args.report}" if args.report else ""))
     return 0
+
+
+DEFAULT_MODEL = Path(__file__).resolve().parent.parent / "models" / "default.onnx"
+
+
+def _learned_model(args: argparse.Namespace):
+    """The learned model of ``--model`` (default: the shipped one), its reference checked."""
+    from .runtime.learned import LearnedModel
+
+    path = Path(args.model) if args.model else DEFAULT_MODEL
+    if args.model is None and not path.is_file():
+        raise InputError(f"no default learned model is installed ({path}); pass --model PATH "
+                         "(a model exported by tools/export_onnx.py), or use --method wiener or fast")
+    model = LearnedModel(path)
+    if model.reference != args.reference:
+        raise ValidationError("--reference", args.reference, f"{model.reference} (the target {path.name} was "
+                              "trained for)")
+    return model
+
+
+def _solve_learned(model, problem, eye, display, kernel, reference):
+    """``--method learned``: the model bound to this eye (refused outside its range), one pass."""
+    from .solvers import SolveResult, objective
+
+    bound = model.for_eye(eye, display, kernel, reference)
+    t0 = time.perf_counter()
+    chw = bound.infer(np.ascontiguousarray(np.moveaxis(problem.target, 2, 0)))
+    seconds = time.perf_counter() - t0
+    image = np.ascontiguousarray(np.moveaxis(chw, 0, 2))
+    settings = {"model": str(model.path), "providers": list(model.providers),
+                "ranges": model.ranges.as_dict(), "version": model.metadata.get("vrcorrect.version")}
+    return SolveResult(image=image, method="learned", seconds=seconds, iterations=0,
+                       objective=objective(image, problem), settings=settings)
 
 
 # ---------------------------------------------------------------- psf
@@ -388,8 +429,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from .bench_render import run_render_bench
 
         print(run_render_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
+    elif args.what == "xr":
+        from .bench_xr import run_xr_bench
+
+        print(run_xr_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     else:
-        raise ValidationError("bench", args.what, "kernel, solvers or render")
+        raise ValidationError("bench", args.what, "kernel, solvers, render or xr")
     return 0
 
 
@@ -435,8 +480,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("input", metavar="IN", help="image file (sRGB code values)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.png")
     _add_model_options(p)
-    p.add_argument("--method", choices=("conventional", "paper", "fast", "wiener"), default="fast",
+    p.add_argument("--method", choices=("conventional", "paper", "fast", "wiener", "learned"), default="fast",
                    help="correction method (default fast)")
+    p.add_argument("--model", metavar="MODEL.onnx",
+                   help="learned: the exported model (default: models/default.onnx when shipped)")
     p.add_argument("--iterations", type=int, help="iterations (paper) or iteration limit (fast, conventional)")
     p.add_argument("--tolerance", type=float, help="fast, conventional: relative stopping tolerance")
     p.add_argument("--contrast", type=float, default=1.0, help="scale the target's contrast (0, 1] (default 1)")
@@ -513,7 +560,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_xr_parser(sub)
 
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md")
-    p.add_argument("what", choices=("kernel", "solvers", "render"), help="what to measure")
+    p.add_argument("what", choices=("kernel", "solvers", "render", "xr"), help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
     p.add_argument("--resolutions", nargs="+", metavar="R",
                    help="solvers: image sizes to sweep (256 512 1024 1832x1920; default all)")

@@ -367,12 +367,17 @@ class Corrector:
         self._present = compile_program(ctx, "passthrough.glsl", defines={"ENCODE_SRGB": None})
         self._present_vao = fullscreen_triangle(ctx, self._present)
         self._onnx = None
+        self._learned = None
         if backend == "onnx":
+            from .learned import LearnedModel, is_learned_model
             from .onnx_backend import OnnxModel
 
             if not self.options.model:
                 raise ValidationError("model", None, "an ONNX model path for backend 'onnx'")
-            self._onnx = OnnxModel(self.options.model)
+            if is_learned_model(self.options.model):        # one model for many eyes: bound per eye
+                self._learned = LearnedModel(self.options.model)
+            else:
+                self._onnx = OnnxModel(self.options.model)
         self._banks: tuple[_BankGL, _BankGL] | None = None
         self.model: EyeModel | None = None
         self._rebuild(self.prescription.eye(eye))
@@ -392,6 +397,11 @@ class Corrector:
 
     def _rebuild(self, base_eye) -> None:
         model = build_eye_model(self._with_offset(base_eye), self.display, self.options)
+        if self._learned is not None:               # refuses an eye outside the trained range
+            bound = self._learned.for_eye(model.eye, self.display, model.kernel, model.reference)
+            if self._onnx is not None:
+                self._onnx.release()
+            self._onnx = bound
         banks = None
         if self.options.filter == "separable":
             banks = (_BankGL(self.ctx, "correction.glsl", model.correction, "mirror"),

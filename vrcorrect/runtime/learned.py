@@ -23,10 +23,8 @@ This module is that contract's runtime side, backwards compatible with the slot:
   channels are computed here with numpy (the ``wiener`` method's filters, designed once per
   eye; on the GPU path they are the GLSL fallback's own pass).
 
-The change the slot needs (not made here: ``onnx_backend.py``/``corrector.py`` are
-another session's): ``OnnxModel`` should, when :func:`is_learned_model` is true, wrap a
-:class:`LearnedEye` for the Corrector's eye instead of refusing a model with three inputs,
-and feed its ``run`` from ``infer`` (read back, flip, infer, flip, upload) unchanged.
+The Corrector's ``onnx`` backend binds such a model to its eye (:meth:`LearnedModel.for_eye`,
+again at every prescription change) and runs :meth:`LearnedEye.run` in the slot.
 """
 
 from __future__ import annotations
@@ -119,6 +117,7 @@ class LearnedEye:
     def __init__(self, model: LearnedModel, eye: EyeRx, kernel, reference_kernel):
         self.model, self.eye, self.kernel, self.reference_kernel = model, eye, kernel, reference_kernel
         self.features = eye_features(eye, model.ranges)[None]
+        self._buffers: dict[tuple[int, int], np.ndarray] = {}
 
     def precorrected(self, image_chw: np.ndarray) -> np.ndarray:
         """The pre-correction channels ``(3, H, W)`` the model is fed with."""
@@ -134,3 +133,12 @@ class LearnedEye:
         feeds = {"image": x[None], "precorrected": self.precorrected(x)[None], "eye": self.features}
         out = self.model.session.run(None, feeds)[0]
         return np.clip(out[0], 0.0, 1.0).astype(np.float32, copy=False)
+
+    def run(self, src_texture, dst_texture) -> None:
+        """The ONNX slot's frame (rgba32f textures, GL orientation): see :func:`run_slot`."""
+        from .onnx_backend import run_slot
+
+        run_slot(self.infer, self._buffers, src_texture, dst_texture)
+
+    def release(self) -> None:
+        self._buffers.clear()

@@ -6,6 +6,9 @@ The model contract (what the learned model of the U-Net issue exports):
   [0, 1], rows top first (image orientation);
 * one output of the same shape: the linear RGB to display (clipped to [0, 1] here).
 
+The learned model (:mod:`vrcorrect.runtime.learned`: three inputs, the eye among them) goes
+through the same slot (:func:`run_slot`) bound to the Corrector's eye.
+
 ``OnnxModel.run(src, dst)`` takes and fills rgba32f textures in GL orientation: it
 reads ``src`` back, flips it to image orientation, runs the session on the CPU
 provider (or CUDA where onnxruntime has it), flips back and writes ``dst``.  The
@@ -22,7 +25,7 @@ import numpy as np
 
 from ..errors import InputError, ValidationError
 
-__all__ = ["OnnxModel", "write_one_minus_x_model"]
+__all__ = ["OnnxModel", "run_slot", "write_one_minus_x_model"]
 
 
 class OnnxModel:
@@ -67,19 +70,25 @@ class OnnxModel:
 
     def run(self, src_texture, dst_texture) -> None:
         """rgba32f ``src`` -> model -> rgba32f ``dst`` (same size, GL orientation)."""
-        W, H = src_texture.size
-        buf = self._buffers.get((W, H))
-        if buf is None:
-            buf = self._buffers[(W, H)] = np.empty((H, W, 4), np.float32)
-        src_texture.read_into(buf)
-        chw = np.ascontiguousarray(buf[::-1, :, :3].transpose(2, 0, 1))        # image orientation
-        out = self.infer(chw)
-        buf[..., :3] = out.transpose(1, 2, 0)[::-1]
-        buf[..., 3] = 1.0
-        dst_texture.write(buf)
+        run_slot(self.infer, self._buffers, src_texture, dst_texture)
 
     def release(self) -> None:
         self._buffers.clear()
+
+
+def run_slot(infer, buffers: dict[tuple[int, int], np.ndarray], src_texture, dst_texture) -> None:
+    """The slot's frame: read the rgba32f ``src`` back, flip it to image orientation, ``infer``
+    ``(3, H, W) -> (3, H, W)``, flip back and write ``dst``; one buffer per size in ``buffers``."""
+    W, H = src_texture.size
+    buf = buffers.get((W, H))
+    if buf is None:
+        buf = buffers[(W, H)] = np.empty((H, W, 4), np.float32)
+    src_texture.read_into(buf)
+    chw = np.ascontiguousarray(buf[::-1, :, :3].transpose(2, 0, 1))            # image orientation
+    out = infer(chw)
+    buf[..., :3] = out.transpose(1, 2, 0)[::-1]
+    buf[..., 3] = 1.0
+    dst_texture.write(buf)
 
 
 def write_one_minus_x_model(path: str | Path) -> None:
