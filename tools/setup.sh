@@ -14,11 +14,13 @@ fi
 # the llvmpipe software rasteriser (moderngl's headless context: libEGL.so.1 + libEGL_mesa,
 # libGL.so.1 + libGLX_mesa, swrast_dri.so), and Xvfb with the X libraries the glfw wheel's
 # libglfw.so loads at run time (X11, X11-xcb, Xext, Xrender, Xrandr, Xinerama, Xcursor, Xi,
-# Xxf86vm). One dpkg-query for all of them, so a set-up that changed nothing stays quick.
+# Xxf86vm); gcc and libc6-dev: the headset tests compile a small OpenXR runtime (tests/xr_runtime/).
+# One dpkg-query for all of them, so a set-up that changed nothing stays quick.
 need_apt=()
 "$PY" -c 'import ensurepip, venv' 2>/dev/null || need_apt+=(python3-venv)
 gl_debs=(libegl1 libegl-mesa0 libgl1 libglx-mesa0 libgl1-mesa-dri xvfb
-         libx11-6 libx11-xcb1 libxext6 libxrender1 libxrandr2 libxinerama1 libxcursor1 libxi6 libxxf86vm1)
+         libx11-6 libx11-xcb1 libxext6 libxrender1 libxrandr2 libxinerama1 libxcursor1 libxi6 libxxf86vm1
+         gcc libc6-dev)
 if command -v dpkg-query >/dev/null; then
   have=$(dpkg-query -W -f='${Package} ${db:Status-Abbrev}\n' "${gl_debs[@]}" 2>/dev/null | awk '$2 == "ii" {print $1}' || true)
   for p in "${gl_debs[@]}"; do
@@ -49,7 +51,7 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   # torch==2.13.0 (CPU build) is pinned in the 'solve' extra: pip takes it from this machine's disk.
   .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[solve,metrics,test,realtime]" 2>&1 \
     | grep -v -e "^WARNING: Location" -e "BuildBackendWarning" || true
-  .venv/bin/python -c "import vrcorrect, numpy, scipy, colour, PIL, torch, pytest, hypothesis, moderngl, glfw, onnxruntime, onnx, imageio_ffmpeg, mss" \
+  .venv/bin/python -c "import vrcorrect, numpy, scipy, colour, PIL, torch, pytest, hypothesis, moderngl, glfw, onnxruntime, onnx, imageio_ffmpeg, mss, xr" \
     || { echo "installation failed" >&2; exit 1; }
   echo "$want" > "$stamp"
 fi

@@ -74,6 +74,7 @@ display), ``begin``, ``locate``, ``acquire`` (acquire + wait for both swapchain 
 ``release`` and ``end`` (``xrEndFrame``) are CPU time; the others have GPU time too.
 ``convert`` runs only with ``GL_RGBA8`` swapchains; ``mirror`` only with ``--mirror``."""
 _CPU_ONLY = ("wait", "begin", "locate", "acquire", "release", "end")
+_GPU_TIMER_WRAP_MS = 2 ** 32 / 1e6
 
 
 class XrUnavailableError(VrcorrectError, RuntimeError):
@@ -407,6 +408,8 @@ class XrApp:
         self._exit_requested_at: float | None = None
         self._last_poll = 0.0
         self._first_display_time: int | None = None
+        self._rendered_pending = False
+        self._status: dict[str, str] = {}
         try:
             self._create_instance()
             self._open_window()
@@ -638,6 +641,7 @@ class XrApp:
 
     def _frame(self) -> None:
         xr, ctx, times = self.xr, self.ctx, self._times
+        self._collect_times()  # the previous frame's GPU times: ready by now, nothing waits
         t_frame = time.perf_counter()
         with times.stage("wait"):
             frame_state = self._call("xrWaitFrame", xr.wait_frame, self.session)
@@ -705,13 +709,21 @@ class XrApp:
                 self._glfw_session.glfw.swap_buffers(self.window)
             self.summary.frames += 1
             self.summary.frame_ms.append(1e3 * (time.perf_counter() - t_frame))
-            for name, value in times.collect().items():
-                self.summary.stage_ms.setdefault(name, []).append(value)
+            self._rendered_pending = True
             frames = self.config.frames
             if frames is not None and self.summary.frames >= frames:
                 self.request_quit("frames")
-        else:
-            times.collect()
+
+    def _collect_times(self) -> None:
+        """Collect the last frame's stage times into the summary when it was rendered."""
+        values = self._times.collect()
+        # moderngl reads GL_TIME_ELAPSED as 32-bit nanoseconds: 4.29 s and more wraps (llvmpipe, big eyes)
+        values = {k: (None if g is not None and g >= _GPU_TIMER_WRAP_MS * 0.999 else g, c)
+                  for k, (g, c) in values.items()}
+        if self._rendered_pending:
+            for name, value in values.items():
+                self.summary.stage_ms.setdefault(name, []).append(value)
+        self._rendered_pending = False
 
     def _draw_mirror(self, textures: Sequence[Any]) -> None:
         import moderngl
@@ -739,8 +751,9 @@ class XrApp:
         for eye, corrector in self.correctors.items():
             if corrector.poll():
                 self._say(f"{self.rx_path.name} reloaded: {eye} eye rebuilt")
-            elif corrector.status:
-                pass
+            elif corrector.status and corrector.status != self._status.get(eye):
+                self._say(f"{eye} eye: {corrector.status}")  # e.g. an invalid edit: the last good Rx is kept
+            self._status[eye] = corrector.status
 
     def run(self, *, handle_sigint: bool = True) -> XrRunSummary:
         """Run the session until it ends (see the module docstring); returns the summary."""
@@ -796,6 +809,8 @@ class XrApp:
             if previous is not None:
                 signal.signal(signal.SIGINT, previous)
             self.summary.states = list(self.tracker.history)
+            if self._times is not None and self.ctx is not None:
+                self._collect_times()
         return self.summary
 
     # ------------------------------------------------------------ tear-down
