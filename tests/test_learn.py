@@ -464,3 +464,14 @@ def test_renderer_onnx_backend_runs_the_learned_model_per_eye(gl, tiny_onnx, tmp
     with pytest.raises(ValidationError, match="-1.5 to -0.5 D"):
         Corrector(gl, str(_rx_file(tmp_path / "far.json", (-4.0, 0.0, 0.0), (-1.0, 0.0, 0.0))), "quest2",
                   "right", backend="onnx", model=str(tiny_onnx))
+
+
+def test_crops_per_eye_share_the_eye_and_nothing_else():
+    config = tiny_config(samples=8, crops_per_eye=4)
+    shapes = [(48, 48), (48, 40)]
+    specs = [sample_spec(config, shapes, i) for i in range(8)]
+    eyes = [(s.sphere_D, s.cylinder_D, s.axis_deg, s.pupil_diameter_mm) for s in specs]
+    assert eyes[0] == eyes[1] == eyes[2] == eyes[3] and eyes[4] == eyes[7] and eyes[0] != eyes[4]
+    assert len({(s.image, s.y, s.x) for s in specs}) > 4
+    with pytest.raises(ValidationError, match="crops_per_eye"):
+        tiny_config(crops_per_eye=0)

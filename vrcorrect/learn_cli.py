@@ -33,7 +33,7 @@ def cmd_dataset(args: argparse.Namespace) -> int:
                             pupil_diameter_mm=_pair("--pupil-mm", args.pupil_mm, d.pupil_diameter_mm))
     config = DatasetConfig(samples=args.samples, crop_px=args.crop_px, seed=args.seed, ranges=ranges,
                            display=args.display, samples_per_shard=args.samples_per_shard,
-                           wavelength_step_nm=args.wavelength_step_nm)
+                           wavelength_step_nm=args.wavelength_step_nm, crops_per_eye=args.crops_per_eye)
     check_ray(args.ray)             # before loading any image
     if args.crop_px > args.image_px:
         raise ValidationError("--crop-px", args.crop_px, f"at most --image-px ({args.image_px})")
@@ -78,6 +78,8 @@ def add_parser(sub) -> None:
     p.add_argument("--axis-deg", type=float, nargs=2, metavar=("LOW", "HIGH"), help="axis range (0 180)")
     p.add_argument("--pupil-mm", type=float, nargs=2, metavar=("LOW", "HIGH"), help="pupil range (2 6)")
     p.add_argument("--samples-per-shard", type=int, default=32, help="samples per .npz shard (32)")
+    p.add_argument("--crops-per-eye", type=int, default=1,
+                   help="consecutive samples sharing one sampled eye (kernels built once per eye; default 1)")
     p.add_argument("--wavelength-step-nm", type=int, choices=(80, 40, 20, 10, 5, 1),
                    help="force the kernels' wavelength step (default: chosen per eye)")
     p.add_argument("--workers", type=int, help="local processes (default: one per CPU core)")
