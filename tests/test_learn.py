@@ -475,3 +475,23 @@ def test_crops_per_eye_share_the_eye_and_nothing_else():
     assert len({(s.image, s.y, s.x) for s in specs}) > 4
     with pytest.raises(ValidationError, match="crops_per_eye"):
         tiny_config(crops_per_eye=0)
+
+
+def test_bench_learned_scores_a_model_on_held_out_data(tiny_onnx, tmp_path):
+    """The benchmark's accounting (not its timings): per case the gap share is computed from the
+    objectives it reports, the held-out eyes lie in the model's ranges, and the card is written."""
+    from vrcorrect.bench_learned import held_out_eyes, run_learned_bench
+    from vrcorrect.learn.conditioning import check_eye
+
+    out, card = tmp_path / "bench.md", tmp_path / "card.md"
+    r = run_learned_bench(tiny_onnx, out=out, card=card, images=("rocket",), eyes=2, size=48, repeats=1,
+                          progress=False, speed_sizes=((48, 48), (32, 40)))
+    assert len(r["cases"]) == 2
+    for c in r["cases"]:
+        expected = (c["objective_none"] - c["objective_learned"]) / (c["objective_none"] - c["objective_fast"])
+        assert c["gap_closed"] == pytest.approx(expected)
+        assert c["objective_fast"] < c["objective_none"]
+    for e in held_out_eyes(TINY_RANGES, 4):
+        check_eye(e, TINY_RANGES)
+    assert "<!-- bench:learned -->" in out.read_text() and "48x48" in r["markdown"] and "40x32" in r["markdown"]
+    assert "Model card" in card.read_text() and TINY_RANGES.describe() in card.read_text()

@@ -433,8 +433,18 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from .bench_xr import run_xr_bench
 
         print(run_xr_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
+    elif args.what == "learned":
+        from .bench_learned import run_learned_bench
+
+        path = Path(args.model) if args.model else DEFAULT_MODEL
+        if not path.is_file():
+            raise InputError(f"{path}: no such model; pass --model PATH (a model exported by tools/export_onnx.py)")
+        if args.eyes < 1:
+            raise ValidationError("--eyes", args.eyes, "at least 1")
+        print(run_learned_bench(path, out=Path(args.out), card=Path(args.card) if args.card else None,
+                                eyes=args.eyes, repeats=max(args.repeats, 3), write=not args.no_write)["markdown"])
     else:
-        raise ValidationError("bench", args.what, "kernel, solvers, render or xr")
+        raise ValidationError("bench", args.what, "kernel, solvers, render, xr or learned")
     return 0
 
 
@@ -560,12 +570,15 @@ def build_parser() -> argparse.ArgumentParser:
     add_xr_parser(sub)
 
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md")
-    p.add_argument("what", choices=("kernel", "solvers", "render", "xr"), help="what to measure")
+    p.add_argument("what", choices=("kernel", "solvers", "render", "xr", "learned"), help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
     p.add_argument("--resolutions", nargs="+", metavar="R",
                    help="solvers: image sizes to sweep (256 512 1024 1832x1920; default all)")
     p.add_argument("--out", default="docs/benchmarks.md", help="benchmarks file to update")
     p.add_argument("--no-write", action="store_true", help="print only")
+    p.add_argument("--model", metavar="MODEL.onnx", help="learned: the model (default models/default.onnx)")
+    p.add_argument("--card", metavar="CARD.md", help="learned: also write the model card there")
+    p.add_argument("--eyes", type=int, default=6, help="learned: held-out eyes (default 6)")
     p.set_defaults(func=cmd_bench)
     return ap
 

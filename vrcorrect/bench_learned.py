@@ -1,0 +1,213 @@
+"""``vrcorrect bench learned``: a learned model against ``fast`` and ``wiener`` on data it never saw.
+
+Held out twice: images that were not in the training folder (scikit-image's ``rocket`` and
+``retina`` by default) and eyes drawn from the model's own training ranges with a seed of
+their own (the ranges are continuous, so no held-out eye equals a training eye).  Per case
+(image x eye) the objective of uncorrected, ``wiener``, the learned model and ``fast``, the
+share of the uncorrected-to-``fast`` gap the model closes, and FLIP of what the eye sees.
+Speed: the network alone (onnxruntime, CPU provider) and the whole learned pass (with its
+pre-correction channels, numpy) at 512x512 and at one 1832x1920 headset eye, against
+``fast`` at 512x512, medians of several runs in this one process.
+
+Writes its section of ``docs/benchmarks.md`` and, with ``card``, the model card.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from .bench import machine_description, markdown_table, write_section
+
+HELD_OUT_IMAGES = ("rocket", "retina")
+EYE_SEED = 20261123
+
+
+def _held_out_image(name: str, size: int) -> np.ndarray:
+    from skimage import data
+
+    from .evaluate import prepare_image
+
+    return prepare_image(getattr(data, name)()[..., :3], size, name)
+
+
+def held_out_eyes(ranges, count: int, seed: int = EYE_SEED) -> list:
+    """``count`` eyes drawn uniformly from ``ranges`` with a seed of their own."""
+    rng = np.random.default_rng(seed)
+    return [ranges.sample(rng) for _ in range(count)]
+
+
+def _median_ms(fn, repeats: int) -> float:
+    fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return 1e3 * statistics.median(times)
+
+
+def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.md"), card: Path | None = None,
+                      images: Sequence[str] = HELD_OUT_IMAGES, eyes: int = 6, size: int = 256, repeats: int = 5,
+                      write: bool = True, progress: bool = True,
+                      speed_sizes: Sequence[tuple[int, int]] = ((512, 512), (1920, 1832))) -> dict[str, Any]:
+    """Measure the model (see the module docstring); returns the figures and the Markdown."""
+    from tqdm import tqdm
+
+    from .display import decode, get_display
+    from .kernel import build_kernel, build_reference_kernel
+    from .metrics import evaluate_seen
+    from .runtime.learned import LearnedModel
+    from .solvers import make_problem, objective, solve
+
+    model = LearnedModel(model_path, providers=("CPUExecutionProvider",))
+    display = get_display(model.display["name"])
+    eye_list = held_out_eyes(model.ranges, eyes)
+    rows, cases = [], []
+    bar = tqdm(total=len(eye_list) * len(images), desc="bench learned", unit="case",
+               disable=None if progress else True, file=sys.stderr)
+    for e in eye_list:
+        kernel = build_kernel(e, display)
+        reference = build_reference_kernel(e, display) if model.reference == "glasses" else None
+        bound = model.for_eye(e, display, kernel, reference)
+        for name in images:
+            target = decode(display, _held_out_image(name, size))
+            p = make_problem(target, kernel, reference)
+            none = objective(target, p)
+            fast = solve(p, "fast")
+            wien = solve(p, "wiener")
+            learned = np.ascontiguousarray(np.moveaxis(bound.infer(np.ascontiguousarray(
+                np.moveaxis(target, 2, 0))), 0, 2))
+            obj = objective(learned, p)
+
+            def flip(img: np.ndarray) -> float:
+                return evaluate_seen(img, target, kernel, display, target_lms=p.target_lms)[0].flip
+
+            gap = none - fast.objective
+            closed = (none - obj) / gap if gap > 0 else float("nan")
+            case = {"image": name, "sphere_D": e.sphere_D, "cylinder_D": e.cylinder_D, "axis_deg": e.axis_deg,
+                    "pupil_mm": e.pupil_diameter_mm, "objective_none": none, "objective_wiener": wien.objective,
+                    "objective_learned": obj, "objective_fast": fast.objective, "gap_closed": closed,
+                    "flip_none": flip(target), "flip_wiener": flip(wien.image), "flip_learned": flip(learned),
+                    "flip_fast": flip(fast.image)}
+            cases.append(case)
+            rows.append([name, f"{e.sphere_D:+.2f} / {e.cylinder_D:+.2f} x {e.axis_deg:.0f}",
+                         f"{e.pupil_diameter_mm:.1f}", f"{none:.3e}", f"{wien.objective / none:.3f}",
+                         f"{obj / none:.3f}", f"{fast.objective / none:.3f}", f"{100 * closed:.0f} %",
+                         f"{case['flip_none']:.3f}", f"{case['flip_wiener']:.3f}", f"{case['flip_learned']:.3f}",
+                         f"{case['flip_fast']:.3f}"])
+            bar.update(1)
+    bar.close()
+
+    def mean(key: str) -> float:
+        return float(np.mean([c[key] for c in cases]))
+
+    summary = {k: mean(k) for k in ("gap_closed", "flip_none", "flip_wiener", "flip_learned", "flip_fast")}
+    summary["objective_ratio_learned"] = float(np.mean([c["objective_learned"] / c["objective_none"] for c in cases]))
+    summary["objective_ratio_wiener"] = float(np.mean([c["objective_wiener"] / c["objective_none"] for c in cases]))
+    summary["objective_ratio_fast"] = float(np.mean([c["objective_fast"] / c["objective_none"] for c in cases]))
+    summary["learned_below_wiener"] = sum(c["objective_learned"] < c["objective_wiener"] for c in cases)
+    summary["cases"] = len(cases)
+
+    # speed: one held-out eye, the first image
+    e = eye_list[0]
+    kernel = build_kernel(e, display)
+    reference = build_reference_kernel(e, display) if model.reference == "glasses" else None
+    bound = model.for_eye(e, display, kernel, reference)
+    speed: dict[str, Any] = {"sizes": [f"{w}x{h}" for h, w in speed_sizes]}
+    for i, hw in enumerate(speed_sizes):
+        label = f"{hw[1]}x{hw[0]}"
+        img = _held_out_image(images[0], max(hw))[:hw[0], :hw[1]]
+        x = np.ascontiguousarray(np.moveaxis(decode(display, img), 2, 0))
+        pre = bound.precorrected(x)[None]
+        feeds = {"image": x[None], "precorrected": pre, "eye": bound.features}
+        n = repeats if i == 0 else max(2, repeats // 2)
+        speed[label] = {"network_ms": _median_ms(lambda: model.session.run(None, feeds), n),
+                        "pipeline_ms": _median_ms(lambda: bound.infer(x), n)}
+    h0, w0 = speed_sizes[0]                                  # fast at the first size, same image and eye
+    img = _held_out_image(images[0], max(h0, w0))[:h0, :w0]
+    p = make_problem(decode(display, img), kernel, reference)
+    fast_s = [solve(p, "fast").seconds for _ in range(max(3, repeats // 2))]
+    first = speed[speed["sizes"][0]]
+    speed["fast_ms"] = 1e3 * statistics.median(fast_s)
+    speed["speedup_network"] = speed["fast_ms"] / first["network_ms"]
+    speed["speedup_pipeline"] = speed["fast_ms"] / first["pipeline_ms"]
+
+    body = _markdown(model, display, eye_list, images, size, rows, summary, speed)
+    if write:
+        write_section(out, "learned", body)
+        if card is not None:
+            from .fileio import write_text_atomic
+
+            write_text_atomic(card, _card(model, summary, speed, body), force=True)
+    return {"cases": cases, "summary": summary, "speed": speed, "markdown": body}
+
+
+def _markdown(model, display, eyes, images, size, rows, s, speed) -> str:
+    meta = model.metadata
+    verdict_gap = "meets" if s["gap_closed"] >= 0.8 else "does NOT meet"
+    verdict_w = ("beats" if s["flip_learned"] < s["flip_wiener"] and s["objective_ratio_learned"] < s[
+        "objective_ratio_wiener"] else "does NOT beat")
+    verdict_speed = "meets" if speed["speedup_pipeline"] >= 100 else "does NOT meet"
+    lines = [
+        "## Learned correction (held-out images and eyes)",
+        "",
+        f"Machine: {machine_description()}. onnxruntime CPU provider; no GPU in this session.",
+        f"Model `{Path(model.path).name}` ({meta.get('vrcorrect.precision', 'fp32')}, "
+        f"{Path(model.path).stat().st_size / 1e6:.1f} MB), trained for {display.name} "
+        f"({display.pixels_per_degree:.1f} px/deg) over {model.ranges.describe()}. "
+        f"Held out: images {', '.join(images)} (not in the training folder) at {size}x{size}; "
+        f"{len(eyes)} eyes drawn from those ranges with seed {EYE_SEED} (training drew its own).",
+        "",
+        f"- gap closed (uncorrected to `fast`), mean over {s['cases']} cases: **{100 * s['gap_closed']:.0f} %** "
+        f"({verdict_gap} the 80 % target)",
+        f"- objective / uncorrected, mean: wiener {s['objective_ratio_wiener']:.3f}, learned "
+        f"{s['objective_ratio_learned']:.3f}, fast {s['objective_ratio_fast']:.3f}; learned below wiener in "
+        f"{s['learned_below_wiener']} of {s['cases']} cases",
+        f"- FLIP of what the eye sees, mean: uncorrected {s['flip_none']:.3f}, wiener {s['flip_wiener']:.3f}, "
+        f"learned {s['flip_learned']:.3f}, fast {s['flip_fast']:.3f} (learned {verdict_w} wiener on FLIP and "
+        "objective)",
+        f"- speed at {speed['sizes'][0]}: network {speed[speed['sizes'][0]]['network_ms']:.1f} ms, whole learned "
+        f"pass (with its pre-correction) {speed[speed['sizes'][0]]['pipeline_ms']:.1f} ms, `fast` "
+        f"{speed['fast_ms']:.0f} ms: **{speed['speedup_pipeline']:.0f}x** faster ({speed['speedup_network']:.0f}x "
+        f"for the network alone; {verdict_speed} the 100x target)",
+        *[f"- {label}{' (one headset eye)' if label == '1832x1920' else ''}: network "
+          f"{speed[label]['network_ms']:.0f} ms, whole pass {speed[label]['pipeline_ms']:.0f} ms"
+          for label in speed["sizes"][1:]],
+        "",
+        markdown_table(["image", "eye S / C x axis", "pupil mm", "objective uncorrected", "wiener / unc.",
+                        "learned / unc.", "fast / unc.", "gap closed", "FLIP unc.", "FLIP wiener", "FLIP learned",
+                        "FLIP fast"], rows),
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _card(model, summary, speed, bench_md: str) -> str:
+    meta = model.metadata
+    train = json.loads(meta.get("vrcorrect.train", "{}") or "{}")
+    return "\n".join([
+        f"# Model card: `{Path(model.path).name}`",
+        "",
+        "The learned correction of vrcorrect: one conditioned U-Net for every eye in its range "
+        "(see README, *The learned correction*).",
+        "",
+        "## What it is",
+        f"- inputs: `image` and `precorrected` (the `wiener` inverse at regulariser "
+        f"{meta.get('vrcorrect.precorrection_mu_rel')}), float32 (N, 3, H, W) linear display RGB; `eye` "
+        "(N, 4): power vector M, J0, J45 and pupil, scaled by the training ranges; output: the displayed image",
+        f"- display: {model.display.get('name')}; target: what the eye sees {model.reference}",
+        f"- ranges (anything outside is refused): {model.ranges.describe()}",
+        f"- format {meta.get('vrcorrect.format')}, opset {meta.get('vrcorrect.opset')}, precision "
+        f"{meta.get('vrcorrect.precision', 'fp32')}, vrcorrect {meta.get('vrcorrect.version')}",
+        f"- training: {json.dumps(train, sort_keys=True)}",
+        "",
+        "## Measured (held-out images and eyes; `vrcorrect bench learned`)",
+        "",
+        bench_md.split("\n", 2)[2],
+    ]) + "\n"
