@@ -49,9 +49,9 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "installing Python packages into .venv (first run takes a few minutes) ..."
   .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip 2>&1 | grep -v "^WARNING: Location" || true
   # torch==2.13.0 (CPU build) is pinned in the 'solve' extra: pip takes it from this machine's disk.
-  .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[solve,metrics,test,realtime]" 2>&1 \
+  .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[solve,metrics,test,realtime,ray]" 2>&1 \
     | grep -v -e "^WARNING: Location" -e "BuildBackendWarning" || true
-  .venv/bin/python -c "import vrcorrect, numpy, scipy, colour, PIL, torch, pytest, hypothesis, moderngl, glfw, onnxruntime, onnx, imageio_ffmpeg, mss, xr" \
+  .venv/bin/python -c "import vrcorrect, numpy, scipy, colour, PIL, torch, pytest, hypothesis, moderngl, glfw, onnxruntime, onnx, imageio_ffmpeg, mss, xr, ray" \
     || { echo "installation failed" >&2; exit 1; }
   echo "$want" > "$stamp"
 fi

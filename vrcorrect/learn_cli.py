@@ -34,14 +34,15 @@ def cmd_dataset(args: argparse.Namespace) -> int:
     config = DatasetConfig(samples=args.samples, crop_px=args.crop_px, seed=args.seed, ranges=ranges,
                            display=args.display, samples_per_shard=args.samples_per_shard,
                            wavelength_step_nm=args.wavelength_step_nm, crops_per_eye=args.crops_per_eye)
-    check_ray(args.ray)             # before loading any image
+    check_ray(args.ray)             # Ray installed? before loading any image
     if args.crop_px > args.image_px:
         raise ValidationError("--crop-px", args.crop_px, f"at most --image-px ({args.image_px})")
     images = folder_images(args.images, args.image_px) if args.images else bundled_images(args.image_px)
     workers = args.workers if args.workers is not None else max(1, os.cpu_count() or 1)
-    report = build_dataset(args.out, images, config, workers=workers, force=args.force)
+    report = build_dataset(args.out, images, config, workers=workers, force=args.force, ray_address=args.ray)
     print(f"data set {report.out_dir}: {report.samples} samples in {config.shards} shards "
-          f"({report.computed_shards} computed, {report.skipped_shards} already there) in {report.seconds:.1f} s")
+          f"({report.computed_shards} computed{f' on Ray ({args.ray})' if args.ray else ''}, "
+          f"{report.skipped_shards} already there) in {report.seconds:.1f} s")
     return 0
 
 
@@ -82,8 +83,12 @@ def add_parser(sub) -> None:
                    help="consecutive samples sharing one sampled eye (kernels built once per eye; default 1)")
     p.add_argument("--wavelength-step-nm", type=int, choices=(80, 40, 20, 10, 5, 1),
                    help="force the kernels' wavelength step (default: chosen per eye)")
-    p.add_argument("--workers", type=int, help="local processes (default: one per CPU core)")
-    p.add_argument("--ray", metavar="ADDRESS", help="build on a Ray cluster (not available yet)")
+    p.add_argument("--workers", type=int,
+                   help="local processes, or the CPUs of --ray local (default: one per CPU core)")
+    p.add_argument("--ray", metavar="ADDRESS",
+                   help="one Ray task per shard on the Ray cluster at ADDRESS (auto, HOST:PORT, ray://HOST:10001; "
+                        "local: a one-node Ray started here); every node needs vrcorrect installed, this "
+                        "process writes the shards (no shared filesystem needed); the extra 'ray'")
     p.add_argument("--force", action="store_true", help="rebuild a folder that holds a data set with other settings")
     p.set_defaults(func=cmd_dataset)
 

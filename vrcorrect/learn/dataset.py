@@ -18,7 +18,11 @@ On disk (``OUT/``): ``shard_00000.npz`` ... each holding ``samples_per_shard`` s
 crop, prescription, power vector and objectives).  A shard is written atomically and then
 recorded in the manifest, so an interrupted build resumes by computing only the shards the
 manifest does not list.  Shards are built on local processes
-(:class:`concurrent.futures.ProcessPoolExecutor`); Ray is not available yet.
+(:class:`concurrent.futures.ProcessPoolExecutor`) or, with ``ray_address``, as one Ray task per
+missing shard (Ray is the optional extra ``ray``; imported only then).  A Ray task returns its
+shard's arrays and manifest entry and the driver writes the file and records it, exactly as the
+local path does: the cluster needs no shared filesystem, only the same vrcorrect installed on
+every node, and a build started on Ray resumes locally and the other way round.
 
 Shard arrays (``n`` samples, crop ``h x w``, ``S`` the largest kernel in the shard):
 ``index (n,)`` int64, ``target``/``precorrected``/``fast``/``target_lms`` ``(n, 3, h, w)``
@@ -39,13 +43,14 @@ import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from ..errors import InputError, ValidationError
+from ..errors import InputError, ValidationError, VrcorrectError
 from ..fileio import write_text_atomic, write_with
 from .conditioning import PRECORRECTION_MU_REL, SamplingRanges, eye_features, precorrect
 
@@ -172,7 +177,9 @@ def image_digest(image: np.ndarray) -> str:
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(images: list[np.ndarray], display: str, threads: int | None) -> None:
+def _init_worker(images: Sequence[np.ndarray], display: Any, threads: int | None) -> None:
+    """Set this process up to compute samples: ``display`` a preset name, profile path or
+    :class:`~vrcorrect.display.DisplayProfile`; ``images`` sRGB code values."""
     from ..display import get_display
 
     if threads is not None:
@@ -183,7 +190,8 @@ def _init_worker(images: list[np.ndarray], display: str, threads: int | None) ->
             torch.set_num_threads(threads)
         except ImportError:  # pragma: no cover - torch is needed by fast anyway
             pass
-    _WORKER["display"] = get_display(display)
+    _WORKER["display"] = get_display(display) if isinstance(display, (str, os.PathLike)) else display
+    _WORKER.pop("kernels", None)                 # built for another build's display
     # images are sRGB code values; the model works in linear light
     from ..display import decode
 
@@ -228,8 +236,9 @@ def _pad_kernel(k: np.ndarray, size: int) -> np.ndarray:
     return np.pad(k, ((0, 0), (0, 0), (p, p), (p, p)))
 
 
-def _build_shard(config: DatasetConfig, out_dir: str, shard: int, specs: list[SampleSpec]) -> dict[str, Any]:
-    """Compute and write one shard; returns its manifest entry."""
+def _compute_shard(config: DatasetConfig, shard: int,
+                   specs: list[SampleSpec]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """One shard's arrays and its manifest entry (nothing written)."""
     rows = [_compute_sample(config, s) for s in specs]
     S = max(r["kernel"].shape[-1] for r in rows)
     chw = lambda key: np.stack([np.moveaxis(r[key], 2, 0) for r in rows]).astype(np.float32)  # noqa: E731
@@ -243,13 +252,6 @@ def _build_shard(config: DatasetConfig, out_dir: str, shard: int, specs: list[Sa
         "objective_uncorrected": np.array([r["objective_uncorrected"] for r in rows], np.float64),
         "objective_fast": np.array([r["objective_fast"] for r in rows], np.float64),
     }
-    name = f"shard_{shard:05d}.npz"
-
-    def write(tmp: Path) -> None:
-        with open(tmp, "wb") as f:
-            np.savez(f, **arrays)
-
-    write_with(Path(out_dir) / name, write, force=True)
     samples = []
     for r in rows:
         s = r["spec"]
@@ -258,7 +260,36 @@ def _build_shard(config: DatasetConfig, out_dir: str, shard: int, specs: list[Sa
                         "objective_uncorrected": float(r["objective_uncorrected"]),
                         "objective_fast": float(r["objective_fast"]), "fast_iterations": int(r["fast_iterations"]),
                         "seconds": round(float(r["seconds"]), 3)})
-    return {"shard": shard, "file": name, "samples": samples}
+    return arrays, {"shard": shard, "file": f"shard_{shard:05d}.npz", "samples": samples}
+
+
+def _write_shard(out_dir: str | Path, name: str, arrays: dict[str, np.ndarray]) -> None:
+    """Write one shard's arrays atomically (``OUT/name``)."""
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+
+    write_with(Path(out_dir) / name, write, force=True)
+
+
+def _build_shard(config: DatasetConfig, out_dir: str, shard: int, specs: list[SampleSpec]) -> dict[str, Any]:
+    """Compute and write one shard; returns its manifest entry."""
+    arrays, entry = _compute_shard(config, shard, specs)
+    _write_shard(out_dir, entry["file"], arrays)
+    return entry
+
+
+def _ray_shard(source: str, data: tuple[list[np.ndarray], Any], config: DatasetConfig, shard: int,
+               specs: list[SampleSpec]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """A Ray task: one shard's arrays and manifest entry (the driver writes them).
+
+    ``data`` is ``(images, display)`` from the object store; a Ray worker process runs many
+    tasks, so it decodes the images once per build (``source`` names the build)."""
+    if _WORKER.get("source") != source:
+        images, display = data
+        _init_worker(images, display, None)          # Ray sets the task's threads (OMP_NUM_THREADS)
+        _WORKER["source"] = source
+    return _compute_shard(config, shard, specs)
 
 
 # --------------------------------------------------------------------------
@@ -308,11 +339,96 @@ def _same_settings(old: dict, new: dict) -> str | None:
     return None
 
 
+RAY_INSTALL = "pip install -e '.[ray]'"
+RAY_ADDRESSES = "local (a one-node Ray started here), auto, HOST:PORT or ray://HOST:10001"
+
+
+def _import_ray(ray_address: str) -> Any:
+    try:
+        import ray
+    except ImportError:
+        raise InputError(f"--ray {ray_address}: Ray is not installed; install vrcorrect's optional extra "
+                         f"'ray' (in the vrcorrect folder): {RAY_INSTALL}") from None
+    return ray
+
+
 def check_ray(ray_address: str | None) -> None:
-    """Refuse a Ray cluster address: building on Ray is not available yet (:class:`InputError`)."""
-    if ray_address is not None:
-        raise InputError(f"--ray {ray_address}: building on a Ray cluster is not available yet; "
-                         "use local processes (--workers N)")
+    """Check that building on Ray at ``ray_address`` can be tried (None: local processes, nothing
+    to check): the address is a non-empty string and Ray is installed (:class:`InputError` naming
+    the extra to install).  Connecting happens in :func:`build_dataset`."""
+    if ray_address is None:
+        return
+    if not isinstance(ray_address, str) or not ray_address.strip():
+        raise ValidationError("ray_address", ray_address, RAY_ADDRESSES)
+    _import_ray(ray_address)
+
+
+@contextmanager
+def _ray_session(ray_address: str, num_cpus: int) -> Iterator[Any]:
+    """Ray connected to ``ray_address`` (``local``: start a one-node Ray with ``num_cpus`` CPUs);
+    disconnected again afterwards.  A process already connected to Ray (``ray.init`` called by
+    the caller) keeps its connection, whatever the address."""
+    ray = _import_ray(ray_address)
+    if ray.is_initialized():
+        yield ray
+        return
+    try:
+        if ray_address.strip().lower() == "local":
+            ray.init(address="local", num_cpus=num_cpus, include_dashboard=False)   # not RAY_ADDRESS's
+        else:
+            ray.init(address=ray_address.strip())
+    except Exception as exc:  # ConnectionError, ValueError, RuntimeError, TimeoutError: all "cannot connect"
+        ray.shutdown()
+        what = "cannot start a local Ray" if ray_address.strip().lower() == "local" else "cannot connect to Ray"
+        detail = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"--ray {ray_address}: {what} ({detail}); expected {RAY_ADDRESSES}") from None
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
+
+
+def _build_on_ray(ray: Any, images: list[np.ndarray], display: Any, config: DatasetConfig, out: Path,
+                  todo: list[int], jobs: dict[int, list[SampleSpec]], record: Callable[[dict], None]) -> None:
+    """One Ray task per shard in ``todo``; the driver writes each shard as it arrives and records it.
+
+    The images and the display profile go into the object store once; at most two tasks per
+    cluster CPU are in flight, so finished shards do not pile up in the object store."""
+    import uuid
+
+    task = ray.remote(_ray_shard)                      # one CPU per task (Ray's default)
+    data = ray.put((images, display))
+    source = uuid.uuid4().hex
+    window = max(2, 2 * int(ray.cluster_resources().get("CPU", 1)))
+    queue = iter(todo)
+    pending: dict[Any, int] = {}
+
+    def submit() -> None:
+        k = next(queue, None)
+        if k is not None:
+            pending[task.remote(source, data, config, k, jobs[k])] = k
+
+    try:
+        for _ in range(window):
+            submit()
+        while pending:
+            (ref,), _ = ray.wait(list(pending), num_returns=1)
+            del pending[ref]
+            try:
+                arrays, entry = ray.get(ref)
+            except ray.exceptions.RayTaskError as exc:
+                if isinstance(exc.cause, VrcorrectError):  # a user error inside the task: its own message
+                    raise exc.cause from None
+                raise
+            submit()
+            _write_shard(out, entry["file"], arrays)
+            record(entry)
+    finally:
+        for ref in pending:                            # interrupted or failed: stop the rest
+            try:
+                ray.cancel(ref)
+            except Exception:  # pragma: no cover - best effort
+                pass
 
 
 def build_dataset(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]], config: DatasetConfig,
@@ -330,12 +446,19 @@ def build_dataset(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]],
     config
         Build settings.
     workers
-        Local processes (1: this process, no pool).
+        Local processes (1: this process, no pool); with ``ray_address="local"`` the CPUs of the
+        one-node Ray started here; ignored on a Ray cluster.
     force
         Start again when ``out_dir`` holds a data set built with other settings (its shards
         are overwritten); without it such a folder is refused.
     ray_address
-        Not available yet (raises :class:`InputError`).
+        None: local processes.  Otherwise one Ray task per missing shard on the Ray at this
+        address: ``"local"`` starts a one-node Ray here, ``"auto"``, ``"HOST:PORT"`` or
+        ``"ray://HOST:10001"`` connect to a cluster whose nodes have this vrcorrect installed
+        (no shared filesystem needed: the shards come back to this process, which writes them).
+        If this process is already connected to Ray, that connection is used.  Needs the extra
+        ``ray`` (:class:`InputError` naming it otherwise, or naming the address if Ray cannot
+        be reached there).  The result equals a local build's.
     progress
         Show a tqdm bar (samples) on stderr.
     on_shard
@@ -362,7 +485,6 @@ def build_dataset(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]],
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
     manifest = _new_manifest(config, display, names, arrays)
     if (out / MANIFEST).exists():
         old = read_manifest(out)
@@ -380,22 +502,27 @@ def build_dataset(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]],
 
     from tqdm import tqdm
 
-    n_done = sum(len(config.shard_indices(k)) for k in done)
-    bar = tqdm(total=config.samples, initial=n_done, desc="dataset", unit="sample",
-               disable=None if progress else True, file=sys.stderr)
-    t0 = time.perf_counter()
+    with ExitStack() as stack:
+        # connect first: an unreachable cluster leaves no new folder behind
+        ray = stack.enter_context(_ray_session(ray_address, workers)) if ray_address is not None and todo else None
+        out.mkdir(parents=True, exist_ok=True)
+        n_done = sum(len(config.shard_indices(k)) for k in done)
+        bar = stack.enter_context(tqdm(total=config.samples, initial=n_done, desc="dataset", unit="sample",
+                                       disable=None if progress else True, file=sys.stderr))
+        t0 = time.perf_counter()
 
-    def record(entry: dict) -> None:
-        manifest["shards"] = sorted(manifest["shards"] + [entry], key=lambda e: e["shard"])
-        write_text_atomic(out / MANIFEST, json.dumps(manifest, indent=1) + "\n", force=True)
-        bar.update(len(entry["samples"]))
-        if on_shard is not None:
-            on_shard(entry["shard"])
+        def record(entry: dict) -> None:
+            manifest["shards"] = sorted(manifest["shards"] + [entry], key=lambda e: e["shard"])
+            write_text_atomic(out / MANIFEST, json.dumps(manifest, indent=1) + "\n", force=True)
+            bar.update(len(entry["samples"]))
+            if on_shard is not None:
+                on_shard(entry["shard"])
 
-    if not (out / MANIFEST).exists() or manifest["shards"] == []:
-        write_text_atomic(out / MANIFEST, json.dumps(manifest, indent=1) + "\n", force=True)
-    try:
-        if workers == 1 or len(todo) <= 1:
+        if not (out / MANIFEST).exists() or manifest["shards"] == []:
+            write_text_atomic(out / MANIFEST, json.dumps(manifest, indent=1) + "\n", force=True)
+        if ray is not None:
+            _build_on_ray(ray, arrays, display, config, out, todo, jobs, record)
+        elif workers == 1 or len(todo) <= 1:
             _init_worker(arrays, config.display, None)
             for k in todo:
                 record(_build_shard(config, str(out), k, jobs[k]))
@@ -407,8 +534,6 @@ def build_dataset(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]],
                 futures = [pool.submit(_build_shard, config, str(out), k, jobs[k]) for k in todo]
                 for fut in as_completed(futures):
                     record(fut.result())
-    finally:
-        bar.close()
     return BuildReport(out_dir=out, computed_shards=len(todo), skipped_shards=len(done),
                        samples=config.samples, seconds=time.perf_counter() - t0)
 
