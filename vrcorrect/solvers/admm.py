@@ -20,8 +20,12 @@ with the coarse duals its first iteration is already below what the paper's 100
 Adam steps reach on the evaluation images).
 
 Stopping: the true objective at the feasible ``z`` after every full-resolution
-iteration; stop when one iteration improves it by less than ``tolerance``
-(relative).  The default, 1e-2, stops once the coarse start's gains are taken.
+iteration; the best ``z`` so far is kept and returned; stop when an iteration lowers
+the best by less than ``tolerance`` (relative), or after :data:`PATIENCE` iterations
+without a new best (over-relaxed ADMM is not monotone, so a rise alone does not stop
+it).  On the paper's evaluation (35 cases at 512x512) the default, 1e-2, stops after 5
+iterations on average and ends below ``paper``'s objective in 23 cases, at most 2 % above
+it in the others; 3e-3: 32 of 35, at most 0.25 % above, 10 iterations; 1e-3: 33 of 35, 14.
 
 float32 images, complex64 spectra, scipy's FFT (several times faster than torch's on
 this kind of CPU); numpy only, so ``fast`` runs wherever numpy does.
@@ -38,6 +42,9 @@ from . import Problem
 from .wiener import centred_kernel, gram, inv3, mirror_fill, padded_shape, spectral_norm_squared
 
 __all__ = ["fast", "coarse_kernel"]
+
+#: Full-resolution iterations in a row without a new best objective after which ``fast`` stops.
+PATIENCE = 5
 
 
 def _rfft2(a: np.ndarray) -> np.ndarray:
@@ -104,6 +111,8 @@ def _admm(kernel: np.ndarray, t_lms: np.ndarray, z0: np.ndarray, rho: float, rel
     alpha, beta = np.float32(relaxation), np.float32(1.0 - relaxation)
     history: list[float] = []
     iterations = 0
+    best, stale = np.inf, 0
+    best_z = np.empty((3, H, W), np.float32) if track else None
     for it in range(1, max_iterations + 1):
         np.subtract(v, d1, out=a)
         _matvec(Kh, _rfft2(a), R, ctmp)                                    # R = K^H F(v - d1) + n F(z - d2)
@@ -137,10 +146,19 @@ def _admm(kernel: np.ndarray, t_lms: np.ndarray, z0: np.ndarray, rho: float, rel
             progress(it, max_iterations)
         if track:                                                          # the objective at z
             r = _irfft2(_matvec(Kf, _rfft2(z), KU, ctmp), P)[:, :H, :W] - t_lms
-            history.append(float(np.vdot(r, r)) / n)
-            if tolerance > 0 and len(history) > 1 and history[-2] - history[-1] <= tolerance * history[-2]:
-                break
-    return z[:, :H, :W].copy(), iterations, history, norm2, (d1[:, :H, :W].copy(), d2[:, :H, :W].copy())
+            value = float(np.vdot(r, r)) / n
+            history.append(value)
+            if value < best:
+                gain, best, stale = best - value, value, 0
+                np.copyto(best_z, z[:, :H, :W])
+                if tolerance > 0 and it > 1 and gain <= tolerance * (best + gain):
+                    break
+            else:                                                          # over-relaxed ADMM is not monotone:
+                stale += 1                                                 # a rise is no sign of convergence
+                if tolerance > 0 and stale >= PATIENCE:
+                    break
+    z_out = best_z if track else z[:, :H, :W].copy()
+    return z_out, iterations, history, norm2, (d1[:, :H, :W].copy(), d2[:, :H, :W].copy())
 
 
 def coarse_kernel(kernel: np.ndarray) -> np.ndarray:
@@ -244,8 +262,9 @@ def fast(problem: Problem, tolerance: float = 1e-2, max_iterations: int = 200, r
          level_iterations: int = 3, warm_start: bool = True,
          progress: Callable[[int, int], None] | None = None) -> tuple[np.ndarray, int, dict, list[float]]:
     """ADMM for the LMS objective in the box (see the module docstring); returns (image, iterations,
-    settings, history).  Stops when two iterations improve the objective by less than
-    ``tolerance`` (relative) or after ``max_iterations`` on the full-resolution level."""
+    settings, history).  Stops when an iteration lowers the best objective by less than
+    ``tolerance`` (relative), after :data:`PATIENCE` iterations without a new best, or after
+    ``max_iterations`` on the full-resolution level; returns the best iterate."""
     K = problem.kernel.kernel
     t = np.ascontiguousarray(np.moveaxis(problem.target_lms, 2, 0), dtype=np.float32)
     target = np.ascontiguousarray(np.moveaxis(problem.target, 2, 0), dtype=np.float32)
