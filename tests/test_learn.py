@@ -175,33 +175,86 @@ def _log(run: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-def test_untrained_model_is_no_correction_at_any_size():
+def test_untrained_model_returns_its_base_at_any_size():
+    """Zero-initialised head: an untrained model is exactly its base, the pre-correction
+    channels by default and the image itself with ``base="image"``."""
     import torch
 
     from vrcorrect.learn.model import ConditionedUNet, UNetConfig
 
-    model = ConditionedUNet(UNetConfig(**TINY_MODEL)).eval()
-    x = torch.rand(2, 3, 37, 45)
-    with torch.no_grad():
-        y = model(x, torch.rand(2, 3, 37, 45), torch.randn(2, 4))
-    assert y.shape == x.shape
-    torch.testing.assert_close(y, x)
+    x, pre = torch.rand(2, 3, 37, 45), torch.rand(2, 3, 37, 45)
+    for base, expected in (("precorrected", pre), ("image", x)):
+        model = ConditionedUNet(UNetConfig(**TINY_MODEL, base=base)).eval()
+        with torch.no_grad():
+            y = model(x, pre, torch.randn(2, 4))
+        assert y.shape == x.shape
+        torch.testing.assert_close(y, expected)
+    with pytest.raises(ValidationError, match="base"):
+        UNetConfig(base="target")
+    assert UNetConfig.from_dict({"width": 4}).base == "image"       # checkpoints from before the option
+
+
+def test_precorrection_is_projected_gradient_and_lowers_the_objective(tiny_dataset):
+    """The stored pre-correction channels are three projected-gradient steps on the sample's own
+    objective: each sample's is below its uncorrected objective (the training's forward model)."""
+    import torch
+
+    from vrcorrect.learn.train import objective_per_sample
+
+    m = read_manifest(tiny_dataset)
+    assert m["config"]["precorrection_steps"] == 3
+    for entry in m["shards"]:
+        shard = load_shard(tiny_dataset, entry)
+        t = {k: torch.as_tensor(shard[k]) for k in ("precorrected", "target", "kernel", "target_lms")}
+        pre = objective_per_sample(t["precorrected"], t["kernel"], t["target_lms"]).numpy()
+        unc = objective_per_sample(t["target"], t["kernel"], t["target_lms"]).numpy()
+        np.testing.assert_allclose(unc, shard["objective_uncorrected"], rtol=1e-3)
+        assert np.all(pre < unc) and np.all(pre >= shard["objective_fast"] * 0.999)
+
+
+def test_manifest_from_before_precorrection_steps_means_the_inverse():
+    cfg = tiny_config(precorrection_steps=5).as_dict()
+    assert DatasetConfig.from_dict(cfg).precorrection_steps == 5
+    del cfg["precorrection_steps"]
+    assert DatasetConfig.from_dict(cfg).precorrection_steps == 0
+    with pytest.raises(ValidationError, match="precorrection_steps"):
+        tiny_config(precorrection_steps=-1)
 
 
 def test_tiny_model_trains_and_its_loss_decreases(tiny_dataset, tmp_path):
     from vrcorrect.learn.train import train
 
+    from vrcorrect.learn.model import UNetConfig
+
     run = tmp_path / "run"
-    report = train(tiny_dataset, run, tiny_train_config(), progress=False)
+    config = tiny_train_config(model=UNetConfig(**TINY_MODEL, base="image"))
+    report = train(tiny_dataset, run, config, progress=False)
     rows = _log(run)
     assert [int(r["step"]) for r in rows] == list(range(1, 13))
     losses = [float(r["loss"]) for r in rows]
-    assert losses[0] == pytest.approx(1.0, abs=1e-4)          # starts as no correction: ratio 1
+    assert losses[0] == pytest.approx(1.0, abs=1e-4)          # base "image" starts as no correction: ratio 1
     assert np.mean(losses[-3:]) < losses[0] - 0.02
     assert report.last_loss == pytest.approx(losses[-1], rel=1e-4)
     assert (run / "checkpoint.pt").is_file() and json.loads((run / "train.json").read_text())["samples"] == 3
     with pytest.raises(InputError, match="--resume"):
-        train(tiny_dataset, run, tiny_train_config(), progress=False)
+        train(tiny_dataset, run, config, progress=False)
+
+
+def test_training_starts_from_the_precorrection(tiny_dataset, tmp_path):
+    """With the default base the first step's objective ratio is the pre-correction's, below 1."""
+    import torch
+
+    from vrcorrect.learn.train import objective_per_sample, train
+
+    train(tiny_dataset, tmp_path / "run", tiny_train_config(steps=1), progress=False)
+    first = _log(tmp_path / "run")[0]
+    ratios = []
+    for entry in read_manifest(tiny_dataset)["shards"]:
+        shard = load_shard(tiny_dataset, entry)
+        t = {k: torch.as_tensor(shard[k]) for k in ("precorrected", "kernel", "target_lms")}
+        ratios += list(objective_per_sample(t["precorrected"], t["kernel"], t["target_lms"]).numpy()
+                       / shard["objective_uncorrected"])
+    assert float(first["objective_ratio"]) == pytest.approx(np.mean(ratios), rel=1e-3) and np.mean(ratios) < 1
 
 
 def test_resumed_training_equals_uninterrupted(tiny_dataset, tmp_path):

@@ -275,3 +275,21 @@ def test_wiener_with_fixed_settings_uses_them(desktop, myope_kernel):
     auto = solve(p, "wiener", regularisation=(0.1,))
     assert auto.settings["beta"] != 0.25
     assert not np.allclose(img, auto.image)
+
+
+def test_projected_gradient_steps_descend_and_stay_in_the_box(desktop, myope_kernel):
+    """The learned model's pre-correction: more steps, lower objective; one step already below no
+    correction; values in [0, 1]; zero steps, or a zero prescription, return the target."""
+    from vrcorrect.solvers import objective
+    from vrcorrect.solvers.wiener import projected_gradient
+
+    p = make_problem(photo("astronaut", 64), myope_kernel)
+    values = [objective(projected_gradient(p, n), p) for n in (0, 1, 3, 10)]
+    assert values[0] == pytest.approx(objective(p.target, p), rel=1e-6)
+    assert values[0] > values[1] > values[2] > values[3] >= solve(p, "fast", tolerance=1e-4).objective * 0.999
+    x = projected_gradient(p, 3)
+    assert x.dtype == np.float32 and x.shape == p.target.shape and 0 <= x.min() and x.max() <= 1
+    e = eye(0.0)                     # glasses-on target of an eye needing none: the target is optimal
+    codes = photo("astronaut", 48)
+    zero = make_problem(decode(desktop, codes), build_kernel(e, desktop, INF), build_reference_kernel(e, desktop, INF))
+    np.testing.assert_allclose(encode(desktop, projected_gradient(zero, 3)), codes, atol=1.0 / 255)

@@ -33,7 +33,8 @@ def cmd_dataset(args: argparse.Namespace) -> int:
                             pupil_diameter_mm=_pair("--pupil-mm", args.pupil_mm, d.pupil_diameter_mm))
     config = DatasetConfig(samples=args.samples, crop_px=args.crop_px, seed=args.seed, ranges=ranges,
                            display=args.display, samples_per_shard=args.samples_per_shard,
-                           wavelength_step_nm=args.wavelength_step_nm, crops_per_eye=args.crops_per_eye)
+                           wavelength_step_nm=args.wavelength_step_nm, crops_per_eye=args.crops_per_eye,
+                           precorrection_steps=args.precorrection_steps)
     check_ray(args.ray)             # Ray installed? before loading any image
     if args.crop_px > args.image_px:
         raise ValidationError("--crop-px", args.crop_px, f"at most --image-px ({args.image_px})")
@@ -52,7 +53,8 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     config = TrainConfig(steps=args.steps, batch_size=args.batch_size, learning_rate=args.learning_rate,
                          target_weight=args.target_weight, seed=args.seed, checkpoint_every=args.checkpoint_every,
-                         model=UNetConfig(width=args.width, depth=args.depth, film_hidden=args.film_hidden))
+                         model=UNetConfig(width=args.width, depth=args.depth, film_hidden=args.film_hidden,
+                                          base=args.base))
     report = train(args.dataset, args.out, config, resume=args.resume, force=args.force, device=args.device)
     loss = "" if report.last_loss is None else f"; loss {report.first_loss:.4g} -> {report.last_loss:.4g}"
     print(f"trained steps {report.start_step}..{report.steps} in {report.seconds:.1f} s{loss}; "
@@ -81,6 +83,9 @@ def add_parser(sub) -> None:
     p.add_argument("--samples-per-shard", type=int, default=32, help="samples per .npz shard (32)")
     p.add_argument("--crops-per-eye", type=int, default=1,
                    help="consecutive samples sharing one sampled eye (kernels built once per eye; default 1)")
+    p.add_argument("--precorrection-steps", type=int, default=3,
+                   help="projected-gradient steps of the model's pre-correction input (3; 0: the clipped "
+                        "regularised inverse)")
     p.add_argument("--wavelength-step-nm", type=int, choices=(80, 40, 20, 10, 5, 1),
                    help="force the kernels' wavelength step (default: chosen per eye)")
     p.add_argument("--workers", type=int,
@@ -107,6 +112,8 @@ def add_parser(sub) -> None:
     p.add_argument("--width", type=int, default=16, help="U-Net channels at full resolution (16)")
     p.add_argument("--depth", type=int, default=3, help="U-Net down-samplings (3)")
     p.add_argument("--film-hidden", type=int, default=32, help="hidden units of the FiLM MLP (32; 0: no FiLM)")
+    p.add_argument("--base", choices=("precorrected", "image"), default="precorrected",
+                   help="what the network's output is added to (precorrected: it starts as the pre-correction)")
     p.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (500)")
     p.add_argument("--device", help="torch device (default: cuda when available, else cpu)")
     p.add_argument("--resume", action="store_true", help="continue from RUN/checkpoint.pt")

@@ -7,9 +7,14 @@ must not import torch, directly or through :mod:`vrcorrect.learn.model`.
   (sphere, minus-form cylinder, axis, pupil); :func:`check_eye` refuses an eye outside them.
 * :func:`eye_features` - the FiLM conditioning vector: the power vector (M, J0, J45, D) and
   the pupil (mm), each scaled to about [-1, 1] by the training ranges.
-* :func:`precorrect` - the model's extra input channels: the eye's regularised inverse
-  ``(K^H K + mu I)^-1 K^H K_ref`` applied to the image (mirrored borders) and clipped to
-  [0, 1]; the same filters as the ``wiener`` method and the GLSL fallback, without the blend.
+* :func:`precorrect` - the model's extra input channels: by default (``steps > 0``) a few
+  accelerated projected-gradient steps on the true objective from the image
+  (:func:`vrcorrect.solvers.wiener.projected_gradient`); with ``steps = 0`` the eye's
+  regularised inverse ``(K^H K + mu I)^-1 K^H K_ref`` applied to the image (mirrored borders)
+  and clipped to [0, 1] (the ``wiener`` method's filters, without the blend).  The inverse
+  alone is a poor start for strong eyes: on the default data set's eyes its best blend
+  with the image closes 4 % of the gap between no correction and ``fast``, where three
+  projected-gradient steps close about half of it.
 """
 
 from __future__ import annotations
@@ -26,6 +31,8 @@ from ..prescription import EyeRx
 
 #: Regulariser of the pre-correction channels, relative to ``||K||^2`` (one of ``wiener``'s candidates).
 PRECORRECTION_MU_REL = 0.1
+#: Projected-gradient steps of the pre-correction channels (0: the clipped regularised inverse).
+PRECORRECTION_STEPS = 3
 #: Number of conditioning features (M, J0, J45, pupil).
 N_FEATURES = 4
 
@@ -124,8 +131,9 @@ def eye_features(eye: EyeRx, ranges: SamplingRanges) -> np.ndarray:
 
 
 def precorrect(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel | None,
-               mu_rel: float = PRECORRECTION_MU_REL) -> np.ndarray:
-    """The model's extra input: the regularised inverse of the eye applied to ``image``, clipped.
+               mu_rel: float = PRECORRECTION_MU_REL, steps: int = 0) -> np.ndarray:
+    """The model's extra input: ``steps`` projected-gradient steps on the eye's objective from
+    ``image``, or (``steps = 0``) the eye's regularised inverse applied to ``image``, clipped.
 
     Parameters
     ----------
@@ -134,17 +142,24 @@ def precorrect(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel
     kernel, reference_kernel
         The eye's kernel and its glasses-on kernel (``None``: the ideal target ``A t``).
     mu_rel
-        Regulariser relative to ``||K||^2``.
+        Regulariser relative to ``||K||^2`` (``steps = 0`` only).
+    steps
+        Accelerated projected-gradient steps (:func:`vrcorrect.solvers.wiener.projected_gradient`;
+        its objective is the glasses-on target of ``reference_kernel``, or ``A t``).
 
     Returns
     -------
     numpy.ndarray
         float32 ``(H, W, 3)`` in [0, 1]; the image itself when the eye's kernel is 1x1.
     """
-    from ..solvers.wiener import apply_filters, correction_filters
+    from ..solvers.wiener import apply_filters, correction_filters, projected_gradient
 
     if kernel.size == 1:
         return np.ascontiguousarray(image, dtype=np.float32)
+    if steps > 0:
+        from ..solvers import make_problem
+
+        return projected_gradient(make_problem(image, kernel, reference_kernel), steps)
     filters = correction_filters(kernel, mu_rel, reference_kernel)
     out = apply_filters(np.moveaxis(image, 2, 0), filters.taps)
     return np.ascontiguousarray(np.clip(np.moveaxis(out, 0, 2), 0.0, 1.0), dtype=np.float32)

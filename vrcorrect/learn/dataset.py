@@ -52,7 +52,7 @@ import numpy as np
 
 from ..errors import InputError, ValidationError, VrcorrectError
 from ..fileio import write_text_atomic, write_with
-from .conditioning import PRECORRECTION_MU_REL, SamplingRanges, eye_features, precorrect
+from .conditioning import PRECORRECTION_MU_REL, PRECORRECTION_STEPS, SamplingRanges, eye_features, precorrect
 
 FORMAT = "vrcorrect-dataset"
 FORMAT_VERSION = 1
@@ -80,7 +80,11 @@ class DatasetConfig:
     fast_tolerance
         ``fast``'s relative stopping tolerance.
     precorrection_mu_rel
-        Regulariser of the ``precorrected`` channels (relative to ``||K||^2``).
+        Regulariser of the ``precorrected`` channels (relative to ``||K||^2``) when
+        ``precorrection_steps`` is 0.
+    precorrection_steps
+        Projected-gradient steps of the ``precorrected`` channels (0 to 100; 0: the clipped
+        regularised inverse; a manifest without this field was built with 0).
     wavelength_step_nm
         Force the kernels' wavelength step (None: the kernel builder chooses; 40 or 80 is
         much quicker for tiny test sets).
@@ -98,12 +102,13 @@ class DatasetConfig:
     samples_per_shard: int = 32
     fast_tolerance: float = 1e-2
     precorrection_mu_rel: float = PRECORRECTION_MU_REL
+    precorrection_steps: int = PRECORRECTION_STEPS
     wavelength_step_nm: int | None = None
     crops_per_eye: int = 1
 
     def __post_init__(self) -> None:
         for name, lo, hi in (("samples", 1, 10_000_000), ("crop_px", 16, 1024), ("samples_per_shard", 1, 100_000),
-                             ("crops_per_eye", 1, 10_000)):
+                             ("crops_per_eye", 1, 10_000), ("precorrection_steps", 0, 100)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
                 raise ValidationError(name, v, f"an integer from {lo} to {hi}")
@@ -132,6 +137,7 @@ class DatasetConfig:
     def from_dict(cls, doc: dict[str, Any]) -> "DatasetConfig":
         d = dict(doc)
         d["ranges"] = SamplingRanges.from_dict(d.get("ranges", {}))
+        d.setdefault("precorrection_steps", 0)             # manifests from before the field: the inverse
         return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
 
 
@@ -222,7 +228,7 @@ def _compute_sample(config: DatasetConfig, spec: SampleSpec) -> dict[str, Any]:
     pv = eye.power_vector()
     return {
         "spec": spec, "target": crop, "target_lms": problem.target_lms,
-        "precorrected": precorrect(crop, kernel, reference, config.precorrection_mu_rel),
+        "precorrected": precorrect(crop, kernel, reference, config.precorrection_mu_rel, config.precorrection_steps),
         "fast": fast.image, "kernel": kernel.kernel.astype(np.float32),
         "eye": np.array([pv.M_D, pv.J0_D, pv.J45_D, eye.pupil_diameter_mm], np.float32),
         "features": eye_features(eye, config.ranges),

@@ -37,6 +37,7 @@ OUTPUT_NAME = "displayed"
 FP32_TOLERANCE = 1e-4
 METADATA_KEYS = ("vrcorrect.format", "vrcorrect.version", "vrcorrect.inputs", "vrcorrect.ranges",
                  "vrcorrect.display", "vrcorrect.reference", "vrcorrect.precorrection_mu_rel",
+                 "vrcorrect.precorrection_steps",
                  "vrcorrect.train", "vrcorrect.precision", "vrcorrect.opset")
 
 
@@ -65,6 +66,7 @@ def metadata_for(ckpt: dict, precision: str) -> dict[str, str]:
         "vrcorrect.display": json.dumps(ds["display"]),
         "vrcorrect.reference": ds.get("reference", "glasses"),
         "vrcorrect.precorrection_mu_rel": repr(float(ds["config"]["precorrection_mu_rel"])),
+        "vrcorrect.precorrection_steps": str(int(ds["config"].get("precorrection_steps", 0))),
         "vrcorrect.train": json.dumps({"step": ckpt["step"], "config": ckpt["train_config"],
                                        "dataset_samples": ds["samples"], "dataset_seed": ds["config"]["seed"],
                                        "crop_px": ds["config"]["crop_px"]}),

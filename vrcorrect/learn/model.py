@@ -23,9 +23,11 @@ Conditioning on the eye (our addition: the paper trains one network per prescrip
    so the same weights can behave differently for myopia and hyperopia (whose
    pre-corrections look alike) and for small and large pupils.
 
-Output: ``clip(image + head(features), 0, 1)`` with the head's 1x1 convolution and the FiLM
-MLP's last layer initialised to zero, so an untrained model is exactly "no correction" and
-training starts from the uncorrected objective.
+Output: ``clip(base + head(features), 0, 1)`` with the head's 1x1 convolution and the FiLM
+MLP's last layer initialised to zero, so an untrained model returns ``base`` exactly: by
+default (``base="precorrected"``) the pre-correction channels, so training starts from the
+projected-gradient steps' objective (already below ``wiener``'s on the data set's eyes) and
+the network learns what those few steps miss; ``base="image"`` starts from no correction.
 
 Default size (``width=16, depth=3``: 16-32-64-128 channels, about 0.5 M parameters, 2 MB in
 float32) is chosen for real time; ``width=8`` is a quarter of the cost.
@@ -47,6 +49,9 @@ from torch.nn import functional as F
 from ..errors import ValidationError
 from .conditioning import N_FEATURES
 
+#: What the output may be added to.
+BASES = ("precorrected", "image")
+
 
 @dataclass(frozen=True)
 class UNetConfig:
@@ -60,20 +65,32 @@ class UNetConfig:
         Number of max-pool down-samplings (1 to 6).
     film_hidden
         Hidden units of the FiLM MLP (0: no FiLM, pre-correction channels only).
+    base
+        What the network's output is added to: ``"precorrected"`` (default) or ``"image"``.
     """
 
     width: int = 16
     depth: int = 3
     film_hidden: int = 32
+    base: str = "precorrected"
 
     def __post_init__(self) -> None:
         for name, lo, hi in (("width", 1, 256), ("depth", 1, 6), ("film_hidden", 0, 4096)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
                 raise ValidationError(name, v, f"an integer from {lo} to {hi}")
+        if self.base not in BASES:
+            raise ValidationError("base", self.base, " or ".join(BASES))
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> "UNetConfig":
+        """Inverse of :meth:`as_dict`; a checkpoint from before ``base`` existed added to the image."""
+        d = {k: v for k, v in doc.items() if k in cls.__dataclass_fields__}
+        d.setdefault("base", "image")
+        return cls(**d)
 
 
 class _DoubleConv(nn.Module):
@@ -139,7 +156,8 @@ class ConditionedUNet(nn.Module):
             x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
             x = block(torch.cat([x, skip], dim=1), films[k])
             k += 1
-        return torch.clamp(image + self.head(x), 0.0, 1.0)
+        base = precorrected if self.config.base == "precorrected" else image
+        return torch.clamp(base + self.head(x), 0.0, 1.0)
 
 
 def parameter_count(model: nn.Module) -> int:

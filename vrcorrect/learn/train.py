@@ -109,7 +109,7 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> "TrainConfig":
         d = {k: v for k, v in doc.items() if k in cls.__dataclass_fields__}
-        d["model"] = UNetConfig(**d.get("model", {}))
+        d["model"] = UNetConfig.from_dict(d.get("model", {}))
         return cls(**d)
 
 
@@ -249,7 +249,7 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
 
 def model_from_checkpoint(ckpt: dict[str, Any]) -> ConditionedUNet:
     """The trained model of a checkpoint, in eval mode."""
-    model = ConditionedUNet(UNetConfig(**ckpt["train_config"]["model"]))
+    model = ConditionedUNet(UNetConfig.from_dict(ckpt["train_config"]["model"]))
     model.load_state_dict(ckpt["model"])
     return model.eval()
 

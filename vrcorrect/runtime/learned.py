@@ -6,7 +6,7 @@ not a constant.  The exported graph (:mod:`vrcorrect.learn.export`) has three in
 ``image`` and ``precorrected`` float32 ``(N, 3, H, W)``, ``eye`` float32 ``(N, 4)`` - and one
 output ``displayed`` of the image's shape; its metadata (``vrcorrect.format`` =
 ``vrcorrect-learned-v1``) carries the training ranges, the display, the reference and the
-pre-correction's regulariser.  Baking one eye into the graph instead would need a per-user
+pre-correction's settings.  Baking one eye into the graph instead would need a per-user
 export (kernel build, filter design and an export with torch on the user's machine) and an
 in-graph mirrored convolution as wide as the eye's inverse filter; feeding the eye keeps
 one shipped file and lets a prescription change take effect at the next frame.
@@ -20,8 +20,8 @@ This module is that contract's runtime side, backwards compatible with the slot:
   than the trained one (naming the range and suggesting ``wiener`` or ``fast``) and returns a
   :class:`LearnedEye`, whose :meth:`LearnedEye.infer` has the slot's signature: a
   ``(3, H, W)`` linear RGB image in, the displayed ``(3, H, W)`` out.  The pre-correction
-  channels are computed here with numpy (the ``wiener`` method's filters, designed once per
-  eye; on the GPU path they are the GLSL fallback's own pass).
+  channels are computed here with numpy (projected-gradient steps by FFT, or for models
+  trained with ``precorrection_steps = 0`` the ``wiener`` method's filters).
 
 The Corrector's ``onnx`` backend binds such a model to its eye (:meth:`LearnedModel.for_eye`,
 again at every prescription change) and runs :meth:`LearnedEye.run` in the slot.
@@ -85,6 +85,7 @@ class LearnedModel:
             self.ranges = SamplingRanges.from_dict(json.loads(meta["vrcorrect.ranges"]))
             self.display: dict[str, Any] = json.loads(meta["vrcorrect.display"])
             self.mu_rel = float(meta["vrcorrect.precorrection_mu_rel"])
+            self.precorrection_steps = int(meta.get("vrcorrect.precorrection_steps", "0"))
             self.reference = meta.get("vrcorrect.reference", "glasses")
         except (KeyError, ValueError) as exc:
             raise InputError(f"{self.path}: incomplete vrcorrect metadata ({exc})") from None
@@ -123,7 +124,7 @@ class LearnedEye:
         """The pre-correction channels ``(3, H, W)`` the model is fed with."""
         hwc = np.moveaxis(np.asarray(image_chw, np.float32), 0, 2)
         return np.ascontiguousarray(np.moveaxis(precorrect(hwc, self.kernel, self.reference_kernel,
-                                                           self.model.mu_rel), 2, 0))
+                                                           self.model.mu_rel, self.model.precorrection_steps), 2, 0))
 
     def infer(self, image_chw: np.ndarray) -> np.ndarray:
         """Run on a ``(3, H, W)`` float32 linear RGB image; returns ``(3, H, W)`` float32 in [0, 1]."""
