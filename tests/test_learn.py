@@ -282,7 +282,9 @@ def test_dataset_and_train_commands_end_to_end(tmp_path, capsys):
             "--wavelength-step-nm", "80", "--samples-per-shard", "1", *rng]
     assert main(args) == 0 and "2 computed" in capsys.readouterr().out
     assert main(args) == 0 and "0 computed, 2 already there" in capsys.readouterr().out     # resumed: nothing to do
-    assert [i["name"] for i in read_manifest(data)["images"]][-1] == "colour_bars"      # the bundled images
+    names = [i["name"] for i in read_manifest(data)["images"]]
+    assert names[-1] == "colour_bars" and "astronaut" in names      # the bundled images ...
+    assert "rocket" not in names                                    # ... but bench learned's held-out one
     targs = ["train", str(data), "-o", str(run), "--steps", "2", "--width", "4", "--depth", "2", "--film-hidden", "4"]
     assert main(targs) == 0 and "checkpoint" in capsys.readouterr().out
     assert main(targs) == 2 and "--resume" in capsys.readouterr().err
@@ -543,3 +545,6 @@ def test_bench_learned_scores_a_model_on_held_out_data(tiny_onnx, tmp_path):
         check_eye(e, TINY_RANGES)
     assert "<!-- bench:learned -->" in out.read_text() and "48x48" in r["markdown"] and "40x32" in r["markdown"]
     assert "Model card" in card.read_text() and TINY_RANGES.describe() in card.read_text()
+    with pytest.raises(ValidationError, match="not trained on.*star, text"):    # the tiny data set's images
+        run_learned_bench(tiny_onnx, out=tmp_path / "b2.md", images=("text",), eyes=1, size=48, progress=False)
+    assert not (tmp_path / "b2.md").exists()

@@ -24,8 +24,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from .bench import machine_description, markdown_table, write_section
+from .errors import ValidationError
+from .learn.dataset import HELD_OUT_IMAGES
 
-HELD_OUT_IMAGES = ("rocket", "retina")
 EYE_SEED = 20261123
 
 
@@ -67,6 +68,11 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
     from .solvers import make_problem, objective, solve
 
     model = LearnedModel(model_path, providers=("CPUExecutionProvider",))
+    trained_on = set(json.loads(model.metadata.get("vrcorrect.train", "{}")).get("images", []))
+    if trained_on & set(images):
+        raise ValidationError("images", sorted(trained_on & set(images)),
+                              f"images the model {Path(model_path).name} was not trained on (it saw "
+                              f"{', '.join(sorted(trained_on))})")
     display = get_display(model.display["name"])
     eye_list = held_out_eyes(model.ranges, eyes)
     rows, cases = [], []

@@ -24,7 +24,7 @@ def _pair(field: str, values: list[float] | None, default: tuple[float, float]) 
 def cmd_dataset(args: argparse.Namespace) -> int:
     from .evaluate import bundled_images, folder_images
     from .learn.conditioning import SamplingRanges
-    from .learn.dataset import DatasetConfig, build_dataset, check_ray
+    from .learn.dataset import HELD_OUT_IMAGES, DatasetConfig, build_dataset, check_ray
 
     d = SamplingRanges()
     ranges = SamplingRanges(sphere_D=_pair("--sphere-D", args.sphere_D, d.sphere_D),
@@ -38,7 +38,10 @@ def cmd_dataset(args: argparse.Namespace) -> int:
     check_ray(args.ray)             # Ray installed? before loading any image
     if args.crop_px > args.image_px:
         raise ValidationError("--crop-px", args.crop_px, f"at most --image-px ({args.image_px})")
-    images = folder_images(args.images, args.image_px) if args.images else bundled_images(args.image_px)
+    if args.images:
+        images = folder_images(args.images, args.image_px)
+    else:                            # the benchmark's held-out images stay out of the training data
+        images = [(n, im) for n, im in bundled_images(args.image_px) if n not in HELD_OUT_IMAGES]
     workers = args.workers if args.workers is not None else max(1, os.cpu_count() or 1)
     report = build_dataset(args.out, images, config, workers=workers, force=args.force, ray_address=args.ray)
     print(f"data set {report.out_dir}: {report.samples} samples in {config.shards} shards "
@@ -69,7 +72,8 @@ def add_parser(sub) -> None:
                                    "corrected by the fast method; .npz shards + manifest.json in OUT. Re-running "
                                    "the same command resumes: finished shards are skipped.")
     p.add_argument("out", metavar="OUT", help="data set folder")
-    p.add_argument("--images", metavar="FOLDER", help="PNG/JPEG folder (default: the bundled images)")
+    p.add_argument("--images", metavar="FOLDER", help="PNG/JPEG folder (default: the bundled images but "
+                   "rocket, which vrcorrect bench learned holds out)")
     p.add_argument("--image-px", type=int, default=256, help="images are centre-cropped and resized to this (256)")
     p.add_argument("--samples", type=int, default=1000, help="number of samples (1000)")
     p.add_argument("--crop-px", type=int, default=128, help="side of the random crops (128)")

@@ -54,6 +54,8 @@ from ..errors import InputError, ValidationError, VrcorrectError
 from ..fileio import write_text_atomic, write_with
 from .conditioning import PRECORRECTION_MU_REL, PRECORRECTION_STEPS, SamplingRanges, eye_features, precorrect
 
+#: Images kept out of the default data set: ``vrcorrect bench learned`` scores models on them.
+HELD_OUT_IMAGES = ("rocket", "retina")
 FORMAT = "vrcorrect-dataset"
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"

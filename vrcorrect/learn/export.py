@@ -69,7 +69,8 @@ def metadata_for(ckpt: dict, precision: str) -> dict[str, str]:
         "vrcorrect.precorrection_steps": str(int(ds["config"].get("precorrection_steps", 0))),
         "vrcorrect.train": json.dumps({"step": ckpt["step"], "config": ckpt["train_config"],
                                        "dataset_samples": ds["samples"], "dataset_seed": ds["config"]["seed"],
-                                       "crop_px": ds["config"]["crop_px"]}),
+                                       "crop_px": ds["config"]["crop_px"],
+                                       "images": [i["name"] for i in ds.get("images", [])]}),
         "vrcorrect.precision": precision,
         "vrcorrect.opset": str(OPSET),
     }

@@ -261,7 +261,8 @@ def _save_checkpoint(run_dir: Path, model, optimiser, step: int, config: TrainCo
     ckpt = {"format": CHECKPOINT_FORMAT, "step": step, "model": model.state_dict(),
             "optimizer": optimiser.state_dict(), "train_config": config.as_dict(),
             "dataset": {"path": str(data.dir), "samples": data.total, "config": m["config"],
-                        "display": m["display"], "reference": m.get("reference", "glasses")},
+                        "display": m["display"], "reference": m.get("reference", "glasses"),
+                        "images": [{"name": i["name"]} for i in m.get("images", [])]},
             "vrcorrect_version": __version__}
 
     def write(tmp: Path) -> None:
