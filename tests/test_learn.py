@@ -540,6 +540,7 @@ def test_bench_learned_scores_a_model_on_held_out_data(tiny_onnx, tmp_path):
     for c in r["cases"]:
         expected = (c["objective_none"] - c["objective_learned"]) / (c["objective_none"] - c["objective_fast"])
         assert c["gap_closed"] == pytest.approx(expected)
+        assert c["objective_precorrected"] < c["objective_none"]        # 3 projected-gradient steps
         assert c["objective_fast"] < c["objective_none"]
     for e in held_out_eyes(TINY_RANGES, 4):
         check_eye(e, TINY_RANGES)
