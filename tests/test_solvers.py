@@ -110,8 +110,9 @@ def test_fast_is_not_stopped_by_a_rise_and_returns_its_best_iterate(desktop):
     rises = [i for i in range(1, len(h)) if h[i] > h[i - 1]]
     assert rises, "the case no longer shows a rise; pick another"
     assert r.iterations > rises[0] + 1
-    assert r.objective == pytest.approx(min(h), rel=1e-5)
-    assert r.objective < h[-1] or h[-1] == min(h)
+    # history: ADMM's float32 objective at each iterate; r.objective: recomputed in float64
+    assert r.objective == pytest.approx(min(h), rel=1e-4)
+    assert abs(r.objective - min(h)) <= abs(r.objective - h[-1])     # the best iterate, not the last
     none = solve(p, "none").objective
     assert r.objective < 0.96 * none
 
