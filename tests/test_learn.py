@@ -407,6 +407,18 @@ def test_runtime_learned_model_refuses_out_of_range_and_equals_torch(perturbed_c
         ref = net(torch.from_numpy(image)[None], torch.from_numpy(bound.precorrected(image))[None],
                   torch.from_numpy(eye_features(eye, TINY_RANGES))[None])[0].numpy()
     assert out.shape == image.shape and np.max(np.abs(out - ref)) <= 1e-4
+    # the kept kernel spectrum (one per frame size) gives the same pre-correction as a fresh one
+    from vrcorrect.learn.conditioning import precorrect
+
+    def fresh(img):
+        hwc = np.moveaxis(img, 0, 2)
+        return np.moveaxis(precorrect(hwc, bound.kernel, bound.reference_kernel, model.mu_rel,
+                                      model.precorrection_steps), 2, 0)
+
+    small = image[:, :24, :32].copy()
+    for img in (image, small, image):
+        np.testing.assert_array_equal(bound.precorrected(img), fresh(img))
+    assert model.precorrection_steps > 0 and sorted(bound._plans) == [(24, 32), (40, 40)]
 
 
 def test_loss_of_an_eye_in_focus_stays_bounded():

@@ -294,3 +294,15 @@ def test_projected_gradient_steps_descend_and_stay_in_the_box(desktop, myope_ker
     codes = photo("astronaut", 48)
     zero = make_problem(decode(desktop, codes), build_kernel(e, desktop, INF), build_reference_kernel(e, desktop, INF))
     np.testing.assert_allclose(encode(desktop, projected_gradient(zero, 3)), codes, atol=1.0 / 255)
+
+
+def test_projected_gradient_plan_is_reused_and_checked(myope_kernel):
+    """A renderer's kept plan gives the same image as a fresh one; a plan for another size is refused."""
+    from vrcorrect.solvers.wiener import gradient_plan, projected_gradient
+
+    p = make_problem(photo("astronaut", 48), myope_kernel)
+    plan = gradient_plan(myope_kernel, (48, 48))
+    np.testing.assert_array_equal(projected_gradient(p, 3, plan), projected_gradient(p, 3))
+    np.testing.assert_array_equal(projected_gradient(p, 3, plan), projected_gradient(p, 3, plan))
+    with pytest.raises(ValidationError, match="plan"):
+        projected_gradient(p, 3, gradient_plan(myope_kernel, (40, 48)))

@@ -73,7 +73,7 @@ def add_parser(sub) -> None:
                                    "the same command resumes: finished shards are skipped.")
     p.add_argument("out", metavar="OUT", help="data set folder")
     p.add_argument("--images", metavar="FOLDER", help="PNG/JPEG folder (default: the bundled images but "
-                   "rocket, which vrcorrect bench learned holds out)")
+                   "rocket and retina, which vrcorrect bench learned holds out)")
     p.add_argument("--image-px", type=int, default=256, help="images are centre-cropped and resized to this (256)")
     p.add_argument("--samples", type=int, default=1000, help="number of samples (1000)")
     p.add_argument("--crop-px", type=int, default=128, help="side of the random crops (128)")

@@ -131,7 +131,7 @@ def eye_features(eye: EyeRx, ranges: SamplingRanges) -> np.ndarray:
 
 
 def precorrect(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel | None,
-               mu_rel: float = PRECORRECTION_MU_REL, steps: int = 0) -> np.ndarray:
+               mu_rel: float = PRECORRECTION_MU_REL, steps: int = 0, plan=None) -> np.ndarray:
     """The model's extra input: ``steps`` projected-gradient steps on the eye's objective from
     ``image``, or (``steps = 0``) the eye's regularised inverse applied to ``image``, clipped.
 
@@ -146,6 +146,9 @@ def precorrect(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel
     steps
         Accelerated projected-gradient steps (:func:`vrcorrect.solvers.wiener.projected_gradient`;
         its objective is the glasses-on target of ``reference_kernel``, or ``A t``).
+    plan
+        :func:`vrcorrect.solvers.wiener.gradient_plan` of ``kernel`` for this image size
+        (``steps > 0`` only; None: built here).  A renderer keeps one per eye and frame size.
 
     Returns
     -------
@@ -159,7 +162,7 @@ def precorrect(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel
     if steps > 0:
         from ..solvers import make_problem
 
-        return projected_gradient(make_problem(image, kernel, reference_kernel), steps)
+        return projected_gradient(make_problem(image, kernel, reference_kernel), steps, plan)
     filters = correction_filters(kernel, mu_rel, reference_kernel)
     out = apply_filters(np.moveaxis(image, 2, 0), filters.taps)
     return np.ascontiguousarray(np.clip(np.moveaxis(out, 0, 2), 0.0, 1.0), dtype=np.float32)

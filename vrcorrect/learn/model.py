@@ -9,12 +9,12 @@ convolution; channels ``width * 2**level``.
 Conditioning on the eye (our addition: the paper trains one network per prescription):
 
 1. **Pre-correction channels.**  Besides the target image (3 channels, linear RGB), the
-   network sees the eye's regularised inverse applied to it
-   (:func:`vrcorrect.learn.conditioning.precorrect`: the ``wiener`` method's filters,
-   clipped, not blended).  That puts the eye's blur - its size, orientation and chromatic
+   network sees a few accelerated projected-gradient steps on the eye's own objective from
+   it (:func:`vrcorrect.learn.conditioning.precorrect`; older models: the ``wiener``
+   inverse, clipped).  That puts the eye's blur - its size, orientation and chromatic
    structure, which a few scalars describe poorly at the pixel level - into the input in
    the image's own coordinates, where convolutions handle it; the network's job becomes
-   repairing the clipping and ringing of a linear inverse, which is local.  It is numpy
+   finishing an optimisation that is already under way, which is local.  It is numpy
    (FFT) and is computed by the data pipeline and, at run time, by
    :mod:`vrcorrect.runtime.learned` without torch.
 2. **FiLM.**  A small MLP maps the eye's features (:func:`~vrcorrect.learn.conditioning.eye_features`:

@@ -119,12 +119,28 @@ class LearnedEye:
         self.model, self.eye, self.kernel, self.reference_kernel = model, eye, kernel, reference_kernel
         self.features = eye_features(eye, model.ranges)[None]
         self._buffers: dict[tuple[int, int], np.ndarray] = {}
+        self._plans: dict[tuple[int, int], Any] = {}
 
     def precorrected(self, image_chw: np.ndarray) -> np.ndarray:
-        """The pre-correction channels ``(3, H, W)`` the model is fed with."""
+        """The pre-correction channels ``(3, H, W)`` the model is fed with.
+
+        The kernel's spectrum for the projected-gradient steps is computed at the first frame
+        of each size and kept (the last two sizes: a mirror and a headset eye, say).
+        """
         hwc = np.moveaxis(np.asarray(image_chw, np.float32), 0, 2)
-        return np.ascontiguousarray(np.moveaxis(precorrect(hwc, self.kernel, self.reference_kernel,
-                                                           self.model.mu_rel, self.model.precorrection_steps), 2, 0))
+        plan = None
+        if self.model.precorrection_steps > 0 and self.kernel.size > 1:
+            from ..solvers.wiener import gradient_plan
+
+            size = hwc.shape[:2]
+            plan = self._plans.get(size)
+            if plan is None:
+                plan = gradient_plan(self.kernel, size)
+                while len(self._plans) >= 2:
+                    self._plans.pop(next(iter(self._plans)))
+                self._plans[size] = plan
+        return np.ascontiguousarray(np.moveaxis(precorrect(hwc, self.kernel, self.reference_kernel, self.model.mu_rel,
+                                                           self.model.precorrection_steps, plan), 2, 0))
 
     def infer(self, image_chw: np.ndarray) -> np.ndarray:
         """Run on a ``(3, H, W)`` float32 linear RGB image; returns ``(3, H, W)`` float32 in [0, 1]."""
@@ -143,3 +159,4 @@ class LearnedEye:
 
     def release(self) -> None:
         self._buffers.clear()
+        self._plans.clear()
