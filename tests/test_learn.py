@@ -273,6 +273,25 @@ def test_resumed_training_equals_uninterrupted(tiny_dataset, tmp_path):
               progress=False)
 
 
+def test_cosine_schedule_lowers_the_learning_rate_and_fixes_the_step_count(tiny_dataset, tmp_path):
+    from vrcorrect.learn.train import train
+
+    cfg = tiny_train_config(steps=6, batch_size=2, checkpoint_every=3, lr_schedule="cosine")
+    assert cfg.learning_rate_at(0) == pytest.approx(1e-3) and cfg.learning_rate_at(6) == pytest.approx(1e-5)
+    assert cfg.learning_rate_at(3) == pytest.approx((1e-3 + 1e-5) / 2)
+    train(tiny_dataset, tmp_path / "c", cfg, progress=False)
+    lrs = [float(r["lr"]) for r in _log(tmp_path / "c")]
+    assert lrs[0] == pytest.approx(1e-3) and all(a > b for a, b in zip(lrs, lrs[1:])) and lrs[-1] < 1e-4
+    constant = tiny_train_config(steps=2, batch_size=2)
+    train(tiny_dataset, tmp_path / "k", constant, progress=False)
+    assert {float(r["lr"]) for r in _log(tmp_path / "k")} == {1e-3}
+    with pytest.raises(InputError, match="--steps 6"):
+        train(tiny_dataset, tmp_path / "c", tiny_train_config(steps=8, batch_size=2, checkpoint_every=3,
+                                                              lr_schedule="cosine"), resume=True, progress=False)
+    with pytest.raises(ValidationError, match="lr_schedule"):
+        tiny_train_config(lr_schedule="step")
+
+
 def test_dataset_and_train_commands_end_to_end(tmp_path, capsys):
     from vrcorrect.cli import main
 

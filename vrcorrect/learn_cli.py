@@ -55,7 +55,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from .learn.train import TrainConfig, train
 
     config = TrainConfig(steps=args.steps, batch_size=args.batch_size, learning_rate=args.learning_rate,
-                         target_weight=args.target_weight, seed=args.seed, checkpoint_every=args.checkpoint_every,
+                         target_weight=args.target_weight, lr_schedule=args.lr_schedule, seed=args.seed, checkpoint_every=args.checkpoint_every,
                          model=UNetConfig(width=args.width, depth=args.depth, film_hidden=args.film_hidden,
                                           base=args.base))
     report = train(args.dataset, args.out, config, resume=args.resume, force=args.force, device=args.device)
@@ -110,6 +110,8 @@ def add_parser(sub) -> None:
     p.add_argument("--steps", type=int, default=20000, help="total optimiser steps (20000)")
     p.add_argument("--batch-size", type=int, default=8, help="samples per step (8)")
     p.add_argument("--learning-rate", type=float, default=1e-3, help="Adam step size (1e-3)")
+    p.add_argument("--lr-schedule", choices=("constant", "cosine"), default="constant",
+                   help="learning rate: constant, or cosine down to 1 %% of it at --steps (constant)")
     p.add_argument("--target-weight", type=float, default=0.2,
                    help="weight of the distance to fast's solution, 0-1 (0.2; 0: objective only)")
     p.add_argument("--seed", type=int, default=0, help="seed of the weights and the batch order (0)")

@@ -22,11 +22,13 @@ Loss, per sample ``b`` of a batch, averaged over the batch::
 Batches are a pure function of ``(seed, step)``: each epoch visits the shards in an order
 drawn from ``(seed, epoch)`` and the samples of each shard in an order drawn from
 ``(seed, epoch, shard)``; so a run resumed from its checkpoint sees the same batches as
-one never interrupted.  Adam, constant learning rate.
+one never interrupted.  Adam; the learning rate is constant, or (``lr_schedule="cosine"``)
+falls along a half cosine from ``learning_rate`` at step 0 to 1 % of it at ``steps`` - a run
+resumed under that schedule must keep its ``steps``, since they shape the curve.
 
 Run folder: ``checkpoint.pt`` (model, optimiser, step, configurations, the data set's
 ranges and display; written atomically every ``checkpoint_every`` steps and at the end),
-``log.csv`` (``step,loss,objective_ratio,distance_ratio,seconds``), ``train.json``
+``log.csv`` (``step,loss,objective_ratio,distance_ratio,lr,seconds``), ``train.json``
 (settings).
 """
 
@@ -54,7 +56,11 @@ from .model import ConditionedUNet, UNetConfig
 CHECKPOINT = "checkpoint.pt"
 LOG = "log.csv"
 SETTINGS = "train.json"
-LOG_COLUMNS = ("step", "loss", "objective_ratio", "distance_ratio", "seconds")
+LOG_COLUMNS = ("step", "loss", "objective_ratio", "distance_ratio", "lr", "seconds")
+#: Learning-rate schedules.
+LR_SCHEDULES = ("constant", "cosine")
+#: Where the cosine schedule ends, relative to ``learning_rate``.
+COSINE_FINAL = 0.01
 CHECKPOINT_FORMAT = "vrcorrect-learned-checkpoint"
 #: Floor of the loss's denominators (objective and squared distance units): an eye in focus has an
 #: uncorrected objective of 0, which must not turn a tiny deviation into a huge loss.
@@ -75,6 +81,8 @@ class TrainConfig:
         Adam's step size.
     target_weight
         ``w`` of the loss (0 to 1): weight of the distance to ``fast``'s solution.
+    lr_schedule
+        ``"constant"`` (default) or ``"cosine"`` (down to 1 % of ``learning_rate`` at ``steps``).
     seed
         Seed of the initial weights and of the batch order.
     checkpoint_every
@@ -87,6 +95,7 @@ class TrainConfig:
     batch_size: int = 8
     learning_rate: float = 1e-3
     target_weight: float = 0.2
+    lr_schedule: str = "constant"
     seed: int = 0
     checkpoint_every: int = 500
     model: UNetConfig = field(default_factory=UNetConfig)
@@ -100,11 +109,20 @@ class TrainConfig:
             raise ValidationError("learning_rate", self.learning_rate, "a number in (0, 1)")
         if not (0.0 <= self.target_weight <= 1.0):
             raise ValidationError("target_weight", self.target_weight, "a number from 0 to 1")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValidationError("lr_schedule", self.lr_schedule, " or ".join(LR_SCHEDULES))
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ValidationError("seed", self.seed, "a non-negative integer")
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    def learning_rate_at(self, step: int) -> float:
+        """The learning rate of optimiser step ``step`` (0-based)."""
+        if self.lr_schedule == "constant":
+            return self.learning_rate
+        final = COSINE_FINAL * self.learning_rate
+        return final + (self.learning_rate - final) * 0.5 * (1.0 + math.cos(math.pi * min(step, self.steps) / self.steps))
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> "TrainConfig":
@@ -346,6 +364,9 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig, res
                                                                     "checkpoint_every": 0}:
             raise InputError(f"{ckpt_path}: was trained with other settings ({old}); resume with the same "
                              "ones, or --force to start again")
+        if config.lr_schedule == "cosine" and old.steps != config.steps:
+            raise InputError(f"{ckpt_path}: was trained for --steps {old.steps} under the cosine schedule, whose "
+                             f"curve the step count shapes; resume with --steps {old.steps}")
         if ckpt["dataset"]["config"] != data.manifest["config"]:
             raise InputError(f"{ckpt_path}: was trained on a different data set than {data.dir}")
         model.load_state_dict(ckpt["model"])
@@ -367,6 +388,9 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig, res
             writer = csv.DictWriter(log, fieldnames=LOG_COLUMNS, lineterminator="\n")
             for step in range(start, config.steps):
                 batch = _tensors(data.batch(config.seed, step, config.batch_size), device)
+                lr = config.learning_rate_at(step)
+                for group in optimiser.param_groups:
+                    group["lr"] = lr
                 x = model(batch["target"], batch["precorrected"], batch["features"])
                 loss, ratio, dratio = loss_terms(x, batch, config.target_weight)
                 optimiser.zero_grad(set_to_none=True)
@@ -380,7 +404,7 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig, res
                 last = value
                 writer.writerow({"step": step + 1, "loss": f"{value:.6g}",
                                  "objective_ratio": f"{float(ratio.detach().mean()):.6g}",
-                                 "distance_ratio": f"{float(dratio.detach().mean()):.6g}",
+                                 "distance_ratio": f"{float(dratio.detach().mean()):.6g}", "lr": f"{lr:.6g}",
                                  "seconds": f"{time.perf_counter() - t0:.3f}"})
                 log.flush()
                 bar.update(1)
