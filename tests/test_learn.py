@@ -577,6 +577,9 @@ def test_bench_learned_scores_a_model_on_held_out_data(tiny_onnx, tmp_path):
         check_eye(e, TINY_RANGES)
     assert "<!-- bench:learned -->" in out.read_text() and "48x48" in r["markdown"] and "40x32" in r["markdown"]
     assert "Model card" in card.read_text() and TINY_RANGES.describe() in card.read_text()
+    # the card tells the data and the run from the model's metadata: 3 crops of the tiny images, 3 eyes
+    assert "- data: 3 random 32x32 crops of star, text; 3 eyes drawn" in card.read_text()
+    assert "batch 3, learning rate 0.001 (constant)" in card.read_text()
     with pytest.raises(ValidationError, match="not trained on.*star, text"):    # the tiny data set's images
         run_learned_bench(tiny_onnx, out=tmp_path / "b2.md", images=("text",), eyes=1, size=48, progress=False)
     assert not (tmp_path / "b2.md").exists()

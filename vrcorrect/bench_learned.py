@@ -207,6 +207,28 @@ def _precorrection_text(meta: dict[str, str]) -> str:
     return f"the clipped `wiener` inverse at regulariser {meta.get('vrcorrect.precorrection_mu_rel')}"
 
 
+def _training_lines(train: dict[str, Any]) -> list[str]:
+    """The card's account of the data set and the training run (from the model's metadata)."""
+    if not train:
+        return ["- (the model's metadata does not say)"]
+    cfg = train.get("config", {})
+    net = cfg.get("model", {})
+    samples, per_eye = train.get("dataset_samples"), train.get("crops_per_eye", 1)
+    eyes = f"{-(-int(samples) // int(per_eye))} eyes" if samples and per_eye else "eyes"
+    images = ", ".join(train.get("images", [])) or "(not recorded)"
+    w = cfg.get("target_weight", 0.2)
+    return [
+        f"- data: {samples} random {train.get('crop_px')}x{train.get('crop_px')} crops of {images}; "
+        f"{eyes} drawn uniformly over the ranges ({per_eye} crops each; seed {train.get('dataset_seed')}); "
+        f"each crop's target is `fast`'s solution (tolerance {train.get('fast_tolerance')}) for its eye",
+        f"- network: U-Net width {net.get('width')}, depth {net.get('depth')}, FiLM hidden {net.get('film_hidden')}, "
+        f"output added to the {net.get('base', 'image')} input",
+        f"- training: {train.get('step')} Adam steps, batch {cfg.get('batch_size')}, learning rate "
+        f"{cfg.get('learning_rate')} ({cfg.get('lr_schedule', 'constant')}), seed {cfg.get('seed')}; loss "
+        f"{1 - w:g} x objective / uncorrected objective + {w:g} x distance to `fast` / uncorrected distance",
+    ]
+
+
 def _card(model, summary, speed, bench_md: str) -> str:
     meta = model.metadata
     train = json.loads(meta.get("vrcorrect.train", "{}") or "{}")
@@ -224,7 +246,9 @@ def _card(model, summary, speed, bench_md: str) -> str:
         f"- ranges (anything outside is refused): {model.ranges.describe()}",
         f"- format {meta.get('vrcorrect.format')}, opset {meta.get('vrcorrect.opset')}, precision "
         f"{meta.get('vrcorrect.precision', 'fp32')}, vrcorrect {meta.get('vrcorrect.version')}",
-        f"- training: {json.dumps(train, sort_keys=True)}",
+        "",
+        "## Data and training",
+        *_training_lines(train),
         "",
         "## Measured (held-out images and eyes; `vrcorrect bench learned`)",
         "",

@@ -70,6 +70,8 @@ def metadata_for(ckpt: dict, precision: str) -> dict[str, str]:
         "vrcorrect.train": json.dumps({"step": ckpt["step"], "config": ckpt["train_config"],
                                        "dataset_samples": ds["samples"], "dataset_seed": ds["config"]["seed"],
                                        "crop_px": ds["config"]["crop_px"],
+                                       "crops_per_eye": ds["config"].get("crops_per_eye", 1),
+                                       "fast_tolerance": ds["config"].get("fast_tolerance"),
                                        "images": [i["name"] for i in ds.get("images", [])]}),
         "vrcorrect.precision": precision,
         "vrcorrect.opset": str(OPSET),
