@@ -304,7 +304,8 @@ def test_render_command_errors_are_one_line(tmp_path, images, capsys):
     out.write_bytes(b"keep me")
     assert main(["render", str(src), "-o", str(out)]) == 2                       # no overwrite
     assert out.read_bytes() == b"keep me"
-    assert main(["render", str(src), "-o", str(tmp_path / "o.png"), "--backend", "onnx"]) == 2
+    assert main(["render", str(src), "-o", str(tmp_path / "o.png"), "--backend", "onnx", "--model",
+                 str(tmp_path / "no.onnx")]) == 2
     assert main(["render", str(src), "-o", str(tmp_path / "o.png"), "--display", "crt"]) == 2
     assert main(["render", str(tmp_path / "missing.png"), "-o", str(tmp_path / "o.png")]) == 2
     err = capsys.readouterr().err

@@ -776,6 +776,7 @@ def test_no_gpu_allocations_per_frame_after_warm_up(mirror, monkeypatch):
     (["--source", __file__], "unsupported file type"),
     (["--display", "no-such-display"], "no-such-display"),
     (["--rx", "/no/such/rx.json"], "rx.json"),
+    (["--model", "m.onnx"], "only with --backend onnx"),
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(args, message, capsys):
     from vrcorrect.cli import main

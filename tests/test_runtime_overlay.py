@@ -332,7 +332,8 @@ def test_region_outside_the_screen_is_refused(x_display):
     (["--source", "screen", "--window", "0x4"], "--window"),
     (["--source", "screen", "--eye", "both"], "--eye"),
     (["--source", "screen", "--frames", "0"], "--frames"),
-    (["--source", "screen", "--backend", "onnx"], "--model"),
+    (["--source", "screen", "--model", "m.onnx"], "only with --backend onnx"),
+    (["--source", "screen", "--backend", "onnx", "--model", "/no/such/m.onnx"], "an existing ONNX model file"),
     (["--source", __file__, "--region", "0,0,4,4"], "--region"),
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(args, message, capsys):

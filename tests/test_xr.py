@@ -410,7 +410,7 @@ def test_no_headset_says_so(x_display, xr_runtime, tmp_path):
     (["--mirror-height", "tall"], "--mirror-height"),
     (["--region", "0,0,10,10"], "--region"),
     (["--source", "nope.png"], "nope.png"),
-    (["--backend", "onnx"], "--model"),
+    (["--model", "m.onnx"], "--backend onnx"),
 ])
 def test_bad_options_name_the_field(args, words, tmp_path):
     env = _env(tmp_path / "nowhere.json", tmp_path)

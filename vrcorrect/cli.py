@@ -19,6 +19,7 @@ from typing import Sequence
 import numpy as np
 
 from .errors import InputError, ValidationError, VrcorrectError
+from .runtime.model_path import DEFAULT_MODEL, model_for_backend
 
 EXIT_USAGE = 2
 EXIT_INTERNAL = 3
@@ -193,9 +194,6 @@ def cmd_correct(args: argparse.Namespace) -> int:
           f"(objective {result.objective:.3g}, {result.iterations} iterations, {result.seconds:.2f} s)"
           + (f"; report {args.report}" if args.report else ""))
     return 0
-
-
-DEFAULT_MODEL = Path(__file__).resolve().parent.parent / "models" / "default.onnx"
 
 
 def _learned_model(args: argparse.Namespace):
@@ -385,14 +383,13 @@ def cmd_render(args: argparse.Namespace) -> int:
     if out.suffix.lower() != ".png":
         raise ValidationError("--output", str(out), "a path ending in .png")
     check_writable(out, force=args.force)
-    if args.backend == "onnx" and not args.model:
-        raise ValidationError("--model", None, "an ONNX model file with --backend onnx")
+    model = model_for_backend(args.backend, args.model)
     rx_path = args.rx or str(Path(__file__).resolve().parent / "data" / "sample_rx.json")
     rx = load_prescription(rx_path)
     image = read_image(args.input)
     options = {"kernel_options": _kernel_options(args), "filter": args.filter}
-    if args.model:
-        options["model"] = args.model
+    if model:
+        options["model"] = model
     result, info = render_frame(image, rx, args.display, args.eye, args.backend, view=args.view, **options)
     write_png(out, result / 255.0, bits=8, force=args.force)
     print(f"{info['renderer']}: {args.eye} eye, sphere {info['sphere_D']:+.2f} D, cylinder {info['cylinder_D']:+.2f} D, "

@@ -38,6 +38,7 @@ import numpy as np
 from ..errors import InputError, ValidationError
 from ..learn.conditioning import SamplingRanges, check_eye, eye_features, precorrect
 from ..prescription import EyeRx
+from .model_path import DEFAULT_MODEL, model_for_backend  # noqa: F401  (re-exported)
 
 LEARNED_FORMAT = "vrcorrect-learned-v1"
 INPUTS = ("image", "precorrected", "eye")

@@ -954,6 +954,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="each eye's size in pixels (default 640x640; the window is twice as wide)")
     p.add_argument("--frames", metavar="N", help="render N frames and exit (tests, CI)")
     p.add_argument("--screenshot-dir", default=".", metavar="DIR", help="where p writes screenshots (default .)")
+    p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl",
+                   help="correction backend: glsl (default) or onnx (a learned model per eye)")
+    p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx (default: models/default.onnx)")
     p.set_defaults(func=cmd_mirror)
     return p
 
@@ -973,9 +976,13 @@ def parse_frames(text: str | None, field: str = "--frames") -> int | None:
 
 def cmd_mirror(args: argparse.Namespace) -> int:
     """``vrcorrect mirror``: check the arguments, open the mirror, run it, print a summary."""
+    from .model_path import model_for_backend
+
     frames = parse_frames(args.frames)
+    model = model_for_backend(args.backend, args.model)
     config = MirrorConfig(rx=args.rx, display=args.display, source=args.source, eye_size=parse_size(args.size),
-                          frames=frames, screenshot_dir=args.screenshot_dir, vsync=frames is None)
+                          frames=frames, screenshot_dir=args.screenshot_dir, vsync=frames is None,
+                          backend=args.backend, corrector_options={"model": model} if model else {})
     parse_source(config.source)  # fail on a bad source before anything slow
     print(key_map_text())
     t0 = time.perf_counter()

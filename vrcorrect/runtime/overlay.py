@@ -554,14 +554,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def cmd_overlay(args: argparse.Namespace) -> int:
     """``vrcorrect overlay``: check the arguments, open the overlay, run it, print a summary."""
+    from .model_path import model_for_backend
+
     frames = parse_frames(args.frames)
-    options = {}
-    if args.backend == "onnx":
-        if not args.model:
-            raise ValidationError("--model", None, "an ONNX model path with --backend onnx")
-        options["model"] = args.model
-    elif args.model:
-        raise ValidationError("--model", args.model, "only with --backend onnx")
+    model = model_for_backend(args.backend, args.model)
+    options = {"model": model} if model else {}
     config = OverlayConfig(
         source=args.source, region=None if args.region is None else parse_region(args.region), rx=args.rx,
         eye=args.eye, display=args.display, window=None if args.window is None else parse_size(args.window, "--window"),

@@ -932,11 +932,10 @@ def cmd_xr(args: argparse.Namespace) -> int:
         raise ValidationError("--region", args.region, "only with --source screen")
     if args.source != "screen":
         parse_source(args.source)
-    options = {}
-    if args.backend == "onnx":
-        if not args.model:
-            raise ValidationError("--model", None, "an ONNX model file with --backend onnx")
-        options["model"] = args.model
+    from .model_path import model_for_backend
+
+    model = model_for_backend(args.backend, args.model)
+    options = {"model": model} if model else {}
     config = XrConfig(rx=args.rx, display=args.display, source=args.source, region=args.region, frames=frames,
                       mirror=args.mirror, mirror_height=mirror_height, validation=args.validation,
                       backend=args.backend, corrector_options=options)
