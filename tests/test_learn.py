@@ -212,6 +212,33 @@ def test_precorrection_is_projected_gradient_and_lowers_the_objective(tiny_datas
         assert np.all(pre < unc) and np.all(pre >= shard["objective_fast"] * 0.999)
 
 
+def test_gradient_input_is_the_same_in_numpy_and_torch():
+    """The optional gradient channels: numpy at run time (FFT plan) equals torch autograd in training,
+    and a step along them from the pre-correction lowers the objective."""
+    import torch
+
+    from vrcorrect.display import decode, get_display
+    from vrcorrect.kernel import KernelOptions, build_kernel, build_reference_kernel
+    from vrcorrect.learn.conditioning import model_inputs
+    from vrcorrect.learn.train import gradient_step
+    from vrcorrect.solvers import make_problem, objective
+
+    display = get_display("quest2")
+    eye = EyeRx(-2.0, -1.0, 30.0, 4.0)
+    opts = KernelOptions(wavelength_step_nm=40)
+    k, r = build_kernel(eye, display, opts), build_reference_kernel(eye, display, opts)
+    image = decode(display, siemens_star(48)[:40])
+    pre, g = model_inputs(image, k, r, steps=2, gradient=True)
+    p = make_problem(image, k, r)
+    chw = torch.from_numpy(np.moveaxis(pre, 2, 0).copy())[None]
+    ref = gradient_step(chw, torch.from_numpy(k.kernel.astype(np.float32))[None],
+                        torch.from_numpy(np.moveaxis(p.target_lms, 2, 0).copy())[None])[0].numpy()
+    assert g.shape == image.shape and np.abs(g).max() > 1e-3
+    np.testing.assert_allclose(np.moveaxis(g, 2, 0), ref, atol=2e-5 * np.abs(ref).max())
+    assert objective(np.clip(pre - g, 0, 1), p) < objective(pre, p)
+    assert model_inputs(image, k, r, steps=2)[1] is None
+
+
 def test_manifest_from_before_precorrection_steps_means_the_inverse():
     cfg = tiny_config(precorrection_steps=5).as_dict()
     assert DatasetConfig.from_dict(cfg).precorrection_steps == 5
@@ -438,6 +465,46 @@ def test_runtime_learned_model_refuses_out_of_range_and_equals_torch(perturbed_c
     for img in (image, small, image):
         np.testing.assert_array_equal(bound.precorrected(img), fresh(img))
     assert model.precorrection_steps > 0 and sorted(bound._plans) == [(24, 32), (40, 40)]
+
+
+def test_model_with_gradient_input_trains_exports_and_runs_without_torch(tiny_dataset, tmp_path):
+    """``--gradient-input``: 9 input channels; the export has a fourth input ``gradient``; the
+    runtime computes it (numpy) and its output equals torch fed the same four inputs."""
+    import torch
+
+    from vrcorrect.display import get_display
+    from vrcorrect.kernel import KernelOptions, build_kernel, build_reference_kernel
+    from vrcorrect.learn.export import export_onnx
+    from vrcorrect.learn.model import UNetConfig
+    from vrcorrect.learn.train import load_checkpoint, model_from_checkpoint, train
+    from vrcorrect.runtime.learned import LearnedModel
+
+    cfg = tiny_train_config(steps=3, batch_size=2, model=UNetConfig(**TINY_MODEL, gradient_input=True))
+    train(tiny_dataset, tmp_path / "run", cfg, progress=False)
+    net = model_from_checkpoint(load_checkpoint(tmp_path / "run" / "checkpoint.pt"))
+    assert net.input_names == ("image", "precorrected", "eye", "gradient") and net.down[0].conv1.in_channels == 9
+    with torch.no_grad():                      # make the head matter (3 steps barely move it)
+        net.head.weight.normal_(0, 0.2)
+    ckpt = load_checkpoint(tmp_path / "run" / "checkpoint.pt")
+    ckpt["model"] = net.state_dict()
+    torch.save(ckpt, tmp_path / "p.pt")
+    report = export_onnx(tmp_path / "p.pt", tmp_path / "g.onnx")
+    assert report.max_abs_error_fp32 <= 1e-4
+    model = LearnedModel(tmp_path / "g.onnx")
+    assert model.gradient_input and model.metadata["vrcorrect.inputs"] == "image,precorrected,eye,gradient"
+    display = get_display("quest2")
+    eye = EyeRx(-1.0, -0.25, 30.0, 2.5)
+    opts = KernelOptions(wavelength_step_nm=40)
+    bound = model.for_eye(eye, display, build_kernel(eye, display, opts), build_reference_kernel(eye, display, opts))
+    image = np.moveaxis(siemens_star(40), 2, 0).astype(np.float32) ** 2.2
+    out = bound.infer(image)
+    pre, g = bound.inputs(image)
+    assert g is not None and np.abs(g).max() > 0
+    with torch.no_grad():
+        feats = torch.from_numpy(eye_features(eye, TINY_RANGES))[None]
+        ref = net(torch.from_numpy(image)[None], torch.from_numpy(pre)[None], feats, torch.from_numpy(g)[None])
+    ref = ref[0].numpy()
+    assert np.max(np.abs(out - ref)) <= 1e-4 and np.max(np.abs(out - pre)) > 1e-3
 
 
 def test_loss_of_an_eye_in_focus_stays_bounded():

@@ -57,7 +57,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     config = TrainConfig(steps=args.steps, batch_size=args.batch_size, learning_rate=args.learning_rate,
                          target_weight=args.target_weight, lr_schedule=args.lr_schedule, seed=args.seed, checkpoint_every=args.checkpoint_every,
                          model=UNetConfig(width=args.width, depth=args.depth, film_hidden=args.film_hidden,
-                                          base=args.base))
+                                          base=args.base, gradient_input=args.gradient_input))
     report = train(args.dataset, args.out, config, resume=args.resume, force=args.force, device=args.device)
     loss = "" if report.last_loss is None else f"; loss {report.first_loss:.4g} -> {report.last_loss:.4g}"
     print(f"trained steps {report.start_step}..{report.steps} in {report.seconds:.1f} s{loss}; "
@@ -120,6 +120,8 @@ def add_parser(sub) -> None:
     p.add_argument("--film-hidden", type=int, default=32, help="hidden units of the FiLM MLP (32; 0: no FiLM)")
     p.add_argument("--base", choices=("precorrected", "image"), default="precorrected",
                    help="what the network's output is added to (precorrected: it starts as the pre-correction)")
+    p.add_argument("--gradient-input", action="store_true",
+                   help="also feed the network the projected-gradient step at the pre-correction (3 channels)")
     p.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (500)")
     p.add_argument("--device", help="torch device (default: cuda when available, else cpu)")
     p.add_argument("--resume", action="store_true", help="continue from RUN/checkpoint.pt")

@@ -130,6 +130,30 @@ def eye_features(eye: EyeRx, ranges: SamplingRanges) -> np.ndarray:
     return np.array([pv.M_D / m_scale, pv.J0_D / j_scale, pv.J45_D / j_scale, p], dtype=np.float32)
 
 
+def model_inputs(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel | None,
+                 mu_rel: float = PRECORRECTION_MU_REL, steps: int = 0, gradient: bool = False,
+                 plan=None) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(precorrected, gradient_step)`` for a model: :func:`precorrect`'s channels and, when the
+    model takes them (``gradient``), :func:`vrcorrect.solvers.wiener.gradient_step` at them
+    (``None`` otherwise).  Both float32 ``(H, W, 3)``; the problem is built once.
+    """
+    if not gradient:
+        return precorrect(image, kernel, reference_kernel, mu_rel, steps, plan), None
+    from ..solvers import make_problem
+    from ..solvers.wiener import gradient_plan, gradient_step
+
+    if plan is None:
+        plan = gradient_plan(kernel, image.shape[:2])
+    problem = make_problem(image, kernel, reference_kernel)
+    if steps > 0:
+        from ..solvers.wiener import projected_gradient
+
+        pre = projected_gradient(problem, steps, plan)
+    else:
+        pre = precorrect(image, kernel, reference_kernel, mu_rel, 0)
+    return pre, gradient_step(problem, pre, plan)
+
+
 def precorrect(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel | None,
                mu_rel: float = PRECORRECTION_MU_REL, steps: int = 0, plan=None) -> np.ndarray:
     """The model's extra input: ``steps`` projected-gradient steps on the eye's objective from

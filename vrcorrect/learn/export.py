@@ -22,6 +22,7 @@ import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -61,7 +62,7 @@ def metadata_for(ckpt: dict, precision: str) -> dict[str, str]:
     return {
         "vrcorrect.format": FORMAT,
         "vrcorrect.version": __version__,
-        "vrcorrect.inputs": ",".join(INPUT_NAMES),
+        "vrcorrect.inputs": ",".join(ckpt_input_names(ckpt)),
         "vrcorrect.ranges": json.dumps(ds["config"]["ranges"]),
         "vrcorrect.display": json.dumps(ds["display"]),
         "vrcorrect.reference": ds.get("reference", "glasses"),
@@ -78,17 +79,24 @@ def metadata_for(ckpt: dict, precision: str) -> dict[str, str]:
     }
 
 
+def ckpt_input_names(ckpt: dict[str, Any]) -> tuple[str, ...]:
+    """The graph inputs of a checkpoint's model: ``INPUT_NAMES``, plus ``gradient`` if it takes it."""
+    return INPUT_NAMES + (("gradient",) if ckpt["train_config"]["model"].get("gradient_input") else ())
+
+
 def _export_bytes(model: torch.nn.Module) -> bytes:
     H, W = 40, 48
-    args = (torch.rand(1, 3, H, W), torch.rand(1, 3, H, W), torch.zeros(1, 4))
+    names = model.input_names
+    args = tuple(torch.zeros(1, 4) if n == "eye" else torch.rand(1, 3, H, W) for n in names)
     buf = io.BytesIO()
-    axes = {name: {0: "N", 2: "H", 3: "W"} for name in ("image", "precorrected", OUTPUT_NAME)}
+    axes = {name: {0: "N", 2: "H", 3: "W"} for name in names if name != "eye"}
+    axes[OUTPUT_NAME] = {0: "N", 2: "H", 3: "W"}
     axes["eye"] = {0: "N"}
     import warnings
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")            # the TorchScript exporter's deprecation notice
-        torch.onnx.export(model, args, buf, dynamo=False, opset_version=OPSET, input_names=list(INPUT_NAMES),
+        torch.onnx.export(model, args, buf, dynamo=False, opset_version=OPSET, input_names=list(names),
                           output_names=[OUTPUT_NAME], dynamic_axes=axes, do_constant_folding=True)
     return buf.getvalue()
 
@@ -136,8 +144,10 @@ def check_against_torch(model: torch.nn.Module, data: bytes, seed: int = 0, size
     inputs = {"image": rng.random((1, 3, H, W), dtype=np.float32),
               "precorrected": rng.random((1, 3, H, W), dtype=np.float32),
               "eye": rng.uniform(-1, 1, (1, 4)).astype(np.float32)}
+    if "gradient" in model.input_names:
+        inputs["gradient"] = rng.uniform(-0.2, 0.2, (1, 3, H, W)).astype(np.float32)
     with torch.no_grad():
-        ref = model(*(torch.from_numpy(inputs[k]) for k in INPUT_NAMES)).numpy()
+        ref = model(*(torch.from_numpy(inputs[k]) for k in model.input_names)).numpy()
     return float(np.max(np.abs(_run_ort(data, inputs) - ref)))
 
 
@@ -175,8 +185,9 @@ def export_onnx(checkpoint: str | Path, out: str | Path, fp16: bool = False, for
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, value
     proto.producer_name = "vrcorrect"
-    proto.doc_string = ("vrcorrect learned correction: inputs image, precorrected (N,3,H,W) linear RGB and eye "
-                        "(N,4) features; output displayed (N,3,H,W). See vrcorrect.runtime.learned.")
+    proto.doc_string = ("vrcorrect learned correction: inputs image, precorrected (N,3,H,W) linear RGB, eye "
+                        "(N,4) features and, for models trained with it, gradient (N,3,H,W); output displayed "
+                        "(N,3,H,W). See vrcorrect.runtime.learned.")
     blob = proto.SerializeToString()
 
     def write(tmp: Path) -> None:

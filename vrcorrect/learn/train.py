@@ -122,7 +122,8 @@ class TrainConfig:
         if self.lr_schedule == "constant":
             return self.learning_rate
         final = COSINE_FINAL * self.learning_rate
-        return final + (self.learning_rate - final) * 0.5 * (1.0 + math.cos(math.pi * min(step, self.steps) / self.steps))
+        progress = min(step, self.steps) / self.steps
+        return final + (self.learning_rate - final) * 0.5 * (1.0 + math.cos(math.pi * progress))
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> "TrainConfig":
@@ -165,6 +166,25 @@ def objective_per_sample(x: torch.Tensor, kernel: torch.Tensor, target_lms: torc
     """:func:`vrcorrect.solvers.objective` of each sample, ``(N,)``."""
     d = retina(x, kernel) - target_lms
     return (d * d).mean(dim=(1, 2, 3))
+
+
+def gradient_step(x: torch.Tensor, kernel: torch.Tensor, target_lms: torch.Tensor) -> torch.Tensor:
+    """``K^H (K x - t) / ||K||^2`` per sample (the model's optional gradient input), by autograd of
+    the objective: the same quantity :func:`vrcorrect.solvers.wiener.gradient_step` computes in numpy."""
+    with torch.enable_grad():
+        xg = x.detach().requires_grad_(True)
+        d = retina(xg, kernel) - target_lms
+        (g,) = torch.autograd.grad(0.5 * (d * d).sum(), xg)
+    lipschitz = torch.linalg.matrix_norm(kernel.sum(dim=(-2, -1)).double(), ord=2) ** 2
+    return (g / lipschitz.to(g.dtype)[:, None, None, None]).detach()
+
+
+def forward_batch(model: ConditionedUNet, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    """The model's output on a batch (its gradient input computed here when it takes one)."""
+    if model.config.gradient_input:
+        g = gradient_step(batch["precorrected"], batch["kernel"], batch["target_lms"])
+        return model(batch["target"], batch["precorrected"], batch["features"], g)
+    return model(batch["target"], batch["precorrected"], batch["features"])
 
 
 def loss_terms(x: torch.Tensor, batch: dict[str, torch.Tensor], target_weight: float
@@ -391,7 +411,7 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig, res
                 lr = config.learning_rate_at(step)
                 for group in optimiser.param_groups:
                     group["lr"] = lr
-                x = model(batch["target"], batch["precorrected"], batch["features"])
+                x = forward_batch(model, batch)
                 loss, ratio, dratio = loss_terms(x, batch, config.target_weight)
                 optimiser.zero_grad(set_to_none=True)
                 loss.backward()

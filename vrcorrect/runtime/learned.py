@@ -36,12 +36,14 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError, ValidationError
-from ..learn.conditioning import SamplingRanges, check_eye, eye_features, precorrect
+from ..learn.conditioning import SamplingRanges, check_eye, eye_features, model_inputs
 from ..prescription import EyeRx
 from .model_path import DEFAULT_MODEL, model_for_backend  # noqa: F401  (re-exported)
 
 LEARNED_FORMAT = "vrcorrect-learned-v1"
 INPUTS = ("image", "precorrected", "eye")
+#: The optional fourth input (models trained with ``gradient_input``).
+GRADIENT_INPUT = "gradient"
 
 
 def _session(path: Path, providers: tuple[str, ...] | None):
@@ -80,8 +82,10 @@ class LearnedModel:
             raise ValidationError("model", str(self.path), f"an ONNX model exported by tools/export_onnx.py "
                                   f"(metadata vrcorrect.format = {LEARNED_FORMAT})")
         inputs = {i.name: i for i in self.session.get_inputs()}
-        if set(inputs) != set(INPUTS) or len(self.session.get_outputs()) != 1:
-            raise ValidationError("model inputs", sorted(inputs), "image, precorrected and eye, one output")
+        if set(inputs) - {GRADIENT_INPUT} != set(INPUTS) or len(self.session.get_outputs()) != 1:
+            raise ValidationError("model inputs", sorted(inputs), "image, precorrected, eye (and optionally "
+                                  "gradient), one output")
+        self.gradient_input = GRADIENT_INPUT in inputs
         try:
             self.ranges = SamplingRanges.from_dict(json.loads(meta["vrcorrect.ranges"]))
             self.display: dict[str, Any] = json.loads(meta["vrcorrect.display"])
@@ -123,14 +127,20 @@ class LearnedEye:
         self._plans: dict[tuple[int, int], Any] = {}
 
     def precorrected(self, image_chw: np.ndarray) -> np.ndarray:
-        """The pre-correction channels ``(3, H, W)`` the model is fed with.
+        """The pre-correction channels ``(3, H, W)`` the model is fed with."""
+        return self.inputs(image_chw)[0]
+
+    def inputs(self, image_chw: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """The pre-correction channels ``(3, H, W)`` and, for a model that takes it, the gradient
+        step there (``(3, H, W)``, else ``None``).
 
         The kernel's spectrum for the projected-gradient steps is computed at the first frame
         of each size and kept (the last two sizes: a mirror and a headset eye, say).
         """
         hwc = np.moveaxis(np.asarray(image_chw, np.float32), 0, 2)
         plan = None
-        if self.model.precorrection_steps > 0 and self.kernel.size > 1:
+        grad = self.model.gradient_input
+        if (self.model.precorrection_steps > 0 or grad) and self.kernel.size > 1:
             from ..solvers.wiener import gradient_plan
 
             size = hwc.shape[:2]
@@ -140,15 +150,23 @@ class LearnedEye:
                 while len(self._plans) >= 2:
                     self._plans.pop(next(iter(self._plans)))
                 self._plans[size] = plan
-        return np.ascontiguousarray(np.moveaxis(precorrect(hwc, self.kernel, self.reference_kernel, self.model.mu_rel,
-                                                           self.model.precorrection_steps, plan), 2, 0))
+        pre, g = model_inputs(hwc, self.kernel, self.reference_kernel, self.model.mu_rel,
+                              self.model.precorrection_steps, grad, plan)
+
+        def chw(a: np.ndarray) -> np.ndarray:
+            return np.ascontiguousarray(np.moveaxis(a, 2, 0))
+
+        return chw(pre), None if g is None else chw(g)
 
     def infer(self, image_chw: np.ndarray) -> np.ndarray:
         """Run on a ``(3, H, W)`` float32 linear RGB image; returns ``(3, H, W)`` float32 in [0, 1]."""
         x = np.ascontiguousarray(image_chw, dtype=np.float32)
         if x.ndim != 3 or x.shape[0] != 3:
             raise ValidationError("image", f"shape {x.shape}", "(3, H, W)")
-        feeds = {"image": x[None], "precorrected": self.precorrected(x)[None], "eye": self.features}
+        pre, g = self.inputs(x)
+        feeds = {"image": x[None], "precorrected": pre[None], "eye": self.features}
+        if g is not None:
+            feeds[GRADIENT_INPUT] = g[None]
         out = self.model.session.run(None, feeds)[0]
         return np.clip(out[0], 0.0, 1.0).astype(np.float32, copy=False)
 
