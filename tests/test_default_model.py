@@ -70,7 +70,8 @@ def test_default_model_refuses_an_eye_outside_its_range(model, tmp_path):
     eye = {"sphere_D": -2.0, "cylinder_D": -4.0, "axis_deg": 90, "pupil_diameter_mm": 4.0}
     rx.write_text(json.dumps({"schema": "vrcorrect.prescription/1", "right": eye, "left": eye}))
     out = tmp_path / "shown.png"
-    run = subprocess.run([str(Path(sys.executable).parent / "vrcorrect"), "correct", str(ROOT / "vrcorrect" / "data" / "sample.png"),
+    sample = str(ROOT / "vrcorrect" / "data" / "sample.png")
+    run = subprocess.run([str(Path(sys.executable).parent / "vrcorrect"), "correct", sample,
                           "-o", str(out), "--rx", str(rx), "--eye", "right", "--display", "quest2",
                           "--method", "learned"], capture_output=True, text=True, timeout=300)
     assert run.returncode == 2 and not out.exists()

@@ -205,7 +205,9 @@ def _markdown(model, display, eyes, images, size, rows, s, speed) -> str:
 
 def _times(ratio: float) -> str:
     """``fast``'s time over the learned one's, in words: ``12x faster`` or ``0.74x, slower``."""
-    return f"{ratio:.0f}x faster" if ratio >= 10 else (f"{ratio:.2g}x faster" if ratio >= 1 else f"{ratio:.2g}x, slower")
+    if ratio >= 10:
+        return f"{ratio:.0f}x faster"
+    return f"{ratio:.2g}x faster" if ratio >= 1 else f"{ratio:.2g}x, slower"
 
 
 def _precorrection_text(meta: dict[str, str]) -> str:

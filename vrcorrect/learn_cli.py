@@ -55,7 +55,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     from .learn.train import TrainConfig, train
 
     config = TrainConfig(steps=args.steps, batch_size=args.batch_size, learning_rate=args.learning_rate,
-                         target_weight=args.target_weight, lr_schedule=args.lr_schedule, seed=args.seed, checkpoint_every=args.checkpoint_every,
+                         target_weight=args.target_weight, lr_schedule=args.lr_schedule, seed=args.seed,
+                         checkpoint_every=args.checkpoint_every,
                          model=UNetConfig(width=args.width, depth=args.depth, film_hidden=args.film_hidden,
                                           base=args.base, gradient_input=args.gradient_input))
     report = train(args.dataset, args.out, config, resume=args.resume, force=args.force, device=args.device)

@@ -956,7 +956,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--screenshot-dir", default=".", metavar="DIR", help="where p writes screenshots (default .)")
     p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl",
                    help="correction backend: glsl (default) or onnx (a learned model per eye)")
-    p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx (default: models/default.onnx)")
+    p.add_argument("--model", metavar="MODEL.onnx",
+                   help="ONNX model for --backend onnx (default: models/default.onnx)")
     p.set_defaults(func=cmd_mirror)
     return p
 

@@ -443,7 +443,7 @@ def gradient_step(problem: Problem, x: np.ndarray, plan: GradientPlan | None = N
     """``step * K^H (K x - t)``: the displacement a projected-gradient step from ``x`` would take
     before clipping (the gradient of ``J/2`` scaled by ``1 / ||K||^2``), float32 ``(H, W, 3)``.
 
-    The learned model's optional third input: where the eye's objective still wants ``x`` to go.
+    The learned model's optional fourth input: where the eye's objective still wants ``x`` to go.
     """
     H, W = problem.target.shape[:2]
     if plan is None:
