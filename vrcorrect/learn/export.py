@@ -22,18 +22,17 @@ import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 
 from ..errors import InputError, ValidationError
 from ..fileio import check_writable, write_with
+from .model import UNetConfig
 from .train import load_checkpoint, model_from_checkpoint
 
 OPSET = 17
 FORMAT = "vrcorrect-learned-v1"
-INPUT_NAMES = ("image", "precorrected", "eye")
 OUTPUT_NAME = "displayed"
 FP32_TOLERANCE = 1e-4
 METADATA_KEYS = ("vrcorrect.format", "vrcorrect.version", "vrcorrect.inputs", "vrcorrect.ranges",
@@ -62,7 +61,7 @@ def metadata_for(ckpt: dict, precision: str) -> dict[str, str]:
     return {
         "vrcorrect.format": FORMAT,
         "vrcorrect.version": __version__,
-        "vrcorrect.inputs": ",".join(ckpt_input_names(ckpt)),
+        "vrcorrect.inputs": ",".join(UNetConfig.from_dict(ckpt["train_config"]["model"]).input_names),
         "vrcorrect.ranges": json.dumps(ds["config"]["ranges"]),
         "vrcorrect.display": json.dumps(ds["display"]),
         "vrcorrect.reference": ds.get("reference", "glasses"),
@@ -77,11 +76,6 @@ def metadata_for(ckpt: dict, precision: str) -> dict[str, str]:
         "vrcorrect.precision": precision,
         "vrcorrect.opset": str(OPSET),
     }
-
-
-def ckpt_input_names(ckpt: dict[str, Any]) -> tuple[str, ...]:
-    """The graph inputs of a checkpoint's model: ``INPUT_NAMES``, plus ``gradient`` if it takes it."""
-    return INPUT_NAMES + (("gradient",) if ckpt["train_config"]["model"].get("gradient_input") else ())
 
 
 def _export_bytes(model: torch.nn.Module) -> bytes:

@@ -104,6 +104,11 @@ class UNetConfig:
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        """The network's (and the exported graph's) inputs, in order."""
+        return ("image", "precorrected", "eye") + (("gradient",) if self.gradient_input else ())
+
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> "UNetConfig":
         """Inverse of :meth:`as_dict`; a checkpoint from before ``base`` existed added to the image."""
@@ -157,8 +162,8 @@ class ConditionedUNet(nn.Module):
 
     @property
     def input_names(self) -> tuple[str, ...]:
-        """The forward's (and the exported graph's) inputs, in order."""
-        return ("image", "precorrected", "eye") + (("gradient",) if self.config.gradient_input else ())
+        """The forward's (and the exported graph's) inputs, in order (:attr:`UNetConfig.input_names`)."""
+        return self.config.input_names
 
     def forward(self, image: torch.Tensor, precorrected: torch.Tensor, eye: torch.Tensor,
                 gradient: torch.Tensor | None = None) -> torch.Tensor:

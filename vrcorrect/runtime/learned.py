@@ -140,7 +140,7 @@ class LearnedEye:
         hwc = np.moveaxis(np.asarray(image_chw, np.float32), 0, 2)
         plan = None
         grad = self.model.gradient_input
-        if (self.model.precorrection_steps > 0 or grad) and self.kernel.size > 1:
+        if grad or (self.model.precorrection_steps > 0 and self.kernel.size > 1):
             from ..solvers.wiener import gradient_plan
 
             size = hwc.shape[:2]

@@ -439,19 +439,26 @@ def gradient_plan(kernel: EyeKernel, shape: tuple[int, int]) -> GradientPlan:
     return GradientPlan((H, W), P, Kf, np.float32(1.0 / spectral_norm_squared(kernel.kernel)))
 
 
+def _image_objective(problem: Problem, plan: GradientPlan | None) -> tuple[_FastObjective, GradientPlan]:
+    """The objective for an image pass (float32 planes, complex64 spectra) from ``plan``, which is
+    built here when ``None`` and must be for the problem's image size otherwise."""
+    H, W = problem.target.shape[:2]
+    if plan is None:
+        plan = gradient_plan(problem.kernel, (H, W))
+    elif plan.shape != (H, W) or plan.spectrum.shape[:2] != (3, 3):
+        raise ValidationError("plan", f"for {plan.shape[0]}x{plan.shape[1]}", f"a plan for {H}x{W} images")
+    f = _FastObjective(problem, plan.spectrum, plan.padded)
+    f.t = f.t.astype(np.float32)
+    return f, plan
+
+
 def gradient_step(problem: Problem, x: np.ndarray, plan: GradientPlan | None = None) -> np.ndarray:
     """``step * K^H (K x - t)``: the displacement a projected-gradient step from ``x`` would take
     before clipping (the gradient of ``J/2`` scaled by ``1 / ||K||^2``), float32 ``(H, W, 3)``.
 
     The learned model's optional fourth input: where the eye's objective still wants ``x`` to go.
     """
-    H, W = problem.target.shape[:2]
-    if plan is None:
-        plan = gradient_plan(problem.kernel, (H, W))
-    elif plan.shape != (H, W):
-        raise ValidationError("plan", f"for {plan.shape[0]}x{plan.shape[1]}", f"a plan for {H}x{W} images")
-    f = _FastObjective(problem, plan.spectrum, plan.padded)
-    f.t = f.t.astype(np.float32)
+    f, plan = _image_objective(problem, plan)
     xc = np.ascontiguousarray(np.moveaxis(x, 2, 0), dtype=np.float32)
     g = plan.step * f.adjoint(f.residual(xc))
     return np.ascontiguousarray(np.moveaxis(g, 0, 2), dtype=np.float32)
@@ -475,13 +482,7 @@ def projected_gradient(problem: Problem, steps: int, plan: GradientPlan | None =
     """
     if steps <= 0 or problem.kernel.size == 1:
         return np.ascontiguousarray(problem.target, dtype=np.float32)
-    H, W = problem.target.shape[:2]
-    if plan is None:
-        plan = gradient_plan(problem.kernel, (H, W))
-    elif plan.shape != (H, W) or plan.spectrum.shape[:2] != (3, 3):
-        raise ValidationError("plan", f"for {plan.shape[0]}x{plan.shape[1]}", f"a plan for {H}x{W} images")
-    f = _FastObjective(problem, plan.spectrum, plan.padded)
-    f.t = f.t.astype(np.float32)                        # an image pass: float32 planes, complex64 spectra
+    f, plan = _image_objective(problem, plan)
     step = plan.step
     x = y = np.ascontiguousarray(np.moveaxis(problem.target, 2, 0), dtype=np.float32)
     momentum = 1.0
