@@ -631,10 +631,20 @@ def test_bench_learned_scores_a_model_on_held_out_data(tiny_onnx, tmp_path):
     from vrcorrect.bench_learned import held_out_eyes, run_learned_bench
     from vrcorrect.learn.conditioning import check_eye
 
-    out, card = tmp_path / "bench.md", tmp_path / "card.md"
+    out, card, plot = tmp_path / "bench.md", tmp_path / "models" / "card.md", tmp_path / "learned.png"
+    card.parent.mkdir()
     r = run_learned_bench(tiny_onnx, out=out, card=card, images=("rocket",), eyes=2, size=48, repeats=1,
-                          progress=False, speed_sizes=((48, 48), (32, 40)))
+                          progress=False, speed_sizes=((48, 48), (32, 40)), plot=plot, floor_unets=((2, 1),))
     assert len(r["cases"]) == 2
+    # the floor: one convolution and one untrained U-Net, timed; the picture, linked from both documents
+    assert [name for name, _ in r["speed"]["floor"]] == ["one 3x3 convolution, 6 to 3 channels",
+                                                         "U-Net width 2, depth 1 (untrained)"]
+    assert all(ms > 0 for _, ms in r["speed"]["floor"])
+    from PIL import Image
+
+    with Image.open(plot) as im:                       # one row (one image), six views
+        assert im.width > 3 * im.height
+    assert "](learned.png)" in out.read_text() and "](../learned.png)" in card.read_text()
     for c in r["cases"]:
         expected = (c["objective_none"] - c["objective_learned"]) / (c["objective_none"] - c["objective_fast"])
         assert c["gap_closed"] == pytest.approx(expected)
@@ -650,3 +660,10 @@ def test_bench_learned_scores_a_model_on_held_out_data(tiny_onnx, tmp_path):
     with pytest.raises(ValidationError, match="not trained on.*star, text"):    # the tiny data set's images
         run_learned_bench(tiny_onnx, out=tmp_path / "b2.md", images=("text",), eyes=1, size=48, progress=False)
     assert not (tmp_path / "b2.md").exists()
+
+
+def test_bench_speed_words_never_round_a_slower_model_up_to_1x():
+    from vrcorrect.bench_learned import _times
+
+    assert _times(0.997).endswith("slower") and not _times(0.997).startswith("1x")
+    assert _times(2.44) == "2.4x faster" and _times(123.4) == "123x faster"

@@ -7,9 +7,12 @@ their own (the ranges are continuous, so no held-out eye equals a training eye).
 share of the uncorrected-to-``fast`` gap the model closes, and FLIP of what the eye sees.
 Speed: the network alone (onnxruntime, CPU provider) and the whole learned pass (with its
 pre-correction channels, numpy) at 512x512 and at one 1832x1920 headset eye, against
-``fast`` at 512x512, medians of several runs in this one process.
+``fast`` at 512x512, medians of several runs in this one process; and the floor under any
+such network on this machine (:func:`speed_floor`): one 3x3 convolution from the two image
+inputs to the output, and untrained U-Nets of smaller sizes, at 512x512.
 
-Writes its section of ``docs/benchmarks.md`` and, with ``card``, the model card.
+Writes its section of ``docs/benchmarks.md``, a picture of what the eye sees in two held-out
+cases (``plot``) and, with ``card``, the model card.
 """
 
 from __future__ import annotations
@@ -28,6 +31,8 @@ from .errors import ValidationError
 from .learn.dataset import HELD_OUT_IMAGES
 
 EYE_SEED = 20261123
+#: Untrained U-Net sizes (width, depth) whose speed :func:`speed_floor` measures beside the model.
+FLOOR_UNETS = ((8, 3), (4, 1))
 
 
 def _held_out_image(name: str, size: int) -> np.ndarray:
@@ -54,11 +59,65 @@ def _median_ms(fn, repeats: int) -> float:
     return 1e3 * statistics.median(times)
 
 
+def _one_convolution() -> bytes:
+    """An ONNX graph of one 3x3 convolution from 6 channels (image and pre-correction) to 3, with
+    dynamic height and width: the least work a convolutional network on those inputs can do."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    rng = np.random.default_rng(0)
+    weights = numpy_helper.from_array(rng.normal(0.0, 0.1, (3, 6, 3, 3)).astype(np.float32), "w")
+    bias = numpy_helper.from_array(np.zeros(3, np.float32), "b")
+    graph = helper.make_graph([helper.make_node("Conv", ["x", "w", "b"], ["y"], pads=[1, 1, 1, 1])], "one_conv",
+                              [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 6, "H", "W"])],
+                              [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, "H", "W"])],
+                              [weights, bias])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    return model.SerializeToString()
+
+
+def speed_floor(size: tuple[int, int] = (512, 512), repeats: int = 5,
+                unets: Sequence[tuple[int, int]] = FLOOR_UNETS) -> list[tuple[str, float | None]]:
+    """Milliseconds (median of ``repeats``) of networks cheaper than any useful model, on
+    onnxruntime's CPU provider at ``size``: one 3x3 convolution (:func:`_one_convolution`) and
+    untrained conditioned U-Nets of each ``(width, depth)`` in ``unets`` (``None`` when torch,
+    which builds them, is not installed)."""
+    import onnxruntime as ort
+
+    H, W = size
+    rng = np.random.default_rng(1)
+    options = ort.SessionOptions()
+    options.log_severity_level = 3
+    session = ort.InferenceSession(_one_convolution(), options, providers=["CPUExecutionProvider"])
+    feeds = {"x": rng.random((1, 6, H, W), dtype=np.float32)}
+    out: list[tuple[str, float | None]] = [
+        ("one 3x3 convolution, 6 to 3 channels", _median_ms(lambda: session.run(None, feeds), repeats))]
+    try:
+        from .learn.export import _export_bytes
+        from .learn.model import ConditionedUNet, UNetConfig
+    except ImportError:                                    # torch: the learn extra
+        return out + [(f"U-Net width {w}, depth {d} (untrained)", None) for w, d in unets]
+    image = {"image": rng.random((1, 3, H, W), dtype=np.float32),
+             "precorrected": rng.random((1, 3, H, W), dtype=np.float32), "eye": np.zeros((1, 4), np.float32)}
+    for w, d in unets:
+        net = ConditionedUNet(UNetConfig(width=w, depth=d)).eval()
+        s = ort.InferenceSession(_export_bytes(net), options, providers=["CPUExecutionProvider"])
+        out.append((f"U-Net width {w}, depth {d} (untrained)", _median_ms(lambda: s.run(None, image), repeats)))
+    return out
+
+
 def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.md"), card: Path | None = None,
                       images: Sequence[str] = HELD_OUT_IMAGES, eyes: int = 6, size: int = 256, repeats: int = 5,
                       write: bool = True, progress: bool = True,
-                      speed_sizes: Sequence[tuple[int, int]] = ((512, 512), (1920, 1832))) -> dict[str, Any]:
-    """Measure the model (see the module docstring); returns the figures and the Markdown."""
+                      speed_sizes: Sequence[tuple[int, int]] = ((512, 512), (1920, 1832)),
+                      plot: Path | None = Path("docs/learned_heldout.png"),
+                      floor_unets: Sequence[tuple[int, int]] = FLOOR_UNETS) -> dict[str, Any]:
+    """Measure the model (see the module docstring); returns the figures and the Markdown.
+
+    ``plot`` (written with ``write``): what the first held-out eye sees of each held-out image
+    under every method (:func:`_plot_seen`); ``None``: no picture."""
     from tqdm import tqdm
 
     from .display import decode, get_display
@@ -75,7 +134,7 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
                               f"{', '.join(sorted(trained_on))})")
     display = get_display(model.display["name"])
     eye_list = held_out_eyes(model.ranges, eyes)
-    rows, cases = [], []
+    rows, cases, pictures = [], [], []
     bar = tqdm(total=len(eye_list) * len(images), desc="bench learned", unit="case",
                disable=None if progress else True, file=sys.stderr)
     for e in eye_list:
@@ -94,8 +153,14 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
             pre = np.ascontiguousarray(np.moveaxis(bound.precorrected(target_chw), 0, 2))
             obj_pre = objective(pre, p)
 
-            def flip(img: np.ndarray) -> float:
-                return evaluate_seen(img, target, kernel, display, target_lms=p.target_lms)[0].flip
+            seen: dict[str, np.ndarray] = {}
+
+            def flip(img: np.ndarray, method: str) -> float:
+                scores, views = evaluate_seen(img, target, kernel, display, target_lms=p.target_lms)
+                if e is eye_list[0]:                        # the picture's cases
+                    seen[method] = views["seen_srgb"]
+                    seen["target"] = views["target_srgb"]
+                return scores.flip
 
             gap = none - fast.objective
             closed = (none - obj) / gap if gap > 0 else float("nan")
@@ -104,10 +169,12 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
                     "pupil_mm": e.pupil_diameter_mm, "objective_none": none, "objective_wiener": wien.objective,
                     "objective_learned": obj, "objective_fast": fast.objective, "gap_closed": closed,
                     "objective_precorrected": obj_pre, "gap_closed_precorrected": closed_pre,
-                    "flip_none": flip(target), "flip_wiener": flip(wien.image), "flip_learned": flip(learned),
-                    "flip_precorrected": flip(pre),
-                    "flip_fast": flip(fast.image)}
+                    "flip_none": flip(target, "none"), "flip_wiener": flip(wien.image, "wiener"),
+                    "flip_learned": flip(learned, "learned"), "flip_precorrected": flip(pre, "precorrected"),
+                    "flip_fast": flip(fast.image, "fast")}
             cases.append(case)
+            if seen:
+                pictures.append((case, seen))
             rows.append([name, f"{e.sphere_D:+.2f} / {e.cylinder_D:+.2f} x {e.axis_deg:.0f}",
                          f"{e.pupil_diameter_mm:.1f}", f"{none:.3e}", f"{wien.objective / none:.3f}",
                          f"{obj_pre / none:.3f}", f"{obj / none:.3f}", f"{fast.objective / none:.3f}",
@@ -152,18 +219,75 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
     speed["fast_ms"] = 1e3 * statistics.median(fast_s)
     speed["speedup_network"] = speed["fast_ms"] / first["network_ms"]
     speed["speedup_pipeline"] = speed["fast_ms"] / first["pipeline_ms"]
+    speed["floor"] = speed_floor(speed_sizes[0], repeats, floor_unets)
 
-    body = _markdown(model, display, eye_list, images, size, rows, summary, speed)
+    body = _markdown(model, display, eye_list, images, size, rows, summary, speed,
+                     plot if write and plot is not None else None, out)
     if write:
+        if plot is not None:
+            _plot_seen(pictures, display, plot)
         write_section(out, "learned", body)
         if card is not None:
             from .fileio import write_text_atomic
 
-            write_text_atomic(card, _card(model, summary, speed, body), force=True)
+            card_md = _markdown(model, display, eye_list, images, size, rows, summary, speed, plot, card)
+            write_text_atomic(card, _card(model, summary, speed, card_md), force=True)
     return {"cases": cases, "summary": summary, "speed": speed, "markdown": body}
 
 
-def _markdown(model, display, eyes, images, size, rows, s, speed) -> str:
+def _plot_seen(pictures: list[tuple[dict, dict[str, np.ndarray]]], display, path: Path) -> None:
+    """One row per held-out image (first held-out eye): the target as the eye sees it with
+    glasses, then what it sees of each method's displayed image, with FLIP and objective."""
+    from .fileio import write_with
+    from .plots import _pyplot
+
+    plt = _pyplot()
+    columns = [("target", "target (glasses on)"), ("none", "uncorrected"), ("wiener", "wiener"),
+               ("precorrected", "pre-correction alone"), ("learned", "learned"), ("fast", "fast")]
+    fig, axes = plt.subplots(len(pictures), len(columns), figsize=(2.3 * len(columns), 2.9 * len(pictures)),
+                             squeeze=False)
+    for row, (case, seen) in zip(axes, pictures):
+        for ax, (key, title) in zip(row, columns):
+            ax.imshow(np.clip(seen[key], 0.0, 1.0), interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if key == "target":
+                ax.set_title(f"{case['image']}: {title}", fontsize=8)
+            else:
+                ratio = case[f"objective_{key}"] / case["objective_none"]
+                ax.set_title(f"{title}\nFLIP {case[f'flip_{key}']:.3f}, objective x{ratio:.2f}", fontsize=8)
+    case = pictures[0][0]
+    fig.suptitle(f"What the eye sees on {display.name}: held-out eye {case['sphere_D']:+.2f} / "
+                 f"{case['cylinder_D']:+.2f} x {case['axis_deg']:.0f}, pupil {case['pupil_mm']:.1f} mm "
+                 "(objective relative to uncorrected)", fontsize=9)
+    fig.tight_layout()
+    write_with(path, lambda tmp: fig.savefig(tmp, format="png", dpi=100), force=True)
+    plt.close(fig)
+
+
+def _floor_lines(speed: dict[str, Any]) -> list[str]:
+    """The speed floor as Markdown lines: what 100x faster than ``fast`` leaves room for."""
+    label = speed["sizes"][0]
+    budget = speed["fast_ms"] / 100
+    rows = [[name, "not measured (torch not installed)" if ms is None else f"{ms:.1f}",
+             "" if ms is None else _times(speed["fast_ms"] / ms)] for name, ms in speed["floor"]]
+    rows.insert(0, ["this model, network alone", f"{speed[label]['network_ms']:.1f}",
+                    _times(speed["speedup_network"])])
+    conv = speed["floor"][0][1]
+    return [
+        "",
+        f"What 100x faster than `fast` leaves at {label} on this CPU: {budget:.1f} ms for the whole pass. "
+        f"Cheaper networks, same run (onnxruntime, CPU provider, median of runs):",
+        "",
+        markdown_table(["network", f"ms at {label}", "against `fast`"], rows),
+        "",
+        f"One 3x3 convolution alone takes {conv:.1f} ms, {conv / budget:.1f}x that budget: no convolutional "
+        "network at full resolution meets the 100x target on this machine; it needs a GPU.",
+    ]
+
+
+def _markdown(model, display, eyes, images, size, rows, s, speed, plot: Path | None = None,
+              out: Path | None = None) -> str:
     meta = model.metadata
     verdict_gap = "meets" if s["gap_closed"] >= 0.8 else "does NOT meet"
     verdict_w = ("beats" if s["flip_learned"] < s["flip_wiener"] and s["objective_ratio_learned"] < s[
@@ -195,6 +319,9 @@ def _markdown(model, display, eyes, images, size, rows, s, speed) -> str:
         *[f"- {label}{' (one headset eye)' if label == '1832x1920' else ''}: network "
           f"{speed[label]['network_ms']:.0f} ms, whole pass {speed[label]['pipeline_ms']:.0f} ms"
           for label in speed["sizes"][1:]],
+        *_floor_lines(speed),
+        *([] if plot is None else
+          ["", f"![What the eye sees in two held-out cases]({_relative(plot, out)})"]),
         "",
         markdown_table(["image", "eye S / C x axis", "pupil mm", "objective uncorrected", "wiener / unc.",
                         "pre-correction / unc.", "learned / unc.", "fast / unc.", "gap closed", "FLIP unc.",
@@ -203,11 +330,19 @@ def _markdown(model, display, eyes, images, size, rows, s, speed) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _relative(path: Path, document: Path | None) -> str:
+    """``path`` as a link from ``document``'s folder (POSIX separators)."""
+    import os
+
+    base = Path(document).resolve().parent if document is not None else Path.cwd()
+    return Path(os.path.relpath(Path(path).resolve(), base)).as_posix()
+
+
 def _times(ratio: float) -> str:
     """``fast``'s time over the learned one's, in words: ``12x faster`` or ``0.74x, slower``."""
     if ratio >= 10:
         return f"{ratio:.0f}x faster"
-    return f"{ratio:.2g}x faster" if ratio >= 1 else f"{ratio:.2g}x, slower"
+    return f"{ratio:.2g}x faster" if ratio >= 1 else f"{ratio:.2f}x, slower"
 
 
 def _precorrection_text(meta: dict[str, str]) -> str:
