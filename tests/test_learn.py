@@ -348,6 +348,14 @@ def test_cli_one_line_errors(tmp_path):
     assert code == 2 and len(err) == 1 and "manifest" in err[0]
 
 
+def test_train_init_from_a_missing_checkpoint_is_one_line(tiny_dataset, tmp_path):
+    r = subprocess.run([sys.executable, "-m", "vrcorrect.cli", "train", str(tiny_dataset), "-o", str(tmp_path / "r"),
+                        "--init", str(tmp_path / "nope.pt")], capture_output=True, text=True)
+    err = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(err) == 1 and "nope.pt: no such checkpoint" in err[0]
+    assert not (tmp_path / "r").exists()
+
+
 # --------------------------------------------------------------------------
 # Export to ONNX and the runtime side
 # --------------------------------------------------------------------------
@@ -403,6 +411,43 @@ def test_export_equals_torch_with_metadata_and_dynamic_size(perturbed_checkpoint
         assert float((model(x, x, torch.zeros(1, 4)) - x).abs().mean()) > 1e-2
     with pytest.raises(InputError, match="--force"):
         export_onnx(perturbed_checkpoint, out)
+
+
+def test_fine_tuning_starts_from_another_runs_weights_and_says_so(perturbed_checkpoint, tiny_dataset, tmp_path):
+    """--init: the new run's first step starts from the given weights (not from the identity a
+    fresh run starts as), its checkpoint and export record where they came from, and a
+    checkpoint of another size, or --init with --resume, is refused naming --init."""
+    import onnx
+    import torch
+
+    from vrcorrect.learn.export import export_onnx
+    from vrcorrect.learn.model import UNetConfig
+    from vrcorrect.learn.train import load_checkpoint, train
+
+    cfg = tiny_train_config(steps=1, learning_rate=1e-9, target_weight=1.0)
+    train(tiny_dataset, tmp_path / "fresh", cfg, progress=False)
+    train(tiny_dataset, tmp_path / "tuned", cfg, progress=False, init=perturbed_checkpoint)
+    source = load_checkpoint(perturbed_checkpoint)["model"]
+    tuned = load_checkpoint(tmp_path / "tuned" / "checkpoint.pt")
+    for name, value in source.items():
+        if name.endswith("weight") and value.dim() == 4:         # convolutions: moved by at most ~lr
+            torch.testing.assert_close(tuned["model"][name], value, atol=1e-6, rtol=0)
+    assert float(_log(tmp_path / "tuned")[0]["loss"]) != pytest.approx(float(_log(tmp_path / "fresh")[0]["loss"]),
+                                                                       rel=1e-3)
+    assert tuned["init"]["step"] == 3 and tuned["init"]["train_config"]["target_weight"] == 0.2
+    export_onnx(tmp_path / "tuned" / "checkpoint.pt", tmp_path / "tuned.onnx")
+    meta = {p.key: p.value for p in onnx.load(tmp_path / "tuned.onnx").metadata_props}
+    assert json.loads(meta["vrcorrect.train"])["init"]["step"] == 3
+    from vrcorrect.bench_learned import _training_lines
+
+    assert _training_lines(json.loads(meta["vrcorrect.train"]))[0].startswith(
+        "- fine-tuned (`vrcorrect train --init`) from a run of 3 steps")
+    wider = tiny_train_config(steps=1, model=UNetConfig(**{**TINY_MODEL, "width": 6}))
+    with pytest.raises(ValidationError, match="--init"):
+        train(tiny_dataset, tmp_path / "wide", wider, progress=False, init=perturbed_checkpoint)
+    assert not (tmp_path / "wide").exists()
+    with pytest.raises(ValidationError, match="--init.*--resume"):
+        train(tiny_dataset, tmp_path / "tuned", cfg, progress=False, init=perturbed_checkpoint, resume=True)
 
 
 def test_fp16_export_reports_its_error(perturbed_checkpoint, tmp_path):

@@ -365,7 +365,14 @@ def _training_lines(train: dict[str, Any]) -> list[str]:
     schedule = cfg.get("lr_schedule", "constant")
     if schedule == "cosine" and cfg.get("steps") and train.get("step") != cfg.get("steps"):
         schedule = f"cosine over {cfg.get('steps')} steps, stopped at step {train.get('step')}"
-    return [
+    init = train.get("init")
+    tuned = []
+    if init:
+        icfg = init.get("train_config", {})
+        tuned = [f"- fine-tuned (`vrcorrect train --init`) from a run of {init.get('step')} steps "
+                 f"(learning rate {icfg.get('learning_rate')}, {icfg.get('lr_schedule', 'constant')}; loss weight of "
+                 f"the distance to `fast` {icfg.get('target_weight')})"]
+    return tuned + [
         f"- data: {samples} random {train.get('crop_px')}x{train.get('crop_px')} crops of {images}; "
         f"{eyes} drawn uniformly over the ranges ({per_eye} crops each; seed {train.get('dataset_seed')}); "
         f"each crop's target is `fast`'s solution (tolerance {train.get('fast_tolerance')}) for its eye",

@@ -59,7 +59,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                          checkpoint_every=args.checkpoint_every,
                          model=UNetConfig(width=args.width, depth=args.depth, film_hidden=args.film_hidden,
                                           base=args.base, gradient_input=args.gradient_input))
-    report = train(args.dataset, args.out, config, resume=args.resume, force=args.force, device=args.device)
+    report = train(args.dataset, args.out, config, resume=args.resume, force=args.force, device=args.device,
+                   init=args.init)
     loss = "" if report.last_loss is None else f"; loss {report.first_loss:.4g} -> {report.last_loss:.4g}"
     print(f"trained steps {report.start_step}..{report.steps} in {report.seconds:.1f} s{loss}; "
           f"checkpoint {Path(report.run_dir) / 'checkpoint.pt'}, log {Path(report.run_dir) / 'log.csv'}")
@@ -126,5 +127,8 @@ def add_parser(sub) -> None:
     p.add_argument("--checkpoint-every", type=int, default=500, help="steps between checkpoints (500)")
     p.add_argument("--device", help="torch device (default: cuda when available, else cpu)")
     p.add_argument("--resume", action="store_true", help="continue from RUN/checkpoint.pt")
+    p.add_argument("--init", metavar="CHECKPOINT.pt",
+                   help="start from another run's weights (fine-tuning: same model settings and ranges; "
+                        "fresh optimiser, step 0)")
     p.add_argument("--force", action="store_true", help="start again although RUN holds a checkpoint")
     p.set_defaults(func=cmd_train)

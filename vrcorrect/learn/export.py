@@ -72,7 +72,8 @@ def metadata_for(ckpt: dict, precision: str) -> dict[str, str]:
                                        "crop_px": ds["config"]["crop_px"],
                                        "crops_per_eye": ds["config"].get("crops_per_eye", 1),
                                        "fast_tolerance": ds["config"].get("fast_tolerance"),
-                                       "images": [i["name"] for i in ds.get("images", [])]}),
+                                       "images": [i["name"] for i in ds.get("images", [])],
+                                       "init": ckpt.get("init")}),
         "vrcorrect.precision": precision,
         "vrcorrect.opset": str(OPSET),
     }

@@ -26,6 +26,11 @@ one never interrupted.  Adam; the learning rate is constant, or (``lr_schedule="
 falls along a half cosine from ``learning_rate`` at step 0 to 1 % of it at ``steps`` - a run
 resumed under that schedule must keep its ``steps``, since they shape the curve.
 
+Fine-tuning (``init``): a new run may start from another run's weights - for example one
+trained with another ``target_weight`` - with a fresh optimiser and step 0; the sizes must
+match, the data set must have the same ranges and display, and the checkpoint records
+where the weights came from (its run's step and settings), so an export can say so.
+
 Run folder: ``checkpoint.pt`` (model, optimiser, step, configurations, the data set's
 ranges and display; written atomically every ``checkpoint_every`` steps and at the end),
 ``log.csv`` (``step,loss,objective_ratio,distance_ratio,lr,seconds``), ``train.json``
@@ -292,11 +297,12 @@ def model_from_checkpoint(ckpt: dict[str, Any]) -> ConditionedUNet:
     return model.eval()
 
 
-def _save_checkpoint(run_dir: Path, model, optimiser, step: int, config: TrainConfig, data: ShardedSamples) -> None:
+def _save_checkpoint(run_dir: Path, model, optimiser, step: int, config: TrainConfig, data: ShardedSamples,
+                     init: dict[str, Any] | None = None) -> None:
     from .. import __version__
 
     m = data.manifest
-    ckpt = {"format": CHECKPOINT_FORMAT, "step": step, "model": model.state_dict(),
+    ckpt = {"format": CHECKPOINT_FORMAT, "step": step, "model": model.state_dict(), "init": init,
             "optimizer": optimiser.state_dict(), "train_config": config.as_dict(),
             "dataset": {"path": str(data.dir), "samples": data.total, "config": m["config"],
                         "display": m["display"], "reference": m.get("reference", "glasses"),
@@ -336,8 +342,29 @@ class TrainReport:
     seconds: float
 
 
+def _init_from(path: str | Path, config: TrainConfig, data: ShardedSamples) -> tuple[dict, dict[str, Any]]:
+    """The weights of another run's checkpoint to start from, and what to record about them."""
+    ckpt = load_checkpoint(path)
+    theirs = UNetConfig.from_dict(ckpt["train_config"]["model"])
+    if theirs != config.model:
+        raise ValidationError("--init", str(path), f"a checkpoint of the same model settings ({config.model}); "
+                              f"it has {theirs}")
+    mine = data.manifest
+    for key in ("ranges", "precorrection_steps", "precorrection_mu_rel"):
+        if ckpt["dataset"]["config"].get(key) != mine["config"].get(key):
+            raise ValidationError("--init", str(path), f"a checkpoint trained with the data set's {key} "
+                                  f"({mine['config'].get(key)}); it has {ckpt['dataset']['config'].get(key)}")
+    if ckpt["dataset"]["display"] != mine["display"]:
+        raise ValidationError("--init", str(path), f"a checkpoint trained for the data set's display "
+                              f"({mine['display'].get('name')})")
+    record = {"path": str(path), "step": int(ckpt["step"]), "train_config": ckpt["train_config"],
+              "init": ckpt.get("init")}
+    return ckpt["model"], record
+
+
 def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig, resume: bool = False,
-          force: bool = False, device: str | None = None, progress: bool = True) -> TrainReport:
+          force: bool = False, device: str | None = None, progress: bool = True,
+          init: str | Path | None = None) -> TrainReport:
     """Train (or continue training) a model; see the module docstring.
 
     Parameters
@@ -353,6 +380,9 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig, res
         Without a checkpoint there, training starts from step 0.
     force
         Start again from step 0 even though ``run_dir`` holds a checkpoint (it is replaced).
+    init
+        Start from this checkpoint's weights (fine-tuning; see the module docstring).  Not with
+        ``resume``, which continues this run's own checkpoint.
     device
         torch device (default: ``cuda`` when available, else ``cpu``).
     progress
@@ -371,10 +401,16 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig, res
     if ckpt_path.exists() and not resume and not force:
         raise InputError(f"{ckpt_path}: a training run is already here; pass --resume to continue it "
                          "or --force to start again")
+    if init is not None and resume:
+        raise ValidationError("--init", str(init), "not with --resume (which continues this run's own checkpoint)")
     data = ShardedSamples(dataset_dir)
     device = device or ("cuda" if torch.cuda.is_available() else "cpu")
     torch.manual_seed(config.seed)
     model = ConditionedUNet(config.model).to(device)
+    init_record = None
+    if init is not None:
+        weights, init_record = _init_from(init, config, data)
+        model.load_state_dict(weights)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     start = 0
     if resume and ckpt_path.exists():
@@ -392,9 +428,10 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig, res
         model.load_state_dict(ckpt["model"])
         optimiser.load_state_dict(ckpt["optimizer"])
         start = int(ckpt["step"])
+        init_record = ckpt.get("init")
     run.mkdir(parents=True, exist_ok=True)
     settings = {"dataset": str(data.dir), "dataset_complete": data.complete, "samples": data.total,
-                "device": device, "train_config": config.as_dict()}
+                "device": device, "train_config": config.as_dict(), "init": init_record}
     write_text_atomic(run / SETTINGS, json.dumps(settings, indent=1) + "\n", force=True)
     rows: list[dict[str, Any]] = _read_log(run / LOG, start) if start else []
     write_text_atomic(run / LOG, _log_text(rows), force=True)
@@ -430,7 +467,7 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig, res
                 bar.update(1)
                 bar.set_postfix(loss=f"{value:.4f}", refresh=False)
                 if (step + 1) % config.checkpoint_every == 0 or step + 1 == config.steps:
-                    _save_checkpoint(run, model, optimiser, step + 1, config, data)
+                    _save_checkpoint(run, model, optimiser, step + 1, config, data, init_record)
     finally:
         bar.close()
     return TrainReport(run_dir=run, start_step=start, steps=config.steps, first_loss=first, last_loss=last,
