@@ -95,7 +95,7 @@ def speed_floor(size: tuple[int, int] = (512, 512), repeats: int = 5,
     out: list[tuple[str, float | None]] = [
         ("one 3x3 convolution, 6 to 3 channels", _median_ms(lambda: session.run(None, feeds), repeats))]
     try:
-        from .learn.export import _export_bytes
+        from .learn.export import onnx_bytes
         from .learn.model import ConditionedUNet, UNetConfig
     except ImportError:                                    # torch: the learn extra
         return out + [(f"U-Net width {w}, depth {d} (untrained)", None) for w, d in unets]
@@ -103,7 +103,7 @@ def speed_floor(size: tuple[int, int] = (512, 512), repeats: int = 5,
              "precorrected": rng.random((1, 3, H, W), dtype=np.float32), "eye": np.zeros((1, 4), np.float32)}
     for w, d in unets:
         net = ConditionedUNet(UNetConfig(width=w, depth=d)).eval()
-        s = ort.InferenceSession(_export_bytes(net), options, providers=["CPUExecutionProvider"])
+        s = ort.InferenceSession(onnx_bytes(net), options, providers=["CPUExecutionProvider"])
         out.append((f"U-Net width {w}, depth {d} (untrained)", _median_ms(lambda: s.run(None, image), repeats)))
     return out
 

@@ -79,7 +79,8 @@ def metadata_for(ckpt: dict, precision: str) -> dict[str, str]:
     }
 
 
-def _export_bytes(model: torch.nn.Module) -> bytes:
+def onnx_bytes(model: torch.nn.Module) -> bytes:
+    """The model as an ONNX graph (pinned opset, dynamic batch, height and width; no metadata)."""
     H, W = 40, 48
     names = model.input_names
     args = tuple(torch.zeros(1, 4) if n == "eye" else torch.rand(1, 3, H, W) for n in names)
@@ -163,7 +164,7 @@ def export_onnx(checkpoint: str | Path, out: str | Path, fp16: bool = False, for
     check_writable(out, force=force)
     ckpt = load_checkpoint(checkpoint)
     model = model_from_checkpoint(ckpt)
-    data = _export_bytes(model)
+    data = onnx_bytes(model)
     err32 = check_against_torch(model, data)
     if not err32 <= FP32_TOLERANCE:
         raise InputError(f"{checkpoint}: onnxruntime differs from torch by {err32:.3g} "
