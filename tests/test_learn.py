@@ -679,7 +679,8 @@ def test_bench_learned_scores_a_model_on_held_out_data(tiny_onnx, tmp_path):
     out, card, plot = tmp_path / "bench.md", tmp_path / "models" / "card.md", tmp_path / "learned.png"
     card.parent.mkdir()
     r = run_learned_bench(tiny_onnx, out=out, card=card, images=("rocket",), eyes=2, size=48, repeats=1,
-                          progress=False, speed_sizes=((48, 48), (32, 40)), plot=plot, floor_unets=((2, 1),))
+                          progress=False, speed_sizes=((48, 48), (32, 40)), plot=plot, floor_unets=((2, 1),),
+                          tradeoff=tmp_path / "tradeoff.png", fista_steps=(1, 4))
     assert len(r["cases"]) == 2
     # the floor: one convolution and one untrained U-Net, timed; the picture, linked from both documents
     assert [name for name, _ in r["speed"]["floor"]] == ["one 3x3 convolution, 6 to 3 channels",
@@ -690,6 +691,13 @@ def test_bench_learned_scores_a_model_on_held_out_data(tiny_onnx, tmp_path):
     with Image.open(plot) as im:                       # one row (one image), six views
         assert im.width > 3 * im.height
     assert "](learned.png)" in out.read_text() and "](../learned.png)" in card.read_text()
+    assert "](tradeoff.png)" in out.read_text() and (tmp_path / "tradeoff.png").stat().st_size > 0
+    # FISTA steps alone: more steps close more of the gap (the same accounting as the model's)
+    for c in r["cases"]:
+        assert c["gap_closed_fista4"] > c["gap_closed_fista1"] > 0
+        assert c["gap_closed_wiener"] == pytest.approx(
+            (c["objective_none"] - c["objective_wiener"]) / (c["objective_none"] - c["objective_fast"]))
+    assert set(r["speed"]["fista_ms"]) == {1, 4} and "4 FISTA steps, no network" in r["markdown"]
     for c in r["cases"]:
         expected = (c["objective_none"] - c["objective_learned"]) / (c["objective_none"] - c["objective_fast"])
         assert c["gap_closed"] == pytest.approx(expected)

@@ -33,6 +33,9 @@ from .learn.dataset import HELD_OUT_IMAGES
 EYE_SEED = 20261123
 #: Untrained U-Net sizes (width, depth) whose speed :func:`speed_floor` measures beside the model.
 FLOOR_UNETS = ((8, 3), (4, 1))
+#: Accelerated projected-gradient (FISTA) step counts scored beside the model: its input alone,
+#: without the network, at several costs (the speed-accuracy trade of network-free correction).
+FISTA_STEPS = (1, 3, 5, 8, 12, 20)
 
 
 def _held_out_image(name: str, size: int) -> np.ndarray:
@@ -113,11 +116,15 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
                       write: bool = True, progress: bool = True,
                       speed_sizes: Sequence[tuple[int, int]] = ((512, 512), (1920, 1832)),
                       plot: Path | None = Path("docs/learned_heldout.png"),
-                      floor_unets: Sequence[tuple[int, int]] = FLOOR_UNETS) -> dict[str, Any]:
+                      floor_unets: Sequence[tuple[int, int]] = FLOOR_UNETS,
+                      tradeoff: Path | None = Path("docs/learned_tradeoff.png"),
+                      fista_steps: Sequence[int] = FISTA_STEPS) -> dict[str, Any]:
     """Measure the model (see the module docstring); returns the figures and the Markdown.
 
-    ``plot`` (written with ``write``): what the first held-out eye sees of each held-out image
-    under every method (:func:`_plot_seen`); ``None``: no picture."""
+    Pictures, written with ``write`` (``None``: not drawn): ``plot``, what the first held-out
+    eye sees of each held-out image under every method (:func:`_plot_seen`); ``tradeoff``, the
+    share of the gap closed against ms at the first speed size for ``wiener``, ``fista_steps``
+    FISTA steps alone, the model and ``fast`` (:func:`_plot_tradeoff`)."""
     from tqdm import tqdm
 
     from .display import decode, get_display
@@ -125,6 +132,7 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
     from .metrics import evaluate_seen
     from .runtime.learned import LearnedModel
     from .solvers import make_problem, objective, solve
+    from .solvers.wiener import gradient_plan, projected_gradient
 
     model = LearnedModel(model_path, providers=("CPUExecutionProvider",))
     trained_on = set(json.loads(model.metadata.get("vrcorrect.train", "{}")).get("images", []))
@@ -141,6 +149,7 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
         kernel = build_kernel(e, display)
         reference = build_reference_kernel(e, display) if model.reference == "glasses" else None
         bound = model.for_eye(e, display, kernel, reference)
+        plan = gradient_plan(kernel, (size, size))
         for name in images:
             target = decode(display, _held_out_image(name, size))
             p = make_problem(target, kernel, reference)
@@ -172,6 +181,11 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
                     "flip_none": flip(target, "none"), "flip_wiener": flip(wien.image, "wiener"),
                     "flip_learned": flip(learned, "learned"), "flip_precorrected": flip(pre, "precorrected"),
                     "flip_fast": flip(fast.image, "fast")}
+            case["gap_closed_wiener"] = (none - wien.objective) / gap if gap > 0 else float("nan")
+            for k in fista_steps:
+                xk = projected_gradient(p, k, plan)
+                case[f"gap_closed_fista{k}"] = (none - objective(xk, p)) / gap if gap > 0 else float("nan")
+                case[f"flip_fista{k}"] = flip(xk, f"fista{k}")
             cases.append(case)
             if seen:
                 pictures.append((case, seen))
@@ -187,7 +201,8 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
         return float(np.mean([c[key] for c in cases]))
 
     summary = {k: mean(k) for k in ("gap_closed", "gap_closed_precorrected", "flip_precorrected", "flip_none",
-                                    "flip_wiener", "flip_learned", "flip_fast")}
+                                    "flip_wiener", "flip_learned", "flip_fast", "gap_closed_wiener",
+                                    *(f"{m}_fista{k}" for k in fista_steps for m in ("gap_closed", "flip")))}
     summary["objective_ratio_learned"] = float(np.mean([c["objective_learned"] / c["objective_none"] for c in cases]))
     summary["objective_ratio_wiener"] = float(np.mean([c["objective_wiener"] / c["objective_none"] for c in cases]))
     summary["objective_ratio_fast"] = float(np.mean([c["objective_fast"] / c["objective_none"] for c in cases]))
@@ -215,22 +230,30 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
     img = _held_out_image(images[0], max(h0, w0))[:h0, :w0]
     p = make_problem(decode(display, img), kernel, reference)
     fast_s = [solve(p, "fast").seconds for _ in range(max(3, repeats // 2))]
+    speed["wiener_ms"] = 1e3 * statistics.median([solve(p, "wiener").seconds for _ in range(max(3, repeats // 2))])
+    plan = gradient_plan(kernel, (h0, w0))
+    speed["fista_ms"] = {k: _median_ms(lambda: projected_gradient(p, k, plan), max(3, repeats // 2))
+                         for k in fista_steps}
     first = speed[speed["sizes"][0]]
     speed["fast_ms"] = 1e3 * statistics.median(fast_s)
     speed["speedup_network"] = speed["fast_ms"] / first["network_ms"]
     speed["speedup_pipeline"] = speed["fast_ms"] / first["pipeline_ms"]
     speed["floor"] = speed_floor(speed_sizes[0], repeats, floor_unets)
 
-    body = _markdown(model, display, eye_list, images, size, rows, summary, speed,
-                     plot if write and plot is not None else None, out)
+    speed["fista_steps"] = list(fista_steps)
+    pictures_written = {"plot": plot, "tradeoff": tradeoff} if write else {}
+    body = _markdown(model, display, eye_list, images, size, rows, summary, speed, pictures_written, out)
     if write:
         if plot is not None:
             _plot_seen(pictures, display, plot)
+        if tradeoff is not None:
+            _plot_tradeoff(summary, speed, tradeoff)
         write_section(out, "learned", body)
         if card is not None:
             from .fileio import write_text_atomic
 
-            card_md = _markdown(model, display, eye_list, images, size, rows, summary, speed, plot, card)
+            card_md = _markdown(model, display, eye_list, images, size, rows, summary, speed, pictures_written,
+                                card)
             write_text_atomic(card, _card(model, summary, speed, card_md), force=True)
     return {"cases": cases, "summary": summary, "speed": speed, "markdown": body}
 
@@ -265,6 +288,55 @@ def _plot_seen(pictures: list[tuple[dict, dict[str, np.ndarray]]], display, path
     plt.close(fig)
 
 
+def _plot_tradeoff(s: dict[str, Any], speed: dict[str, Any], path: Path) -> None:
+    """Share of the gap closed (held-out mean) against ms at the first speed size: ``wiener``,
+    the FISTA-step curve, the model's whole pass and ``fast``; the 80 % and 100x targets dashed."""
+    from .fileio import write_with
+    from .plots import _pyplot
+
+    plt = _pyplot()
+    label = speed["sizes"][0]
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    ks = speed["fista_steps"]
+    ax.plot([speed["fista_ms"][k] for k in ks], [100 * s[f"gap_closed_fista{k}"] for k in ks], "o-",
+            color="tab:purple", label="FISTA steps alone (no network)")
+    for k in ks:
+        ax.annotate(f"{k}", (speed["fista_ms"][k], 100 * s[f"gap_closed_fista{k}"]), fontsize=7,
+                    xytext=(3, -9), textcoords="offset points")
+    points = [("wiener", speed["wiener_ms"], s["gap_closed_wiener"], "tab:green"),
+              ("learned (whole pass)", speed[label]["pipeline_ms"], s["gap_closed"], "tab:red"),
+              ("fast", speed["fast_ms"], 1.0, "tab:blue")]
+    for name, ms, gap, colour in points:
+        ax.scatter(ms, 100 * gap, color=colour, s=40, zorder=3, label=name)
+    ax.axhline(80, color="grey", ls="--", lw=0.8)
+    ax.axvline(speed["fast_ms"] / 100, color="grey", ls=":", lw=0.8)
+    ax.set_xscale("log")
+    ax.text(0.01, 81, "80 % target", fontsize=7, transform=ax.get_yaxis_transform())
+    ax.text(speed["fast_ms"] / 100 * 1.05, 0.03, "100x faster than fast", fontsize=7, rotation=90,
+            transform=ax.get_xaxis_transform())
+    ax.set_xlabel(f"ms per {label} image (CPU, median)")
+    ax.set_ylabel("gap to fast closed, % (held-out mean)")
+    ax.set_title("Learned correction: speed against accuracy on held-out images and eyes", fontsize=9)
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    write_with(path, lambda tmp: fig.savefig(tmp, format="png", dpi=110), force=True)
+    plt.close(fig)
+
+
+def _tradeoff_lines(s: dict[str, Any], speed: dict[str, Any]) -> list[str]:
+    """The speed-accuracy table: FISTA steps alone against wiener, the model and fast."""
+    label = speed["sizes"][0]
+    rows = [["wiener", f"{speed['wiener_ms']:.0f}", f"{100 * s['gap_closed_wiener']:.0f} %", f"{s['flip_wiener']:.3f}"]]
+    rows += [[f"{k} FISTA step{'s' if k != 1 else ''}, no network", f"{speed['fista_ms'][k]:.0f}", f"{100 * s[f'gap_closed_fista{k}']:.0f} %",
+              f"{s[f'flip_fista{k}']:.3f}"] for k in speed["fista_steps"]]
+    rows.append(["learned (its input and the network)", f"{speed[label]['pipeline_ms']:.0f}",
+                 f"{100 * s['gap_closed']:.0f} %", f"{s['flip_learned']:.3f}"])
+    rows.append(["fast", f"{speed['fast_ms']:.0f}", "100 %", f"{s['flip_fast']:.3f}"])
+    return ["", f"Speed against accuracy, same run: ms at {label} (median), and held-out means of the share of "
+            f"the gap closed and of FLIP (uncorrected {s['flip_none']:.3f}):", "",
+            markdown_table(["method", f"ms at {label}", "gap closed", "FLIP"], rows)]
+
+
 def _floor_lines(speed: dict[str, Any]) -> list[str]:
     """The speed floor as Markdown lines: what 100x faster than ``fast`` leaves room for."""
     label = speed["sizes"][0]
@@ -274,6 +346,18 @@ def _floor_lines(speed: dict[str, Any]) -> list[str]:
     rows.insert(0, ["this model, network alone", f"{speed[label]['network_ms']:.1f}",
                     _times(speed["speedup_network"])])
     conv = speed["floor"][0][1]
+    smallest = min((ms for name, ms in speed["floor"][1:] if ms is not None), default=None)
+    if conv > budget:
+        verdict = (f"One 3x3 convolution alone takes {conv:.1f} ms, {conv / budget:.1f}x that budget: no "
+                   "convolutional network at full resolution meets the 100x target on this machine; it needs a GPU.")
+    else:
+        verdict = (f"One 3x3 convolution takes {conv:.1f} ms, within that budget, but a network that can correct "
+                   "is many of them" + (f" (the smallest U-Net above: {smallest:.1f} ms)" if smallest else "")
+                   + "; the 100x target needs a GPU.")
+    first_step = speed.get("fista_ms", {}).get(1)
+    if first_step is not None:
+        verdict += (f" The model's input is FISTA steps: one (two FFT convolutions) takes {first_step:.0f} ms "
+                    f"here, {first_step / budget:.1f}x the budget.")
     return [
         "",
         f"What 100x faster than `fast` leaves at {label} on this CPU: {budget:.1f} ms for the whole pass. "
@@ -281,13 +365,16 @@ def _floor_lines(speed: dict[str, Any]) -> list[str]:
         "",
         markdown_table(["network", f"ms at {label}", "against `fast`"], rows),
         "",
-        f"One 3x3 convolution alone takes {conv:.1f} ms, {conv / budget:.1f}x that budget: no convolutional "
-        "network at full resolution meets the 100x target on this machine; it needs a GPU.",
+        verdict,
     ]
 
 
-def _markdown(model, display, eyes, images, size, rows, s, speed, plot: Path | None = None,
+def _markdown(model, display, eyes, images, size, rows, s, speed, pictures: dict[str, Path | None] | None = None,
               out: Path | None = None) -> str:
+    pictures = pictures or {}
+    links = [f"![{alt}]({_relative(pictures[key], out)})" for key, alt in
+             (("tradeoff", "Speed against accuracy on held-out data"),
+              ("plot", "What the eye sees in two held-out cases")) if pictures.get(key) is not None]
     meta = model.metadata
     verdict_gap = "meets" if s["gap_closed"] >= 0.8 else "does NOT meet"
     verdict_w = ("beats" if s["flip_learned"] < s["flip_wiener"] and s["objective_ratio_learned"] < s[
@@ -319,9 +406,9 @@ def _markdown(model, display, eyes, images, size, rows, s, speed, plot: Path | N
         *[f"- {label}{' (one headset eye)' if label == '1832x1920' else ''}: network "
           f"{speed[label]['network_ms']:.0f} ms, whole pass {speed[label]['pipeline_ms']:.0f} ms"
           for label in speed["sizes"][1:]],
+        *_tradeoff_lines(s, speed),
         *_floor_lines(speed),
-        *([] if plot is None else
-          ["", f"![What the eye sees in two held-out cases]({_relative(plot, out)})"]),
+        *[line for link in links for line in ("", link)],
         "",
         markdown_table(["image", "eye S / C x axis", "pupil mm", "objective uncorrected", "wiener / unc.",
                         "pre-correction / unc.", "learned / unc.", "fast / unc.", "gap closed", "FLIP unc.",
@@ -342,7 +429,7 @@ def _times(ratio: float) -> str:
     """``fast``'s time over the learned one's, in words: ``12x faster`` or ``0.74x, slower``."""
     if ratio >= 10:
         return f"{ratio:.0f}x faster"
-    return f"{ratio:.2g}x faster" if ratio >= 1 else f"{ratio:.2f}x, slower"
+    return f"{ratio:.1f}x faster" if ratio >= 1 else f"{ratio:.2f}x, slower"
 
 
 def _precorrection_text(meta: dict[str, str]) -> str:

@@ -440,7 +440,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
             raise ValidationError("--eyes", args.eyes, "at least 1")
         print(run_learned_bench(path, out=Path(args.out), card=Path(args.card) if args.card else None,
                                 eyes=args.eyes, repeats=max(args.repeats, 3), write=not args.no_write,
-                                plot=Path(args.out).with_name("learned_heldout.png"))["markdown"])
+                                plot=Path(args.out).with_name("learned_heldout.png"),
+                                tradeoff=Path(args.out).with_name("learned_tradeoff.png"))["markdown"])
     else:
         raise ValidationError("bench", args.what, "kernel, solvers, render, xr or learned")
     return 0
