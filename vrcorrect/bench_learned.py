@@ -4,15 +4,17 @@ Held out twice: images that were not in the training folder (scikit-image's ``ro
 ``retina`` by default) and eyes drawn from the model's own training ranges with a seed of
 their own (the ranges are continuous, so no held-out eye equals a training eye).  Per case
 (image x eye) the objective of uncorrected, ``wiener``, the learned model and ``fast``, the
-share of the uncorrected-to-``fast`` gap the model closes, and FLIP of what the eye sees.
+share of the uncorrected-to-``fast`` gap the model closes, and FLIP of what the eye sees;
+the same for :data:`FISTA_STEPS` accelerated projected-gradient steps alone (the model's input
+without the network, at several costs: the network-free side of the speed-accuracy trade).
 Speed: the network alone (onnxruntime, CPU provider) and the whole learned pass (with its
 pre-correction channels, numpy) at 512x512 and at one 1832x1920 headset eye, against
 ``fast`` at 512x512, medians of several runs in this one process; and the floor under any
 such network on this machine (:func:`speed_floor`): one 3x3 convolution from the two image
 inputs to the output, and untrained U-Nets of smaller sizes, at 512x512.
 
-Writes its section of ``docs/benchmarks.md``, a picture of what the eye sees in two held-out
-cases (``plot``) and, with ``card``, the model card.
+Writes its section of ``docs/benchmarks.md``, two pictures - what the eye sees in two held-out
+cases (``plot``) and the gap closed against ms (``tradeoff``) - and, with ``card``, the model card.
 """
 
 from __future__ import annotations
