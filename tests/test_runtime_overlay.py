@@ -190,11 +190,16 @@ def test_no_gpu_allocations_per_frame_and_report(overlay, monkeypatch):
                  "query", "sampler"):
         original = getattr(o.ctx, name)
         monkeypatch.setattr(o.ctx, name, lambda *a, _n=name, _o=original, **k: (calls.append(_n), _o(*a, **k))[1])
+    n0 = len(o.reports)
     for _ in range(2):  # both images, both sizes of work: already warm from the test before
         o.step()
     assert calls == []
-    line = o.report()
-    assert "fps" in line and "correct" in line and "source" in line and "gpu" in line
+    o.report()
+    # a slow machine may have reported on its own after a step (every report_interval_s): the
+    # frames' stages are then in that line, and the explicit report covers what was left
+    lines = o.reports[n0:]
+    assert lines and all("fps" in line for line in lines)
+    assert any("correct" in line and "source" in line and "gpu" in line for line in lines), lines
 
 
 def test_screenshot_and_quit(overlay):
