@@ -328,9 +328,10 @@ def _plot_tradeoff(s: dict[str, Any], speed: dict[str, Any], path: Path) -> None
 def _tradeoff_lines(s: dict[str, Any], speed: dict[str, Any]) -> list[str]:
     """The speed-accuracy table: FISTA steps alone against wiener, the model and fast."""
     label = speed["sizes"][0]
-    rows = [["wiener (its filters designed in each call)", f"{speed['wiener_ms']:.0f}", f"{100 * s['gap_closed_wiener']:.0f} %", f"{s['flip_wiener']:.3f}"]]
-    rows += [[f"{k} FISTA step{'s' if k != 1 else ''}, no network", f"{speed['fista_ms'][k]:.0f}", f"{100 * s[f'gap_closed_fista{k}']:.0f} %",
-              f"{s[f'flip_fista{k}']:.3f}"] for k in speed["fista_steps"]]
+    rows = [["wiener (its filters designed in each call)", f"{speed['wiener_ms']:.0f}",
+             f"{100 * s['gap_closed_wiener']:.0f} %", f"{s['flip_wiener']:.3f}"]]
+    rows += [[f"{k} FISTA step{'s' if k != 1 else ''}, no network", f"{speed['fista_ms'][k]:.0f}",
+              f"{100 * s[f'gap_closed_fista{k}']:.0f} %", f"{s[f'flip_fista{k}']:.3f}"] for k in speed["fista_steps"]]
     rows.append(["learned (its input and the network)", f"{speed[label]['pipeline_ms']:.0f}",
                  f"{100 * s['gap_closed']:.0f} %", f"{s['flip_learned']:.3f}"])
     rows.append(["fast", f"{speed['fast_ms']:.0f}", "100 %", f"{s['flip_fast']:.3f}"])
