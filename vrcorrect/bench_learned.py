@@ -67,8 +67,9 @@ def _median_ms(fn, repeats: int) -> float:
 def _one_convolution() -> bytes:
     """An ONNX graph of one 3x3 convolution from 6 channels (image and pre-correction) to 3, with
     dynamic height and width: the least work a convolutional network on those inputs can do."""
-    import onnx
     from onnx import TensorProto, helper, numpy_helper
+
+    from .runtime.onnx_backend import small_onnx_model
 
     rng = np.random.default_rng(0)
     weights = numpy_helper.from_array(rng.normal(0.0, 0.1, (3, 6, 3, 3)).astype(np.float32), "w")
@@ -77,10 +78,7 @@ def _one_convolution() -> bytes:
                               [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 6, "H", "W"])],
                               [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, "H", "W"])],
                               [weights, bias])
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    onnx.checker.check_model(model)
-    return model.SerializeToString()
+    return small_onnx_model(graph).SerializeToString()
 
 
 def speed_floor(size: tuple[int, int] = (512, 512), repeats: int = 5,

@@ -5,8 +5,8 @@ contract: one learned model serves every eye in its training range, so the eye i
 not a constant.  The exported graph (:mod:`vrcorrect.learn.export`) has three inputs -
 ``image`` and ``precorrected`` float32 ``(N, 3, H, W)``, ``eye`` float32 ``(N, 4)``; a fourth,
 ``gradient`` ``(N, 3, H, W)``, for models trained with it - and one output ``displayed`` of
-the image's shape; its metadata (``vrcorrect.format`` = ``vrcorrect-learned-v1``) carries the training ranges, the display, the reference and the
-pre-correction's settings.  Baking one eye into the graph instead would need a per-user
+the image's shape; its metadata (``vrcorrect.format`` = ``vrcorrect-learned-v1``) carries the
+training ranges, the display, the reference and the pre-correction's settings.  Baking one eye into the graph instead would need a per-user
 export (kernel build, filter design and an export with torch on the user's machine) and an
 in-graph mirrored convolution as wide as the eye's inverse filter; feeding the eye keeps
 one shipped file and lets a prescription change take effect at the next frame.

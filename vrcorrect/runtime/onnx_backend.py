@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import InputError, ValidationError
 
-__all__ = ["OnnxModel", "run_slot", "write_one_minus_x_model"]
+__all__ = ["OnnxModel", "run_slot", "small_onnx_model", "write_one_minus_x_model"]
 
 
 class OnnxModel:
@@ -91,6 +91,18 @@ def run_slot(infer, buffers: dict[tuple[int, int], np.ndarray], src_texture, dst
     dst_texture.write(buf)
 
 
+def small_onnx_model(graph):
+    """A hand-built ``graph`` (``onnx.helper``) as a checked model of opset 17 and IR version 8,
+    which onnxruntime 1.17 and later read (needs the ``onnx`` package)."""
+    import onnx
+    from onnx import helper
+
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    return model
+
+
 def write_one_minus_x_model(path: str | Path) -> None:
     """Write a trivial model of the slot's contract, ``y = 1 - x`` on float32 ``(1, 3, H, W)``
     with dynamic ``H`` and ``W`` (needs the ``onnx`` package): to exercise and time the slot
@@ -102,7 +114,4 @@ def write_one_minus_x_model(path: str | Path) -> None:
     y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, "H", "W"])
     one = helper.make_tensor("one", TensorProto.FLOAT, [], [1.0])
     graph = helper.make_graph([helper.make_node("Sub", ["one", "x"], ["y"])], "one_minus_x", [x], [y], [one])
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    onnx.checker.check_model(model)
-    onnx.save(model, str(path))
+    onnx.save(small_onnx_model(graph), str(path))
