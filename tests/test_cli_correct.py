@@ -36,8 +36,13 @@ def test_correct_writes_image_and_report(tmp_path, small_png, method, capsys):
     r = json.loads(rep.read_text())
     assert r["method"] == method and r["reference"] == "glasses"
     assert r["objective"] <= r["objective_uncorrected"] + 1e-12
-    for key in ("flip", "ssim", "psnr", "objective", "flip_lms"):
+    for key in ("jod", "flip", "ssim", "psnr", "objective", "flip_lms"):
         assert np.isfinite(r["metrics"][key]) and np.isfinite(r["metrics_uncorrected"][key])
+    # ColorVideoVDP of what the eye sees: below 10 (the eye's blur is visible) and, for the solvers that
+    # reach the optimum, above no correction.
+    assert 0.0 < r["metrics_uncorrected"]["jod"] < 9.9 and r["metrics"]["jod"] <= 10.0
+    if method in ("fast", "paper"):
+        assert r["metrics"]["jod"] > r["metrics_uncorrected"]["jod"]
     assert r["seconds"]["solve"] >= 0 and r["iterations"] >= 0
     assert "wrote" in capsys.readouterr().out
 

@@ -520,6 +520,42 @@ def test_load_headset_profile_from_fov_and_preset_primaries(tmp_path):
     assert p.primaries is D.get_display("quest2").primaries
 
 
+def test_load_profile_photometry_given_and_defaults(tmp_path):
+    """Stated photometry is kept; what is not stated is the kind's default, and the sources say which."""
+    base = {"schema": "vrcorrect.display/1", "name": "m", "preset_primaries": "desktop", "pixels_per_degree": 40,
+            "distance_m": 0.7}
+    p = D.load_display_profile(write_json(tmp_path / "a.json", {**base, "kind": "monitor",
+                                                                "peak_luminance_cd_m2": 350, "ambient_lux": 500}))
+    assert (p.photometry.peak_luminance_cd_m2, p.photometry.ambient_lux) == (350.0, 500.0)
+    assert p.photometry.contrast == D.DEFAULT_PHOTOMETRY["monitor"][1]
+    assert "peak_luminance_cd_m2, ambient_lux" in p.photometry.sources
+    h = D.load_display_profile(write_json(tmp_path / "b.json", {**base, "kind": "headset"}))
+    assert h.photometry.ambient_lux == 0.0 and "estimate" in h.photometry.sources
+    assert h.photometry.black_cd_m2 == pytest.approx(h.photometry.peak_luminance_cd_m2 / h.photometry.contrast)
+
+
+@pytest.mark.parametrize("name", D.preset_names())
+def test_preset_photometry_is_sourced_and_plausible(name):
+    """Headsets are dim and dark inside; monitors sit in room light; every figure says where it is from."""
+    ph = D.get_display(name).photometry
+    assert ph.sources and ("estimate" in ph.sources or "IEC" in ph.sources)
+    if D.get_display(name).kind == "headset":
+        assert ph.ambient_lux == 0.0 and 50 <= ph.peak_luminance_cd_m2 <= 300
+    else:
+        assert ph.ambient_lux > 0 and 50 <= ph.peak_luminance_cd_m2 <= 500
+
+
+def test_photometry_validation():
+    with pytest.raises(ValidationError) as info:
+        D.Photometry(peak_luminance_cd_m2=100, contrast=1000, ambient_lux=float("nan"))
+    assert info.value.field == "photometry.ambient_lux"
+    d = D.get_display("desktop")
+    with pytest.raises(ValidationError) as info:
+        D.DisplayProfile(d.name, d.title, d.kind, d.primaries, d.pixels_per_degree, d.distance_m,
+                         photometry=(200, 1000, 250))
+    assert info.value.field == "photometry"
+
+
 def test_load_profile_reports_every_problem(tmp_path):
     path = write_json(tmp_path / "bad.json", {
         "schema": "vrcorrect.display/1", "name": "bad", "kind": "tv", "preset_primaries": "desktop",
@@ -557,6 +593,10 @@ def test_load_profile_more_problems(tmp_path):
     ({"pixels_per_degree": 0}, "pixels_per_degree"),
     ({"fov_deg": 90, "resolution_px": [1000, 1000]}, "fov_deg"),  # fov for a monitor
     ({"pixels_per_degree": 30, "preset_primaries": "nosuch"}, "preset_primaries"),
+    ({"pixels_per_degree": 30, "peak_luminance_cd_m2": 0}, "peak_luminance_cd_m2"),
+    ({"pixels_per_degree": 30, "contrast": 1}, "contrast"),
+    ({"pixels_per_degree": 30, "ambient_lux": -5}, "ambient_lux"),
+    ({"pixels_per_degree": 30, "reflectivity": "matte"}, "reflectivity"),
 ])
 def test_load_profile_single_problems(tmp_path, doc, field):
     base = {"schema": "vrcorrect.display/1", "name": "m", "kind": "monitor", "distance_m": 0.5}

@@ -13,7 +13,7 @@ import skimage.data
 from vrcorrect.display import decode, get_display
 from vrcorrect.errors import ValidationError
 from vrcorrect.kernel import KernelOptions, build_kernel
-from vrcorrect.metrics import ImageMetrics, evaluate_seen, flip, lms_objective, psnr, ssim
+from vrcorrect.metrics import ImageMetrics, evaluate_seen, flip, jod, lms_objective, psnr, ssim
 from vrcorrect.optics import OpticsOptions
 from vrcorrect.prescription import EyeRx
 
@@ -338,3 +338,66 @@ def test_evaluate_seen_validates_inputs(sharp_setup, myopic_setup):
         with pytest.raises(ValidationError) as err:
             call_without_exit(evaluate_seen, **args)
         assert err.value.field == field, override
+
+
+# --------------------------------------------------------------------------
+# JOD (ColorVideoVDP)
+# --------------------------------------------------------------------------
+
+
+def test_jod_of_identical_images_is_ten(astronaut_srgb):
+    for name in ("desktop", "quest2"):
+        assert jod(astronaut_srgb, astronaut_srgb.copy(), get_display(name)) == pytest.approx(10.0, abs=1e-4)
+
+
+def test_jod_falls_monotonically_with_blur(astronaut_srgb):
+    """More blur is never judged better, and a strong blur is clearly visible (several JOD)."""
+    display = get_display("desktop")
+    scores = [jod(astronaut_srgb, blurred(astronaut_srgb, s), display) for s in (0.5, 1.0, 2.0, 4.0)]
+    assert all(a > b for a, b in zip(scores, scores[1:])), scores
+    assert scores[0] > 9.0 and scores[-1] < 8.0, scores
+    assert all(s < 10.0 for s in scores)
+
+
+def test_jod_depends_on_the_viewing_conditions(astronaut_srgb):
+    """The same pixel blur is more visible at fewer pixels per degree (each pixel spans more of the view)."""
+    desk = get_display("desktop")
+    coarse = dataclasses.replace(desk, pixels_per_degree=15.0)
+    test = blurred(astronaut_srgb, 1.0)
+    assert jod(astronaut_srgb, test, coarse) < jod(astronaut_srgb, test, desk)
+    # A dimmer display in a bright room hides more of the difference than a bright one in the dark.
+    dim = dataclasses.replace(desk, photometry=dataclasses.replace(desk.photometry, peak_luminance_cd_m2=20.0,
+                                                                    ambient_lux=2000.0))
+    bright = dataclasses.replace(desk, photometry=dataclasses.replace(desk.photometry, peak_luminance_cd_m2=400.0,
+                                                                       ambient_lux=0.0))
+    assert jod(astronaut_srgb, test, dim) > jod(astronaut_srgb, test, bright)
+
+
+def test_jod_smallest_image(rng):
+    a = rng.uniform(0.2, 0.8, size=(2, 2, 3))
+    assert jod(a, a, get_display("desktop")) == pytest.approx(10.0, abs=1e-4)
+
+
+@pytest.mark.parametrize("args, field", [
+    (dict(reference_srgb=np.zeros((8, 8)), test_srgb=np.zeros((8, 8))), "reference_srgb.shape"),
+    (dict(reference_srgb=np.zeros((1, 8, 3)), test_srgb=np.zeros((1, 8, 3))), "reference_srgb.shape"),
+    (dict(reference_srgb=np.zeros((8, 8, 3)), test_srgb=np.zeros((8, 9, 3))), "test_srgb.shape"),
+    (dict(reference_srgb=np.full((8, 8, 3), np.nan), test_srgb=np.zeros((8, 8, 3))), "reference_srgb"),
+    (dict(reference_srgb=np.zeros((8, 8, 3)), test_srgb=np.full((8, 8, 3), 1.5)), "test_srgb"),
+    (dict(reference_srgb=np.zeros((8, 8, 3)), test_srgb=np.zeros((8, 8, 3)), display="desktop"), "display"),
+])
+def test_jod_rejects_bad_input(args, field):
+    args = {"display": get_display("desktop"), **args}
+    with pytest.raises(ValidationError) as info:
+        call_without_exit(jod, **args)
+    assert info.value.field == field
+
+
+def test_evaluate_seen_scores_jod(myopic_setup, astronaut_linear):
+    kernel, display = myopic_setup
+    m, _ = evaluate_seen(astronaut_linear, astronaut_linear, kernel, display)
+    assert m.jod is not None and m.jod < 9.5          # the myopic eye's blur is visible
+    m_self, images = evaluate_seen(astronaut_linear, astronaut_linear, kernel, display, with_jod=False)
+    assert m_self.jod is None
+    same, _ = evaluate_seen(astronaut_linear, astronaut_linear, kernel, display, target_lms=images["seen_lms"])
+    assert same.jod == pytest.approx(10.0, abs=1e-4)

@@ -327,12 +327,15 @@ def cmd_displays(args: argparse.Namespace) -> int:
         d = get_display(name)
         dist = "inf" if math.isinf(d.distance_m) else f"{d.distance_m:.2f}"
         res = "x".join(map(str, d.resolution_px)) if d.resolution_px else "-"
-        rows.append([name, d.title, d.kind, f"{d.pixels_per_degree:.1f}", dist, res, d.transfer])
-    print(markdown_table(["preset", "display", "kind", "px/deg", "distance m", "resolution", "transfer"], rows))
+        ph = d.photometry
+        rows.append([name, d.title, d.kind, f"{d.pixels_per_degree:.1f}", dist, res, d.transfer,
+                     f"{ph.peak_luminance_cd_m2:g}", f"{ph.contrast:g}:1", f"{ph.ambient_lux:g}"])
+    print(markdown_table(["preset", "display", "kind", "px/deg", "distance m", "resolution", "transfer",
+                          "peak cd/m²", "contrast", "ambient lux"], rows))
     if args.verbose:
         for name in preset_names():
             d = get_display(name)
-            print(f"\n{name}: {d.sources}")
+            print(f"\n{name}: {d.sources}\n  Photometry ({d.photometry.describe()}): {d.photometry.sources}")
     else:
         print("\n(sources and estimates: vrcorrect displays -v)")
     return 0

@@ -41,6 +41,7 @@ from .errors import InputError, Problem, ValidationError, ValidationErrors
 
 __all__ = [
     "Spectra",
+    "Photometry",
     "DisplayProfile",
     "SpectraFit",
     "TRANSFERS",
@@ -70,6 +71,12 @@ PROFILE_SCHEMA = "vrcorrect.display/1"
 RGB_LABELS: tuple[str, str, str] = ("red", "green", "blue")
 
 PPD_RANGE = (1.0, 500.0)
+#: Allowed photometry: peak luminance (cd/m^2), contrast (peak : black), ambient illuminance (lux),
+#: screen reflectivity (fraction of the ambient light reflected, Lambertian).
+PEAK_LUMINANCE_RANGE = (1.0, 10000.0)
+CONTRAST_RANGE = (2.0, 1e7)
+AMBIENT_LUX_RANGE = (0.0, 100000.0)
+REFLECTIVITY_RANGE = (0.0, 1.0)
 CSV_WAVELENGTH_RANGE_NM = (300.0, 1000.0)
 CSV_MIN_ROWS = 5
 
@@ -329,6 +336,94 @@ def _is_number(value: Any) -> bool:
     return not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
 
 
+@dataclass(frozen=True)
+class Photometry:
+    """How bright the display is and the light around it: what a perceptual metric needs.
+
+    ColorVideoVDP (:func:`vrcorrect.metrics.jod`) turns code values into
+    absolute luminance with these, after Mantiuk's gain-gamma-offset display
+    model: ``L = (peak - black) * linear(V) + black + reflectivity * ambient / pi``
+    with ``black = peak / contrast``.
+
+    Parameters
+    ----------
+    peak_luminance_cd_m2
+        Luminance of full white, cd/m^2 (1 to 10000).
+    contrast
+        Peak luminance over black level, the panel's own (``2`` to ``1e7``).
+    ambient_lux
+        Illuminance falling on the screen, lux (0 to 100000; 0 inside a headset).
+    reflectivity
+        Fraction of the ambient light the screen reflects (0 to 1; 0.005 is
+        ColorVideoVDP's default for a matte panel).
+    sources
+        Where each number comes from, or "estimate".
+    """
+
+    peak_luminance_cd_m2: float
+    contrast: float
+    ambient_lux: float
+    reflectivity: float = 0.005
+    sources: str = ""
+
+    def __post_init__(self) -> None:
+        problems = _photometry_problems(self.peak_luminance_cd_m2, self.contrast, self.ambient_lux,
+                                        self.reflectivity, prefix="photometry.")
+        if problems:
+            p = problems[0]
+            raise ValidationError(p.field, p.value, p.allowed)
+        for name in ("peak_luminance_cd_m2", "contrast", "ambient_lux", "reflectivity"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+
+    @property
+    def black_cd_m2(self) -> float:
+        """The panel's own black level, cd/m^2 (``peak / contrast``)."""
+        return self.peak_luminance_cd_m2 / self.contrast
+
+    @property
+    def reflected_cd_m2(self) -> float:
+        """Ambient light reflected by the screen, cd/m^2 (``reflectivity * ambient / pi``)."""
+        return self.reflectivity * self.ambient_lux / math.pi
+
+    def describe(self) -> str:
+        """One line: peak, contrast, ambient, effective contrast."""
+        effective = self.peak_luminance_cd_m2 / (self.black_cd_m2 + self.reflected_cd_m2)
+        return (f"peak {self.peak_luminance_cd_m2:g} cd/m^2, contrast {self.contrast:g}:1, ambient "
+                f"{self.ambient_lux:g} lux (reflectivity {self.reflectivity:g}; effective contrast "
+                f"{effective:.0f}:1)")
+
+
+#: Photometry of a profile that states none, by kind (the figures of ColorVideoVDP's own standard
+#: displays, Mantiuk et al. 2024: 'standard_fhd', an office monitor, and 'standard_hmd', a headset).
+DEFAULT_PHOTOMETRY: dict[str, tuple[float, float, float]] = {
+    "monitor": (200.0, 1000.0, 250.0),
+    "headset": (100.0, 1000.0, 0.0),
+}
+
+
+def default_photometry(kind: str) -> Photometry:
+    """The photometry assumed for a display of ``kind`` that states none (an estimate)."""
+    peak, contrast, ambient = DEFAULT_PHOTOMETRY[kind]
+    where = "an office monitor" if kind == "monitor" else "a headset (no ambient light reaches the panel)"
+    return Photometry(peak, contrast, ambient, sources=(
+        f"estimate: the default for {where}: peak {peak:g} cd/m^2, contrast {contrast:g}:1, ambient "
+        f"{ambient:g} lux (ColorVideoVDP's standard_{'fhd' if kind == 'monitor' else 'hmd'} display)"))
+
+
+def _photometry_problems(peak: Any, contrast: Any, ambient: Any, reflectivity: Any,
+                         prefix: str = "") -> list[Problem]:
+    problems: list[Problem] = []
+    for key, value, (lo, hi), unit in (
+        ("peak_luminance_cd_m2", peak, PEAK_LUMINANCE_RANGE, " cd/m^2"),
+        ("contrast", contrast, CONTRAST_RANGE, " (peak : black)"),
+        ("ambient_lux", ambient, AMBIENT_LUX_RANGE, " lux"),
+        ("reflectivity", reflectivity, REFLECTIVITY_RANGE, ""),
+    ):
+        if not _is_number(value) or not (lo <= float(value) <= hi):
+            problems.append(Problem(prefix + key, value, f"a number from {lo:g} to {hi:g}{unit}"))
+    return problems
+
+
 def _profile_problems(
     name: Any,
     title: Any,
@@ -339,6 +434,7 @@ def _profile_problems(
     transfer: Any,
     resolution_px: Any,
     sources: Any,
+    photometry: Any = None,
 ) -> list[Problem]:
     """Every problem with the fields of a :class:`DisplayProfile` (empty when valid)."""
     problems: list[Problem] = []
@@ -371,6 +467,8 @@ def _profile_problems(
             problems.append(Problem("resolution_px", resolution_px, "[width, height] in pixels, positive integers"))
     if not isinstance(sources, str):
         problems.append(Problem("sources", sources, "a string"))
+    if photometry is not None and not isinstance(photometry, Photometry):
+        problems.append(Problem("photometry", type(photometry).__name__, "a Photometry object or None"))
     return problems
 
 
@@ -402,6 +500,9 @@ class DisplayProfile:
         monitor; ``None`` if unknown.
     sources
         Where each number comes from, or "estimate".
+    photometry
+        Peak luminance, contrast and ambient light (:class:`Photometry`);
+        ``None``: :func:`default_photometry` of the kind.
 
     Raises
     ------
@@ -419,11 +520,12 @@ class DisplayProfile:
     transfer: str = "srgb"
     resolution_px: tuple[int, int] | None = None
     sources: str = ""
+    photometry: Photometry | None = None
 
     def __post_init__(self) -> None:
         problems = _profile_problems(
             self.name, self.title, self.kind, self.primaries, self.pixels_per_degree,
-            self.distance_m, self.transfer, self.resolution_px, self.sources,
+            self.distance_m, self.transfer, self.resolution_px, self.sources, self.photometry,
         )
         if problems:
             p = problems[0]
@@ -432,6 +534,8 @@ class DisplayProfile:
         object.__setattr__(self, "distance_m", float(self.distance_m))
         if self.resolution_px is not None:
             object.__setattr__(self, "resolution_px", (int(self.resolution_px[0]), int(self.resolution_px[1])))
+        if self.photometry is None:
+            object.__setattr__(self, "photometry", default_photometry(self.kind))
 
     @property
     def vergence_D(self) -> float:
@@ -467,6 +571,31 @@ _QUEST2_PX, _QUEST2_FOV_DEG = (1832, 1920), 97.0
 _QUEST3_PX, _QUEST3_PPD = (2064, 2208), 25.0
 _INDEX_PX, _INDEX_FOV_DEG = (1440, 1600), 108.0
 _VIVEPRO_PX, _VIVEPRO_FOV_DEG = (1440, 1600), 110.0
+
+
+#: Preset photometry (see data/displays.md). Office monitor: ColorVideoVDP's 'standard_fhd' figures.
+_MONITOR_PHOTOMETRY = Photometry(
+    200.0, 1000.0, 250.0, sources=(
+        "Peak 200 cd/m^2 and 250 lux ambient: estimate, a typical office SDR monitor as in "
+        "ColorVideoVDP's 'standard_fhd' display (Mantiuk et al. 2024). Contrast 1000:1: estimate, the static "
+        "contrast commonly specified for IPS LCD panels. Reflectivity 0.005: ColorVideoVDP's default."))
+#: CRT: the sRGB reference viewing conditions (IEC 61966-2-1:1999), which were set around CRTs.
+_CRT_PHOTOMETRY = Photometry(
+    80.0, 1000.0, 64.0, sources=(
+        "Peak 80 cd/m^2 and 64 lux ambient: the sRGB reference display and viewing environment "
+        "(IEC 61966-2-1:1999). Contrast 1000:1: estimate. Reflectivity 0.005: ColorVideoVDP's default."))
+#: LCD headsets: about 100 cd/m^2 in the dark (ColorVideoVDP's 'standard_hmd').
+_LCD_HEADSET_PHOTOMETRY = Photometry(
+    100.0, 1000.0, 0.0, sources=(
+        "Peak 100 cd/m^2: estimate, as ColorVideoVDP's 'standard_hmd' display (Mantiuk et al. 2024); no "
+        "measured figure for this headset. Contrast 1000:1: estimate for an LCD panel (standard_hmd's black "
+        "of 0.1 cd/m^2). Ambient 0 lux: the headset shuts out room light."))
+#: OLED headset: pixels switch off; the contrast is an estimate limited by stray light in the lenses.
+_OLED_HEADSET_PHOTOMETRY = Photometry(
+    100.0, 100000.0, 0.0, sources=(
+        "Peak 100 cd/m^2: estimate, as ColorVideoVDP's 'standard_hmd' display. Contrast 100000:1: estimate "
+        "for an AMOLED panel whose pixels switch off (stray light in the lenses, not the panel, limits it). "
+        "Ambient 0 lux: the headset shuts out room light."))
 
 
 @functools.lru_cache(maxsize=None)
@@ -514,6 +643,7 @@ def _build_preset(key: str) -> DisplayProfile:
                 f"figure for this panel class), viewed at 0.60 m (assumed typical desk distance) -> "
                 f"{ppd:.2f} ppd by ppd_from_pitch. Transfer: sRGB (assumed)."
             ),
+            photometry=_MONITOR_PHOTOMETRY,
         )
     if key == "crt":
         ppd = ppd_from_pitch(_CRT_PITCH_MM, _CRT_DISTANCE_M)
@@ -531,6 +661,7 @@ def _build_preset(key: str) -> DisplayProfile:
                 "by Machado 2010). Geometry: estimate, 0.28 mm dot pitch viewed at 0.60 m -> "
                 f"{ppd:.2f} ppd by ppd_from_pitch. Transfer: estimate, pure 2.2 power law."
             ),
+            photometry=_CRT_PHOTOMETRY,
         )
     if key == "quest2":
         ppd = ppd_from_fov(_QUEST2_PX[0], _QUEST2_FOV_DEG)
@@ -552,6 +683,7 @@ def _build_preset(key: str) -> DisplayProfile:
                 "colour-science 'Apple Studio Display' LCD primaries (no measured Quest 2 spectra available). "
                 "Transfer: sRGB (assumed)."
             ),
+            photometry=_LCD_HEADSET_PHOTOMETRY,
         )
     if key == "quest3":
         ppd_mean = ppd_from_fov(_QUEST3_PX[0], 110.0)
@@ -572,6 +704,7 @@ def _build_preset(key: str) -> DisplayProfile:
                 "Spectra: proxy, the colour-science 'Apple Studio Display' LCD primaries (no measured Quest 3 "
                 "spectra available). Transfer: sRGB (assumed)."
             ),
+            photometry=_LCD_HEADSET_PHOTOMETRY,
         )
     if key == "index":
         ppd = ppd_from_fov(_INDEX_PX[0], _INDEX_FOV_DEG)
@@ -592,6 +725,7 @@ def _build_preset(key: str) -> DisplayProfile:
                 "estimate, 2.0 m. Spectra: proxy, the colour-science 'Apple Studio Display' LCD primaries "
                 "(no measured Index spectra available). Transfer: sRGB (assumed)."
             ),
+            photometry=_LCD_HEADSET_PHOTOMETRY,
         )
     if key == "vivepro":
         ppd = ppd_from_fov(_VIVEPRO_PX[0], _VIVEPRO_FOV_DEG)
@@ -612,6 +746,7 @@ def _build_preset(key: str) -> DisplayProfile:
                 "620 nm, green 530 nm, blue 460 nm; FWHM 35, 35, 25 nm; equal peak heights), not a "
                 "measurement. Transfer: sRGB (assumed)."
             ),
+            photometry=_OLED_HEADSET_PHOTOMETRY,
         )
     raise KeyError(key)  # pragma: no cover - callers check the key
 
@@ -766,7 +901,10 @@ def read_spectra_csv(path: str | os.PathLike[str]) -> Spectra:
 _PROFILE_KEYS = frozenset({
     "schema", "name", "title", "kind", "spectra_csv", "preset_primaries", "pixels_per_degree",
     "pixel_pitch_mm", "fov_deg", "distance_m", "transfer", "resolution_px", "sources",
+    "peak_luminance_cd_m2", "contrast", "ambient_lux", "reflectivity",
 })
+#: The profile keys of :class:`Photometry`; each is optional (default: :func:`default_photometry`).
+_PHOTOMETRY_KEYS = ("peak_luminance_cd_m2", "contrast", "ambient_lux", "reflectivity")
 
 
 def _number_field(doc: Mapping[str, Any], key: str, problems: list[Problem], allowed: str,
@@ -797,6 +935,9 @@ def load_display_profile(path: str | os.PathLike[str]) -> DisplayProfile:
     - ``distance_m`` (required): metres > 0, or ``"inf"``
     - ``transfer``: ``"srgb"`` (default), ``"gamma2.2"`` or ``"linear"``
     - ``resolution_px``: ``[width, height]``
+    - photometry, each optional (default: :func:`default_photometry` of the
+      kind, an estimate): ``peak_luminance_cd_m2``, ``contrast`` (peak :
+      black), ``ambient_lux``, ``reflectivity``
 
     Raises
     ------
@@ -928,13 +1069,25 @@ def load_display_profile(path: str | os.PathLike[str]) -> DisplayProfile:
                                 f"a computed pixel density from {lo:g} to {hi:g} per degree"))
         ppd = None
 
+    # photometry: what the profile states, the kind's default for the rest
+    photometry: Photometry | None = None
+    if kind in KINDS:
+        base = default_photometry(kind)
+        values = {k: doc.get(k, getattr(base, k)) for k in _PHOTOMETRY_KEYS}
+        photo_problems = _photometry_problems(*(values[k] for k in _PHOTOMETRY_KEYS))
+        problems.extend(photo_problems)
+        if not photo_problems:
+            given = [k for k in _PHOTOMETRY_KEYS if k in doc]
+            note = ("from the profile: " + ", ".join(given) + "; the rest " if given else "") + base.sources
+            photometry = Photometry(**{k: float(values[k]) for k in _PHOTOMETRY_KEYS}, sources=note)
+
     if problems:
         raise ValidationErrors(problems, source=str(path))
     try:
         return DisplayProfile(
             name=name, title=title, kind=kind, primaries=primaries,  # type: ignore[arg-type]
             pixels_per_degree=ppd, distance_m=distance,  # type: ignore[arg-type]
-            transfer=transfer, resolution_px=resolution, sources=sources,
+            transfer=transfer, resolution_px=resolution, sources=sources, photometry=photometry,
         )
     except ValidationError as exc:  # e.g. primaries with a dead channel
         raise ValidationErrors([Problem(exc.field, exc.value, exc.allowed)], source=str(path)) from None

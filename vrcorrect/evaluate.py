@@ -104,7 +104,7 @@ PUPIL_DIAMETER_MM = 4.0
 #: Methods run by default (``none``, the uncorrected image, is always scored as well).
 DEFAULT_METHODS: tuple[str, ...] = ("conventional", "paper", "fast")
 #: Columns of ``results.csv``.
-CSV_COLUMNS: tuple[str, ...] = ("image", "prescription", "method", "flip", "ssim", "psnr", "objective",
+CSV_COLUMNS: tuple[str, ...] = ("image", "prescription", "method", "jod", "flip", "ssim", "psnr", "objective",
                                 "flip_lms", "ssim_lms", "psnr_lms", "seconds", "iterations")
 #: Image side lengths accepted (pixels).
 SIZE_RANGE = (16, 4096)
@@ -367,7 +367,7 @@ def _compose_panel(title: str, columns: Sequence[tuple[list[str], np.ndarray, np
 
 
 def _score_lines(label: str, m) -> list[str]:
-    return [label, f"FLIP {m.flip:.3f}  SSIM {m.ssim:.3f}", f"PSNR {m.psnr:.2f} dB"]
+    return [label, f"JOD {m.jod:.2f}  FLIP {m.flip:.3f}", f"SSIM {m.ssim:.3f}  PSNR {m.psnr:.2f} dB"]
 
 
 # --------------------------------------------------------------------------
@@ -387,9 +387,46 @@ def _summarise(rows: Sequence[Mapping[str, Any]], methods: Sequence[str]) -> lis
             sel = [r for r in rows if r["prescription"] == rx.key and r["method"] == method]
             if not sel:
                 continue
-            mean = {k: float(np.mean([r[k] for r in sel])) for k in ("flip", "ssim", "psnr", "objective", "seconds")}
+            mean = {k: float(np.mean([r[k] for r in sel]))
+                    for k in ("jod", "flip", "ssim", "psnr", "objective", "seconds")}
             out.append({"prescription": rx.key, "method": method, "images": len(sel), **mean})
     return out
+
+
+def _beats_uncorrected(rows: Sequence[Mapping[str, Any]], methods: Sequence[str],
+                       acuity: Mapping[str, Mapping[str, Any]] | None = None) -> list[str]:
+    """Per prescription and method: on how many images it beats no correction by JOD (and FLIP), and acuity.
+
+    A method beats no correction on an image when what the eye sees of it
+    scores a higher JOD than what the eye sees of the uncorrected image (for
+    FLIP: a lower error).  ``acuity`` maps a prescription key to
+    :func:`vrcorrect.acuity_cli.measure_acuity`'s logMAR per method.
+    """
+    lines = []
+    for rx in PRESCRIPTIONS:
+        base = {r["image"]: r for r in rows if r["prescription"] == rx.key and r["method"] == "none"}
+        if not base:
+            continue
+        parts = []
+        for m in methods:
+            if m == "none":
+                continue
+            sel = [r for r in rows if r["prescription"] == rx.key and r["method"] == m and r["image"] in base]
+            if not sel:
+                continue
+            gains = [r["jod"] - base[r["image"]]["jod"] for r in sel]
+            jod_wins = sum(g > 0 for g in gains)
+            flip_wins = sum(r["flip"] < base[r["image"]]["flip"] for r in sel)
+            text = (f"{m} beats it by JOD on {jod_wins}/{len(sel)} images (mean {np.mean(gains):+.2f} JOD, "
+                    f"range {min(gains):+.2f} to {max(gains):+.2f}; by FLIP on {flip_wins}/{len(sel)})")
+            if acuity and rx.key in acuity and acuity[rx.key].get(m) is not None:
+                a0, a1 = acuity[rx.key].get("none"), acuity[rx.key][m]
+                if a0 is not None:
+                    text += f", acuity logMAR {a0:.1f} -> {a1:.1f}"
+            parts.append(text)
+        if parts:
+            lines.append(f"- **{rx.key}**: " + "; ".join(parts) + ".")
+    return lines
 
 
 def _verdicts(summary: Sequence[Mapping[str, Any]]) -> list[str]:
@@ -425,19 +462,27 @@ def summary_table(summary: Sequence[Mapping[str, Any]]) -> str:
     """The Markdown table of :func:`run_evaluation`'s ``summary``."""
     from .bench import markdown_table
 
+    has_acuity = any("acuity_logmar" in s for s in summary)
+    head = ["prescription", "method", "JOD ↑"] + (["acuity logMAR ↓"] if has_acuity else [])
     return markdown_table(
-        ["prescription", "method", "FLIP ↓", "SSIM ↑", "PSNR dB ↑", "objective ↓", "seconds"],
-        [[s["prescription"], s["method"], f"{s['flip']:.4f}", f"{s['ssim']:.4f}", _fmt(s["psnr"], ".2f"),
-          f"{s['objective']:.3e}", f"{s['seconds']:.2f}"] for s in summary])
+        head + ["FLIP ↓", "SSIM ↑", "PSNR dB ↑", "objective ↓", "seconds"],
+        [[s["prescription"], s["method"], f"{s['jod']:.3f}"]
+         + ([_logmar_text(s.get("acuity_logmar"))] if has_acuity else [])
+         + [f"{s['flip']:.4f}", f"{s['ssim']:.4f}", _fmt(s["psnr"], ".2f"),
+            f"{s['objective']:.3e}", f"{s['seconds']:.2f}"] for s in summary])
+
+
+def _logmar_text(value: float | None) -> str:
+    return "-" if value is None else f"{value:.1f}"
 
 
 def _rows_table(rows: Sequence[Mapping[str, Any]]) -> str:
     from .bench import markdown_table
 
     return markdown_table(
-        ["image", "prescription", "method", "FLIP", "SSIM", "PSNR dB", "objective", "FLIP (LMS)", "SSIM (LMS)",
-         "PSNR (LMS) dB", "seconds", "iterations"],
-        [[r["image"], r["prescription"], r["method"], f"{r['flip']:.4f}", f"{r['ssim']:.4f}",
+        ["image", "prescription", "method", "JOD", "FLIP", "SSIM", "PSNR dB", "objective", "FLIP (LMS)",
+         "SSIM (LMS)", "PSNR (LMS) dB", "seconds", "iterations"],
+        [[r["image"], r["prescription"], r["method"], f"{r['jod']:.3f}", f"{r['flip']:.4f}", f"{r['ssim']:.4f}",
           _fmt(r["psnr"], ".2f"), f"{r['objective']:.3e}", f"{r['flip_lms']:.4f}", f"{r['ssim_lms']:.4f}",
           _fmt(r["psnr_lms"], ".2f"), f"{r['seconds']:.2f}", r["iterations"]] for r in rows])
 
@@ -451,7 +496,8 @@ def _csv_text(rows: Sequence[Mapping[str, Any]]) -> str:
     return buf.getvalue()
 
 
-def _markdown(rows, summary, verdicts, display, size, images, methods, seconds_total) -> str:
+def _markdown(rows, summary, verdicts, display, size, images, methods, seconds_total,
+              wins: Sequence[str] = ()) -> str:
     from .bench import machine_description, markdown_table
 
     rx_table = markdown_table(
@@ -468,8 +514,11 @@ def _markdown(rows, summary, verdicts, display, size, images, methods, seconds_t
         f"{', '.join(methods)} (`none` is the uncorrected image). Eyes: {PUPIL_DIAMETER_MM:g} mm pupil, "
         "display at optical infinity, no accommodation, chromatic aberration on. Target: the paper's ideal "
         "`A t` (the target's cone image without blur). Scores compare what the eye sees with the target, "
-        "both rendered to display sRGB (FLIP at the display's pixels per degree); the `(LMS)` columns score "
-        "the cone images directly, as the paper reported. "
+        "both rendered to display sRGB. **JOD** (ColorVideoVDP, calibrated on human judgements; 10 = "
+        "identical, higher is better, one JOD ~ 75 % of observers prefer the better image) is the primary "
+        f"score, on this display's viewing conditions ({display.photometry.describe()}); FLIP (at the "
+        "display's pixels per degree), SSIM and PSNR are secondary; the `(LMS)` columns score the cone "
+        "images directly, as the paper reported. "
         f"Total time {seconds_total:.1f} s.",
         "",
         "## Refractive problems (minus-cylinder form)",
@@ -481,6 +530,8 @@ def _markdown(rows, summary, verdicts, display, size, images, methods, seconds_t
         summary_table(summary),
         "",
     ]
+    if wins:
+        parts += ["Against no correction (what the eye sees of the uncorrected image), per image:", "", *wins, ""]
     if verdicts:
         parts += ["Against the conventional method (mean over the images; FLIP lower is better, SSIM and "
                   "PSNR higher):", "", *verdicts, ""]
@@ -649,7 +700,7 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
             for method in scored:
                 result = solve(problem, method, **options.get(method, {}))
                 metrics, seen = evaluate_seen(result.image, target, kernel, display, target_lms=problem.target_lms)
-                rows.append({"image": name, "prescription": rx.key, "method": method,
+                rows.append({"image": name, "prescription": rx.key, "method": method, "jod": metrics.jod,
                              "flip": metrics.flip, "ssim": metrics.ssim, "psnr": metrics.psnr,
                              "objective": metrics.objective, "flip_lms": metrics.flip_lms,
                              "ssim_lms": metrics.ssim_lms, "psnr_lms": metrics.psnr_lms,
@@ -670,13 +721,14 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
 
     summary = _summarise(rows, scored)
     verdicts = _verdicts(summary)
+    wins = _beats_uncorrected(rows, scored)
     seconds_total = time.perf_counter() - t_start
     write_text_atomic(files["csv"], _csv_text(rows), force=force)
     write_text_atomic(files["markdown"],
                       _markdown(rows, summary, verdicts, display, size if size is not None else "as given",
-                                images, scored, seconds_total), force=force)
+                                images, scored, seconds_total, wins), force=force)
     return {"rows": rows, "summary": summary, "summary_markdown": summary_table(summary), "verdicts": verdicts,
-            "files": files, "seconds": seconds_total}
+            "wins": wins, "files": files, "seconds": seconds_total}
 
 
 # --------------------------------------------------------------------------
@@ -723,6 +775,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
           f"{len(methods) + 1} methods, {result['seconds']:.1f} s)")
     print()
     print(result["summary_markdown"])
+    if result["wins"]:
+        print()
+        for line in result["wins"]:
+            print(line)
     if result["verdicts"]:
         print()
         for line in result["verdicts"]:
