@@ -703,6 +703,9 @@ def test_bench_learned_scores_a_model_on_held_out_data(tiny_onnx, tmp_path):
         assert c["gap_closed"] == pytest.approx(expected)
         assert c["objective_precorrected"] < c["objective_none"]        # 3 projected-gradient steps
         assert c["objective_fast"] < c["objective_none"]
+        # JOD of what the eye sees, for each method the table reports (10 = identical to the target)
+        assert all(0.0 < c[f"jod_{m}"] <= 10.0 for m in ("none", "wiener", "learned", "fast", "fista1", "fista4"))
+    assert "JOD ↑" in r["markdown"] and "JOD unc." in r["markdown"]
     for e in held_out_eyes(TINY_RANGES, 4):
         check_eye(e, TINY_RANGES)
     assert "<!-- bench:learned -->" in out.read_text() and "48x48" in r["markdown"] and "40x32" in r["markdown"]

@@ -163,9 +163,12 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
             obj_pre = objective(pre, p)
 
             seen: dict[str, np.ndarray] = {}
+            jods: dict[str, float] = {}
 
             def flip(img: np.ndarray, method: str) -> float:
+                """FLIP of what the eye sees (its JOD kept in ``jods``)."""
                 scores, views = evaluate_seen(img, target, kernel, display, target_lms=p.target_lms)
+                jods[f"jod_{method}"] = scores.jod
                 if e is eye_list[0]:                        # the picture's cases
                     seen[method] = views["seen_srgb"]
                     seen["target"] = views["target_srgb"]
@@ -186,6 +189,7 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
                 xk = projected_gradient(p, k, plan)
                 case[f"gap_closed_fista{k}"] = (none - objective(xk, p)) / gap if gap > 0 else float("nan")
                 case[f"flip_fista{k}"] = flip(xk, f"fista{k}")
+            case.update(jods)
             cases.append(case)
             if seen:
                 pictures.append((case, seen))
@@ -193,7 +197,9 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
                          f"{e.pupil_diameter_mm:.1f}", f"{none:.3e}", f"{wien.objective / none:.3f}",
                          f"{obj_pre / none:.3f}", f"{obj / none:.3f}", f"{fast.objective / none:.3f}",
                          f"{100 * closed:.0f} %", f"{case['flip_none']:.3f}", f"{case['flip_wiener']:.3f}",
-                         f"{case['flip_precorrected']:.3f}", f"{case['flip_learned']:.3f}", f"{case['flip_fast']:.3f}"])
+                         f"{case['flip_precorrected']:.3f}", f"{case['flip_learned']:.3f}", f"{case['flip_fast']:.3f}",
+                         f"{case['jod_none']:.2f}", f"{case['jod_wiener']:.2f}", f"{case['jod_learned']:.2f}",
+                         f"{case['jod_fast']:.2f}"])
             bar.update(1)
     bar.close()
 
@@ -202,7 +208,8 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
 
     summary = {k: mean(k) for k in ("gap_closed", "gap_closed_precorrected", "flip_precorrected", "flip_none",
                                     "flip_wiener", "flip_learned", "flip_fast", "gap_closed_wiener",
-                                    *(f"{m}_fista{k}" for k in fista_steps for m in ("gap_closed", "flip")))}
+                                    "jod_none", "jod_wiener", "jod_learned", "jod_fast", "jod_precorrected",
+                                    *(f"{m}_fista{k}" for k in fista_steps for m in ("gap_closed", "flip", "jod")))}
     summary["objective_ratio_learned"] = float(np.mean([c["objective_learned"] / c["objective_none"] for c in cases]))
     summary["objective_ratio_wiener"] = float(np.mean([c["objective_wiener"] / c["objective_none"] for c in cases]))
     summary["objective_ratio_fast"] = float(np.mean([c["objective_fast"] / c["objective_none"] for c in cases]))
@@ -327,17 +334,19 @@ def _tradeoff_lines(s: dict[str, Any], speed: dict[str, Any]) -> list[str]:
     """The speed-accuracy table: FISTA steps alone against wiener, the model and fast."""
     label = speed["sizes"][0]
     rows = [["wiener (its filters designed in each call)", f"{speed['wiener_ms']:.0f}",
-             f"{100 * s['gap_closed_wiener']:.0f} %", f"{s['flip_wiener']:.3f}"]]
+             f"{100 * s['gap_closed_wiener']:.0f} %", f"{s['jod_wiener']:.2f}", f"{s['flip_wiener']:.3f}"]]
     rows += [[f"{k} FISTA step{'s' if k != 1 else ''}, no network", f"{speed['fista_ms'][k]:.0f}",
-              f"{100 * s[f'gap_closed_fista{k}']:.0f} %", f"{s[f'flip_fista{k}']:.3f}"] for k in speed["fista_steps"]]
+              f"{100 * s[f'gap_closed_fista{k}']:.0f} %", f"{s[f'jod_fista{k}']:.2f}", f"{s[f'flip_fista{k}']:.3f}"]
+             for k in speed["fista_steps"]]
     rows.append(["learned (its input and the network)", f"{speed[label]['pipeline_ms']:.0f}",
-                 f"{100 * s['gap_closed']:.0f} %", f"{s['flip_learned']:.3f}"])
-    rows.append(["fast", f"{speed['fast_ms']:.0f}", "100 %", f"{s['flip_fast']:.3f}"])
+                 f"{100 * s['gap_closed']:.0f} %", f"{s['jod_learned']:.2f}", f"{s['flip_learned']:.3f}"])
+    rows.append(["fast", f"{speed['fast_ms']:.0f}", "100 %", f"{s['jod_fast']:.2f}", f"{s['flip_fast']:.3f}"])
     return ["", f"Speed against accuracy, same run: ms at {label} (median), and held-out means of the share of "
-            f"the gap closed and of FLIP (uncorrected {s['flip_none']:.3f}). The learned pass and the FISTA steps "
+            f"the gap closed, of JOD (uncorrected {s['jod_none']:.2f}; higher is better) and of FLIP (uncorrected "
+            f"{s['flip_none']:.3f}). The learned pass and the FISTA steps "
             "reuse the eye's kernel spectrum, as a renderer does from frame to frame; `wiener` and `fast` start "
             "from the kernel:", "",
-            markdown_table(["method", f"ms at {label}", "gap closed", "FLIP"], rows)]
+            markdown_table(["method", f"ms at {label}", "gap closed", "JOD ↑", "FLIP ↓"], rows)]
 
 
 def _floor_lines(speed: dict[str, Any]) -> list[str]:
@@ -399,6 +408,9 @@ def _markdown(model, display, eyes, images, size, rows, s, speed, pictures: dict
         f"- objective / uncorrected, mean: wiener {s['objective_ratio_wiener']:.3f}, learned "
         f"{s['objective_ratio_learned']:.3f}, fast {s['objective_ratio_fast']:.3f}; learned below wiener in "
         f"{s['learned_below_wiener']} of {s['cases']} cases",
+        f"- JOD of what the eye sees (ColorVideoVDP, higher is better), mean: uncorrected {s['jod_none']:.2f}, "
+        f"wiener {s['jod_wiener']:.2f}, learned {s['jod_learned']:.2f}, fast {s['jod_fast']:.2f}; pre-correction "
+        f"alone {s['jod_precorrected']:.2f}",
         f"- FLIP of what the eye sees, mean: uncorrected {s['flip_none']:.3f}, wiener {s['flip_wiener']:.3f}, "
         f"learned {s['flip_learned']:.3f}, fast {s['flip_fast']:.3f}; pre-correction alone "
         f"{s['flip_precorrected']:.3f} (learned {verdict_w} wiener on FLIP and objective)",
@@ -415,7 +427,8 @@ def _markdown(model, display, eyes, images, size, rows, s, speed, pictures: dict
         "",
         markdown_table(["image", "eye S / C x axis", "pupil mm", "objective uncorrected", "wiener / unc.",
                         "pre-correction / unc.", "learned / unc.", "fast / unc.", "gap closed", "FLIP unc.",
-                        "FLIP wiener", "FLIP pre-correction", "FLIP learned", "FLIP fast"], rows),
+                        "FLIP wiener", "FLIP pre-correction", "FLIP learned", "FLIP fast", "JOD unc.",
+                        "JOD wiener", "JOD learned", "JOD fast"], rows),
     ]
     return "\n".join(lines) + "\n"
 
