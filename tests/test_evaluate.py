@@ -140,6 +140,7 @@ def test_csv_parses_and_is_finite(run):
         for k in ("flip", "ssim", "psnr", "objective", "flip_lms", "ssim_lms", "psnr_lms", "seconds"):
             assert math.isfinite(float(r[k])), (k, r)
         assert 0.0 <= float(r["flip"]) <= 1.0 and -1.0 <= float(r["ssim"]) <= 1.0
+        assert 0.0 < float(r["jod"]) <= 10.0
         assert int(r["iterations"]) >= 0
         if r["method"] == "none":
             assert int(r["iterations"]) == 0
@@ -155,6 +156,33 @@ def test_markdown_has_machine_tables_and_verdicts(run):
     assert machine_description() in text
     assert result["summary_markdown"] in text
     assert text.count("\n| astronaut |") == len(ev.PRESCRIPTIONS) * (len(METHODS) + 1)
+
+
+def test_markdown_states_wins_against_no_correction(run):
+    out, result = run
+    text = (out / "results.md").read_text()
+    assert "Against no correction" in text and "JOD ↑" in text
+    assert len(result["wins"]) == len(ev.PRESCRIPTIONS)
+    for line in result["wins"]:
+        for m in METHODS:
+            assert f"{m} beats it by JOD on " in line
+
+
+def _row(image, rx, method, jod, flip):
+    return {"image": image, "prescription": rx, "method": method, "jod": jod, "flip": flip}
+
+
+def test_wins_and_disagreements_count_what_the_scores_say():
+    rows = [_row("a", "myopia", "none", 7.0, 0.20), _row("a", "myopia", "fast", 7.5, 0.25),   # JOD yes, FLIP no
+            _row("b", "myopia", "none", 6.0, 0.30), _row("b", "myopia", "fast", 6.4, 0.20),   # both yes
+            _row("c", "myopia", "none", 8.0, 0.10), _row("c", "myopia", "fast", 7.9, 0.09)]   # JOD no, FLIP yes
+    wins = ev._beats_uncorrected(rows, ["none", "fast"], acuity={"myopia": {"none": 0.5, "fast": 0.3}})
+    assert len(wins) == 1
+    assert "fast beats it by JOD on 2/3 images" in wins[0] and "by FLIP on 2/3" in wins[0]
+    assert "acuity logMAR 0.5 -> 0.3" in wins[0]
+    split = ev.disagreements(rows)
+    assert [(d["image"], d["jod_gain"] > 0) for d in split] == [("a", True), ("c", False)]
+    assert split[0]["jod_gain"] == pytest.approx(0.5) and split[0]["flip_gain"] == pytest.approx(-0.05)
 
 
 def test_verdicts_when_conventional_runs(tmp_path):

@@ -429,6 +429,46 @@ def _beats_uncorrected(rows: Sequence[Mapping[str, Any]], methods: Sequence[str]
     return lines
 
 
+def disagreements(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Cases where JOD and FLIP disagree on whether a method beats no correction.
+
+    One dict per image x prescription x method where one score says the
+    corrected view is better than the uncorrected one and the other says it
+    is worse: ``image``, ``prescription``, ``method``, ``jod_gain`` (JOD of the
+    method less the uncorrected one's) and ``flip_gain`` (the uncorrected FLIP
+    less the method's: positive means FLIP prefers the correction); the
+    largest disagreements first.
+    """
+    base = {(r["image"], r["prescription"]): r for r in rows if r["method"] == "none"}
+    out = []
+    for r in rows:
+        b = base.get((r["image"], r["prescription"]))
+        if r["method"] == "none" or b is None:
+            continue
+        jod_gain, flip_gain = r["jod"] - b["jod"], b["flip"] - r["flip"]
+        if jod_gain * flip_gain < 0:
+            out.append({"image": r["image"], "prescription": r["prescription"], "method": r["method"],
+                        "jod_gain": jod_gain, "flip_gain": flip_gain})
+    return sorted(out, key=lambda d: -abs(d["jod_gain"]))
+
+
+def _disagreement_lines(rows: Sequence[Mapping[str, Any]], methods: Sequence[str]) -> list[str]:
+    found = disagreements(rows)
+    if not found:
+        return []
+    lines = []
+    for m in methods:
+        mine = [d for d in found if d["method"] == m]
+        if not mine:
+            continue
+        jod_says = sum(d["jod_gain"] > 0 for d in mine)
+        cases = ", ".join(f"{d['image']}/{d['prescription']} ({d['jod_gain']:+.2f} JOD, FLIP "
+                          f"{-d['flip_gain']:+.3f})" for d in mine[:4])
+        lines.append(f"- {m}: {len(mine)} cases; JOD says better than uncorrected in {jod_says} of them, FLIP in "
+                     f"{len(mine) - jod_says}; largest: {cases}{' ...' if len(mine) > 4 else ''}")
+    return lines
+
+
 def _verdicts(summary: Sequence[Mapping[str, Any]]) -> list[str]:
     """Per prescription: do ``paper`` and ``fast`` beat ``conventional`` on mean FLIP, SSIM, PSNR?"""
     lines = []
@@ -532,6 +572,11 @@ def _markdown(rows, summary, verdicts, display, size, images, methods, seconds_t
     ]
     if wins:
         parts += ["Against no correction (what the eye sees of the uncorrected image), per image:", "", *wins, ""]
+    split = _disagreement_lines(rows, methods)
+    if split:
+        parts += ["Where JOD and FLIP disagree on whether a method beats no correction (believe JOD: it is "
+                  "calibrated on human judgements of such images; FLIP's panels below each case show why it "
+                  "differs; FLIP changes in error units, lower is better):", "", *split, ""]
     if verdicts:
         parts += ["Against the conventional method (mean over the images; FLIP lower is better, SSIM and "
                   "PSNR higher):", "", *verdicts, ""]
