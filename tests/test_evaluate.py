@@ -36,7 +36,8 @@ def _images() -> list[tuple[str, np.ndarray]]:
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("evaluation")
-    result = ev.run_evaluation(out, _images(), "desktop", methods=METHODS, size=SIZE, progress=False)
+    result = ev.run_evaluation(out, _images(), "desktop", methods=METHODS, size=SIZE, progress=False,
+                               acuity=False)
     return out, result
 
 
@@ -185,10 +186,22 @@ def test_wins_and_disagreements_count_what_the_scores_say():
     assert split[0]["jod_gain"] == pytest.approx(0.5) and split[0]["flip_gain"] == pytest.approx(-0.05)
 
 
+def test_acuity_column_and_verdict(tmp_path, monkeypatch):
+    """With acuity on, each problem's eye reads the chart: a logMAR per method in the table and the verdicts."""
+    monkeypatch.setattr(ev, "PRESCRIPTIONS", ev.PRESCRIPTIONS[:1])          # myopia only: keep it quick
+    result = ev.run_evaluation(tmp_path, _images()[:1], "desktop", methods=("fast",), size=24, progress=False)
+    logmar = result["acuity"]["myopia"]
+    assert set(logmar) == {"none", "fast", "none:sharp", "fast:sharp"}
+    assert logmar["none"] is not None and logmar["none"] >= 0.3        # -1.5 D at infinity: well below 20/20
+    assert "acuity logMAR ↓" in result["summary_markdown"]
+    assert f"| myopia | none | {result['summary'][0]['jod']:.3f} | {logmar['none']:.1f} |" in result["summary_markdown"]
+    assert "eye-chart acuity logMAR" in result["wins"][0]
+
+
 def test_verdicts_when_conventional_runs(tmp_path):
     imgs = _images()[:1]
     result = ev.run_evaluation(tmp_path, imgs, "desktop", methods=("conventional", "fast"), size=32,
-                               progress=False, solver_options={"conventional": {"max_iterations": 20}})
+                               progress=False, acuity=False, solver_options={"conventional": {"max_iterations": 20}})
     assert len(result["verdicts"]) == len(ev.PRESCRIPTIONS)
     assert all("fast" in line and "conventional" in line for line in result["verdicts"])
     assert "\n".join(result["verdicts"]) in (tmp_path / "results.md").read_text()
@@ -231,9 +244,10 @@ def test_force_overwrites(tmp_path):
     from vrcorrect.charts import siemens_star
 
     img = [("star", siemens_star(16))]
-    ev.run_evaluation(tmp_path, img, "desktop", methods=("fast",), size=16, progress=False)
+    ev.run_evaluation(tmp_path, img, "desktop", methods=("fast",), size=16, progress=False, acuity=False)
     before = (tmp_path / "results.csv").stat().st_mtime_ns
-    result = ev.run_evaluation(tmp_path, img, "desktop", methods=("fast",), size=16, progress=False, force=True)
+    result = ev.run_evaluation(tmp_path, img, "desktop", methods=("fast",), size=16, progress=False, force=True,
+                               acuity=False)
     assert (tmp_path / "results.csv").stat().st_mtime_ns >= before
     assert len(result["rows"]) == len(ev.PRESCRIPTIONS) * 2
 
@@ -264,7 +278,7 @@ def test_command_prints_outputs_and_summary(tmp_path, capsys):
     Image.fromarray((np.indices((40, 40)).sum(0) % 2 * 255).astype(np.uint8)).save(folder / "checker.png")
     out = tmp_path / "out"
     args = _parser().parse_args(["evaluate", "--images", str(folder), "--out", str(out), "--size", "24",
-                                 "--methods", "fast"])
+                                 "--methods", "fast", "--no-acuity"])
     assert args.func(args) == 0
     printed = capsys.readouterr().out
     assert str(out / "results.csv") in printed

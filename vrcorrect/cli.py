@@ -510,6 +510,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_evaluate_parser(sub)
 
+    from .acuity_cli import add_parser as add_acuity_parser
+
+    add_acuity_parser(sub)
+
     from .learn_cli import add_parser as add_learn_parsers
 
     add_learn_parsers(sub)

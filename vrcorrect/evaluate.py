@@ -419,10 +419,12 @@ def _beats_uncorrected(rows: Sequence[Mapping[str, Any]], methods: Sequence[str]
             flip_wins = sum(r["flip"] < base[r["image"]]["flip"] for r in sel)
             text = (f"{m} beats it by JOD on {jod_wins}/{len(sel)} images (mean {np.mean(gains):+.2f} JOD, "
                     f"range {min(gains):+.2f} to {max(gains):+.2f}; by FLIP on {flip_wins}/{len(sel)})")
-            if acuity and rx.key in acuity and acuity[rx.key].get(m) is not None:
-                a0, a1 = acuity[rx.key].get("none"), acuity[rx.key][m]
-                if a0 is not None:
-                    text += f", acuity logMAR {a0:.1f} -> {a1:.1f}"
+            if acuity and rx.key in acuity:
+                a = acuity[rx.key]
+                text += (f", eye-chart acuity logMAR {_logmar_text(a.get('none'))} -> {_logmar_text(a.get(m))}")
+                if "none:sharp" in a:
+                    text += (f" (sharp-template observer {_logmar_text(a.get('none:sharp'))} -> "
+                             f"{_logmar_text(a.get(f'{m}:sharp'))})")
             parts.append(text)
         if parts:
             lines.append(f"- **{rx.key}**: " + "; ".join(parts) + ".")
@@ -503,11 +505,13 @@ def summary_table(summary: Sequence[Mapping[str, Any]]) -> str:
     from .bench import markdown_table
 
     has_acuity = any("acuity_logmar" in s for s in summary)
-    head = ["prescription", "method", "JOD ↑"] + (["acuity logMAR ↓"] if has_acuity else [])
+    head = ["prescription", "method", "JOD ↑"] + (["acuity logMAR ↓", "acuity, sharp templates ↓"]
+                                                  if has_acuity else [])
     return markdown_table(
         head + ["FLIP ↓", "SSIM ↑", "PSNR dB ↑", "objective ↓", "seconds"],
         [[s["prescription"], s["method"], f"{s['jod']:.3f}"]
-         + ([_logmar_text(s.get("acuity_logmar"))] if has_acuity else [])
+         + ([_logmar_text(s.get("acuity_logmar")), _logmar_text(s.get("acuity_logmar_sharp"))]
+            if has_acuity else [])
          + [f"{s['flip']:.4f}", f"{s['ssim']:.4f}", _fmt(s["psnr"], ".2f"),
             f"{s['objective']:.3e}", f"{s['seconds']:.2f}"] for s in summary])
 
@@ -558,7 +562,12 @@ def _markdown(rows, summary, verdicts, display, size, images, methods, seconds_t
         "identical, higher is better, one JOD ~ 75 % of observers prefer the better image) is the primary "
         f"score, on this display's viewing conditions ({display.photometry.describe()}); FLIP (at the "
         "display's pixels per degree), SSIM and PSNR are secondary; the `(LMS)` columns score the cone "
-        "images directly, as the paper reported. "
+        "images directly, as the paper reported. **Acuity** (when run): the smallest line of a logMAR chart "
+        "of Sloan letters the problem's eye reads on this display (simulated observer after Watson & "
+        "Ahumada 2008, `vrcorrect acuity`), uncorrected and with each method, whose target there is what "
+        "the eye sees with its glasses on; by the ideal observer, whose templates pass through the same eye "
+        "and correction, and by the sharp-template observer, who knows the letters as they look with "
+        "glasses; `-` means no line was read. "
         f"Total time {seconds_total:.1f} s.",
         "",
         "## Refractive problems (minus-cylinder form)",
@@ -642,8 +651,8 @@ def output_paths(out_dir: str | Path, image_names: Sequence[str]) -> dict[str, A
 
 def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]], display,
                    methods: Sequence[str] = DEFAULT_METHODS, size: int | None = 256, progress: bool = True,
-                   force: bool = False, solver_options: Mapping[str, Mapping[str, Any]] | None = None
-                   ) -> dict[str, Any]:
+                   force: bool = False, solver_options: Mapping[str, Mapping[str, Any]] | None = None,
+                   acuity: bool = True) -> dict[str, Any]:
     """Run every method on every image for every prescription and write the results.
 
     Parameters
@@ -670,6 +679,11 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
     solver_options
         Optional per-method keyword options for :func:`vrcorrect.solvers.solve`,
         e.g. ``{"conventional": {"max_iterations": 40}}``.
+    acuity
+        Also read an eye chart with each problem's eye, uncorrected and with
+        each method (:func:`vrcorrect.acuity_cli.measure_acuity`; its target
+        is what the eye sees with glasses, the product's default), and
+        report the logMAR per prescription x method.
 
     Returns
     -------
@@ -764,16 +778,34 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
     finally:
         bar.close()
 
+    acuity_logmar: dict[str, dict[str, float | None]] = {}
+    if acuity:
+        from .acuity_cli import measure_acuity
+
+        bar = tqdm(total=len(PRESCRIPTIONS), desc="acuity", unit="eye", disable=None if progress else True,
+                   leave=False)
+        try:
+            for rx in PRESCRIPTIONS:
+                read = measure_acuity(prescription_eye(rx), display, methods, kernel_options)
+                acuity_logmar[rx.key] = {m: read.logmar(m) for m in scored}
+                acuity_logmar[rx.key].update({f"{m}:sharp": read.logmar(m, "sharp") for m in scored})
+                bar.update(1)
+        finally:
+            bar.close()
     summary = _summarise(rows, scored)
+    for s in summary:
+        if s["prescription"] in acuity_logmar:
+            s["acuity_logmar"] = acuity_logmar[s["prescription"]].get(s["method"])
+            s["acuity_logmar_sharp"] = acuity_logmar[s["prescription"]].get(f"{s['method']}:sharp")
     verdicts = _verdicts(summary)
-    wins = _beats_uncorrected(rows, scored)
+    wins = _beats_uncorrected(rows, scored, acuity_logmar)
     seconds_total = time.perf_counter() - t_start
     write_text_atomic(files["csv"], _csv_text(rows), force=force)
     write_text_atomic(files["markdown"],
                       _markdown(rows, summary, verdicts, display, size if size is not None else "as given",
                                 images, scored, seconds_total, wins), force=force)
     return {"rows": rows, "summary": summary, "summary_markdown": summary_table(summary), "verdicts": verdicts,
-            "wins": wins, "files": files, "seconds": seconds_total}
+            "wins": wins, "acuity": acuity_logmar, "files": files, "seconds": seconds_total}
 
 
 # --------------------------------------------------------------------------
@@ -799,6 +831,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "always scored")
     p.add_argument("--display", default="desktop", metavar="PRESET",
                    help="display preset or profile .json (default desktop; list: vrcorrect displays)")
+    p.add_argument("--no-acuity", dest="acuity", action="store_false",
+                   help="skip the eye-chart acuity of each problem's eye (about 10-60 s per problem)")
     p.add_argument("--force", action="store_true", help="overwrite earlier results in --out")
     p.set_defaults(func=cmd_evaluate)
     return p
@@ -813,7 +847,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     display = get_display(args.display)
     images = folder_images(args.images, size) if args.images else bundled_images(size)
     result = run_evaluation(Path(args.out), images, display, methods=methods, size=size,
-                            progress=True, force=args.force)
+                            progress=True, force=args.force, acuity=args.acuity)
     files = result["files"]
     print(f"wrote {files['csv']}, {files['markdown']} and {len(files['panels'])} panels in "
           f"{Path(args.out) / 'panels'} ({len(images)} images x {len(PRESCRIPTIONS)} prescriptions x "

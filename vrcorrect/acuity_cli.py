@@ -1,0 +1,427 @@
+"""``vrcorrect acuity``: which line of an eye chart this eye reads, uncorrected and corrected.
+
+The chart, the observer and the acuity rule are :mod:`vrcorrect.acuity` (Watson & Ahumada 2008,
+calibrated there).  This module adds the corrections (layer 4, the solvers) and the command
+(layer 6): every drawable chart line's scoring image (the five chart letters and the observer's
+ten templates) is corrected as a whole by each method - ``make_problem(target, kernel,
+reference_kernel)`` with the project's default target, what the same eye sees with its glasses
+on - then seen through the eye and read.  ``none`` (the chart displayed as it is) is always read,
+as "uncorrected".
+
+Argument parsing only at import (no torch); ``paper`` and ``conventional`` import torch when they
+run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Sequence
+
+import numpy as np
+
+from .errors import ValidationError
+
+if TYPE_CHECKING:  # annotations only: importing these at run time would slow the command line's start
+    from .acuity import AcuityScore, Chart, Observer
+    from .display import DisplayProfile
+    from .kernel import EyeKernel, KernelOptions
+    from .prescription import EyeRx
+
+__all__ = ["METHODS", "AcuityResult", "measure_acuity", "acuity_panel", "add_parser", "cmd_acuity"]
+
+#: Correction methods the command accepts (``none``, uncorrected, is always read).
+METHODS: tuple[str, ...] = ("fast", "wiener", "paper", "conventional")
+
+_READ_RGB = (0, 150, 70)        # the last line read
+_BELOW_RGB = (205, 205, 205)    # lines the display's pixels cannot draw
+
+
+@dataclass(frozen=True, eq=False)
+class AcuityResult:
+    """The chart read by one eye on one display, uncorrected and with each correction.
+
+    Attributes
+    ----------
+    eye, display
+        Who read, on what.
+    chart
+        The chart (:class:`vrcorrect.acuity.Chart`).
+    scores
+        ``{"none": AcuityScore, method: AcuityScore, ...}``, uncorrected first.
+    glasses
+        The same eye with its glasses on (sphere and cylinder corrected; the corrections' target)
+        reading the chart as it is: the best a correction could hope for on this display.
+    sharp_scores
+        Like ``scores``, read by the sharp-template observer: its templates are the letters as the
+        eye sees them with its glasses on (:func:`vrcorrect.acuity.score_acuity`'s
+        ``template_views``), as a person who has not adapted to the blur or the correction.
+    displayed
+        Per method, the displayed image of each chart line (None below the display's pixels).
+    seconds
+        Wall time: ``"kernel"`` (both kernels), then per method (solving and reading every line).
+    kernel
+        The eye's kernel on this display.
+    """
+
+    eye: EyeRx
+    display: DisplayProfile
+    chart: Chart
+    scores: dict[str, AcuityScore]
+    glasses: AcuityScore
+    displayed: dict[str, tuple[np.ndarray | None, ...]]
+    seconds: dict[str, float]
+    kernel: EyeKernel
+    sharp_scores: dict[str, AcuityScore]
+
+    def logmar(self, method: str, observer: str = "ideal") -> float | None:
+        """The reading with ``method`` by the ``"ideal"`` or the ``"sharp"``-template observer."""
+        if observer not in ("ideal", "sharp"):
+            raise ValidationError("observer", observer, "'ideal' or 'sharp'")
+        return (self.scores if observer == "ideal" else self.sharp_scores)[method].logmar
+
+    def as_dict(self) -> dict:
+        """JSON-ready: ``uncorrected_logmar``, ``<method>_logmar``, and per method the lines read."""
+        out: dict = {"uncorrected_logmar": self.scores["none"].logmar}
+        for m in self.scores:
+            if m != "none":
+                out[f"{m}_logmar"] = self.scores[m].logmar
+        out["glasses_logmar"] = self.glasses.logmar
+        for m, sc in self.sharp_scores.items():
+            out[f"{_label(m)}_logmar_sharp_templates"] = sc.logmar
+        obs = self.scores["none"].observer
+        d = self.display
+        out.update({
+            "methods": {_label(m): s.as_dict() for m, s in self.scores.items()},
+            "methods_sharp_templates": {_label(m): s.as_dict() for m, s in self.sharp_scores.items()},
+            "glasses": self.glasses.as_dict(),
+            "eye": {"sphere_D": self.eye.sphere_D, "cylinder_D": self.eye.cylinder_D, "axis_deg": self.eye.axis_deg,
+                    "pupil_diameter_mm": self.eye.pupil_diameter_mm, "accommodation_D": self.eye.accommodation_D},
+            "display": {"name": d.name, "title": d.title, "pixels_per_degree": d.pixels_per_degree,
+                        "distance_m": _metres(d.distance_m)},
+            "viewing_distance_m": _metres(self.kernel.info["distance_m"]),
+            "noise_contrast_arcmin": obs.noise_contrast_arcmin,
+            "observer": {"trials_per_letter": obs.trials_per_letter, "criterion": obs.criterion, "seed": obs.seed},
+            "seconds": {_label(k): v for k, v in self.seconds.items()},
+            "kernel_decisions": list(self.kernel.decisions),
+        })
+        return out
+
+
+def _metres(distance_m: float) -> float | None:
+    """A distance for JSON: None for optical infinity."""
+    return None if math.isinf(distance_m) else distance_m
+
+
+def measure_acuity(eye: EyeRx, display: DisplayProfile, methods: Sequence[str] = ("fast",),
+                   kernel_options: KernelOptions | None = None, *, observer: Observer | None = None,
+                   top_logmar: float = 1.0, bottom_logmar: float = -0.3, contrast: float = 1.0,
+                   chart_seed: int = 0, progress: Callable[[int, int], None] | None = None) -> AcuityResult:
+    """Read the chart uncorrected and with each correction ``methods``.
+
+    Parameters
+    ----------
+    eye
+        :class:`vrcorrect.prescription.EyeRx`.
+    display
+        :class:`vrcorrect.display.DisplayProfile`.
+    methods
+        Some of :data:`METHODS` (``"none"`` and repeats are ignored: uncorrected is always read).
+    kernel_options
+        :class:`vrcorrect.kernel.KernelOptions` (viewing distance, chromatic aberration, ...).
+    observer
+        :class:`vrcorrect.acuity.Observer` (default: the calibrated one).
+    top_logmar, bottom_logmar, chart_seed
+        The chart (:func:`vrcorrect.acuity.chart_lines`).
+    contrast
+        Contrast scale of the corrections' target, (0, 1] (``make_problem``'s; 1 = none).
+    progress
+        Optional ``progress(done, total)`` over the two kernel builds and each line x method.
+
+    Returns
+    -------
+    AcuityResult
+    """
+    from .acuity import Observer, build_chart, score_acuity
+    from .kernel import build_kernel, build_reference_kernel
+    from .solvers import make_problem, solve
+
+    chosen = _check_methods(methods)
+    if not (isinstance(contrast, (int, float)) and 0.0 < contrast <= 1.0):
+        raise ValidationError("contrast", contrast, "a number in (0, 1]")
+    observer = observer or Observer()
+    t0 = time.perf_counter()
+    kernel = build_kernel(eye, display, kernel_options)
+    reference = build_reference_kernel(eye, display, kernel_options)
+    seconds = {"kernel": time.perf_counter() - t0}
+    # gaps of two kernel widths: a corrected letter spreads about one kernel width on the display
+    # and the eye spreads it one more, so no template's light reaches another's cell
+    chart = build_chart(display, 2 * kernel.size, top_logmar, bottom_logmar, chart_seed)
+    drawable = sum(s is not None for s in chart.sheets)
+    total, done = 2 + drawable * (1 + len(chosen)), 2
+    if progress is not None:
+        progress(done, total)
+    scores, displayed = {}, {}
+    for method in ("none",) + chosen:
+        t1 = time.perf_counter()
+        shown = []
+        for target in chart.targets:
+            if target is None or method == "none":
+                shown.append(target)
+            else:
+                shown.append(solve(make_problem(target, kernel, reference, contrast=contrast), method).image)
+            if target is not None and progress is not None:
+                done += 1
+                progress(done, total)
+        displayed[method] = tuple(shown)
+        scores[method] = score_acuity(chart, shown, kernel, display, observer)
+        seconds[method] = time.perf_counter() - t1
+    glasses = score_acuity(chart, chart.targets, reference, display, observer)
+    sharp_views = tuple(s.seen_lms for s in glasses.lines)
+    sharp = {m: score_acuity(chart, displayed[m], kernel, display, observer, template_views=sharp_views)
+             for m in displayed}
+    return AcuityResult(eye=eye, display=display, chart=chart, scores=scores, glasses=glasses,
+                        displayed=displayed, seconds=seconds, kernel=kernel, sharp_scores=sharp)
+
+
+def _check_methods(methods: Sequence[str]) -> tuple[str, ...]:
+    if isinstance(methods, str):
+        methods = (methods,)
+    chosen: list[str] = []
+    for m in methods:
+        if m == "none" or m in chosen:
+            continue
+        if m not in METHODS:
+            raise ValidationError("methods", m, "some of " + ", ".join(METHODS))
+        chosen.append(m)
+    return tuple(chosen)
+
+
+# --------------------------------------------------------------------------
+# Text
+# --------------------------------------------------------------------------
+
+
+def _label(method: str) -> str:
+    return "uncorrected" if method == "none" else method
+
+
+def _reading_text(score) -> str:
+    if score.logmar is None:
+        return f"none ({score.snellen})"
+    note = " (display limit)" if score.limit == "pixels" else ""
+    return f"{score.logmar:.2f} ({score.snellen}){note}"
+
+
+def _columns(result: AcuityResult) -> list[tuple[str, AcuityScore]]:
+    """(label, score): uncorrected, each method, then the eye with its glasses (the target)."""
+    return [(_label(m), s) for m, s in result.scores.items()] + [("with glasses", result.glasses)]
+
+
+def summary_line(result: AcuityResult, observer: str = "ideal") -> str:
+    """``uncorrected 0.50 (20/63) -> fast 0.30 (20/40), wiener 0.40 (20/50); with glasses ...``."""
+    scores = result.scores if observer == "ideal" else result.sharp_scores
+    head = f"uncorrected {_reading_text(scores['none'])}"
+    rest = [f"{m} {_reading_text(s)}" for m, s in scores.items() if m != "none"]
+    return (head + (" -> " + ", ".join(rest) if rest else "")
+            + f"; with glasses {_reading_text(result.glasses)}")
+
+
+def line_table(result: AcuityResult) -> list[str]:
+    """Proportion correct per chart line and method; ``*`` marks a line read, ``-`` one not drawable."""
+    columns = _columns(result)
+    rows = [f"{'line':>5} {'Snellen':>9} {'px':>6}  " + "  ".join(f"{label:>12}" for label, _ in columns)]
+    for i, line in enumerate(result.chart.lines):
+        cells = []
+        for _, score in columns:
+            s = score.lines[i]
+            cells.append(f"{'-':>12}" if s.proportion_correct is None
+                         else f"{s.proportion_correct:>11.2f}{'*' if s.read else ' '}")
+        rows.append(f"{line.logmar:>+5.1f} {line.snellen:>9} {line.letter_height_px:>6.1f}  " + "  ".join(cells))
+    return rows
+
+
+# --------------------------------------------------------------------------
+# The panel
+# --------------------------------------------------------------------------
+
+
+def _default_font(px: int):
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=px)
+    except TypeError:  # pragma: no cover - Pillow without FreeType
+        return ImageFont.load_default()
+
+
+def acuity_panel(result: AcuityResult, title: str | None = None) -> np.ndarray:
+    """The chart as the eye sees it, sRGB uint8 ``(H, W, 3)``: one column per method (uncorrected
+    first), and last the same eye with its glasses on (the corrections' target).
+
+    Each row is one chart line (five letters) as seen; a green box marks the last line read (and a
+    green bar each line read); lines below the display's pixels are a grey strip saying so.  The
+    seen lines are scaled up by a whole factor (nearest neighbour) when the display's pixels make
+    them too small to look at.
+    """
+    from PIL import Image, ImageDraw
+
+    from .display import encode
+    from .forward import lms_to_display
+
+    chart, kernel, display = result.chart, result.kernel, result.display
+    columns = _columns(result)
+    sheets = [s for s in chart.sheets if s is not None]
+    top_cell = sheets[0].cell_px if sheets else 16
+    scale = max(1, min(6, int(round(360 / (5 * top_cell)))))
+    width = 5 * top_cell * scale
+    font_px = 14
+    font, small = _default_font(font_px), _default_font(12)
+    gutter, gap, head = 118, 18, 3 * (font_px + 4) + 10
+    below_h = 2 * (font_px + 4)
+    heights = [below_h if s is None else s.cell_px * scale for s in chart.sheets]
+    height = head + sum(heights) + 6 * len(heights) + 10
+    im = Image.new("RGB", (gutter + len(columns) * (width + gap), height), "white")
+    draw = ImageDraw.Draw(im)
+    draw.text((6, 4), title or "", fill="black", font=font)
+    for j, (label, score) in enumerate(columns):
+        x0 = gutter + j * (width + gap)
+        draw.text((x0, 4 + font_px + 4), label, fill="black", font=font)
+        draw.text((x0, 4 + 2 * (font_px + 4)), "reads " + _reading_text(score), fill=_READ_RGB if score.logmar
+                  is not None else (180, 0, 0), font=font)
+        y = head
+        for i, (line, sheet) in enumerate(zip(chart.lines, chart.sheets)):
+            h = heights[i]
+            s = score.lines[i]
+            if j == 0:
+                draw.text((6, y + max(0, h // 2 - font_px)), f"{line.logmar:+.1f}  {line.snellen}", fill="black",
+                          font=font)
+            if sheet is None:
+                draw.rectangle([x0, y, x0 + width - 1, y + h - 1], fill=_BELOW_RGB)
+                draw.text((x0 + 6, y + 4), f"{line.letter_height_px:.1f} px letters: below the display's pixels",
+                          fill=(90, 90, 90), font=small)
+            else:
+                rows, cols = sheet.chart_row
+                seen = encode(display, lms_to_display(s.seen_lms, kernel))[rows, cols]
+                u8 = np.round(np.clip(seen, 0.0, 1.0) * 255.0).astype(np.uint8)
+                tile = Image.fromarray(u8, "RGB").resize((u8.shape[1] * scale, u8.shape[0] * scale), Image.NEAREST)
+                left = x0 + (width - tile.width) // 2          # centred, as on a printed chart
+                im.paste(tile, (left, y))
+                if s.read:
+                    draw.rectangle([x0 - 6, y, x0 - 3, y + h - 1], fill=_READ_RGB)
+                if score.logmar is not None and math.isclose(line.logmar, score.logmar):
+                    draw.rectangle([left - 3, y - 2, left + tile.width + 2, y + h + 1], outline=_READ_RGB, width=3)
+            y += h + 6
+    return np.asarray(im)
+
+
+# --------------------------------------------------------------------------
+# The command
+# --------------------------------------------------------------------------
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``acuity`` sub-command to an argparse ``subparsers`` object."""
+    from .cli import _add_model_options
+
+    p = subparsers.add_parser(
+        "acuity", help="which line of an eye chart the eye reads, uncorrected and with each correction",
+        description=("Simulate reading a logMAR chart of Sloan letters (Watson & Ahumada 2008: the eye's optics, "
+                     "internal noise, an ideal observer; a line is read at 60%% correct), uncorrected and with "
+                     "each correction method, and print the acuity in logMAR and Snellen."))
+    _add_model_options(p)
+    p.add_argument("--methods", nargs="+", default=["fast"], metavar="METHOD",
+                   help="corrections to read with: some of " + ", ".join(METHODS) + " (default fast); "
+                        "uncorrected is always read")
+    p.add_argument("--json", metavar="OUT.json", help="write the readings as JSON ('-': print them)")
+    p.add_argument("--png", metavar="OUT.png", help="draw the chart as the eye sees it, a column per method")
+    p.add_argument("--trials", type=int, default=400, help="noisy trials per letter (default 400)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the observer's noise (default 0)")
+    p.add_argument("--top-logmar", type=float, default=1.0, help="top line (default 1.0, 20/200)")
+    p.add_argument("--bottom-logmar", type=float, default=-0.3, help="bottom line (default -0.3, 20/10)")
+    p.add_argument("--contrast", type=float, default=1.0,
+                   help="scale the corrections' target contrast (0, 1] (default 1)")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.set_defaults(func=cmd_acuity)
+    return p
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    from .fileio import check_writable
+
+    if args.json is not None and args.json != "-":
+        if Path(args.json).suffix.lower() != ".json":
+            raise ValidationError("--json", args.json, "a path ending in .json, or '-'")
+        check_writable(Path(args.json), force=args.force)
+    if args.png is not None:
+        if Path(args.png).suffix.lower() != ".png":
+            raise ValidationError("--png", args.png, "a path ending in .png")
+        check_writable(Path(args.png), force=args.force)
+
+
+def cmd_acuity(args: argparse.Namespace) -> int:
+    """``vrcorrect acuity``: read the chart, print the table, write the JSON and the panel."""
+    from tqdm import tqdm
+
+    from .acuity import Observer, chart_lines
+    from .cli import _kernel_options, _load_eye
+    from .display import get_display
+    from .fileio import write_text_atomic
+    from .imageio import write_png
+
+    methods = _check_methods(args.methods)
+    _check_outputs(args)
+    if not (0.0 < args.contrast <= 1.0):
+        raise ValidationError("--contrast", args.contrast, "a number in (0, 1]")
+    observer = Observer(trials_per_letter=args.trials, seed=args.seed)
+    options = _kernel_options(args)
+    rx_path, eye = _load_eye(args)
+    display = get_display(args.display)
+    chart_lines(display, args.top_logmar, args.bottom_logmar)          # bad chart limits: fail before the work
+    bar = tqdm(desc="acuity", unit="step", disable=None, leave=False, file=sys.stderr)
+
+    def progress(done: int, total: int) -> None:
+        bar.total = total
+        bar.n = done
+        bar.refresh()
+
+    try:
+        result = measure_acuity(eye, display, methods, options, observer=observer, top_logmar=args.top_logmar,
+                                bottom_logmar=args.bottom_logmar, contrast=args.contrast, progress=progress)
+    finally:
+        bar.close()
+    report = result.as_dict()
+    report["prescription"] = str(rx_path)
+    report["eye"]["which"] = args.eye
+    out = sys.stderr if args.json == "-" else sys.stdout
+    distance = result.kernel.info["distance_m"]
+    where = "optical infinity" if math.isinf(distance) else f"{distance:.2f} m"
+    print(f"{args.eye} eye {eye.sphere_D:+.2f} / {eye.cylinder_D:+.2f} x {eye.axis_deg:g}, pupil "
+          f"{eye.pupil_diameter_mm:g} mm, on {display.title} ({display.pixels_per_degree:.1f} ppd, seen at {where})",
+          file=out)
+    for row in line_table(result):
+        print(row, file=out)
+    timing = ", ".join(f"{_label(k)} {v:.1f} s" for k, v in result.seconds.items())
+    print(f"(* = read: at least {observer.criterion:.0%} correct; - = below the display's pixels; "
+          f"noise {observer.noise_contrast_arcmin:g} contrast x arcmin; {timing})", file=out)
+    print("ideal observer (templates seen through the same eye and correction):", file=out)
+    print("  " + summary_line(result), file=out)
+    print("sharp-template observer (knows the letters as they look with glasses):", file=out)
+    print("  " + summary_line(result, "sharp"), file=out)
+    if args.png:
+        title = (f"{args.eye} eye {eye.sphere_D:+.2f} / {eye.cylinder_D:+.2f} x {eye.axis_deg:g} on "
+                 f"{display.title}, seen at {where}")
+        write_png(Path(args.png), acuity_panel(result, title).astype(np.float64) / 255.0, force=args.force)
+        print(f"wrote {args.png}", file=out)
+    text = json.dumps(report, indent=2) + "\n"
+    if args.json == "-":
+        sys.stdout.write(text)
+    elif args.json:
+        write_text_atomic(Path(args.json), text, force=args.force)
+        print(f"wrote {args.json}", file=out)
+    return 0
