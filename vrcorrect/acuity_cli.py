@@ -223,6 +223,11 @@ def _columns(result: AcuityResult) -> list[tuple[str, AcuityScore]]:
     return [(_label(m), s) for m, s in result.scores.items()] + [("with glasses", result.glasses)]
 
 
+def _sharp_columns(result: AcuityResult) -> list[AcuityScore]:
+    """The sharp-template observer's scores in :func:`_columns`' order (with glasses: one observer)."""
+    return list(result.sharp_scores.values()) + [result.glasses]
+
+
 def summary_line(result: AcuityResult, observer: str = "ideal") -> str:
     """``uncorrected 0.50 (20/63) -> fast 0.30 (20/40), wiener 0.40 (20/50); with glasses ...``."""
     scores = result.scores if observer == "ideal" else result.sharp_scores
@@ -264,8 +269,9 @@ def acuity_panel(result: AcuityResult, title: str | None = None) -> np.ndarray:
     """The chart as the eye sees it, sRGB uint8 ``(H, W, 3)``: one column per method (uncorrected
     first), and last the same eye with its glasses on (the corrections' target).
 
-    Each row is one chart line (five letters) as seen; a green box marks the last line read (and a
-    green bar each line read); lines below the display's pixels are a grey strip saying so.  The
+    Each row is one chart line (five letters) as seen; a green box marks the last line the ideal
+    observer reads (and a green bar each line it reads; the sharp-template observer's reading is
+    printed under it); lines below the display's pixels are a grey strip saying so.  The
     seen lines are scaled up by a whole factor (nearest neighbour) when the display's pixels make
     them too small to look at.
     """
@@ -282,29 +288,40 @@ def acuity_panel(result: AcuityResult, title: str | None = None) -> np.ndarray:
     width = 5 * top_cell * scale
     font_px = 14
     font, small = _default_font(font_px), _default_font(12)
-    gutter, gap, head = 118, 18, 3 * (font_px + 4) + 10
+    gutter, gap, head = 118, 18, 4 * (font_px + 4) + 10
     below_h = 2 * (font_px + 4)
-    heights = [below_h if s is None else s.cell_px * scale for s in chart.sheets]
-    height = head + sum(heights) + 6 * len(heights) + 10
+    # lines below the display's pixels: one strip for all of them (they are the chart's smallest)
+    below = [i for i, s in enumerate(chart.sheets) if s is None]
+    shown = [i for i in range(len(chart.lines)) if chart.sheets[i] is not None or i == (below[0] if below else -1)]
+    heights = {i: below_h if chart.sheets[i] is None else chart.sheets[i].cell_px * scale for i in shown}
+    heights = [heights.get(i, 0) for i in range(len(chart.lines))]
+    height = head + sum(heights) + 6 * len(shown) + 10
     im = Image.new("RGB", (gutter + len(columns) * (width + gap), height), "white")
     draw = ImageDraw.Draw(im)
     draw.text((6, 4), title or "", fill="black", font=font)
-    for j, (label, score) in enumerate(columns):
+    for j, ((label, score), sharp) in enumerate(zip(columns, _sharp_columns(result))):
         x0 = gutter + j * (width + gap)
         draw.text((x0, 4 + font_px + 4), label, fill="black", font=font)
         draw.text((x0, 4 + 2 * (font_px + 4)), "reads " + _reading_text(score), fill=_READ_RGB if score.logmar
                   is not None else (180, 0, 0), font=font)
+        draw.text((x0, 4 + 3 * (font_px + 4)), "sharp-template observer: " + _reading_text(sharp),
+                  fill=(90, 90, 90), font=small)
         y = head
         for i, (line, sheet) in enumerate(zip(chart.lines, chart.sheets)):
+            if i not in shown:
+                continue
             h = heights[i]
             s = score.lines[i]
+            last = chart.lines[below[-1]] if sheet is None else line
             if j == 0:
-                draw.text((6, y + max(0, h // 2 - font_px)), f"{line.logmar:+.1f}  {line.snellen}", fill="black",
-                          font=font)
+                label = f"{line.logmar:+.1f}  {line.snellen}" if last is line else \
+                    f"{line.logmar:+.1f} to\n{last.logmar:+.1f}"
+                draw.text((6, y + max(0, h // 2 - font_px)), label, fill="black", font=font)
             if sheet is None:
                 draw.rectangle([x0, y, x0 + width - 1, y + h - 1], fill=_BELOW_RGB)
-                draw.text((x0 + 6, y + 4), f"{line.letter_height_px:.1f} px letters: below the display's pixels",
-                          fill=(90, 90, 90), font=small)
+                size = (f"{line.letter_height_px:.1f} px letters" if last is line else
+                        f"{line.letter_height_px:.1f} to {last.letter_height_px:.1f} px letters")
+                draw.text((x0 + 6, y + 4), f"{size}: below the display's pixels", fill=(90, 90, 90), font=small)
             else:
                 rows, cols = sheet.chart_row
                 seen = encode(display, lms_to_display(s.seen_lms, kernel))[rows, cols]
