@@ -2,27 +2,33 @@
 // The per-frame blend weight of the wiener correction, on the GPU (vrcorrect.solvers.wiener):
 // beta = clamp(-<r0, Kd> / <Kd, Kd>, 0, 1), r0 = K t - T t (the uncorrected retinal residual),
 // Kd = K (clip(F t) - t), sums over the image and the three cones: the weight that minimises the
-// true objective, so the result is never worse than no correction. Passes (define one):
-//   PARTIAL  per 16x16 workgroup: the two sums -> u_partials[group]
+// true objective, so the result is never worse than no correction. The third sum, <r0, r0>, gives
+// the blended frame's objective as a fraction of the uncorrected one (read back by the CPU).
+// SOLUTION (the projected-gradient guard): u_kd holds the residual K x - T of a solution x and
+// u_delta holds x itself, so Kd = (K x - T) - r0 and d = x - t. Passes (define one):
+//   PARTIAL  per 16x16 workgroup: the three sums -> u_partials[group]
 //   FINAL    one workgroup adds the partials -> blend_beta (read by fft_filter.glsl's COMBINE)
 //   APPLY    u_out = t + beta * d
 #if defined COMPUTE_SHADER
-layout(std430, binding = 3) buffer Blend { float blend_beta; float blend_sums[2]; };
-layout(std430, binding = 4) buffer Partials { vec2 u_partials[]; };
+layout(std430, binding = 3) buffer Blend { float blend_beta; float blend_sums[3]; };
+layout(std430, binding = 4) buffer Partials { vec4 u_partials[]; };
 
 #if defined PARTIAL
 layout(local_size_x = 16, local_size_y = 16) in;
 uniform sampler2D u_r0;          // (H, W) residual r0 (cones in .rgb)
-uniform sampler2D u_kd;          // (H, W) K d
-shared vec2 sums[256];
+uniform sampler2D u_kd;          // (H, W) K d (SOLUTION: K x - T)
+shared vec4 sums[256];
 void main() {
     ivec2 p = ivec2(gl_GlobalInvocationID.xy);
     ivec2 size = textureSize(u_r0, 0);
-    vec2 s = vec2(0.0);
+    vec4 s = vec4(0.0);
     if (p.x < size.x && p.y < size.y) {
         vec3 r = texelFetch(u_r0, p, 0).rgb;
         vec3 k = texelFetch(u_kd, p, 0).rgb;
-        s = vec2(dot(r, k), dot(k, k));
+#if defined SOLUTION
+        k -= r;
+#endif
+        s = vec4(dot(r, k), dot(k, k), dot(r, r), 0.0);
     }
     uint i = gl_LocalInvocationIndex;
     sums[i] = s;
@@ -38,10 +44,10 @@ void main() {
 #if defined FINAL
 layout(local_size_x = 256) in;
 uniform int u_count;
-shared vec2 sums[256];
+shared vec4 sums[256];
 void main() {
     uint i = gl_LocalInvocationIndex;
-    vec2 s = vec2(0.0);
+    vec4 s = vec4(0.0);
     for (int k = int(i); k < u_count; k += 256) s += u_partials[k];
     sums[i] = s;
     barrier();
@@ -52,6 +58,7 @@ void main() {
     if (i == 0u) {
         blend_sums[0] = sums[0].x;
         blend_sums[1] = sums[0].y;
+        blend_sums[2] = sums[0].z;
         blend_beta = sums[0].y > 0.0 ? clamp(-sums[0].x / sums[0].y, 0.0, 1.0) : 0.0;
     }
 }
@@ -68,6 +75,9 @@ void main() {
     if (p.x >= size.x || p.y >= size.y) return;
     vec3 t = texelFetch(u_linear_in, p, 0).rgb;
     vec3 d = texelFetch(u_delta, p, 0).rgb;
+#if defined SOLUTION
+    d -= t;
+#endif
     imageStore(u_out, p, vec4(t + blend_beta * d, 1.0));
 }
 #endif

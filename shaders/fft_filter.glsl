@@ -6,10 +6,13 @@
 // signal: layer 0 = R + iG, layer 1 = B. Passes (define exactly one):
 //   ROWS_FORWARD  load rows (grid fill) and FFT them           -> u_spec (rg32f array, 2 layers)
 //   COLS          FFT columns of u_spec in place (sign by INVERSE)
-//   MULTIPLY      unpack X_R, X_G, X_B; Y_i = sum_j F_ij X_j; pack -> u_spec_out
+//   MULTIPLY      unpack X_R, X_G, X_B; Y_i = sum_j F_ij X_j (ADJOINT: conj(F_ji)); pack -> u_spec_out
 //   ROWS_INVERSE  inverse FFT of rows, keep the image's window  -> u_filtered (rg32f array)
-//   COMBINE       u_filtered + target -> u_out (rgba32f): correction blend, delta, clip or raw
-// Defines: NX, NY, LOG2_MAX (log2 of max(NX, NY)), MARGIN, BORDER_ZERO, and the COMBINE mode.
+//   COMBINE       u_filtered + target -> u_out (rgba32f): correction blend, delta, clip, raw,
+//                 residual (v - u_other) or a FISTA update of u_x, u_y
+// Defines: NX, NY, LOG2_MAX (log2 of max(NX, NY)), MARGIN, BORDER_ZERO, ADJOINT, and the COMBINE mode.
+// With BORDER_ZERO the fill, the product and the crop are an exact linear convolution with black
+// outside the image, and the ADJOINT product is its exact adjoint (correlation, then the crop).
 #include "srgb.glsl"
 
 #if defined COMPUTE_SHADER
@@ -128,7 +131,11 @@ void main() {
     for (int i = 0; i < 3; ++i) {
         y[i] = vec2(0.0);
         for (int j = 0; j < 3; ++j)
+#if defined ADJOINT
+            y[i] += cmul(conj2(texelFetch(u_bank, ivec3(f, 3 * j + i), 0).xy), x[j]);
+#else
             y[i] += cmul(texelFetch(u_bank, ivec3(f, 3 * i + j), 0).xy, x[j]);
+#endif
     }
     imageStore(u_spec_out, ivec3(f, 0), vec4(y[0] + vec2(-y[1].y, y[1].x), 0.0, 0.0));   // Y_R + i Y_G
     imageStore(u_spec_out, ivec3(f, 1), vec4(y[2], 0.0, 0.0));
@@ -157,11 +164,22 @@ void main() {
 
 #if defined COMBINE
 // COMBINE_CORRECT: t + beta (clip(v) - t) with beta = u_beta; COMBINE_DELTA: clip(v) - t (the
-// per-frame blend, blend.glsl, takes it from there); COMBINE_CLIP: clip(v); else v as it is.
+// per-frame blend, blend.glsl, takes it from there); COMBINE_CLIP: clip(v); COMBINE_RESIDUAL:
+// v - u_other (K y - T); COMBINE_FISTA: v is the gradient K^H (K y - T) at u_y: one projected-
+// gradient step x' = clip(y - u_step v, 0, 1), then y' = x' + u_weight (x' - x), both in place
+// (vrcorrect.solvers.wiener.projected_gradient); else v as it is.
 layout(rg32f, binding = 0) readonly uniform image2DArray u_filtered;
-layout(rgba32f, binding = 1) writeonly uniform image2D u_out;
 uniform sampler2D u_linear_in;
+#if defined COMBINE_FISTA
+layout(rgba32f, binding = 1) uniform image2D u_y;
+layout(rgba32f, binding = 2) uniform image2D u_x;
+uniform float u_step;
+uniform float u_weight;
+#else
+layout(rgba32f, binding = 1) writeonly uniform image2D u_out;
 uniform float u_beta;
+uniform sampler2D u_other;
+#endif
 void main() {
     ivec2 p = ivec2(gl_GlobalInvocationID.xy);
     ivec2 size = textureSize(u_linear_in, 0);
@@ -169,6 +187,12 @@ void main() {
     vec2 rg = imageLoad(u_filtered, ivec3(p, 0)).xy;
     float b = imageLoad(u_filtered, ivec3(p, 1)).x;
     vec3 v = vec3(rg, b);
+#if defined COMBINE_FISTA
+    vec3 x = imageLoad(u_x, p).rgb;
+    vec3 x_new = clamp(imageLoad(u_y, p).rgb - u_step * v, 0.0, 1.0);
+    imageStore(u_x, p, vec4(x_new, 1.0));
+    imageStore(u_y, p, vec4(x_new + u_weight * (x_new - x), 1.0));
+#else
 #if defined COMBINE_CORRECT
     vec3 t = texelFetch(u_linear_in, p, 0).rgb;
     vec3 outc = t + u_beta * (clamp(v, 0.0, 1.0) - t);
@@ -176,10 +200,13 @@ void main() {
     vec3 outc = clamp(v, 0.0, 1.0) - texelFetch(u_linear_in, p, 0).rgb;
 #elif defined COMBINE_CLIP
     vec3 outc = clamp(v, 0.0, 1.0);
+#elif defined COMBINE_RESIDUAL
+    vec3 outc = v - texelFetch(u_other, p, 0).rgb;
 #else
     vec3 outc = v;
 #endif
     imageStore(u_out, p, vec4(outc, 1.0));
+#endif
 }
 #endif
 #endif

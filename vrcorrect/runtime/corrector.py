@@ -12,10 +12,30 @@ eye; ``apply(src_texture, dst_framebuffer)`` then runs every frame:
    inverse not truncated; ``"separable"``: the filters designed on the CPU by
    :func:`vrcorrect.solvers.wiener.correction_filters` as a separable low-rank
    bank (:mod:`vrcorrect.runtime.filters`), ``width x rank`` taps per pixel
-   (cheap for small kernels, costly for wide ones); ``backend="onnx"`` reads the
+   (cheap for small kernels, costly for wide ones); ``"fista"``: projected-gradient
+   (FISTA) iterations on the true objective, spread over frames (below);
+   ``backend="onnx"`` reads the
    linear image back, runs an ONNX model through onnxruntime and uploads the
    result (the learned model's slot, :mod:`vrcorrect.runtime.onnx_backend`);
 3. encode to sRGB into the caller's framebuffer (fragment pass).
+
+``filter="fista"`` minimises the CPU solvers' objective itself, ``||crop(K x) - T||^2`` with ``x``
+in [0, 1], the convolution exact and linear with black outside the image (zero-filled power-of-two
+FFT grid, cropped to the image: :func:`vrcorrect.solvers.objective`), ``T = K_ref t`` (glasses on)
+or ``A t`` (ideal).  Each iteration is two FFT round trips, ``r = K y - T`` then ``K^H r`` (the
+exact adjoint: the conjugate transpose of ``K``'s 3x3 spectrum, the same zero fill and crop),
+then ``x' = clip(y - r' / ||K||^2, 0, 1)`` and FISTA's extrapolation ``y' = x' + w (x' - x)``:
+the GPU twin of :func:`vrcorrect.solvers.wiener.projected_gradient` (one GL iteration equals one
+CPU step to float precision).  Per eye and image size the solution ``x``, the extrapolated point
+``y`` and the previous frame's target stay on the GPU, the momentum on the CPU; each frame runs
+``iterations_per_frame`` iterations from the previous frame's solution moved by the change of the
+target (``x + t - t_prev``, clipped: for a still source, exactly where FISTA stopped, so N frames
+of k iterations are N k iterations).  The first frame of a size, a size change, a prescription
+change (``adjust``, ``poll``) and :meth:`Corrector.reset` start cold, from the target.  The guard:
+the displayed frame is ``t + beta (x - t)`` with the objective-optimal ``beta`` in [0, 1] computed
+on the GPU (two more ``K`` round trips, ``K t - T`` and ``K x - T``, and a reduction), so no frame
+is worse than uncorrected.  Per frame: ``2 k + 3`` FFT round trips.  ``simulate(corrected=True)``
+runs a frame too (the state advances).
 
 ``simulate()`` runs the eye's forward model the same way (the bank ``A^-1 K``,
 black outside the image): what the eye sees of the displayed image, for previews.
@@ -57,7 +77,16 @@ __all__ = ["CorrectorOptions", "EyeModel", "Corrector", "BACKENDS", "build_eye_m
 log = logging.getLogger(__name__)
 
 BACKENDS = ("glsl", "onnx")
+FILTERS = ("fft", "separable", "fista")
+MAX_ITERATIONS_PER_FRAME = 256
 _GROUP = 16                                     # local_size of filter_bank.glsl
+
+
+def _check_iterations(value) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or \
+            not 0 <= value <= MAX_ITERATIONS_PER_FRAME:
+        raise ValidationError("iterations_per_frame", value, f"a whole number from 0 to {MAX_ITERATIONS_PER_FRAME}")
+    return int(value)
 
 
 @dataclass(frozen=True)
@@ -82,12 +111,16 @@ class CorrectorOptions:
     model
         ONNX model path for ``backend="onnx"``.
     filter
-        ``"fft"`` or ``"separable"`` (see the module docstring).
+        ``"fft"``, ``"separable"`` or ``"fista"`` (see the module docstring).
+    iterations_per_frame
+        ``"fista"``: projected-gradient iterations per frame (the speed-accuracy knob; 0 keeps the
+        start, the guard still applies); also changeable live (:attr:`Corrector.iterations_per_frame`).
     blend
         ``"frame"`` (FFT strategy, default when ``beta`` is None): the blend weight minimising the
         objective is computed on the GPU for every frame, as the CPU ``wiener`` does per image, so
         no frame is made worse than uncorrected (three more FFT filterings and a reduction);
         ``"fixed"``: the weight chosen once on the sample image (cheaper; a compromise).
+        ``"fista"`` always blends its solution with the target by the best weight of the frame.
     """
 
     regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
@@ -100,6 +133,7 @@ class CorrectorOptions:
     kernel_options: Any = None
     filter: str = "fft"
     blend: str = "frame"
+    iterations_per_frame: int = 4
 
     def __post_init__(self) -> None:
         if not self.regularisation or not all(isinstance(m, (int, float)) and m > 0 for m in self.regularisation):
@@ -108,8 +142,9 @@ class CorrectorOptions:
             raise ValidationError("beta", self.beta, "a number in [0, 1] or None")
         if self.reference not in ("glasses", "ideal"):
             raise ValidationError("reference", self.reference, "'glasses' or 'ideal'")
-        if self.filter not in ("fft", "separable"):
-            raise ValidationError("filter", self.filter, "'fft' or 'separable'")
+        if self.filter not in FILTERS:
+            raise ValidationError("filter", self.filter, "one of " + ", ".join(FILTERS))
+        _check_iterations(self.iterations_per_frame)
         if self.blend not in ("frame", "fixed"):
             raise ValidationError("blend", self.blend, "'frame' or 'fixed'")
 
@@ -186,6 +221,12 @@ def build_eye_model(eye_rx, display, options: CorrectorOptions = CorrectorOption
     if reference is not None and reference.kernel.shape == kernel.kernel.shape and \
             np.allclose(reference.kernel, kernel.kernel, rtol=0, atol=1e-9):
         return identity("the eye sees as well as with its glasses (nothing to correct)")
+    if options.filter == "fista":
+        notes.append(f"projected gradient (FISTA), {options.iterations_per_frame} iteration(s) per frame, "
+                     "warm-started from frame to frame, blended with the target by the frame's best weight")
+        return EyeModel(eye=eye_rx, kernel=kernel, reference=reference, identity=False, correction=None,
+                        simulation=simulation, mu_rel=0.0, beta=1.0, build_seconds=time.perf_counter() - t0,
+                        notes=tuple(notes))
     problem = make_problem(_sample_target(options.choice_size), kernel, reference)
     _, settings = wiener(problem, regularisation=options.regularisation, beta=options.beta,
                          tolerance=options.design_tolerance, design=separable, descent=False)
@@ -202,17 +243,21 @@ def build_eye_model(eye_rx, display, options: CorrectorOptions = CorrectorOption
 
 
 class _FrameBlend:
-    """The per-frame blend weight (``shaders/blend.glsl``): two reductions and the blend."""
+    """The per-frame blend weight (``shaders/blend.glsl``): two reductions and the blend.
 
-    def __init__(self, ctx, size: tuple[int, int]):
+    ``solution``: the projected-gradient guard, ``run``'s ``kd`` is the residual ``K x - T`` of the
+    solution and ``delta`` the solution ``x`` itself (the blend is ``t + beta (x - t)``)."""
+
+    def __init__(self, ctx, size: tuple[int, int], solution: bool = False):
         self.ctx, self.size = ctx, size
         W, H = size
         self.groups = (math.ceil(W / 16), math.ceil(H / 16))
-        self.p_partial = compile_compute(ctx, "blend.glsl", defines={"PARTIAL": None})
+        extra = {"SOLUTION": None} if solution else {}
+        self.p_partial = compile_compute(ctx, "blend.glsl", defines={"PARTIAL": None, **extra})
         self.p_final = compile_compute(ctx, "blend.glsl", defines={"FINAL": None})
-        self.p_apply = compile_compute(ctx, "blend.glsl", defines={"APPLY": None})
+        self.p_apply = compile_compute(ctx, "blend.glsl", defines={"APPLY": None, **extra})
         self.result = ctx.buffer(reserve=16)
-        self.partials = ctx.buffer(reserve=8 * self.groups[0] * self.groups[1])
+        self.partials = ctx.buffer(reserve=16 * self.groups[0] * self.groups[1])
 
     def run(self, linear, r0, kd, delta, out) -> None:
         ctx = self.ctx
@@ -237,6 +282,12 @@ class _FrameBlend:
 
     def beta(self) -> float:
         return float(np.frombuffer(self.result.read(), np.float32)[0])
+
+    def objective_fraction(self) -> float | None:
+        """The blended frame's objective over the uncorrected one's (``None`` for a perfect
+        target, whose objective is 0); reads the sums back (a sync)."""
+        beta, s_rk, s_kk, s_rr = (float(v) for v in np.frombuffer(self.result.read(), np.float32))
+        return None if s_rr <= 0 else max(0.0, 1.0 + (2.0 * beta * s_rk + beta * beta * s_kk) / s_rr)
 
     def release(self) -> None:
         release(self.p_partial, self.p_final, self.p_apply, self.result, self.partials)
@@ -380,10 +431,29 @@ class Corrector:
                 self._onnx = OnnxModel(self.options.model)
         self._banks: tuple[_BankGL, _BankGL] | None = None
         self.model: EyeModel | None = None
+        self._iterations = self.options.iterations_per_frame
+        self._fista_start = compile_compute(ctx, "fista.glsl") if self.options.filter == "fista" else None
+        self._warm_size: tuple[int, int] | None = None   # size whose FISTA state the next frame continues
+        self._momentum = 1.0
         self._rebuild(self.prescription.eye(eye))
         check_gl_errors(ctx, "Corrector build")
 
     # ------------------------------------------------------------------ state
+
+    @property
+    def iterations_per_frame(self) -> int:
+        """``filter="fista"``: projected-gradient iterations per frame (live; 0 to 256)."""
+        return self._iterations
+
+    @iterations_per_frame.setter
+    def iterations_per_frame(self, value: int) -> None:
+        self._iterations = _check_iterations(value)
+
+    def reset(self) -> None:
+        """Make the next frame a cold start (``filter="fista"``: iterations from the target, momentum
+        reset), as a scene cut needs.  A size change, :meth:`adjust` and a reload do it too."""
+        self._warm_size = None
+        self._momentum = 1.0
 
     @property
     def eye_rx(self):
@@ -396,6 +466,8 @@ class Corrector:
                                  axis_deg=(base.axis_deg + da) % 180.0)
 
     def _rebuild(self, base_eye) -> None:
+        from ..solvers.wiener import spectral_norm_squared
+
         model = build_eye_model(self._with_offset(base_eye), self.display, self.options)
         if self._learned is not None:               # refuses an eye outside the trained range
             bound = self._learned.for_eye(model.eye, self.display, model.kernel, model.reference)
@@ -408,9 +480,11 @@ class Corrector:
                      _BankGL(self.ctx, "simulation.glsl", model.simulation, "zero"))
         old = self._banks
         self._banks, self.model = banks, model
+        self._step = float(np.float32(1.0 / spectral_norm_squared(model.kernel.kernel)))   # 1 / ||K||^2
         for b in old or ():
             b.release()
         self._release_sized()                      # per-size work depends on the eye: remade on use
+        self.reset()
 
     def _release_sized(self) -> None:
         for res in self._sized.values():
@@ -475,7 +549,9 @@ class Corrector:
                 return t
 
             res = {"linear": tex(), "corrected": tex(), "seen": tex()}
-            if self._banks is None and self.options.per_frame_blend:
+            if self.options.filter == "fista":
+                res.update(x=tex(), y=tex(), t_prev=tex(), target=tex(), r=tex(), r0=tex(), kd=tex())
+            elif self._banks is None and self.options.per_frame_blend:
                 res.update(delta=tex(), r0=tex(), kd=tex())
             if self._banks is not None:
                 rows = ctx.texture_array((W, H, max(b.layers for b in self._banks)), 4, dtype="f4")
@@ -497,7 +573,16 @@ class Corrector:
         sim = np.einsum("ik,kjyx->ijyx", np.linalg.inv(k.matrix),
                         np.fft.fft2(centred_kernel(k.kernel, grid), axes=(2, 3)))            # A^-1 K(f)
         out = {"fft_sim": FftBankGL(self.ctx, sim, size, margin, border="zero", combine="clip")}
-        if not m.identity:
+        if not m.identity and self.options.filter == "fista":
+            Kf = np.fft.fft2(centred_kernel(k.kernel, grid), axes=(2, 3))
+            Tf = (np.fft.fft2(centred_kernel(m.reference.kernel, grid), axes=(2, 3)) if m.reference is not None
+                  else np.broadcast_to(k.matrix[:, :, None, None], Kf.shape))
+            # K y - T and K^H r (exact linear convolutions, black outside), the target T = K_ref t or A t
+            out["fft_k"] = FftBankGL(self.ctx, Kf, size, margin, border="zero", combine=("residual", "fista"),
+                                     adjoint=True)
+            out["fft_target"] = FftBankGL(self.ctx, Tf, size, margin, border="zero", combine="raw")
+            out["blend"] = _FrameBlend(self.ctx, size, solution=True)
+        elif not m.identity:
             spectrum = inverse_spectrum(k, m.mu_rel, grid, m.reference)
             frame = self.options.per_frame_blend
             out["fft_correct"] = FftBankGL(self.ctx, spectrum, size, margin, border="mirror",
@@ -537,6 +622,8 @@ class Corrector:
         elif self._banks is not None:
             self._banks[0].run(res["linear"], res["rows"], res["corrected"],
                                {"u_beta": self.model.beta})
+        elif self._fista_start is not None:
+            self._fista_frame(res)
         elif "blend" in res:                        # per-frame blend weight, on the GPU
             res["fft_correct"].run(res["linear"], res["delta"])
             res["fft_r0"].run(res["linear"], res["r0"])
@@ -545,6 +632,52 @@ class Corrector:
         else:
             res["fft_correct"].run(res["linear"], res["corrected"], beta=self.model.beta)
         return res["corrected"]
+
+    def _fista_frame(self, res) -> None:
+        """``k`` projected-gradient (FISTA) iterations on the true objective, warm-started from the
+        previous frame's solution, then the guard (module docstring)."""
+        from ..solvers.wiener import fista_momentum
+
+        ctx = self.ctx
+        linear = res["linear"]
+        W, H = size = tuple(linear.size)
+        cold = self._warm_size != size
+        if cold:
+            self._momentum = 1.0
+        prog = self._fista_start
+        linear.use(0)
+        prog["u_linear_in"] = 0
+        prog["u_cold"] = cold
+        for unit, name in enumerate(("x", "y", "t_prev")):
+            res[name].bind_to_image(unit, read=True, write=True)
+        prog.run(math.ceil(W / _GROUP), math.ceil(H / _GROUP), 1)
+        ctx.memory_barrier()
+        self._warm_size = size
+        k, T = res["fft_k"], res["target"]
+        res["fft_target"].run(linear, T)
+        step = self._step
+        for _ in range(self._iterations):
+            k.run(res["y"], res["r"], combine="residual", other=T)                    # K y - T
+            self._momentum, weight = fista_momentum(self._momentum)
+            k.run(res["r"], res["y"], combine="fista", adjoint=True, solution=res["x"],   # x, y updated
+                  step=step, weight=float(np.float32(weight)))
+        k.run(linear, res["r0"], combine="residual", other=T)                        # guard: K t - T
+        k.run(res["x"], res["kd"], combine="residual", other=T)                      # K x - T
+        res["blend"].run(linear, res["r0"], res["kd"], res["x"], res["corrected"])
+
+    def solution(self, size: tuple[int, int]) -> np.ndarray | None:
+        """``filter="fista"``: the current solution ``x`` for images of ``size`` (W, H) before the
+        guard's blend, linear RGB ``(H, W, 3)`` float32 rows top first (reads it back: a sync)."""
+        from .gl import download_texture
+
+        res = self._sized.get(tuple(size))
+        return None if res is None or "x" not in res else download_texture(res["x"])[..., :3].copy()
+
+    def last_objective_fraction(self, size: tuple[int, int]) -> float | None:
+        """The last frame's objective as a fraction of uncorrected (per-frame blend and ``"fista"``;
+        reads it back: a sync)."""
+        res = self._sized.get(tuple(size))
+        return res["blend"].objective_fraction() if res is not None and "blend" in res else None
 
     def last_blend(self, size: tuple[int, int]) -> float | None:
         """The blend weight of the last frame of ``size`` (per-frame mode; reads it back: a sync)."""
@@ -590,6 +723,8 @@ class Corrector:
                 "filter": self.options.filter, "kernel_size": m.kernel.size, "mu_rel": m.mu_rel, "beta": m.beta,
                 "identity": m.identity, "margin": m.margin, "build_seconds": m.build_seconds,
                 "notes": list(m.notes)}
+        if self.options.filter == "fista":
+            info["iterations_per_frame"] = self._iterations
         if m.correction is not None:
             info.update(filter_size=m.correction.size, ranks=list(m.correction.ranks),
                         taps_per_pixel=m.correction.taps_per_pixel, rank_error=m.correction.error)
@@ -601,6 +736,6 @@ class Corrector:
         for b in self._banks or ():
             b.release()
         self._release_sized()
-        release(self._present_vao, self._present, *self._decode.values())
+        release(self._present_vao, self._present, *self._decode.values(), self._fista_start)
         if self._onnx is not None:
             self._onnx.release()

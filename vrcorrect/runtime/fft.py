@@ -26,8 +26,10 @@ from .shaders import compile_compute
 
 __all__ = ["fft_grid", "FftBankGL", "MAX_FFT_SIZE"]
 
-COMBINES = ("correct", "delta", "clip", "raw")
-"""What the last pass writes: ``t + beta (clip(v) - t)``, ``clip(v) - t``, ``clip(v)`` or ``v``."""
+COMBINES = ("correct", "delta", "clip", "raw", "residual", "fista")
+"""What the last pass writes: ``t + beta (clip(v) - t)``, ``clip(v) - t``, ``clip(v)``, ``v``,
+``v - other`` (a residual ``K y - T``), or a FISTA update of the solution and its extrapolated point
+from the gradient ``v = K^H (K y - T)`` (see ``shaders/fft_filter.glsl``)."""
 MAX_FFT_SIZE = 4096                        # shared memory: 8 bytes per point (32 KiB, the GL minimum)
 
 
@@ -49,32 +51,42 @@ def gl_spectrum(spectrum_image: np.ndarray) -> np.ndarray:
 
 
 class FftBankGL:
-    """One bank at one grid: the spectrum on the GPU, the five compute passes, the work images."""
+    """One bank at one grid: the spectrum on the GPU, the five compute passes, the work images.
+
+    ``combine`` is the last pass's mode (:data:`COMBINES`), or a tuple of modes that :meth:`run`
+    chooses from (the first is the default); ``adjoint`` also builds the product with the bank's
+    conjugate transpose (``K^H`` from ``K``'s spectrum: with ``border="zero"``, the exact adjoint
+    of the bank's linear convolution).  Everything is compiled and allocated here, none per run.
+    """
 
     def __init__(self, ctx, spectrum_image: np.ndarray, image_size: tuple[int, int], margin: int,
-                 border: str = "mirror", combine: str = "correct"):
+                 border: str = "mirror", combine: str | tuple[str, ...] = "correct", adjoint: bool = False):
         if border not in ("mirror", "zero"):
             raise ValidationError("border", border, "'mirror' or 'zero'")
-        if combine not in COMBINES:
-            raise ValidationError("combine", combine, "one of " + ", ".join(COMBINES))
+        combines = (combine,) if isinstance(combine, str) else tuple(combine)
+        if not combines or any(c not in COMBINES for c in combines):
+            raise ValidationError("combine", combine, "one or more of " + ", ".join(COMBINES))
         W, H = image_size
         ny, nx = spectrum_image.shape[2:]
         if (ny, nx) != fft_grid(W, H, margin):
             raise ValidationError("spectrum", f"grid {nx}x{ny}", f"the grid of fft_grid({W}, {H}, {margin})")
         self.ctx, self.size, self.margin, self.grid = ctx, (W, H), margin, (ny, nx)
+        self.combine = combines[0]
         defines = {"NX": nx, "NY": ny, "LOG2_MAX": int(math.log2(max(nx, ny))), "LOG2_MAX_X": int(math.log2(nx)),
                    "LOG2_MAX_Y": int(math.log2(ny)), "MARGIN": margin}
         if border == "zero":
             defines["BORDER_ZERO"] = None
-        if combine != "raw":
-            defines["COMBINE_" + combine.upper()] = None
         name = "fft_filter.glsl"
         self.p_rows = compile_compute(ctx, name, defines={**defines, "ROWS_FORWARD": None})
         self.p_cols = compile_compute(ctx, name, defines={**defines, "COLS": None})
         self.p_icols = compile_compute(ctx, name, defines={**defines, "COLS": None, "INVERSE": None})
-        self.p_mul = compile_compute(ctx, name, defines={**defines, "MULTIPLY": None})
+        self.p_mul = {False: compile_compute(ctx, name, defines={**defines, "MULTIPLY": None})}
+        if adjoint:
+            self.p_mul[True] = compile_compute(ctx, name, defines={**defines, "MULTIPLY": None, "ADJOINT": None})
         self.p_irows = compile_compute(ctx, name, defines={**defines, "ROWS_INVERSE": None})
-        self.p_combine = compile_compute(ctx, name, defines={**defines, "COMBINE": None})
+        self.p_combine = {c: compile_compute(ctx, name, defines={**defines, "COMBINE": None,
+                                                                  **({} if c == "raw" else {"COMBINE_" + c.upper(): None})})
+                          for c in combines}
         bank = gl_spectrum(spectrum_image).reshape(9, ny, nx)
         data = np.empty((9, ny, nx, 2), np.float32)
         data[..., 0], data[..., 1] = bank.real, bank.imag
@@ -85,11 +97,22 @@ class FftBankGL:
         for t in (self.bank, self.spec, self.spec_out, self.filtered):
             t.filter = (ctx.NEAREST, ctx.NEAREST)
 
-    def run(self, linear_in, out, beta: float = 1.0) -> None:
-        """``linear_in`` (rgba32f, W x H) -> ``out`` (rgba32f): filtered, then combined."""
+    def run(self, linear_in, out, beta: float = 1.0, *, combine: str | None = None, adjoint: bool = False,
+            other=None, solution=None, step: float = 0.0, weight: float = 0.0) -> None:
+        """``linear_in`` (rgba32f, W x H) -> ``out`` (rgba32f): filtered (by the bank, or its
+        conjugate transpose with ``adjoint``), then combined (``combine``, default the bank's own).
+
+        ``"residual"`` subtracts ``other`` (rgba32f); ``"fista"`` takes ``linear_in`` as the
+        residual, ``out`` as the extrapolated point ``y`` and ``solution`` as ``x`` and updates both
+        in place with the gradient step ``step`` and the momentum weight ``weight``.
+        """
         ctx = self.ctx
         ny, nx = self.grid
         W, H = self.size
+        mode = self.combine if combine is None else combine
+        if mode not in self.p_combine or adjoint not in self.p_mul:
+            raise ValidationError("combine", f"{mode}{' (adjoint)' if adjoint else ''}",
+                                  "a mode this bank was built for: " + ", ".join(self.p_combine))
         linear_in.use(0)
         self.p_rows["u_linear_in"] = 0
         self.spec.bind_to_image(0, read=False, write=True)
@@ -101,8 +124,9 @@ class FftBankGL:
         self.spec.bind_to_image(0, read=True, write=False)
         self.spec_out.bind_to_image(1, read=False, write=True)
         self.bank.use(1)
-        self.p_mul["u_bank"] = 1
-        self.p_mul.run(math.ceil(nx / 16), math.ceil(ny / 16), 1)
+        p_mul = self.p_mul[adjoint]
+        p_mul["u_bank"] = 1
+        p_mul.run(math.ceil(nx / 16), math.ceil(ny / 16), 1)
         ctx.memory_barrier()
         self.spec_out.bind_to_image(0, read=True, write=True)
         self.p_icols.run(nx, 2, 1)
@@ -112,15 +136,25 @@ class FftBankGL:
         self.p_irows["u_size"] = (W, H)
         self.p_irows.run(ny, 2, 1)
         ctx.memory_barrier()
+        p = self.p_combine[mode]
         self.filtered.bind_to_image(0, read=True, write=False)
-        out.bind_to_image(1, read=False, write=True)
         linear_in.use(0)
-        self.p_combine["u_linear_in"] = 0
-        if "u_beta" in self.p_combine:
-            self.p_combine["u_beta"] = float(beta)
-        self.p_combine.run(math.ceil(W / 16), math.ceil(H / 16), 1)
+        p["u_linear_in"] = 0
+        if mode == "fista":
+            out.bind_to_image(1, read=True, write=True)
+            solution.bind_to_image(2, read=True, write=True)
+            p["u_step"] = float(step)
+            p["u_weight"] = float(weight)
+        else:
+            out.bind_to_image(1, read=False, write=True)
+            if "u_beta" in p:
+                p["u_beta"] = float(beta)
+            if mode == "residual":
+                other.use(2)
+                p["u_other"] = 2
+        p.run(math.ceil(W / 16), math.ceil(H / 16), 1)
         ctx.memory_barrier()
 
     def release(self) -> None:
-        release(self.p_rows, self.p_cols, self.p_icols, self.p_mul, self.p_irows, self.p_combine,
-                self.bank, self.spec, self.spec_out, self.filtered)
+        release(self.p_rows, self.p_cols, self.p_icols, *self.p_mul.values(), self.p_irows,
+                *self.p_combine.values(), self.bank, self.spec, self.spec_out, self.filtered)

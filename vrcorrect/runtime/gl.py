@@ -100,6 +100,33 @@ def check_gl_errors(ctx: "moderngl.Context", where: str) -> None:
         raise GLError(f"{where}: OpenGL reported {', '.join(errors)}")
 
 
+TIMER_SATURATED_NS = 2 ** 32 - 1
+"""moderngl (5.x) reads ``GL_TIME_ELAPSED`` with ``glGetQueryObjectuiv``: 32-bit nanoseconds. An
+interval of 4.29 s or more does not fit; Mesa returns this value (saturated) for it, other drivers
+may wrap, so a result this large is never a time."""
+
+
+def timer_query_ms(raw_ns: object) -> float | None:
+    """A timer query's raw result (nanoseconds) as milliseconds, or ``None`` when it is not a
+    time: missing, not a finite number, negative, or :data:`TIMER_SATURATED_NS` or more (a
+    32-bit read of an interval of 4.29 s or more, which printed as "4294.97 ms"). Show ``None``
+    as no time ("-"/"n/a"), never as a number."""
+    if raw_ns is None or isinstance(raw_ns, bool):
+        return None
+    try:
+        value = float(raw_ns)
+    except (TypeError, ValueError):
+        return None
+    if not np.isfinite(value) or value < 0 or value >= TIMER_SATURATED_NS:
+        return None
+    return value / 1e6
+
+
+def format_ms(ms: float | None, missing: str = "-") -> str:
+    """``"12.34"`` for a time in milliseconds, ``missing`` for ``None`` (no valid measurement)."""
+    return missing if ms is None else f"{ms:.2f}"
+
+
 # --------------------------------------------------------------------------
 # Orientation: the one place where image rows meet OpenGL rows
 # --------------------------------------------------------------------------

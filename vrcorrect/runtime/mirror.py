@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping, Sequence
 import numpy as np
 
 from ..errors import GLUnavailableError, InputError, ValidationError, VrcorrectError
+from .gl import format_ms, timer_query_ms
 from .scene import EYES, parse_size, parse_source
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -430,7 +431,7 @@ class StageTimes:
         """The last frame's ``stage -> (gpu_ms or None, cpu_ms)``; updates :attr:`smoothed`."""
         out = {name: (None, cpu) for name, cpu in self._cpu.items()}
         for name in self._pending:
-            out[name] = (self.queries[name].elapsed / 1e6, self._cpu[name])
+            out[name] = (timer_query_ms(self.queries[name].elapsed), self._cpu[name])
         self._pending, self._cpu = [], {}
         for name, (gpu, cpu) in out.items():
             old = self.smoothed.get(name)
@@ -810,7 +811,7 @@ class Mirror:
         for name in STAGES:
             if name in self._times.smoothed:
                 gpu, cpu = self._times.smoothed[name]
-                lines.append(f"{name}\t{'-' if gpu is None else f'{gpu:.2f}'}\t{cpu:.2f}")
+                lines.append(f"{name}\t{format_ms(gpu)}\t{cpu:.2f}")
         frame = self._frame_ms
         if frame is not None:
             lines.append(f"frame {frame:.1f} ms ({1e3 / frame:.0f} fps)" if frame > 0 else "frame -")
@@ -995,7 +996,7 @@ def cmd_mirror(args: argparse.Namespace) -> int:
         print(f"{n} frame(s) in {t2 - t1:.2f} s ({1e3 * (t2 - t1) / max(n, 1):.1f} ms per frame; "
               f"set-up {t1 - t0:.1f} s) on {mirror.ctx.info.get('GL_RENDERER', '?')}")
         for name, (gpu, cpu) in mirror.timings_ms.items():
-            print(f"  {name:<15} gpu {'-' if gpu is None else f'{gpu:.2f}'} ms, cpu {cpu:.2f} ms (last frame)")
+            print(f"  {name:<15} gpu {format_ms(gpu)} ms, cpu {cpu:.2f} ms (last frame)")
         for path in mirror.screenshots:
             print(f"wrote {path}")
     return 0

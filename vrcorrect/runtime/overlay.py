@@ -37,7 +37,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..errors import ValidationError, VrcorrectError
-from .gl import Rect
+from .gl import Rect, format_ms
 from .mirror import (
     KEY_ESCAPE, MOD_ALT, MOD_CONTROL, MOD_SUPER, GlfwSession, Screenshot, StageTimes, TextOverlay, _letter,
     build_font_atlas, key_map_text, panel_instances, parse_frames, text_width, write_screenshot,
@@ -427,8 +427,10 @@ class Overlay:
     def _accumulate(self, times: Mapping[str, tuple[float | None, float]]) -> None:
         self.timings_ms = dict(times)
         for name, (gpu, cpu) in times.items():
-            s = self._sums.setdefault(name, [0.0, 0.0, 0])
-            s[0] += gpu or 0.0
+            s = self._sums.setdefault(name, [0.0, 0.0, 0, 0])       # gpu, cpu, frames, frames with a gpu time
+            if gpu is not None:                                      # None: no valid query (never a time)
+                s[0] += gpu
+                s[3] += 1
             s[1] += cpu
             s[2] += 1
 
@@ -441,10 +443,10 @@ class Overlay:
         parts = [f"{fps:.1f} fps"]
         for name in STAGES:
             if name in self._sums:
-                gpu, cpu, n = self._sums[name]
+                gpu, cpu, n, n_gpu = self._sums[name]
                 text = f"{name} {cpu / n:.2f} ms"
                 if name in self._times.queries:
-                    text += f" (gpu {gpu / n:.2f})"
+                    text += f" (gpu {format_ms(gpu / n_gpu if n_gpu else None, 'n/a')})"
                 parts.append(text)
         line = "  ".join(parts)
         self.reports.append(line)

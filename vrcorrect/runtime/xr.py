@@ -74,7 +74,6 @@ display), ``begin``, ``locate``, ``acquire`` (acquire + wait for both swapchain 
 ``release`` and ``end`` (``xrEndFrame``) are CPU time; the others have GPU time too.
 ``convert`` runs only with ``GL_RGBA8`` swapchains; ``mirror`` only with ``--mirror``."""
 _CPU_ONLY = ("wait", "begin", "locate", "acquire", "release", "end")
-_GPU_TIMER_WRAP_MS = 2 ** 32 / 1e6
 
 
 class XrUnavailableError(VrcorrectError, RuntimeError):
@@ -716,10 +715,7 @@ class XrApp:
 
     def _collect_times(self) -> None:
         """Collect the last frame's stage times into the summary when it was rendered."""
-        values = self._times.collect()
-        # moderngl reads GL_TIME_ELAPSED as 32-bit nanoseconds: 4.29 s and more wraps (llvmpipe, big eyes)
-        values = {k: (None if g is not None and g >= _GPU_TIMER_WRAP_MS * 0.999 else g, c)
-                  for k, (g, c) in values.items()}
+        values = self._times.collect()          # GPU None where the query holds no time (gl.timer_query_ms)
         if self._rendered_pending:
             for name, value in values.items():
                 self.summary.stage_ms.setdefault(name, []).append(value)

@@ -2,11 +2,15 @@
 
 Per spatial frequency f, with the eye's 3x3 kernel spectrum ``K(f)`` (cones x
 primaries) and the target operator ``T(f)`` (``A``, the target's cone image with
-no blur, or the glasses-on eye's kernel spectrum), the regularised inverse
+no blur, or the glasses-on eye's kernel spectrum), the inverse regularised toward
+the target, ``argmin_x ||K x - T t||^2 + mu ||x - t||^2``,
 
-    F(f) = (K^H K + mu I)^-1 K^H T(f)          (3 x 3: primaries out x primaries in)
+    x = t + (K^H K + mu I)^-1 K^H (T - K) t,   F(f) = (K^H K + mu I)^-1 (K^H T(f) + mu I)
 
-maps the target RGB image to the displayed one.  :func:`correction_filters`
+(3 x 3: primaries out x primaries in), maps the target RGB image to the displayed
+one.  ``F(0) = I`` (both kernels sum to the colour matrix ``A``), so a flat field
+comes back unchanged; the toward-zero inverse ``(K^H K + mu I)^-1 K^H T`` would
+shrink it along ``A``'s weak directions and tint it (DESIGN.md).  :func:`correction_filters`
 designs ``F`` once per eye as a bank of 3 x 3 spatial filters, truncated to the
 smallest square holding all but ``tolerance`` of their absolute sum; the same
 taps run on the CPU (here, by FFT) and on the GPU (the runtime's separable
@@ -23,12 +27,14 @@ from __future__ import annotations
 from typing import Sequence
 
 import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.fft
 
 from ..errors import ValidationError
+from ..forward import check_image
 from ..kernel import EyeKernel
 from . import Problem
 
@@ -108,14 +114,6 @@ def gram(Kf):
     return matmul3(Kf, Kf, conj_a=True, transpose_a=True)
 
 
-def _inverse_from_spectrum(Kf: np.ndarray, mu_rel: float, lam_max: float) -> np.ndarray:
-    """``W = (K^H K + mu I)^-1 K^H`` as planes (primaries, cones, ...)."""
-    M = gram(Kf)
-    for c in range(3):
-        M[c, c] += mu_rel * lam_max
-    return matmul3(inv3(M), np.conj(np.swapaxes(Kf, 0, 1)))
-
-
 @dataclass(frozen=True, eq=False)
 class CorrectionFilters:
     """The regularised inverse of one eye as spatial filters (see :func:`correction_filters`).
@@ -160,9 +158,15 @@ def _chebyshev_tails(f: np.ndarray) -> np.ndarray:
 
 def _inverse_spectrum(kernel: EyeKernel, reference_kernel: EyeKernel | None, mu: float,
                       shape: tuple[int, int], full: bool = False) -> np.ndarray:
-    """``F(f) = (K^H K + mu I)^-1 K^H T(f)`` on a periodic ``shape`` grid (origin-centred
+    """``F(f) = (K^H K + mu I)^-1 (K^H T(f) + mu I)`` on a periodic ``shape`` grid (origin-centred
     kernels), ``(3, 3, P0, P1 // 2 + 1)`` complex (``full``: ``(3, 3, P0, P1)``); the 3x3 algebra
-    in blocks of rows (bounded memory)."""
+    in blocks of rows (bounded memory).
+
+    This is the Tikhonov solution regularised toward the target, ``argmin ||K x - T t||^2 +
+    mu ||x - t||^2 = t + (K^H K + mu I)^-1 K^H (T - K) t``, as one filter on ``t``.  At DC both
+    ``K`` and ``T`` are the colour matrix ``A`` (the kernels' sums), so ``F(0) = I``: a flat field
+    comes back unchanged (the toward-zero ``(K^H K + mu I)^-1 K^H T`` shrinks it along ``A``'s weak
+    directions and tints it)."""
     fft = (lambda a: scipy.fft.fft2(a, axes=(2, 3), workers=-1)) if full else \
         (lambda a: scipy.fft.rfft2(a, axes=(2, 3), workers=-1))
     Kf = fft(centred_kernel(kernel.kernel, shape))
@@ -173,7 +177,7 @@ def _inverse_spectrum(kernel: EyeKernel, reference_kernel: EyeKernel | None, mu:
         Kb = np.moveaxis(Kf[:, :, r0:r0 + 128], (0, 1), (2, 3))           # (rows, F1, 3, 3)
         Kh = np.conj(np.swapaxes(Kb, 2, 3))
         rhs = Kh @ (kernel.matrix if Tf is None else np.moveaxis(Tf[:, :, r0:r0 + 128], (0, 1), (2, 3)))
-        Ff[:, :, r0:r0 + 128] = np.moveaxis(np.linalg.solve(Kh @ Kb + eye, rhs), (2, 3), (0, 1))
+        Ff[:, :, r0:r0 + 128] = np.moveaxis(np.linalg.solve(Kh @ Kb + eye, rhs + eye), (2, 3), (0, 1))
     return Ff
 
 
@@ -224,7 +228,7 @@ def _exact_inverse_image(image_chw: np.ndarray, kernel: EyeKernel, reference_ker
 @functools.lru_cache(maxsize=32)
 def correction_filters(kernel: EyeKernel, mu_rel: float, reference_kernel: EyeKernel | None = None,
                        tolerance: float = DESIGN_TOLERANCE) -> CorrectionFilters:
-    """Design the regularised inverse ``F = (K^H K + mu I)^-1 K^H T`` as spatial filters.
+    """Design the regularised inverse ``F = (K^H K + mu I)^-1 (K^H T + mu I)`` as spatial filters.
 
     Parameters
     ----------
@@ -237,6 +241,8 @@ def correction_filters(kernel: EyeKernel, mu_rel: float, reference_kernel: EyeKe
     tolerance
         Truncation: the filters keep the smallest centred square whose discarded absolute sum
         is at most this, per output primary (so the error for inputs in [0, 1] is at most this).
+        The truncated taps' sums are then set back to ``F(0) = I`` exactly (the discarded sum
+        added to the centre tap), so flat fields stay exact.
 
     The design grid starts at 8 kernel widths (at least 64) and doubles (to ``MAX_DESIGN_GRID`` at most)
     until the filters' mass near the grid's edge is negligible, so the periodic design
@@ -258,6 +264,7 @@ def correction_filters(kernel: EyeKernel, mu_rel: float, reference_kernel: EyeKe
     r = int(np.argmax(tails <= tolerance)) if np.any(tails <= tolerance) else N // 2
     idx = np.arange(-r, r + 1) % N
     taps = np.ascontiguousarray(f[:, :, idx[:, None], idx[None, :]])
+    taps[:, :, r, r] += np.eye(3) - taps.sum(axis=(2, 3))                  # DC gain exactly I
     return CorrectionFilters(taps=taps, mu_rel=float(mu_rel), tail=float(tails[r]) if r < len(tails) else 0.0,
                              design_grid=N)
 
@@ -333,7 +340,8 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
            margin: int | None = None, descent: bool = True) -> tuple[np.ndarray, dict]:
     """Best blend of the target and the clipped regularised inverse; returns (image, settings).
 
-    For each ``mu_rel`` in ``regularisation``: ``v = F t'`` (:func:`correction_filters`,
+    For each ``mu_rel`` in ``regularisation``: ``v = F t'`` (the inverse regularised toward the
+    target, ``F(0) = I``: flat areas are kept as they are; :func:`correction_filters`,
     :func:`apply_filters`; ``t'`` the contrast-scaled target) clipped to [0, 1], then
     ``x = t + beta (clip(v) - t)`` with ``beta`` in [0, 1] minimising the objective in closed
     form (it is quadratic in ``beta``, and every blend of two images in [0, 1] stays in
@@ -464,7 +472,36 @@ def gradient_step(problem: Problem, x: np.ndarray, plan: GradientPlan | None = N
     return np.ascontiguousarray(np.moveaxis(g, 0, 2), dtype=np.float32)
 
 
-def projected_gradient(problem: Problem, steps: int, plan: GradientPlan | None = None) -> np.ndarray:
+@dataclass(frozen=True, eq=False)
+class FistaState:
+    """Where :func:`projected_gradient` stopped, to continue from there (the GPU keeps the same
+    per eye from frame to frame).
+
+    Attributes
+    ----------
+    x
+        The current iterate, float32 ``(3, H, W)`` in [0, 1] (what is displayed, before the guard).
+    y
+        The extrapolated point the next gradient is taken at, float32 ``(3, H, W)``.
+    momentum
+        FISTA's ``t_k`` (1 at a cold start; the next weight is ``(t_k - 1) / t_{k+1}``).
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    momentum: float
+
+
+def fista_momentum(momentum: float) -> tuple[float, float]:
+    """FISTA's next ``t_{k+1} = (1 + sqrt(1 + 4 t_k^2)) / 2`` and the extrapolation weight
+    ``(t_k - 1) / t_{k+1}`` (the GPU iteration takes the weight as a uniform)."""
+    nxt = (1.0 + math.sqrt(1.0 + 4.0 * momentum * momentum)) / 2.0
+    return nxt, (momentum - 1.0) / nxt
+
+
+def projected_gradient(problem: Problem, steps: int, plan: GradientPlan | None = None,
+                       start: np.ndarray | None = None, state: FistaState | None = None,
+                       return_state: bool = False):
     """``steps`` accelerated projected-gradient (FISTA) steps on the true objective from the target.
 
     The step is ``1 / ||K||^2`` (the gradient's Lipschitz constant), the box is [0, 1], the
@@ -477,18 +514,35 @@ def projected_gradient(problem: Problem, steps: int, plan: GradientPlan | None =
     ``plan`` (:func:`gradient_plan` of the problem's kernel and image size) skips the kernel's
     FFT, a fifth of the cost of three steps; without it the plan is built here.
 
+    ``start`` (``(H, W, 3)`` in [0, 1]) starts from that image instead of the target, with the
+    momentum reset; ``state`` (a :class:`FistaState` returned earlier, for this image size)
+    continues where that run stopped, momentum included, so ``n`` steps then ``m`` more from its
+    state equal ``n + m`` steps (the CPU twin of the GPU's frame-to-frame warm start).  Not both.
+    ``return_state`` returns ``(image, state)``.
+
     Computed in float32 (complex64 spectra; the kernel's spectrum and norm in float64 first).
-    Returns float32 ``(H, W, 3)`` in [0, 1] (the target itself for ``steps == 0`` or a 1x1 kernel).
+    Returns float32 ``(H, W, 3)`` in [0, 1] (the start itself for ``steps == 0`` or a 1x1 kernel).
     """
-    if steps <= 0 or problem.kernel.size == 1:
-        return np.ascontiguousarray(problem.target, dtype=np.float32)
-    f, plan = _image_objective(problem, plan)
-    step = plan.step
-    x = y = np.ascontiguousarray(np.moveaxis(problem.target, 2, 0), dtype=np.float32)
-    momentum = 1.0
-    for _ in range(steps):
-        x_new = np.clip(y - step * f.adjoint(f.residual(y)), 0.0, 1.0)
-        nxt = (1.0 + np.sqrt(1.0 + 4.0 * momentum * momentum)) / 2.0
-        y = x_new + np.float32((momentum - 1.0) / nxt) * (x_new - x)
-        x, momentum = x_new, nxt
-    return np.ascontiguousarray(np.moveaxis(x, 0, 2), dtype=np.float32)
+    if start is not None and state is not None:
+        raise ValidationError("start", "given with state", "a start image or a state to continue, not both")
+    H, W = problem.target.shape[:2]
+    if state is not None:
+        if state.x.shape != (3, H, W) or state.y.shape != (3, H, W):
+            raise ValidationError("state", f"for {state.x.shape[1]}x{state.x.shape[2]}", f"a state for {H}x{W} images")
+        x, y, momentum = state.x, state.y, float(state.momentum)
+    else:
+        first = problem.target if start is None else check_image(start, "start")
+        if first.shape != (H, W, 3):
+            raise ValidationError("start", f"shape {first.shape}", f"the target's shape {(H, W, 3)}")
+        x = y = np.ascontiguousarray(np.moveaxis(first, 2, 0), dtype=np.float32)
+        momentum = 1.0
+    if steps > 0 and problem.kernel.size > 1:
+        f, plan = _image_objective(problem, plan)
+        step = plan.step
+        for _ in range(steps):
+            x_new = np.clip(y - step * f.adjoint(f.residual(y)), 0.0, 1.0)
+            momentum, weight = fista_momentum(momentum)
+            y = x_new + np.float32(weight) * (x_new - x)
+            x = x_new
+    image = np.ascontiguousarray(np.moveaxis(x, 0, 2), dtype=np.float32)
+    return (image, FistaState(x=x, y=y, momentum=momentum)) if return_state else image
