@@ -247,8 +247,9 @@ def test_panel_is_a_png_with_a_column_per_method(fast_run):
 
 def test_json_to_stdout_is_pure_json(tmp_path, capsys):
     rx = write_rx(tmp_path / "rx.json", -1.0)
-    rc, out, err = run(capsys, "acuity", "--rx", rx, "--display", "quest2", "--methods", "wiener", "--json", "-",
-                       "--trials", "50")
+    # the form: --json with no file prints the readings (as does --json -)
+    rc, out, err = run(capsys, "acuity", "--rx", rx, "--display", "quest2", "--trials", "50", "--methods", "wiener",
+                       "--json")
     assert rc == 0, err
     doc = json.loads(out)
     assert {"uncorrected_logmar", "wiener_logmar"} <= set(doc)

@@ -355,7 +355,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--methods", nargs="+", default=["fast"], metavar="METHOD",
                    help="corrections to read with: some of " + ", ".join(METHODS) + " (default fast); "
                         "uncorrected is always read")
-    p.add_argument("--json", metavar="OUT.json", help="write the readings as JSON ('-': print them)")
+    p.add_argument("--json", metavar="OUT.json", nargs="?", const="-",
+                   help="write the readings as JSON to OUT.json, or print them when no file (or '-') is given")
     p.add_argument("--png", metavar="OUT.png", help="draw the chart as the eye sees it, a column per method")
     p.add_argument("--trials", type=int, default=400, help="noisy trials per letter (default 400)")
     p.add_argument("--seed", type=int, default=0, help="seed of the observer's noise (default 0)")
