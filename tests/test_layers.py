@@ -19,7 +19,7 @@ LAYER = {
     "forward": 3, "metrics": 3, "acuity": 3,
     "solvers": 4, "learn": 4,
     "runtime": 5,
-    "cli": 6, "demo": 6, "plots": 6, "bench": 6, "bench_kernel": 6, "bench_solvers": 6, "bench_render": 6, "bench_learned": 6, "bench_xr": 6, "evaluate": 6,
+    "cli": 6, "demo": 6, "plots": 6, "bench": 6, "bench_kernel": 6, "bench_solvers": 6, "bench_render": 6, "bench_learned": 6, "bench_realtime": 6, "bench_xr": 6, "evaluate": 6,
     "learn_cli": 6, "acuity_cli": 6,
 }
 

@@ -290,3 +290,59 @@ def test_stage_times_drop_a_saturated_query(gl):
     out = times.collect()
     assert out["correct left"][0] is None and out["correct right"][0] == pytest.approx(2.0)
     assert out["present"][0] is None
+
+
+# --------------------------------------------------------------------------
+# vrcorrect render --filter fista --frames N
+# --------------------------------------------------------------------------
+
+
+def test_render_frames_warm_start_like_one_long_run(gl, photo):
+    """``render_frame(..., frames=3)`` with k = 2 is 6 CPU steps, guarded: the GPU's objective
+    fraction of the last frame is the CPU twin's; more frames, lower objective."""
+    from vrcorrect.bench_realtime import guarded
+
+    _, one = render_frame(photo, RX, "desktop", ctx=gl, filter="fista", iterations_per_frame=2)
+    out, info = render_frame(photo, RX, "desktop", ctx=gl, filter="fista", iterations_per_frame=2, frames=3)
+    assert info["frames"] == 3 and info["iterations_per_frame"] == 2
+    c = Corrector(gl, RX, "desktop", "right", filter="fista")
+    try:
+        p = make_problem(decode("srgb", photo.astype(np.float32) / 255), c.model.kernel, c.model.reference)
+    finally:
+        c.release()
+    _, obj, _ = guarded(projected_gradient(p, 6), p)
+    assert info["objective_fraction"] == pytest.approx(obj / objective(p.target, p), abs=2e-3)
+    assert info["objective_fraction"] < one["objective_fraction"] < 1.0
+    seen = objective(decode("srgb", out.astype(np.float32) / 255), p)
+    assert seen / objective(p.target, p) == pytest.approx(info["objective_fraction"], abs=0.01)
+
+
+def test_render_command_fista_frames_and_its_errors(tmp_path, photo, capsys):
+    import json
+
+    from PIL import Image
+
+    from vrcorrect.cli import main
+
+    src = tmp_path / "in.png"
+    Image.fromarray(photo).save(src)
+    rx = tmp_path / "rx.json"
+    rx.write_text(json.dumps({"schema": "vrcorrect.prescription/1",
+                              **{e: {"sphere_D": -2.0, "cylinder_D": -1.0, "axis_deg": 120, "pupil_diameter_mm": 4.0}
+                                 for e in ("right", "left")}}))
+    out = tmp_path / "out.png"
+    assert main(["render", str(src), "-o", str(out), "--rx", str(rx), "--display", "desktop", "--filter", "fista",
+                 "--frames", "2", "--iterations-per-frame", "3"]) == 0
+    printed = capsys.readouterr().out
+    assert "3 iteration(s) per frame, 2 frame(s) warm-started" in printed and "of uncorrected" in printed
+    assert np.asarray(Image.open(out)).shape == photo.shape
+    missing = str(tmp_path / "missing.png")                       # options are checked before the input
+    for args, words in ((["--filter", "fista", "--iterations-per-frame", "65"], "--iterations-per-frame"),
+                        (["--filter", "fista", "--iterations-per-frame", "x"], "--iterations-per-frame"),
+                        (["--iterations-per-frame", "4"], "only with --filter fista"),
+                        (["--filter", "fista", "--frames", "0"], "--frames"),
+                        (["--frames", "many"], "--frames")):
+        assert main(["render", missing, "-o", str(tmp_path / "o.png"), *args]) == 2, args
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("vrcorrect: error:") and words in err, err
+    assert not (tmp_path / "o.png").exists()

@@ -20,9 +20,10 @@ from hypothesis import strategies as st
 from vrcorrect.errors import InputError, ValidationError
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.mirror import (
-    KEY_ESCAPE, KEY_MAP, MOD_ALT, MOD_CONTROL, MOD_SHIFT, MOD_SUPER, STAGES, VIEWS, Adjust, Mirror, MirrorConfig,
-    MirrorState, Screenshot, build_font_atlas, eye_viewports, key_map_text, layout_text, next_state,
-    panel_instances, text_width,
+    ITERATIONS_RANGE, KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_MAP, KEY_RIGHT_BRACKET, MOD_ALT, MOD_CONTROL, MOD_SHIFT,
+    MOD_SUPER, STAGES, VIEWS, Adjust, Iterations, Mirror, MirrorConfig, MirrorState, Screenshot, build_font_atlas,
+    eye_viewports, key_map_text, layout_text, next_iterations, next_state, panel_instances,
+    parse_iterations_per_frame, text_width,
 )
 from vrcorrect.runtime.scene import (
     EYES, DemoScene, FolderSource, AnimatedImageSource, SceneConfig, SourceSpec, StillSource, VideoSource,
@@ -98,6 +99,20 @@ def test_screenshot_and_quit():
         assert not t.running and actions == ()
 
 
+def test_brackets_halve_and_double_the_iterations_within_1_to_64():
+    s = MirrorState()
+    assert next_state(s, KEY_LEFT_BRACKET) == (s, (Iterations(up=False),))
+    assert next_state(s, KEY_RIGHT_BRACKET) == (s, (Iterations(up=True),))
+    assert next_state(s, KEY_RIGHT_BRACKET, MOD_CONTROL) == (s, ())
+    assert ITERATIONS_RANGE == (1, 64)
+    assert [next_iterations(k, True) for k in (1, 3, 4, 32, 40, 64, 200)] == [2, 6, 8, 64, 64, 64, 64]
+    assert [next_iterations(k, False) for k in (1, 2, 3, 8, 64, 200)] == [1, 1, 1, 4, 32, 64]
+    assert parse_iterations_per_frame(None) is None and parse_iterations_per_frame("8") == 8
+    for bad in ("0", "65", "2.5", "four", "", "-1"):
+        with pytest.raises(ValidationError, match="--iterations-per-frame"):
+            parse_iterations_per_frame(bad)
+
+
 @pytest.mark.parametrize("mods", [MOD_CONTROL, MOD_ALT, MOD_SUPER, MOD_CONTROL | MOD_SHIFT])
 def test_keys_with_control_alt_super_change_nothing(mods):
     s = MirrorState()
@@ -114,10 +129,11 @@ def test_unknown_keys_change_nothing():
 
 def test_key_map_lists_every_key_that_does_something():
     handled = set()
-    for k in list(range(ord("A"), ord("Z") + 1)) + [KEY_ESCAPE]:
+    for k in list(range(ord("A"), ord("Z") + 1)) + [KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET]:
         for mods in (0, MOD_SHIFT):
             if next_state(MirrorState(), k, mods) != (MirrorState(), ()):
-                handled.add("Esc" if k == KEY_ESCAPE else chr(k).upper() if mods else chr(k).lower())
+                handled.add("Esc" if k == KEY_ESCAPE else chr(k) if k in (KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET)
+                            else chr(k).upper() if mods else chr(k).lower())
     listed = {part.strip() for k, _ in KEY_MAP for part in k.split("/")}
     # an upper-case letter of a key that has no separate shift action is the same key
     assert {h for h in handled if h.lower() in listed or h in listed} == handled
@@ -127,7 +143,8 @@ def test_key_map_lists_every_key_that_does_something():
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.tuples(st.sampled_from([key(c) for c in "cvehipsyaqxz"] + [KEY_ESCAPE]),
+@given(st.lists(st.tuples(st.sampled_from([key(c) for c in "cvehipsyaqxz"] + [KEY_ESCAPE, KEY_LEFT_BRACKET,
+                                                                                KEY_RIGHT_BRACKET]),
                           st.sampled_from([0, MOD_SHIFT, MOD_CONTROL])), max_size=30))
 def test_any_key_sequence_keeps_the_state_valid(presses):
     s = MirrorState()
@@ -136,7 +153,7 @@ def test_any_key_sequence_keeps_the_state_valid(presses):
         s, actions = next_state(s, k, mods)
         assert s.view in VIEWS and s.edit_eye in EYES
         for a in actions:
-            assert isinstance(a, (Adjust, Screenshot))
+            assert isinstance(a, (Adjust, Screenshot, Iterations))
             if isinstance(a, Adjust):
                 assert a.eye == before.edit_eye
                 assert sorted(abs(v) for v in (a.sphere_D, a.cylinder_D, a.axis_deg))[:2] == [0, 0]
@@ -654,6 +671,75 @@ def test_panel_text_shows_stages_state_and_both_prescriptions(mirror):
     assert "simulate left" in mirror.timings_ms and "correct left" not in mirror.timings_ms
 
 
+@pytest.fixture
+def fista_mirror(mirror):
+    """The shared mirror with projected-gradient correctors (k = 4) in place of its own, for one test."""
+    from vrcorrect.runtime.corrector import Corrector
+
+    own = dict(mirror.correctors)
+    mirror.correctors = {eye: Corrector(mirror.ctx, mirror.rx_path, mirror.display, eye, filter="fista",
+                                        iterations_per_frame=4) for eye in EYES}
+    try:
+        yield mirror
+    finally:
+        for c in mirror.correctors.values():
+            c.release()
+        mirror.correctors = own
+
+
+def test_brackets_change_the_iterations_live_and_the_panel_shows_them(fista_mirror):
+    m = fista_mirror
+    size = m.config.eye_size
+    press(m, KEY_RIGHT_BRACKET)
+    m.render()
+    assert all(c.iterations_per_frame == 8 for c in m.correctors.values())      # both eyes told
+    assert m.status == "iterations per frame: 8"
+    assert "fista k 8" in "\n".join(m.panel_lines())
+    for _ in range(5):                                                           # 8 -> 4 -> 2 -> 1 -> 1 -> 1
+        press(m, KEY_LEFT_BRACKET)
+    m.render()
+    assert [c.iterations_per_frame for c in m.correctors.values()] == [1, 1]
+    for _ in range(8):                                                           # 1 -> ... -> 64 -> 64
+        press(m, KEY_RIGHT_BRACKET)
+    m.render()
+    assert [c.iterations_per_frame for c in m.correctors.values()] == [64, 64]
+    press(m, KEY_LEFT_BRACKET)
+    press(m, KEY_LEFT_BRACKET)
+    press(m, KEY_LEFT_BRACKET)
+    press(m, KEY_LEFT_BRACKET)                                                   # 64 -> 4
+    m.render()
+    # the panel's objective is the frame before the last one's, read without touching the live sums
+    right = m.correctors["right"]
+    before = right.last_objective_fraction(size)
+    blend = right._sized[size]["blend"]
+    live = blend.result
+
+    class NoRead:
+        def read(self, *a, **k):
+            raise AssertionError("the panel must not read the frame in flight")
+
+    m.render()
+    blend.result = NoRead()
+    try:
+        lines = "\n".join(m.panel_lines())
+        assert right.previous_objective_fraction(size) == pytest.approx(before, abs=1e-7)
+    finally:
+        blend.result = live
+    assert "fista k 4" in lines and f"right {before:.3f}" in lines and 0 < before < 1
+    press(m, "c")                                                                # correction off: no figure
+    m.render()
+    assert "objective left - right - of uncorrected" in "\n".join(m.panel_lines())
+    press(m, "c")
+
+
+def test_brackets_without_fista_say_so(mirror):
+    press(mirror, KEY_RIGHT_BRACKET)
+    mirror.render()
+    assert "only with --filter fista" in mirror.status
+    assert all(c.options.filter == "fft" for c in mirror.correctors.values())
+    assert not any(line.startswith("fista") for line in mirror.panel_lines())
+
+
 def test_releases_and_repeats_do_nothing_and_escape_quits(mirror):
     import glfw
 
@@ -777,6 +863,8 @@ def test_no_gpu_allocations_per_frame_after_warm_up(mirror, monkeypatch):
     (["--display", "no-such-display"], "no-such-display"),
     (["--rx", "/no/such/rx.json"], "rx.json"),
     (["--model", "m.onnx"], "only with --backend onnx"),
+    (["--filter", "fista", "--iterations-per-frame", "65"], "--iterations-per-frame"),
+    (["--iterations-per-frame", "4"], "only with --filter fista"),
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(args, message, capsys):
     from vrcorrect.cli import main

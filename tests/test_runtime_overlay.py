@@ -20,7 +20,7 @@ from vrcorrect.display import get_display
 from vrcorrect.errors import ValidationError
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.gl import Rect
-from vrcorrect.runtime.mirror import KEY_ESCAPE, MOD_CONTROL, Screenshot
+from vrcorrect.runtime.mirror import KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET, MOD_CONTROL, Iterations, Screenshot
 from vrcorrect.runtime.overlay import (
     KEY_MAP, Overlay, OverlayConfig, OverlayState, default_display, default_region, full_screen_region,
     next_state, place_window, rects_overlap,
@@ -52,7 +52,10 @@ def test_keys():
     assert next_state(s, key("c"), MOD_CONTROL) == (s, ())
     for ch in "vesyaxz":
         assert next_state(s, key(ch)) == (s, ())
-    assert [k for k, _ in KEY_MAP] == ["c", "p", "h", "Esc / q"]
+    assert next_state(s, KEY_LEFT_BRACKET) == (s, (Iterations(up=False),))
+    assert next_state(s, KEY_RIGHT_BRACKET) == (s, (Iterations(up=True),))
+    assert next_state(s, KEY_RIGHT_BRACKET, MOD_CONTROL) == (s, ())
+    assert [k for k, _ in KEY_MAP] == ["c", "p", "[ / ]", "h", "Esc / q"]
 
 
 @pytest.mark.parametrize("text, rect", [("0,0,640,480", (0, 0, 640, 480)), (" 10 , 20 ,3,4 ", (10, 20, 3, 4))])
@@ -202,6 +205,40 @@ def test_no_gpu_allocations_per_frame_and_report(overlay, monkeypatch):
     assert any("correct" in line and "source" in line and "gpu" in line for line in lines), lines
 
 
+def test_brackets_change_the_iterations_live_and_the_report_shows_them(overlay):
+    """With a projected-gradient corrector: ``]`` / ``[`` double / halve k within 1..64, the corrector
+    is told, the window says so, and the report line gives k and the objective (a frame late)."""
+    from vrcorrect.runtime.corrector import Corrector
+
+    o = overlay
+    own = o.corrector
+    o.corrector = Corrector(o.ctx, o.rx_path, o.display, "right", filter="fista", iterations_per_frame=2)
+    try:
+        press(o, KEY_RIGHT_BRACKET)
+        o.render()
+        assert o.corrector.iterations_per_frame == 4 and o.status == "iterations per frame: 4"
+        for _ in range(3):
+            press(o, KEY_LEFT_BRACKET)
+        o.render()
+        assert o.corrector.iterations_per_frame == 1
+        o.render()
+        before = o.corrector.last_objective_fraction(o.output_size)
+        o.render()
+        line = o.report()
+        assert "fista k 1" in line and f"right {before:.3f} of uncorrected" in line and 0 < before < 1
+        for _ in range(7):
+            press(o, KEY_RIGHT_BRACKET)
+        o.render()
+        assert o.corrector.iterations_per_frame == 64
+    finally:
+        o.corrector.release()
+        o.corrector = own
+    press(o, KEY_RIGHT_BRACKET)                                  # the fft corrector has no knob: says so
+    o.render()
+    assert "only with --filter fista" in o.status
+    assert "fista" not in o.report()
+
+
 def test_screenshot_and_quit(overlay):
     from vrcorrect.imageio import read_image
 
@@ -340,6 +377,8 @@ def test_region_outside_the_screen_is_refused(x_display):
     (["--source", "screen", "--model", "m.onnx"], "only with --backend onnx"),
     (["--source", "screen", "--backend", "onnx", "--model", "/no/such/m.onnx"], "an existing ONNX model file"),
     (["--source", __file__, "--region", "0,0,4,4"], "--region"),
+    (["--source", "screen", "--filter", "fista", "--iterations-per-frame", "0"], "--iterations-per-frame"),
+    (["--source", "screen", "--filter", "separable", "--iterations-per-frame", "2"], "only with --filter fista"),
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(args, message, capsys):
     from vrcorrect.cli import main

@@ -347,16 +347,22 @@ def test_ctrl_c_requests_exit_and_ends_cleanly(x_display, xr_runtime, tmp_path):
 # --------------------------------------------------------------------------
 
 
-def test_mirror_shows_what_is_sent_and_closing_it_ends_the_session(x_display, xr_runtime, rx_file, tmp_path,
-                                                                   monkeypatch):
-    from vrcorrect.runtime.gl import read_framebuffer
-    from vrcorrect.runtime.xr import XrApp, XrConfig
-
+def _runtime_in_this_process(xr_runtime: Path, tmp_path: Path, monkeypatch) -> Path:
+    """Point this process's OpenXR loader at the test runtime; returns the runtime's output folder."""
     out = tmp_path / "xr"
     out.mkdir()
     for key, value in _env(xr_runtime, out).items():
         if key.startswith(("XR_", "XRTEST_")):
             monkeypatch.setenv(key, value)
+    return out
+
+
+def test_mirror_shows_what_is_sent_and_closing_it_ends_the_session(x_display, xr_runtime, rx_file, tmp_path,
+                                                                   monkeypatch):
+    from vrcorrect.runtime.gl import read_framebuffer
+    from vrcorrect.runtime.xr import XrApp, XrConfig
+
+    out = _runtime_in_this_process(xr_runtime, tmp_path, monkeypatch)
     shown = []
     with XrApp(XrConfig(rx=rx_file, source=str(SAMPLE), mirror=True, mirror_height=VIEW[1]), echo=None) as app:
         draw = app._draw_mirror
@@ -378,6 +384,37 @@ def test_mirror_shows_what_is_sent_and_closing_it_ends_the_session(x_display, xr
         sent = _submitted(out, first, view)[..., :3].astype(int)
         half = picture[:, view * VIEW[0]:(view + 1) * VIEW[0]].astype(int)
         assert np.abs(half - sent).max() <= 2
+
+
+def test_mirror_keys_change_the_iterations_and_the_run_reports_the_objective(x_display, xr_runtime, rx_file,
+                                                                             tmp_path, monkeypatch):
+    """``--filter fista``: ``]`` in the mirror window doubles both eyes' iterations per frame (``[``
+    halves, never below 1); the title shows k; each eye's objective as a fraction of uncorrected
+    is collected a frame late for the summary."""
+    import glfw
+
+    from vrcorrect.runtime.mirror import KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET
+    from vrcorrect.runtime.xr import XrApp, XrConfig
+
+    _runtime_in_this_process(xr_runtime, tmp_path, monkeypatch)
+    said = []
+    config = XrConfig(rx=rx_file, source=str(SAMPLE), mirror=True, mirror_height=VIEW[1], frames=4,
+                      corrector_options={"filter": "fista", "iterations_per_frame": 2})
+    with XrApp(config, echo=said.append) as app:
+        app.key_callback(app.window, KEY_RIGHT_BRACKET, 0, 1, 0)
+        assert [c.iterations_per_frame for c in app.correctors.values()] == [4, 4]
+        app.key_callback(app.window, KEY_RIGHT_BRACKET, 0, 0, 0)              # a release: nothing
+        for _ in range(4):
+            app.key_callback(app.window, KEY_LEFT_BRACKET, 0, 1, 0)
+        assert [c.iterations_per_frame for c in app.correctors.values()] == [1, 1]
+        app.key_callback(app.window, KEY_RIGHT_BRACKET, 0, 1, 0)
+        summary = app.run(handle_sigint=False)
+        title = glfw.get_window_title(app.window)
+    assert summary.reason == "frames" and summary.iterations_per_frame == 2
+    assert "iterations per frame: 2" in said and "fista k 2" in title
+    assert set(summary.objective) == {"left", "right"}
+    for eye, values in summary.objective.items():
+        assert len(values) >= 2 and all(0 < v < 1 for v in values), (eye, values)
 
 
 # --------------------------------------------------------------------------
@@ -411,6 +448,8 @@ def test_no_headset_says_so(x_display, xr_runtime, tmp_path):
     (["--region", "0,0,10,10"], "--region"),
     (["--source", "nope.png"], "nope.png"),
     (["--model", "m.onnx"], "--backend onnx"),
+    (["--filter", "fista", "--iterations-per-frame", "99"], "--iterations-per-frame"),
+    (["--iterations-per-frame", "8"], "only with --filter fista"),
 ])
 def test_bad_options_name_the_field(args, words, tmp_path):
     env = _env(tmp_path / "nowhere.json", tmp_path)

@@ -380,31 +380,41 @@ def cmd_render(args: argparse.Namespace) -> int:
     from .fileio import check_writable
     from .imageio import read_image, write_png
     from .prescription import load_prescription
-    from .runtime.render import render_frame
+    from .runtime.mirror import filter_options, parse_frames
+    from .runtime.render import MAX_FRAMES, render_frame
 
     out = Path(args.output)
     if out.suffix.lower() != ".png":
         raise ValidationError("--output", str(out), "a path ending in .png")
+    options = {"kernel_options": _kernel_options(args), **filter_options(args)}
+    frames = parse_frames(args.frames, "--frames", MAX_FRAMES) or 1
     check_writable(out, force=args.force)
     model = model_for_backend(args.backend, args.model)
     rx_path = args.rx or str(Path(__file__).resolve().parent / "data" / "sample_rx.json")
     rx = load_prescription(rx_path)
     image = read_image(args.input)
-    options = {"kernel_options": _kernel_options(args), "filter": args.filter}
     if model:
         options["model"] = model
-    result, info = render_frame(image, rx, args.display, args.eye, args.backend, view=args.view, **options)
+    result, info = render_frame(image, rx, args.display, args.eye, args.backend, view=args.view, frames=frames,
+                                **options)
     write_png(out, result / 255.0, bits=8, force=args.force)
     print(f"{info['renderer']}: {args.eye} eye, sphere {info['sphere_D']:+.2f} D, cylinder {info['cylinder_D']:+.2f} D, "
           f"axis {info['axis_deg']:g} deg on {info['display']}; backend {info['backend']}")
-    if args.backend == "glsl" and "ranks" in info:
+    fraction = info.get("objective_fraction")
+    if args.backend == "glsl" and info["filter"] == "fista":
+        print(f"  projected gradient (FISTA), {info.get('iterations_per_frame', '-')} iteration(s) per frame, "
+              f"{frames} frame(s) warm-started, FFT margin {info['margin']} px"
+              + (f"; last frame's objective {fraction:.3f} of uncorrected" if fraction is not None else ""))
+    elif args.backend == "glsl" and "ranks" in info:
         print(f"  separable filters {info['filter_size']} px, ranks {info['ranks']} ({info['taps_per_pixel']} "
               f"taps/pixel), regulariser {info['mu_rel']:g}, blend {info['beta']:.3f}")
     elif args.backend == "glsl":
         print(f"  FFT filter, margin {info['margin']} px, regulariser {info['mu_rel']:g}, blend {info['beta']:.3f}")
     for note in info["notes"]:
         print(f"  - {note}")
-    print(f"  build {info['build_s']:.2f} s, frame {1e3 * info['frame_s']:.1f} ms (incl. upload and read-back)")
+    per = f", {1e3 * info['frame_s'] / frames:.1f} ms per frame" if frames > 1 else ""
+    print(f"  build {info['build_s']:.2f} s, {frames} frame(s) {1e3 * info['frame_s']:.1f} ms{per} "
+          "(incl. upload and read-back)")
     print(f"wrote {out} ({info['view']})")
     return 0
 
@@ -433,6 +443,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from .bench_xr import run_xr_bench
 
         print(run_xr_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
+    elif args.what == "realtime":
+        from .bench_realtime import run_realtime_bench
+
+        print(run_realtime_bench(out=Path(args.out), write=not args.no_write, quick=args.quick))
     elif args.what == "learned":
         from .bench_learned import run_learned_bench
 
@@ -446,7 +460,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                 plot=Path(args.out).with_name("learned_heldout.png"),
                                 tradeoff=Path(args.out).with_name("learned_tradeoff.png"))["markdown"])
     else:
-        raise ValidationError("bench", args.what, "kernel, solvers, render, xr or learned")
+        raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, xr or learned")
     return 0
 
 
@@ -550,14 +564,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="overwrite earlier demo outputs")
     p.set_defaults(func=cmd_demo)
 
-    p = sub.add_parser("render", help="one frame through the real-time GL pipeline (headless EGL)")
+    from .runtime.mirror import add_filter_options
+
+    p = sub.add_parser("render", help="frames through the real-time GL pipeline (headless EGL), the last written")
     p.add_argument("input", help="image (PNG/JPEG, sRGB)")
     p.add_argument("-o", "--output", required=True, help="output PNG")
     _add_model_options(p)
     p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl", help="correction backend (default glsl)")
     p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx")
-    p.add_argument("--filter", choices=("fft", "separable"), default="fft",
-                   help="GLSL strategy: FFT compute shaders (default) or separable low-rank filters")
+    add_filter_options(p)
+    p.add_argument("--frames", metavar="N",
+                   help="run N frames of the input as a still video and write the last (default 1; with --filter "
+                        "fista each frame continues the last one's iterations)")
     p.add_argument("--view", choices=("corrected", "seen-corrected", "seen-uncorrected"), default="corrected",
                    help="the displayed image (default) or what the eye sees of it")
     p.add_argument("--force", action="store_true", help="overwrite the output")
@@ -576,7 +594,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_xr_parser(sub)
 
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md")
-    p.add_argument("what", choices=("kernel", "solvers", "render", "xr", "learned"), help="what to measure")
+    p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "xr", "learned"),
+                   help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
     p.add_argument("--resolutions", nargs="+", metavar="R",
                    help="solvers: image sizes to sweep (256 512 1024 1832x1920; default all)")
@@ -585,6 +604,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", metavar="MODEL.onnx", help="learned: the model (default models/default.onnx)")
     p.add_argument("--card", metavar="CARD.md", help="learned: also write the model card there")
     p.add_argument("--eyes", type=int, default=6, help="learned: held-out eyes (default 6)")
+    p.add_argument("--quick", action="store_true", help="realtime: fewer frames and sizes (a smoke run)")
     p.set_defaults(func=cmd_bench)
     return ap
 

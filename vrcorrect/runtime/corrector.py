@@ -258,6 +258,10 @@ class _FrameBlend:
         self.p_apply = compile_compute(ctx, "blend.glsl", defines={"APPLY": None, **extra})
         self.result = ctx.buffer(reserve=16)
         self.partials = ctx.buffer(reserve=16 * self.groups[0] * self.groups[1])
+        # each frame's sums are copied on the GPU into a ring: the previous frame's can be read
+        # while this frame's work is still queued (no wait for the GPU)
+        self.history = [ctx.buffer(reserve=16) for _ in range(2)]
+        self.frames = 0
 
     def run(self, linear, r0, kd, delta, out) -> None:
         ctx = self.ctx
@@ -272,6 +276,8 @@ class _FrameBlend:
         self.p_final["u_count"] = self.groups[0] * self.groups[1]
         self.p_final.run(1, 1, 1)
         ctx.memory_barrier()
+        ctx.copy_buffer(self.history[self.frames % 2], self.result)
+        self.frames += 1
         linear.use(0)
         delta.use(1)
         self.p_apply["u_linear_in"] = 0
@@ -283,14 +289,26 @@ class _FrameBlend:
     def beta(self) -> float:
         return float(np.frombuffer(self.result.read(), np.float32)[0])
 
-    def objective_fraction(self) -> float | None:
+    def objective_fraction(self, previous: bool = False) -> float | None:
         """The blended frame's objective over the uncorrected one's (``None`` for a perfect
-        target, whose objective is 0); reads the sums back (a sync)."""
-        beta, s_rk, s_kk, s_rr = (float(v) for v in np.frombuffer(self.result.read(), np.float32))
+        target, whose objective is 0, or, with ``previous``, before the second frame).
+
+        The last frame's: reads the sums back, which waits for the GPU to finish that frame (a
+        sync).  ``previous``: the frame before it, from the copy of its sums the GPU made then
+        into the ring slot the last frame did not touch; the read waits only for that earlier
+        frame (drivers track each buffer's pending writes), not for the frame in flight: a live
+        panel's figure, one frame late."""
+        if previous:
+            if self.frames < 2:
+                return None
+            data = self.history[(self.frames - 2) % 2].read()
+        else:
+            data = self.result.read()
+        beta, s_rk, s_kk, s_rr = (float(v) for v in np.frombuffer(data, np.float32))
         return None if s_rr <= 0 else max(0.0, 1.0 + (2.0 * beta * s_rk + beta * beta * s_kk) / s_rr)
 
     def release(self) -> None:
-        release(self.p_partial, self.p_final, self.p_apply, self.result, self.partials)
+        release(self.p_partial, self.p_final, self.p_apply, self.result, self.partials, *self.history)
 
 
 class _BankGL:
@@ -409,6 +427,7 @@ class Corrector:
         self.enabled = True
         self.status = ""
         self.timings_ms: dict[str, float] = {}
+        self.profile: Any = None                            # called with each stage's name once issued
         self._offset = (0.0, 0.0, 0.0)                      # live sphere, cylinder, axis changes
         self._sized: dict[tuple[int, int], dict[str, Any]] = {}
         self._decode = {srgb: compile_compute(ctx, "correction.glsl", defines={"PASS_DECODE": None, "LAYERS": 1,
@@ -655,15 +674,18 @@ class Corrector:
         self._warm_size = size
         k, T = res["fft_k"], res["target"]
         res["fft_target"].run(linear, T)
+        self._mark("start")
         step = self._step
         for _ in range(self._iterations):
             k.run(res["y"], res["r"], combine="residual", other=T)                    # K y - T
             self._momentum, weight = fista_momentum(self._momentum)
             k.run(res["r"], res["y"], combine="fista", adjoint=True, solution=res["x"],   # x, y updated
                   step=step, weight=float(np.float32(weight)))
+        self._mark("iterations")
         k.run(linear, res["r0"], combine="residual", other=T)                        # guard: K t - T
         k.run(res["x"], res["kd"], combine="residual", other=T)                      # K x - T
         res["blend"].run(linear, res["r0"], res["kd"], res["x"], res["corrected"])
+        self._mark("guard")
 
     def solution(self, size: tuple[int, int]) -> np.ndarray | None:
         """``filter="fista"``: the current solution ``x`` for images of ``size`` (W, H) before the
@@ -678,6 +700,15 @@ class Corrector:
         reads it back: a sync)."""
         res = self._sized.get(tuple(size))
         return res["blend"].objective_fraction() if res is not None and "blend" in res else None
+
+    def previous_objective_fraction(self, size: tuple[int, int]) -> float | None:
+        """The objective of the frame before the last, as a fraction of uncorrected, read without
+        waiting for the GPU (each frame's sums are copied into a two-slot ring on the GPU; this
+        reads the slot the last frame did not write): what a live panel shows, one frame late.
+        ``None`` before the second frame of ``size``, for a perfect target, or without a per-frame
+        guard (``filter="separable"``, ``blend="fixed"``, the identity)."""
+        res = self._sized.get(tuple(size))
+        return res["blend"].objective_fraction(previous=True) if res is not None and "blend" in res else None
 
     def last_blend(self, size: tuple[int, int]) -> float | None:
         """The blend weight of the last frame of ``size`` (per-frame mode; reads it back: a sync)."""
@@ -697,9 +728,20 @@ class Corrector:
         ``dst_framebuffer`` (sRGB-encoded), in ``viewport`` (GL x, y, width, height) or all of it."""
         t0 = time.perf_counter()
         res = self._decode_source(src_texture)
+        self._mark("decode")
         out = self._correct(res)
+        self._mark("correct")
         self._present_to(out, dst_framebuffer, viewport)
+        self._mark("present")
         self.timings_ms = {"correct": 1e3 * (time.perf_counter() - t0)}
+
+    def _mark(self, stage: str) -> None:
+        """Tell :attr:`profile` (when set) that ``stage``'s GL work has been issued: ``apply`` marks
+        ``decode``, ``correct`` and ``present``; ``filter="fista"`` also ``start`` (warm start and the
+        target ``T``), ``iterations`` and ``guard`` within ``correct``.  A benchmark's hook calls
+        ``ctx.finish()`` there and reads the clock (``vrcorrect bench realtime``)."""
+        if self.profile is not None:
+            self.profile(stage)
 
     def simulate(self, src_texture, dst_framebuffer, viewport: tuple[int, int, int, int] | None = None,
                  corrected: bool = True) -> None:

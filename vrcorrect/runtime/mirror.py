@@ -10,8 +10,16 @@ edits go to, each eye's current prescription.
 
 Keys are handled by a pure state machine, :func:`next_state` on a frozen
 :class:`MirrorState`, which returns the new state and the side effects to perform
-(:class:`Adjust`, :class:`Screenshot`); :meth:`Mirror.key_callback` is the GLFW key
-callback that feeds it. :data:`KEY_MAP` lists the keys.
+(:class:`Adjust`, :class:`Screenshot`, :class:`Iterations`); :meth:`Mirror.key_callback` is the
+GLFW key callback that feeds it. :data:`KEY_MAP` lists the keys.
+
+With ``--filter fista`` the correction is projected-gradient iterations spread over frames, and
+``[`` / ``]`` halve / double the iterations per frame live (the speed-accuracy knob, 1 to 64);
+the panel shows it with each eye's objective as a fraction of uncorrected, read back a frame
+late so the panel never waits for the GPU (:meth:`Corrector.previous_objective_fraction
+<vrcorrect.runtime.corrector.Corrector.previous_objective_fraction>`). :func:`add_filter_options`,
+:func:`filter_options`, :func:`change_iterations` and :func:`knob_text` are shared with the
+overlay and the headset.
 
 GPU objects are made when the mirror opens (the correctors make theirs on the first frame of
 a size); rendering frames allocates none. Text is drawn from a glyph atlas made with
@@ -42,7 +50,10 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
 __all__ = [
     "VIEWS", "VIEW_TITLES", "KEY_MAP", "STEP_SPHERE_D", "STEP_CYLINDER_D", "STEP_AXIS_DEG", "STAGES",
-    "MirrorState", "Adjust", "Screenshot", "next_state", "key_map_text", "eye_viewports",
+    "MirrorState", "Adjust", "Screenshot", "Iterations", "next_state", "key_map_text", "eye_viewports",
+    "ITERATIONS_RANGE", "KEY_LEFT_BRACKET", "KEY_RIGHT_BRACKET", "ITERATION_KEYS", "iteration_key",
+    "next_iterations", "parse_iterations_per_frame", "add_filter_options", "filter_options", "change_iterations",
+    "knob_text", "FILTER_CHOICES",
     "Glyph", "FontAtlas", "build_font_atlas", "layout_text", "text_width", "panel_instances",
     "MirrorConfig", "StageTimes", "TextOverlay", "GlfwSession", "write_screenshot", "Mirror", "add_parser",
     "cmd_mirror", "parse_frames",
@@ -65,7 +76,16 @@ STEP_AXIS_DEG = 5.0
 
 # GLFW key codes (glfw3.h: printable keys are their upper-case ASCII code) and modifier bits.
 KEY_ESCAPE = 256
+KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET = 91, 93      # GLFW_KEY_LEFT_BRACKET, GLFW_KEY_RIGHT_BRACKET ('[', ']')
 MOD_SHIFT, MOD_CONTROL, MOD_ALT, MOD_SUPER = 0x1, 0x2, 0x4, 0x8
+
+ITERATIONS_RANGE = (1, 64)
+"""The iterations-per-frame knob's range on the command line and the keys (``filter="fista"``)."""
+
+ITERATION_KEYS: tuple[tuple[str, str], ...] = (
+    ("[ / ]", f"iterations per frame /2, x2 ({ITERATIONS_RANGE[0]}-{ITERATIONS_RANGE[1]}; --filter fista)"),
+)
+"""The knob's keys, in the mirror's, the overlay's and the headset mirror's key maps."""
 
 KEY_MAP: tuple[tuple[str, str], ...] = (
     ("c", "correction on/off"),
@@ -75,6 +95,7 @@ KEY_MAP: tuple[tuple[str, str], ...] = (
     ("y / Y", f"cylinder -/+{STEP_CYLINDER_D:.2f} D"),
     ("a / A", f"axis -/+{STEP_AXIS_DEG:g} deg"),
     ("p", "screenshot to PNG (both halves, as shown)"),
+    *ITERATION_KEYS,
     ("h", "show/hide this key map"),
     ("i", "show/hide the timing panel"),
     ("Esc / q", "quit"),
@@ -131,7 +152,25 @@ class Screenshot:
     """Write the window's picture, as shown, to a PNG."""
 
 
-Action = Adjust | Screenshot
+@dataclass(frozen=True)
+class Iterations:
+    """Double (``up``) or halve the projected-gradient iterations per frame (:func:`next_iterations`)."""
+
+    up: bool
+
+
+Action = Adjust | Screenshot | Iterations
+
+
+def iteration_key(key: int) -> Iterations | None:
+    """The knob's action for ``key`` (``[`` halves, ``]`` doubles), or None."""
+    return {KEY_LEFT_BRACKET: Iterations(False), KEY_RIGHT_BRACKET: Iterations(True)}.get(key)
+
+
+def next_iterations(k: int, up: bool) -> int:
+    """``k`` doubled (``up``) or halved, within :data:`ITERATIONS_RANGE`."""
+    low, high = ITERATIONS_RANGE
+    return min(high, max(low, 2 * k if up else k // 2))
 
 
 def _letter(key: int) -> str | None:
@@ -165,6 +204,9 @@ def next_state(state: MirrorState, key: int, mods: int = 0) -> tuple[MirrorState
         return replace(state, show_panel=not state.show_panel), ()
     if letter == "p":
         return state, (Screenshot(),)
+    knob = iteration_key(key)
+    if knob is not None:
+        return state, (knob,)
     if letter == "s":
         return state, (Adjust(state.edit_eye, sphere_D=sign * STEP_SPHERE_D),)
     if letter == "y":
@@ -761,6 +803,8 @@ class Mirror:
                 screenshot = True
             elif isinstance(action, Adjust):
                 self._adjust(action)
+            elif isinstance(action, Iterations):
+                self._set_status(change_iterations(self.correctors.values(), action.up))
         return screenshot
 
     def _adjust(self, a: Adjust) -> None:
@@ -807,6 +851,9 @@ class Mirror:
                  f"edits: {s.edit_eye} eye"]
         for eye in EYES:
             lines.append(f"{eye}\t{self._rx_text(eye)}")
+        knob = knob_text(self.correctors, self.config.eye_size, s.correction and s.view != "seen_uncorrected")
+        if knob:
+            lines.append(knob)
         lines.append("stage\tgpu ms\tcpu ms")
         for name in STAGES:
             if name in self._times.smoothed:
@@ -959,21 +1006,93 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="correction backend: glsl (default) or onnx (a learned model per eye)")
     p.add_argument("--model", metavar="MODEL.onnx",
                    help="ONNX model for --backend onnx (default: models/default.onnx)")
+    add_filter_options(p)
     p.set_defaults(func=cmd_mirror)
     return p
 
 
-def parse_frames(text: str | None, field: str = "--frames") -> int | None:
-    """Check ``--frames``: ``None`` (run until closed) or a whole number from 1 to 10000000."""
+def parse_frames(text: str | None, field: str = "--frames", most: int = 10_000_000) -> int | None:
+    """Check ``--frames``: ``None`` (run until closed) or a whole number from 1 to ``most``."""
     if text is None:
         return None
     try:
         value = int(text)
     except ValueError:
         value = 0
-    if not 1 <= value <= 10_000_000:
-        raise ValidationError(field, text, "a whole number of frames from 1 to 10000000")
+    if not 1 <= value <= most:
+        raise ValidationError(field, text, f"a whole number of frames from 1 to {most}")
     return value
+
+
+def parse_iterations_per_frame(text: str | int | None, field: str = "--iterations-per-frame") -> int | None:
+    """Check ``--iterations-per-frame``: ``None`` (the default) or a whole number in
+    :data:`ITERATIONS_RANGE`."""
+    if text is None:
+        return None
+    low, high = ITERATIONS_RANGE
+    try:
+        value = int(text)
+    except (TypeError, ValueError):
+        value = low - 1
+    if isinstance(text, bool) or not low <= value <= high:
+        raise ValidationError(field, text, f"a whole number of iterations from {low} to {high}")
+    return value
+
+
+FILTER_CHOICES = ("fft", "separable", "fista")
+
+
+def add_filter_options(p: argparse.ArgumentParser) -> None:
+    """``--filter`` and ``--iterations-per-frame`` (``render``, ``mirror``, ``overlay``, ``xr``)."""
+    low, high = ITERATIONS_RANGE
+    p.add_argument("--filter", choices=FILTER_CHOICES, default="fft",
+                   help="GLSL strategy: fft (default; the regularised inverse by FFT compute shaders), separable "
+                        "(low-rank spatial filters) or fista (projected-gradient iterations on the true objective, "
+                        "warm-started from frame to frame)")
+    p.add_argument("--iterations-per-frame", metavar="K",
+                   help=f"with --filter fista: iterations per frame, {low} to {high} (default 4; the speed-accuracy "
+                        "knob)")
+
+
+def filter_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The :class:`~vrcorrect.runtime.corrector.Corrector` options of :func:`add_filter_options`'s
+    arguments (checked: one line naming the option when wrong)."""
+    k = parse_iterations_per_frame(args.iterations_per_frame)
+    options: dict[str, Any] = {"filter": args.filter}
+    if k is not None:
+        if args.filter != "fista":
+            raise ValidationError("--iterations-per-frame", args.iterations_per_frame, "only with --filter fista")
+        options["iterations_per_frame"] = k
+    return options
+
+
+def change_iterations(correctors: Any, up: bool) -> str:
+    """Double (``up``) or halve the iterations per frame of every corrector running projected
+    gradient (``filter="fista"``, GLSL backend), all to one value (:func:`next_iterations` of the
+    first's); returns the status message."""
+    fista = [c for c in correctors if c.backend == "glsl" and c.options.filter == "fista"]
+    if not fista:
+        return "iterations per frame: only with --filter fista"
+    k = next_iterations(fista[0].iterations_per_frame, up)
+    for c in fista:
+        c.iterations_per_frame = k
+    return f"iterations per frame: {k}"
+
+
+def knob_text(correctors: Mapping[str, Any], size: tuple[int, int], running: bool = True) -> str | None:
+    """``"fista k 4   objective left 0.41 right 0.43 of uncorrected"`` for the correctors (by eye)
+    that run projected gradient, or None when none does.  The objectives are the frame before the
+    last one's (:meth:`~vrcorrect.runtime.corrector.Corrector.previous_objective_fraction`: no
+    wait for the GPU); ``running`` False (correction off, or not shown) prints ``-``."""
+    fista = {eye: c for eye, c in correctors.items() if c.backend == "glsl" and c.options.filter == "fista"}
+    if not fista:
+        return None
+    ks = sorted({c.iterations_per_frame for c in fista.values()})
+    parts = []
+    for eye, c in fista.items():
+        value = c.previous_objective_fraction(size) if running and c.enabled else None
+        parts.append(f"{eye} {'-' if value is None else f'{value:.3f}'}")
+    return f"fista k {'/'.join(map(str, ks))}   objective {' '.join(parts)} of uncorrected"
 
 
 def cmd_mirror(args: argparse.Namespace) -> int:
@@ -981,10 +1100,13 @@ def cmd_mirror(args: argparse.Namespace) -> int:
     from .model_path import model_for_backend
 
     frames = parse_frames(args.frames)
+    options = filter_options(args)
     model = model_for_backend(args.backend, args.model)
+    if model:
+        options["model"] = model
     config = MirrorConfig(rx=args.rx, display=args.display, source=args.source, eye_size=parse_size(args.size),
                           frames=frames, screenshot_dir=args.screenshot_dir, vsync=frames is None,
-                          backend=args.backend, corrector_options={"model": model} if model else {})
+                          backend=args.backend, corrector_options=options)
     parse_source(config.source)  # fail on a bad source before anything slow
     print(key_map_text())
     t0 = time.perf_counter()
@@ -997,6 +1119,9 @@ def cmd_mirror(args: argparse.Namespace) -> int:
               f"set-up {t1 - t0:.1f} s) on {mirror.ctx.info.get('GL_RENDERER', '?')}")
         for name, (gpu, cpu) in mirror.timings_ms.items():
             print(f"  {name:<15} gpu {format_ms(gpu)} ms, cpu {cpu:.2f} ms (last frame)")
+        knob = knob_text(mirror.correctors, config.eye_size, mirror.state.correction)
+        if knob:
+            print(f"  {knob}")
         for path in mirror.screenshots:
             print(f"wrote {path}")
     return 0

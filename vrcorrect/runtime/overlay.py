@@ -16,7 +16,9 @@ defaults to another monitor (:func:`full_screen_region`); with one monitor, full
 ``screen`` cannot go together. A window manager may move the window: a warning says so.
 
 Keys (:data:`KEY_MAP`, printed at start, shown with ``h``) go through a pure state machine,
-:func:`next_state` on a frozen :class:`OverlayState`, as in the mirror. The prescription
+:func:`next_state` on a frozen :class:`OverlayState`, as in the mirror; with ``--filter fista``,
+``[`` / ``]`` halve / double the iterations per frame live, and the report line gives them with the
+objective as a fraction of uncorrected (read a frame late: no wait for the GPU). The prescription
 file is polled every frame (:meth:`Corrector.poll <vrcorrect.runtime.corrector.Corrector.poll>`):
 an edit takes effect live, an invalid file keeps the last good prescription and says why (on
 stdout and in the window). Frames per second and milliseconds per stage are printed once per
@@ -39,8 +41,9 @@ import numpy as np
 from ..errors import ValidationError, VrcorrectError
 from .gl import Rect, format_ms
 from .mirror import (
-    KEY_ESCAPE, MOD_ALT, MOD_CONTROL, MOD_SUPER, GlfwSession, Screenshot, StageTimes, TextOverlay, _letter,
-    build_font_atlas, key_map_text, panel_instances, parse_frames, text_width, write_screenshot,
+    ITERATION_KEYS, KEY_ESCAPE, MOD_ALT, MOD_CONTROL, MOD_SUPER, GlfwSession, Iterations, Screenshot, StageTimes,
+    TextOverlay, _letter, add_filter_options, build_font_atlas, change_iterations, filter_options, iteration_key,
+    key_map_text, knob_text, panel_instances, parse_frames, text_width, write_screenshot,
 )
 from .scene import parse_region, parse_size, parse_source
 
@@ -55,6 +58,7 @@ SCREEN = "screen"
 KEY_MAP: tuple[tuple[str, str], ...] = (
     ("c", "correction on/off"),
     ("p", "screenshot to PNG (as shown)"),
+    *ITERATION_KEYS,
     ("h", "show/hide this key map"),
     ("Esc / q", "quit"),
 )
@@ -80,7 +84,8 @@ class OverlayState:
     running: bool = True
 
 
-def next_state(state: OverlayState, key: int, mods: int = 0) -> tuple[OverlayState, tuple[Screenshot, ...]]:
+def next_state(state: OverlayState, key: int, mods: int = 0
+               ) -> tuple[OverlayState, tuple[Screenshot | Iterations, ...]]:
     """The state after pressing ``key`` (a GLFW key code) with modifier bits ``mods``, and the
     side effects to perform. Keys with Control, Alt or Super, and keys not in
     :data:`KEY_MAP`, change nothing."""
@@ -95,7 +100,8 @@ def next_state(state: OverlayState, key: int, mods: int = 0) -> tuple[OverlaySta
         return replace(state, show_keys=not state.show_keys), ()
     if letter == "p":
         return state, (Screenshot(),)
-    return state, ()
+    knob = iteration_key(key)
+    return (state, (knob,)) if knob is not None else (state, ())
 
 
 def rects_overlap(a: Rect, b: Rect) -> bool:
@@ -285,7 +291,7 @@ class Overlay:
         self.screenshots: list[Path] = []
         self.reports: list[str] = []
         self.region: Rect | None = None
-        self._actions: list[Screenshot] = []
+        self._actions: list[Screenshot | Iterations] = []
         self._session = self.ctx = self.window = self.source = self.corrector = self.text = self._times = None
         self._sums: dict[str, list[float]] = {}
         try:
@@ -402,6 +408,10 @@ class Overlay:
 
         self._accumulate(self._times.collect())
         actions, self._actions = self._actions, []
+        for action in actions:
+            if isinstance(action, Iterations):
+                self._set_status(change_iterations([self.corrector], action.up))
+                self._status_until = time.perf_counter() + 3.0
         self._poll()
         ctx, state = self.ctx, self.state
         self.corrector.enabled = state.correction
@@ -448,6 +458,9 @@ class Overlay:
                 if name in self._times.queries:
                     text += f" (gpu {format_ms(gpu / n_gpu if n_gpu else None, 'n/a')})"
                 parts.append(text)
+        knob = knob_text({self.config.eye: self.corrector}, self.output_size, self.state.correction)
+        if knob:
+            parts.append(knob)
         line = "  ".join(parts)
         self.reports.append(line)
         self._say(line)
@@ -549,6 +562,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--frames", metavar="N", help="render N frames and exit (tests, CI)")
     p.add_argument("--backend", default="glsl", metavar="glsl|onnx", help="correction backend (default glsl)")
     p.add_argument("--model", metavar="M.onnx", help="ONNX model for --backend onnx")
+    add_filter_options(p)
     p.add_argument("--screenshot-dir", default=".", metavar="DIR", help="where p writes screenshots (default .)")
     p.set_defaults(func=cmd_overlay)
     return p
@@ -559,8 +573,10 @@ def cmd_overlay(args: argparse.Namespace) -> int:
     from .model_path import model_for_backend
 
     frames = parse_frames(args.frames)
+    options = filter_options(args)
     model = model_for_backend(args.backend, args.model)
-    options = {"model": model} if model else {}
+    if model:
+        options["model"] = model
     config = OverlayConfig(
         source=args.source, region=None if args.region is None else parse_region(args.region), rx=args.rx,
         eye=args.eye, display=args.display, window=None if args.window is None else parse_size(args.window, "--window"),

@@ -1,7 +1,9 @@
-"""One frame through the whole GL pipeline on a headless EGL context (``vrcorrect render``).
+"""Frames through the whole GL pipeline on a headless EGL context (``vrcorrect render``).
 
 Upload the image (sRGB code values), run :class:`~vrcorrect.runtime.corrector.Corrector`
-(``apply``, or ``simulate`` for what the eye sees), read the framebuffer back.  The same
+(``apply``, or ``simulate`` for what the eye sees) on ``frames`` frames of it (``filter="fista"``
+warm-starts each from the last: N frames of k iterations are N k iterations), read the last
+frame's framebuffer back.  The same
 code path as the mirror and the headset, minus the window: for servers, tests and
 benchmarks.  Layer 5 (numpy, moderngl; onnxruntime for the ONNX backend).
 """
@@ -15,21 +17,33 @@ import numpy as np
 
 from ..errors import ValidationError
 
-__all__ = ["VIEWS", "render_frame"]
+__all__ = ["VIEWS", "MAX_FRAMES", "check_frames", "render_frame"]
 
 VIEWS = ("corrected", "seen-corrected", "seen-uncorrected")
+MAX_FRAMES = 10_000
+
+
+def check_frames(frames, field: str = "frames") -> int:
+    """``frames``: a whole number from 1 to :data:`MAX_FRAMES`."""
+    if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or not 1 <= frames <= MAX_FRAMES:
+        raise ValidationError(field, frames, f"a whole number of frames from 1 to {MAX_FRAMES}")
+    return int(frames)
 
 
 def render_frame(image: np.ndarray, rx, display, eye: str = "right", backend: str = "glsl",
-                 view: str = "corrected", ctx=None, **options) -> tuple[np.ndarray, dict[str, Any]]:
+                 view: str = "corrected", ctx=None, frames: int = 1, **options) -> tuple[np.ndarray, dict[str, Any]]:
     """Correct (or simulate) one ``(H, W, 3)`` image of sRGB code values in [0, 1] (float) or
-    uint8; returns the 8-bit result ``(H, W, 3)`` and what was built (``Corrector.describe()``
-    plus ``build_s`` and ``frame_s``).  ``ctx``: an existing context (default: a new headless one)."""
+    uint8, ``frames`` times as a still video (the last frame is returned); returns the 8-bit result
+    ``(H, W, 3)`` and what was built (``Corrector.describe()`` plus ``build_s``, ``frame_s`` (all
+    frames, with the upload and the read-back), ``frames`` and ``objective_fraction``: the last
+    frame's objective over uncorrected where the GPU computes it (``filter="fista"`` and the
+    per-frame blend), else None).  ``ctx``: an existing context (default: a new headless one)."""
     from .corrector import Corrector
     from .gl import check_gl_errors, headless_context, read_framebuffer, release, render_target, upload_texture
 
     if view not in VIEWS:
         raise ValidationError("view", view, "one of " + ", ".join(VIEWS))
+    frames = check_frames(frames)
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3:
         raise ValidationError("image", f"shape {img.shape}", "(H, W, 3) RGB")
@@ -45,15 +59,19 @@ def render_frame(image: np.ndarray, rx, display, eye: str = "right", backend: st
         t1 = time.perf_counter()
         src = upload_texture(ctx, img)
         tex, fbo = render_target(ctx, width=img.shape[1], height=img.shape[0])
-        if view == "corrected":
-            corrector.apply(src, fbo)
-        else:
-            corrector.simulate(src, fbo, corrected=view == "seen-corrected")
+        for _ in range(frames if view != "seen-uncorrected" else 1):
+            if view == "corrected":
+                corrector.apply(src, fbo)
+            else:
+                corrector.simulate(src, fbo, corrected=view == "seen-corrected")
         out = read_framebuffer(fbo)
         t2 = time.perf_counter()
         check_gl_errors(ctx, "render")
         info = corrector.describe()
-        info.update(build_s=t1 - t0, frame_s=t2 - t1, renderer=ctx.info.get("GL_RENDERER", "?"), view=view)
+        fraction = corrector.last_objective_fraction((img.shape[1], img.shape[0])) \
+            if view != "seen-uncorrected" and corrector.enabled else None
+        info.update(build_s=t1 - t0, frame_s=t2 - t1, renderer=ctx.info.get("GL_RENDERER", "?"), view=view,
+                    frames=frames, objective_fraction=fraction)
         return out, info
     finally:
         if corrector is not None:

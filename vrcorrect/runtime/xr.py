@@ -23,6 +23,11 @@ that does not get there within :data:`EXIT_GRACE_S`, ends it at once.
 No OpenXR runtime installed: :class:`XrUnavailableError`, one paragraph saying what is missing
 and how to get one (``vrcorrect mirror`` works without), exit status :data:`EXIT_NO_RUNTIME`.
 
+With ``--filter fista`` each eye runs projected-gradient iterations spread over frames; in the
+``--mirror`` window ``[`` / ``]`` halve / double the iterations per frame live, and the window's
+title shows them with each eye's objective as a fraction of uncorrected (read a frame late, no
+wait for the GPU); the run's summary gives the median objective per eye.
+
 Tests drive it against a small runtime compiled from ``tests/xr_runtime/`` (no headset).
 Layer 5: numpy, moderngl, glfw, pyopenxr; never torch.
 """
@@ -45,6 +50,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..errors import VrcorrectError, ValidationError
+from .mirror import add_filter_options
 from .scene import EYES, parse_region, parse_source
 
 __all__ = [
@@ -300,6 +306,11 @@ class XrRunSummary:
     swapchain_format: str = ""
     eye_size: tuple[int, int] = (0, 0)
     renderer: str = ""
+    objective: dict[str, list[float]] = field(default_factory=dict)
+    """``filter="fista"``: each eye's objective as a fraction of uncorrected, per rendered frame
+    (read a frame late)."""
+    iterations_per_frame: int | None = None
+    """``filter="fista"``: the iterations per frame at the end (the keys may change them)."""
 
     @property
     def exit_code(self) -> int:
@@ -500,7 +511,9 @@ class XrApp:
         self.mirror_size = (2 * max(1, round(w * mh / h)), mh)
         session = self._glfw_session = GlfwSession("x11")  # the session binding is Xlib/GLX
         title = f"vrcorrect xr mirror: what each eye is sent ({self.summary.system})"
-        session.open(*(self.mirror_size if cfg.mirror else (64, 64)), title, visible=cfg.mirror, vsync=False)
+        self._title = title
+        session.open(*(self.mirror_size if cfg.mirror else (64, 64)), title, visible=cfg.mirror, vsync=False,
+                     key_callback=self.key_callback)
         self.window, self.ctx = session.window, session.ctx
         self.summary.renderer = self.ctx.info.get("GL_RENDERER", "?")
         major, minor = self.ctx.version_code // 100, self.ctx.version_code % 100 // 10
@@ -580,6 +593,24 @@ class XrApp:
         check_gl_errors(ctx, "xr set-up")
 
     # ------------------------------------------------------------ events
+
+    def key_callback(self, window: Any, key: int, scancode: int, action: int, mods: int) -> None:
+        """GLFW key callback of the mirror window: ``[`` / ``]`` halve / double the iterations per
+        frame of both eyes (``filter="fista"``); presses only, without Control, Alt or Super."""
+        from .mirror import MOD_ALT, MOD_CONTROL, MOD_SUPER, change_iterations, iteration_key
+
+        knob = iteration_key(key)
+        if action != 1 or knob is None or mods & (MOD_CONTROL | MOD_ALT | MOD_SUPER):
+            return
+        self._say(change_iterations(self.correctors.values(), knob.up))
+        self._last_poll = 0.0                   # the title shows it at the next frame
+
+    def knob_text(self) -> str | None:
+        """Iterations per frame and each eye's objective as a fraction of uncorrected (a frame late),
+        or None without ``filter="fista"``."""
+        from .mirror import knob_text
+
+        return knob_text(self.correctors, self.eye_size)
 
     def request_quit(self, reason: str) -> None:
         """Ask the loop to end the session (thread- and signal-safe: only sets flags)."""
@@ -719,6 +750,10 @@ class XrApp:
         if self._rendered_pending:
             for name, value in values.items():
                 self.summary.stage_ms.setdefault(name, []).append(value)
+            for eye, corrector in self.correctors.items():
+                fraction = corrector.previous_objective_fraction(self.eye_size)   # no wait for the GPU
+                if fraction is not None:
+                    self.summary.objective.setdefault(eye, []).append(fraction)
         self._rendered_pending = False
 
     def _draw_mirror(self, textures: Sequence[Any]) -> None:
@@ -750,6 +785,9 @@ class XrApp:
             elif corrector.status and corrector.status != self._status.get(eye):
                 self._say(f"{eye} eye: {corrector.status}")  # e.g. an invalid edit: the last good Rx is kept
             self._status[eye] = corrector.status
+        knob = self.knob_text()
+        if knob and self.config.mirror and self.window is not None:
+            self._glfw_session.glfw.set_window_title(self.window, f"{self._title}   {knob}")
 
     def run(self, *, handle_sigint: bool = True) -> XrRunSummary:
         """Run the session until it ends (see the module docstring); returns the summary."""
@@ -807,6 +845,8 @@ class XrApp:
             self.summary.states = list(self.tracker.history)
             if self._times is not None and self.ctx is not None:
                 self._collect_times()
+            ks = {c.iterations_per_frame for c in self.correctors.values() if c.options.filter == "fista"}
+            self.summary.iterations_per_frame = ks.pop() if len(ks) == 1 else None
         return self.summary
 
     # ------------------------------------------------------------ tear-down
@@ -902,6 +942,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="insert Khronos' core validation layer (bundled with pyopenxr; messages on stdout)")
     p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl", help="correction backend (default glsl)")
     p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx")
+    add_filter_options(p)
     p.set_defaults(func=cmd_xr)
     return p
 
@@ -920,9 +961,10 @@ def cmd_xr(args: argparse.Namespace) -> int:
     """``vrcorrect xr``: check the arguments, run the session, print a summary."""
     import sys
 
-    from .mirror import parse_frames
+    from .mirror import filter_options, parse_frames
 
     frames = parse_frames(args.frames)
+    options = filter_options(args)
     mirror_height = _parse_int(args.mirror_height, "--mirror-height", 16, 4096, "pixels")
     if args.region is not None and args.source != "screen":
         raise ValidationError("--region", args.region, "only with --source screen")
@@ -931,7 +973,8 @@ def cmd_xr(args: argparse.Namespace) -> int:
     from .model_path import model_for_backend
 
     model = model_for_backend(args.backend, args.model)
-    options = {"model": model} if model else {}
+    if model:
+        options["model"] = model
     config = XrConfig(rx=args.rx, display=args.display, source=args.source, region=args.region, frames=frames,
                       mirror=args.mirror, mirror_height=mirror_height, validation=args.validation,
                       backend=args.backend, corrector_options=options)
@@ -953,6 +996,10 @@ def cmd_xr(args: argparse.Namespace) -> int:
           + (f" (median {statistics.median(summary.frame_ms):.1f} ms per rendered frame)" if summary.frame_ms else ""))
     for name, (gpu, cpu) in summary.medians().items():
         print(f"  {name:<14} gpu {'-' if gpu is None else f'{gpu:.2f}'} ms, cpu {cpu:.2f} ms (median)")
+    if summary.objective:
+        print(f"  fista, {summary.iterations_per_frame} iteration(s) per frame at the end; objective as a fraction "
+              "of uncorrected (median over frames): "
+              + ", ".join(f"{eye} {statistics.median(v):.3f}" for eye, v in summary.objective.items()))
     if summary.reason == "session lost":
         print(f"vrcorrect xr: the runtime lost the session (LOSS_PENDING); exit status {EXIT_SESSION_LOST}",
               file=sys.stderr)
