@@ -412,3 +412,31 @@ def test_cli_renders_n_frames_and_reports(x_display, folder, tmp_path):
     out = result.stdout
     assert "keys:" in out and "Esc / q" in out
     assert "3 frame(s)" in out and "fps" in out and "correct" in out and f"{W}x{H}" in out
+
+
+def test_fista_reprojects_the_pictures_motion_unless_told_not_to(x_display, gl, folder, tmp_path):
+    """With ``--filter fista`` the folder's pictures are tracked for the reprojected warm start (the
+    test folder's pictures are unrelated: each change is a cut, a cold start); ``--no-reprojection``
+    turns it off."""
+    from vrcorrect.runtime.mirror import start_motion
+    from vrcorrect.runtime.scene import FolderSource
+
+    d, _ = folder
+    env = dict(os.environ, DISPLAY=x_display, PYTHONPATH=str(REPO))
+    for extra in ([], ["--no-reprojection"]):
+        result = _cli(["--source", str(d), "--window", f"{W}x{H}", "--frames", "3", "--filter", "fista",
+                       "--iterations-per-frame", "2", *extra], env, tmp_path)
+        assert result.returncode == 0, result.stderr
+        assert "3 frame(s)" in result.stdout
+
+    class Fista:
+        backend, options = "glsl", type("Options", (), {"filter": "fista"})()
+
+    source = FolderSource(gl, W, H, d, interval_s=1.0)
+    try:
+        assert not start_motion(source, [Fista()], reprojection=False) and source.motion is None
+        assert start_motion(source, [Fista()]) and source.motion is not None
+        source.render(1.0)
+        assert source.take_motion() == "cut"                # the test pictures are unrelated
+    finally:
+        source.release()

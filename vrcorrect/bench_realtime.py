@@ -198,17 +198,12 @@ def pan_targets(case: Case, frames: int, px: int = PAN_PX) -> list[np.ndarray]:
 
 def phase_correlation_shift(previous: np.ndarray, current: np.ndarray) -> tuple[int, int]:
     """The whole-pixel displacement ``(dy, dx)`` of the content from ``previous`` to ``current``
-    (``current(p) ~ previous(p - d)``), from the peak of the phase correlation of their luminance
-    (Hann-windowed against the crop's edges)."""
-    a = np.asarray(previous, np.float64).mean(axis=2)
-    b = np.asarray(current, np.float64).mean(axis=2)
-    h, w = a.shape
-    win = np.outer(np.hanning(h), np.hanning(w))
-    fa, fb = np.fft.fft2((a - a.mean()) * win), np.fft.fft2((b - b.mean()) * win)
-    cross = fb * np.conj(fa)
-    r = np.fft.ifft2(cross / np.maximum(np.abs(cross), 1e-12)).real
-    dy, dx = np.unravel_index(int(np.argmax(r)), r.shape)
-    return (int(dy) - h if dy > h // 2 else int(dy)), (int(dx) - w if dx > w // 2 else int(dx))
+    (``current(p) ~ previous(p - d)``): :func:`vrcorrect.runtime.motion.estimate_shift` (phase
+    correlation of their luminance, what the mirror and the overlay run), in the bench's (dy, dx)."""
+    from .runtime.motion import estimate_shift
+
+    dx, dy, _ = estimate_shift(previous, current)
+    return dy, dx
 
 
 def reproject(image_chw: np.ndarray, target_hwc: np.ndarray, shift: tuple[int, int]) -> np.ndarray:

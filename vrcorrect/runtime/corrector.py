@@ -30,7 +30,12 @@ CPU step to float precision).  Per eye and image size the solution ``x``, the ex
 ``y`` and the previous frame's target stay on the GPU, the momentum on the CPU; each frame runs
 ``iterations_per_frame`` iterations from the previous frame's solution moved by the change of the
 target (``x + t - t_prev``, clipped: for a still source, exactly where FISTA stopped, so N frames
-of k iterations are N k iterations).  The first frame of a size, a size change, a prescription
+of k iterations are N k iterations).  When the caller knows the content's motion since the last
+frame as a whole-pixel shift ``d`` (``apply(..., motion_px=(dx, dy))``: a pan, a scrolled screen;
+estimated for CPU sources by :func:`vrcorrect.runtime.motion.estimate_shift`), the start is
+reprojected, as asynchronous timewarp does: ``x(p) = clip(x(p - d) + t(p) - t_prev(p - d))`` and
+the same for ``y`` where ``p - d`` lies inside the image, the new target ``t(p)`` on the pixels
+the motion exposes (``shaders/fista.glsl``); ``d = (0, 0)`` is the plain warm start exactly.  The first frame of a size, a size change, a prescription
 change (``adjust``, ``poll``) and :meth:`Corrector.reset` start cold, from the target.  The guard:
 the displayed frame is ``t + beta (x - t)`` with the objective-optimal ``beta`` in [0, 1] computed
 on the GPU (two more ``K`` round trips, ``K t - T`` and ``K x - T``, and a reduction), so no frame
@@ -454,6 +459,7 @@ class Corrector:
         self._fista_start = compile_compute(ctx, "fista.glsl") if self.options.filter == "fista" else None
         self._warm_size: tuple[int, int] | None = None   # size whose FISTA state the next frame continues
         self._momentum = 1.0
+        self._motion_gl = (0, 0)                          # the next frame's reprojection, GL texels
         self._rebuild(self.prescription.eye(eye))
         check_gl_errors(ctx, "Corrector build")
 
@@ -569,7 +575,8 @@ class Corrector:
 
             res = {"linear": tex(), "corrected": tex(), "seen": tex()}
             if self.options.filter == "fista":
-                res.update(x=tex(), y=tex(), t_prev=tex(), target=tex(), r=tex(), r0=tex(), kd=tex())
+                res.update(x=tex(), y=tex(), t_prev=tex(), target=tex(), r=tex(), r0=tex(), kd=tex(),
+                           x_src=tex(), y_src=tex(), t_prev_src=tex())   # a shifted warm start's sources
             elif self._banks is None and self.options.per_frame_blend:
                 res.update(delta=tex(), r0=tex(), kd=tex())
             if self._banks is not None:
@@ -661,14 +668,29 @@ class Corrector:
         linear = res["linear"]
         W, H = size = tuple(linear.size)
         cold = self._warm_size != size
+        shift = (0, 0) if cold else self._motion_gl
+        self._motion_gl = (0, 0)
         if cold:
             self._momentum = 1.0
+        state = ("x", "y", "t_prev")
+        if shift != (0, 0):
+            # The previous state moves to the *_src textures (a swap: nothing is allocated) and the
+            # shader writes the reprojected state into the others: read and write must differ.
+            # FISTA's extrapolated point y moves with x and the momentum is kept (not reset): after
+            # the move, y - x is the same step as before, only displaced with the content, so the
+            # extrapolation is still a good one; the CPU twin (bench realtime's "reprojected"
+            # strategy, and test_runtime_motion) reaches fast's objective faster this way than a
+            # warm start without reprojection.  Exposed pixels restart from the target (x = y = t).
+            for name in state:
+                res[name], res[name + "_src"] = res[name + "_src"], res[name]
         prog = self._fista_start
         linear.use(0)
         prog["u_linear_in"] = 0
         prog["u_cold"] = cold
-        for unit, name in enumerate(("x", "y", "t_prev")):
+        prog["u_shift"] = shift
+        for unit, name in enumerate(state):
             res[name].bind_to_image(unit, read=True, write=True)
+            res[name + "_src" if shift != (0, 0) else name].bind_to_image(unit + 3, read=True, write=False)
         prog.run(math.ceil(W / _GROUP), math.ceil(H / _GROUP), 1)
         ctx.memory_barrier()
         self._warm_size = size
@@ -723,10 +745,34 @@ class Corrector:
         dst.viewport = vp
         self._present_vao.render(mode=self.ctx.TRIANGLES, vertices=3)
 
-    def apply(self, src_texture, dst_framebuffer, viewport: tuple[int, int, int, int] | None = None) -> None:
+    def _set_motion(self, motion_px) -> None:
+        """Keep ``motion_px`` = ``(dx, dy)`` (image pixels, x to the right, y down, rounded to whole
+        pixels; ``None``: no motion) for this frame's warm start, in GL texel coordinates (rows
+        bottom first, so y flips)."""
+        if motion_px is None:
+            self._motion_gl = (0, 0)
+            return
+        try:
+            dx, dy = (float(v) for v in motion_px)
+        except (TypeError, ValueError):
+            raise ValidationError("motion_px", motion_px, "None or (dx, dy) in pixels") from None
+        if not (math.isfinite(dx) and math.isfinite(dy)):
+            raise ValidationError("motion_px", motion_px, "finite (dx, dy) in pixels")
+        big = 1 << 20
+        self._motion_gl = (int(round(min(max(dx, -big), big))), -int(round(min(max(dy, -big), big))))
+
+    def apply(self, src_texture, dst_framebuffer, viewport: tuple[int, int, int, int] | None = None,
+              motion_px: tuple[float, float] | None = None) -> None:
         """Correct ``src_texture`` (RGBA8 sRGB code values, or float linear light) into
-        ``dst_framebuffer`` (sRGB-encoded), in ``viewport`` (GL x, y, width, height) or all of it."""
+        ``dst_framebuffer`` (sRGB-encoded), in ``viewport`` (GL x, y, width, height) or all of it.
+
+        ``motion_px``: with ``filter="fista"``, the content's displacement since the previous frame,
+        ``(dx, dy)`` in image pixels (x to the right, y down; ``new(p) ~ previous(p - d)``), rounded
+        to whole pixels: the warm start is the previous solution reprojected by it (module
+        docstring).  ``None`` or ``(0, 0)``: the plain warm start.  Other filters ignore it.  On a
+        scene cut call :meth:`reset` instead."""
         t0 = time.perf_counter()
+        self._set_motion(motion_px)
         res = self._decode_source(src_texture)
         self._mark("decode")
         out = self._correct(res)
@@ -744,10 +790,12 @@ class Corrector:
             self.profile(stage)
 
     def simulate(self, src_texture, dst_framebuffer, viewport: tuple[int, int, int, int] | None = None,
-                 corrected: bool = True) -> None:
+                 corrected: bool = True, motion_px: tuple[float, float] | None = None) -> None:
         """What this eye sees of ``src_texture`` as displayed (after the correction when
-        ``corrected`` and the correction is enabled), sRGB-encoded into ``dst_framebuffer``."""
+        ``corrected`` and the correction is enabled), sRGB-encoded into ``dst_framebuffer``;
+        ``motion_px`` as for :meth:`apply`."""
         t0 = time.perf_counter()
+        self._set_motion(motion_px)
         res = self._decode_source(src_texture)
         shown = self._correct(res) if corrected else res["linear"]
         if self._banks is not None:

@@ -408,6 +408,10 @@ class MirrorConfig:
         Initial state of the timing panel; text size in pixels.
     folder_interval_s
         Seconds each image of a folder source is shown.
+    reprojection
+        With ``filter="fista"`` and a CPU source (image, folder, video): estimate the pictures'
+        motion (:mod:`vrcorrect.runtime.motion`) and reproject the warm start by it, starting cold
+        on a scene cut (:func:`start_motion`).  The demo scene is not estimated.
     """
 
     rx: str | Path | None = None
@@ -426,6 +430,7 @@ class MirrorConfig:
     font_px: int = 13
     folder_interval_s: float = 3.0
     title: str = "vrcorrect mirror"
+    reprojection: bool = True
 
     def __post_init__(self) -> None:
         w, h = self.eye_size
@@ -755,6 +760,7 @@ class Mirror:
             self.correctors[eye] = Corrector(ctx, self.rx_path, self.display, eye, cfg.backend,
                                              **dict(cfg.corrector_options))
             self._say(f"  built in {time.perf_counter() - t0:.1f} s")
+        start_motion(self.source, self.correctors.values(), cfg.reprojection)
         atlas = build_font_atlas(cfg.font_px)
         self.overlay = TextOverlay(ctx, atlas)
         gap = cfg.font_px
@@ -880,16 +886,17 @@ class Mirror:
             c.enabled = state.correction
         with self._times.stage("scene"):
             textures = dict(zip(EYES, self.source.render(self.scene_time())))
+            motion = take_motion(self.source, self.correctors.values())
         screen = ctx.screen
         viewports = eye_viewports(*self.framebuffer_size)
         for eye in EYES:
             c, texture, viewport = self.correctors[eye], textures[eye], viewports[eye]
             if state.view == "displayed":
                 with self._times.stage(f"correct {eye}"):
-                    c.apply(texture, screen, viewport)
+                    c.apply(texture, screen, viewport, motion_px=motion)
             else:
                 with self._times.stage(f"simulate {eye}"):
-                    c.simulate(texture, screen, viewport, corrected=state.view == "seen_corrected")
+                    c.simulate(texture, screen, viewport, corrected=state.view == "seen_corrected", motion_px=motion)
         with self._times.stage("overlay"):
             quads = []
             atlas = self.overlay.atlas
@@ -1007,6 +1014,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--model", metavar="MODEL.onnx",
                    help="ONNX model for --backend onnx (default: models/default.onnx)")
     add_filter_options(p)
+    add_reprojection_option(p)
     p.set_defaults(func=cmd_mirror)
     return p
 
@@ -1066,6 +1074,42 @@ def filter_options(args: argparse.Namespace) -> dict[str, Any]:
     return options
 
 
+def add_reprojection_option(p: argparse.ArgumentParser) -> None:
+    """``--no-reprojection`` (``mirror``, ``overlay``)."""
+    p.add_argument("--no-reprojection", action="store_true",
+                   help="with --filter fista and an image, folder, video or screen source: warm-start each frame "
+                        "from the previous solution as it was, instead of moved by the pictures' estimated "
+                        "motion (and a cold start on a scene cut)")
+
+
+def _fista_glsl(correctors: Any) -> list:
+    return [c for c in correctors if c.backend == "glsl" and c.options.filter == "fista"]
+
+
+def start_motion(source: Any, correctors: Any, reprojection: bool = True) -> bool:
+    """Have a CPU source (one with ``track_motion``: image, folder, video, screen) estimate its
+    pictures' motion when ``reprojection`` is on and a corrector runs projected gradient; returns
+    whether it does.  The demo scene is rendered on the GPU and its motion (a 3D camera and objects)
+    is not a global shift: it keeps the plain warm start."""
+    if reprojection and _fista_glsl(correctors) and hasattr(source, "track_motion"):
+        source.track_motion()
+        return True
+    return False
+
+
+def take_motion(source: Any, correctors: Any) -> tuple[int, int] | None:
+    """The ``motion_px`` for this frame's ``Corrector.apply`` from ``source`` (:func:`start_motion`),
+    after its ``render``; on a scene cut the projected-gradient correctors are reset (cold start)
+    and ``None`` is returned."""
+    take = getattr(source, "take_motion", None)
+    motion = take() if take is not None else (0, 0)
+    if motion == "cut":
+        for c in _fista_glsl(correctors):
+            c.reset()
+        return None
+    return motion
+
+
 def change_iterations(correctors: Any, up: bool) -> str:
     """Double (``up``) or halve the iterations per frame of every corrector running projected
     gradient (``filter="fista"``, GLSL backend), all to one value (:func:`next_iterations` of the
@@ -1106,7 +1150,7 @@ def cmd_mirror(args: argparse.Namespace) -> int:
         options["model"] = model
     config = MirrorConfig(rx=args.rx, display=args.display, source=args.source, eye_size=parse_size(args.size),
                           frames=frames, screenshot_dir=args.screenshot_dir, vsync=frames is None,
-                          backend=args.backend, corrector_options=options)
+                          backend=args.backend, corrector_options=options, reprojection=not args.no_reprojection)
     parse_source(config.source)  # fail on a bad source before anything slow
     print(key_map_text())
     t0 = time.perf_counter()

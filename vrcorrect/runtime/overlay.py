@@ -42,8 +42,9 @@ from ..errors import ValidationError, VrcorrectError
 from .gl import Rect, format_ms
 from .mirror import (
     ITERATION_KEYS, KEY_ESCAPE, MOD_ALT, MOD_CONTROL, MOD_SUPER, GlfwSession, Iterations, Screenshot, StageTimes,
-    TextOverlay, _letter, add_filter_options, build_font_atlas, change_iterations, filter_options, iteration_key,
-    key_map_text, knob_text, panel_instances, parse_frames, text_width, write_screenshot,
+    TextOverlay, _letter, add_filter_options, add_reprojection_option, build_font_atlas, change_iterations,
+    filter_options, iteration_key, key_map_text, knob_text, panel_instances, parse_frames, start_motion,
+    take_motion, text_width, write_screenshot,
 )
 from .scene import parse_region, parse_size, parse_source
 
@@ -217,6 +218,7 @@ class OverlayConfig:
     screenshot_dir: str | Path = "."
     backend: str = "glsl"
     corrector_options: Mapping[str, Any] = field(default_factory=dict)
+    reprojection: bool = True               # fista: reproject the warm start by the pictures' motion
     visible: bool = True
     vsync: bool = True
     platform: str | None = None
@@ -363,6 +365,7 @@ class Overlay:
         self.corrector = Corrector(ctx, self.rx_path, self.display, cfg.eye, cfg.backend,
                                    **dict(cfg.corrector_options))
         self._say(f"  built in {time.perf_counter() - t0:.1f} s")
+        start_motion(self.source, [self.corrector], cfg.reprojection)
         atlas = build_font_atlas(cfg.font_px)
         self.text = TextOverlay(ctx, atlas)
         self._key_tab_stops = (max(text_width(atlas, k) for k, _ in KEY_MAP) + cfg.font_px,)
@@ -417,8 +420,9 @@ class Overlay:
         self.corrector.enabled = state.correction
         with self._times.stage("source"):
             texture = self.source.render(self.source_time())[1]
+            motion = take_motion(self.source, [self.corrector])
         with self._times.stage("correct"):
-            self.corrector.apply(texture, ctx.screen)
+            self.corrector.apply(texture, ctx.screen, motion_px=motion)
         with self._times.stage("text"):
             quads = []
             atlas = self.text.atlas
@@ -563,6 +567,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--backend", default="glsl", metavar="glsl|onnx", help="correction backend (default glsl)")
     p.add_argument("--model", metavar="M.onnx", help="ONNX model for --backend onnx")
     add_filter_options(p)
+    add_reprojection_option(p)
     p.add_argument("--screenshot-dir", default=".", metavar="DIR", help="where p writes screenshots (default .)")
     p.set_defaults(func=cmd_overlay)
     return p
@@ -581,6 +586,7 @@ def cmd_overlay(args: argparse.Namespace) -> int:
         source=args.source, region=None if args.region is None else parse_region(args.region), rx=args.rx,
         eye=args.eye, display=args.display, window=None if args.window is None else parse_size(args.window, "--window"),
         frames=frames, screenshot_dir=args.screenshot_dir, backend=args.backend, corrector_options=options,
+        reprojection=not args.no_reprojection,
         vsync=frames is None)
     t0 = time.perf_counter()
     with Overlay(config) as overlay:

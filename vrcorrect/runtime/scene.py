@@ -678,11 +678,33 @@ class _PictureSource:
         self.ctx, self.size = ctx, (int(width), int(height))
         self._fitted = _FittedImage(ctx, width, height)
         self._shown: Any = None
+        self.motion = None      # a MotionTracker when the caller wants the frames' motion (track_motion)
+        self._codes: np.ndarray | None = None                # the picture shown (for track_motion)
+
+    def track_motion(self) -> None:
+        """Estimate the content's motion between consecutive pictures on the CPU, before upload
+        (:mod:`vrcorrect.runtime.motion`), for :meth:`take_motion`."""
+        from .motion import MotionTracker
+
+        if self.motion is None:
+            self.motion = MotionTracker()
+            if self._codes is not None:                      # the picture shown already: the first
+                self.motion.new_frame(self._codes)
+
+    def take_motion(self) -> tuple[int, int] | str:
+        """The content's motion in eye-texture pixels since the last call: ``(dx, dy)`` (x right,
+        y down; ``(0, 0)`` when the picture has not changed or motion is not tracked) or ``"cut"``
+        (unrelated pictures: the corrector should start cold)."""
+        return (0, 0) if self.motion is None else self.motion.take()
 
     def _show(self, key: Any, image_fn) -> None:
         if key != self._shown:
-            self._fitted.show(_as_codes(image_fn()))
-            self._shown = key
+            codes = _as_codes(image_fn())
+            if self.motion is not None:
+                r = fit_rect(codes.shape[1], codes.shape[0], *self.size)
+                self.motion.new_frame(codes, (r.width / codes.shape[1], r.height / codes.shape[0]))
+            self._fitted.show(codes)
+            self._shown, self._codes = key, codes
 
     def render(self, t_s: float) -> tuple["moderngl.Texture", "moderngl.Texture"]:
         self._update(t_s)
