@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import ValidationError
+
 __all__ = ["MAX_SIDE", "CUT_CONFIDENCE", "estimate_shift", "motion_for", "MotionTracker"]
 
 MAX_SIDE = 256
@@ -50,7 +52,8 @@ def estimate_shift(prev: np.ndarray, new: np.ndarray, max_side: int = MAX_SIDE) 
     it is then a multiple of that factor."""
     a, b = np.asarray(prev), np.asarray(new)
     if a.shape != b.shape or a.ndim not in (2, 3) or min(a.shape[:2]) < 2:
-        raise ValueError(f"two frames of one shape (H, W[, C]) are needed, not {a.shape} and {b.shape}")
+        raise ValidationError("new.shape", b.shape, f"the shape of prev, {a.shape}, as (H, W) or (H, W, C) with "
+                              "H, W >= 2")
     factor = max(1, -(-max(a.shape[:2]) // max_side))
     ya, yb = _luminance(a, factor), _luminance(b, factor)
     h, w = ya.shape
