@@ -3,8 +3,9 @@
 ``vrcorrect evaluate`` reproduces the comparison of ChromaCorrect (Güzel et
 al. 2023, Sec. 4 and Fig. 6): five refractive problems at ±1.5 D, several
 images, the conventional method (Montalto et al. 2015), the paper's
-optimisation and the product's ``fast`` solver, scored by FLIP, SSIM and PSNR
-of what the eye sees.
+optimisation and the product's ``fast`` solver, scored by ColorVideoVDP (JOD,
+the primary score), FLIP, SSIM and PSNR of what the eye sees, and by the
+eye-chart acuity of each problem's eye (``vrcorrect acuity``).
 
 Layer 6 (like the command line).  Imports numpy, Pillow, matplotlib (its
 colour map only), scikit-image and tqdm, each inside the function that needs
@@ -816,10 +817,11 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``evaluate`` sub-command to an argparse ``subparsers`` object."""
     p = subparsers.add_parser(
-        "evaluate", help="the paper's evaluation: every method on five refractive problems, FLIP/SSIM/PSNR",
+        "evaluate", help="the paper's evaluation: every method on five refractive problems, by JOD and acuity",
         description=("Run the correction methods on five refractive problems at +-1.5 D (myopia, hyperopia, "
                      "myopic, hyperopic and mixed astigmatism; 4 mm pupil, display at optical infinity) and "
-                     "score what the eye sees: results.csv, results.md and panels/*.png in --out."))
+                     "score what the eye sees (JOD, the primary score; FLIP, SSIM, PSNR) and the eye-chart "
+                     "acuity of each problem's eye: results.csv, results.md and panels/*.png in --out."))
     p.add_argument("--images", metavar="DIR",
                    help="folder of PNG/JPEG images (default: scikit-image's colour photos and the charts)")
     p.add_argument("--out", default="evaluation", metavar="DIR", help="output folder (default ./evaluation)")
