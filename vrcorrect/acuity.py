@@ -688,7 +688,8 @@ def _reading(scores: Sequence[LineScore], criterion: float) -> tuple[float | Non
 def score_acuity(chart: Chart, displayed_for_line: Sequence[np.ndarray | None], eye_kernel: EyeKernel,
                  display: DisplayProfile, observer: Observer | None = None,
                  progress: Callable[[int, int], None] | None = None,
-                 template_views: Sequence[np.ndarray | None] | None = None) -> AcuityScore:
+                 template_views: Sequence[np.ndarray | None] | None = None,
+                 seen_views: Sequence[np.ndarray | None] | None = None) -> AcuityScore:
     """Read ``chart`` as displayed (``displayed_for_line``) through ``eye_kernel``.
 
     Parameters
@@ -714,6 +715,10 @@ def score_acuity(chart: Chart, displayed_for_line: Sequence[np.ndarray | None], 
         the letters only as they look sharp, as a person who has not adapted to a blur or to a
         correction does).  Default None: the ideal observer of Watson & Ahumada, whose templates
         pass through the same eye and correction as the stimulus.
+    seen_views
+        Optional retinal cone images of ``displayed_for_line`` through ``eye_kernel`` already
+        computed (an earlier score's ``LineScore.seen_lms``), so a second observer reading the same
+        display does not run the forward model again.  Default None: computed here.
 
     Returns
     -------
@@ -743,8 +748,10 @@ def score_acuity(chart: Chart, displayed_for_line: Sequence[np.ndarray | None], 
             if shown is None or np.shape(shown) != sheet.image.shape:
                 raise ValidationError(f"displayed_for_line[{i}]", None if shown is None else np.shape(shown),
                                       f"an image of the sheet's shape {sheet.image.shape}")
-            img = check_image(shown, f"displayed_for_line[{i}]")
-            seen, _ = simulate_lms(img, eye_kernel)
+            if seen_views is not None and seen_views[i] is not None:
+                seen = seen_views[i]
+            else:
+                seen, _ = simulate_lms(check_image(shown, f"displayed_for_line[{i}]"), eye_kernel)
             rng = np.random.default_rng([observer.seed, 100 + round(line.logmar / LOGMAR_STEP)])
             views = None
             if template_views is not None:

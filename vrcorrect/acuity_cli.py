@@ -183,7 +183,8 @@ def measure_acuity(eye: EyeRx, display: DisplayProfile, methods: Sequence[str] =
         seconds[method] = time.perf_counter() - t1
     glasses = score_acuity(chart, chart.targets, reference, display, observer)
     sharp_views = tuple(s.seen_lms for s in glasses.lines)
-    sharp = {m: score_acuity(chart, displayed[m], kernel, display, observer, template_views=sharp_views)
+    sharp = {m: score_acuity(chart, displayed[m], kernel, display, observer, template_views=sharp_views,
+                             seen_views=tuple(s.seen_lms for s in scores[m].lines))
              for m in displayed}
     return AcuityResult(eye=eye, display=display, chart=chart, scores=scores, glasses=glasses,
                         displayed=displayed, seconds=seconds, kernel=kernel, sharp_scores=sharp)
