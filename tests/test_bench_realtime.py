@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from vrcorrect.bench_realtime import (
-    FFT_BANDWIDTH, cost_model, guarded, make_case, pan_sequence, phase_correlation_shift, reproject,
-    round_trip_bytes, run_realtime_bench, still_convergence,
+    CUT, FFT_BANDWIDTH, cost_model, cut_targets, guarded, make_case, motion_sequence, pan_sequence,
+    phase_correlation_shift, reproject, round_trip_bytes, run_realtime_bench, still_convergence, zoom_targets,
 )
 
 SIZE, FRAMES = 48, 5
@@ -43,6 +43,24 @@ def test_pan_reprojection_beats_the_plain_warm_start_and_finds_the_shift(case):
     assert s["cold"].objective[0] == s["warm"].objective[0] == s["reprojected"].objective[0]
     for f in range(2, FRAMES):
         assert s["reprojected"].ratio[f] < s["warm"].ratio[f] < s["cold"].ratio[f], f
+
+
+def test_a_cut_starts_cold_and_a_zoom_has_no_known_shift(case):
+    """The clip with a cut: phase correlation sees the cut, and both reprojected runs start that
+    frame cold (the cold run's objective exactly); a zoom runs without the known-shift strategy."""
+    images, cut_at = cut_targets(case, FRAMES)
+    known = [(0, -2)] * (FRAMES - 1)
+    known[cut_at - 1] = CUT
+    run = motion_sequence(case, images, known, k=4, with_jod=False)
+    assert run["shifts"][cut_at - 1] is None
+    assert [d for i, d in enumerate(run["shifts"]) if i != cut_at - 1] == [(0, -2)] * (FRAMES - 2)
+    s = run["series"]
+    for strategy in ("reprojected", "estimated"):
+        assert s[strategy].objective[cut_at] == s["cold"].objective[cut_at], strategy
+    for f in range(FRAMES):
+        assert all(series.objective[f] < run["none"][f] for series in s.values()), f
+    zoom = motion_sequence(case, zoom_targets(case, 3), None, k=2, with_jod=False)
+    assert set(zoom["series"]) == {"cold", "warm", "estimated"}
 
 
 def test_reproject_and_guard_helpers(case):
@@ -82,8 +100,8 @@ def test_a_quick_run_writes_its_section_and_plots(tmp_path):
     body = run_realtime_bench(out=out, write=True, quick=True)
     text = out.read_text()
     assert "<!-- bench:realtime -->" in text and "<!-- /bench:realtime -->" in text
-    for words in ("Still image", "A pan", "llvmpipe", "projection, not a measurement", "GPU check",
-                  FFT_BANDWIDTH["gpu"]):
+    for words in ("Still image", "Moving sequences", "| pan |", "| zoom |", "| cut |", "| head turn |", "llvmpipe",
+                  "projection, not a measurement", "GPU check", FFT_BANDWIDTH["gpu"]):
         assert words in body, words
-    for name in ("realtime_still.png", "realtime_pan.png"):
+    for name in ("realtime_still.png", "realtime_motion.png"):
         assert (tmp_path / name).stat().st_size > 1000

@@ -122,14 +122,14 @@ def test_gpu_forward_model_matches_cpu(gl, evaluation_corrector, images):
 
 
 def test_per_frame_blend_matches_cpu_wiener_and_never_loses(gl, images):
-    """The default (FFT, blend computed on the GPU every frame): on every evaluation image the
+    """The FFT strategy (blend computed on the GPU every frame): on every evaluation image the
     GPU's blend equals the CPU wiener's (same regulariser, same grid), the output matches within
     2/255, and the objective is never above the uncorrected one (below it on photographs)."""
     from vrcorrect.solvers import objective
 
     eye = prescription_eye(PRESCRIPTIONS[0])
     opts = KernelOptions(optics=OpticsOptions(viewing_distance_m=math.inf))
-    c = Corrector(gl, Prescription(right=eye, left=eye), "desktop", "right", kernel_options=opts)
+    c = Corrector(gl, Prescription(right=eye, left=eye), "desktop", "right", kernel_options=opts, filter="fft")
     try:
         m = c.model
         grid, margin = c.fft_grid_for((SIZE, SIZE))
@@ -218,7 +218,9 @@ def _touch(path: Path, text: str) -> None:
 def test_hot_reload_and_invalid_file_mid_run(gl, tmp_path, images):
     path = tmp_path / "rx.json"
     path.write_text(json.dumps(rx_doc(-1.0)))
-    c = Corrector(gl, path, "quest2", "right", beta=0.5)
+    # a filter without memory, so that a frame can be compared with an earlier one (fista's reset
+    # on a prescription change: tests/test_runtime_fista.py)
+    c = Corrector(gl, path, "quest2", "right", beta=0.5, filter="fft")
     c.POLL_INTERVAL_S = 0.0
     try:
         img = images[0][1]
@@ -288,7 +290,9 @@ def test_render_command_writes_each_view(tmp_path, images, capsys):
         outs[view] = np.asarray(Image.open(out))
         assert outs[view].shape == images[0][1].shape
     printed = capsys.readouterr().out
-    assert "FFT filter" in printed and "regulariser" in printed and "wrote" in printed
+    # the default: projected gradient, 10 frames of the still picture (a settled view)
+    assert "projected gradient (FISTA), 4 iteration(s) per frame, 10 frame(s) warm-started" in printed
+    assert "wrote" in printed
     assert not np.array_equal(outs["corrected"], images[0][1])
     assert not np.array_equal(outs["seen-corrected"], outs["seen-uncorrected"])
 

@@ -339,10 +339,26 @@ def test_render_command_fista_frames_and_its_errors(tmp_path, photo, capsys):
     missing = str(tmp_path / "missing.png")                       # options are checked before the input
     for args, words in ((["--filter", "fista", "--iterations-per-frame", "65"], "--iterations-per-frame"),
                         (["--filter", "fista", "--iterations-per-frame", "x"], "--iterations-per-frame"),
-                        (["--iterations-per-frame", "4"], "only with --filter fista"),
+                        (["--filter", "fft", "--iterations-per-frame", "4"], "only with --filter fista"),
                         (["--filter", "fista", "--frames", "0"], "--frames"),
                         (["--frames", "many"], "--frames")):
         assert main(["render", missing, "-o", str(tmp_path / "o.png"), *args]) == 2, args
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and err.startswith("vrcorrect: error:") and words in err, err
     assert not (tmp_path / "o.png").exists()
+
+
+def test_fista_is_the_default_gpu_method_everywhere():
+    """Projected gradient is what a user gets without asking: the Corrector's default, and the
+    default ``--filter`` of render, mirror, overlay and xr; ``wiener``'s one-pass inverse (fft,
+    separable) stays selectable; render runs a settled view (10 frames) by default."""
+    from vrcorrect.cli import build_parser
+    from vrcorrect.runtime.corrector import CorrectorOptions
+
+    assert CorrectorOptions().filter == "fista" and CorrectorOptions().iterations_per_frame == 4
+    parser = build_parser()
+    for command in (["render", "in.png", "-o", "out.png"], ["mirror"], ["overlay", "--source", "screen"], ["xr"]):
+        args = parser.parse_args(command)
+        assert args.filter == "fista", command
+        assert parser.parse_args([*command, "--filter", "fft"]).filter == "fft"
+        assert parser.parse_args([*command, "--filter", "separable"]).filter == "separable"

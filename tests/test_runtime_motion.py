@@ -223,3 +223,65 @@ def test_a_folder_pan_reprojects_and_a_cut_starts_cold(gl, images, tmp_path):
         fresh.release()
         source.release()
         G.release(fbo, tex)
+
+
+# --------------------------------------------------------------------------
+# Known motion: a turn of the eye (xr's tracked head)
+# --------------------------------------------------------------------------
+
+
+def _camera_yaw_pitch(yaw_deg: float, pitch_deg: float = 0.0) -> np.ndarray:
+    """World-to-eye matrix of an eye at the origin turned left by ``yaw_deg`` and up by ``pitch_deg``."""
+    from vrcorrect.runtime.scene import rotation_x, rotation_y
+
+    return np.linalg.inv(rotation_y(np.radians(yaw_deg)) @ rotation_x(np.radians(pitch_deg)))
+
+
+def test_view_shift_of_a_turn_is_the_projected_angle():
+    """Turning left moves distant content right by f tan(angle) pixels (f: the focal length in
+    pixels); looking up moves it down; a symmetric frustum's centre is the image centre."""
+    from vrcorrect.runtime.motion import view_shift
+    from vrcorrect.runtime.scene import perspective
+
+    width, height, fov_y = 320, 200, 50.0
+    p = perspective(fov_y, width / height, 0.05, 60.0)
+    f = height / 2 / np.tan(np.radians(fov_y / 2))                 # pixels, vertically and horizontally
+    for yaw, pitch in [(1.0, 0.0), (-2.5, 0.0), (0.0, 1.5), (0.0, -3.0)]:
+        dx, dy = view_shift(np.eye(4), _camera_yaw_pitch(yaw, pitch), p, (width, height))
+        assert dx == round(f * np.tan(np.radians(yaw))), (yaw, dx)
+        assert dy == round(f * np.tan(np.radians(pitch))), (pitch, dy)
+    assert view_shift(np.eye(4), np.eye(4), p, (width, height)) == (0, 0)
+    # the eye's position does not count (distant content): the same turn from elsewhere
+    moved = _camera_yaw_pitch(2.0) @ np.array([[1, 0, 0, -0.3], [0, 1, 0, 0.1], [0, 0, 1, 0.2], [0, 0, 0, 1.0]])
+    assert view_shift(np.eye(4), moved, p, (width, height)) == view_shift(np.eye(4), _camera_yaw_pitch(2.0), p,
+                                                                          (width, height))
+
+
+def test_view_shift_follows_the_old_centre_in_an_asymmetric_field():
+    """A headset's field is wider on the outer side: the old image centre is off the axis, and the
+    shift is where that ray lands in the turned view, relative to the centre."""
+    from vrcorrect.runtime.motion import view_shift
+    from vrcorrect.runtime.xr import projection_from_fov
+
+    p = projection_from_fov(-0.80, 0.70, 0.75, -0.78)
+    size = (400, 400)
+    yaw = np.radians(3.0)
+    dx, dy = view_shift(np.eye(4), _camera_yaw_pitch(3.0), p, size)
+    # the centre of the image looks at tan(x) = (tan(right) + tan(left)) / 2 on the image plane
+    tl, tr = np.tan(-0.80), np.tan(0.70)
+    centre = np.arctan((tl + tr) / 2)
+    expected = (np.tan(centre + yaw) - np.tan(centre)) / (tr - tl) * size[0]
+    assert abs(dx - expected) <= 0.5 and dy == 0
+
+
+def test_view_shift_turns_that_lose_the_view_and_bad_matrices():
+    from vrcorrect.errors import ValidationError
+    from vrcorrect.runtime.motion import view_shift
+    from vrcorrect.runtime.scene import perspective
+
+    p = perspective(60.0, 1.0, 0.05, 60.0)
+    assert view_shift(np.eye(4), _camera_yaw_pitch(120.0), p, (64, 64)) is None     # behind the eye now
+    with pytest.raises(ValidationError, match="view_after"):
+        view_shift(np.eye(4), np.eye(3), p, (64, 64))
+    with pytest.raises(ValidationError, match="projection"):
+        view_shift(np.eye(4), np.eye(4), np.full((4, 4), np.nan), (64, 64))

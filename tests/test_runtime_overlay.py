@@ -140,9 +140,11 @@ def overlay(x_display, folder, tmp_path_factory):
     rx = tmp_path_factory.mktemp("rx") / "rx.json"
     rx.write_text(SAMPLE_RX)
     messages: list[str] = []
+    # the tests compare the window with the Corrector run again on the same picture, which needs a
+    # filter without memory (fista's frame depends on the frames before it: its own test below)
     config = OverlayConfig(source=str(d), rx=rx, window=(W, H), visible=False, vsync=False, platform="x11",
                            time_step_s=3.0, folder_interval_s=3.0, show_messages=False,
-                           screenshot_dir=tmp_path_factory.mktemp("shots"))
+                           screenshot_dir=tmp_path_factory.mktemp("shots"), corrector_options={"filter": "fft"})
     with Overlay(config, echo=messages.append) as o:
         o.messages = messages
         yield o
@@ -335,7 +337,7 @@ def picture_on_screen(x_display):
 def test_screen_source_grabs_the_picture_and_not_itself(x_display, picture_on_screen, tmp_path):
     picture = picture_on_screen.astype(int)
     config = OverlayConfig(source="screen", window=(W, H), visible=True, vsync=False, platform="x11",
-                           show_messages=False, rx=None)
+                           show_messages=False, rx=None, corrector_options={"filter": "fft"})
     with Overlay(config, echo=None) as o:
         assert o.display.name == get_display("desktop").name  # the screen's default
         r = o.region

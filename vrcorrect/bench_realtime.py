@@ -1,7 +1,8 @@
 """``vrcorrect bench realtime``: projected gradient (FISTA) spread over frames, the GPU method of
 issue 15, against ``fast`` (the converged CPU optimum).
 
-Four parts, one section of ``docs/benchmarks.md`` and two plots beside it:
+Four parts, one section of ``docs/benchmarks.md`` and two plots beside it (``realtime_still.png``,
+``realtime_motion.png``):
 
 1. **Still image** (scikit-image's astronaut at 256x256, the desktop preset, the eye
    -2.00 / -1.00 x 120 with a 4 mm pupil, target: what the eye sees with its glasses): the
@@ -12,11 +13,16 @@ Four parts, one section of ``docs/benchmarks.md`` and two plots beside it:
    each frame then guarded as the GPU guards it (the best blend with the target,
    :func:`guarded`); one point of it (k = 4, frame 10) is also run through the GPU
    :class:`~vrcorrect.runtime.corrector.Corrector` on headless EGL (:func:`gpu_check`).
-2. **A pan** of 2 px per frame across the same photograph, 20 frames, k = 4: per frame, the
-   objective relative to ``fast`` on that frame for a cold start every frame, the GPU's plain warm
-   start (``x = clip(x_prev + t - t_prev)``, momentum kept), the previous solution reprojected by
-   the known shift (newly exposed pixels from the new target) and by the shift that phase
-   correlation of consecutive targets estimates (:func:`phase_correlation_shift`).  CPU twin.
+2. **Moving sequences**, 20 frames each, k = 4 (:func:`sequences`): a pan of 2 px per frame
+   across the photograph, a zoom into its centre, a clip with a cut (the pan, then a pan across
+   another photograph) and a head turn of 0.5 degrees a frame in the mirror's 3D demo scene
+   (rendered on the headless GL context).  Per frame, the objective relative to ``fast`` on that
+   frame and JOD, for a cold start every frame, the GPU's plain warm start
+   (``x = clip(x_prev + t - t_prev)``, momentum kept), the previous solution reprojected by the
+   known motion (the pan's step, the cut, the change of the eye's pose through
+   :func:`~vrcorrect.runtime.motion.view_shift`; newly exposed pixels from the new target, a cold
+   start at a cut) and by the shift phase correlation estimates (:func:`phase_correlation_shift`,
+   a cold start where it sees a cut).  CPU twin.
 3. **llvmpipe** milliseconds per frame per stage (:func:`stage_ms`) through the GPU ``Corrector``
    (``glFinish`` after each stage, median of 3 frames) at 256x256 and 512x512 for k = 1, 2, 4.
 4. **A GPU cost model** per Quest 2 eye (1832 x 1920 on a 2048 x 2048 FFT grid) (:func:`cost_model`):
@@ -50,8 +56,11 @@ TIMING_KS = (1, 2, 4)
 HEADSET_EYE = (1832, 1920)                    # width, height of one Quest 2 eye
 STRATEGIES = ("cold", "warm", "reprojected", "estimated")
 STRATEGY_TITLES = {"cold": "cold start every frame", "warm": "plain warm start, clip(x + t - t_prev)",
-                   "reprojected": "warm start reprojected by the known shift",
+                   "reprojected": "warm start reprojected by the known motion",
                    "estimated": "warm start reprojected by phase correlation"}
+SEQUENCES = ("pan", "zoom", "cut", "head turn")
+CUT_PHOTO = "coffee"                          # the second shot of the clip with a cut
+TURN_DEG = 0.5                                # head turn per frame in the demo scene (45 deg/s at 90 Hz)
 
 FFT_BANDWIDTH = {
     "gpu": "NVIDIA A100",
@@ -186,24 +195,91 @@ def still_convergence(case: Case, ks: Sequence[int] = STILL_KS, frames: int = 20
     return out
 
 
-def pan_targets(case: Case, frames: int, px: int = PAN_PX) -> list[np.ndarray]:
-    """``frames`` 8-bit windows of ``case.size`` across the photograph, ``px`` to the right each
-    frame (the content moves ``px`` to the left), vertically centred."""
-    s, n = case.size, case.photo_u8.shape[0]
-    if s + px * (frames - 1) > case.photo_u8.shape[1]:
+def pan_targets(case: Case, frames: int, px: int = PAN_PX, photo: np.ndarray | None = None) -> list[np.ndarray]:
+    """``frames`` 8-bit windows of ``case.size`` across the photograph (``photo``, default the
+    case's), ``px`` to the right each frame (the content moves ``px`` to the left), vertically
+    centred."""
+    photo = case.photo_u8 if photo is None else photo
+    s, n = case.size, photo.shape[0]
+    if s + px * (frames - 1) > photo.shape[1]:
         raise ValueError("the photograph is too small for this pan")
     top = (n - s) // 2
-    return [case.photo_u8[top:top + s, px * f:px * f + s] for f in range(frames)]
+    return [photo[top:top + s, px * f:px * f + s] for f in range(frames)]
 
 
-def phase_correlation_shift(previous: np.ndarray, current: np.ndarray) -> tuple[int, int]:
+def zoom_targets(case: Case, frames: int) -> list[np.ndarray]:
+    """``frames`` 8-bit views of the photograph's centre zooming in: the crop shrinks linearly
+    from the whole photograph to ``case.size`` and is resized to ``case.size`` (anti-aliased)."""
+    from skimage.transform import resize
+
+    n, s = case.photo_u8.shape[0], case.size
+    out = []
+    for f in range(frames):
+        side = int(round(n - (n - s) * f / max(frames - 1, 1)))
+        o = (n - side) // 2
+        crop = case.photo_u8[o:o + side, o:o + side].astype(np.float32) / 255
+        if side != s:
+            crop = resize(crop, (s, s, 3), order=1, anti_aliasing=True)
+        out.append(np.round(np.clip(crop, 0, 1) * 255).astype(np.uint8))
+    return out
+
+
+def cut_targets(case: Case, frames: int, px: int = PAN_PX) -> tuple[list[np.ndarray], int]:
+    """A clip with a cut: the pan across the case's photograph for the first half of ``frames``,
+    then a pan across another photograph (:data:`CUT_PHOTO`); returns the frames and the index of
+    the first frame after the cut."""
+    from skimage import data
+
+    from .evaluate import prepare_image
+
+    first = frames // 2
+    other = prepare_image(getattr(data, CUT_PHOTO)()[..., :3], case.photo_u8.shape[0], CUT_PHOTO)
+    other_u8 = np.round(np.clip(other, 0, 1) * 255).astype(np.uint8)
+    return pan_targets(case, first, px) + pan_targets(case, frames - first, px, other_u8), first
+
+
+def head_turn_targets(ctx, case: Case, frames: int, deg_per_frame: float = TURN_DEG,
+                      frame_s: float = 1 / 90) -> tuple[list[np.ndarray], list[tuple[int, int] | None]]:
+    """The mirror's 3D demo scene (:class:`~vrcorrect.runtime.scene.DemoScene`, on ``ctx``) seen by
+    the right eye while the head turns left ``deg_per_frame`` degrees a frame at 90 frames a second
+    (the cube turns and the banner scrolls as well); returns the 8-bit frames and the known shift of
+    each frame after the first from the change of the eye's pose
+    (:func:`~vrcorrect.runtime.motion.view_shift`, as ``vrcorrect xr`` computes it), as (dy, dx)."""
+    from .runtime.gl import download_texture
+    from .runtime.motion import view_shift
+    from .runtime.scene import DemoScene, SceneConfig, eye_position, perspective, rotation_y, translation
+
+    s = case.size
+    config = SceneConfig()
+    projection = perspective(config.fov_y_deg, 1.0, 0.05, 60.0)
+    camera = eye_position("right", config)
+    scene = DemoScene(ctx, s, s, config)
+    images, views = [], []
+    try:
+        for f in range(frames):
+            view = np.linalg.inv(translation(*camera) @ rotation_y(math.radians(deg_per_frame * f)))
+            views.append(view)
+            eye_views = {eye: (projection @ view, camera) for eye in ("left", "right")}
+            texture = scene.render(f * frame_s, views=eye_views)[1]
+            images.append(np.ascontiguousarray(download_texture(texture)[..., :3]))
+    finally:
+        scene.release()
+    known = []
+    for a, b in zip(views, views[1:]):
+        shift = view_shift(a, b, projection, (s, s))
+        known.append(None if shift is None else (shift[1], shift[0]))
+    return images, known
+
+
+def phase_correlation_shift(previous: np.ndarray, current: np.ndarray) -> tuple[int, int] | None:
     """The whole-pixel displacement ``(dy, dx)`` of the content from ``previous`` to ``current``
-    (``current(p) ~ previous(p - d)``): :func:`vrcorrect.runtime.motion.estimate_shift` (phase
-    correlation of their luminance, what the mirror and the overlay run), in the bench's (dy, dx)."""
-    from .runtime.motion import estimate_shift
+    (``current(p) ~ previous(p - d)``), or ``None`` for a scene cut:
+    :func:`vrcorrect.runtime.motion.motion_for` (phase correlation of their luminance, a cut below
+    its confidence threshold; what the mirror, the overlay and xr run), in the bench's (dy, dx)."""
+    from .runtime.motion import motion_for
 
-    dx, dy, _ = estimate_shift(previous, current)
-    return dy, dx
+    motion = motion_for(previous, current)
+    return None if motion is None else (motion[1], motion[0])
 
 
 def reproject(image_chw: np.ndarray, target_hwc: np.ndarray, shift: tuple[int, int]) -> np.ndarray:
@@ -212,21 +288,29 @@ def reproject(image_chw: np.ndarray, target_hwc: np.ndarray, shift: tuple[int, i
     dy, dx = shift
     out = np.ascontiguousarray(np.moveaxis(target_hwc, 2, 0), dtype=np.float32).copy()
     _, h, w = out.shape
+    if abs(dy) >= h or abs(dx) >= w:
+        return out
     ys, yd = (slice(0, h - dy), slice(dy, h)) if dy >= 0 else (slice(-dy, h), slice(0, h + dy))
     xs, xd = (slice(0, w - dx), slice(dx, w)) if dx >= 0 else (slice(-dx, w), slice(0, w + dx))
     out[:, yd, xd] = image_chw[:, ys, xs]
     return out
 
 
-def pan_sequence(case: Case, frames: int = 20, k: int = PAN_K, px: int = PAN_PX,
-                 strategies: Sequence[str] = STRATEGIES, with_jod: bool = True) -> dict[str, Any]:
-    """The pan, ``k`` iterations per frame, for each start strategy (:data:`STRATEGIES`); every
-    frame guarded.  Returns ``{"series": {strategy: Series}, "fast": [...], "none": [...],
-    "shifts": [estimated (dy, dx) per frame after the first]}``."""
+CUT = "cut"
+"""A known transition that is a scene cut (the reprojected strategy starts cold there)."""
+
+
+def motion_sequence(case: Case, images: Sequence[np.ndarray], known: Sequence[Any] | None, k: int = PAN_K,
+                    strategies: Sequence[str] = STRATEGIES, with_jod: bool = True) -> dict[str, Any]:
+    """Frames ``images`` (8-bit), ``k`` iterations per frame, for each start strategy
+    (:data:`STRATEGIES`); every frame guarded.  ``known``: per transition, the content's known
+    shift ``(dy, dx)`` or :data:`CUT`; ``None`` when the motion is not a shift (a zoom): no
+    ``reprojected`` series then.  The ``estimated`` strategy uses :func:`phase_correlation_shift`
+    (a cold start where it reports a cut).  Returns ``{"series": {strategy: Series}, "fast": [...],
+    "none": [...], "shifts": [estimated (dy, dx) or None per transition]}``."""
     from .solvers import solve
     from .solvers.wiener import FistaState, gradient_plan, projected_gradient
 
-    images = pan_targets(case, frames, px)
     problems = [case.problem(im) for im in images]
     plan = gradient_plan(case.kernel, problems[0].target.shape[:2])
     r0s = [_residual(p.target, p) for p in problems]
@@ -235,6 +319,8 @@ def pan_sequence(case: Case, frames: int = 20, k: int = PAN_K, px: int = PAN_PX,
     shifts = [phase_correlation_shift(a, b) for a, b in zip(images, images[1:])]
     out: dict[str, Any] = {"fast": fast, "none": none, "shifts": shifts, "series": {}}
     for strategy in strategies:
+        if strategy == "reprojected" and known is None:
+            continue
         s, state = Series(), None
         for f, p in enumerate(problems):
             start = None
@@ -245,15 +331,42 @@ def pan_sequence(case: Case, frames: int = 20, k: int = PAN_K, px: int = PAN_PX,
                     start = FistaState(x=np.clip(state.x + change, 0.0, 1.0), y=state.y + change,
                                        momentum=state.momentum)
                 else:
-                    shift = (0, -px) if strategy == "reprojected" else shifts[f - 1]
-                    start = FistaState(x=reproject(state.x, t, shift), y=reproject(state.y, t, shift),
-                                       momentum=state.momentum)
+                    shift = known[f - 1] if strategy == "reprojected" else shifts[f - 1]
+                    if shift is not None and shift != CUT:
+                        start = FistaState(x=reproject(state.x, t, shift), y=reproject(state.y, t, shift),
+                                           momentum=state.momentum)
             x, state = projected_gradient(p, k, plan, state=start, return_state=True)
             shown, obj, _ = guarded(x, p, r0s[f])
             s.objective.append(obj)
             s.ratio.append(obj / fast[f])
             s.jod.append(_jod(shown, p, case) if with_jod else None)
         out["series"][strategy] = s
+    return out
+
+
+def pan_sequence(case: Case, frames: int = 20, k: int = PAN_K, px: int = PAN_PX,
+                 strategies: Sequence[str] = STRATEGIES, with_jod: bool = True) -> dict[str, Any]:
+    """The pan (:func:`pan_targets`) through :func:`motion_sequence`; the known shift is ``(0, -px)``."""
+    return motion_sequence(case, pan_targets(case, frames, px), [(0, -px)] * (frames - 1), k, strategies, with_jod)
+
+
+def sequences(ctx, case: Case, frames: int, k: int = PAN_K, with_jod: bool = True) -> dict[str, dict[str, Any]]:
+    """Every moving sequence of the bench (:data:`SEQUENCES`) through :func:`motion_sequence`."""
+    cut_images, cut_at = cut_targets(case, frames)
+    cut_known: list[Any] = [(0, -PAN_PX)] * (frames - 1)
+    cut_known[cut_at - 1] = CUT
+    turn_images, turn_known = head_turn_targets(ctx, case, frames)
+    turn_known = [CUT if d is None else d for d in turn_known]
+    runs = {"pan": (pan_targets(case, frames), [(0, -PAN_PX)] * (frames - 1)),
+            "zoom": (zoom_targets(case, frames), None),
+            "cut": (cut_images, cut_known),
+            "head turn": (turn_images, turn_known)}
+    out = {}
+    for name, (images, known) in runs.items():
+        out[name] = motion_sequence(case, images, known, k, STRATEGIES, with_jod)
+        out[name]["known"] = known
+        if name == "cut":
+            out[name]["cut_at"] = cut_at
     return out
 
 
@@ -419,6 +532,17 @@ def cost_model(ks: Sequence[int], size: tuple[int, int] = HEADSET_EYE, margin: i
 # --------------------------------------------------------------------------
 
 
+def _describe_motion(seq: dict) -> str:
+    """The motion of a sequence in words: known shifts (or cut), and what phase correlation found."""
+    def words(shifts) -> str:
+        kinds = sorted({"cut" if d in (None, CUT) else f"({d[0]}, {d[1]})" for d in shifts})
+        return ", ".join(kinds) if len(kinds) <= 4 else ", ".join(kinds[:4]) + f" and {len(kinds) - 4} more"
+
+    known = seq.get("known")
+    head = "not a shift" if known is None else f"known (dy, dx): {words(known)}"
+    return f"{head}; estimated: {words(seq['shifts'])}"
+
+
 def _fmt_jod(value: float | None) -> str:
     return "-" if value is None else f"{value:.2f}"
 
@@ -446,17 +570,17 @@ def run_realtime_bench(out: Path = Path("docs/benchmarks.md"), write: bool = Tru
     check_frames = min(frames, 10)
     with_jod = not quick
     plot_still = plot_still or out.with_name("realtime_still.png")
-    plot_pan = plot_pan or out.with_name("realtime_pan.png")
+    plot_pan = plot_pan or out.with_name("realtime_motion.png")
 
     steps = tqdm(total=5, desc="bench realtime", unit="part", leave=False)
     case = make_case(size, frames)
     still = still_convergence(case, still_ks, frames, with_jod)
     steps.update()
-    pan = pan_sequence(case, frames, PAN_K, PAN_PX, STRATEGIES, with_jod)
-    steps.update()
     ctx = headless_context(require=430)
     try:
         renderer = ctx.info.get("GL_RENDERER", "?")
+        pan = sequences(ctx, case, frames, PAN_K, with_jod)
+        steps.update()
         check = gpu_check(ctx, case, 4, check_frames)
         steps.update()
         timing = [row for s in timing_sizes for row in stage_ms(ctx, case, s, timing_ks, repeats)]
@@ -503,18 +627,22 @@ def _markdown(case: Case, still: dict, pan: dict, check: dict, timing: list, cos
                   f"{check['max_solution_difference']:.1e} in linear light.")
 
     pan_frames = [f for f in (1, 2, 5, 10, 20) if f <= frames]
-    prow = []
-    for strategy, ser in pan["series"].items():
-        tail = ser.ratio[min(9, frames - 1):]
-        jods = [j for j in ser.jod[min(9, frames - 1):] if j is not None]
-        prow.append([STRATEGY_TITLES[strategy], *(f"{ser.ratio[f - 1]:.3f}" for f in pan_frames),
-                     f"{statistics.median(tail):.3f}", f"{max(tail):.3f}",
-                     _fmt_jod(statistics.median(jods) if jods else None)])
-    none_pan = statistics.median(n / f for n, f in zip(pan["none"], pan["fast"]))
     tail_from = min(10, frames)
-    pan_table = markdown_table(["start", *(f"f{f} / fast" for f in pan_frames), f"median f{tail_from}+",
-                                f"worst f{tail_from}+", f"JOD median f{tail_from}+"], prow)
-    shifts = sorted(set(pan["shifts"]))
+    prow = []
+    for name, seq in pan.items():
+        for strategy, ser in seq["series"].items():
+            tail = ser.ratio[tail_from - 1:]
+            jods = [j for j in ser.jod[tail_from - 1:] if j is not None]
+            worse = sum(o > n for o, n in zip(ser.objective, seq["none"]))
+            prow.append([name, STRATEGY_TITLES[strategy], *(f"{ser.ratio[f - 1]:.3f}" for f in pan_frames),
+                         f"{statistics.median(tail):.3f}", f"{max(tail):.3f}",
+                         _fmt_jod(statistics.median(jods) if jods else None), worse])
+    pan_table = markdown_table(["sequence", "start", *(f"f{f} / fast" for f in pan_frames), f"median f{tail_from}+",
+                                f"worst f{tail_from}+", f"JOD median f{tail_from}+", "frames worse than uncorrected"],
+                               prow)
+    none_rows = [[name, f"{statistics.median(n / f for n, f in zip(seq['none'], seq['fast'])):.2f}",
+                  _describe_motion(seq)] for name, seq in pan.items()]
+    none_table = markdown_table(["sequence", "uncorrected / fast (median)", "motion"], none_rows)
 
     trow = []
     for r in timing:
@@ -546,13 +674,18 @@ def _markdown(case: Case, still: dict, pan: dict, check: dict, timing: list, cos
         f"{none_ratio:.2f}x `fast`), and JOD of what the eye sees (uncorrected {_fmt_jod(still['none_jod'])}, "
         f"`fast` {_fmt_jod(still['fast_jod'])}):\n\n"
         + still_table + f"\n\n![still image]({plot_still.name})\n\n"
-        "### A pan: 2 px per frame, k = 4\n\n"
-        f"{frames} windows of {s}x{s} across the photograph, {PAN_PX} px further right each frame; each frame's "
-        f"objective relative to `fast` on that frame (uncorrected: {none_pan:.2f}x, median). Plain warm start is "
-        "the GPU's rule today (`shaders/fista.glsl`); reprojection moves the previous solution (and FISTA's "
-        "extrapolated point) by the content's shift and fills the exposed columns from the new target; the "
-        f"phase-correlation estimate of consecutive targets found the shifts {shifts} (dy, dx). CPU twin.\n\n"
-        + pan_table + f"\n\n![pan]({plot_pan.name})\n\n"
+        f"### Moving sequences, k = {PAN_K}\n\n"
+        f"{frames} frames of {s}x{s} each; every frame's objective relative to `fast` on that frame (the "
+        "converged CPU optimum of that frame), for four ways to start the frame's iterations. Plain warm start "
+        "continues from the last solution as it was, moved only by the change of the target "
+        "(`shaders/fista.glsl` with no motion); reprojection moves the previous solution (and FISTA's "
+        "extrapolated point) by the content's shift and fills the exposed pixels from the new target, and "
+        "starts cold at a cut: the known motion is what the application knows (the pan's step, the cut, the "
+        "change of the tracked eye's pose by `runtime.motion.view_shift`, as `vrcorrect xr` does), the "
+        "estimate is phase correlation of consecutive frames (`runtime.motion.motion_for`, what the mirror, the "
+        "overlay and xr run for picture sources). A zoom is not a shift: it has no known-shift run. CPU twin "
+        "(the GPU's reprojection equals it, `tests/test_runtime_motion.py`).\n\n"
+        + none_table + "\n\n" + pan_table + f"\n\n![moving sequences]({plot_pan.name})\n\n"
         "### llvmpipe: ms per frame per stage (one eye)\n\n"
         f"Measured through the GPU `Corrector` (`filter=\"fista\"`) on {renderer}, the Mesa software rasteriser "
         f"on this machine's {os.cpu_count()} CPU cores (shared with other jobs: noisy), `glFinish` after each "
@@ -617,23 +750,24 @@ def _plot_pan(pan: dict, case: Case, path: Path) -> None:
     from .plots import _pyplot
 
     plt = _pyplot()
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
-    for strategy, ser in pan["series"].items():
-        n = range(1, len(ser.ratio) + 1)
-        style = "--" if strategy == "estimated" else "-"
-        a.plot(n, ser.ratio, style, marker="o", ms=3, label=STRATEGY_TITLES[strategy])
-        if ser.jod[0] is not None:
-            b.plot(n, ser.jod, style, marker="o", ms=3, label=STRATEGY_TITLES[strategy])
-    a.axhline(1.0, color="k", lw=0.8, label="fast (per frame)")
-    a.set_yscale("log")
-    a.set_xlabel("frame")
-    a.set_ylabel("objective / fast's on that frame")
-    a.legend(fontsize=7)
-    b.set_xlabel("frame")
-    b.set_ylabel("JOD of what the eye sees")
-    if b.lines:
-        b.legend(fontsize=7)
-    fig.suptitle(f"Pan of {PAN_PX} px per frame across {PHOTO}, {case.size}x{case.size}, k = {PAN_K}", fontsize=9)
+    fig, axes = plt.subplots(1, len(pan), figsize=(4 * len(pan), 3.8), sharey=True)
+    axes = np.atleast_1d(axes)
+    for a, (name, seq) in zip(axes, pan.items()):
+        for strategy, ser in seq["series"].items():
+            n = range(1, len(ser.ratio) + 1)
+            style = "--" if strategy == "estimated" else "-"
+            a.plot(n, ser.ratio, style, marker="o", ms=2.5, label=STRATEGY_TITLES[strategy])
+        a.plot(range(1, len(seq["none"]) + 1), [u / f for u, f in zip(seq["none"], seq["fast"])], ":", color="grey",
+               label="uncorrected")
+        if "cut_at" in seq:
+            a.axvline(seq["cut_at"] + 1, color="red", lw=0.8)
+        a.axhline(1.0, color="k", lw=0.8)
+        a.set_yscale("log")
+        a.set_xlabel("frame")
+        a.set_title(name, fontsize=9)
+    axes[0].set_ylabel("objective / fast's on that frame")
+    axes[0].legend(fontsize=6)
+    fig.suptitle(f"Moving sequences, {case.size}x{case.size}, k = {PAN_K} FISTA iterations per frame", fontsize=9)
     fig.tight_layout()
     write_with(path, lambda tmp: fig.savefig(tmp, format="png", dpi=100), force=True)
     plt.close(fig)

@@ -6,8 +6,10 @@ one).  Each case runs both eyes' ``Corrector`` on a static frame: warm-up first 
 regulariser choice, the FFT grid's spectra, GPU allocations), then the median of
 ``repeats`` frames, each ended by ``glFinish`` so the wall clock holds the GPU's work.
 
-Cases: passthrough (sRGB decode + encode: the floor every frame pays), GLSL correction by
-FFT with the per-frame blend (the default: 4 FFT filterings and a reduction), the same with
+Cases: passthrough (sRGB decode + encode: the floor every frame pays), the default GLSL
+correction, projected gradient (``filter="fista"``, k = 4 iterations a frame: 2k + 3 = 11 FFT
+round trips and a reduction), ``wiener``'s one-pass inverse by FFT with the per-frame blend
+(``filter="fft"``: 4 FFT filterings and a reduction), the same with
 the blend fixed at build time, the eye's forward model (simulation, for previews), the ONNX slot with
 a trivial graph (``1 - x``: the read-back, onnxruntime call and upload the learned model
 will pay on top of its own cost), and the separable low-rank strategy at a smaller size for
@@ -77,8 +79,9 @@ def run_render_bench(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), w
     model = Path(tmp.name) / "one_minus_x.onnx"
     write_one_minus_x_model(model)
     cases = [("passthrough (decode + encode)", "apply", dict(), size, False),
-             ("GLSL correction, FFT, per-frame blend (default)", "apply", dict(), size, True),
-             ("GLSL correction, FFT, fixed blend", "apply", dict(blend="fixed"), size, True),
+             ("GLSL correction, projected gradient k = 4 (default)", "apply", dict(), size, True),
+             ("GLSL correction, FFT one pass, per-frame blend", "apply", dict(filter="fft"), size, True),
+             ("GLSL correction, FFT one pass, fixed blend", "apply", dict(filter="fft", blend="fixed"), size, True),
              ("simulation (forward model, FFT)", "simulate", dict(), size, True),
              ("ONNX slot, trivial graph", "apply", dict(backend="onnx", model=str(model)), size, True),
              (f"GLSL correction, separable, {SEPARABLE_SIZE[0]}x{SEPARABLE_SIZE[1]}", "apply",
@@ -108,6 +111,11 @@ def run_render_bench(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), w
             elif how == "simulate":
                 grid = correctors[1].fft_grid_for((w, h))[0]
                 what = f"kernel {info['kernel_size']} px, FFT grid {grid[1]}x{grid[0]}"
+            elif enabled and info.get("filter") == "fista":
+                grid = correctors[1].fft_grid_for((w, h))[0]
+                fraction = correctors[1].last_objective_fraction((w, h))
+                what = (f"FFT grid {grid[1]}x{grid[0]}, {info['iterations_per_frame']} iterations a frame, "
+                        f"warm-started (right eye's objective {fraction:.3f} of uncorrected at the last frame)")
             elif enabled:
                 grid = correctors[1].fft_grid_for((w, h))[0]
                 beta = correctors[1].last_blend((w, h))

@@ -8,7 +8,8 @@ test runtime neither paces ``xrWaitFrame`` to a display nor reads the images bac
 ``XRTEST_OUT_DIR``), so ``wait`` and ``end`` are the loop's own overhead, not a compositor's.
 
 Each case renders the demo scene from the runtime's two eye poses, corrects both eyes into the
-sRGB swapchain images (the default ``Corrector``: FFT, per-frame blend) and submits a projection
+sRGB swapchain images (the default ``Corrector``: projected gradient, k = 4 iterations a frame,
+warm-started from the tracked pose) and submits a projection
 layer; the first rendered frame (per-size spectra and allocations) is left out of the medians.
 """
 
@@ -42,7 +43,7 @@ def build_test_runtime(folder: Path) -> Path:
         raise InputError("no C compiler (cc or gcc) to build the test OpenXR runtime: apt-get install gcc libc6-dev")
     library = folder / "libvrcorrect_xr_test_runtime.so"
     result = subprocess.run([cc, "-std=c11", "-O2", "-shared", "-fPIC", "-fvisibility=hidden", "-o", str(library),
-                             str(RUNTIME_SOURCE), "-ldl"], capture_output=True, text=True)
+                             str(RUNTIME_SOURCE), "-ldl", "-lm"], capture_output=True, text=True)
     if result.returncode != 0:
         raise VrcorrectError(f"compiling the test OpenXR runtime failed:\n{result.stderr[-2000:]}")
     manifest = folder / "runtime.json"
@@ -135,7 +136,7 @@ def run_xr_bench(repeats: int = 3, out: Path = Path("docs/benchmarks.md"), write
         f"Machine: {machine_description()}; OpenGL renderer: {renderer} (GLFW/GLX under Xvfb); "
         f"OpenXR runtime: {runtime} (tests/xr_runtime, loaded by pyopenxr's loader; it does not pace xrWaitFrame "
         "and reads nothing back here). Demo scene from each tracked eye, bundled sample prescription, Quest 2 "
-        f"profile, sRGB swapchains, default correction (FFT, per-frame blend). Median of {repeats} rendered "
+        f"profile, sRGB swapchains, default correction (projected gradient, k = 4 a frame). Median of {repeats} rendered "
         "frames after the first. Cells: `GPU ms / CPU ms` (GPU from timer queries) or CPU ms alone for the "
         "OpenXR calls; `-` for a GPU time of 4.29 s or more, which moderngl's 32-bit timer query cannot hold.\n\n"
         + markdown_table(["stage", *columns], rows)

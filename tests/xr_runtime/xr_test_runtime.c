@@ -18,6 +18,8 @@
  *   XRTEST_FORMATS      swapchain formats offered, in order: "srgb,rgba8" (default), "rgba8", ...
  *   XRTEST_LOSS_AFTER   after this many xrEndFrame calls the session goes LOSS_PENDING
  *   XRTEST_STOP_AFTER   after this many xrEndFrame calls the runtime asks the app to quit
+ *   XRTEST_YAW_MRAD     the head turns left about the vertical axis through its centre by this many
+ *                       milliradians per xrEndFrame call (default 0: a still head)
  *                       (FOCUSED -> VISIBLE -> SYNCHRONIZED -> STOPPING, then IDLE -> EXITING)
  *   XRTEST_NO_HMD       "1": xrGetSystem answers XR_ERROR_FORM_FACTOR_UNAVAILABLE
  */
@@ -29,6 +31,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <math.h>
 #include <time.h>
 
 /* ------------------------------------------------------------------ OpenXR types */
@@ -197,6 +200,7 @@ static struct {
     int frame_waited, frame_begun, view_w, view_h, nformats;
     int64_t formats[4];
     long end_frames, loss_after, stop_after;
+    double yaw_per_frame;
     XrTime t0, next_display;
     Swapchain sc[MAX_SWAPCHAINS];
     int spaces[MAX_SPACES];
@@ -285,6 +289,7 @@ static XrResult create_instance(const XrInstanceCreateInfo *info, XrHandle *inst
     }
     rt.loss_after = env_long("XRTEST_LOSS_AFTER", 0);
     rt.stop_after = env_long("XRTEST_STOP_AFTER", 0);
+    rt.yaw_per_frame = 1e-3 * (double)env_long("XRTEST_YAW_MRAD", 0);
     rt.instance = 1;
     *instance = INSTANCE;
     logf_("create_instance app=%s api=%u.%u ext=%u", info->applicationInfo.applicationName, XR_MAJOR(v), XR_MINOR(v),
@@ -705,10 +710,13 @@ static XrResult locate_views(XrHandle session, const XrViewLocateInfo *info, XrV
     if (info->displayTime <= 0) return XR_ERROR_TIME_INVALID;
     if (space_index(info->space) < 0) return XR_ERROR_HANDLE_INVALID;
     state->viewStateFlags = 0xF; /* orientation and position valid and tracked */
-    /* LOCAL space: eyes 64 mm apart about its origin, looking down -z; each field wider on its outer side */
+    /* LOCAL space: eyes 64 mm apart about its origin, looking down -z; each field wider on its outer side;
+       the head turned left (about +y) by yaw_per_frame for every frame ended so far */
+    double yaw = rt.yaw_per_frame * (double)rt.end_frames;
+    float qy = (float)sin(0.5 * yaw), qw = (float)cos(0.5 * yaw), c = (float)cos(yaw), s = (float)sin(yaw);
     ENUMERATE(cap, count, 2, {
         float side = i == 0 ? -1.0f : 1.0f;
-        views[i].pose = (XrPosef){{0, 0, 0, 1}, {side * 0.032f, 0, 0}};
+        views[i].pose = (XrPosef){{0, qy, 0, qw}, {side * 0.032f * c, 0, -side * 0.032f * s}};
         views[i].fov = i == 0 ? (XrFovf){-0.80f, 0.70f, 0.75f, -0.78f} : (XrFovf){-0.70f, 0.80f, 0.75f, -0.78f};
     });
 }

@@ -1047,16 +1047,17 @@ def parse_iterations_per_frame(text: str | int | None, field: str = "--iteration
     return value
 
 
-FILTER_CHOICES = ("fft", "separable", "fista")
+FILTER_CHOICES = ("fista", "fft", "separable")
 
 
 def add_filter_options(p: argparse.ArgumentParser) -> None:
     """``--filter`` and ``--iterations-per-frame`` (``render``, ``mirror``, ``overlay``, ``xr``)."""
     low, high = ITERATIONS_RANGE
-    p.add_argument("--filter", choices=FILTER_CHOICES, default="fft",
-                   help="GLSL strategy: fft (default; the regularised inverse by FFT compute shaders), separable "
-                        "(low-rank spatial filters) or fista (projected-gradient iterations on the true objective, "
-                        "warm-started from frame to frame)")
+    p.add_argument("--filter", choices=FILTER_CHOICES, default="fista",
+                   help="GLSL strategy: fista (default; projected-gradient iterations on the true objective, "
+                        "warm-started from frame to frame, converging to the optimum over frames), fft (one pass of "
+                        "the regularised inverse by FFT compute shaders, blended per frame: cheaper, further from "
+                        "the optimum) or separable (low-rank spatial filters of that inverse)")
     p.add_argument("--iterations-per-frame", metavar="K",
                    help=f"with --filter fista: iterations per frame, {low} to {high} (default 4; the speed-accuracy "
                         "knob)")
@@ -1075,11 +1076,12 @@ def filter_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def add_reprojection_option(p: argparse.ArgumentParser) -> None:
-    """``--no-reprojection`` (``mirror``, ``overlay``)."""
+    """``--no-reprojection`` (``mirror``, ``overlay``, ``xr``)."""
     p.add_argument("--no-reprojection", action="store_true",
-                   help="with --filter fista and an image, folder, video or screen source: warm-start each frame "
-                        "from the previous solution as it was, instead of moved by the pictures' estimated "
-                        "motion (and a cold start on a scene cut)")
+                   help="with --filter fista: warm-start each frame from the previous solution as it was, instead "
+                        "of moved by the motion since the last frame (an image, folder, video or screen source: "
+                        "the pictures' estimated shift, with a cold start on a scene cut; xr's demo scene: the "
+                        "turn of the tracked head)")
 
 
 def _fista_glsl(correctors: Any) -> list:

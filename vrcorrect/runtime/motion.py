@@ -7,8 +7,13 @@ phase correlation of their luminance (Hann-windowed against the frame's edges; l
 box-downsampled to at most :data:`MAX_SIDE` px on the long side first, and the shift scaled back).
 The height of the correlation peak is its confidence: about 1 for a pure shift, near 0 for two
 unrelated images; below :data:`CUT_CONFIDENCE` the frames are taken as a scene cut, and the
-corrector starts cold (:func:`motion_for`).  A 3D scene rendered on the GPU (the mirror's demo)
-is not a global shift and is not estimated here.
+corrector starts cold (:func:`motion_for`).
+
+Where the motion is known it is used instead: :func:`view_shift` turns the change of an eye's
+tracked orientation between two frames (a head turn in ``vrcorrect xr``) into the shift of the
+content at the centre of the view, as asynchronous timewarp reprojects a frame by the rotation.
+Translation (parallax) and objects that move in the scene are not modelled: they leave a residual
+the iterations and the guard absorb.
 
 Layer 5: numpy only (``numpy.fft``); never torch.
 """
@@ -19,7 +24,7 @@ import numpy as np
 
 from ..errors import ValidationError
 
-__all__ = ["MAX_SIDE", "CUT_CONFIDENCE", "estimate_shift", "motion_for", "MotionTracker"]
+__all__ = ["MAX_SIDE", "CUT_CONFIDENCE", "estimate_shift", "motion_for", "MotionTracker", "view_shift"]
 
 MAX_SIDE = 256
 """Frames larger than this on the long side are downsampled (by a whole factor) before the FFT."""
@@ -84,6 +89,38 @@ def motion_for(prev: np.ndarray | None, new: np.ndarray, scale: tuple[float, flo
     if confidence < cut_confidence:
         return None
     return int(round(dx * scale[0])), int(round(dy * scale[1]))
+
+
+def _as_matrix(m, field: str) -> np.ndarray:
+    a = np.asarray(m, dtype=np.float64)
+    if a.shape != (4, 4) or not np.all(np.isfinite(a)):
+        raise ValidationError(field, f"shape {a.shape}" if a.shape != (4, 4) else "a matrix with NaN or inf",
+                              "a finite 4x4 matrix")
+    return a
+
+
+def view_shift(view_before, view_after, projection, size: tuple[int, int]) -> tuple[int, int] | None:
+    """The whole-pixel displacement ``(dx, dy)`` (x to the right, y down) of distant content at the
+    centre of an eye's image when the eye turns from ``view_before`` to ``view_after`` (4x4
+    world-to-eye matrices, OpenGL convention: the eye looks down -z) under ``projection`` (4x4,
+    possibly asymmetric, as a headset's field of view), for an image of ``size = (width, height)``
+    pixels.  Only the rotation counts (content far away; a head's few centimetres of translation
+    move distant content by a fraction of a pixel).  ``None`` when the old centre ray is no longer
+    in front of the eye (a turn of 90 degrees or more: a cut)."""
+    v0 = _as_matrix(view_before, "view_before")
+    v1 = _as_matrix(view_after, "view_after")
+    p = _as_matrix(projection, "projection")
+    width, height = size
+    # the ray through the centre of the old image, in the old eye's frame (any point on it)
+    centre = np.linalg.solve(p, np.array([0.0, 0.0, 1.0, 1.0]))
+    ray = centre[:3] / centre[3] if abs(centre[3]) > 1e-300 else centre[:3]
+    # rotations only: world from old eye, then new eye from world
+    turned = v1[:3, :3] @ (v0[:3, :3].T @ ray)
+    clip = p @ np.append(turned, 0.0)               # a point at infinity along the turned ray
+    if clip[3] <= 1e-12 * np.linalg.norm(clip):
+        return None
+    x_ndc, y_ndc = clip[0] / clip[3], clip[1] / clip[3]
+    return int(round(x_ndc * width / 2.0)), int(round(-y_ndc * height / 2.0))
 
 
 class MotionTracker:

@@ -11,16 +11,19 @@ benchmarks.  Layer 5 (numpy, moderngl; onnxruntime for the ONNX backend).
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from ..errors import ValidationError
 
-__all__ = ["VIEWS", "MAX_FRAMES", "check_frames", "render_frame"]
+__all__ = ["VIEWS", "MAX_FRAMES", "SETTLED_FRAMES", "check_frames", "render_frame"]
 
 VIEWS = ("corrected", "seen-corrected", "seen-uncorrected")
 MAX_FRAMES = 10_000
+# ``vrcorrect render``'s default number of frames with ``filter="fista"``: a still view a tenth of a
+# second after it appeared at 90 Hz, when k = 4 is within 5 % of ``fast`` (docs/benchmarks.md)
+SETTLED_FRAMES = 10
 
 
 def check_frames(frames, field: str = "frames") -> int:
@@ -31,13 +34,16 @@ def check_frames(frames, field: str = "frames") -> int:
 
 
 def render_frame(image: np.ndarray, rx, display, eye: str = "right", backend: str = "glsl",
-                 view: str = "corrected", ctx=None, frames: int = 1, **options) -> tuple[np.ndarray, dict[str, Any]]:
+                 view: str = "corrected", ctx=None, frames: int = 1,
+                 progress: Callable[[int, int], None] | None = None,
+                 **options) -> tuple[np.ndarray, dict[str, Any]]:
     """Correct (or simulate) one ``(H, W, 3)`` image of sRGB code values in [0, 1] (float) or
     uint8, ``frames`` times as a still video (the last frame is returned); returns the 8-bit result
     ``(H, W, 3)`` and what was built (``Corrector.describe()`` plus ``build_s``, ``frame_s`` (all
     frames, with the upload and the read-back), ``frames`` and ``objective_fraction``: the last
     frame's objective over uncorrected where the GPU computes it (``filter="fista"`` and the
-    per-frame blend), else None).  ``ctx``: an existing context (default: a new headless one)."""
+    per-frame blend), else None).  ``ctx``: an existing context (default: a new headless one);
+    ``progress(done, total)`` is called after each frame."""
     from .corrector import Corrector
     from .gl import check_gl_errors, headless_context, read_framebuffer, release, render_target, upload_texture
 
@@ -59,11 +65,15 @@ def render_frame(image: np.ndarray, rx, display, eye: str = "right", backend: st
         t1 = time.perf_counter()
         src = upload_texture(ctx, img)
         tex, fbo = render_target(ctx, width=img.shape[1], height=img.shape[0])
-        for _ in range(frames if view != "seen-uncorrected" else 1):
+        total = frames if view != "seen-uncorrected" else 1
+        for done in range(1, total + 1):
             if view == "corrected":
                 corrector.apply(src, fbo)
             else:
                 corrector.simulate(src, fbo, corrected=view == "seen-corrected")
+            if progress is not None:
+                ctx.finish()
+                progress(done, total)
         out = read_framebuffer(fbo)
         t2 = time.perf_counter()
         check_gl_errors(ctx, "render")

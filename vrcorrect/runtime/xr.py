@@ -50,7 +50,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..errors import VrcorrectError, ValidationError
-from .mirror import add_filter_options
+from .mirror import add_filter_options, add_reprojection_option, take_motion
+from .motion import view_shift
 from .scene import EYES, parse_region, parse_source
 
 __all__ = [
@@ -259,6 +260,12 @@ class XrConfig:
         Passed to each :class:`~vrcorrect.runtime.corrector.Corrector`.
     time_step_s
         Fixed scene time per rendered frame; ``None``: the runtime's predicted display times.
+    reprojection
+        With ``filter="fista"``: start each frame's iterations from the previous solution moved by
+        the motion since the last frame: in the demo scene the change of each eye's tracked
+        orientation (:func:`~vrcorrect.runtime.motion.view_shift`), for a picture source (head-locked)
+        the pictures' estimated shift, with a cold start on a scene cut.  ``False``: the plain warm
+        start.
     """
 
     rx: str | Path | None = None
@@ -274,6 +281,7 @@ class XrConfig:
     time_step_s: float | None = None
     folder_interval_s: float = 3.0
     application_name: str = "vrcorrect"
+    reprojection: bool = True
 
     def __post_init__(self) -> None:
         if self.frames is not None and not (isinstance(self.frames, int) and 1 <= self.frames <= 10_000_000):
@@ -420,6 +428,7 @@ class XrApp:
         self._first_display_time: int | None = None
         self._rendered_pending = False
         self._status: dict[str, str] = {}
+        self._last_views: dict[str, np.ndarray] = {}    # each eye's view matrix at its last frame
         try:
             self._create_instance()
             self._open_window()
@@ -560,7 +569,7 @@ class XrApp:
     def _build(self) -> None:
         from .corrector import Corrector
         from .gl import check_gl_errors, fullscreen_triangle
-        from .mirror import StageTimes
+        from .mirror import StageTimes, start_motion
         from .scene import ScreenSource, open_source, screen_bounds
         from .shaders import compile_program
 
@@ -577,6 +586,8 @@ class XrApp:
             self.correctors[eye] = Corrector(ctx, self.rx_path, self.display, eye, cfg.backend,
                                              **dict(cfg.corrector_options))
             self._say(f"  built in {time.perf_counter() - t0:.1f} s")
+        if self.spec is None or not hasattr(self.source, "_draws"):     # a head-locked picture source
+            start_motion(self.source, self.correctors.values(), cfg.reprojection)
         if self.format == GL_RGBA8:
             # correct into an sRGB texture; sampling it decodes to linear light, written into the linear swapchain
             self._staging = ctx.texture((w, h), 4, internal_format=GL_SRGB8_ALPHA8)
@@ -684,6 +695,7 @@ class XrApp:
                 views = self._views(frame_state.predicted_display_time)
         if views is not None:
             t_s = self._scene_time(frame_state.predicted_display_time)
+            motions: dict[str, tuple[int, int] | None] = {}
             with times.stage("scene"):
                 if hasattr(self.source, "_draws"):  # the demo scene: from each tracked eye
                     eye_views = {}
@@ -693,9 +705,12 @@ class XrApp:
                         proj = projection_from_fov(v.fov.angle_left, v.fov.angle_right, v.fov.angle_up,
                                                    v.fov.angle_down)
                         eye_views[eye] = (proj @ vm, np.array([p.x, p.y, p.z]))
+                        motions[eye] = self._head_motion(eye, vm, proj)
                     textures = self.source.render(t_s, views=eye_views)
                 else:
                     textures = self.source.render(t_s)
+                    motion = take_motion(self.source, self.correctors.values())
+                    motions = {eye: motion for eye in EYES}
             w, h = self.eye_size
             indices = []
             with times.stage("acquire"):
@@ -708,7 +723,7 @@ class XrApp:
                 eye = chain["eye"]
                 target = chain["framebuffers"][index]
                 with times.stage(f"correct {eye}"):
-                    self.correctors[eye].apply(texture, self._staging_fb or target)
+                    self.correctors[eye].apply(texture, self._staging_fb or target, motion_px=motions.get(eye))
                 if self._staging_fb is not None:
                     with times.stage("convert"):
                         self._staging.use(0)
@@ -743,6 +758,21 @@ class XrApp:
             frames = self.config.frames
             if frames is not None and self.summary.frames >= frames:
                 self.request_quit("frames")
+
+    def _head_motion(self, eye: str, view: np.ndarray, projection: np.ndarray) -> tuple[int, int] | None:
+        """The demo scene's content shift for ``eye`` since its last frame, from the change of its
+        tracked orientation (``None`` without ``reprojection``: the plain warm start); a turn that
+        leaves nothing of the last view in sight resets the eye's iterations (a cold start)."""
+        previous, self._last_views[eye] = self._last_views.get(eye), view
+        corrector = self.correctors[eye]
+        if not self.config.reprojection or previous is None or corrector.options.filter != "fista":
+            return None
+        shift = view_shift(previous, view, projection, self.eye_size)
+        w, h = self.eye_size
+        if shift is None or abs(shift[0]) >= w or abs(shift[1]) >= h:
+            corrector.reset()
+            return None
+        return shift
 
     def _collect_times(self) -> None:
         """Collect the last frame's stage times into the summary when it was rendered."""
@@ -943,6 +973,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl", help="correction backend (default glsl)")
     p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx")
     add_filter_options(p)
+    add_reprojection_option(p)
     p.set_defaults(func=cmd_xr)
     return p
 
@@ -977,7 +1008,7 @@ def cmd_xr(args: argparse.Namespace) -> int:
         options["model"] = model
     config = XrConfig(rx=args.rx, display=args.display, source=args.source, region=args.region, frames=frames,
                       mirror=args.mirror, mirror_height=mirror_height, validation=args.validation,
-                      backend=args.backend, corrector_options=options)
+                      backend=args.backend, corrector_options=options, reprojection=not args.no_reprojection)
     try:
         app = XrApp(config)
     except XrUnavailableError as exc:
