@@ -8,13 +8,16 @@ stderr and exit status 2; a command-line user never sees a traceback
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -116,8 +119,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_correct(args: argparse.Namespace) -> int:
     from .display import decode, encode, get_display
-    from .fileio import check_writable, write_text_atomic
-    from .imageio import read_image, write_png
+    from .fileio import atomic_paths, check_writable
+    from .imageio import png_writer, read_image
     from .kernel import build_reference_kernel
     from .metrics import evaluate_seen
     from .solvers import make_problem, solve
@@ -176,7 +179,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
     finally:
         if bar is not None:
             bar.close()
-    write_png(out, encode(display, result.image), bits=16 if args.sixteen_bit else 8, force=args.force)
+    outputs = [(out, png_writer(out, encode(display, result.image), bits=16 if args.sixteen_bit else 8))]
     if args.report:
         corrected, _ = evaluate_seen(result.image, target, kernel, display, target_lms=problem.target_lms)
         uncorrected, _ = evaluate_seen(target, target, kernel, display, target_lms=problem.target_lms)
@@ -189,11 +192,35 @@ def cmd_correct(args: argparse.Namespace) -> int:
             "metrics": corrected.__dict__, "metrics_uncorrected": uncorrected.__dict__,
             "settings": result.settings, "kernel_decisions": list(kernel.decisions),
         }
-        write_text_atomic(Path(args.report), json.dumps(report, indent=2, default=float) + "\n", force=args.force)
+        notes: list[str] = []
+        report = _finite_json(report, "", notes)
+        if notes:
+            report["notes"] = notes
+        text = json.dumps(report, indent=2, default=float, allow_nan=False) + "\n"
+        outputs.append((Path(args.report), lambda tmp: tmp.write_text(text, encoding="utf-8")))
+    # the image and its report appear together or not at all (an interruption leaves neither)
+    with atomic_paths([path for path, _ in outputs], force=args.force) as tmps:
+        for (_, writer), tmp in zip(outputs, tmps):
+            writer(tmp)
     print(f"wrote {out}: {result.method} correction for the {args.eye} eye on {display.title} "
           f"(objective {result.objective:.3g}, {result.iterations} iterations, {result.seconds:.2f} s)"
           + (f"; report {args.report}" if args.report else ""))
     return 0
+
+
+def _finite_json(value: Any, where: str, notes: list[str]) -> Any:
+    """``value`` with every non-finite float replaced by ``None`` (JSON has no Infinity or NaN),
+    each replacement explained in ``notes``: ``"metrics.psnr: null (inf: ...)"``."""
+    if isinstance(value, dict):
+        return {k: _finite_json(v, f"{where}.{k}" if where else str(k), notes) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_json(v, f"{where}[{i}]", notes) for i, v in enumerate(value)]
+    if isinstance(value, (float, np.floating)) and not math.isfinite(float(value)):
+        why = ("the two images are identical, so the error is zero" if where.endswith("psnr") and value > 0
+               else "not a finite number")
+        notes.append(f"{where}: null ({float(value)}: {why})")
+        return None
+    return value
 
 
 def _learned_model(args: argparse.Namespace):
@@ -620,11 +647,44 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+class Terminated(BaseException):
+    """SIGTERM or SIGHUP arrived: unwinds like Ctrl-C, so every ``finally`` (temporary files, GL
+    and OpenXR objects) runs and no partial output is left."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_terminated(signum: int, frame: Any) -> None:
+    raise Terminated(signum)
+
+
+@contextlib.contextmanager
+def _terminate_like_interrupt():
+    """Treat SIGTERM and SIGHUP as Ctrl-C for the duration of a command (main thread only)."""
+    names = [n for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n)]
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {n: signal.signal(getattr(signal, n), _raise_terminated) for n in names}
+    try:
+        yield
+    finally:
+        for n, handler in old.items():
+            signal.signal(getattr(signal, n), handler)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        with _terminate_like_interrupt():
+            return int(args.func(args) or 0)
+    except Terminated as exc:
+        name = signal.Signals(exc.signum).name
+        print(f"vrcorrect: terminated ({name})", file=sys.stderr)
+        return 128 + exc.signum
     except VrcorrectError as exc:
         print(f"vrcorrect: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

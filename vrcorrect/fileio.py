@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import tempfile
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, Iterator, Sequence
 
 from .errors import InputError
 
@@ -59,6 +60,56 @@ def atomic_path(path: Path, *, force: bool = False) -> Iterator[Path]:
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+_DEFERRED = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+@contextlib.contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Hold Ctrl-C, SIGTERM and SIGHUP back while the block runs (they are delivered after it), so
+    that a group of renames is not cut in half."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, _DEFERRED)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+@contextlib.contextmanager
+def atomic_paths(paths: Sequence[Path], *, force: bool = False) -> Iterator[list[Path]]:
+    """All-or-nothing output of several files: yield one temporary path beside each of ``paths``;
+    when the block succeeds, all are renamed into place with signals held back, so an interruption
+    leaves either every output or none (and no temporary file)."""
+    targets = [check_writable(Path(p), force=force) for p in paths]
+    if len({t.resolve() for t in targets}) != len(targets):
+        raise InputError("two outputs name the same file: " + ", ".join(str(t) for t in targets))
+    tmps: list[Path] = []
+    try:
+        for path in targets:
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
+                                       dir=path.parent if str(path.parent) else ".")
+            os.close(fd)
+            tmps.append(Path(tmp))
+            try:
+                mode = path.stat().st_mode & 0o7777 if path.exists() else 0o666 & ~_umask()
+                os.chmod(tmp, mode)
+            except OSError:
+                pass
+        yield list(tmps)
+        with signals_deferred():
+            for path in targets:
+                if path.exists() and not force:  # appeared while we worked
+                    raise InputError(f"{path}: file exists; pass --force to overwrite it")
+            for tmp, path in zip(tmps, targets):
+                os.replace(tmp, path)
+    finally:
+        for tmp in tmps:
+            if tmp.exists():
+                tmp.unlink()
 
 
 def write_text_atomic(path: Path, text: str, *, force: bool = False) -> None:

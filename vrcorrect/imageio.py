@@ -9,6 +9,7 @@ from __future__ import annotations
 import struct
 import zlib
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -124,11 +125,10 @@ def _png16_bytes(rgb: np.ndarray) -> bytes:
             + chunk(b"IDAT", zlib.compress(raw.tobytes(), 6)) + chunk(b"IEND", b""))
 
 
-def write_png(path: str | Path, rgb: np.ndarray, bits: int = 8, force: bool = False) -> None:
-    """Write ``(H, W, 3)`` code values in [0, 1] as an 8- or 16-bit PNG, atomically.
-
-    Never overwrites an existing file unless ``force``.
-    """
+def png_writer(path: str | Path, rgb: np.ndarray, bits: int = 8) -> Callable[[Path], None]:
+    """Check ``(H, W, 3)`` code values in [0, 1] for an 8- or 16-bit PNG at ``path`` and return the
+    function that writes them to a given (temporary) path: for outputs written together
+    (:func:`vrcorrect.fileio.atomic_paths`)."""
     from PIL import Image
 
     if bits not in (8, 16):
@@ -138,8 +138,7 @@ def write_png(path: str | Path, rgb: np.ndarray, bits: int = 8, force: bool = Fa
         raise ValidationError("image.shape", a.shape, "(height, width, 3)")
     if not np.all(np.isfinite(a)):
         raise ValidationError("image", "NaN/inf values", "finite values in [0, 1]")
-    path = Path(path)
-    if path.suffix.lower() != ".png":
+    if Path(path).suffix.lower() != ".png":
         raise ValidationError("output", str(path), "a path ending in .png")
 
     def writer(tmp: Path) -> None:
@@ -149,4 +148,12 @@ def write_png(path: str | Path, rgb: np.ndarray, bits: int = 8, force: bool = Fa
             img8 = np.round(np.clip(a, 0.0, 1.0) * 255.0).astype(np.uint8)
             Image.fromarray(img8, mode="RGB").save(tmp, format="PNG")
 
-    write_with(path, writer, force=force)
+    return writer
+
+
+def write_png(path: str | Path, rgb: np.ndarray, bits: int = 8, force: bool = False) -> None:
+    """Write ``(H, W, 3)`` code values in [0, 1] as an 8- or 16-bit PNG, atomically.
+
+    Never overwrites an existing file unless ``force``.
+    """
+    write_with(Path(path), png_writer(path, rgb, bits), force=force)

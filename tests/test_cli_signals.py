@@ -1,0 +1,107 @@
+"""Interrupted commands leave nothing partial: SIGTERM (and SIGHUP) are treated like Ctrl-C, and
+``correct``'s image and its ``--report`` appear together or not at all.  Also: a report whose
+metric is infinite (PSNR of identical images) is still valid JSON."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+ROOT = Path(__file__).resolve().parents[1]
+FRACTIONS = (0.15, 0.4, 0.6, 0.75, 0.85, 0.92, 0.97, 1.02)
+
+
+def _command(folder: Path) -> list[str]:
+    return [sys.executable, "-m", "vrcorrect.cli", "correct", str(folder / "in.png"), "-o", str(folder / "out.png"),
+            "--report", str(folder / "report.json"), "--method", "fast", "--display", "desktop"]
+
+
+def _input(folder: Path) -> np.ndarray:
+    from skimage import data
+
+    image = data.astronaut()[100:164, 180:244]
+    folder.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(image).save(folder / "in.png")
+    return image
+
+
+def _strict_json(path: Path) -> dict:
+    def refuse(constant: str):
+        raise ValueError(f"not JSON: {constant}")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+def test_sigterm_at_any_point_of_correct_leaves_all_or_nothing(tmp_path):
+    """A run is timed once; then SIGTERM is sent at fractions of that time (during imports, the
+    kernel, the solve, the metrics and the writing).  Each run ends either terminated (status 143,
+    one line, nothing but the input in the folder: no image, no report, no temporary file) or
+    complete (a readable image of the input's size and a valid report)."""
+    image = _input(tmp_path / "timing")
+    t0 = time.perf_counter()
+    done = subprocess.run(_command(tmp_path / "timing"), capture_output=True, text=True, cwd=ROOT, timeout=300)
+    total = time.perf_counter() - t0
+    assert done.returncode == 0, done.stderr
+    outcomes, codes = [], []
+    for fraction in FRACTIONS:
+        folder = tmp_path / f"at_{fraction}"
+        _input(folder)
+        proc = subprocess.Popen(_command(folder), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                cwd=ROOT)
+        time.sleep(fraction * total)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=300)
+        names = sorted(p.name for p in folder.iterdir())
+        codes.append(proc.returncode)
+        # 143: the command's handler ran; -15: Python's default (before the handler is installed, or
+        # after the command returned, while the interpreter exits)
+        assert proc.returncode in (0, 128 + signal.SIGTERM, -signal.SIGTERM), (fraction, proc.returncode, err)
+        if proc.returncode == 128 + signal.SIGTERM:
+            assert err.rstrip().splitlines()[-1] == "vrcorrect: terminated (SIGTERM)", err
+        if names == ["in.png"]:
+            assert proc.returncode != 0, (fraction, err)
+            outcomes.append("terminated")
+        else:
+            assert names == ["in.png", "out.png", "report.json"], (fraction, names)
+            assert np.asarray(Image.open(folder / "out.png")).shape == image.shape
+            assert "metrics" in _strict_json(folder / "report.json")
+            outcomes.append("complete")
+    # the signal did land mid-command, in the command's own handler (not only during the imports)
+    assert (128 + signal.SIGTERM, "terminated") in zip(codes, outcomes), list(zip(codes, outcomes))
+
+
+def test_sighup_is_handled_like_sigterm(tmp_path):
+    _input(tmp_path)
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(_command(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    # wait until the command is past its imports (its kernel build prints nothing: poll the clock)
+    time.sleep(4.0)
+    proc.send_signal(signal.SIGHUP)
+    _, err = proc.communicate(timeout=300)
+    if proc.returncode == 0:
+        pytest.fail(f"the run finished in under {time.perf_counter() - t0:.1f} s, before SIGHUP: make it longer")
+    assert proc.returncode == 128 + signal.SIGHUP, err
+    assert "vrcorrect: terminated (SIGHUP)" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.png"]
+
+
+def test_report_of_an_identical_image_is_valid_json_with_null_and_a_note(tmp_path):
+    """A black image is its own best correction: PSNR is infinite, which JSON cannot hold; the
+    report writes null and says why."""
+    from vrcorrect.cli import main
+
+    Image.fromarray(np.zeros((32, 32, 3), np.uint8)).save(tmp_path / "black.png")
+    assert main(["correct", str(tmp_path / "black.png"), "-o", str(tmp_path / "out.png"), "--report",
+                 str(tmp_path / "r.json"), "--method", "wiener", "--display", "desktop"]) == 0
+    report = _strict_json(tmp_path / "r.json")
+    assert report["metrics"]["psnr"] is None
+    assert any(note.startswith("metrics.psnr: null (inf") for note in report["notes"]), report["notes"]
