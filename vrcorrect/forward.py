@@ -41,19 +41,50 @@ class SimulationInfo:
     convolutions: int
 
 
-def check_image(image: np.ndarray, name: str = "image") -> np.ndarray:
-    """Validate an ``(H, W, 3)`` linear RGB image; returns it as float32/float64."""
+UNIT_TOLERANCE = 1e-6
+"""Excursions outside [0, 1] up to this are float rounding, clipped; larger ones are refused."""
+
+
+def check_image(image: np.ndarray, name: str = "image", *, unit_range: bool = True,
+                codes: bool = False) -> np.ndarray:
+    """The one checker of image arguments of the library's public entry points.
+
+    ``image`` must be ``(H, W, 3)`` with at least one pixel, of a float dtype (float16 is
+    converted to float32; float32 and float64 are kept) and finite.  Integer and boolean arrays are
+    refused, naming the likely mistake (8-bit code values where linear light is expected), except
+    that ``codes=True`` (display code values, e.g. ``runtime.render.render_frame``) also accepts
+    uint8 as 0-255 and returns it unchanged.  With ``unit_range`` the values must lie in [0, 1];
+    excursions up to :data:`UNIT_TOLERANCE` are clipped.  Every refusal is a
+    :class:`~vrcorrect.errors.ValidationError` naming ``name``, the value and what is allowed.
+    """
     a = np.asarray(image)
     if a.ndim != 3 or a.shape[2] != 3:
         raise ValidationError(f"{name}.shape", a.shape, "(height, width, 3)")
     if a.shape[0] < 1 or a.shape[1] < 1:
         raise ValidationError(f"{name}.shape", a.shape, "at least 1x1 pixels")
+    if codes and a.dtype == np.uint8:
+        return a
+    if a.dtype.kind in "uib":
+        what = ("float code values in [0, 1] or uint8 0-255" if codes else
+                "float linear light in [0, 1] (8-bit code values: decode them first, "
+                "vrcorrect.display.decode(display, codes / 255))")
+        raise ValidationError(f"{name}.dtype", str(a.dtype), what)
+    if a.dtype.kind != "f":
+        raise ValidationError(f"{name}.dtype", str(a.dtype), "a float array")
     if a.dtype not in (np.float32, np.float64):
         a = a.astype(np.float32)
     bad = ~np.isfinite(a)
     if bad.any():
         raise ValidationError(f"{name}", f"{int(bad.sum())} NaN/inf values",
-                              "finite linear RGB values (0 to 1)")
+                              "finite values in [0, 1]" if unit_range else "finite values")
+    if unit_range:
+        lo, hi = float(a.min()), float(a.max())
+        if lo < -UNIT_TOLERANCE or hi > 1.0 + UNIT_TOLERANCE:
+            raise ValidationError(f"{name}", f"values from {lo:.6g} to {hi:.6g}",
+                                  "values in [0, 1] (" + ("code values" if codes else "linear light") +
+                                  "; a display cannot show others)")
+        if lo < 0.0 or hi > 1.0:
+            a = np.clip(a, 0.0, 1.0)
     return a
 
 

@@ -460,9 +460,7 @@ class ImageMetrics:
 
 
 def _check_linear(image: np.ndarray, name: str) -> np.ndarray:
-    arr = check_image(image, name)
-    _check_unit_range(arr, name)  # reject values a display cannot show
-    return np.clip(arr, 0.0, 1.0)
+    return check_image(image, name)  # rejects values a display cannot show
 
 
 def evaluate_seen(displayed_linear: np.ndarray, target_linear: np.ndarray, eye_kernel: EyeKernel,

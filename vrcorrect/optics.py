@@ -54,6 +54,7 @@ LCA_C_NM = 214.102
 
 DEFAULT_REFERENCE_WAVELENGTH_NM = 555.0
 ARCMIN_RAD = math.radians(1.0 / 60.0)
+PSF_MODELS = ("auto", "wave", "geometric")
 
 
 # --------------------------------------------------------------------------
@@ -179,7 +180,16 @@ class OpticsOptions:
         Minimum samples across the pupil (sets the angular field that holds
         diffraction tails).
     max_grid
-        Largest FFT grid (per side) allowed before refusing (memory bound).
+        Largest wave-optics FFT grid (per side).  Where the pupil grid a steep
+        wavefront needs would be larger, the PSF is modelled by geometric
+        optics instead (see :func:`geometric_psf_pixels`); the same number
+        bounds the geometric PSF's pixel array (per side).
+    psf_model
+        ``"auto"`` (default): wave optics wherever its grid fits in
+        ``max_grid``, geometric optics where it would not (there the defocus
+        blur is many times the diffraction blur).  ``"wave"``: wave optics
+        only, refusing with :class:`~vrcorrect.errors.ModelLimitError` where
+        the grid would not fit.  ``"geometric"``: geometric optics everywhere.
     """
 
     chromatic_aberration: bool = True
@@ -189,6 +199,7 @@ class OpticsOptions:
     pupil_padding: float = 2.0
     min_pupil_samples: int = 192
     max_grid: int = 6144
+    psf_model: str = "auto"
 
     def __post_init__(self) -> None:
         if not (380.0 <= self.reference_wavelength_nm <= 780.0):
@@ -203,6 +214,8 @@ class OpticsOptions:
                                   "2 to 8 (below 2 the intensity PSF is under-sampled)")
         if not (32 <= self.min_pupil_samples <= 2048):
             raise ValidationError("min_pupil_samples", self.min_pupil_samples, "32 to 2048")
+        if self.psf_model not in PSF_MODELS:
+            raise ValidationError("psf_model", self.psf_model, "one of " + ", ".join(PSF_MODELS))
 
 
 @dataclass(frozen=True)
@@ -332,7 +345,18 @@ def _next_fast_odd(n: float) -> int:
 
 @dataclass(frozen=True)
 class PsfSampling:
-    """How one monochromatic PSF was sampled (for --explain and tests)."""
+    """How one monochromatic PSF was sampled (for --explain and tests).
+
+    ``model`` is ``"wave"`` (FFT of the pupil function) or ``"geometric"``
+    (ray-traced blur integrated over pixels, convolved with the Airy core; see
+    :func:`geometric_psf_pixels`).  For a geometric PSF ``grid`` is 0 (no FFT
+    pupil grid), ``oversample`` and ``fine_step_rad`` describe the sub-pixel
+    grid the blur was integrated on, ``pupil_samples`` is the number of rays
+    across the pupil (0 where the blur patch was integrated analytically),
+    ``max_phase_step_rad`` is NaN, ``wave_grid_needed`` is the wave-optics
+    grid that would have been needed (0 when the model was forced) and
+    ``model_error_estimate`` is :func:`geometric_error_estimate`.
+    """
 
     wavelength_nm: float
     oversample: int              # fine samples per pixel per axis
@@ -342,6 +366,9 @@ class PsfSampling:
     max_phase_step_rad: float    # worst phase step between neighbours in the pupil
     refinements: int             # times the pupil grid was refined for a steep wavefront
     slope_rad: float             # largest wavefront slope
+    model: str = "wave"          # "wave" or "geometric"
+    model_error_estimate: float | None = None   # relative error of the geometric model; None for wave
+    wave_grid_needed: int = 0    # geometric: the wave-optics grid per side it replaced (0 if forced)
 
 
 @dataclass(frozen=True, eq=False)
@@ -413,7 +440,22 @@ def psf_pixels(eye: EyeRx, pv: PowerVector, wavelength_nm: float, pixels_per_deg
     PixelPsf
         Odd-sized float64 array centred on its centre pixel, summing to 1,
         covering the whole computed angular field (crop with
-        :func:`crop_to_energy`).
+        :func:`crop_to_energy`).  ``sampling.model`` says which model made it.
+
+    Notes
+    -----
+    Wave optics (FFT of the pupil function) wherever its pupil grid fits in
+    ``options.max_grid``.  Where it would not, the wavefront is so steep that
+    the defocus blur is many times the diffraction blur, and (with
+    ``options.psf_model == "auto"``) the PSF comes from geometric optics,
+    :func:`geometric_psf_pixels`; ``options.psf_model == "wave"`` refuses
+    there instead.
+
+    Raises
+    ------
+    ModelLimitError
+        Wave optics only and the grid would not fit; or the geometric PSF's
+        pixel array would exceed ``options.max_grid`` per side.
     """
     if not (300.0 <= wavelength_nm <= 1000.0):
         raise ValidationError("wavelength_nm", wavelength_nm, "300 to 1000 nm")
@@ -430,6 +472,8 @@ def psf_pixels(eye: EyeRx, pv: PowerVector, wavelength_nm: float, pixels_per_deg
     fine = p / q
     L = lam_mm / fine  # pupil-plane grid length (mm) so that the FFT step is `fine`
 
+    if options.psf_model == "geometric":
+        return geometric_psf_pixels(eye, pv, wavelength_nm, pixels_per_degree, options)
     slope = max_wavefront_slope_rad(eye, pv)  # rad
     # Pupil sample spacing: phase step < pi/2 needs slope*dx < lambda/4; keep some margin,
     # and at least min_pupil_samples across the pupil for the diffraction tails.
@@ -439,6 +483,10 @@ def psf_pixels(eye: EyeRx, pv: PowerVector, wavelength_nm: float, pixels_per_deg
         n_pix = _next_fast_odd(max(L / dx / q, 3.0))
         N = n_pix * q
         if N > options.max_grid:
+            if options.psf_model == "auto":
+                # Too steep for a wave-optics grid: the blur is many diffraction widths wide here.
+                return geometric_psf_pixels(eye, pv, wavelength_nm, pixels_per_degree, options,
+                                            wave_grid_needed=N)
             raise ModelLimitError(
                 f"the PSF at {wavelength_nm:.0f} nm needs a {N}x{N} pupil grid (limit {options.max_grid}): "
                 f"the wavefront is too steep ({max_meridian_power_D(pv):.1f} D over a {D:g} mm pupil) "
@@ -467,6 +515,9 @@ def psf_pixels(eye: EyeRx, pv: PowerVector, wavelength_nm: float, pixels_per_deg
         refinements += 1
         dx = dxe / 1.4
         if refinements > 12:
+            if options.psf_model == "auto":
+                return geometric_psf_pixels(eye, pv, wavelength_nm, pixels_per_degree, options,
+                                            wave_grid_needed=N)
             raise ModelLimitError("could not sample the pupil finely enough (wavefront too steep)")
 
     pupil = np.where(inside, np.exp(1j * phase), 0.0)

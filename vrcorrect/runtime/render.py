@@ -16,6 +16,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import ValidationError
+from ..forward import check_image
 
 __all__ = ["VIEWS", "MAX_FRAMES", "SETTLED_FRAMES", "check_frames", "render_frame"]
 
@@ -50,11 +51,9 @@ def render_frame(image: np.ndarray, rx, display, eye: str = "right", backend: st
     if view not in VIEWS:
         raise ValidationError("view", view, "one of " + ", ".join(VIEWS))
     frames = check_frames(frames)
-    img = np.asarray(image)
-    if img.ndim != 3 or img.shape[2] != 3:
-        raise ValidationError("image", f"shape {img.shape}", "(H, W, 3) RGB")
+    img = check_image(image, "image", codes=True)
     if img.dtype != np.uint8:
-        img = np.round(np.clip(img.astype(np.float64), 0.0, 1.0) * 255).astype(np.uint8)
+        img = np.round(img.astype(np.float64) * 255).astype(np.uint8)
     own = ctx is None
     if own:
         ctx = headless_context(require=430)

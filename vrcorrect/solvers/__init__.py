@@ -65,8 +65,6 @@ def make_problem(target: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKer
                  contrast: float = 1.0) -> Problem:
     """Build a :class:`Problem`; ``reference_kernel`` is the eye with glasses on (None: ideal ``A t``)."""
     t = check_image(target, "target").astype(np.float32)
-    if t.min() < 0 or t.max() > 1:
-        raise ValidationError("target", f"values from {t.min():.3g} to {t.max():.3g}", "linear RGB in [0, 1]")
     ts = scale_contrast(t, contrast)
     if reference_kernel is None:
         tl = (ts @ kernel.matrix.T.astype(np.float32)).astype(np.float32)
@@ -80,7 +78,10 @@ def make_problem(target: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKer
 
 def objective(displayed: np.ndarray, problem: Problem) -> float:
     """Mean squared error between the retinal cone image of ``displayed`` and the target's (float64)."""
-    lms, _ = simulate_lms(displayed.astype(np.float32), problem.kernel, "fft" if problem.kernel.size > 1 else "auto")
+    shown = check_image(displayed, "displayed").astype(np.float32)
+    if shown.shape != problem.target.shape:
+        raise ValidationError("displayed.shape", shown.shape, f"the problem's shape {problem.target.shape}")
+    lms, _ = simulate_lms(shown, problem.kernel, "fft" if problem.kernel.size > 1 else "auto")
     d = lms.astype(np.float64) - problem.target_lms.astype(np.float64)
     return float(np.mean(d * d))
 
