@@ -899,3 +899,57 @@ def test_cli_renders_n_frames_and_exits(x_display, tmp_path, mirror_image):
     out = result.stdout
     assert out.startswith("keys:") and "Esc / q" in out
     assert "3 frame(s)" in out and "correct left" in out and "correct right" in out
+
+
+# --------------------------------------------------------------------------
+# Start-up: the prescription file is read once, an edit during the builds is picked up
+# --------------------------------------------------------------------------
+
+
+def _edit_during_first_build(monkeypatch, rx: Path, text: str) -> None:
+    """Make the first eye's build save ``text`` into ``rx``: a user editing the file during the
+    10-40 s a real start-up spends building kernels."""
+    from vrcorrect.runtime import corrector as C
+
+    real = C.build_eye_model
+    pending = [text]
+
+    def build(eye, display, options=C.CorrectorOptions()):
+        if pending:
+            rx.write_text(pending.pop())
+            st = rx.stat()
+            os.utime(rx, ns=(st.st_atime_ns, st.st_mtime_ns + 10_000_000))   # visible on coarse clocks
+        return real(eye, display, options)
+
+    monkeypatch.setattr(C, "build_eye_model", build)
+
+
+@pytest.mark.parametrize("edit, sphere_after, status_words", [
+    (SAMPLE_RX.replace('"sphere_D": -3.0', '"sphere_D": -1.0'), -1.0, "reloaded"),
+    ('{"schema": "vrcorrect.prescription/1", "right": {"sphere_D": "oops"}', -3.0, "not reloaded"),
+], ids=["valid edit", "invalid edit"])
+def test_an_edit_during_start_up_is_one_state_for_both_eyes_and_the_panel(x_display, mirror_image, tmp_path,
+                                                                          monkeypatch, edit, sphere_after,
+                                                                          status_words):
+    """Both eyes are built from the one read of the file, whatever happens to it meanwhile; the
+    edit then arrives through hot reload, for the corrector and the panel alike.  An invalid edit
+    keeps the good prescription already loaded (no exit)."""
+    path, _ = mirror_image
+    rx = tmp_path / "rx.json"
+    rx.write_text(SAMPLE_RX)
+    _edit_during_first_build(monkeypatch, rx, edit)
+    config = MirrorConfig(rx=rx, source=str(path), eye_size=(EYE_W, EYE_H), visible=False, vsync=False,
+                          platform="x11", time_step_s=0.0, panel=True, corrector_options={"filter": "fft"})
+    with Mirror(config, echo=None) as m:
+        right = m.correctors["right"]
+        assert right.eye_rx.sphere_D == -3.0                       # built from the first read,
+        assert m.correctors["left"].eye_rx.sphere_D == -2.5        # both eyes,
+        assert "-3.00" in "\n".join(m.panel_lines())               # and shown so
+        for c in m.correctors.values():
+            c.POLL_INTERVAL_S = 0.0
+        m.render()
+        assert right.eye_rx.sphere_D == sphere_after
+        right_line = next(line for line in m.panel_lines() if line.startswith("right"))
+        assert f"{sphere_after:+.2f}" in right_line, right_line     # the panel says what is corrected
+        assert status_words in m.status, m.status
+        assert m.correctors["left"].eye_rx.sphere_D == -2.5

@@ -82,6 +82,9 @@ def _build(args: argparse.Namespace, eye, display):
 # ---------------------------------------------------------------- simulate
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    from .fileio import check_readable
+
+    check_readable(args.input)                      # before the heavy imports: a typo is told at once
     from .display import decode, encode, get_display
     from .fileio import check_writable
     from .forward import what_the_eye_sees
@@ -93,7 +96,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     check_writable(out, force=args.force)
     rx_path, eye = _load_eye(args)
     display = get_display(args.display)
-    image = read_image(args.input)
+    notes: list[str] = []
+    image = read_image(args.input, notes)
+    _print_notes(notes)
     t0 = time.perf_counter()
     kernel = _build(args, eye, display)
     t1 = time.perf_counter()
@@ -118,12 +123,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------- correct
 
 def cmd_correct(args: argparse.Namespace) -> int:
-    from .display import decode, encode, get_display
-    from .fileio import atomic_paths, check_writable
-    from .imageio import png_writer, read_image
-    from .kernel import build_reference_kernel
-    from .metrics import evaluate_seen
-    from .solvers import make_problem, solve
+    from .fileio import atomic_paths, check_readable, check_writable
 
     out = Path(args.output)
     if out.suffix.lower() != ".png":
@@ -146,10 +146,22 @@ def cmd_correct(args: argparse.Namespace) -> int:
         raise ValidationError("--iterations", args.iterations, f"nothing: {args.method} is one pass")
     if args.model is not None and args.method != "learned":
         raise ValidationError("--model", args.model, "only with --method learned")
+    check_readable(args.input)                      # before the heavy imports: a typo is told at once
+    from .display import decode, encode, get_display
+    from .imageio import png_writer, read_image
+    from .kernel import build_reference_kernel
+    from .metrics import evaluate_seen
+    from .solvers import make_problem, solve
+
     learned = _learned_model(args) if args.method == "learned" else None
     rx_path, eye = _load_eye(args)
     display = get_display(args.display)
-    image = read_image(args.input)
+    if learned is not None:                         # the model's range and display, before any work
+        learned.check(eye, display)
+    notes: list[str] = []
+    image = read_image(args.input, notes)
+    _print_notes(notes)
+    _check_memory(args.method, *image.shape[:2])
     target = decode(display, image)
     t0 = time.perf_counter()
     kernel = _build(args, eye, display)
@@ -206,6 +218,39 @@ def cmd_correct(args: argparse.Namespace) -> int:
           f"(objective {result.objective:.3g}, {result.iterations} iterations, {result.seconds:.2f} s)"
           + (f"; report {args.report}" if args.report else ""))
     return 0
+
+
+def available_memory_bytes() -> float | None:
+    """Memory available to a new allocation now (Linux ``MemAvailable``), or None where unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def _check_memory(method: str, height: int, width: int) -> None:
+    """Refuse, before any work, an image whose correction would not fit in memory (one line)."""
+    from .solvers import PEAK_MEMORY, peak_memory_bytes
+
+    available = available_memory_bytes()
+    need = peak_memory_bytes(method, height, width)
+    if available is None or need <= 0.9 * available:
+        return
+    fixed, per_pixel = PEAK_MEMORY[method]
+    side = int(math.sqrt(max(0.9 * available - fixed, 0.0) / per_pixel))
+    raise ValidationError("input", f"{width}x{height} pixels",
+                          f"an image that fits in memory: {method} needs about {need / 2**30:.1f} GiB for it "
+                          f"(about {per_pixel:.0f} bytes a pixel), {available / 2**30:.1f} GiB is available now; "
+                          f"up to about {side}x{side} here")
+
+
+def _print_notes(notes: Sequence[str]) -> None:
+    for note in notes:
+        print(f"vrcorrect: note: {note}", file=sys.stderr)
 
 
 def _finite_json(value: Any, where: str, notes: list[str]) -> Any:
@@ -404,7 +449,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------- render
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from .fileio import check_writable
+    from .fileio import check_readable, check_writable
     from .imageio import read_image, write_png
     from .prescription import load_prescription
     from .runtime.mirror import filter_options, parse_frames
@@ -417,11 +462,14 @@ def cmd_render(args: argparse.Namespace) -> int:
     frames = parse_frames(args.frames, "--frames", MAX_FRAMES)
     if frames is None:
         frames = SETTLED_FRAMES if args.backend == "glsl" and options["filter"] == "fista" else 1
+    check_readable(args.input)
     check_writable(out, force=args.force)
     model = model_for_backend(args.backend, args.model)
     rx_path = args.rx or str(Path(__file__).resolve().parent / "data" / "sample_rx.json")
     rx = load_prescription(rx_path)
-    image = read_image(args.input)
+    notes: list[str] = []
+    image = read_image(args.input, notes)
+    _print_notes(notes)
     if model:
         options["model"] = model
     from tqdm import tqdm

@@ -25,6 +25,24 @@ def check_writable(path: Path, *, force: bool) -> Path:
         raise InputError(f"{path}: folder {parent} does not exist")
     if not os.access(parent, os.W_OK):
         raise InputError(f"{path}: folder {parent} is not writable")
+    try:                                   # what the write will do (a root user passes os.access on /proc)
+        fd, probe = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".probe", dir=parent)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot create a file in folder {parent} ({exc.strerror or exc})") from None
+    os.close(fd)
+    os.unlink(probe)
+    return path
+
+
+def check_readable(path: str | os.PathLike[str]) -> Path:
+    """Fail at once, before heavy imports and work, if the input file ``path`` cannot be read."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, expected an image file")
+    if not os.access(path, os.R_OK):
+        raise InputError(f"{path}: not readable (permissions)")
     return path
 
 

@@ -20,8 +20,12 @@ from .fileio import write_with
 MAX_PIXELS = 8192 * 8192
 
 
-def read_image(path: str | Path) -> np.ndarray:
-    """Read an image file as float32 ``(H, W, 3)`` code values in [0, 1]."""
+def read_image(path: str | Path, notes: list[str] | None = None) -> np.ndarray:
+    """Read an image file as float32 ``(H, W, 3)`` code values in [0, 1].
+
+    ``notes``: when given, what was done silently before is said there: an animated image's first
+    frame is used, an alpha channel is dropped (the colour values are used as stored, not
+    composited over anything)."""
     from PIL import Image, UnidentifiedImageError
 
     path = Path(path)
@@ -34,6 +38,13 @@ def read_image(path: str | Path) -> np.ndarray:
         with Image.open(path) as im:
             im.load()
             mode = im.mode
+            frames = int(getattr(im, "n_frames", 1) or 1)
+            if notes is not None and frames > 1:
+                notes.append(f"{path.name} is animated ({frames} frames): its first frame is used (for moving "
+                             "pictures use vrcorrect mirror, overlay or xr --source)")
+            if notes is not None and (mode in ("RGBA", "LA", "PA") or "transparency" in im.info):
+                notes.append(f"{path.name} has transparency: it is dropped, the colours are used as stored "
+                             "(not composited over a background)")
             if mode in ("I;16", "I;16B", "I;16L", "I"):
                 a = np.asarray(im, dtype=np.float64)
                 scale = 65535.0 if mode.startswith("I;16") or a.max() > 255 else 255.0

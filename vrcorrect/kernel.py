@@ -266,21 +266,55 @@ def build_kernel(eye: EyeRx, display: DisplayProfile, options: KernelOptions | N
         f"kernel {size}x{size} px holds {options.energy_fraction * 100:.2f}% of every cone's energy "
         f"(computed field {full}x{full} px at {ppd:.1f} ppd); crop renormalised so sums equal A")
 
-    samp = [p.sampling for p in psfs.values()]
-    decisions.append(
-        "pupil sampling: FFT grid {}-{}, {:.0f}-{:.0f} samples across the pupil, {}-{} fine samples per "
-        "pixel, worst phase step {:.2f} rad (< pi/2), {} refinement(s)".format(
-            min(s.grid for s in samp), max(s.grid for s in samp),
-            min(s.pupil_samples for s in samp), max(s.pupil_samples for s in samp),
-            min(s.oversample for s in samp), max(s.oversample for s in samp),
-            max(s.max_phase_step_rad for s in samp), sum(s.refinements for s in samp)))
+    all_samp = [p.sampling for p in psfs.values()]
+    samp = [s for s in all_samp if s.model != "geometric"]
+    geo = sorted((s for s in all_samp if s.model == "geometric"), key=lambda s: s.wavelength_nm)
+    if samp:
+        decisions.append(
+            "pupil sampling: FFT grid {}-{}, {:.0f}-{:.0f} samples across the pupil, {}-{} fine samples per "
+            "pixel, worst phase step {:.2f} rad (< pi/2), {} refinement(s)".format(
+                min(s.grid for s in samp), max(s.grid for s in samp),
+                min(s.pupil_samples for s in samp), max(s.pupil_samples for s in samp),
+                min(s.oversample for s in samp), max(s.oversample for s in samp),
+                max(s.max_phase_step_rad for s in samp), sum(s.refinements for s in samp))
+            + (f" (wave optics at {_wavelength_runs(all_samp, 'wave')})" if geo else ""))
+    if geo:
+        needed = max(s.wave_grid_needed for s in geo)
+        worst = max(s.model_error_estimate for s in geo)
+        why = (f"a wave-optics pupil grid would need up to {needed}x{needed} (limit {opt.max_grid})"
+               if needed else f"psf_model option {opt.psf_model!r}")
+        decisions.append(
+            f"PSF model: geometric optics at {_wavelength_runs(all_samp, 'geometric')} ({len(geo)} of "
+            f"{len(all_samp)} PSFs; {why}): the pupil's ray-optics blur integrated over pixels, convolved with its "
+            f"Airy pattern; estimated relative error of the geometric model {worst * 100:.2f}% "
+            f"or less (Airy disc diameter / half-energy blur diameter)")
     info.update(identity=False, kernel_size=size, computed_field_px=full, wavelength_step_nm=chosen,
                 nodes_nm=[float(x) for x in nodes], wavelength_error_estimate=estimate,
-                psfs_computed=len(psfs), max_fft_grid=max(s.grid for s in samp))
+                psfs_computed=len(psfs), max_fft_grid=max((s.grid for s in all_samp), default=0),
+                psf_models={lam: s.model for lam, s in zip(psfs, all_samp)},
+                geometric_wavelengths_nm=[s.wavelength_nm for s in geo],
+                geometric_error_estimate=max((s.model_error_estimate for s in geo), default=None))
     return EyeKernel(kernel=K, matrix=A, pixels_per_degree=ppd, identity=False, wavelength_step_nm=chosen,
                      node_wavelengths_nm=tuple(float(x) for x in nodes), state=state,
                      reference_wavelength_nm=opt.reference_wavelength_nm,
                      decisions=tuple(decisions), info=info)
+
+
+def _wavelength_runs(samplings: list, model: str) -> str:
+    """Wavelengths whose PSF used ``model``, as runs over the sorted computed wavelengths
+    (for example ``"390-470 nm, 750 nm"``)."""
+    ordered = sorted(samplings, key=lambda s: s.wavelength_nm)
+    runs: list[list[float]] = []
+    previous = False
+    for s in ordered:
+        hit = (s.model == "geometric") == (model == "geometric")
+        if hit:
+            if previous:
+                runs[-1].append(s.wavelength_nm)
+            else:
+                runs.append([s.wavelength_nm])
+        previous = hit
+    return ", ".join(f"{r[0]:.0f} nm" if len(r) == 1 else f"{r[0]:.0f}-{r[-1]:.0f} nm" for r in runs)
 
 
 def monochromatic_psf(eye: EyeRx, display: DisplayProfile, wavelength_nm: float,

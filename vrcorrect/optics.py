@@ -543,6 +543,411 @@ def psf_pixels(eye: EyeRx, pv: PowerVector, wavelength_nm: float, pixels_per_deg
     return PixelPsf(pix, float(pixels_per_degree), sampling)
 
 
+# --------------------------------------------------------------------------
+# Geometric-optics PSF (where the wave-optics grid would be too large)
+# --------------------------------------------------------------------------
+
+_GEOMETRIC_PIECES_PER_PIXEL = 16       # quadrature pieces per pixel along the blur's main axis
+_RAY_BUDGET = 16_000_000               # most rays traced for one PSF with higher-order terms
+_RAY_FINE_LIMIT = 4096                 # largest sub-pixel grid (per side) the rays are deposited on
+_RAY_COARSE_CELLS = 192                # pupil cells across the diameter where the gradient is evaluated
+
+
+def diffraction_mtf(rho: np.ndarray) -> np.ndarray:
+    """Transfer function of an aberration-free circular pupil (incoherent light).
+
+    ``rho = f lambda / D`` is the spatial frequency ``f`` (cycles per radian)
+    over the cutoff ``D / lambda``; the value is
+    ``(2/pi)(acos rho - rho sqrt(1 - rho^2))`` below the cutoff, 0 above.  Its
+    Fourier transform is the Airy pattern.
+    """
+    r = np.abs(np.asarray(rho, dtype=np.float64))
+    c = np.minimum(r, 1.0)
+    return np.where(r < 1.0, (2.0 / math.pi) * (np.arccos(c) - c * np.sqrt(1.0 - c * c)), 0.0)
+
+
+def airy_pixels(wavelength_nm: float, pupil_diameter_mm: float, pixels_per_degree: float) -> np.ndarray:
+    """The Airy pattern of the pupil integrated exactly over display pixels.
+
+    The pattern's transfer function (:func:`diffraction_mtf`) times the
+    pixel's (a separable sinc) is band-limited to ``D / lambda``, so sampling
+    it at the harmonics of the field and folding it onto the field's DFT
+    bins gives the pixel integrals exactly (of the pattern wrapped onto the
+    field, as in the wave-optics path).  The field is +-96 ``lambda / D``, the
+    smallest field the wave-optics path computes, at least 3 pixels and at
+    most 1025.  Odd square float64 array, centred, summing to 1.
+    """
+    p = pixel_angle_rad(pixels_per_degree)
+    lam_over_d = wavelength_nm * 1e-9 / (pupil_diameter_mm * 1e-3)   # rad
+    half = int(min(max(math.ceil(96.0 * lam_over_d / p), 1), 512))
+    n = 2 * half + 1
+    df = 1.0 / (n * p)                                  # cycles/rad between harmonics of the field
+    kmax = int(math.floor(1.0 / (lam_over_d * df)))     # harmonics below the cutoff D/lambda
+    k = np.arange(-kmax, kmax + 1)
+    f = k * df
+    box = np.sinc(f * p)
+    spectrum = diffraction_mtf(np.hypot(f[:, None], f[None, :]) * lam_over_d) * box[:, None] * box[None, :]
+    idx = np.mod(k, n)
+    rows = np.zeros((n, k.size))
+    np.add.at(rows, idx, spectrum)
+    folded = np.zeros((n, n))
+    np.add.at(folded.T, idx, rows.T)
+    pix = scipy.fft.fftshift(scipy.fft.ifft2(folded).real)
+    np.maximum(pix, 0.0, out=pix)
+    return pix / pix.sum()
+
+
+def _uniform_cdf(z: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """CDF at ``z`` of the uniform law on ``[-w, w]`` (a unit step at 0 where ``w == 0``)."""
+    wide = w > 0.0
+    return np.where(wide, np.clip((z + w) / (2.0 * np.where(wide, w, 1.0)), 0.0, 1.0), (z >= 0.0) * 1.0)
+
+
+def _uniform_cdf_integral(z: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``int_-inf^z`` of :func:`_uniform_cdf` (``max(z, 0)`` where ``w == 0``)."""
+    inner = (z + w) ** 2 / (4.0 * np.where(w > 0.0, w, 1.0))
+    return np.where(z >= w, z, np.where(z <= -w, 0.0, inner))
+
+
+def _trapezoid_cdf(z: np.ndarray, w: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """CDF at ``z`` of ``U[-w, w] + U[-d, d]`` (either width may be 0)."""
+    moving = d > 1e-6
+    dd = np.where(moving, d, 1.0)
+    trapezoid = (_uniform_cdf_integral(z + dd, w) - _uniform_cdf_integral(z - dd, w)) / (2.0 * dd)
+    out = np.where(moving, trapezoid, _uniform_cdf(z, w))
+    return np.where(z >= w + d, 1.0, np.where(z < -(w + d), 0.0, out))
+
+
+def _column_cdfs(col: np.ndarray, m: np.ndarray, c: np.ndarray, w: np.ndarray, d: np.ndarray,
+                 n1: int, h2: int) -> np.ndarray:
+    """``cdf[j, k] = sum over pieces in column j of m * F(e_k - c)`` at the pixel boundaries
+    ``e_k = k - h2 - 1/2`` (``k = 0 .. 2 h2 + 1``), ``F`` = :func:`_trapezoid_cdf` with
+    half-widths ``w`` and ``d`` (``d < 1/2``; supports inside ``(-h2 - 1/2, h2 + 1/2)``)."""
+    n2 = 2 * h2 + 1
+    ne = n2 + 1                                               # pixel boundaries e_k = k - h2 - 1/2
+    off = h2 + 0.5
+    edges = np.arange(ne, dtype=np.float64) - off
+    size = n1 * (ne + 1)                                      # one spare slot per column: "above all"
+
+    def binned(k: np.ndarray, weights: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """Sum ``weights`` into (column, boundary ``k``) cells; shape (n1, ne + 1)."""
+        k = np.clip(k, 0, ne)
+        return np.bincount((col * (ne + 1) + k)[keep], weights[keep], minlength=size).reshape(n1, ne + 1)
+
+    def at_edge(k: np.ndarray, values: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        keep = keep & (k >= 0) & (k < ne)
+        return binned(k, values, keep)[:, :ne]
+
+    def first_edge_at_or_above(x: np.ndarray) -> np.ndarray:
+        return np.ceil(x + off).astype(np.int64)
+
+    out = np.zeros((n1, ne))
+    wide = w >= 0.5
+    narrow = ~wide
+    # Wide intervals: the uniform CDF is (ramp(z + w) - ramp(z - w)) / (2 w); sum the ramps.
+    a1 = np.zeros((n1, ne + 1))
+    a0 = np.zeros((n1, ne + 1))
+    safe_w = np.where(wide, w, 1.0)
+    for sign, start in ((1.0, c - w), (-1.0, c + w)):
+        alpha = sign * m / (2.0 * safe_w)
+        k = np.floor(start + off).astype(np.int64) + 1      # first boundary strictly above `start`
+        a1 += binned(k, alpha, wide)
+        a0 += binned(k, alpha * start, wide)
+    out += edges[None, :] * np.cumsum(a1, axis=1)[:, :ne] - np.cumsum(a0, axis=1)[:, :ne]
+    # ... and the trapezoid's corrections within d of each end: a window narrower than a pixel,
+    # so at most one boundary, and (as 2 w >= 1) never the other end's boundary.
+    for kink in (c - w, c + w):
+        k = first_edge_at_or_above(kink - d)
+        z = np.clip(k, 0, ne - 1) - off - c
+        out += at_edge(k, m * (_trapezoid_cdf(z, w, d) - _uniform_cdf(z, w)), wide)
+    # Narrow intervals (support under 1.2 pixels): a step of m above the support, exact values inside.
+    top = first_edge_at_or_above(c + w + d)
+    out += np.cumsum(binned(top, m, narrow), axis=1)[:, :ne]
+    k0 = first_edge_at_or_above(c - w - d)
+    for k in (k0, k0 + 1):
+        z = np.clip(k, 0, ne - 1) - off - c
+        out += at_edge(k, m * _trapezoid_cdf(z, w, d), narrow & (k < top))
+    return out
+
+
+def _sheared_disc_masses(l11: float, l21: float, l22: float,
+                         pieces_per_px: int = _GEOMETRIC_PIECES_PER_PIXEL) -> np.ndarray:
+    """Pixel masses of ``(a1, a2) = (l11 v1, l21 v1 + l22 v2)`` for ``(v1, v2)``
+    uniform on the unit disc (``a`` in pixels, ``l11 > 0``, ``|l21| <= l11``).
+
+    Given ``v1``, ``a2`` is uniform on ``l21 v1 +- |l22| sqrt(1 - v1^2)``, so
+    its mass in each pixel along axis 2 is an exact interval overlap (a step
+    when ``l22 = 0``: a line).  Along axis 1 the range of ``v1`` is cut into
+    pieces (at every pixel boundary, and at ``sin`` of equal angles so that
+    they are finer near the disc's rim, ``pieces_per_px`` per pixel) whose
+    masses are exact (the marginal's CDF
+    ``1/2 + (v sqrt(1 - v^2) + asin v) / pi``).  Within a piece the
+    interval's centre moves linearly with ``v1`` (by at most
+    ``1 / pieces_per_px`` pixel); taking ``v1`` as uniform within the piece,
+    the law of ``a2`` is the interval at the piece's middle convolved with
+    that motion (a trapezoid), whose CDF is evaluated exactly at the pixel
+    boundaries, so a line crossing pixel rows is split between them
+    correctly.  The sum over pieces of each column's CDF is accumulated in
+    ``O(pieces + pixels)``: the piecewise-linear part as ramps by cumulative
+    sums, the corrections near the interval's ends (at most two boundaries
+    each) directly.  Returns ``(2 h2 + 1, 2 h1 + 1)`` masses indexed
+    ``[a2, a1]``, centred, summing to 1.
+    """
+    l22 = abs(l22)
+    h1 = int(math.ceil(l11 + 0.5))
+    h2 = int(math.ceil(math.hypot(l21, l22) + 0.5))
+    n1, n2 = 2 * h1 + 1, 2 * h2 + 1
+    n_pieces = max(64, int(math.ceil(math.pi / 2 * pieces_per_px * 2.0 * l11)))
+    v = np.sin(np.linspace(-math.pi / 2, math.pi / 2, n_pieces + 1))
+    cuts = (np.arange(-h1, h1 + 1) + 0.5) / l11          # pixel boundaries a1 = i + 1/2
+    v = np.unique(np.concatenate([v, cuts[np.abs(cuts) < 1.0], [-1.0, 1.0]]))
+    cdf = 0.5 + (v * np.sqrt(np.maximum(1.0 - v * v, 0.0)) + np.arcsin(v)) / math.pi
+    m = np.diff(cdf)
+    mid = 0.5 * (v[1:] + v[:-1])
+    col = np.clip(np.floor(l11 * mid + 0.5).astype(np.int64) + h1, 0, n1 - 1)
+    c = l21 * mid                                             # centre of the interval along a2
+    w = l22 * np.sqrt(np.maximum(1.0 - mid * mid, 0.0))       # its half-width
+    d = 0.5 * abs(l21) * np.diff(v)                           # half the centre's motion over the piece
+    return np.diff(_column_cdfs(col, m, c, w, d, n1, h2), axis=1).T
+
+
+def _convolve_full(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Full 2-D linear convolution of two real arrays by FFT."""
+    shape = (a.shape[0] + b.shape[0] - 1, a.shape[1] + b.shape[1] - 1)
+    fshape = tuple(scipy.fft.next_fast_len(n, real=True) for n in shape)
+    spec = scipy.fft.rfft2(a, fshape, workers=-1) * scipy.fft.rfft2(b, fshape, workers=-1)
+    return scipy.fft.irfft2(spec, fshape, workers=-1)[:shape[0], :shape[1]]
+
+
+def _pad_square(a: np.ndarray) -> np.ndarray:
+    n = max(a.shape)
+    out = np.zeros((n, n))
+    r0, c0 = (n - a.shape[0]) // 2, (n - a.shape[1]) // 2
+    out[r0:r0 + a.shape[0], c0:c0 + a.shape[1]] = a
+    return out
+
+
+def _sphero_cylinder_masses(pv: PowerVector, pupil_radius_mm: float, p: float) -> np.ndarray:
+    """Geometric blur of a pure sphero-cylindrical error, integrated over display pixels.
+
+    The wavefront ``W = -(M (x^2+y^2) + J0 (x^2-y^2) + 2 J45 x y) / 2`` (um, x
+    and y in mm, OSA frame) sends the ray through pupil point ``r`` to the
+    angle ``grad W = -P r`` (mrad) with ``P = [[M + J0, J45], [J45, M - J0]]``.
+    On the display (columns right = ``-theta_x``, rows down = ``-theta_y``,
+    as in the wave-optics path) the uniform pupil disc maps to the uniform
+    ellipse ``(col, row) = B u``, ``B = P R 1e-3 / p``, ``u`` on the unit
+    disc; ``B`` may be singular (a line or a point).  Since the disc is
+    rotation-invariant, ``B u`` has the law of ``L v`` with ``L`` lower
+    triangular along the axis of the longer row of ``B``
+    (:func:`_sheared_disc_masses`).
+    """
+    P = np.array([[pv.M_D + pv.J0_D, pv.J45_D], [pv.J45_D, pv.M_D - pv.J0_D]])
+    B = P * (pupil_radius_mm * 1e-3 / p)          # pixels per unit pupil radius
+    norms = np.hypot(B[:, 0], B[:, 1])
+    if norms.max() < 1e-9:
+        return np.ones((1, 1))
+    first = int(np.argmax(norms))                  # 0: quadrature along columns, 1: along rows
+    b1, b2 = B[first], B[1 - first]
+    l11 = float(norms[first])
+    e1 = b1 / l11
+    e2 = np.array([-e1[1], e1[0]])
+    masses = _sheared_disc_masses(l11, float(b2 @ e1), float(b2 @ e2))   # [other axis, first axis]
+    grid = masses if first == 0 else masses.T     # [row, col]
+    return _pad_square(grid)
+
+
+def _ray_traced_masses(eye: EyeRx, pv: PowerVector, p: float) -> tuple[np.ndarray, int, int]:
+    """Geometric blur with higher-order terms: rays traced through the pupil.
+
+    The transverse ray aberration is the wavefront gradient: the ray through
+    pupil point ``(x, y)`` lands at angle ``grad W(x, y)`` (um/mm = mrad),
+    drawn on the display as in :func:`_sphero_cylinder_masses`.  The gradient
+    is evaluated (central differences) at the corners of 192 x 192 pupil cells
+    and interpolated bilinearly to ``s x s`` rays per cell, ``s`` chosen so
+    neighbouring rays land at most half a sub-pixel apart (at most 16 M rays);
+    each ray carries equal weight and is shared bilinearly between the four
+    nearest cells of a grid 3 times finer than the display pixel (1 time
+    where that grid would exceed 4096 per side), which is then summed over
+    each pixel.  Returns (masses (n, n) centred, sub-pixels per pixel, rays
+    across the pupil).
+    """
+    radius = eye.pupil_diameter_mm / 2.0
+    nc = _RAY_COARSE_CELLS
+    hc = 2.0 * radius / nc
+    c = np.linspace(-radius, radius, nc + 1)
+    X, Y = np.meshgrid(c, c)                       # rows: y ascending, columns: x ascending (OSA)
+    eps = 1e-3 * hc
+    gx = (wavefront_um(eye, pv, X + eps, Y) - wavefront_um(eye, pv, X - eps, Y)) / (2.0 * eps)
+    gy = (wavefront_um(eye, pv, X, Y + eps) - wavefront_um(eye, pv, X, Y - eps)) / (2.0 * eps)
+    col = -gx * 1e-3 / p                           # display columns go to -theta_x
+    row = -gy * 1e-3 / p                           # display rows go to -theta_y
+    mid = 0.5 * (c[1:] + c[:-1])
+    MX, MY = np.meshgrid(mid, mid)
+    touch = np.hypot(MX, MY) <= radius + hc * 0.7072    # cells that reach into the pupil
+    iy, ix = np.nonzero(touch)
+    corners_c = np.stack([col[iy, ix], col[iy, ix + 1], col[iy + 1, ix], col[iy + 1, ix + 1]])
+    corners_r = np.stack([row[iy, ix], row[iy, ix + 1], row[iy + 1, ix], row[iy + 1, ix + 1]])
+    half = int(math.ceil(max(np.abs(corners_c).max(), np.abs(corners_r).max()) + 1.0))
+    n_pix = 2 * half + 1
+    q = 3 if 3 * n_pix <= _RAY_FINE_LIMIT else 1
+    nf = n_pix * q
+    spread = max(np.ptp(corners_c, axis=0).max(), np.ptp(corners_r, axis=0).max()) * q   # sub-pixels per cell
+    s_max = max(2, int(math.sqrt(_RAY_BUDGET / iy.size)))
+    s = int(min(max(math.ceil(2.0 * spread), 2), s_max))
+    t = (np.arange(s) + 0.5) / s
+    x0, y0 = c[ix], c[iy]
+    fine = np.zeros(nf * nf)
+    centre = (nf - 1) / 2.0
+    batch_c: list[np.ndarray] = []
+    batch_r: list[np.ndarray] = []
+    pending = 0
+
+    def deposit() -> None:
+        fc = np.concatenate(batch_c) * q + centre
+        fr = np.concatenate(batch_r) * q + centre
+        i0 = np.floor(fc).astype(np.int64)
+        j0 = np.floor(fr).astype(np.int64)
+        wc = fc - i0
+        wr = fr - j0
+        base = j0 * nf + i0
+        n = nf * nf
+        fine[:] += np.bincount(base, (1 - wc) * (1 - wr), minlength=n)
+        fine[:] += np.bincount(base + 1, wc * (1 - wr), minlength=n)
+        fine[:] += np.bincount(base + nf, (1 - wc) * wr, minlength=n)
+        fine[:] += np.bincount(base + nf + 1, wc * wr, minlength=n)
+        batch_c.clear()
+        batch_r.clear()
+
+    for ty in t:
+        ty_ = ty
+        for tx in t:
+            inside = (x0 + tx * hc) ** 2 + (y0 + ty_ * hc) ** 2 <= radius * radius
+            w00, w01, w10, w11 = (1 - tx) * (1 - ty_), tx * (1 - ty_), (1 - tx) * ty_, tx * ty_
+            cc = w00 * corners_c[0] + w01 * corners_c[1] + w10 * corners_c[2] + w11 * corners_c[3]
+            rr = w00 * corners_r[0] + w01 * corners_r[1] + w10 * corners_r[2] + w11 * corners_r[3]
+            batch_c.append(cc[inside])
+            batch_r.append(rr[inside])
+            pending += int(inside.sum())
+            if pending > 4_000_000:
+                deposit()
+                pending = 0
+    if batch_c:
+        deposit()
+    masses = fine.reshape(n_pix, q, n_pix, q).sum(axis=(1, 3))
+    return masses / masses.sum(), q, nc * s
+
+
+def half_energy_radius_px(masses: np.ndarray) -> float:
+    """Radius (pixels, from the centre pixel) of the circle holding half of ``masses``'
+    energy, each pixel's mass taken at its centre and the cumulative energy
+    interpolated linearly in radius (a pixel-resolution estimate)."""
+    n = masses.shape[0]
+    c = n // 2
+    yy, xx = np.mgrid[:n, :n]
+    r = np.hypot(xx - c, yy - c).ravel()
+    order = np.argsort(r, kind="stable")
+    cum = np.cumsum(masses.ravel()[order])
+    return float(np.interp(0.5 * cum[-1], cum, r[order]))
+
+
+def geometric_error_estimate(wavelength_nm: float, pupil_diameter_mm: float, blur_r50_rad: float) -> float:
+    """Estimated relative error of the geometric-optics PSF.
+
+    The ratio of the diffraction blur, the Airy disc's diameter
+    ``2.44 lambda / D``, to the geometric blur's size, the diameter of the
+    circle holding half its energy (``2 blur_r50_rad``; for a uniform disc
+    of radius ``a`` that is ``sqrt(2) a``).  Geometric optics leaves out
+    interference (the ripples of the defocused wave PSF, the diffraction
+    structure of caustics); their effect on the blur's size, relative to it,
+    is of this order or less.  Checked in ``tests/test_optics_geometric.py``
+    against wave-optics PSFs where both are feasible: the radii holding half
+    the energy agreed to within a third to a half of this estimate.  Infinite
+    for no geometric blur.
+    """
+    if not blur_r50_rad > 0.0:
+        return math.inf
+    return diffraction_blur_rad(wavelength_nm, pupil_diameter_mm) / (2.0 * blur_r50_rad)
+
+
+def geometric_psf_pixels(eye: EyeRx, pv: PowerVector, wavelength_nm: float, pixels_per_degree: float,
+                         options: OpticsOptions = OpticsOptions(), *, wave_grid_needed: int = 0) -> PixelPsf:
+    """Monochromatic PSF by geometric optics, integrated over pixels, with the Airy core.
+
+    For a wavefront so steep that a wave-optics pupil grid would be too large
+    the defocus blur is many times the diffraction blur and geometric optics
+    is accurate.  The PSF is the pupil's ray-traced blur patch integrated
+    exactly over display pixels, convolved with the Airy pattern of the pupil
+    at this wavelength (:func:`airy_pixels`, also pixel-integrated), clipped
+    at 0 and normalised to sum 1.
+
+    * Pure sphero-cylinder (no higher-order terms): the blur patch is the
+      uniform pupil disc mapped through the power matrix, an ellipse,
+      possibly degenerate (a line or a point), integrated over pixels
+      semi-analytically (:func:`_sphero_cylinder_masses`).
+    * With higher-order terms: rays traced to ``grad W``
+      (:func:`_ray_traced_masses`).
+
+    Orientation and centre are those of :func:`psf_pixels`: rows down and
+    columns right as the subject sees the display (the OSA frame mirrored in
+    x), zero angle on the centre pixel.  The diffraction is applied at pixel
+    resolution (the blur's pixel masses convolved with the pixel-integrated
+    Airy pattern), which widens it by up to one pixel's box; that matters only
+    where the Airy pattern is not small against the blur.
+
+    Parameters
+    ----------
+    eye, pv, wavelength_nm, pixels_per_degree, options
+        As for :func:`psf_pixels`.
+    wave_grid_needed
+        The wave-optics grid (per side) this PSF replaces, recorded in its
+        sampling; 0 when geometric optics was asked for directly.
+
+    Returns
+    -------
+    PixelPsf
+        ``sampling.model == "geometric"``; ``sampling.model_error_estimate``
+        from :func:`geometric_error_estimate`.
+
+    Raises
+    ------
+    ModelLimitError
+        If the blur would need more than ``options.max_grid`` pixels per side.
+    """
+    if not (300.0 <= wavelength_nm <= 1000.0):
+        raise ValidationError("wavelength_nm", wavelength_nm, "300 to 1000 nm")
+    if not (1.0 <= pixels_per_degree <= 500.0):
+        raise ValidationError("pixels_per_degree", pixels_per_degree, "1 to 500")
+    p = pixel_angle_rad(pixels_per_degree)
+    D = eye.pupil_diameter_mm
+    slope = max_wavefront_slope_rad(eye, pv)
+    needed = 2 * int(math.ceil(slope / p + 2.0)) + 1
+    if needed > options.max_grid:
+        raise ModelLimitError(
+            f"the geometric PSF at {wavelength_nm:.0f} nm would be {needed}x{needed} pixels (limit "
+            f"{options.max_grid}): the blur ({max_meridian_power_D(pv):.1f} D over a {D:g} mm pupil) is too wide "
+            f"for {pixels_per_degree:g} pixels per degree; use a smaller pupil_diameter_mm or a lower "
+            f"pixels_per_degree")
+    has_ho = eye.higher_order is not None and bool(eye.higher_order.coefficients_um)
+    if has_ho:
+        blur, q, rays = _ray_traced_masses(eye, pv, p)
+    else:
+        blur, q, rays = _sphero_cylinder_masses(pv, D / 2.0, p), 1, 0
+    airy = airy_pixels(wavelength_nm, D, pixels_per_degree)
+    pix = _convolve_full(blur, airy)
+    np.maximum(pix, 0.0, out=pix)
+    total = pix.sum()
+    if not (total > 0 and math.isfinite(total)):
+        raise ModelLimitError("geometric PSF computation produced no energy")
+    pix = np.ascontiguousarray(pix / total)
+    sampling = PsfSampling(wavelength_nm=float(wavelength_nm), oversample=q, grid=0, pupil_samples=float(rays),
+                           fine_step_rad=p / q, max_phase_step_rad=math.nan, refinements=0, slope_rad=slope,
+                           model="geometric",
+                           model_error_estimate=geometric_error_estimate(
+                               wavelength_nm, D, half_energy_radius_px(blur) * p),
+                           wave_grid_needed=int(wave_grid_needed))
+    return PixelPsf(pix, float(pixels_per_degree), sampling)
+
+
 def energy_size(arrays: np.ndarray, fraction: float) -> int:
     """Smallest odd size ``s`` whose centred ``s x s`` window holds ``fraction``
     of the energy of every array in ``arrays`` (shape ``(..., n, n)``)."""

@@ -377,14 +377,38 @@ class _BankGL:
         release(self.row_taps, self.col_taps, self.rows_prog, self.cols_prog)
 
 
-def _load_rx(rx):
-    from ..prescription import Prescription, load_prescription
+@dataclass(frozen=True, eq=False)
+class RxSnapshot:
+    """A prescription file read once: what it held, and the file's stamp (modification time and
+    size) taken just before the read.  An application that corrects several eyes reads the file
+    once and gives this to every eye's :class:`Corrector`, so all are built from one parse however
+    long the builds take; each corrector's :meth:`Corrector.poll` then sees any later change
+    (an edit made during the builds included) and handles it as hot reload does, keeping the
+    last good prescription when the new file is invalid."""
 
+    prescription: Any          # Prescription
+    path: Path
+    stamp: tuple[int, int] | None
+
+    @classmethod
+    def read(cls, path: str | os.PathLike[str]) -> "RxSnapshot":
+        from ..prescription import load_prescription
+
+        path = Path(path)
+        stamp = _file_stamp(path)
+        return cls(load_prescription(path), path, stamp)
+
+
+def _load_rx(rx):
+    from ..prescription import Prescription
+
+    if isinstance(rx, RxSnapshot):
+        return rx
     if isinstance(rx, Prescription):
-        return rx, None
+        return RxSnapshot(rx, None, None)
     if isinstance(rx, (str, os.PathLike)):
-        return load_prescription(rx), Path(rx)
-    raise ValidationError("rx", type(rx).__name__, "a prescription JSON path or a Prescription")
+        return RxSnapshot.read(rx)
+    raise ValidationError("rx", type(rx).__name__, "a prescription JSON path, a Prescription or an RxSnapshot")
 
 
 def _file_stamp(path: Path) -> tuple[float, int] | None:
@@ -403,7 +427,9 @@ class Corrector:
     ctx
         A moderngl context with OpenGL >= 4.3 (compute shaders).
     rx
-        Prescription JSON path (watched by :meth:`poll`) or a :class:`~vrcorrect.prescription.Prescription`.
+        Prescription JSON path (watched by :meth:`poll`), a :class:`~vrcorrect.prescription.Prescription`,
+        or an :class:`RxSnapshot` (a file read once for several eyes; watched from the moment it was
+        read).
     display
         Display preset name, profile path or :class:`~vrcorrect.display.DisplayProfile`.
     eye
@@ -431,8 +457,8 @@ class Corrector:
         if self.display.transfer != "srgb":
             raise ValidationError("display transfer", f"{self.display.transfer} ({self.display.name})",
                                   "srgb (the real-time path encodes sRGB only so far)")
-        self.prescription, self.rx_path = _load_rx(rx)
-        self._stamp = _file_stamp(self.rx_path) if self.rx_path else None
+        snapshot = _load_rx(rx)
+        self.prescription, self.rx_path, self._stamp = snapshot.prescription, snapshot.path, snapshot.stamp
         self._last_poll = time.monotonic()
         self.enabled = True
         self.status = ""
@@ -498,8 +524,11 @@ class Corrector:
     def _rebuild(self, base_eye) -> None:
         from ..solvers.wiener import spectral_norm_squared
 
-        model = build_eye_model(self._with_offset(base_eye), self.display, self.options)
-        if self._learned is not None:               # refuses an eye outside the trained range
+        eye = self._with_offset(base_eye)
+        if self._learned is not None:               # an eye outside the trained range: refused before the work
+            self._learned.check(eye, self.display)
+        model = build_eye_model(eye, self.display, self.options)
+        if self._learned is not None:
             bound = self._learned.for_eye(model.eye, self.display, model.kernel, model.reference)
             if self._onnx is not None:
                 self._onnx.release()

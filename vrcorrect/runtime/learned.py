@@ -97,6 +97,16 @@ class LearnedModel:
         self.metadata = meta
         self.providers = self.session.get_providers()
 
+    def check(self, eye: EyeRx, display) -> EyeRx:
+        """Refuse, before any kernel is built, an eye outside the trained range or a display other
+        than the trained one (one line naming the range and suggesting ``wiener`` or ``fast``);
+        returns the eye as checked."""
+        e = check_eye(eye, self.ranges, f"the model {self.path.name}")
+        if display.name != self.display.get("name"):
+            raise ValidationError("display", display.name, f"{self.display.get('name')} (the display the model "
+                                  f"{self.path.name} was trained for); for other displays use --method wiener or fast")
+        return e
+
     def for_eye(self, eye: EyeRx, display, kernel=None, reference_kernel=None) -> "LearnedEye":
         """The model bound to one eye on ``display`` (kernels built here unless given).
 
@@ -107,10 +117,7 @@ class LearnedModel:
         """
         from ..kernel import build_kernel, build_reference_kernel
 
-        e = check_eye(eye, self.ranges, f"the model {self.path.name}")
-        if display.name != self.display.get("name"):
-            raise ValidationError("display", display.name, f"{self.display.get('name')} (the display the model "
-                                  f"{self.path.name} was trained for); for other displays use --method wiener or fast")
+        e = self.check(eye, display)
         kernel = kernel if kernel is not None else build_kernel(e, display)
         if reference_kernel is None and self.reference == "glasses":
             reference_kernel = build_reference_kernel(e, display)

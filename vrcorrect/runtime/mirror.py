@@ -701,12 +701,16 @@ class Mirror:
 
     def __init__(self, config: MirrorConfig = MirrorConfig(), *, echo: Callable[[str], None] | None = print):
         from ..display import get_display
-        from ..prescription import bundled_sample_path, load_prescription
+        from ..prescription import bundled_sample_path
+        from .corrector import RxSnapshot
 
         self.config = config
         self._echo = echo
         self.rx_path = Path(config.rx) if config.rx is not None else bundled_sample_path()
-        prescription = load_prescription(self.rx_path)
+        # read once: both eyes are built from this parse; later edits (during the builds too) come
+        # through each corrector's poll
+        self._rx = RxSnapshot.read(self.rx_path)
+        prescription = self._rx.prescription
         self.display = get_display(config.display)
         if self.display.transfer != "srgb":
             raise ValidationError("--display", f"{config.display} (transfer {self.display.transfer})",
@@ -757,7 +761,7 @@ class Mirror:
         for eye in EYES:
             self._say(f"building the {eye} eye's correction ({self._rx_text(eye)} on {self.display.name})...")
             t0 = time.perf_counter()
-            self.correctors[eye] = Corrector(ctx, self.rx_path, self.display, eye, cfg.backend,
+            self.correctors[eye] = Corrector(ctx, self._rx, self.display, eye, cfg.backend,
                                              **dict(cfg.corrector_options))
             self._say(f"  built in {time.perf_counter() - t0:.1f} s")
         start_motion(self.source, self.correctors.values(), cfg.reprojection)
@@ -828,15 +832,11 @@ class Mirror:
         self._set_status(f"{eye} eye now {self._rx_text(eye)} (rebuilt in {time.perf_counter() - t0:.1f} s)")
 
     def _poll(self) -> None:
-        from ..prescription import load_prescription
-
         for eye in EYES:
             corrector = self.correctors[eye]
             if corrector.poll():
-                try:
-                    self._base[eye] = load_prescription(self.rx_path).eye(eye)
-                except VrcorrectError:
-                    pass  # the corrector read it a moment ago; it will say if it changed again
+                # what the corrector now corrects for, from its own read of the file (not a second read)
+                self._base[eye] = corrector.prescription.eye(eye)
                 self._set_status(f"{self.rx_path.name} reloaded: {eye} eye {self._rx_text(eye)}")
             elif corrector.status and corrector.status != self.status:
                 self._set_status(corrector.status)

@@ -268,13 +268,14 @@ class Overlay:
 
     def __init__(self, config: OverlayConfig, *, echo: Callable[[str], None] | None = print):
         from ..display import get_display
-        from ..prescription import bundled_sample_path, load_prescription
+        from ..prescription import bundled_sample_path
+        from .corrector import RxSnapshot
         from .scene import screen_bounds
 
         self.config = config
         self._echo = echo
         self.rx_path = Path(config.rx) if config.rx is not None else bundled_sample_path()
-        load_prescription(self.rx_path)  # a bad file fails here, before any window
+        self._rx = RxSnapshot.read(self.rx_path)  # read once; a bad file fails here, before any window
         self.display = get_display(config.display or default_display(config.source))
         if self.display.transfer != "srgb":
             raise ValidationError("--display", f"{self.display.name} (transfer {self.display.transfer})",
@@ -362,7 +363,7 @@ class Overlay:
             self.source = open_source(ctx, self.spec, w, h, folder_interval_s=cfg.folder_interval_s)
         self._say(f"building the {cfg.eye} eye's correction for {self.display.name} ({self.source.label}, {w}x{h})...")
         t0 = time.perf_counter()
-        self.corrector = Corrector(ctx, self.rx_path, self.display, cfg.eye, cfg.backend,
+        self.corrector = Corrector(ctx, self._rx, self.display, cfg.eye, cfg.backend,
                                    **dict(cfg.corrector_options))
         self._say(f"  built in {time.perf_counter() - t0:.1f} s")
         start_motion(self.source, [self.corrector], cfg.reprojection)

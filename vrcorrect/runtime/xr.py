@@ -398,12 +398,13 @@ class XrApp:
 
     def __init__(self, config: XrConfig = XrConfig(), *, echo: Callable[[str], None] | None = print):
         from ..display import get_display
-        from ..prescription import bundled_sample_path, load_prescription
+        from ..prescription import bundled_sample_path
+        from .corrector import RxSnapshot
 
         self.config = config
         self._echo = echo
         self.rx_path = Path(config.rx) if config.rx is not None else bundled_sample_path()
-        load_prescription(self.rx_path)  # fail early on a bad file
+        self._rx = RxSnapshot.read(self.rx_path)  # read once for both eyes; a bad file fails here
         self.display = get_display(config.display)
         if self.display.transfer != "srgb":
             raise ValidationError("--display", f"{config.display} (transfer {self.display.transfer})",
@@ -583,7 +584,7 @@ class XrApp:
         for eye in EYES:
             self._say(f"building the {eye} eye's correction ({self.display.name}) ...")
             t0 = time.perf_counter()
-            self.correctors[eye] = Corrector(ctx, self.rx_path, self.display, eye, cfg.backend,
+            self.correctors[eye] = Corrector(ctx, self._rx, self.display, eye, cfg.backend,
                                              **dict(cfg.corrector_options))
             self._say(f"  built in {time.perf_counter() - t0:.1f} s")
         if self.spec is None or not hasattr(self.source, "_draws"):     # a head-locked picture source

@@ -99,6 +99,31 @@ class SolveResult:
     history: list[float] = field(default_factory=list)
 
 
+# Peak resident memory of ``vrcorrect correct`` by method, measured on the development machine
+# (ru_maxrss of a whole run, the sample prescription on quest2, random images of 256^2 and 768^2;
+# paper at 256^2 and 512^2; conventional only at 256^2, so its bytes a pixel are an assumption,
+# 1.5 times paper's): a fixed part (interpreter, libraries, the eye's kernel) and bytes per image
+# pixel (the solver's float32 planes and complex64 spectra on the padded grid).  Used to refuse,
+# before any work, an image that cannot fit; ``none`` is wiener's less the solve (an assumption).
+PEAK_MEMORY = {                    # method: (fixed bytes, bytes per pixel)
+    "none": (0.3e9, 120.0),
+    "wiener": (0.3e9, 420.0),
+    "fast": (0.3e9, 330.0),
+    "learned": (0.4e9, 420.0),
+    "paper": (0.45e9, 430.0),
+    "conventional": (0.55e9, 650.0),
+}
+
+
+def peak_memory_bytes(method: str, height: int, width: int) -> float:
+    """Estimated peak memory of correcting an ``height x width`` image with ``method`` (see
+    :data:`PEAK_MEMORY`; a kernel much larger than the sample's adds to the fixed part)."""
+    if method not in PEAK_MEMORY:
+        raise ValidationError("method", method, "one of " + ", ".join(PEAK_MEMORY))
+    fixed, per_pixel = PEAK_MEMORY[method]
+    return fixed + per_pixel * height * width
+
+
 def solve(problem: Problem, method: str = "fast", progress: Callable[[int, int], None] | None = None,
           **options) -> SolveResult:
     """Run one correction method on ``problem``.
