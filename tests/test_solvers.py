@@ -305,3 +305,25 @@ def test_projected_gradient_plan_is_reused_and_checked(myope_kernel):
     np.testing.assert_array_equal(projected_gradient(p, 3, plan), projected_gradient(p, 3, plan))
     with pytest.raises(ValidationError, match="plan"):
         projected_gradient(p, 3, gradient_plan(myope_kernel, (40, 48)))
+
+
+def test_wiener_designs_filters_only_where_the_image_is_large_beside_the_eye(desktop, myope_kernel):
+    """Model only what the image needs: on an image smaller than its filters' first design grid
+    wiener applies the untruncated inverse on the image's own grid (no design, no filter size;
+    a strong eye at 256 px took 40 s to design for), on a large one it designs and caches the
+    filters; either way it is below no correction, and the two agree closely where both run."""
+    from vrcorrect.solvers import objective
+    from vrcorrect.solvers.wiener import _first_design_grid, correction_filters, wiener
+
+    small = make_problem(decode("srgb", photo("astronaut", 32)), myope_kernel)
+    assert _first_design_grid(myope_kernel, None) > 32 + 2 * myope_kernel.size
+    correction_filters.cache_clear()
+    x, settings = wiener(small)
+    assert settings["filter_size"] is None and correction_filters.cache_info().misses == 0
+    assert objective(x, small) < objective(small.target, small)
+    designed, designed_settings = wiener(small, design=True)
+    assert designed_settings["filter_size"] is not None
+    assert abs(objective(x, small) - objective(designed, small)) <= 0.05 * objective(designed, small)
+    side = _first_design_grid(myope_kernel, None)
+    large = make_problem(decode("srgb", photo("astronaut", side)), myope_kernel)
+    assert wiener(large)[1]["filter_size"] is not None

@@ -37,7 +37,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .errors import InputError, Problem, ValidationError, ValidationErrors
+from .errors import InputError, Problem, ValidationError, ValidationErrors, json_error_location
 
 __all__ = [
     "Spectra",
@@ -953,7 +953,7 @@ def load_display_profile(path: str | os.PathLike[str]) -> DisplayProfile:
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: line {exc.lineno}: not valid JSON: {exc.msg}") from None
+        raise InputError(f"{path}: not valid JSON at {json_error_location(exc)}") from None
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a JSON object, found {type(doc).__name__}")
 

@@ -111,3 +111,21 @@ class GLError(VrcorrectError, RuntimeError):
 
 class GLUnavailableError(GLError):
     """No OpenGL context could be created (library missing, no display, version too old)."""
+
+
+def json_error_location(exc) -> str:
+    """Where a ``json.JSONDecodeError`` really is, in words: ``"line L, column C: message"``.
+
+    A trailing comma (``{"a": 1,}``) makes the parser complain at the next token, often on the
+    next line; the comma itself is what to fix, so that is where this points.
+    """
+    doc, pos = exc.doc, exc.pos
+    if exc.msg.startswith(("Expecting property name", "Expecting value", "Illegal trailing comma")):
+        i = pos - 1
+        while i >= 0 and doc[i] in " \t\r\n":
+            i -= 1
+        if i >= 0 and doc[i] == "," and pos < len(doc) and doc[pos] in "}]":
+            line = doc.count("\n", 0, i) + 1
+            column = i - (doc.rfind("\n", 0, i) + 1) + 1
+            return f"line {line}, column {column}: a comma before the closing {doc[pos]!r} (JSON allows none there)"
+    return f"line {exc.lineno}, column {exc.colno}: {exc.msg}"

@@ -44,7 +44,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from .errors import InputError, Problem, ValidationError, ValidationErrors
+from .errors import InputError, Problem, ValidationError, ValidationErrors, json_error_location
 from .fileio import write_text_atomic
 
 __all__ = [
@@ -733,7 +733,7 @@ def _read_document(path: str | PathLike[str]) -> tuple[Path, Any]:
         line = exc.doc.splitlines()[exc.lineno - 1] if exc.lineno - 1 < len(exc.doc.splitlines()) else ""
         hint = " (only whole-line // comments are allowed)" if "//" in line else ""
         raise InputError(
-            f"{path}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}{hint}"
+            f"{path}: invalid JSON at {json_error_location(exc)}{hint}"
         ) from None
     except _DuplicateKey as exc:
         raise InputError(f"{path}: key {exc.args[0]!r} appears twice in one JSON object") from None
