@@ -310,10 +310,16 @@ def test_extreme_pixel_densities(ppd):
     assert p.shape[0] >= 2 * expected_radius_px   # the field holds the blur disc
 
 
-def test_too_steep_for_memory_is_a_clear_error():
+def test_too_steep_for_wave_optics_switches_to_geometric_optics():
+    """-20 D over an 8 mm pupil at 120 ppd needs a pupil grid far beyond the limit: the wave
+    model alone refuses it clearly; the default (auto) models it with geometric optics, where the
+    blur is many times the diffraction blur (tests/test_optics_geometric.py checks the model)."""
     e = eye(-20.0, pupil=8.0)
     with pytest.raises(ModelLimitError, match="pupil_diameter_mm"):
-        psf_pixels(e, e.power_vector(), 400.0, 120.0)
+        psf_pixels(e, e.power_vector(), 400.0, 120.0, OpticsOptions(psf_model="wave"))
+    psf = psf_pixels(e, e.power_vector(), 400.0, 120.0)
+    assert psf.sampling.model == "geometric" and psf.sampling.model_error_estimate < 0.05
+    assert abs(float(psf.values.sum()) - 1.0) < 1e-9 and np.all(np.isfinite(psf.values))
 
 
 def test_bad_arguments_are_named():

@@ -390,8 +390,8 @@ def cmd_acuity(args: argparse.Namespace) -> int:
     from .acuity import Observer, chart_lines
     from .cli import _kernel_options, _load_eye
     from .display import get_display
-    from .fileio import write_text_atomic
-    from .imageio import write_png
+    from .fileio import atomic_paths
+    from .imageio import png_writer
 
     methods = _check_methods(args.methods)
     _check_outputs(args)
@@ -432,15 +432,19 @@ def cmd_acuity(args: argparse.Namespace) -> int:
     print("  " + summary_line(result), file=out)
     print("sharp-template observer (knows the letters as they look with glasses):", file=out)
     print("  " + summary_line(result, "sharp"), file=out)
+    outputs = []
     if args.png:
         title = (f"{args.eye} eye {eye.sphere_D:+.2f} / {eye.cylinder_D:+.2f} x {eye.axis_deg:g} on "
                  f"{display.title}, seen at {where}")
-        write_png(Path(args.png), acuity_panel(result, title).astype(np.float64) / 255.0, force=args.force)
-        print(f"wrote {args.png}", file=out)
+        outputs.append((Path(args.png), png_writer(args.png, acuity_panel(result, title).astype(np.float64) / 255.0)))
     text = json.dumps(report, indent=2) + "\n"
+    if args.json and args.json != "-":
+        outputs.append((Path(args.json), lambda tmp: tmp.write_text(text, encoding="utf-8")))
+    with atomic_paths([path for path, _ in outputs], force=args.force) as tmps:   # the files: all or nothing
+        for (_, writer), tmp in zip(outputs, tmps):
+            writer(tmp)
+    for path, _ in outputs:
+        print(f"wrote {path}", file=out)
     if args.json == "-":
         sys.stdout.write(text)
-    elif args.json:
-        write_text_atomic(Path(args.json), text, force=args.force)
-        print(f"wrote {args.json}", file=out)
     return 0

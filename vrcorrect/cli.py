@@ -304,7 +304,7 @@ def cmd_psf(args: argparse.Namespace) -> int:
     import numpy as np
 
     from .display import get_display
-    from .fileio import check_writable, write_text_atomic, write_with
+    from .fileio import atomic_paths, check_writable
     from .kernel import monochromatic_psf
 
     out = Path(args.output)
@@ -342,12 +342,19 @@ def cmd_psf(args: argparse.Namespace) -> int:
                     kernel_size=kernel.size, wavelengths_nm=list(kernel.node_wavelengths_nm),
                     wavelength_step_nm=kernel.wavelength_step_nm, identity=kernel.identity,
                     rgb_to_lms=kernel.matrix.tolist(), decisions=list(kernel.decisions))
-    write_with(out, lambda tmp: np.save(tmp.open("wb"), array), force=args.force)
-    write_text_atomic(sidecar, json.dumps(meta, indent=2) + "\n", force=args.force)
+    def save_array(tmp: Path) -> None:
+        with tmp.open("wb") as f:
+            np.save(f, array)
+
+    text = json.dumps(meta, indent=2) + "\n"
+    outputs = [(out, save_array), (sidecar, lambda tmp: tmp.write_text(text, encoding="utf-8"))]
     if args.png:
         from .plots import plot_psf
 
-        write_with(Path(args.png), lambda tmp: plot_psf(array, meta, tmp), force=args.force)
+        outputs.append((Path(args.png), lambda tmp: plot_psf(array, meta, tmp)))
+    with atomic_paths([path for path, _ in outputs], force=args.force) as tmps:   # all or nothing
+        for (_, writer), tmp in zip(outputs, tmps):
+            writer(tmp)
     print(f"wrote {out} ({'x'.join(map(str, array.shape))}) and {sidecar}" + (f" and {args.png}" if args.png else ""))
     return 0
 

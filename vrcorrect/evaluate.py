@@ -35,7 +35,8 @@ The target is the paper's ideal ``A t`` (the target's cone image with no
 blur at all: ``make_problem(target, kernel, reference_kernel=None)``).
 
 Outputs (in ``out_dir``; nothing is overwritten without ``force``, which is
-checked before any work; every file is written atomically):
+checked before any work; all files are written together at the end, so an interrupted or
+failed run leaves none of them):
 
 * ``results.csv``: one row per image x prescription x method (``none`` is
   the uncorrected image), columns :data:`CSV_COLUMNS`;
@@ -705,7 +706,7 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
     from tqdm import tqdm
 
     from .display import DisplayProfile, decode, get_display
-    from .fileio import check_writable, write_text_atomic, write_with
+    from .fileio import atomic_paths, check_writable
     from .kernel import KernelOptions, build_kernel
     from .metrics import evaluate_seen
     from .optics import OpticsOptions
@@ -740,6 +741,7 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
     panel_dir.mkdir(parents=True, exist_ok=True)
     for p in targets:
         check_writable(p, force=force)
+    outputs: list[tuple[Path, Any]] = []             # (path, writer of a temporary path), written together
 
     kernel_options = KernelOptions(optics=OpticsOptions(viewing_distance_m=math.inf))
     scored = ("none", *methods)
@@ -774,7 +776,7 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
                      f"as the eye sees it on {display.name}")
             panel = _compose_panel(title, columns)
             path = panel_dir / f"{name}_{rx.key}.png"
-            write_with(path, lambda tmp, im=panel: im.save(tmp, format="PNG"), force=force)
+            outputs.append((path, lambda tmp, im=panel: im.save(tmp, format="PNG")))   # written at the end
             bar.update(1)
     finally:
         bar.close()
@@ -801,10 +803,15 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
     verdicts = _verdicts(summary)
     wins = _beats_uncorrected(rows, scored, acuity_logmar)
     seconds_total = time.perf_counter() - t_start
-    write_text_atomic(files["csv"], _csv_text(rows), force=force)
-    write_text_atomic(files["markdown"],
-                      _markdown(rows, summary, verdicts, display, size if size is not None else "as given",
-                                images, scored, seconds_total, wins), force=force)
+    csv_text = _csv_text(rows)
+    markdown = _markdown(rows, summary, verdicts, display, size if size is not None else "as given", images, scored,
+                         seconds_total, wins)
+    outputs.append((files["csv"], lambda tmp: tmp.write_text(csv_text, encoding="utf-8")))
+    outputs.append((files["markdown"], lambda tmp: tmp.write_text(markdown, encoding="utf-8")))
+    # every panel and both tables appear together, or (interrupted, failed) none of them
+    with atomic_paths([path for path, _ in outputs], force=force) as tmps:
+        for (_, writer), tmp in zip(outputs, tmps):
+            writer(tmp)
     return {"rows": rows, "summary": summary, "summary_markdown": summary_table(summary), "verdicts": verdicts,
             "wins": wins, "acuity": acuity_logmar, "files": files, "seconds": seconds_total}
 
