@@ -47,8 +47,9 @@ black outside the image): what the eye sees of the displayed image, for previews
 Why ``"fista"`` is the default: on a still view its warm start makes N frames of k iterations
 N k iterations, so it reaches the box-constrained optimum (``fast``'s objective within 5 % after
 5 frames at k = 4, ``vrcorrect bench realtime``) where the one-pass inverse stays far from it; the
-default k = 4 is the smallest k that is there within a tenth of a second at 90 Hz (10 frames)
-while costing 2 k + 3 = 11 FFT round trips per frame (docs/benchmarks.md).
+default k = 4 is the smallest k within 5 % of ``fast`` by frame 5 and past it by frame 10 (a tenth
+of a second at 90 Hz; k = 2 needs 10 frames to come within 5 %, k = 1 twenty), at 2 k + 3 = 11 FFT
+round trips per frame (docs/benchmarks.md).
 
 For ``"fft"`` and ``"separable"`` the regulariser and the blend weight are chosen once per eye, by the CPU
 ``wiener`` method on the bundled sample image (so the GPU result equals
@@ -82,7 +83,7 @@ from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
 from .gl import check_gl_errors, fullscreen_triangle, release
 from .shaders import compile_compute, compile_program
 
-__all__ = ["CorrectorOptions", "EyeModel", "Corrector", "BACKENDS", "build_eye_model"]
+__all__ = ["CorrectorOptions", "EyeModel", "Corrector", "RxSnapshot", "BACKENDS", "build_eye_model"]
 
 log = logging.getLogger(__name__)
 
@@ -387,7 +388,7 @@ class RxSnapshot:
     last good prescription when the new file is invalid."""
 
     prescription: Any          # Prescription
-    path: Path
+    path: Path | None          # None: not from a file (nothing to watch)
     stamp: tuple[int, int] | None
 
     @classmethod
