@@ -51,26 +51,18 @@ def _one_line_error(capsys) -> str:
     return lines[0]
 
 
-def test_learned_method_refuses_an_eye_outside_its_range_before_the_kernel(tmp_path, small_png, capsys,
-                                                                          no_kernel_builds):
+@pytest.mark.parametrize("command", [["correct", "--method", "learned"], ["render", "--backend", "onnx"]],
+                         ids=["correct --method learned", "render --backend onnx"])
+def test_a_learned_model_refuses_an_eye_outside_its_range_before_the_kernel(command, tmp_path, small_png, capsys,
+                                                                           no_kernel_builds):
     rx = tmp_path / "rx.json"
     rx.write_text(json.dumps(OUTSIDE))
-    code = cli.main(["correct", str(small_png), "-o", str(tmp_path / "o.png"), "--rx", str(rx), "--method", "learned",
+    code = cli.main([command[0], str(small_png), "-o", str(tmp_path / "o.png"), "--rx", str(rx), *command[1:],
                      "--display", "quest2"])
     assert code == 2
     line = _one_line_error(capsys)
     assert "sphere" in line and "-12" in line and ("wiener" in line or "fast" in line), line
     assert not (tmp_path / "o.png").exists()
-
-
-def test_onnx_backend_refuses_an_eye_outside_its_range_before_the_kernel(tmp_path, small_png, capsys,
-                                                                        no_kernel_builds):
-    rx = tmp_path / "rx.json"
-    rx.write_text(json.dumps(OUTSIDE))
-    code = cli.main(["render", str(small_png), "-o", str(tmp_path / "o.png"), "--rx", str(rx), "--backend", "onnx",
-                     "--display", "quest2"])
-    assert code == 2
-    assert "-12" in _one_line_error(capsys)
 
 
 def test_an_unwritable_output_folder_is_refused_before_the_work(small_png, capsys, no_kernel_builds):

@@ -204,10 +204,10 @@ def cmd_correct(args: argparse.Namespace) -> int:
             "metrics": corrected.__dict__, "metrics_uncorrected": uncorrected.__dict__,
             "settings": result.settings, "kernel_decisions": list(kernel.decisions),
         }
-        notes: list[str] = []
-        report = _finite_json(report, "", notes)
-        if notes:
-            report["notes"] = notes
+        report_notes = list(notes)                  # what was said about the input, then the JSON repairs
+        report = _finite_json(report, "", report_notes)
+        if report_notes:
+            report["notes"] = report_notes
         text = json.dumps(report, indent=2, default=float, allow_nan=False) + "\n"
         outputs.append((Path(args.report), lambda tmp: tmp.write_text(text, encoding="utf-8")))
     # the image and its report appear together or not at all (an interruption leaves neither)
