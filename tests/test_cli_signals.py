@@ -34,6 +34,16 @@ def _input(folder: Path) -> np.ndarray:
     return image
 
 
+def _signal_at(folder: Path, seconds: float, sig: int) -> tuple[int, str]:
+    """Run ``correct`` on ``folder``'s input, send ``sig`` after ``seconds``; (status, stderr)."""
+    _input(folder)
+    proc = subprocess.Popen(_command(folder), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    time.sleep(seconds)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=300)
+    return proc.returncode, err
+
+
 def _strict_json(path: Path) -> dict:
     def refuse(constant: str):
         raise ValueError(f"not JSON: {constant}")
@@ -54,21 +64,16 @@ def test_sigterm_at_any_point_of_correct_leaves_all_or_nothing(tmp_path):
     outcomes, codes = [], []
     for fraction in FRACTIONS:
         folder = tmp_path / f"at_{fraction}"
-        _input(folder)
-        proc = subprocess.Popen(_command(folder), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                cwd=ROOT)
-        time.sleep(fraction * total)
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=300)
+        returncode, err = _signal_at(folder, fraction * total, signal.SIGTERM)
         names = sorted(p.name for p in folder.iterdir())
-        codes.append(proc.returncode)
+        codes.append(returncode)
         # 143: the command's handler ran; -15: Python's default (before the handler is installed, or
         # after the command returned, while the interpreter exits)
-        assert proc.returncode in (0, 128 + signal.SIGTERM, -signal.SIGTERM), (fraction, proc.returncode, err)
-        if proc.returncode == 128 + signal.SIGTERM:
+        assert returncode in (0, 128 + signal.SIGTERM, -signal.SIGTERM), (fraction, returncode, err)
+        if returncode == 128 + signal.SIGTERM:
             assert err.rstrip().splitlines()[-1] == "vrcorrect: terminated (SIGTERM)", err
         if names == ["in.png"]:
-            assert proc.returncode != 0, (fraction, err)
+            assert returncode != 0, (fraction, err)
             outcomes.append("terminated")
         else:
             assert names == ["in.png", "out.png", "report.json"], (fraction, names)
@@ -88,13 +93,8 @@ def test_sighup_is_handled_like_sigterm(tmp_path):
     total = time.perf_counter() - t0
     for fraction in (0.6, 0.45, 0.3):
         folder = tmp_path / f"at_{fraction}"
-        _input(folder)
-        proc = subprocess.Popen(_command(folder), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                cwd=ROOT)
-        time.sleep(fraction * total)
-        proc.send_signal(signal.SIGHUP)
-        _, err = proc.communicate(timeout=300)
-        if proc.returncode == 128 + signal.SIGHUP:
+        returncode, err = _signal_at(folder, fraction * total, signal.SIGHUP)
+        if returncode == 128 + signal.SIGHUP:
             assert err.rstrip().splitlines()[-1] == "vrcorrect: terminated (SIGHUP)", err
             assert sorted(p.name for p in folder.iterdir()) == ["in.png"]
             return

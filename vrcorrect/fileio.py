@@ -56,28 +56,11 @@ def _umask() -> int:
 def atomic_path(path: Path, *, force: bool = False) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success rename it into place.
 
-    On any exception the temporary file is removed and ``path`` is untouched.
+    On any exception the temporary file is removed and ``path`` is untouched (one output of
+    :func:`atomic_paths`).
     """
-    path = check_writable(Path(path), force=force)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
-                               dir=path.parent if str(path.parent) else ".")
-    os.close(fd)
-    tmp_path = Path(tmp)
-    # mkstemp creates 0600; give the output the mode a plain open() would
-    # (or keep the mode of the file being replaced).
-    try:
-        mode = path.stat().st_mode & 0o7777 if path.exists() else 0o666 & ~_umask()
-        os.chmod(tmp_path, mode)
-    except OSError:
-        pass
-    try:
-        yield tmp_path
-        if path.exists() and not force:  # appeared while we worked
-            raise InputError(f"{path}: file exists; pass --force to overwrite it")
-        os.replace(tmp_path, path)
-    finally:
-        if tmp_path.exists():
-            tmp_path.unlink()
+    with atomic_paths([path], force=force) as tmps:
+        yield tmps[0]
 
 
 _DEFERRED = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
