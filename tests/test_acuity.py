@@ -1,4 +1,4 @@
-"""Simulated chart acuity (vrcorrect.acuity, vrcorrect.acuity_cli): by property, never by snapshot.
+"""Simulated chart acuity (vrcorrect.vision.acuity, vrcorrect.apps.acuity_chart): by property, never by snapshot.
 
 The calibration (an emmetrope reads logMAR 0), the published defocus relation (Blendowske 2015),
 lines the display cannot draw, a correction that does not make reading worse, the command's JSON
@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 from test_cli import run, run_quiet   # the command line in-process: (exit status, stdout, stderr)
 
-from vrcorrect import acuity as A
-from vrcorrect.display import get_display
-from vrcorrect.errors import ValidationError
-from vrcorrect.kernel import KernelOptions, build_kernel
-from vrcorrect.optics import OpticsOptions
-from vrcorrect.prescription import EyeRx
+from vrcorrect.vision import acuity as A
+from vrcorrect.specs.display import get_display
+from vrcorrect.plumbing.errors import ValidationError
+from vrcorrect.physics.kernel import KernelOptions, build_kernel
+from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.specs.prescription import EyeRx
 
 AT_INFINITY = KernelOptions(optics=OpticsOptions(viewing_distance_m=math.inf))
 #: Where the calibration put the emmetrope's 60 % threshold (module docstring).
@@ -222,7 +222,7 @@ def test_sharp_template_observer_is_reported_and_never_beats_the_ideal_one(fast_
 
 def test_one_observer_for_an_eye_that_needs_no_glasses(medium):
     """With no refractive error the glasses change nothing: both observers read the same."""
-    from vrcorrect.acuity_cli import measure_acuity
+    from vrcorrect.apps.acuity_chart import measure_acuity
 
     r = measure_acuity(eye(0.0), medium, (), AT_INFINITY, top_logmar=0.3, bottom_logmar=0.0,
                        observer=A.Observer(trials_per_letter=100))

@@ -1,7 +1,7 @@
 """The bad-input corpus: what careful new users typed, each ending in a clear error (exit status
 2, one ``vrcorrect: error:`` line naming the field or file - a prescription's problems each
 listed below it - nothing written) or a correct result
-(exit 0, the output written).  Runs in-process through ``vrcorrect.cli.main``; the refusals come
+(exit 0, the output written).  Runs in-process through ``vrcorrect.apps.cli.main``; the refusals come
 before any kernel is built, so the corpus is quick."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from vrcorrect import cli
+from vrcorrect.apps import cli
 
 GOOD_RX = {"schema": "vrcorrect.prescription/1",
            "right": {"sphere_D": -1.0, "cylinder_D": -0.5, "axis_deg": 90, "pupil_diameter_mm": 3.0},

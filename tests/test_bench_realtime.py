@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vrcorrect.bench_realtime import (
+from vrcorrect.apps.bench.realtime import (
     CUT, FFT_BANDWIDTH, cost_model, cut_targets, guarded, make_case, motion_sequence, pan_sequence,
     phase_correlation_shift, reproject, round_trip_bytes, run_realtime_bench, still_convergence, zoom_targets,
 )

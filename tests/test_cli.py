@@ -2,7 +2,7 @@
 clear line, never a traceback, and never writes a partial output file; never
 overwrites a user's file without --force.
 
-Most commands run in-process through ``vrcorrect.cli.main``; a few run the
+Most commands run in-process through ``vrcorrect.apps.cli.main``; a few run the
 real console script to prove what a user's shell sees.
 """
 
@@ -22,11 +22,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from vrcorrect import cli
-from vrcorrect.bench import machine_description
-from vrcorrect.bench_kernel import HEADSETS
-from vrcorrect.display import get_display, preset_names
-from vrcorrect.prescription import template_text
+from vrcorrect.apps import cli
+from vrcorrect.apps.bench import machine_description
+from vrcorrect.apps.bench.kernel import HEADSETS
+from vrcorrect.specs.display import get_display, preset_names
+from vrcorrect.specs.prescription import template_text
 
 CONSOLE_SCRIPT = Path(sys.executable).parent / "vrcorrect"
 

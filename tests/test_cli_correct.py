@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from vrcorrect.cli import main
+from vrcorrect.apps.cli import main
 
 
 @pytest.fixture()

@@ -21,7 +21,7 @@ FRACTIONS = (0.15, 0.4, 0.6, 0.75, 0.85, 0.92, 0.97, 1.02)
 
 
 def _command(folder: Path) -> list[str]:
-    return [sys.executable, "-m", "vrcorrect.cli", "correct", str(folder / "in.png"), "-o", str(folder / "out.png"),
+    return [sys.executable, "-m", "vrcorrect.apps.cli", "correct", str(folder / "in.png"), "-o", str(folder / "out.png"),
             "--report", str(folder / "report.json"), "--method", "fast", "--display", "desktop"]
 
 
@@ -104,7 +104,7 @@ def test_sighup_is_handled_like_sigterm(tmp_path):
 def test_report_of_an_identical_image_is_valid_json_with_null_and_a_note(tmp_path):
     """A black image is its own best correction: PSNR is infinite, which JSON cannot hold; the
     report writes null and says why."""
-    from vrcorrect.cli import main
+    from vrcorrect.apps.cli import main
 
     Image.fromarray(np.zeros((32, 32, 3), np.uint8)).save(tmp_path / "black.png")
     assert main(["correct", str(tmp_path / "black.png"), "-o", str(tmp_path / "out.png"), "--report",

@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vrcorrect.display import decode, get_display
-from vrcorrect.errors import ValidationError
-from vrcorrect.imageio import read_image
-from vrcorrect.kernel import build_kernel, build_reference_kernel
+from vrcorrect.specs.display import decode, get_display
+from vrcorrect.plumbing.errors import ValidationError
+from vrcorrect.plumbing.imageio import read_image
+from vrcorrect.physics.kernel import build_kernel, build_reference_kernel
 from vrcorrect.learn.conditioning import SamplingRanges
-from vrcorrect.prescription import EyeRx
+from vrcorrect.specs.prescription import EyeRx
 from vrcorrect.runtime.learned import LearnedModel
 from vrcorrect.solvers import make_problem, objective
 
@@ -31,7 +31,7 @@ def model() -> LearnedModel:
 
 
 def test_default_model_is_shipped_small_with_its_card_and_metadata(model):
-    from vrcorrect.cli import DEFAULT_MODEL
+    from vrcorrect.apps.cli import DEFAULT_MODEL
 
     assert DEFAULT_MODEL.resolve() == MODEL.resolve()
     assert MODEL.stat().st_size <= 10 * 2 ** 20

@@ -1,4 +1,4 @@
-"""Tests of vrcorrect.display: profiles, spectra, CSV/JSON readers, proxy fit,
+"""Tests of vrcorrect.specs.display: profiles, spectra, CSV/JSON readers, proxy fit,
 transfer functions. Expected values are computed by hand or from the
 definitions (IEC 61966-2-1, colour-science's tables), never from the code
 under test."""
@@ -14,8 +14,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vrcorrect import display as D
-from vrcorrect.errors import InputError, ValidationError, ValidationErrors
+from vrcorrect.specs import display as D
+from vrcorrect.plumbing.errors import InputError, ValidationError, ValidationErrors
 
 RGB = ("red", "green", "blue")
 

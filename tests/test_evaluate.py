@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from vrcorrect import evaluate as ev
-from vrcorrect.errors import InputError, ValidationError
+from vrcorrect.apps import evaluate as ev
+from vrcorrect.plumbing.errors import InputError, ValidationError
 
 SIZE = 48
 METHODS = ("paper", "fast")
@@ -152,7 +152,7 @@ def test_csv_parses_and_is_finite(run):
 def test_markdown_has_machine_tables_and_verdicts(run):
     out, result = run
     text = (out / "results.md").read_text()
-    from vrcorrect.bench import machine_description
+    from vrcorrect.apps.bench import machine_description
 
     assert machine_description() in text
     assert result["summary_markdown"] in text
@@ -241,7 +241,7 @@ def test_refuses_to_overwrite_without_force(run):
 
 
 def test_force_overwrites(tmp_path):
-    from vrcorrect.charts import siemens_star
+    from vrcorrect.plumbing.charts import siemens_star
 
     img = [("star", siemens_star(16))]
     ev.run_evaluation(tmp_path, img, "desktop", methods=("fast",), size=16, progress=False, acuity=False)

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from vrcorrect import cli
-from vrcorrect.errors import ValidationError
+from vrcorrect.apps import cli
+from vrcorrect.plumbing.errors import ValidationError
 
 ROOT = Path(__file__).resolve().parents[1]
 OUTSIDE = {"schema": "vrcorrect.prescription/1",     # sphere -12 D: outside the shipped model's -6..+6
@@ -36,7 +36,7 @@ def no_kernel_builds(monkeypatch):
     def tripwire(*args, **kwargs):
         raise AssertionError("a kernel was built before the refusal")
 
-    import vrcorrect.kernel as K
+    import vrcorrect.physics.kernel as K
     import vrcorrect.runtime.corrector as C
 
     monkeypatch.setattr(cli, "_build", tripwire)
@@ -91,9 +91,9 @@ def test_memory_estimate_grows_with_the_image_and_names_the_method():
 
 def test_a_missing_input_is_told_before_the_heavy_imports(tmp_path):
     """The check comes before the solvers, kernels and metrics are imported (seconds of imports)."""
-    code = ("import sys; from vrcorrect.cli import main; "
+    code = ("import sys; from vrcorrect.apps.cli import main; "
             f"rc = main(['correct', {str(tmp_path / 'missing.png')!r}, '-o', {str(tmp_path / 'o.png')!r}]); "
-            "heavy = [m for m in ('vrcorrect.kernel', 'vrcorrect.solvers', 'vrcorrect.metrics', 'scipy') "
+            "heavy = [m for m in ('vrcorrect.physics.kernel', 'vrcorrect.solvers', 'vrcorrect.vision.metrics', 'scipy') "
             "if m in sys.modules]; print('HEAVY', heavy); sys.exit(rc)")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert result.returncode == 2
@@ -102,7 +102,7 @@ def test_a_missing_input_is_told_before_the_heavy_imports(tmp_path):
 
 
 def test_animated_and_transparent_inputs_are_reported(tmp_path, capsys):
-    from vrcorrect.imageio import read_image
+    from vrcorrect.plumbing.imageio import read_image
 
     frames = [Image.fromarray(np.full((8, 8, 3), v, np.uint8)) for v in (10, 200, 90)]
     gif = tmp_path / "clip.gif"

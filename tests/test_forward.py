@@ -9,12 +9,12 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from hypothesis.extra.numpy import arrays
 
-from vrcorrect.display import decode, encode, get_display
-from vrcorrect.errors import ValidationError
-from vrcorrect.forward import _convolve_direct, lms_to_display, simulate_lms, what_the_eye_sees
-from vrcorrect.kernel import KernelOptions, build_kernel
-from vrcorrect.optics import OpticsOptions
-from vrcorrect.prescription import EyeRx
+from vrcorrect.specs.display import decode, encode, get_display
+from vrcorrect.plumbing.errors import ValidationError
+from vrcorrect.vision.forward import _convolve_direct, lms_to_display, simulate_lms, what_the_eye_sees
+from vrcorrect.physics.kernel import KernelOptions, build_kernel
+from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.specs.prescription import EyeRx
 
 # Per-dtype tolerances for comparing two computations of the same quantity.
 TOL = {np.float32: 1e-5, np.float64: 1e-10}

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from vrcorrect.errors import InputError, ValidationError
-from vrcorrect.imageio import read_image, write_png
+from vrcorrect.plumbing.errors import InputError, ValidationError
+from vrcorrect.plumbing.imageio import read_image, write_png
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

@@ -11,11 +11,11 @@ import math
 import numpy as np
 import pytest
 
-from vrcorrect.display import get_display
-from vrcorrect.errors import ValidationError
-from vrcorrect.kernel import KernelOptions, build_kernel
-from vrcorrect.optics import OpticsOptions
-from vrcorrect.prescription import EyeRx
+from vrcorrect.specs.display import get_display
+from vrcorrect.plumbing.errors import ValidationError
+from vrcorrect.physics.kernel import KernelOptions, build_kernel
+from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.specs.prescription import EyeRx
 
 GOOD = np.full((8, 8, 3), 0.5)
 
@@ -46,8 +46,8 @@ def _bad_images():
 
 
 def _entry_points(kernel):
-    from vrcorrect.forward import simulate_lms, what_the_eye_sees
-    from vrcorrect.metrics import evaluate_seen
+    from vrcorrect.vision.forward import simulate_lms, what_the_eye_sees
+    from vrcorrect.vision.metrics import evaluate_seen
     from vrcorrect.solvers import make_problem, objective
 
     problem = make_problem(GOOD.astype(np.float32), kernel)
@@ -75,14 +75,14 @@ def test_the_good_image_passes_every_entry_point_and_rounding_is_clipped(kernel)
     for entry, (call, _) in _entry_points(kernel).items():
         call(GOOD)
         call(GOOD * (1 + 5e-7))                     # float rounding above 1 is clipped, not refused
-    from vrcorrect.forward import check_image
+    from vrcorrect.vision.forward import check_image
 
     assert check_image(np.full((2, 2, 3), 1 + 5e-7)).max() == 1.0
     assert check_image(np.zeros((2, 2, 3), np.float16)).dtype == np.float32
 
 
 def test_uint8_message_says_how_to_decode(kernel):
-    from vrcorrect.forward import simulate_lms
+    from vrcorrect.vision.forward import simulate_lms
 
     with pytest.raises(ValidationError, match="decode"):
         simulate_lms((GOOD * 255).astype(np.uint8), kernel)

@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from vrcorrect.display import get_display
-from vrcorrect.kernel import KernelOptions, _kernel_norm, build_kernel, hat_weights, monochromatic_psf
-from vrcorrect.optics import OpticsOptions, crop_center
-from vrcorrect.perception import (OPPONENT_MATRIX, from_opponent, normalised_weights,
+from vrcorrect.specs.display import get_display
+from vrcorrect.physics.kernel import KernelOptions, _kernel_norm, build_kernel, hat_weights, monochromatic_psf
+from vrcorrect.physics.optics import OpticsOptions, crop_center
+from vrcorrect.physics.perception import (OPPONENT_MATRIX, from_opponent, normalised_weights,
                                   rgb_to_lms_matrix, to_opponent)
-from vrcorrect.prescription import EyeRx
+from vrcorrect.specs.prescription import EyeRx
 
 INF = KernelOptions(optics=OpticsOptions(viewing_distance_m=math.inf))
 

@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vrcorrect.charts import siemens_star, text_chart
-from vrcorrect.errors import InputError, ValidationError
+from vrcorrect.plumbing.charts import siemens_star, text_chart
+from vrcorrect.plumbing.errors import InputError, ValidationError
 from vrcorrect.learn.conditioning import SamplingRanges, check_eye, eye_features
 from vrcorrect.learn.dataset import DatasetConfig, build_dataset, load_shard, read_manifest, sample_spec
-from vrcorrect.prescription import EyeRx
+from vrcorrect.specs.prescription import EyeRx
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY_RANGES = SamplingRanges(sphere_D=(-1.5, -0.5), cylinder_D=(-0.5, 0.0), pupil_diameter_mm=(2.0, 3.0))
@@ -217,8 +217,8 @@ def test_gradient_input_is_the_same_in_numpy_and_torch():
     and a step along them from the pre-correction lowers the objective."""
     import torch
 
-    from vrcorrect.display import decode, get_display
-    from vrcorrect.kernel import KernelOptions, build_kernel, build_reference_kernel
+    from vrcorrect.specs.display import decode, get_display
+    from vrcorrect.physics.kernel import KernelOptions, build_kernel, build_reference_kernel
     from vrcorrect.learn.conditioning import model_inputs
     from vrcorrect.learn.train import gradient_step
     from vrcorrect.solvers import make_problem, objective
@@ -320,7 +320,7 @@ def test_cosine_schedule_lowers_the_learning_rate_and_fixes_the_step_count(tiny_
 
 
 def test_dataset_and_train_commands_end_to_end(tmp_path, capsys):
-    from vrcorrect.cli import main
+    from vrcorrect.apps.cli import main
 
     data, run = tmp_path / "data", tmp_path / "run"
     rng = ["--sphere-D", "-1", "-0.5", "--cylinder-D", "-0.25", "0", "--pupil-mm", "2", "2.5"]
@@ -339,7 +339,7 @@ def test_dataset_and_train_commands_end_to_end(tmp_path, capsys):
 
 def test_cli_one_line_errors(tmp_path):
     def run(*args):
-        r = subprocess.run([sys.executable, "-m", "vrcorrect.cli", *args], capture_output=True, text=True)
+        r = subprocess.run([sys.executable, "-m", "vrcorrect.apps.cli", *args], capture_output=True, text=True)
         return r.returncode, r.stderr.strip().splitlines()
 
     code, err = run("dataset", str(tmp_path / "d"), "--crop-px", "64", "--image-px", "48")
@@ -349,7 +349,7 @@ def test_cli_one_line_errors(tmp_path):
 
 
 def test_train_init_from_a_missing_checkpoint_is_one_line(tiny_dataset, tmp_path):
-    r = subprocess.run([sys.executable, "-m", "vrcorrect.cli", "train", str(tiny_dataset), "-o", str(tmp_path / "r"),
+    r = subprocess.run([sys.executable, "-m", "vrcorrect.apps.cli", "train", str(tiny_dataset), "-o", str(tmp_path / "r"),
                         "--init", str(tmp_path / "nope.pt")], capture_output=True, text=True)
     err = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(err) == 1 and "nope.pt: no such checkpoint" in err[0]
@@ -396,7 +396,7 @@ def test_export_equals_torch_with_metadata_and_dynamic_size(perturbed_checkpoint
     assert [o.version for o in proto.opset_import if o.domain in ("", "ai.onnx")] == [OPSET]
     meta = {p.key: p.value for p in proto.metadata_props}
     assert json.loads(meta["vrcorrect.ranges"]) == TINY_RANGES.as_dict()
-    assert json.loads(meta["vrcorrect.display"])["name"] == "quest2" and meta["vrcorrect.version"]
+    assert json.loads(meta["vrcorrect.specs.display"])["name"] == "quest2" and meta["vrcorrect.version"]
     assert json.loads(meta["vrcorrect.train"])["step"] == 3
     # dynamic H and W: another size, compared with torch again
     model = model_from_checkpoint(load_checkpoint(perturbed_checkpoint))
@@ -438,7 +438,7 @@ def test_fine_tuning_starts_from_another_runs_weights_and_says_so(perturbed_chec
     export_onnx(tmp_path / "tuned" / "checkpoint.pt", tmp_path / "tuned.onnx")
     meta = {p.key: p.value for p in onnx.load(tmp_path / "tuned.onnx").metadata_props}
     assert json.loads(meta["vrcorrect.train"])["init"]["step"] == 3
-    from vrcorrect.bench_learned import _training_lines
+    from vrcorrect.apps.bench.learned import _training_lines
 
     assert _training_lines(json.loads(meta["vrcorrect.train"]))[0].startswith(
         "- fine-tuned (`vrcorrect train --init`) from a run of 3 steps")
@@ -472,8 +472,8 @@ def test_export_tool_command_line(perturbed_checkpoint, tmp_path):
 def test_runtime_learned_model_refuses_out_of_range_and_equals_torch(perturbed_checkpoint, tmp_path):
     import torch
 
-    from vrcorrect.display import get_display
-    from vrcorrect.kernel import KernelOptions, build_kernel, build_reference_kernel
+    from vrcorrect.specs.display import get_display
+    from vrcorrect.physics.kernel import KernelOptions, build_kernel, build_reference_kernel
     from vrcorrect.learn.export import export_onnx
     from vrcorrect.learn.train import load_checkpoint, model_from_checkpoint
     from vrcorrect.runtime.learned import LearnedModel, is_learned_model
@@ -517,8 +517,8 @@ def test_model_with_gradient_input_trains_exports_and_runs_without_torch(tiny_da
     runtime computes it (numpy) and its output equals torch fed the same four inputs."""
     import torch
 
-    from vrcorrect.display import get_display
-    from vrcorrect.kernel import KernelOptions, build_kernel, build_reference_kernel
+    from vrcorrect.specs.display import get_display
+    from vrcorrect.physics.kernel import KernelOptions, build_kernel, build_reference_kernel
     from vrcorrect.learn.export import export_onnx
     from vrcorrect.learn.model import UNetConfig
     from vrcorrect.learn.train import load_checkpoint, model_from_checkpoint, train
@@ -592,10 +592,10 @@ def test_correct_with_the_learned_method(tiny_onnx, tmp_path, capsys):
     """The command runs the model bound to the eye and reports it; the written image equals the
     runtime's own inference; an eye outside the trained range is refused in one line that names
     the range and the alternatives; --model without --method learned is refused."""
-    from vrcorrect.cli import main
-    from vrcorrect.display import decode, get_display
-    from vrcorrect.imageio import read_image, write_png
-    from vrcorrect.kernel import KernelOptions, build_kernel, build_reference_kernel
+    from vrcorrect.apps.cli import main
+    from vrcorrect.specs.display import decode, get_display
+    from vrcorrect.plumbing.imageio import read_image, write_png
+    from vrcorrect.physics.kernel import KernelOptions, build_kernel, build_reference_kernel
     from vrcorrect.runtime.learned import LearnedModel
 
     src = tmp_path / "in.png"
@@ -629,7 +629,7 @@ def test_renderer_onnx_backend_runs_the_learned_model_per_eye(gl, tiny_onnx, tmp
     """The Corrector binds the learned model to its own eye: the frame equals the runtime's
     inference for that eye (read back, infer, upload, sRGB), each eye gets its own result,
     and moving the eye out of the trained range is refused with the last state kept."""
-    from vrcorrect.display import decode, encode
+    from vrcorrect.specs.display import decode, encode
     from vrcorrect.runtime import gl as G
     from vrcorrect.runtime.corrector import Corrector
 
@@ -673,7 +673,7 @@ def test_crops_per_eye_share_the_eye_and_nothing_else():
 def test_bench_learned_scores_a_model_on_held_out_data(tiny_onnx, tmp_path):
     """The benchmark's accounting (not its timings): per case the gap share is computed from the
     objectives it reports, the held-out eyes lie in the model's ranges, and the card is written."""
-    from vrcorrect.bench_learned import held_out_eyes, run_learned_bench
+    from vrcorrect.apps.bench.learned import held_out_eyes, run_learned_bench
     from vrcorrect.learn.conditioning import check_eye
 
     out, card, plot = tmp_path / "bench.md", tmp_path / "models" / "card.md", tmp_path / "learned.png"
@@ -719,7 +719,7 @@ def test_bench_learned_scores_a_model_on_held_out_data(tiny_onnx, tmp_path):
 
 
 def test_bench_speed_words_never_round_a_slower_model_up_to_1x():
-    from vrcorrect.bench_learned import _times
+    from vrcorrect.apps.bench.learned import _times
 
     assert _times(0.997).endswith("slower") and not _times(0.997).startswith("1x")
     assert _times(2.44) == "2.4x faster" and _times(123.4) == "123x faster"

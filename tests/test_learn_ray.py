@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vrcorrect.errors import InputError
+from vrcorrect.plumbing.errors import InputError
 from vrcorrect.learn.dataset import MANIFEST, build_dataset, load_shard, read_manifest
 
 from test_learn import tiny_config, tiny_images
@@ -123,7 +123,7 @@ def _cli(code: str, env: dict | None = None) -> tuple[int, list[str]]:
 
 
 def test_cli_missing_ray_is_one_line(tmp_path):
-    code, err = _cli("import sys; sys.modules['ray'] = None; from vrcorrect.cli import main; "
+    code, err = _cli("import sys; sys.modules['ray'] = None; from vrcorrect.apps.cli import main; "
                      f"sys.exit(main(['dataset', {str(tmp_path / 'd')!r}, '--ray', 'auto']))")
     assert code == 2 and len(err) == 1, err
     assert "Ray is not installed" in err[0] and "pip install -e '.[ray]'" in err[0]
@@ -132,7 +132,7 @@ def test_cli_missing_ray_is_one_line(tmp_path):
 def test_cli_unreachable_address_is_one_line(tmp_path):
     """Nothing listens on port 1: one line naming the address, exit 2, no folder left behind."""
     out = tmp_path / "d"
-    code, err = _cli("import sys; from vrcorrect.cli import main; "
+    code, err = _cli("import sys; from vrcorrect.apps.cli import main; "
                      f"sys.exit(main(['dataset', {str(out)!r}, '--ray', 'ray://127.0.0.1:1', '--samples', '1', "
                      "'--crop-px', '32', '--image-px', '48']))",
                      env={"RAY_CLIENT_INITIAL_CONNECTION_TIMEOUT_S": "1", "RAY_CLIENT_MAX_CONNECTION_TIMEOUT_S": "1"})
@@ -142,6 +142,6 @@ def test_cli_unreachable_address_is_one_line(tmp_path):
 
 
 def test_ray_is_imported_lazily():
-    code, err = _cli("import sys, vrcorrect.learn.dataset, vrcorrect.learn_cli, vrcorrect.cli; "
+    code, err = _cli("import sys, vrcorrect.learn.dataset, vrcorrect.apps.learning, vrcorrect.apps.cli; "
                      "sys.exit(1 if 'ray' in sys.modules else 0)")
     assert code == 0, err

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from vrcorrect.errors import ModelLimitError, ValidationError
-from vrcorrect.optics import (OpticsOptions, chromatic_refraction_D, crop_center, depth_of_focus_D,
+from vrcorrect.plumbing.errors import ModelLimitError, ValidationError
+from vrcorrect.physics.optics import (OpticsOptions, chromatic_refraction_D, crop_center, depth_of_focus_D,
                               energy_size, lca_defocus_D, osa_index, osa_nm, power_vector_to_zernike_um,
                               psf_pixels, refractive_state, wavefront_from_zernike_um, wavefront_um,
                               zernike, zernike_um_to_power_vector)
-from vrcorrect.prescription import EyeRx, PowerVector
+from vrcorrect.specs.prescription import EyeRx, PowerVector
 
 
 def eye(s=0.0, c=0.0, a=0.0, pupil=4.0, **kw) -> EyeRx:
@@ -109,7 +109,7 @@ def test_rx_zernike_wavefront_equals_direct_wavefront(s, c, a, pupil):
 
 def test_meridian_of_cylinder_power_follows_axis():
     """Minus cylinder: no power error along the axis, full cylinder at 90 deg to it."""
-    from vrcorrect.optics import meridian_power_D
+    from vrcorrect.physics.optics import meridian_power_D
 
     for axis in (0.0, 30.0, 90.0, 135.0):
         pv = eye(-1.0, -2.0, axis).power_vector()
@@ -266,7 +266,7 @@ def test_results_change_less_than_one_percent_when_sampling_doubles(case):
 def test_steep_wavefront_refines_pupil_sampling():
     """Coma (OSA j=7) is not in the analytic slope estimate's closed form: the phase check
     still holds, with refinement if needed."""
-    from vrcorrect.prescription import HigherOrder
+    from vrcorrect.specs.prescription import HigherOrder
 
     e = eye(0.0, pupil=6.0, higher_order=HigherOrder(6.0, ((7, 2.0),)))
     p = psf_pixels(e, e.power_vector(), 500.0, 20.0)

@@ -16,12 +16,12 @@ import math
 import numpy as np
 import pytest
 
-from vrcorrect.display import get_display, preset_names
-from vrcorrect.errors import ModelLimitError, ValidationError
-from vrcorrect.kernel import KernelOptions, build_kernel
-from vrcorrect.optics import (OpticsOptions, geometric_psf_pixels, pixel_angle_rad, psf_pixels,
+from vrcorrect.specs.display import get_display, preset_names
+from vrcorrect.plumbing.errors import ModelLimitError, ValidationError
+from vrcorrect.physics.kernel import KernelOptions, build_kernel
+from vrcorrect.physics.optics import (OpticsOptions, geometric_psf_pixels, pixel_angle_rad, psf_pixels,
                               refractive_state)
-from vrcorrect.prescription import EyeRx, HigherOrder
+from vrcorrect.specs.prescription import EyeRx, HigherOrder
 
 
 def eye(s=0.0, c=0.0, a=0.0, pupil=4.0, **kw) -> EyeRx:
@@ -133,7 +133,7 @@ def test_geometric_astigmatism_orientation_follows_the_optometric_axis():
 
 # ---------------------------------------------------------------- 2. every accepted prescription is modelled
 
-SPHERES = (-20.0, 20.0)          # vrcorrect/prescription.py: sphere -20 to 20 D
+SPHERES = (-20.0, 20.0)          # vrcorrect/specs/prescription.py: sphere -20 to 20 D
 CYLINDERS = (-10.0, 10.0)        # cylinder -10 to 10 D, either form
 AXES = (0.0, 45.0, 90.0)
 PUPILS = (1.0, 9.0)              # pupil 1 to 9 mm

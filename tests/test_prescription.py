@@ -1,4 +1,4 @@
-"""Tests for vrcorrect.prescription: power vectors, cylinder forms, validation, files."""
+"""Tests for vrcorrect.specs.prescription: power vectors, cylinder forms, validation, files."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vrcorrect.errors import InputError, Problem, ValidationError, ValidationErrors
-from vrcorrect.prescription import (
+from vrcorrect.plumbing.errors import InputError, Problem, ValidationError, ValidationErrors
+from vrcorrect.specs.prescription import (
     EYES,
     MISSING,
     SCHEMA,

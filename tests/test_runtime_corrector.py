@@ -12,13 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vrcorrect.display import decode, encode, get_display
-from vrcorrect.errors import ValidationError, ValidationErrors
-from vrcorrect.evaluate import PRESCRIPTIONS, bundled_images, prescription_eye
-from vrcorrect.forward import what_the_eye_sees
-from vrcorrect.kernel import KernelOptions, build_reference_kernel
-from vrcorrect.optics import OpticsOptions
-from vrcorrect.prescription import Prescription
+from vrcorrect.specs.display import decode, encode, get_display
+from vrcorrect.plumbing.errors import ValidationError, ValidationErrors
+from vrcorrect.apps.evaluate import PRESCRIPTIONS, bundled_images, prescription_eye
+from vrcorrect.vision.forward import what_the_eye_sees
+from vrcorrect.physics.kernel import KernelOptions, build_reference_kernel
+from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.specs.prescription import Prescription
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector
 from vrcorrect.runtime.filters import apply_separable, separable_bank
@@ -72,7 +72,7 @@ def test_separable_bank_matches_the_designed_filters():
     """The low-rank bank (CPU twin of the GL passes) reproduces the designed filters' output
     within its stated error on a real photograph."""
     eye = prescription_eye(PRESCRIPTIONS[2])
-    from vrcorrect.kernel import build_kernel
+    from vrcorrect.physics.kernel import build_kernel
 
     k = build_kernel(eye, get_display("quest2"), KernelOptions(optics=OpticsOptions(viewing_distance_m=math.inf)))
     f = correction_filters(k, 0.3)
@@ -276,7 +276,7 @@ def test_bad_arguments_are_named(gl, tmp_path):
 def test_render_command_writes_each_view(tmp_path, images, capsys):
     from PIL import Image
 
-    from vrcorrect.cli import main
+    from vrcorrect.apps.cli import main
 
     src = tmp_path / "in.png"
     Image.fromarray(images[0][1]).save(src)
@@ -300,7 +300,7 @@ def test_render_command_writes_each_view(tmp_path, images, capsys):
 def test_render_command_errors_are_one_line(tmp_path, images, capsys):
     from PIL import Image
 
-    from vrcorrect.cli import main
+    from vrcorrect.apps.cli import main
 
     src = tmp_path / "in.png"
     Image.fromarray(images[0][1]).save(src)

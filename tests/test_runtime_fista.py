@@ -10,10 +10,10 @@ import math
 import numpy as np
 import pytest
 
-from vrcorrect.display import decode, encode
-from vrcorrect.errors import ValidationError
-from vrcorrect.evaluate import bundled_images
-from vrcorrect.prescription import EyeRx, Prescription
+from vrcorrect.specs.display import decode, encode
+from vrcorrect.plumbing.errors import ValidationError
+from vrcorrect.apps.evaluate import bundled_images
+from vrcorrect.specs.prescription import EyeRx, Prescription
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector
 from vrcorrect.runtime.render import render_frame
@@ -212,8 +212,8 @@ def test_flat_fields_come_back_unchanged_on_the_gpu(gl, filter_):
 def test_flat_fields_come_back_unchanged_on_the_cpu(rgb):
     """The CPU wiener, with designed filters and with the exact inverse, keeps a flat field away
     from the border (the old toward-zero inverse turned a 235 grey into (220, 238, 234) mint)."""
-    from vrcorrect.display import get_display
-    from vrcorrect.kernel import build_kernel, build_reference_kernel
+    from vrcorrect.specs.display import get_display
+    from vrcorrect.physics.kernel import build_kernel, build_reference_kernel
 
     d = get_display("desktop")
     k, ref = build_kernel(EYE, d), build_reference_kernel(EYE, d)
@@ -235,8 +235,8 @@ def test_options_are_checked(gl):
 
 
 def test_cpu_twin_start_and_state_are_checked():
-    from vrcorrect.display import get_display
-    from vrcorrect.kernel import build_kernel
+    from vrcorrect.specs.display import get_display
+    from vrcorrect.physics.kernel import build_kernel
 
     p = make_problem(decode("srgb", bundled_images(24)[0][1]), build_kernel(EYE, get_display("desktop")))
     x, state = projected_gradient(p, 2, return_state=True)
@@ -300,7 +300,7 @@ def test_stage_times_drop_a_saturated_query(gl):
 def test_render_frames_warm_start_like_one_long_run(gl, photo):
     """``render_frame(..., frames=3)`` with k = 2 is 6 CPU steps, guarded: the GPU's objective
     fraction of the last frame is the CPU twin's; more frames, lower objective."""
-    from vrcorrect.bench_realtime import guarded
+    from vrcorrect.apps.bench.realtime import guarded
 
     _, one = render_frame(photo, RX, "desktop", ctx=gl, filter="fista", iterations_per_frame=2)
     out, info = render_frame(photo, RX, "desktop", ctx=gl, filter="fista", iterations_per_frame=2, frames=3)
@@ -322,7 +322,7 @@ def test_render_command_fista_frames_and_its_errors(tmp_path, photo, capsys):
 
     from PIL import Image
 
-    from vrcorrect.cli import main
+    from vrcorrect.apps.cli import main
 
     src = tmp_path / "in.png"
     Image.fromarray(photo).save(src)
@@ -352,7 +352,7 @@ def test_fista_is_the_default_gpu_method_everywhere():
     """Projected gradient is what a user gets without asking: the Corrector's default, and the
     default ``--filter`` of render, mirror, overlay and xr; ``wiener``'s one-pass inverse (fft,
     separable) stays selectable; render runs a settled view (10 frames) by default."""
-    from vrcorrect.cli import build_parser
+    from vrcorrect.apps.cli import build_parser
     from vrcorrect.runtime.corrector import CorrectorOptions
 
     assert CorrectorOptions().filter == "fista" and CorrectorOptions().iterations_per_frame == 4

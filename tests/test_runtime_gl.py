@@ -1,5 +1,5 @@
 """The real-time GL plumbing on a real headless context (EGL; Mesa llvmpipe in CI): textures
-and orientation, the sRGB shader library against vrcorrect.display, the bundled programs,
+and orientation, the sRGB shader library against vrcorrect.specs.display, the bundled programs,
 compile errors mapped to files. The ``gl`` fixture (conftest.py) fails a test that leaves or
 finds a GL error flag set."""
 
@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vrcorrect import display
-from vrcorrect.errors import GLError, GLUnavailableError, ShaderCompileError, ShaderError, ValidationError
+from vrcorrect.specs import display
+from vrcorrect.plumbing.errors import GLError, GLUnavailableError, ShaderCompileError, ShaderError, ValidationError
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime import shaders as S
 
-# Tolerances of the GLSL sRGB curves (float32, the driver's pow) against vrcorrect.display in
+# Tolerances of the GLSL sRGB curves (float32, the driver's pow) against vrcorrect.specs.display in
 # float64. Measured on Mesa 22.3 llvmpipe: at most 6.1e-7 relative (about 10 float32 ulp) for
 # both; the bounds leave room for GPU drivers' pow, which is exp2(y * log2(x)) with
 # approximate exp2/log2.
@@ -177,7 +177,7 @@ def test_bind_textures_names_an_unknown_sampler(gl):
 
 
 # --------------------------------------------------------------------------
-# sRGB in GLSL against vrcorrect.display
+# sRGB in GLSL against vrcorrect.specs.display
 # --------------------------------------------------------------------------
 
 

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vrcorrect.errors import InputError, ValidationError
+from vrcorrect.plumbing.errors import InputError, ValidationError
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.mirror import (
     ITERATIONS_RANGE, KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_MAP, KEY_RIGHT_BRACKET, MOD_ALT, MOD_CONTROL, MOD_SHIFT,
@@ -340,7 +340,7 @@ def test_panel_covers_its_text(atlas):
 
 
 def test_srgb_texture_reads_linear_light_and_write_texture_replaces_it(gl):
-    from vrcorrect.display import srgb_to_linear
+    from vrcorrect.specs.display import srgb_to_linear
     from vrcorrect.runtime.shaders import compile_program
 
     codes = np.arange(0, 256, 5, dtype=np.uint8)
@@ -498,7 +498,7 @@ EYE_W, EYE_H = 48, 40
 
 @pytest.fixture(scope="module")
 def mirror_image(tmp_path_factory):
-    from vrcorrect.imageio import read_image
+    from vrcorrect.plumbing.imageio import read_image
 
     sample = read_image(REPO / "vrcorrect" / "data" / "sample.png")  # 512 x 512: photo, star, text, bars
     crop = np.round(sample[50:50 + EYE_H, 85:85 + EYE_W] * 255).astype(np.uint8)  # face: mid-tones, edges
@@ -621,7 +621,7 @@ def test_view_switch_shows_what_each_eye_sees(mirror, mirror_image):
 
 
 def test_screenshot_writes_the_picture_as_shown(mirror):
-    from vrcorrect.imageio import read_image
+    from vrcorrect.plumbing.imageio import read_image
 
     press(mirror, "v")
     press(mirror, "p")
@@ -871,7 +871,7 @@ def test_no_gpu_allocations_per_frame_after_warm_up(mirror, monkeypatch):
     (["--filter", "separable", "--iterations-per-frame", "4"], "only with --filter fista"),
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(args, message, capsys):
-    from vrcorrect.cli import main
+    from vrcorrect.apps.cli import main
 
     assert main(["mirror", *args]) == 2
     err = capsys.readouterr().err
@@ -879,7 +879,7 @@ def test_cli_bad_input_is_one_line_and_exit_2(args, message, capsys):
 
 
 def _cli(args: list[str], env: dict[str, str], cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "vrcorrect.cli", "mirror", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "vrcorrect.apps.cli", "mirror", *args], capture_output=True,
                           text=True, env=env, cwd=cwd, timeout=600)
 
 

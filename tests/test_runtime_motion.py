@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from vrcorrect.display import decode
-from vrcorrect.errors import ValidationError
-from vrcorrect.evaluate import bundled_images
-from vrcorrect.prescription import EyeRx, Prescription
+from vrcorrect.specs.display import decode
+from vrcorrect.plumbing.errors import ValidationError
+from vrcorrect.apps.evaluate import bundled_images
+from vrcorrect.specs.prescription import EyeRx, Prescription
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector
 from vrcorrect.runtime.mirror import start_motion, take_motion
@@ -275,7 +275,7 @@ def test_view_shift_follows_the_old_centre_in_an_asymmetric_field():
 
 
 def test_view_shift_turns_that_lose_the_view_and_bad_matrices():
-    from vrcorrect.errors import ValidationError
+    from vrcorrect.plumbing.errors import ValidationError
     from vrcorrect.runtime.motion import view_shift
     from vrcorrect.runtime.scene import perspective
 

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vrcorrect.display import get_display
-from vrcorrect.errors import ValidationError
+from vrcorrect.specs.display import get_display
+from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.gl import Rect
 from vrcorrect.runtime.mirror import KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET, MOD_CONTROL, Iterations, Screenshot
@@ -111,7 +111,7 @@ def test_defaults_and_config_checks():
 
 
 def _images() -> list[np.ndarray]:
-    from vrcorrect.imageio import read_image
+    from vrcorrect.plumbing.imageio import read_image
 
     sample = read_image(REPO / "vrcorrect" / "data" / "sample.png")
     face = np.round(sample[50:50 + H, 85:85 + W] * 255).astype(np.uint8)  # mid-tones and edges
@@ -242,7 +242,7 @@ def test_brackets_change_the_iterations_live_and_the_report_shows_them(overlay):
 
 
 def test_screenshot_and_quit(overlay):
-    from vrcorrect.imageio import read_image
+    from vrcorrect.plumbing.imageio import read_image
 
     o = overlay
     press(o, "p")
@@ -383,7 +383,7 @@ def test_region_outside_the_screen_is_refused(x_display):
     (["--source", "screen", "--filter", "separable", "--iterations-per-frame", "2"], "only with --filter fista"),
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(args, message, capsys):
-    from vrcorrect.cli import main
+    from vrcorrect.apps.cli import main
 
     assert main(["overlay", *args]) == 2
     captured = capsys.readouterr()
@@ -393,7 +393,7 @@ def test_cli_bad_input_is_one_line_and_exit_2(args, message, capsys):
 
 
 def _cli(args: list[str], env: dict[str, str], cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "vrcorrect.cli", "overlay", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "vrcorrect.apps.cli", "overlay", *args], capture_output=True,
                           text=True, env=env, cwd=cwd, timeout=600)
 
 

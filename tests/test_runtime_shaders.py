@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vrcorrect.errors import InputError, ShaderError, ValidationError
+from vrcorrect.plumbing.errors import InputError, ShaderError, ValidationError
 from vrcorrect.runtime import shaders as S
 
 REPO = Path(__file__).resolve().parents[1]

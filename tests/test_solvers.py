@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from skimage import data, transform
 
-from vrcorrect.display import decode, encode, get_display
-from vrcorrect.errors import ValidationError
-from vrcorrect.kernel import KernelOptions, build_kernel, build_reference_kernel
-from vrcorrect.optics import OpticsOptions
-from vrcorrect.prescription import EyeRx
+from vrcorrect.specs.display import decode, encode, get_display
+from vrcorrect.plumbing.errors import ValidationError
+from vrcorrect.physics.kernel import KernelOptions, build_kernel, build_reference_kernel
+from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.specs.prescription import EyeRx
 from vrcorrect.solvers import make_problem, solve
 
 INF = KernelOptions(optics=OpticsOptions(viewing_distance_m=math.inf))
@@ -57,7 +57,7 @@ def test_wiener_never_worse_than_no_correction(desktop, myope_kernel, name):
 def test_wiener_strictly_better_than_no_correction_on_every_evaluation_image(desktop, rx_key):
     """The issue's guarantee for the closed form, on the evaluation set (photographs and the
     binary charts where the clipped inverse alone gets blend weight 0) for the five problems."""
-    from vrcorrect.evaluate import PRESCRIPTIONS, bundled_images, prescription_eye
+    from vrcorrect.apps.evaluate import PRESCRIPTIONS, bundled_images, prescription_eye
 
     rx = next(r for r in PRESCRIPTIONS if r.key == rx_key)
     k = build_kernel(prescription_eye(rx), desktop, INF)
@@ -99,7 +99,7 @@ def test_fast_is_not_stopped_by_a_rise_and_returns_its_best_iterate(desktop):
     """Over-relaxed ADMM is not monotone: on this evaluation case (rocket, hyperopic
     astigmatism, 512x512) the objective rises at the third iteration.  ``fast`` must go on past
     the rise (stopping there left it 7 % above ``paper``) and return its best iterate."""
-    from vrcorrect.evaluate import PRESCRIPTIONS, bundled_images, prescription_eye
+    from vrcorrect.apps.evaluate import PRESCRIPTIONS, bundled_images, prescription_eye
 
     rx = {r.key: r for r in PRESCRIPTIONS}["hyperopic_astig"]
     kernel = build_kernel(prescription_eye(rx), desktop, KernelOptions(optics=OpticsOptions(viewing_distance_m=math.inf)))
@@ -205,10 +205,10 @@ def test_bad_method_and_target(myope_kernel):
 _MEMORY_PROBE = """
 import json, math, resource, sys
 import numpy as np
-from vrcorrect.display import get_display
-from vrcorrect.kernel import KernelOptions, build_kernel
-from vrcorrect.optics import OpticsOptions
-from vrcorrect.prescription import EyeRx
+from vrcorrect.specs.display import get_display
+from vrcorrect.physics.kernel import KernelOptions, build_kernel
+from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.specs.prescription import EyeRx
 from vrcorrect.solvers import make_problem, solve
 k = build_kernel(EyeRx(sphere_D=-1.5, cylinder_D=0.0, axis_deg=0.0, pupil_diameter_mm=4.0), get_display("quest2"),
                  KernelOptions(optics=OpticsOptions(viewing_distance_m=math.inf), wavelength_step_nm=40))

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vrcorrect.errors import ValidationError
+from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.runtime.xr import (
     EXIT_NO_RUNTIME, EXIT_SESSION_LOST, GL_RGBA8, GL_SRGB8_ALPHA8, SessionTracker, XrSessionError,
     choose_swapchain_format, pose_matrix, projection_from_fov, view_matrix,
@@ -133,7 +133,7 @@ def _env(manifest: Path, out: Path, **extra: str) -> dict[str, str]:
 
 
 def _xr_command(*args: str) -> list[str]:
-    return [sys.executable, "-m", "vrcorrect.cli", "xr", "--validation", *args]
+    return [sys.executable, "-m", "vrcorrect.apps.cli", "xr", "--validation", *args]
 
 
 def _run(manifest: Path, out: Path, *args: str, timeout: float = 240, **extra: str) -> subprocess.CompletedProcess:
@@ -266,7 +266,7 @@ def test_submitted_images_are_each_eyes_own_correction(srgb_run, gl, rx_file):
 
 def test_rgba8_swapchains_get_linear_light_of_each_eyes_view_of_the_demo_scene(x_display, xr_runtime, rx_file,
                                                                                tmp_path, gl):
-    from vrcorrect.display import srgb_to_linear
+    from vrcorrect.specs.display import srgb_to_linear
     from vrcorrect.runtime.scene import DemoScene
 
     out = tmp_path / "xr"
@@ -457,7 +457,7 @@ def test_mirror_keys_change_the_iterations_and_the_run_reports_the_objective(x_d
 
 def test_no_runtime_prints_one_paragraph_and_exits_69(tmp_path):
     env = _env(tmp_path / "nowhere.json", tmp_path)
-    result = subprocess.run([sys.executable, "-m", "vrcorrect.cli", "xr"], capture_output=True, text=True,
+    result = subprocess.run([sys.executable, "-m", "vrcorrect.apps.cli", "xr"], capture_output=True, text=True,
                             timeout=120, cwd=ROOT, env=env)
     assert result.returncode == EXIT_NO_RUNTIME == 69
     lines = [line for line in result.stderr.splitlines() if line.strip()]
@@ -486,7 +486,7 @@ def test_no_headset_says_so(x_display, xr_runtime, tmp_path):
 ])
 def test_bad_options_name_the_field(args, words, tmp_path):
     env = _env(tmp_path / "nowhere.json", tmp_path)
-    result = subprocess.run([sys.executable, "-m", "vrcorrect.cli", "xr", *args], capture_output=True, text=True,
+    result = subprocess.run([sys.executable, "-m", "vrcorrect.apps.cli", "xr", *args], capture_output=True, text=True,
                             timeout=120, cwd=ROOT, env=env)
     assert result.returncode == 2
     assert words in result.stderr and "Traceback" not in result.stderr

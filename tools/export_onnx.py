@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def main(argv: list[str] | None = None) -> int:
-    from vrcorrect.errors import VrcorrectError
+    from vrcorrect.plumbing.errors import VrcorrectError
 
     ap = argparse.ArgumentParser(prog="export_onnx.py", description=__doc__.split("\n\n")[0])
     ap.add_argument("checkpoint", metavar="CHECKPOINT", help="checkpoint.pt written by vrcorrect train")

@@ -9,8 +9,8 @@ import sys
 
 from skimage import data
 
-from vrcorrect.charts import make_sample_image, sample_image_path
-from vrcorrect.imageio import write_png
+from vrcorrect.plumbing.charts import make_sample_image, sample_image_path
+from vrcorrect.plumbing.imageio import write_png
 
 
 def main() -> int:

@@ -10,8 +10,8 @@
 * :mod:`vrcorrect.learn.export` - ONNX export checked against torch (``tools/export_onnx.py``);
   :mod:`vrcorrect.runtime.learned` runs the exported model without torch.
 
-The commands ``vrcorrect dataset`` and ``vrcorrect train`` are in :mod:`vrcorrect.learn_cli`
-(layer 6: it loads the bundled images through :mod:`vrcorrect.evaluate`).
+The commands ``vrcorrect dataset`` and ``vrcorrect train`` are in :mod:`vrcorrect.apps.learning`
+(layer 6: it loads the bundled images through :mod:`vrcorrect.apps.evaluate`).
 
 Importing this package imports neither torch nor the submodules.
 """

@@ -25,9 +25,9 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..errors import ValidationError
-from ..kernel import EyeKernel
-from ..prescription import EyeRx
+from ..plumbing.errors import ValidationError
+from ..physics.kernel import EyeKernel
+from ..specs.prescription import EyeRx
 
 #: Regulariser of the pre-correction channels, relative to ``||K||^2`` (one of ``wiener``'s candidates).
 PRECORRECTION_MU_REL = 0.1

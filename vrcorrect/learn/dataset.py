@@ -6,8 +6,8 @@ with ``(seed, i)`` picks the image, the crop's corner and the eye (uniform over
 data set whatever the number of workers or the order the shards finish in.  For each
 sample the builder computes, on the crop (linear display RGB, the panel black around it):
 
-* the eye's kernel and its glasses-on reference kernel (:func:`vrcorrect.kernel.build_kernel`,
-  :func:`vrcorrect.kernel.build_reference_kernel`);
+* the eye's kernel and its glasses-on reference kernel (:func:`vrcorrect.physics.kernel.build_kernel`,
+  :func:`vrcorrect.physics.kernel.build_reference_kernel`);
 * ``target_lms``, the retinal cone image with glasses (the objective's target);
 * ``precorrected``, the model's extra input (:func:`~vrcorrect.learn.conditioning.precorrect`);
 * ``fast``, the ``fast`` method's correction (``solve(problem, "fast")``), and the objective
@@ -50,8 +50,8 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from ..errors import InputError, ValidationError, VrcorrectError
-from ..fileio import write_text_atomic, write_with
+from ..plumbing.errors import InputError, ValidationError, VrcorrectError
+from ..plumbing.fileio import write_text_atomic, write_with
 from .conditioning import PRECORRECTION_MU_REL, PRECORRECTION_STEPS, SamplingRanges, eye_features, precorrect
 
 #: Images kept out of the default data set: ``vrcorrect bench learned`` scores models on them.
@@ -187,8 +187,8 @@ _WORKER: dict[str, Any] = {}
 
 def _init_worker(images: Sequence[np.ndarray], display: Any, threads: int | None) -> None:
     """Set this process up to compute samples: ``display`` a preset name, profile path or
-    :class:`~vrcorrect.display.DisplayProfile`; ``images`` sRGB code values."""
-    from ..display import get_display
+    :class:`~vrcorrect.specs.display.DisplayProfile`; ``images`` sRGB code values."""
+    from ..specs.display import get_display
 
     if threads is not None:
         os.environ["OMP_NUM_THREADS"] = str(threads)
@@ -201,14 +201,14 @@ def _init_worker(images: Sequence[np.ndarray], display: Any, threads: int | None
     _WORKER["display"] = get_display(display) if isinstance(display, (str, os.PathLike)) else display
     _WORKER.pop("kernels", None)                 # built for another build's display
     # images are sRGB code values; the model works in linear light
-    from ..display import decode
+    from ..specs.display import decode
 
     _WORKER["images"] = [decode(_WORKER["display"], im).astype(np.float32) for im in images]
 
 
 def _compute_sample(config: DatasetConfig, spec: SampleSpec) -> dict[str, Any]:
-    from ..kernel import KernelOptions, build_kernel, build_reference_kernel
-    from ..prescription import EyeRx
+    from ..physics.kernel import KernelOptions, build_kernel, build_reference_kernel
+    from ..specs.prescription import EyeRx
     from ..solvers import make_problem, objective, solve
 
     display = _WORKER["display"]
@@ -476,7 +476,7 @@ def build_dataset(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]],
     -------
     BuildReport
     """
-    from ..display import get_display
+    from ..specs.display import get_display
 
     check_ray(ray_address)
     if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 256:

@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..errors import InputError, ValidationError
-from ..fileio import check_writable, write_with
+from ..plumbing.errors import InputError, ValidationError
+from ..plumbing.fileio import check_writable, write_with
 from .model import UNetConfig
 from .train import load_checkpoint, model_from_checkpoint
 
@@ -36,7 +36,7 @@ FORMAT = "vrcorrect-learned-v1"
 OUTPUT_NAME = "displayed"
 FP32_TOLERANCE = 1e-4
 METADATA_KEYS = ("vrcorrect.format", "vrcorrect.version", "vrcorrect.inputs", "vrcorrect.ranges",
-                 "vrcorrect.display", "vrcorrect.reference", "vrcorrect.precorrection_mu_rel",
+                 "vrcorrect.specs.display", "vrcorrect.reference", "vrcorrect.precorrection_mu_rel",
                  "vrcorrect.precorrection_steps",
                  "vrcorrect.train", "vrcorrect.precision", "vrcorrect.opset")
 
@@ -63,7 +63,7 @@ def metadata_for(ckpt: dict, precision: str) -> dict[str, str]:
         "vrcorrect.version": __version__,
         "vrcorrect.inputs": ",".join(UNetConfig.from_dict(ckpt["train_config"]["model"]).input_names),
         "vrcorrect.ranges": json.dumps(ds["config"]["ranges"]),
-        "vrcorrect.display": json.dumps(ds["display"]),
+        "vrcorrect.specs.display": json.dumps(ds["display"]),
         "vrcorrect.reference": ds.get("reference", "glasses"),
         "vrcorrect.precorrection_mu_rel": repr(float(ds["config"]["precorrection_mu_rel"])),
         "vrcorrect.precorrection_steps": str(int(ds["config"].get("precorrection_steps", 0))),

@@ -53,7 +53,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from ..errors import ValidationError
+from ..plumbing.errors import ValidationError
 from .conditioning import N_FEATURES
 
 #: Factor on the gradient input inside the network: the step ``K^H (K x - t) / ||K||^2`` has an

@@ -53,8 +53,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..errors import InputError, ValidationError
-from ..fileio import write_text_atomic, write_with
+from ..plumbing.errors import InputError, ValidationError
+from ..plumbing.fileio import write_text_atomic, write_with
 from .dataset import load_shard, read_manifest
 from .model import ConditionedUNet, UNetConfig
 

@@ -77,7 +77,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ValidationError, VrcorrectError
+from ..plumbing.errors import ValidationError, VrcorrectError
 from .fft import FftBankGL, fft_grid
 from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
 from .gl import check_gl_errors, fullscreen_triangle, release
@@ -186,10 +186,11 @@ class EyeModel:
 
 
 def _sample_target(size: int) -> np.ndarray:
-    from ..display import decode
-    from ..imageio import read_image
+    from ..specs.display import decode
+    from ..plumbing.fileio import package_data
+    from ..plumbing.imageio import read_image
 
-    img = read_image(Path(__file__).resolve().parents[1] / "data" / "sample.png")
+    img = read_image(package_data("sample.png"))
     h, w = img.shape[:2]
     s = min(h, w)
     img = img[(h - s) // 2:(h - s) // 2 + s, (w - s) // 2:(w - s) // 2 + s]
@@ -206,7 +207,7 @@ def _identity_bank() -> SeparableBank:
 def build_eye_model(eye_rx, display, options: CorrectorOptions = CorrectorOptions()) -> EyeModel:
     """Kernel, regulariser, blend weight (and, for the separable strategy, both banks) for one
     eye (CPU, numpy)."""
-    from ..kernel import KernelOptions, build_kernel, build_reference_kernel
+    from ..physics.kernel import KernelOptions, build_kernel, build_reference_kernel
     from ..solvers import make_problem
     from ..solvers.wiener import correction_filters, wiener
 
@@ -393,7 +394,7 @@ class RxSnapshot:
 
     @classmethod
     def read(cls, path: str | os.PathLike[str]) -> "RxSnapshot":
-        from ..prescription import load_prescription
+        from ..specs.prescription import load_prescription
 
         path = Path(path)
         stamp = _file_stamp(path)
@@ -401,7 +402,7 @@ class RxSnapshot:
 
 
 def _load_rx(rx):
-    from ..prescription import Prescription
+    from ..specs.prescription import Prescription
 
     if isinstance(rx, RxSnapshot):
         return rx
@@ -428,11 +429,11 @@ class Corrector:
     ctx
         A moderngl context with OpenGL >= 4.3 (compute shaders).
     rx
-        Prescription JSON path (watched by :meth:`poll`), a :class:`~vrcorrect.prescription.Prescription`,
+        Prescription JSON path (watched by :meth:`poll`), a :class:`~vrcorrect.specs.prescription.Prescription`,
         or an :class:`RxSnapshot` (a file read once for several eyes; watched from the moment it was
         read).
     display
-        Display preset name, profile path or :class:`~vrcorrect.display.DisplayProfile`.
+        Display preset name, profile path or :class:`~vrcorrect.specs.display.DisplayProfile`.
     eye
         ``"right"`` or ``"left"``.
     backend
@@ -444,7 +445,7 @@ class Corrector:
     POLL_INTERVAL_S = 0.25
 
     def __init__(self, ctx, rx, display, eye: str, backend: str = "glsl", **options):
-        from ..display import DisplayProfile, get_display
+        from ..specs.display import DisplayProfile, get_display
 
         if backend not in BACKENDS:
             raise ValidationError("backend", backend, "one of " + ", ".join(BACKENDS))
@@ -581,7 +582,7 @@ class Corrector:
         if stamp == self._stamp:
             return False
         self._stamp = stamp
-        from ..prescription import load_prescription
+        from ..specs.prescription import load_prescription
 
         try:
             rx = load_prescription(self.rx_path)

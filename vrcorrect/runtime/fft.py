@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from ..errors import ValidationError
+from ..plumbing.errors import ValidationError
 from .gl import release
 from .shaders import compile_compute
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ValidationError
+from ..plumbing.errors import ValidationError
 
 __all__ = ["SeparableBank", "separable_bank", "apply_separable", "DEFAULT_RANK_TOLERANCE"]
 

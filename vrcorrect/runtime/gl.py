@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
-from ..errors import GLError, GLUnavailableError, ValidationError
+from ..plumbing.errors import GLError, GLUnavailableError, ValidationError
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl

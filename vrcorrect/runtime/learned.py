@@ -35,9 +35,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError, ValidationError
+from ..plumbing.errors import InputError, ValidationError
 from ..learn.conditioning import SamplingRanges, check_eye, eye_features, model_inputs
-from ..prescription import EyeRx
+from ..specs.prescription import EyeRx
 from .model_path import DEFAULT_MODEL, model_for_backend  # noqa: F401  (re-exported)
 
 LEARNED_FORMAT = "vrcorrect-learned-v1"
@@ -88,7 +88,7 @@ class LearnedModel:
         self.gradient_input = GRADIENT_INPUT in inputs
         try:
             self.ranges = SamplingRanges.from_dict(json.loads(meta["vrcorrect.ranges"]))
-            self.display: dict[str, Any] = json.loads(meta["vrcorrect.display"])
+            self.display: dict[str, Any] = json.loads(meta["vrcorrect.specs.display"])
             self.mu_rel = float(meta["vrcorrect.precorrection_mu_rel"])
             self.precorrection_steps = int(meta.get("vrcorrect.precorrection_steps", "0"))
             self.reference = meta.get("vrcorrect.reference", "glasses")
@@ -115,7 +115,7 @@ class LearnedModel:
         ValidationError
             The eye is outside the trained range, or the display is not the trained one.
         """
-        from ..kernel import build_kernel, build_reference_kernel
+        from ..physics.kernel import build_kernel, build_reference_kernel
 
         e = self.check(eye, display)
         kernel = kernel if kernel is not None else build_kernel(e, display)

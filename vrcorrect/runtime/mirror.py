@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import GLUnavailableError, InputError, ValidationError, VrcorrectError
+from ..plumbing.errors import GLUnavailableError, InputError, ValidationError, VrcorrectError
 from .gl import format_ms, timer_query_ms
 from .scene import EYES, parse_size, parse_source
 
@@ -562,7 +562,7 @@ class GlfwSession:
     steps, :meth:`__init__` (GLFW itself: monitors can be asked for) then :meth:`open`; use as
     a context manager or call :meth:`close` (terminates GLFW).
 
-    Raises :class:`~vrcorrect.errors.GLUnavailableError` when there is no display or no
+    Raises :class:`~vrcorrect.plumbing.errors.GLUnavailableError` when there is no display or no
     OpenGL 4.3 core context (the corrector's compute shaders need it).
     """
 
@@ -649,7 +649,7 @@ class GlfwSession:
 def write_screenshot(folder: str | Path, prefix: str, pixels: np.ndarray) -> Path:
     """Write ``pixels`` (``(H, W, 3)`` uint8) to a new ``PREFIX-DATE-TIME-NNN.png`` in
     ``folder`` (made if needed); returns its path."""
-    from ..imageio import write_png
+    from ..plumbing.imageio import write_png
 
     folder = Path(folder)
     try:
@@ -700,8 +700,8 @@ class Mirror:
     """
 
     def __init__(self, config: MirrorConfig = MirrorConfig(), *, echo: Callable[[str], None] | None = print):
-        from ..display import get_display
-        from ..prescription import bundled_sample_path
+        from ..specs.display import get_display
+        from ..specs.prescription import bundled_sample_path
         from .corrector import RxSnapshot
 
         self.config = config

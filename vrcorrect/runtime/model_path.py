@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import ValidationError
+from ..plumbing.errors import ValidationError
 
 #: The shipped default model (its card beside it: ``default.md``).
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "default.onnx"

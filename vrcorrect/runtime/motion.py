@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ValidationError
+from ..plumbing.errors import ValidationError
 
 __all__ = ["MAX_SIDE", "CUT_CONFIDENCE", "estimate_shift", "motion_for", "MotionTracker", "view_shift"]
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, ValidationError
+from ..plumbing.errors import InputError, ValidationError
 
 __all__ = ["OnnxModel", "run_slot", "small_onnx_model", "write_one_minus_x_model"]
 

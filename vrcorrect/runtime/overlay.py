@@ -38,7 +38,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import ValidationError, VrcorrectError
+from ..plumbing.errors import ValidationError, VrcorrectError
 from .gl import Rect, format_ms
 from .mirror import (
     ITERATION_KEYS, KEY_ESCAPE, MOD_ALT, MOD_CONTROL, MOD_SUPER, GlfwSession, Iterations, Screenshot, StageTimes,
@@ -267,8 +267,8 @@ class Overlay:
     """
 
     def __init__(self, config: OverlayConfig, *, echo: Callable[[str], None] | None = print):
-        from ..display import get_display
-        from ..prescription import bundled_sample_path
+        from ..specs.display import get_display
+        from ..specs.prescription import bundled_sample_path
         from .corrector import RxSnapshot
         from .scene import screen_bounds
 

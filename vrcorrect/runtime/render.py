@@ -15,8 +15,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import ValidationError
-from ..forward import check_image
+from ..plumbing.errors import ValidationError
+from ..vision.forward import check_image
 
 __all__ = ["VIEWS", "MAX_FRAMES", "SETTLED_FRAMES", "check_frames", "render_frame"]
 

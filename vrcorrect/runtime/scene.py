@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING, Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import InputError, ValidationError
+from ..plumbing.errors import InputError, ValidationError
 from .gl import Rect
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -415,7 +415,7 @@ def _rings(size: int) -> np.ndarray:
 def chart_atlas(tile_px: int = 256) -> np.ndarray:
     """The cube's texture: a 3 x 2 grid of ``tile_px`` tiles, sRGB codes ``(2t, 3t, 4)`` uint8:
     Siemens star (36 spokes), text, colour bars / row 2: checkerboard, zone plate, star (72)."""
-    from ..charts import colour_bars, siemens_star, text_chart
+    from ..plumbing.charts import colour_bars, siemens_star, text_chart
 
     t = tile_px
     tiles = [siemens_star(t, 36), text_chart(t, t), colour_bars(t, t),
@@ -508,7 +508,7 @@ class DemoScene:
     label = "demo scene"
 
     def __init__(self, ctx: "moderngl.Context", width: int, height: int, config: SceneConfig = SceneConfig()):
-        from ..display import srgb_to_linear
+        from ..specs.display import srgb_to_linear
         from .gl import check_gl_errors, upload_texture
         from .shaders import compile_program
 
@@ -723,7 +723,7 @@ class StillSource(_PictureSource):
 
     def __init__(self, ctx: "moderngl.Context", width: int, height: int, image: np.ndarray | str | Path,
                  label: str = "image"):
-        from ..imageio import read_image
+        from ..plumbing.imageio import read_image
 
         picture = read_image(image) if isinstance(image, (str, Path)) else np.asarray(image)
         super().__init__(ctx, width, height)
@@ -757,7 +757,7 @@ class FolderSource(_PictureSource):
             raise
 
     def _update(self, t_s: float) -> None:
-        from ..imageio import read_image
+        from ..plumbing.imageio import read_image
 
         i = frame_index(t_s, 1.0 / self.interval_s, len(self.files))
         self._show(i, lambda: read_image(self.files[i]))
@@ -917,7 +917,7 @@ class ScreenGrabber:
     """Grabs rectangles of the X11 screen (the root window, all monitors) with ``mss``
     (XCB ``ShmGetImage``, or ``GetImage`` where shared memory is not available).
 
-    Raises :class:`~vrcorrect.errors.InputError` when there is no X display (or no ``mss``).
+    Raises :class:`~vrcorrect.plumbing.errors.InputError` when there is no X display (or no ``mss``).
     What is grabbed is what the X server holds: windows above the region are in it, so a
     window showing the grab must lie outside the region.
     """
@@ -965,7 +965,7 @@ class ScreenSource(_PictureSource):
     the region's size shows it pixel for pixel). The picture texture is made on the first
     frame and rewritten in place after that.
 
-    Raises :class:`~vrcorrect.errors.ValidationError` when ``region`` is not inside the screen.
+    Raises :class:`~vrcorrect.plumbing.errors.ValidationError` when ``region`` is not inside the screen.
     """
 
     def __init__(self, ctx: "moderngl.Context", width: int, height: int, region: Rect):

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Callable, Mapping, TypeVar, Union
 
-from ..errors import InputError, ShaderCompileError, ShaderError, ValidationError
+from ..plumbing.errors import InputError, ShaderCompileError, ShaderError, ValidationError
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl

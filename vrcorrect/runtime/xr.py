@@ -49,7 +49,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import VrcorrectError, ValidationError
+from ..plumbing.errors import VrcorrectError, ValidationError
 from .mirror import add_filter_options, add_reprojection_option, take_motion
 from .motion import view_shift
 from .scene import EYES, parse_region, parse_source
@@ -397,8 +397,8 @@ class XrApp:
     """
 
     def __init__(self, config: XrConfig = XrConfig(), *, echo: Callable[[str], None] | None = print):
-        from ..display import get_display
-        from ..prescription import bundled_sample_path
+        from ..specs.display import get_display
+        from ..specs.prescription import bundled_sample_path
         from .corrector import RxSnapshot
 
         self.config = config

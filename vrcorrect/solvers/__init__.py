@@ -1,4 +1,4 @@
-"""Correction methods: find the displayed image whose retinal image matches the target's.
+"""Layer 4: the correction methods, which find the displayed image whose retinal image matches the target's.
 
 All methods share one problem statement (:class:`Problem`): a linear RGB
 target, the eye's kernel, and the target's cone image; and one objective,
@@ -17,9 +17,9 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import ValidationError
-from ..forward import check_image, simulate_lms
-from ..kernel import EyeKernel
+from ..plumbing.errors import ValidationError
+from ..vision.forward import check_image, simulate_lms
+from ..physics.kernel import EyeKernel
 
 METHODS = ("none", "wiener", "fast", "paper", "conventional")
 

@@ -66,7 +66,7 @@ def paper(problem: Problem, iterations: int = 100, learning_rate: float = 0.01, 
           seed: int = 0, progress: Callable[[int, int], None] | None = None
           ) -> tuple[np.ndarray, int, dict, list[float]]:
     """ChromaCorrect's published optimisation: Adam from the target, clamped, LMS (or opponent) MSE."""
-    from ..perception import OPPONENT_MATRIX
+    from ..physics.perception import OPPONENT_MATRIX
 
     torch.manual_seed(seed)
     H, W = problem.target.shape[:2]

@@ -33,9 +33,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
-from ..errors import ValidationError
-from ..forward import check_image
-from ..kernel import EyeKernel
+from ..plumbing.errors import ValidationError
+from ..vision.forward import check_image
+from ..physics.kernel import EyeKernel
 from . import Problem
 
 DEFAULT_REGULARISATION = (0.03, 0.1, 0.3)

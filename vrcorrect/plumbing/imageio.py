@@ -139,7 +139,7 @@ def _png16_bytes(rgb: np.ndarray) -> bytes:
 def png_writer(path: str | Path, rgb: np.ndarray, bits: int = 8) -> Callable[[Path], None]:
     """Check ``(H, W, 3)`` code values in [0, 1] for an 8- or 16-bit PNG at ``path`` and return the
     function that writes them to a given (temporary) path: for outputs written together
-    (:func:`vrcorrect.fileio.atomic_paths`)."""
+    (:func:`vrcorrect.plumbing.fileio.atomic_paths`)."""
     from PIL import Image
 
     if bits not in (8, 16):

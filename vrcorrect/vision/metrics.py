@@ -20,7 +20,7 @@ Two ways of scoring what an eye sees (:func:`evaluate_seen`):
 
 * **On what the eye sees** (``flip``, ``ssim``, ``psnr``): the retinal cone
   images are mapped back to the display's linear RGB
-  (:func:`vrcorrect.forward.lms_to_display`, which clips to the gamut) and
+  (:func:`vrcorrect.vision.forward.lms_to_display`, which clips to the gamut) and
   encoded with the sRGB transfer function, then compared as ordinary sRGB
   images.  This is the meaningful score.
 * **In LMS space as the paper did** (``flip_lms``, ``ssim_lms``,
@@ -53,11 +53,11 @@ from typing import Any
 
 import numpy as np
 
-from .display import DisplayProfile, encode
-from .errors import InputError, ValidationError
+from ..specs.display import DisplayProfile, encode
+from ..plumbing.errors import InputError, ValidationError
 from .forward import check_image, lms_to_display, simulate_lms
-from .kernel import EyeKernel
-from .perception import apply_matrix
+from ..physics.kernel import EyeKernel
+from ..physics.perception import apply_matrix
 
 __all__ = [
     "RANGE_TOLERANCE",
@@ -361,7 +361,7 @@ def jod(reference_srgb: np.ndarray, test_srgb: np.ndarray, display: DisplayProfi
         at least :data:`JOD_MIN_SIDE` pixels.  Excursions outside [0, 1] up to
         :data:`RANGE_TOLERANCE` are clipped; larger ones raise.
     display
-        A :class:`vrcorrect.display.DisplayProfile`.
+        A :class:`vrcorrect.specs.display.DisplayProfile`.
 
     Returns
     -------
@@ -377,7 +377,7 @@ def jod(reference_srgb: np.ndarray, test_srgb: np.ndarray, display: DisplayProfi
         When ColorVideoVDP or torch is not installed.
     """
     if not isinstance(display, DisplayProfile):
-        raise ValidationError("display", type(display).__name__, "a DisplayProfile (vrcorrect.display.get_display)")
+        raise ValidationError("display", type(display).__name__, "a DisplayProfile (vrcorrect.specs.display.get_display)")
     names = ("reference_srgb", "test_srgb")
     a, b = _check_pair(reference_srgb, test_srgb, require_rgb=True, names=names)
     if min(a.shape[:2]) < JOD_MIN_SIDE:
@@ -476,7 +476,7 @@ def evaluate_seen(displayed_linear: np.ndarray, target_linear: np.ndarray, eye_k
     target as a perfectly focused eye would see it).
 
     Both cone images are rendered back to the display's linear RGB with
-    :func:`vrcorrect.forward.lms_to_display` (``eye_kernel``'s matrix,
+    :func:`vrcorrect.vision.forward.lms_to_display` (``eye_kernel``'s matrix,
     clipped to the gamut) and sRGB-encoded (``encode("srgb", ...)``: FLIP
     expects sRGB code values whatever the panel's own transfer function), and
     FLIP (at ``display.pixels_per_degree``), SSIM and PSNR compare seen
@@ -492,7 +492,7 @@ def evaluate_seen(displayed_linear: np.ndarray, target_linear: np.ndarray, eye_k
     target_linear
         ``(H, W, 3)`` linear RGB of the intended image, in [0, 1].
     eye_kernel
-        The viewer's kernel (:func:`vrcorrect.kernel.build_kernel`), built for
+        The viewer's kernel (:func:`vrcorrect.physics.kernel.build_kernel`), built for
         ``display`` (same pixels per degree).
     display
         The display profile; its ``pixels_per_degree`` is FLIP's.

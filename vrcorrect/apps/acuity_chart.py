@@ -1,6 +1,6 @@
 """``vrcorrect acuity``: which line of an eye chart this eye reads, uncorrected and corrected.
 
-The chart, the observer and the acuity rule are :mod:`vrcorrect.acuity` (Watson & Ahumada 2008,
+The chart, the observer and the acuity rule are :mod:`vrcorrect.vision.acuity` (Watson & Ahumada 2008,
 calibrated there).  This module adds the corrections (layer 4, the solvers) and the command
 (layer 6): every drawable chart line's scoring image (the five chart letters and the observer's
 ten templates) is corrected as a whole by each method - ``make_problem(target, kernel,
@@ -25,13 +25,13 @@ from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 
-from .errors import ValidationError
+from ..plumbing.errors import ValidationError
 
 if TYPE_CHECKING:  # annotations only: importing these at run time would slow the command line's start
-    from .acuity import AcuityScore, Chart, Observer
-    from .display import DisplayProfile
-    from .kernel import EyeKernel, KernelOptions
-    from .prescription import EyeRx
+    from ..vision.acuity import AcuityScore, Chart, Observer
+    from ..specs.display import DisplayProfile
+    from ..physics.kernel import EyeKernel, KernelOptions
+    from ..specs.prescription import EyeRx
 
 __all__ = ["METHODS", "AcuityResult", "measure_acuity", "acuity_panel", "add_parser", "cmd_acuity"]
 
@@ -51,7 +51,7 @@ class AcuityResult:
     eye, display
         Who read, on what.
     chart
-        The chart (:class:`vrcorrect.acuity.Chart`).
+        The chart (:class:`vrcorrect.vision.acuity.Chart`).
     scores
         ``{"none": AcuityScore, method: AcuityScore, ...}``, uncorrected first.
     glasses
@@ -59,7 +59,7 @@ class AcuityResult:
         reading the chart as it is: the best a correction could hope for on this display.
     sharp_scores
         Like ``scores``, read by the sharp-template observer: its templates are the letters as the
-        eye sees them with its glasses on (:func:`vrcorrect.acuity.score_acuity`'s
+        eye sees them with its glasses on (:func:`vrcorrect.vision.acuity.score_acuity`'s
         ``template_views``), as a person who has not adapted to the blur or the correction.
     displayed
         Per method, the displayed image of each chart line (None below the display's pixels).
@@ -127,17 +127,17 @@ def measure_acuity(eye: EyeRx, display: DisplayProfile, methods: Sequence[str] =
     Parameters
     ----------
     eye
-        :class:`vrcorrect.prescription.EyeRx`.
+        :class:`vrcorrect.specs.prescription.EyeRx`.
     display
-        :class:`vrcorrect.display.DisplayProfile`.
+        :class:`vrcorrect.specs.display.DisplayProfile`.
     methods
         Some of :data:`METHODS` (``"none"`` and repeats are ignored: uncorrected is always read).
     kernel_options
-        :class:`vrcorrect.kernel.KernelOptions` (viewing distance, chromatic aberration, ...).
+        :class:`vrcorrect.physics.kernel.KernelOptions` (viewing distance, chromatic aberration, ...).
     observer
-        :class:`vrcorrect.acuity.Observer` (default: the calibrated one).
+        :class:`vrcorrect.vision.acuity.Observer` (default: the calibrated one).
     top_logmar, bottom_logmar, chart_seed
-        The chart (:func:`vrcorrect.acuity.chart_lines`).
+        The chart (:func:`vrcorrect.vision.acuity.chart_lines`).
     contrast
         Contrast scale of the corrections' target, (0, 1] (``make_problem``'s; 1 = none).
     progress
@@ -147,9 +147,9 @@ def measure_acuity(eye: EyeRx, display: DisplayProfile, methods: Sequence[str] =
     -------
     AcuityResult
     """
-    from .acuity import Observer, build_chart, score_acuity
-    from .kernel import build_kernel, build_reference_kernel
-    from .solvers import make_problem, solve
+    from ..vision.acuity import Observer, build_chart, score_acuity
+    from ..physics.kernel import build_kernel, build_reference_kernel
+    from ..solvers import make_problem, solve
 
     chosen = _check_methods(methods)
     if not (isinstance(contrast, (int, float)) and 0.0 < contrast <= 1.0):
@@ -278,8 +278,8 @@ def acuity_panel(result: AcuityResult, title: str | None = None) -> np.ndarray:
     """
     from PIL import Image, ImageDraw
 
-    from .display import encode
-    from .forward import lms_to_display
+    from ..specs.display import encode
+    from ..vision.forward import lms_to_display
 
     chart, kernel, display = result.chart, result.kernel, result.display
     columns = _columns(result)
@@ -371,7 +371,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _check_outputs(args: argparse.Namespace) -> None:
-    from .fileio import check_writable
+    from ..plumbing.fileio import check_writable
 
     if args.json is not None and args.json != "-":
         if Path(args.json).suffix.lower() != ".json":
@@ -387,11 +387,11 @@ def cmd_acuity(args: argparse.Namespace) -> int:
     """``vrcorrect acuity``: read the chart, print the table, write the JSON and the panel."""
     from tqdm import tqdm
 
-    from .acuity import Observer, chart_lines
+    from ..vision.acuity import Observer, chart_lines
     from .cli import _kernel_options, _load_eye
-    from .display import get_display
-    from .fileio import atomic_paths
-    from .imageio import png_writer
+    from ..specs.display import get_display
+    from ..plumbing.fileio import atomic_paths
+    from ..plumbing.imageio import png_writer
 
     methods = _check_methods(args.methods)
     _check_outputs(args)

@@ -1,6 +1,6 @@
 """Command line: ``vrcorrect <command> ...``.
 
-Library errors (:class:`vrcorrect.errors.VrcorrectError`) become one line on
+Library errors (:class:`vrcorrect.plumbing.errors.VrcorrectError`) become one line on
 stderr and exit status 2; a command-line user never sees a traceback
 (``VRCORRECT_DEBUG=1`` shows it for bug reports).
 """
@@ -21,8 +21,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .errors import InputError, ValidationError, VrcorrectError
-from .runtime.model_path import DEFAULT_MODEL, model_for_backend
+from ..plumbing.errors import InputError, ValidationError, VrcorrectError
+from ..runtime.model_path import DEFAULT_MODEL, model_for_backend
 
 EXIT_USAGE = 2
 EXIT_INTERNAL = 3
@@ -42,15 +42,15 @@ def _progress(desc: str):
 
 
 def _load_eye(args: argparse.Namespace):
-    from .prescription import bundled_sample_path, load_prescription
+    from ..specs.prescription import bundled_sample_path, load_prescription
 
     path = Path(args.rx) if args.rx else bundled_sample_path()
     return path, load_prescription(path).eye(args.eye)
 
 
 def _kernel_options(args: argparse.Namespace):
-    from .kernel import KernelOptions
-    from .optics import OpticsOptions
+    from ..physics.kernel import KernelOptions
+    from ..physics.optics import OpticsOptions
 
     distance = None
     if getattr(args, "distance_m", None) is not None:
@@ -70,7 +70,7 @@ def _positive_float(field: str, text: str) -> float:
 
 
 def _build(args: argparse.Namespace, eye, display):
-    from .kernel import build_kernel
+    from ..physics.kernel import build_kernel
 
     bar = _progress("building eye kernel")
     try:
@@ -82,13 +82,13 @@ def _build(args: argparse.Namespace, eye, display):
 # ---------------------------------------------------------------- simulate
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from .fileio import check_readable
+    from ..plumbing.fileio import check_readable
 
     check_readable(args.input)                      # before the heavy imports: a typo is told at once
-    from .display import decode, encode, get_display
-    from .fileio import check_writable
-    from .forward import what_the_eye_sees
-    from .imageio import read_image, write_png
+    from ..specs.display import decode, encode, get_display
+    from ..plumbing.fileio import check_writable
+    from ..vision.forward import what_the_eye_sees
+    from ..plumbing.imageio import read_image, write_png
 
     out = Path(args.output)
     if out.suffix.lower() != ".png":
@@ -123,7 +123,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------- correct
 
 def cmd_correct(args: argparse.Namespace) -> int:
-    from .fileio import atomic_paths, check_readable, check_writable
+    from ..plumbing.fileio import atomic_paths, check_readable, check_writable
 
     out = Path(args.output)
     if out.suffix.lower() != ".png":
@@ -147,11 +147,11 @@ def cmd_correct(args: argparse.Namespace) -> int:
     if args.model is not None and args.method != "learned":
         raise ValidationError("--model", args.model, "only with --method learned")
     check_readable(args.input)                      # before the heavy imports: a typo is told at once
-    from .display import decode, encode, get_display
-    from .imageio import png_writer, read_image
-    from .kernel import build_reference_kernel
-    from .metrics import evaluate_seen
-    from .solvers import make_problem, solve
+    from ..specs.display import decode, encode, get_display
+    from ..plumbing.imageio import png_writer, read_image
+    from ..physics.kernel import build_reference_kernel
+    from ..vision.metrics import evaluate_seen
+    from ..solvers import make_problem, solve
 
     learned = _learned_model(args) if args.method == "learned" else None
     rx_path, eye = _load_eye(args)
@@ -234,7 +234,7 @@ def available_memory_bytes() -> float | None:
 
 def _check_memory(method: str, height: int, width: int) -> None:
     """Refuse, before any work, an image whose correction would not fit in memory (one line)."""
-    from .solvers import PEAK_MEMORY, peak_memory_bytes
+    from ..solvers import PEAK_MEMORY, peak_memory_bytes
 
     available = available_memory_bytes()
     need = peak_memory_bytes(method, height, width)
@@ -270,7 +270,7 @@ def _finite_json(value: Any, where: str, notes: list[str]) -> Any:
 
 def _learned_model(args: argparse.Namespace):
     """The learned model of ``--model`` (default: the shipped one), its reference checked."""
-    from .runtime.learned import LearnedModel
+    from ..runtime.learned import LearnedModel
 
     path = Path(args.model) if args.model else DEFAULT_MODEL
     if args.model is None and not path.is_file():
@@ -285,7 +285,7 @@ def _learned_model(args: argparse.Namespace):
 
 def _solve_learned(model, problem, eye, display, kernel, reference):
     """``--method learned``: the model bound to this eye (refused outside its range), one pass."""
-    from .solvers import SolveResult, objective
+    from ..solvers import SolveResult, objective
 
     bound = model.for_eye(eye, display, kernel, reference)
     t0 = time.perf_counter()
@@ -303,9 +303,9 @@ def _solve_learned(model, problem, eye, display, kernel, reference):
 def cmd_psf(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from .display import get_display
-    from .fileio import atomic_paths, check_writable
-    from .kernel import monochromatic_psf
+    from ..specs.display import get_display
+    from ..plumbing.fileio import atomic_paths, check_writable
+    from ..physics.kernel import monochromatic_psf
 
     out = Path(args.output)
     if out.suffix.lower() != ".npy":
@@ -362,7 +362,7 @@ def cmd_psf(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------- rx
 
 def cmd_rx_new(args: argparse.Namespace) -> int:
-    from .prescription import write_template
+    from ..specs.prescription import write_template
 
     write_template(Path(args.path), force=args.force)
     print(f"wrote {args.path}: a commented prescription template; fill in both eyes, then run "
@@ -371,7 +371,7 @@ def cmd_rx_new(args: argparse.Namespace) -> int:
 
 
 def cmd_rx_validate(args: argparse.Namespace) -> int:
-    from .prescription import validate_file
+    from ..specs.prescription import validate_file
 
     problems = validate_file(Path(args.path))
     if problems:
@@ -379,7 +379,7 @@ def cmd_rx_validate(args: argparse.Namespace) -> int:
         for p in problems:
             print(f"  - {p}", file=sys.stderr)
         return 1
-    from .prescription import load_prescription
+    from ..specs.prescription import load_prescription
 
     rx = load_prescription(Path(args.path))
     print(f"{args.path}: valid")
@@ -395,7 +395,7 @@ def cmd_rx_validate(args: argparse.Namespace) -> int:
 
 def cmd_displays(args: argparse.Namespace) -> int:
     from .bench import markdown_table
-    from .display import get_display, preset_names
+    from ..specs.display import get_display, preset_names
 
     if args.fit:
         return _displays_fit(args)
@@ -421,8 +421,8 @@ def cmd_displays(args: argparse.Namespace) -> int:
 
 
 def _displays_fit(args: argparse.Namespace) -> int:
-    from .display import fit_spectra, read_spectra_csv
-    from .fileio import check_writable
+    from ..specs.display import fit_spectra, read_spectra_csv
+    from ..plumbing.fileio import check_writable
 
     if args.plot:
         if Path(args.plot).suffix.lower() != ".png":
@@ -435,7 +435,7 @@ def _displays_fit(args: argparse.Namespace) -> int:
     for label, rms, mx in zip(measured.labels, fit.rms_error, fit.max_error):
         print(f"  {label:6s} smooth non-negative fit: rms error {rms * 100:.2f}% of peak, max {mx * 100:.2f}%")
     if args.plot:
-        from .fileio import write_with
+        from ..plumbing.fileio import write_with
         from .plots import plot_spectra_fit
 
         write_with(Path(args.plot), lambda tmp: plot_spectra_fit(measured, fit, tmp), force=args.force)
@@ -456,11 +456,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------- render
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from .fileio import check_readable, check_writable
-    from .imageio import read_image, write_png
-    from .prescription import load_prescription
-    from .runtime.mirror import filter_options, parse_frames
-    from .runtime.render import MAX_FRAMES, SETTLED_FRAMES, render_frame
+    from ..plumbing.fileio import check_readable, check_writable
+    from ..plumbing.imageio import read_image, write_png
+    from ..specs.prescription import bundled_sample_path, load_prescription
+    from ..runtime.mirror import filter_options, parse_frames
+    from ..runtime.render import MAX_FRAMES, SETTLED_FRAMES, render_frame
 
     out = Path(args.output)
     if out.suffix.lower() != ".png":
@@ -472,7 +472,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     check_readable(args.input)
     check_writable(out, force=args.force)
     model = model_for_backend(args.backend, args.model)
-    rx_path = args.rx or str(Path(__file__).resolve().parent / "data" / "sample_rx.json")
+    rx_path = args.rx or str(bundled_sample_path())
     rx = load_prescription(rx_path)
     notes: list[str] = []
     image = read_image(args.input, notes)
@@ -515,11 +515,11 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.what == "kernel":
-        from .bench_kernel import run_kernel_bench
+        from .bench.kernel import run_kernel_bench
 
         print(run_kernel_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     elif args.what == "solvers":
-        from .bench_solvers import RESOLUTIONS, run_solver_bench
+        from .bench.solvers import RESOLUTIONS, run_solver_bench
 
         res = args.resolutions or list(RESOLUTIONS)
         for r in res:
@@ -528,19 +528,19 @@ def cmd_bench(args: argparse.Namespace) -> int:
         print(run_solver_bench(out=Path(args.out), plot=Path(args.out).with_name("solver_tradeoff.png"),
                                resolutions=res, repeats=args.repeats, write=not args.no_write))
     elif args.what == "render":
-        from .bench_render import run_render_bench
+        from .bench.render import run_render_bench
 
         print(run_render_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     elif args.what == "xr":
-        from .bench_xr import run_xr_bench
+        from .bench.xr import run_xr_bench
 
         print(run_xr_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     elif args.what == "realtime":
-        from .bench_realtime import run_realtime_bench
+        from .bench.realtime import run_realtime_bench
 
         print(run_realtime_bench(out=Path(args.out), write=not args.no_write, quick=args.quick))
     elif args.what == "learned":
-        from .bench_learned import run_learned_bench
+        from .bench.learned import run_learned_bench
 
         path = Path(args.model) if args.model else DEFAULT_MODEL
         if not path.is_file():
@@ -616,11 +616,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_evaluate_parser(sub)
 
-    from .acuity_cli import add_parser as add_acuity_parser
+    from .acuity_chart import add_parser as add_acuity_parser
 
     add_acuity_parser(sub)
 
-    from .learn_cli import add_parser as add_learn_parsers
+    from .learning import add_parser as add_learn_parsers
 
     add_learn_parsers(sub)
 
@@ -656,7 +656,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="overwrite earlier demo outputs")
     p.set_defaults(func=cmd_demo)
 
-    from .runtime.mirror import add_filter_options
+    from ..runtime.mirror import add_filter_options
 
     p = sub.add_parser("render", help="frames through the real-time GL pipeline (headless EGL), the last written")
     p.add_argument("input", help="image (PNG/JPEG, sRGB)")
@@ -674,15 +674,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="overwrite the output")
     p.set_defaults(func=cmd_render)
 
-    from .runtime.mirror import add_parser as add_mirror_parser
+    from ..runtime.mirror import add_parser as add_mirror_parser
 
     add_mirror_parser(sub)
 
-    from .runtime.overlay import add_parser as add_overlay_parser
+    from ..runtime.overlay import add_parser as add_overlay_parser
 
     add_overlay_parser(sub)
 
-    from .runtime.xr import add_parser as add_xr_parser
+    from ..runtime.xr import add_parser as add_xr_parser
 
     add_xr_parser(sub)
 

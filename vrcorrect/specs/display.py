@@ -3,7 +3,7 @@ and transfer functions.
 
 Layer 1 (plain, validated data). Imports only numpy, scipy, colour-science
 (lazily, inside functions: ``import colour`` takes about a second) and
-:mod:`vrcorrect.errors`.
+:mod:`vrcorrect.plumbing.errors`.
 
 Conventions
 -----------
@@ -37,7 +37,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .errors import InputError, Problem, ValidationError, ValidationErrors, json_error_location
+from ..plumbing.errors import InputError, Problem, ValidationError, ValidationErrors, json_error_location
 
 __all__ = [
     "Spectra",
@@ -340,7 +340,7 @@ def _is_number(value: Any) -> bool:
 class Photometry:
     """How bright the display is and the light around it: what a perceptual metric needs.
 
-    ColorVideoVDP (:func:`vrcorrect.metrics.jod`) turns code values into
+    ColorVideoVDP (:func:`vrcorrect.vision.metrics.jod`) turns code values into
     absolute luminance with these, after Mantiuk's gain-gamma-offset display
     model: ``L = (peak - black) * linear(V) + black + reflectivity * ambient / pi``
     with ``black = peak / contrast``.

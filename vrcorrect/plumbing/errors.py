@@ -1,7 +1,7 @@
 """Typed errors.
 
 Every error a user can cause names the field, the value and what is allowed,
-in one line.  Library code raises these; only :mod:`vrcorrect.cli` turns them
+in one line.  Library code raises these; only :mod:`vrcorrect.apps.cli` turns them
 into an exit status.
 """
 

@@ -8,12 +8,12 @@ the bundled sample image that combines them with a photograph.
 
 from __future__ import annotations
 
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from .errors import ValidationError
+from .fileio import package_data
 
 
 def _check_size(size: int) -> None:
@@ -77,7 +77,7 @@ def text_chart(width: int = 256, height: int = 256) -> np.ndarray:
 
 def sample_image_path() -> Path:
     """The bundled sample image (512x512 PNG: photo, star, text, colour bars)."""
-    return Path(str(resources.files("vrcorrect") / "data" / "sample.png"))
+    return package_data("sample.png")
 
 
 def make_sample_image(photo: np.ndarray) -> np.ndarray:

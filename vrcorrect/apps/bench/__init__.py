@@ -12,7 +12,7 @@ from datetime import date
 from pathlib import Path
 from typing import Callable, Sequence
 
-from .fileio import write_text_atomic
+from ...plumbing.fileio import write_text_atomic
 
 
 def machine_description() -> str:

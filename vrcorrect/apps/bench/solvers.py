@@ -15,7 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from .bench import machine_description, markdown_table, write_section
+from . import machine_description, markdown_table, write_section
 
 RESOLUTIONS = {"256": (256, 256), "512": (512, 512), "1024": (1024, 1024), "1832x1920": (1920, 1832)}
 
@@ -23,10 +23,10 @@ _WORKER = r"""
 import json, math, resource, sys, time
 import numpy as np
 from skimage import data, transform
-from vrcorrect.display import decode, get_display
-from vrcorrect.kernel import KernelOptions, build_kernel
-from vrcorrect.optics import OpticsOptions
-from vrcorrect.prescription import EyeRx
+from vrcorrect.specs.display import decode, get_display
+from vrcorrect.physics.kernel import KernelOptions, build_kernel
+from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.specs.prescription import EyeRx
 from vrcorrect.solvers import make_problem, objective, solve
 case = json.loads(sys.argv[1])
 d = get_display(case["display"])
@@ -47,7 +47,7 @@ if case["method"] in ("fast", "paper", "conventional"):
 rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 r = solve(p_solve, case["method"], **case.get("options", {}))
 rss1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-from vrcorrect.metrics import evaluate_seen
+from vrcorrect.vision.metrics import evaluate_seen
 seen, _ = evaluate_seen(r.image, target, k_true, d, target_lms=p_true.target_lms)
 print(json.dumps({"jod": seen.jod, "flip": seen.flip, "seconds": r.seconds, "iterations": r.iterations, "objective": objective(r.image, p_true),
                   "objective_none": objective(target, p_true), "kernel_size": k_solve.size,
@@ -163,8 +163,8 @@ def run_solver_bench(out: Path = Path("docs/benchmarks.md"), plot: Path = Path("
 
 
 def _plot(points, path: Path) -> None:
-    from .fileio import write_with
-    from .plots import _pyplot
+    from ...plumbing.fileio import write_with
+    from ..plots import _pyplot
 
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))

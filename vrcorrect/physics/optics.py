@@ -50,8 +50,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
-from .errors import ModelLimitError, ValidationError
-from .prescription import EyeRx, PowerVector
+from ..plumbing.errors import ModelLimitError, ValidationError
+from ..specs.prescription import EyeRx, PowerVector
 
 # Thibos, Ye, Zhang & Bradley (1992), Applied Optics 31(19):3594, chromatic eye.
 LCA_P_D = 1.68524
@@ -194,7 +194,7 @@ class OpticsOptions:
         ``"auto"`` (default): wave optics wherever its grid fits in
         ``max_grid``, geometric optics where it would not (there the defocus
         blur is many times the diffraction blur).  ``"wave"``: wave optics
-        only, refusing with :class:`~vrcorrect.errors.ModelLimitError` where
+        only, refusing with :class:`~vrcorrect.plumbing.errors.ModelLimitError` where
         the grid would not fit.  ``"geometric"``: geometric optics everywhere.
     """
 

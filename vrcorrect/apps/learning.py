@@ -9,7 +9,7 @@ import argparse
 import os
 from pathlib import Path
 
-from .errors import ValidationError
+from ..plumbing.errors import ValidationError
 
 
 def _pair(field: str, values: list[float] | None, default: tuple[float, float]) -> tuple[float, float]:
@@ -23,8 +23,8 @@ def _pair(field: str, values: list[float] | None, default: tuple[float, float]) 
 
 def cmd_dataset(args: argparse.Namespace) -> int:
     from .evaluate import bundled_images, folder_images
-    from .learn.conditioning import SamplingRanges
-    from .learn.dataset import HELD_OUT_IMAGES, DatasetConfig, build_dataset, check_ray
+    from ..learn.conditioning import SamplingRanges
+    from ..learn.dataset import HELD_OUT_IMAGES, DatasetConfig, build_dataset, check_ray
 
     d = SamplingRanges()
     ranges = SamplingRanges(sphere_D=_pair("--sphere-D", args.sphere_D, d.sphere_D),
@@ -51,8 +51,8 @@ def cmd_dataset(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from .learn.model import UNetConfig
-    from .learn.train import TrainConfig, train
+    from ..learn.model import UNetConfig
+    from ..learn.train import TrainConfig, train
 
     config = TrainConfig(steps=args.steps, batch_size=args.batch_size, learning_rate=args.learning_rate,
                          target_weight=args.target_weight, lr_schedule=args.lr_schedule, seed=args.seed,

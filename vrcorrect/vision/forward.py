@@ -25,9 +25,9 @@ import numpy as np
 import scipy.fft
 import scipy.ndimage
 
-from .errors import ValidationError
-from .kernel import EyeKernel
-from .perception import apply_matrix
+from ..plumbing.errors import ValidationError
+from ..physics.kernel import EyeKernel
+from ..physics.perception import apply_matrix
 
 METHODS = ("auto", "fft", "direct")
 
@@ -55,7 +55,7 @@ def check_image(image: np.ndarray, name: str = "image", *, unit_range: bool = Tr
     that ``codes=True`` (display code values, e.g. ``runtime.render.render_frame``) also accepts
     uint8 as 0-255 and returns it unchanged.  With ``unit_range`` the values must lie in [0, 1];
     excursions up to :data:`UNIT_TOLERANCE` are clipped.  Every refusal is a
-    :class:`~vrcorrect.errors.ValidationError` naming ``name``, the value and what is allowed.
+    :class:`~vrcorrect.plumbing.errors.ValidationError` naming ``name``, the value and what is allowed.
     """
     a = np.asarray(image)
     if a.ndim != 3 or a.shape[2] != 3:
@@ -67,7 +67,7 @@ def check_image(image: np.ndarray, name: str = "image", *, unit_range: bool = Tr
     if a.dtype.kind in "uib":
         what = ("float code values in [0, 1] or uint8 0-255" if codes else
                 "float linear light in [0, 1] (8-bit code values: decode them first, "
-                "vrcorrect.display.decode(display, codes / 255))")
+                "vrcorrect.specs.display.decode(display, codes / 255))")
         raise ValidationError(f"{name}.dtype", str(a.dtype), what)
     if a.dtype.kind != "f":
         raise ValidationError(f"{name}.dtype", str(a.dtype), "a float array")
@@ -133,7 +133,7 @@ def simulate_lms(image: np.ndarray, eye_kernel: EyeKernel, method: str = "auto",
         ``(H, W, 3)`` linear display RGB, float32 or float64 (other dtypes are
         converted to float32), finite.
     eye_kernel
-        The eye's kernel from :func:`vrcorrect.kernel.build_kernel`.
+        The eye's kernel from :func:`vrcorrect.physics.kernel.build_kernel`.
     method
         ``"auto"`` (FFT for kernels wider than 9 px, else direct), ``"fft"``
         or ``"direct"``.

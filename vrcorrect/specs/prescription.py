@@ -26,8 +26,8 @@ Conventions (see ``DESIGN.md``):
   (piston, tilt, defocus, astigmatism) come from S, C and α.
 
 Validation collects every problem in a document before raising
-:class:`~vrcorrect.errors.ValidationErrors`; file problems (missing,
-unreadable, not UTF-8, not JSON) raise :class:`~vrcorrect.errors.InputError`.
+:class:`~vrcorrect.plumbing.errors.ValidationErrors`; file problems (missing,
+unreadable, not UTF-8, not JSON) raise :class:`~vrcorrect.plumbing.errors.InputError`.
 """
 
 from __future__ import annotations
@@ -44,8 +44,8 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from .errors import InputError, Problem, ValidationError, ValidationErrors, json_error_location
-from .fileio import write_text_atomic
+from ..plumbing.errors import InputError, Problem, ValidationError, ValidationErrors, json_error_location
+from ..plumbing.fileio import package_data, write_text_atomic
 
 __all__ = [
     "SCHEMA",
@@ -893,4 +893,4 @@ def write_template(path: str | PathLike[str], force: bool = False) -> None:
 
 def bundled_sample_path() -> Path:
     """Path of the bundled sample prescription ``vrcorrect/data/sample_rx.json``."""
-    return Path(__file__).resolve().parent / "data" / "sample_rx.json"
+    return package_data("sample_rx.json")

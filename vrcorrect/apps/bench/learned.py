@@ -28,9 +28,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .bench import machine_description, markdown_table, write_section
-from .errors import ValidationError
-from .learn.dataset import HELD_OUT_IMAGES
+from . import machine_description, markdown_table, write_section
+from ...plumbing.errors import ValidationError
+from ...learn.dataset import HELD_OUT_IMAGES
 
 EYE_SEED = 20261123
 #: Untrained U-Net sizes (width, depth) whose speed :func:`speed_floor` measures beside the model.
@@ -43,7 +43,7 @@ FISTA_STEPS = (1, 3, 5, 8, 12, 20)
 def _held_out_image(name: str, size: int) -> np.ndarray:
     from skimage import data
 
-    from .evaluate import prepare_image
+    from ..evaluate import prepare_image
 
     return prepare_image(getattr(data, name)()[..., :3], size, name)
 
@@ -69,7 +69,7 @@ def _one_convolution() -> bytes:
     dynamic height and width: the least work a convolutional network on those inputs can do."""
     from onnx import TensorProto, helper, numpy_helper
 
-    from .runtime.onnx_backend import small_onnx_model
+    from ...runtime.onnx_backend import small_onnx_model
 
     rng = np.random.default_rng(0)
     weights = numpy_helper.from_array(rng.normal(0.0, 0.1, (3, 6, 3, 3)).astype(np.float32), "w")
@@ -98,8 +98,8 @@ def speed_floor(size: tuple[int, int] = (512, 512), repeats: int = 5,
     out: list[tuple[str, float | None]] = [
         ("one 3x3 convolution, 6 to 3 channels", _median_ms(lambda: session.run(None, feeds), repeats))]
     try:
-        from .learn.export import onnx_bytes
-        from .learn.model import ConditionedUNet, UNetConfig
+        from ...learn.export import onnx_bytes
+        from ...learn.model import ConditionedUNet, UNetConfig
     except ImportError:                                    # torch: the learn extra
         return out + [(f"U-Net width {w}, depth {d} (untrained)", None) for w, d in unets]
     image = {"image": rng.random((1, 3, H, W), dtype=np.float32),
@@ -127,12 +127,12 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
     FISTA steps alone, the model and ``fast`` (:func:`_plot_tradeoff`)."""
     from tqdm import tqdm
 
-    from .display import decode, get_display
-    from .kernel import build_kernel, build_reference_kernel
-    from .metrics import evaluate_seen
-    from .runtime.learned import LearnedModel
-    from .solvers import make_problem, objective, solve
-    from .solvers.wiener import gradient_plan, projected_gradient
+    from ...specs.display import decode, get_display
+    from ...physics.kernel import build_kernel, build_reference_kernel
+    from ...vision.metrics import evaluate_seen
+    from ...runtime.learned import LearnedModel
+    from ...solvers import make_problem, objective, solve
+    from ...solvers.wiener import gradient_plan, projected_gradient
 
     model = LearnedModel(model_path, providers=("CPUExecutionProvider",))
     trained_on = set(json.loads(model.metadata.get("vrcorrect.train", "{}")).get("images", []))
@@ -257,7 +257,7 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
             _plot_tradeoff(summary, speed, tradeoff)
         write_section(out, "learned", body)
         if card is not None:
-            from .fileio import write_text_atomic
+            from ...plumbing.fileio import write_text_atomic
 
             card_md = _markdown(model, display, eye_list, images, size, rows, summary, speed, pictures_written,
                                 card)
@@ -268,8 +268,8 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
 def _plot_seen(pictures: list[tuple[dict, dict[str, np.ndarray]]], display, path: Path) -> None:
     """One row per held-out image (first held-out eye): the target as the eye sees it with
     glasses, then what it sees of each method's displayed image, with FLIP and objective."""
-    from .fileio import write_with
-    from .plots import _pyplot
+    from ...plumbing.fileio import write_with
+    from ..plots import _pyplot
 
     plt = _pyplot()
     columns = [("target", "target (glasses on)"), ("none", "uncorrected"), ("wiener", "wiener"),
@@ -298,8 +298,8 @@ def _plot_seen(pictures: list[tuple[dict, dict[str, np.ndarray]]], display, path
 def _plot_tradeoff(s: dict[str, Any], speed: dict[str, Any], path: Path) -> None:
     """Share of the gap closed (held-out mean) against ms at the first speed size: ``wiener``,
     the FISTA-step curve, the model's whole pass and ``fast``; the 80 % and 100x targets dashed."""
-    from .fileio import write_with
-    from .plots import _pyplot
+    from ...plumbing.fileio import write_with
+    from ..plots import _pyplot
 
     plt = _pyplot()
     label = speed["sizes"][0]

@@ -28,7 +28,7 @@ scored.
 The observer
 ------------
 * **Stimulus.**  What the eye sees of the displayed chart line
-  (:func:`vrcorrect.forward.simulate_lms`: the eye's polychromatic kernel,
+  (:func:`vrcorrect.vision.forward.simulate_lms`: the eye's polychromatic kernel,
   chromatic aberration included), reduced to a luminance channel
   ``Y = (L + M) / 2`` (white gives 1) and taken as contrast ``Y - 1``.  L + M
   is the achromatic, luminance-carrying cone signal (photopic luminance is
@@ -166,11 +166,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .display import DisplayProfile
-from .errors import ModelLimitError, ValidationError
+from ..specs.display import DisplayProfile
+from ..plumbing.errors import ModelLimitError, ValidationError
 from .forward import check_image, simulate_lms
-from .kernel import EyeKernel, KernelOptions, build_kernel
-from .prescription import EyeRx
+from ..physics.kernel import EyeKernel, KernelOptions, build_kernel
+from ..specs.prescription import EyeRx
 
 __all__ = [
     "SLOAN_LETTERS", "LETTERS_PER_LINE", "LOGMAR_STEP", "MIN_LETTER_PX", "CRITERION",
@@ -701,7 +701,7 @@ def score_acuity(chart: Chart, displayed_for_line: Sequence[np.ndarray | None], 
         of the same shape as that line's sheet - the sheet itself (``chart.targets``) for no
         correction, or a corrected version of it; None for lines below the display's pixels.
     eye_kernel
-        The eye looking at ``display`` (:func:`vrcorrect.kernel.build_kernel`).
+        The eye looking at ``display`` (:func:`vrcorrect.physics.kernel.build_kernel`).
     display
         The display (its pixels per degree sets the noise per pixel; must match the kernel's).
     observer
@@ -777,12 +777,12 @@ def calibration_display(pixels_per_degree: float = CALIBRATION_PPD, base: Displa
                         ) -> DisplayProfile:
     """A chart display fine enough for every line: ``base``'s primaries (default the desktop preset's)
     at ``pixels_per_degree``, at optical infinity."""
-    from .display import get_display
+    from ..specs.display import get_display
 
     base = base or get_display("desktop")
     return replace(base, name="acuity-chart", title=f"acuity chart ({pixels_per_degree:g} ppd, at infinity)",
                    pixels_per_degree=pixels_per_degree, distance_m=math.inf, resolution_px=None,
-                   sources=f"{base.name} primaries at {pixels_per_degree:g} ppd (vrcorrect.acuity calibration)")
+                   sources=f"{base.name} primaries at {pixels_per_degree:g} ppd (vrcorrect.vision.acuity calibration)")
 
 
 def simulated_acuity(eye: EyeRx, display: DisplayProfile, options: KernelOptions | None = None, *,
@@ -790,7 +790,7 @@ def simulated_acuity(eye: EyeRx, display: DisplayProfile, options: KernelOptions
                      chart_seed: int = 0) -> AcuityScore:
     """Uncorrected chart acuity of ``eye`` on ``display`` (builds the eye's kernel with ``options``).
 
-    See :func:`score_acuity`; corrections need the solvers (``vrcorrect.acuity_cli.measure_acuity``).
+    See :func:`score_acuity`; corrections need the solvers (``vrcorrect.apps.acuity_chart.measure_acuity``).
     """
     kernel = build_kernel(eye, display, options)
     chart = build_chart(display, kernel.size, top_logmar, bottom_logmar, chart_seed)

@@ -25,14 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench import machine_description, markdown_table, write_section
+from . import machine_description, markdown_table, write_section
 
 EYE_SIZE = (1832, 1920)                          # width, height of one Quest 2 eye
 SEPARABLE_SIZE = (256, 256)
 
 
 def _frame_image(width: int, height: int) -> np.ndarray:
-    from .charts import siemens_star
+    from ...plumbing.charts import siemens_star
 
     star = siemens_star(min(width, height))
     img = np.zeros((height, width, 3), np.float32)
@@ -65,14 +65,14 @@ def run_render_bench(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), w
     """Measure every case; returns the Markdown (and writes the ``render`` section of ``out``)."""
     from tqdm import tqdm
 
-    from .prescription import load_prescription
-    from .runtime.corrector import Corrector
-    from .runtime.gl import headless_context, release, render_target, upload_texture
-    from .runtime.onnx_backend import write_one_minus_x_model
+    from ...specs.prescription import bundled_sample_path, load_prescription
+    from ...runtime.corrector import Corrector
+    from ...runtime.gl import headless_context, release, render_target, upload_texture
+    from ...runtime.onnx_backend import write_one_minus_x_model
 
     ctx = headless_context(require=430)
     renderer = ctx.info.get("GL_RENDERER", "?")
-    rx = load_prescription(Path(__file__).resolve().parent / "data" / "sample_rx.json")
+    rx = load_prescription(bundled_sample_path())
     W, H = size
     rows = []
     tmp = tempfile.TemporaryDirectory()

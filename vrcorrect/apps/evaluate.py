@@ -62,7 +62,7 @@ from typing import Any, Iterable, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from .errors import InputError, ValidationError
+from ..plumbing.errors import InputError, ValidationError
 
 __all__ = [
     "EvalPrescription",
@@ -124,8 +124,8 @@ _LABELS = {"target": "target", "none": "uncorrected"}
 
 
 def prescription_eye(rx: EvalPrescription):
-    """The :class:`vrcorrect.prescription.EyeRx` of ``rx``: 4 mm pupil, no accommodation."""
-    from .prescription import EyeRx
+    """The :class:`vrcorrect.specs.prescription.EyeRx` of ``rx``: 4 mm pupil, no accommodation."""
+    from ..specs.prescription import EyeRx
 
     return EyeRx(sphere_D=rx.sphere_D, cylinder_D=rx.cylinder_D, axis_deg=rx.axis_deg,
                  pupil_diameter_mm=PUPIL_DIAMETER_MM, accommodation_D=0.0)
@@ -196,10 +196,10 @@ def bundled_images(size: int = 256) -> list[tuple[str, np.ndarray]]:
 
     scikit-image's colour photographs (:data:`SKIMAGE_PHOTOS`, those this
     scikit-image ships), centre-cropped and resized, then the procedural
-    charts: ``text`` (:func:`vrcorrect.charts.text_chart`), ``siemens_star``
+    charts: ``text`` (:func:`vrcorrect.plumbing.charts.text_chart`), ``siemens_star``
     and ``colour_bars``.
     """
-    from .charts import colour_bars, siemens_star, text_chart
+    from ..plumbing.charts import colour_bars, siemens_star, text_chart
 
     size = _check_size(size)
     images: list[tuple[str, np.ndarray]] = []
@@ -231,7 +231,7 @@ def folder_images(folder: str | Path, size: int = 256) -> list[tuple[str, np.nda
         The folder is missing, not a folder, or holds no PNG/JPEG image; or an
         image cannot be read.
     """
-    from .imageio import read_image
+    from ..plumbing.imageio import read_image
 
     size = _check_size(size)
     folder = Path(folder)
@@ -402,7 +402,7 @@ def _beats_uncorrected(rows: Sequence[Mapping[str, Any]], methods: Sequence[str]
     A method beats no correction on an image when what the eye sees of it
     scores a higher JOD than what the eye sees of the uncorrected image (for
     FLIP: a lower error).  ``acuity`` maps a prescription key to
-    :func:`vrcorrect.acuity_cli.measure_acuity`'s logMAR per method.
+    :func:`vrcorrect.apps.acuity_chart.measure_acuity`'s logMAR per method.
     """
     lines = []
     for rx in PRESCRIPTIONS:
@@ -601,7 +601,7 @@ def _markdown(rows, summary, verdicts, display, size, images, methods, seconds_t
 
 
 def _check_methods(methods: Iterable[str]) -> tuple[str, ...]:
-    from .solvers import METHODS
+    from ..solvers import METHODS
 
     allowed = tuple(m for m in METHODS if m != "none")
     if isinstance(methods, str):
@@ -665,7 +665,7 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
         ``(name, image)`` pairs: file-name-safe unique names and sRGB code
         values in [0, 1] ``(H, W, 3)`` (e.g. :func:`bundled_images`).
     display
-        A :class:`vrcorrect.display.DisplayProfile` or a preset name / profile path.
+        A :class:`vrcorrect.specs.display.DisplayProfile` or a preset name / profile path.
     methods
         Correction methods to run, in panel order (any of
         :data:`vrcorrect.solvers.METHODS` except ``none``, which is always
@@ -683,7 +683,7 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
         e.g. ``{"conventional": {"max_iterations": 40}}``.
     acuity
         Also read an eye chart with each problem's eye, uncorrected and with
-        each method (:func:`vrcorrect.acuity_cli.measure_acuity`; its target
+        each method (:func:`vrcorrect.apps.acuity_chart.measure_acuity`; its target
         is what the eye sees with glasses, the product's default), and
         report the logMAR per prescription x method.
 
@@ -705,12 +705,12 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
     """
     from tqdm import tqdm
 
-    from .display import DisplayProfile, decode, get_display
-    from .fileio import atomic_paths, check_writable
-    from .kernel import KernelOptions, build_kernel
-    from .metrics import evaluate_seen
-    from .optics import OpticsOptions
-    from .solvers import make_problem, solve
+    from ..specs.display import DisplayProfile, decode, get_display
+    from ..plumbing.fileio import atomic_paths, check_writable
+    from ..physics.kernel import KernelOptions, build_kernel
+    from ..vision.metrics import evaluate_seen
+    from ..physics.optics import OpticsOptions
+    from ..solvers import make_problem, solve
 
     t_start = time.perf_counter()
     methods = _check_methods(methods)
@@ -783,7 +783,7 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
 
     acuity_logmar: dict[str, dict[str, float | None]] = {}
     if acuity:
-        from .acuity_cli import measure_acuity
+        from .acuity_chart import measure_acuity
 
         bar = tqdm(total=len(PRESCRIPTIONS), desc="acuity", unit="eye", disable=None if progress else True,
                    leave=False)
@@ -849,7 +849,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """``vrcorrect evaluate``: run :func:`run_evaluation` and print where the outputs are and the summary."""
-    from .display import get_display
+    from ..specs.display import get_display
 
     size = _check_size(args.size)
     methods = _check_methods(args.methods)

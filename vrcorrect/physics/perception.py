@@ -14,7 +14,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .display import DisplayProfile, Spectra
+from ..specs.display import DisplayProfile, Spectra
 
 #: Wavelengths over which every spectral integral is taken (1 nm steps).  The
 #: cone fundamentals start at 390 nm; display spectra end at 780 nm.

@@ -11,15 +11,15 @@ from typing import Iterator
 
 import numpy as np
 
-from .charts import sample_image_path, siemens_star
-from .display import decode, encode, get_display
-from .errors import InputError
-from .fileio import check_writable
-from .forward import what_the_eye_sees
-from .imageio import read_image, write_png
-from .kernel import KernelOptions, build_kernel
-from .optics import OpticsOptions
-from .prescription import EyeRx, bundled_sample_path, load_prescription
+from ..plumbing.charts import sample_image_path, siemens_star
+from ..specs.display import decode, encode, get_display
+from ..plumbing.errors import InputError
+from ..plumbing.fileio import check_writable
+from ..vision.forward import what_the_eye_sees
+from ..plumbing.imageio import read_image, write_png
+from ..physics.kernel import KernelOptions, build_kernel
+from ..physics.optics import OpticsOptions
+from ..specs.prescription import EyeRx, bundled_sample_path, load_prescription
 
 
 def _label(img: np.ndarray, text: str) -> np.ndarray:

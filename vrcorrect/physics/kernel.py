@@ -2,7 +2,7 @@
 
 ``K[k, c] = sum_lambda cone_k(lambda) spd_c(lambda) PSF_lambda`` so that the
 spatial sum of ``K[k, c]`` equals the RGB->LMS matrix ``A[k, c]``
-(:func:`vrcorrect.perception.rgb_to_lms_matrix`).  The retinal image of a
+(:func:`vrcorrect.physics.perception.rgb_to_lms_matrix`).  The retinal image of a
 linear RGB image ``x`` is ``r_k = sum_c K[k, c] * x_c`` (true convolution).
 
 What the kernel models follows what the eye and display need, and every
@@ -35,13 +35,13 @@ from typing import Callable
 
 import numpy as np
 
-from .display import DisplayProfile
-from .errors import ValidationError
+from ..specs.display import DisplayProfile
+from ..plumbing.errors import ValidationError
 from .optics import (OpticsOptions, PixelPsf, RefractiveState, crop_center, depth_of_focus_D,
                      diffraction_blur_rad, energy_size, max_meridian_power_D, pixel_angle_rad,
                      psf_pixels, refractive_state, ARCMIN_RAD)
 from .perception import INTEGRATION_GRID_NM, normalised_weights
-from .prescription import EyeRx
+from ..specs.prescription import EyeRx
 
 STEPS_NM = (80, 40, 20, 10, 5, 1)
 NODE_ORIGIN_NM = 390.0

@@ -13,6 +13,11 @@ from typing import Callable, Iterator, Sequence
 from .errors import InputError
 
 
+def package_data(name: str) -> Path:
+    """Path of a file the package ships in ``vrcorrect/data`` (the one place that knows where it is)."""
+    return Path(__file__).resolve().parents[1] / "data" / name
+
+
 def check_writable(path: Path, *, force: bool) -> Path:
     """Fail early, before any work, if ``path`` may not be written."""
     path = Path(path)

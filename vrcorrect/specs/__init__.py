@@ -1,0 +1,2 @@
+"""Layer 1, what the user and the hardware are, as plain validated data: the eye's
+prescription (``prescription``) and the display's profile (``display``)."""
