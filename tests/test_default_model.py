@@ -31,7 +31,7 @@ def model() -> LearnedModel:
 
 
 def test_default_model_is_shipped_small_with_its_card_and_metadata(model):
-    from vrcorrect.apps.cli import DEFAULT_MODEL
+    from vrcorrect.runtime.model_path import DEFAULT_MODEL
 
     assert DEFAULT_MODEL.resolve() == MODEL.resolve()
     assert MODEL.stat().st_size <= 10 * 2 ** 20

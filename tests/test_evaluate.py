@@ -15,6 +15,7 @@ import pytest
 from PIL import Image
 
 from vrcorrect.apps import evaluate as ev
+from vrcorrect.plumbing import images
 from vrcorrect.plumbing.errors import InputError, ValidationError
 
 SIZE = 48
@@ -29,7 +30,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _images() -> list[tuple[str, np.ndarray]]:
-    imgs = dict(ev.bundled_images(SIZE))
+    imgs = dict(images.bundled_images(SIZE))
     return [("astronaut", imgs["astronaut"]), ("siemens_star", imgs["siemens_star"])]
 
 
@@ -76,7 +77,7 @@ def test_five_distinct_problems():
 # ---------------------------------------------------------------- images
 
 def test_bundled_images_are_square_srgb():
-    imgs = ev.bundled_images(SIZE)
+    imgs = images.bundled_images(SIZE)
     names = [n for n, _ in imgs]
     assert {"text", "siemens_star", "colour_bars"} <= set(names)
     assert len(names) == len(set(names)) >= 4
@@ -88,7 +89,7 @@ def test_bundled_images_are_square_srgb():
 def test_prepare_image_centre_crops():
     wide = np.zeros((20, 60, 3), np.float32)
     wide[:, 20:40] = 1.0                              # the centre square is white
-    out = ev.prepare_image(wide, 16)
+    out = images.prepare_image(wide, 16)
     assert out.shape == (16, 16, 3)
     assert out.min() > 0.99
 
@@ -97,7 +98,7 @@ def test_folder_images(tmp_path):
     Image.fromarray(np.full((30, 40, 3), 200, np.uint8)).save(tmp_path / "b.png")
     Image.fromarray(np.full((50, 20, 3), 10, np.uint8)).save(tmp_path / "a.jpg")
     (tmp_path / "notes.txt").write_text("not an image")
-    imgs = ev.folder_images(tmp_path, 24)
+    imgs = images.folder_images(tmp_path, 24)
     assert [n for n, _ in imgs] == ["a", "b"]
     assert all(img.shape == (24, 24, 3) for _, img in imgs)
 
@@ -106,9 +107,9 @@ def test_images_folder_empty_or_missing_is_a_clear_error(tmp_path, capsys):
     empty = tmp_path / "empty"
     empty.mkdir()
     with pytest.raises(InputError, match="no PNG or JPEG"):
-        ev.folder_images(empty, SIZE)
+        images.folder_images(empty, SIZE)
     with pytest.raises(InputError, match="no such folder"):
-        ev.folder_images(tmp_path / "missing", SIZE)
+        images.folder_images(tmp_path / "missing", SIZE)
     out = tmp_path / "out"
     args = _parser().parse_args(["evaluate", "--images", str(empty), "--out", str(out), "--size", str(SIZE)])
     with pytest.raises(InputError, match="no PNG or JPEG"):

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from vrcorrect.apps import cli
+from vrcorrect.apps import cli, common, correct
 from vrcorrect.plumbing.errors import ValidationError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,7 +39,7 @@ def no_kernel_builds(monkeypatch):
     import vrcorrect.physics.kernel as K
     import vrcorrect.runtime.corrector as C
 
-    monkeypatch.setattr(cli, "_build", tripwire)
+    monkeypatch.setattr(correct, "build_eye_kernel", tripwire)
     monkeypatch.setattr(K, "build_kernel", tripwire)
     monkeypatch.setattr(C, "build_eye_model", tripwire)
 
@@ -74,7 +74,7 @@ def test_an_unwritable_output_folder_is_refused_before_the_work(small_png, capsy
 
 def test_an_image_too_large_for_memory_is_refused_before_the_kernel(tmp_path, small_png, capsys, monkeypatch,
                                                                    no_kernel_builds):
-    monkeypatch.setattr(cli, "available_memory_bytes", lambda: 64e6)   # a machine with 64 MB free
+    monkeypatch.setattr(common, "available_memory_bytes", lambda: 64e6)   # a machine with 64 MB free
     assert cli.main(["correct", str(small_png), "-o", str(tmp_path / "o.png")]) == 2
     line = _one_line_error(capsys)
     assert "16x16" in line and "GiB" in line and "available" in line, line

@@ -396,7 +396,7 @@ def test_export_equals_torch_with_metadata_and_dynamic_size(perturbed_checkpoint
     assert [o.version for o in proto.opset_import if o.domain in ("", "ai.onnx")] == [OPSET]
     meta = {p.key: p.value for p in proto.metadata_props}
     assert json.loads(meta["vrcorrect.ranges"]) == TINY_RANGES.as_dict()
-    assert json.loads(meta["vrcorrect.specs.display"])["name"] == "quest2" and meta["vrcorrect.version"]
+    assert json.loads(meta["vrcorrect.display"])["name"] == "quest2" and meta["vrcorrect.version"]
     assert json.loads(meta["vrcorrect.train"])["step"] == 3
     # dynamic H and W: another size, compared with torch again
     model = model_from_checkpoint(load_checkpoint(perturbed_checkpoint))

@@ -14,7 +14,8 @@ import pytest
 
 from vrcorrect.specs.display import decode, encode, get_display
 from vrcorrect.plumbing.errors import ValidationError, ValidationErrors
-from vrcorrect.apps.evaluate import PRESCRIPTIONS, bundled_images, prescription_eye
+from vrcorrect.apps.evaluate import PRESCRIPTIONS, prescription_eye
+from vrcorrect.plumbing.images import bundled_images
 from vrcorrect.vision.forward import what_the_eye_sees
 from vrcorrect.physics.kernel import KernelOptions, build_reference_kernel
 from vrcorrect.physics.optics import OpticsOptions

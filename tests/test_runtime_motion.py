@@ -12,7 +12,7 @@ from PIL import Image
 
 from vrcorrect.specs.display import decode
 from vrcorrect.plumbing.errors import ValidationError
-from vrcorrect.apps.evaluate import bundled_images
+from vrcorrect.plumbing.images import bundled_images
 from vrcorrect.specs.prescription import EyeRx, Prescription
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector

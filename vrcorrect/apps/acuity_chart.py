@@ -345,14 +345,14 @@ def acuity_panel(result: AcuityResult, title: str | None = None) -> np.ndarray:
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``acuity`` sub-command to an argparse ``subparsers`` object."""
-    from .cli import _add_model_options
+    from .common import add_model_options
 
     p = subparsers.add_parser(
         "acuity", help="which line of an eye chart the eye reads, uncorrected and with each correction",
         description=("Simulate reading a logMAR chart of Sloan letters (Watson & Ahumada 2008: the eye's optics, "
                      "internal noise, an ideal observer; a line is read at 60%% correct), uncorrected and with "
                      "each correction method, and print the acuity in logMAR and Snellen."))
-    _add_model_options(p)
+    add_model_options(p)
     p.add_argument("--methods", nargs="+", default=["fast"], metavar="METHOD",
                    help="corrections to read with: some of " + ", ".join(METHODS) + " (default fast); "
                         "uncorrected is always read")
@@ -388,9 +388,9 @@ def cmd_acuity(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ..vision.acuity import Observer, chart_lines
-    from .cli import _kernel_options, _load_eye
+    from .common import kernel_options, load_eye
     from ..specs.display import get_display
-    from ..plumbing.fileio import atomic_paths
+    from ..plumbing.fileio import text_writer, write_together
     from ..plumbing.imageio import png_writer
 
     methods = _check_methods(args.methods)
@@ -398,8 +398,8 @@ def cmd_acuity(args: argparse.Namespace) -> int:
     if not (0.0 < args.contrast <= 1.0):
         raise ValidationError("--contrast", args.contrast, "a number in (0, 1]")
     observer = Observer(trials_per_letter=args.trials, seed=args.seed)
-    options = _kernel_options(args)
-    rx_path, eye = _load_eye(args)
+    options = kernel_options(args)
+    rx_path, eye = load_eye(args)
     display = get_display(args.display)
     chart_lines(display, args.top_logmar, args.bottom_logmar)          # bad chart limits: fail before the work
     bar = tqdm(desc="acuity", unit="step", disable=None, leave=False, file=sys.stderr)
@@ -439,10 +439,8 @@ def cmd_acuity(args: argparse.Namespace) -> int:
         outputs.append((Path(args.png), png_writer(args.png, acuity_panel(result, title).astype(np.float64) / 255.0)))
     text = json.dumps(report, indent=2) + "\n"
     if args.json and args.json != "-":
-        outputs.append((Path(args.json), lambda tmp: tmp.write_text(text, encoding="utf-8")))
-    with atomic_paths([path for path, _ in outputs], force=args.force) as tmps:   # the files: all or nothing
-        for (_, writer), tmp in zip(outputs, tmps):
-            writer(tmp)
+        outputs.append((Path(args.json), text_writer(text)))
+    write_together(outputs, force=args.force)   # the files: all or nothing
     for path, _ in outputs:
         print(f"wrote {path}", file=out)
     if args.json == "-":

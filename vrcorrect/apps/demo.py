@@ -4,6 +4,7 @@ with the cylinder axis."""
 
 from __future__ import annotations
 
+import argparse
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -11,15 +12,8 @@ from typing import Iterator
 
 import numpy as np
 
-from ..plumbing.charts import sample_image_path, siemens_star
-from ..specs.display import decode, encode, get_display
 from ..plumbing.errors import InputError
 from ..plumbing.fileio import check_writable
-from ..vision.forward import what_the_eye_sees
-from ..plumbing.imageio import read_image, write_png
-from ..physics.kernel import KernelOptions, build_kernel
-from ..physics.optics import OpticsOptions
-from ..specs.prescription import EyeRx, bundled_sample_path, load_prescription
 
 
 def _label(img: np.ndarray, text: str) -> np.ndarray:
@@ -51,6 +45,15 @@ def _row(images: list[np.ndarray], gap: int = 6) -> np.ndarray:
 
 def run_demo(out: Path, display_name: str = "quest2", force: bool = False) -> Iterator[str]:
     """Write the demo pictures into ``out``; yields one line per file."""
+    # the physics is imported here, not above: every vrcorrect run imports this module to build its parser
+    from ..physics.kernel import KernelOptions, build_kernel
+    from ..physics.optics import OpticsOptions
+    from ..plumbing.charts import sample_image_path, siemens_star
+    from ..plumbing.imageio import read_image, write_png
+    from ..specs.display import decode, encode, get_display
+    from ..specs.prescription import EyeRx, bundled_sample_path, load_prescription
+    from ..vision.forward import what_the_eye_sees
+
     out = Path(out)
     names = ["right_eye_sees.png", "left_eye_sees.png", "demo_panel.png", "dioptre_sweep.png"]
     if out.exists() and not out.is_dir():
@@ -98,3 +101,17 @@ def run_demo(out: Path, display_name: str = "quest2", force: bool = False) -> It
     write_png(out / "dioptre_sweep.png", sheet, force=force)
     yield (f"wrote {out / 'dioptre_sweep.png'}: top, blur grows with myopia; bottom, the blur of a "
            f"-2.00 D cylinder turns with its axis (it smears perpendicular to the axis)")
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    for line in run_demo(Path(args.out), display_name=args.display, force=args.force):
+        print(line)
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("demo", help="the bundled default: what the sample eyes see of the sample image")
+    p.add_argument("--out", default="out", help="output folder (default ./out)")
+    p.add_argument("--display", default="quest2", metavar="PRESET")
+    p.add_argument("--force", action="store_true", help="overwrite earlier demo outputs")
+    p.set_defaults(func=cmd_demo)

@@ -55,7 +55,6 @@ import argparse
 import csv
 import io
 import math
-import re
 import time
 from pathlib import Path
 from typing import Any, Iterable, Mapping, NamedTuple, Sequence
@@ -63,6 +62,7 @@ from typing import Any, Iterable, Mapping, NamedTuple, Sequence
 import numpy as np
 
 from ..plumbing.errors import InputError, ValidationError
+from ..plumbing.images import bundled_images, check_size, folder_images, prepare_image, safe_name
 
 __all__ = [
     "EvalPrescription",
@@ -72,9 +72,6 @@ __all__ = [
     "CSV_COLUMNS",
     "principal_meridians_D",
     "prescription_eye",
-    "prepare_image",
-    "bundled_images",
-    "folder_images",
     "panel_size",
     "run_evaluation",
     "add_parser",
@@ -108,12 +105,6 @@ DEFAULT_METHODS: tuple[str, ...] = ("conventional", "paper", "fast")
 #: Columns of ``results.csv``.
 CSV_COLUMNS: tuple[str, ...] = ("image", "prescription", "method", "jod", "flip", "ssim", "psnr", "objective",
                                 "flip_lms", "ssim_lms", "psnr_lms", "seconds", "iterations")
-#: Image side lengths accepted (pixels).
-SIZE_RANGE = (16, 4096)
-#: File suffixes read from an ``--images`` folder.
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-#: scikit-image's colour photographs used by default (those present are used).
-SKIMAGE_PHOTOS = ("astronaut", "coffee", "chelsea", "rocket")
 
 _LABELS = {"target": "target", "none": "uncorrected"}
 
@@ -145,122 +136,6 @@ def _rx_label(rx: EvalPrescription) -> str:
 # --------------------------------------------------------------------------
 # Images
 # --------------------------------------------------------------------------
-
-
-def _check_size(size: Any) -> int:
-    lo, hi = SIZE_RANGE
-    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or not (lo <= int(size) <= hi):
-        raise ValidationError("size", size, f"an integer from {lo} to {hi} pixels")
-    return int(size)
-
-
-def prepare_image(image: np.ndarray, size: int, name: str = "image") -> np.ndarray:
-    """Centre-crop ``image`` to a square and resize it to ``size x size`` (anti-aliased).
-
-    Parameters
-    ----------
-    image
-        ``(H, W, 3)`` (or ``(H, W)``, replicated) sRGB code values in [0, 1], or uint8.
-    size
-        Side of the result in pixels.
-
-    Returns
-    -------
-    numpy.ndarray
-        float32 ``(size, size, 3)`` in [0, 1].
-    """
-    from skimage.transform import resize
-    from skimage.util import img_as_float32
-
-    size = _check_size(size)
-    a = np.asarray(image)
-    if a.ndim == 2:
-        a = np.repeat(a[..., None], 3, axis=2)
-    if a.ndim != 3 or a.shape[2] not in (3, 4) or a.shape[0] < 1 or a.shape[1] < 1:
-        raise ValidationError(f"{name}.shape", a.shape, "(height, width, 3)")
-    a = img_as_float32(a[..., :3]) if a.dtype.kind in "ui" else a[..., :3].astype(np.float32)
-    if not np.all(np.isfinite(a)):
-        raise ValidationError(name, "NaN/inf values", "finite sRGB code values in [0, 1]")
-    h, w = a.shape[:2]
-    side = min(h, w)
-    y0, x0 = (h - side) // 2, (w - side) // 2
-    a = a[y0:y0 + side, x0:x0 + side]
-    if side != size:
-        a = resize(a, (size, size), order=1, mode="reflect", anti_aliasing=side > size,
-                   preserve_range=True)
-    return np.ascontiguousarray(np.clip(a, 0.0, 1.0), dtype=np.float32)
-
-
-def bundled_images(size: int = 256) -> list[tuple[str, np.ndarray]]:
-    """The default evaluation images at ``size x size``: sRGB float32 ``(size, size, 3)``.
-
-    scikit-image's colour photographs (:data:`SKIMAGE_PHOTOS`, those this
-    scikit-image ships), centre-cropped and resized, then the procedural
-    charts: ``text`` (:func:`vrcorrect.plumbing.charts.text_chart`), ``siemens_star``
-    and ``colour_bars``.
-    """
-    from ..plumbing.charts import colour_bars, siemens_star, text_chart
-
-    size = _check_size(size)
-    images: list[tuple[str, np.ndarray]] = []
-    try:
-        import skimage.data as skdata
-    except ImportError:  # pragma: no cover - scikit-image is a dependency
-        skdata = None
-    for name in SKIMAGE_PHOTOS:
-        loader = getattr(skdata, name, None) if skdata is not None else None
-        if loader is None:
-            continue
-        try:
-            photo = loader()
-        except Exception:  # pragma: no cover - a data file missing from this install
-            continue
-        images.append((name, prepare_image(photo, size, name)))
-    images.append(("text", text_chart(size, size)))
-    images.append(("siemens_star", siemens_star(size)))
-    images.append(("colour_bars", colour_bars(size, size)))
-    return images
-
-
-def folder_images(folder: str | Path, size: int = 256) -> list[tuple[str, np.ndarray]]:
-    """Every PNG/JPEG in ``folder`` (sorted by name), centre-cropped and resized to ``size``.
-
-    Raises
-    ------
-    InputError
-        The folder is missing, not a folder, or holds no PNG/JPEG image; or an
-        image cannot be read.
-    """
-    from ..plumbing.imageio import read_image
-
-    size = _check_size(size)
-    folder = Path(folder)
-    if not folder.exists():
-        raise InputError(f"{folder}: no such folder (--images expects a folder of PNG or JPEG images)")
-    if not folder.is_dir():
-        raise InputError(f"{folder}: is not a folder (--images expects a folder of PNG or JPEG images)")
-    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
-    if not files:
-        raise InputError(f"{folder}: no PNG or JPEG images in this folder")
-    images = []
-    used: set[str] = set()
-    for path in files:
-        name = _safe_name(path.stem)
-        if name in used:
-            name = _safe_name(f"{path.stem}_{path.suffix.lstrip('.')}")
-        n = 2
-        base = name
-        while name in used:
-            name, n = f"{base}_{n}", n + 1
-        used.add(name)
-        images.append((name, prepare_image(read_image(path), size, str(path))))
-    return images
-
-
-def _safe_name(text: str) -> str:
-    """A file-name-safe version of an image name (letters, digits, ``-``, ``_``, ``.``)."""
-    name = re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("._")
-    return name or "image"
 
 
 # --------------------------------------------------------------------------
@@ -626,7 +501,7 @@ def _check_images(images: Sequence[tuple[str, np.ndarray]], size: int | None) ->
             name, image = item
         except (TypeError, ValueError):
             raise ValidationError("images", type(item).__name__, "(name, image) pairs") from None
-        if not isinstance(name, str) or _safe_name(name) != name:
+        if not isinstance(name, str) or safe_name(name) != name:
             raise ValidationError("image name", name, "letters, digits, '-', '_' or '.' (a file-name-safe name)")
         if name in seen:
             raise ValidationError("image name", name, "names that differ from one another")
@@ -706,7 +581,7 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
     from tqdm import tqdm
 
     from ..specs.display import DisplayProfile, decode, get_display
-    from ..plumbing.fileio import atomic_paths, check_writable
+    from ..plumbing.fileio import check_writable, text_writer, write_together
     from ..physics.kernel import KernelOptions, build_kernel
     from ..vision.metrics import evaluate_seen
     from ..physics.optics import OpticsOptions
@@ -719,7 +594,7 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
         if m not in methods:
             raise ValidationError("solver_options", m, "options only for methods being run: " + ", ".join(methods))
     if size is not None:
-        size = _check_size(size)
+        size = check_size(size)
     if not isinstance(display, DisplayProfile):
         display = get_display(display)
     images = _check_images(images, size)
@@ -806,12 +681,10 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
     csv_text = _csv_text(rows)
     markdown = _markdown(rows, summary, verdicts, display, size if size is not None else "as given", images, scored,
                          seconds_total, wins)
-    outputs.append((files["csv"], lambda tmp: tmp.write_text(csv_text, encoding="utf-8")))
-    outputs.append((files["markdown"], lambda tmp: tmp.write_text(markdown, encoding="utf-8")))
+    outputs.append((files["csv"], text_writer(csv_text)))
+    outputs.append((files["markdown"], text_writer(markdown)))
     # every panel and both tables appear together, or (interrupted, failed) none of them
-    with atomic_paths([path for path, _ in outputs], force=force) as tmps:
-        for (_, writer), tmp in zip(outputs, tmps):
-            writer(tmp)
+    write_together(outputs, force=force)
     return {"rows": rows, "summary": summary, "summary_markdown": summary_table(summary), "verdicts": verdicts,
             "wins": wins, "acuity": acuity_logmar, "files": files, "seconds": seconds_total}
 
@@ -851,7 +724,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     """``vrcorrect evaluate``: run :func:`run_evaluation` and print where the outputs are and the summary."""
     from ..specs.display import get_display
 
-    size = _check_size(args.size)
+    size = check_size(args.size)
     methods = _check_methods(args.methods)
     display = get_display(args.display)
     images = folder_images(args.images, size) if args.images else bundled_images(size)

@@ -22,7 +22,7 @@ def _pair(field: str, values: list[float] | None, default: tuple[float, float]) 
 
 
 def cmd_dataset(args: argparse.Namespace) -> int:
-    from .evaluate import bundled_images, folder_images
+    from ..plumbing.images import bundled_images, folder_images
     from ..learn.conditioning import SamplingRanges
     from ..learn.dataset import HELD_OUT_IMAGES, DatasetConfig, build_dataset, check_ray
 

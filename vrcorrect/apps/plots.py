@@ -6,8 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..plumbing.fileio import write_with
 
-def _pyplot():
+
+def pyplot():
+    """matplotlib's pyplot on the Agg backend (imported on first use: start-up time of every command)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -16,9 +19,17 @@ def _pyplot():
     return plt
 
 
+def save_figure(fig, path: Path, *, dpi: int = 100, force: bool = True) -> None:
+    """Write ``fig`` to ``path`` as PNG atomically (never a partial file), then close it."""
+    try:
+        write_with(Path(path), lambda tmp: fig.savefig(tmp, format="png", dpi=dpi), force=force)
+    finally:
+        pyplot().close(fig)
+
+
 def plot_psf(array: np.ndarray, meta: dict, path: Path) -> None:
     """Draw a monochromatic PSF (2-D) or a 3x3 LMS kernel (4-D), log scale."""
-    plt = _pyplot()
+    plt = pyplot()
     if array.ndim == 2:
         fig, ax = plt.subplots(figsize=(4.5, 4))
         im = ax.imshow(np.log10(np.maximum(array, 1e-7)), cmap="magma", vmin=-7, vmax=0)
@@ -42,7 +53,7 @@ def plot_psf(array: np.ndarray, meta: dict, path: Path) -> None:
 
 def plot_spectra_fit(measured, fit, path: Path) -> None:
     """Measured spectra as points, the smooth proxy as lines."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 3.5))
     colours = ("tab:red", "tab:green", "tab:blue")
     for i, label in enumerate(measured.labels):

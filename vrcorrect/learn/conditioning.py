@@ -28,6 +28,8 @@ import numpy as np
 from ..plumbing.errors import ValidationError
 from ..physics.kernel import EyeKernel
 from ..specs.prescription import EyeRx
+from ..solvers import make_problem
+from ..solvers.wiener import apply_filters, correction_filters, gradient_plan, gradient_step, projected_gradient
 
 #: Regulariser of the pre-correction channels, relative to ``||K||^2`` (one of ``wiener``'s candidates).
 PRECORRECTION_MU_REL = 0.1
@@ -139,8 +141,6 @@ def model_inputs(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKern
     """
     if not gradient:
         return precorrect(image, kernel, reference_kernel, mu_rel, steps, plan), None
-    from ..solvers import make_problem
-    from ..solvers.wiener import gradient_plan, gradient_step
 
     if plan is None:
         plan = gradient_plan(kernel, image.shape[:2])
@@ -179,8 +179,6 @@ def precorrect(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel
     numpy.ndarray
         float32 ``(H, W, 3)`` in [0, 1]; the image itself when the eye's kernel is 1x1.
     """
-    from ..solvers.wiener import apply_filters, correction_filters, projected_gradient
-
     if kernel.size == 1:
         return np.ascontiguousarray(image, dtype=np.float32)
     if steps > 0:

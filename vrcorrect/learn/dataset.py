@@ -53,6 +53,13 @@ import numpy as np
 from ..plumbing.errors import InputError, ValidationError, VrcorrectError
 from ..plumbing.fileio import write_text_atomic, write_with
 from .conditioning import PRECORRECTION_MU_REL, PRECORRECTION_STEPS, SamplingRanges, eye_features, precorrect
+from .. import __version__
+from ..physics.kernel import build_kernel, build_reference_kernel, KernelOptions
+from ..solvers import make_problem, objective, solve
+from ..specs.display import decode, get_display
+from ..specs.prescription import EyeRx
+from tqdm import tqdm
+import uuid
 
 #: Images kept out of the default data set: ``vrcorrect bench learned`` scores models on them.
 HELD_OUT_IMAGES = ("rocket", "retina")
@@ -188,8 +195,6 @@ _WORKER: dict[str, Any] = {}
 def _init_worker(images: Sequence[np.ndarray], display: Any, threads: int | None) -> None:
     """Set this process up to compute samples: ``display`` a preset name, profile path or
     :class:`~vrcorrect.specs.display.DisplayProfile`; ``images`` sRGB code values."""
-    from ..specs.display import get_display
-
     if threads is not None:
         os.environ["OMP_NUM_THREADS"] = str(threads)
         try:
@@ -201,16 +206,11 @@ def _init_worker(images: Sequence[np.ndarray], display: Any, threads: int | None
     _WORKER["display"] = get_display(display) if isinstance(display, (str, os.PathLike)) else display
     _WORKER.pop("kernels", None)                 # built for another build's display
     # images are sRGB code values; the model works in linear light
-    from ..specs.display import decode
 
     _WORKER["images"] = [decode(_WORKER["display"], im).astype(np.float32) for im in images]
 
 
 def _compute_sample(config: DatasetConfig, spec: SampleSpec) -> dict[str, Any]:
-    from ..physics.kernel import KernelOptions, build_kernel, build_reference_kernel
-    from ..specs.prescription import EyeRx
-    from ..solvers import make_problem, objective, solve
-
     display = _WORKER["display"]
     image = _WORKER["images"][spec.image]
     c = config.crop_px
@@ -330,8 +330,6 @@ def read_manifest(out_dir: str | Path) -> dict[str, Any]:
 
 
 def _new_manifest(config: DatasetConfig, display, names: Sequence[str], images: Sequence[np.ndarray]) -> dict:
-    from .. import __version__
-
     return {"format": FORMAT, "format_version": FORMAT_VERSION, "vrcorrect_version": __version__,
             "config": config.as_dict(),
             "display": {"name": display.name, "title": display.title,
@@ -402,8 +400,6 @@ def _build_on_ray(ray: Any, images: list[np.ndarray], display: Any, config: Data
 
     The images and the display profile go into the object store once; at most two tasks per
     cluster CPU are in flight, so finished shards do not pile up in the object store."""
-    import uuid
-
     task = ray.remote(_ray_shard)                      # one CPU per task (Ray's default)
     data = ray.put((images, display))
     source = uuid.uuid4().hex
@@ -476,8 +472,6 @@ def build_dataset(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]],
     -------
     BuildReport
     """
-    from ..specs.display import get_display
-
     check_ray(ray_address)
     if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 256:
         raise ValidationError("workers", workers, "an integer from 1 to 256")
@@ -508,7 +502,6 @@ def build_dataset(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]],
     shapes = [im.shape[:2] for im in arrays]
     jobs = {k: [sample_spec(config, shapes, i) for i in config.shard_indices(k)] for k in todo}
 
-    from tqdm import tqdm
 
     with ExitStack() as stack:
         # connect first: an unreachable cluster leaves no new folder behind

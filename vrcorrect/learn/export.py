@@ -30,13 +30,15 @@ from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.fileio import check_writable, write_with
 from .model import UNetConfig
 from .train import load_checkpoint, model_from_checkpoint
+from .. import __version__
+import warnings
 
 OPSET = 17
 FORMAT = "vrcorrect-learned-v1"
 OUTPUT_NAME = "displayed"
 FP32_TOLERANCE = 1e-4
 METADATA_KEYS = ("vrcorrect.format", "vrcorrect.version", "vrcorrect.inputs", "vrcorrect.ranges",
-                 "vrcorrect.specs.display", "vrcorrect.reference", "vrcorrect.precorrection_mu_rel",
+                 "vrcorrect.display", "vrcorrect.reference", "vrcorrect.precorrection_mu_rel",
                  "vrcorrect.precorrection_steps",
                  "vrcorrect.train", "vrcorrect.precision", "vrcorrect.opset")
 
@@ -55,15 +57,13 @@ class ExportReport:
 
 def metadata_for(ckpt: dict, precision: str) -> dict[str, str]:
     """The ``vrcorrect.*`` metadata of a checkpoint's export."""
-    from .. import __version__
-
     ds = ckpt["dataset"]
     return {
         "vrcorrect.format": FORMAT,
         "vrcorrect.version": __version__,
         "vrcorrect.inputs": ",".join(UNetConfig.from_dict(ckpt["train_config"]["model"]).input_names),
         "vrcorrect.ranges": json.dumps(ds["config"]["ranges"]),
-        "vrcorrect.specs.display": json.dumps(ds["display"]),
+        "vrcorrect.display": json.dumps(ds["display"]),
         "vrcorrect.reference": ds.get("reference", "glasses"),
         "vrcorrect.precorrection_mu_rel": repr(float(ds["config"]["precorrection_mu_rel"])),
         "vrcorrect.precorrection_steps": str(int(ds["config"].get("precorrection_steps", 0))),
@@ -88,7 +88,6 @@ def onnx_bytes(model: torch.nn.Module) -> bytes:
     axes = {name: {0: "N", 2: "H", 3: "W"} for name in names if name != "eye"}
     axes[OUTPUT_NAME] = {0: "N", 2: "H", 3: "W"}
     axes["eye"] = {0: "N"}
-    import warnings
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")            # the TorchScript exporter's deprecation notice

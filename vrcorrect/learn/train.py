@@ -57,6 +57,8 @@ from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.fileio import write_text_atomic, write_with
 from .dataset import load_shard, read_manifest
 from .model import ConditionedUNet, UNetConfig
+from .. import __version__
+from tqdm import tqdm
 
 CHECKPOINT = "checkpoint.pt"
 LOG = "log.csv"
@@ -299,8 +301,6 @@ def model_from_checkpoint(ckpt: dict[str, Any]) -> ConditionedUNet:
 
 def _save_checkpoint(run_dir: Path, model, optimiser, step: int, config: TrainConfig, data: ShardedSamples,
                      init: dict[str, Any] | None = None) -> None:
-    from .. import __version__
-
     m = data.manifest
     ckpt = {"format": CHECKPOINT_FORMAT, "step": step, "model": model.state_dict(), "init": init,
             "optimizer": optimiser.state_dict(), "train_config": config.as_dict(),
@@ -392,8 +392,6 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig, res
     -------
     TrainReport
     """
-    from tqdm import tqdm
-
     run = Path(run_dir)
     if run.exists() and not run.is_dir():
         raise InputError(f"{run}: is not a folder")

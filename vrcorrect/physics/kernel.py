@@ -42,6 +42,7 @@ from .optics import (OpticsOptions, PixelPsf, RefractiveState, crop_center, dept
                      psf_pixels, refractive_state, ARCMIN_RAD)
 from .perception import INTEGRATION_GRID_NM, normalised_weights
 from ..specs.prescription import EyeRx
+import dataclasses
 
 STEPS_NM = (80, 40, 20, 10, 5, 1)
 NODE_ORIGIN_NM = 390.0
@@ -339,8 +340,6 @@ def build_reference_kernel(eye: EyeRx, display: DisplayProfile, options: KernelO
     diffraction remain - glasses do not remove them.  This is what "a sharp
     eye would see", the target of the product's corrections.
     """
-    import dataclasses
-
     options = options or KernelOptions()
     corrected = dataclasses.replace(eye, sphere_D=0.0, cylinder_D=0.0, axis_deg=0.0, accommodation_D=0.0)
     optics = dataclasses.replace(options.optics, viewing_distance_m=math.inf)

@@ -14,6 +14,7 @@ import numpy as np
 
 from .errors import ValidationError
 from .fileio import package_data
+from PIL import Image, ImageDraw, ImageFont
 
 
 def _check_size(size: int) -> None:
@@ -53,8 +54,6 @@ def colour_bars(width: int = 256, height: int = 256) -> np.ndarray:
 
 def text_chart(width: int = 256, height: int = 256) -> np.ndarray:
     """Black text of decreasing size on white."""
-    from PIL import Image, ImageDraw, ImageFont
-
     _check_size(width)
     _check_size(height)
     im = Image.new("RGB", (width, height), "white")
@@ -82,8 +81,6 @@ def sample_image_path() -> Path:
 
 def make_sample_image(photo: np.ndarray) -> np.ndarray:
     """Compose the 512x512 sample from a photograph (sRGB, any size >= 256) and the charts."""
-    from PIL import Image
-
     im = Image.fromarray(np.round(np.clip(photo, 0, 1) * 255).astype(np.uint8))
     side = min(im.size)
     im = im.crop(((im.size[0] - side) // 2, 0, (im.size[0] - side) // 2 + side, side))

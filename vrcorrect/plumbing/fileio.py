@@ -123,7 +123,24 @@ def write_text_atomic(path: Path, text: str, *, force: bool = False) -> None:
         tmp.write_text(text, encoding="utf-8")
 
 
-def write_with(path: Path, writer: Callable[[Path], None], *, force: bool = False) -> None:
+Writer = Callable[[Path], object]
+"""Writes one output into the temporary path it is given."""
+
+
+def text_writer(text: str) -> Writer:
+    """A writer of ``text`` (UTF-8) for :func:`write_together`."""
+    return lambda tmp: tmp.write_text(text, encoding="utf-8")
+
+
+def write_together(outputs: Sequence[tuple[Path, Writer]], *, force: bool = False) -> None:
+    """Write a command's outputs all or nothing: each ``(path, writer)`` pair's writer fills a
+    temporary file beside ``path``; only when every writer has succeeded are they renamed into place
+    together (:func:`atomic_paths`)."""
+    with atomic_paths([Path(path) for path, _ in outputs], force=force) as tmps:
+        for (_, writer), tmp in zip(outputs, tmps):
+            writer(tmp)
+
+
+def write_with(path: Path, writer: Writer, *, force: bool = False) -> None:
     """Call ``writer(tmp_path)`` and move the result to ``path`` atomically."""
-    with atomic_path(path, force=force) as tmp:
-        writer(tmp)
+    write_together([(path, writer)], force=force)

@@ -15,6 +15,7 @@ import numpy as np
 
 from .errors import InputError, ValidationError
 from .fileio import write_with
+from PIL import Image, UnidentifiedImageError
 
 #: Largest image accepted (pixels), to refuse decompression bombs with a clear message.
 MAX_PIXELS = 8192 * 8192
@@ -26,8 +27,6 @@ def read_image(path: str | Path, notes: list[str] | None = None) -> np.ndarray:
     ``notes``: when given, what was done silently before is said there: an animated image's first
     frame is used, an alpha channel is dropped (the colour values are used as stored, not
     composited over anything)."""
-    from PIL import Image, UnidentifiedImageError
-
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")
@@ -140,8 +139,6 @@ def png_writer(path: str | Path, rgb: np.ndarray, bits: int = 8) -> Callable[[Pa
     """Check ``(H, W, 3)`` code values in [0, 1] for an 8- or 16-bit PNG at ``path`` and return the
     function that writes them to a given (temporary) path: for outputs written together
     (:func:`vrcorrect.plumbing.fileio.atomic_paths`)."""
-    from PIL import Image
-
     if bits not in (8, 16):
         raise ValidationError("bits", bits, "8 or 16")
     a = np.asarray(rgb)

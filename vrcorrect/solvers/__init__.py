@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -22,6 +22,19 @@ from ..vision.forward import check_image, simulate_lms
 from ..physics.kernel import EyeKernel
 
 METHODS = ("none", "wiener", "fast", "paper", "conventional")
+"""The numerical methods: each needs only the problem."""
+LEARNED = "learned"
+"""The learned method: one pass of an exported model bound to the eye (``solve(..., model=...)``)."""
+
+
+class BoundModel(Protocol):
+    """What ``solve(problem, "learned", model=...)`` needs of a learned model bound to one eye and
+    display (:meth:`vrcorrect.runtime.learned.LearnedModel.for_eye` gives one; the inference runs on
+    onnxruntime, never torch)."""
+
+    def infer(self, image_chw: np.ndarray) -> np.ndarray:
+        """``(3, H, W)`` linear RGB target in [0, 1] -> ``(3, H, W)`` displayed image."""
+        ...
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,10 +144,13 @@ def solve(problem: Problem, method: str = "fast", progress: Callable[[int, int],
     Options by method: ``wiener``: ``regularisation`` (list of relative values),
     ``fast``: ``tolerance``, ``max_iterations``, ``rho``;
     ``paper``: ``iterations``, ``learning_rate``, ``opponent``, ``seed``;
-    ``conventional``: ``max_iterations``, ``tolerance``.
+    ``conventional``: ``max_iterations``, ``tolerance``;
+    ``learned``: ``model`` (a :class:`BoundModel`, required) and ``settings`` (recorded as given).
     """
+    if method == LEARNED:
+        return _solve_learned(problem, **options)
     if method not in METHODS:
-        raise ValidationError("method", method, "one of " + ", ".join(METHODS))
+        raise ValidationError("method", method, "one of " + ", ".join(METHODS + (LEARNED,)))
     from .wiener import wiener
 
     if method == "fast":
@@ -155,3 +171,15 @@ def solve(problem: Problem, method: str = "fast", progress: Callable[[int, int],
     image = np.clip(image, 0.0, 1.0).astype(np.float32)
     return SolveResult(image=image, method=method, seconds=seconds, iterations=iters,
                        objective=objective(image, problem), settings=settings, history=history)
+
+
+def _solve_learned(problem: Problem, model: BoundModel | None = None, settings: dict | None = None) -> SolveResult:
+    """One pass of the bound learned model (refused outside its range when it was bound)."""
+    if model is None or not callable(getattr(model, "infer", None)):
+        raise ValidationError("model", type(model).__name__, "a learned model bound to the eye (LearnedModel.for_eye)")
+    t0 = time.perf_counter()
+    chw = model.infer(np.ascontiguousarray(np.moveaxis(problem.target, 2, 0)))
+    seconds = time.perf_counter() - t0
+    image = np.clip(np.ascontiguousarray(np.moveaxis(chw, 0, 2)), 0.0, 1.0).astype(np.float32)
+    return SolveResult(image=image, method=LEARNED, seconds=seconds, iterations=0,
+                       objective=objective(image, problem), settings=dict(settings or {}))

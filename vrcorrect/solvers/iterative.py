@@ -24,7 +24,9 @@ from typing import Callable
 import numpy as np
 import torch
 
-from . import Problem
+from . import Problem, scale_contrast
+from ..physics.perception import OPPONENT_MATRIX
+from .wiener import padded_shape
 
 
 class FftOperator:
@@ -34,7 +36,6 @@ class FftOperator:
         s = kernel.shape[-1]
         self.r = s // 2
         self.H, self.W = height, width
-        from .wiener import padded_shape
 
         self.P = padded_shape(height, width, s)
         k = torch.as_tensor(np.ascontiguousarray(kernel), dtype=dtype, device=device)
@@ -66,8 +67,6 @@ def paper(problem: Problem, iterations: int = 100, learning_rate: float = 0.01, 
           seed: int = 0, progress: Callable[[int, int], None] | None = None
           ) -> tuple[np.ndarray, int, dict, list[float]]:
     """ChromaCorrect's published optimisation: Adam from the target, clamped, LMS (or opponent) MSE."""
-    from ..physics.perception import OPPONENT_MATRIX
-
     torch.manual_seed(seed)
     H, W = problem.target.shape[:2]
     op = FftOperator(problem.kernel.kernel, H, W)
@@ -103,8 +102,6 @@ def conventional(problem: Problem, max_iterations: int = 300, tolerance: float =
                  theta: float = 1e-6, tau: float = 2e-5, barrier: float = 65.0,
                  progress: Callable[[int, int], None] | None = None) -> tuple[np.ndarray, int, dict, list[float]]:
     """Montalto et al. (2015) constrained TV deconvolution per RGB primary (no cone model)."""
-    from . import scale_contrast
-
     H, W = problem.target.shape[:2]
 
     def rgb_psf_operator(kernel: np.ndarray) -> FftOperator:

@@ -36,7 +36,7 @@ import scipy.fft
 from ..plumbing.errors import ValidationError
 from ..vision.forward import check_image
 from ..physics.kernel import EyeKernel
-from . import Problem
+from . import Problem, scale_contrast
 
 DEFAULT_REGULARISATION = (0.03, 0.1, 0.3)
 DESCENT_STEP = 4.0
@@ -372,8 +372,6 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
     (binary charts, strong prescriptions).  The real-time path blends along the inverse only
     (``descent=False``: one weight per frame, computed on the GPU).
     """
-    from . import scale_contrast
-
     H, W = problem.target.shape[:2]
     if problem.kernel.size == 1:
         x = np.clip(problem.target_lms @ np.linalg.inv(problem.kernel.matrix).T, 0, 1).astype(np.float32)

@@ -166,7 +166,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..specs.display import DisplayProfile
+from ..specs.display import DisplayProfile, get_display
 from ..plumbing.errors import ModelLimitError, ValidationError
 from .forward import check_image, simulate_lms
 from ..physics.kernel import EyeKernel, KernelOptions, build_kernel
@@ -777,8 +777,6 @@ def calibration_display(pixels_per_degree: float = CALIBRATION_PPD, base: Displa
                         ) -> DisplayProfile:
     """A chart display fine enough for every line: ``base``'s primaries (default the desktop preset's)
     at ``pixels_per_degree``, at optical infinity."""
-    from ..specs.display import get_display
-
     base = base or get_display("desktop")
     return replace(base, name="acuity-chart", title=f"acuity chart ({pixels_per_degree:g} ppd, at infinity)",
                    pixels_per_degree=pixels_per_degree, distance_m=math.inf, resolution_px=None,

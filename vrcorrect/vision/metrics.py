@@ -58,6 +58,9 @@ from ..plumbing.errors import InputError, ValidationError
 from .forward import check_image, lms_to_display, simulate_lms
 from ..physics.kernel import EyeKernel
 from ..physics.perception import apply_matrix
+import importlib.util
+import os
+import sys
 
 __all__ = [
     "RANGE_TOLERANCE",
@@ -309,10 +312,6 @@ def _import_cvvdp():
     schemas (no kernel: calling them still fails loudly) so the import
     succeeds.  Nothing ColorVideoVDP calls uses them.
     """
-    import importlib.util
-    import os
-    import sys
-
     try:
         import torch
     except ImportError as exc:

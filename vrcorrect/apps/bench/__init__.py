@@ -3,6 +3,7 @@ section of ``docs/benchmarks.md``, naming the machine it ran on."""
 
 from __future__ import annotations
 
+import argparse
 import os
 import platform
 import re
@@ -12,7 +13,9 @@ from datetime import date
 from pathlib import Path
 from typing import Callable, Sequence
 
+from ...plumbing.errors import InputError, ValidationError
 from ...plumbing.fileio import write_text_atomic
+from ...runtime.model_path import DEFAULT_MODEL
 
 
 def machine_description() -> str:
@@ -67,3 +70,64 @@ def write_section(path: Path, name: str, body: str) -> None:
     else:
         text = text.rstrip() + "\n\n" + block + "\n"
     write_text_atomic(path, text, force=True)
+
+
+# ---------------------------------------------------------------- the command
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    if args.what == "kernel":
+        from .kernel import run_kernel_bench
+
+        print(run_kernel_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
+    elif args.what == "solvers":
+        from .solvers import RESOLUTIONS, run_solver_bench
+
+        res = args.resolutions or list(RESOLUTIONS)
+        for r in res:
+            if r not in RESOLUTIONS:
+                raise ValidationError("--resolutions", r, "some of " + ", ".join(RESOLUTIONS))
+        print(run_solver_bench(out=Path(args.out), plot=Path(args.out).with_name("solver_tradeoff.png"),
+                               resolutions=res, repeats=args.repeats, write=not args.no_write))
+    elif args.what == "render":
+        from .render import run_render_bench
+
+        print(run_render_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
+    elif args.what == "xr":
+        from .xr import run_xr_bench
+
+        print(run_xr_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
+    elif args.what == "realtime":
+        from .realtime import run_realtime_bench
+
+        print(run_realtime_bench(out=Path(args.out), write=not args.no_write, quick=args.quick))
+    elif args.what == "learned":
+        from .learned import run_learned_bench
+
+        path = Path(args.model) if args.model else DEFAULT_MODEL
+        if not path.is_file():
+            raise InputError(f"{path}: no such model; pass --model PATH (a model exported by tools/export_onnx.py)")
+        if args.eyes < 1:
+            raise ValidationError("--eyes", args.eyes, "at least 1")
+        print(run_learned_bench(path, out=Path(args.out), card=Path(args.card) if args.card else None,
+                                eyes=args.eyes, repeats=max(args.repeats, 3), write=not args.no_write,
+                                plot=Path(args.out).with_name("learned_heldout.png"),
+                                tradeoff=Path(args.out).with_name("learned_tradeoff.png"))["markdown"])
+    else:
+        raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, xr or learned")
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md")
+    p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "xr", "learned"),
+                   help="what to measure")
+    p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
+    p.add_argument("--resolutions", nargs="+", metavar="R",
+                   help="solvers: image sizes to sweep (256 512 1024 1832x1920; default all)")
+    p.add_argument("--out", default="docs/benchmarks.md", help="benchmarks file to update")
+    p.add_argument("--no-write", action="store_true", help="print only")
+    p.add_argument("--model", metavar="MODEL.onnx", help="learned: the model (default models/default.onnx)")
+    p.add_argument("--card", metavar="CARD.md", help="learned: also write the model card there")
+    p.add_argument("--eyes", type=int, default=6, help="learned: held-out eyes (default 6)")
+    p.add_argument("--quick", action="store_true", help="realtime: fewer frames and sizes (a smoke run)")
+    p.set_defaults(func=cmd_bench)

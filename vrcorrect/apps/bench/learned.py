@@ -30,7 +30,18 @@ import numpy as np
 
 from . import machine_description, markdown_table, write_section
 from ...plumbing.errors import ValidationError
+from ...plumbing.images import prepare_image
 from ...learn.dataset import HELD_OUT_IMAGES
+from ...physics.kernel import build_kernel, build_reference_kernel
+from ...runtime.learned import LearnedModel
+from ...runtime.onnx_backend import small_onnx_model
+from ...solvers import make_problem, objective, solve
+from ...solvers.wiener import gradient_plan, projected_gradient
+from ...specs.display import decode, get_display
+from ...vision.metrics import evaluate_seen
+from ..plots import pyplot, save_figure
+from tqdm import tqdm
+import os
 
 EYE_SEED = 20261123
 #: Untrained U-Net sizes (width, depth) whose speed :func:`speed_floor` measures beside the model.
@@ -43,7 +54,6 @@ FISTA_STEPS = (1, 3, 5, 8, 12, 20)
 def _held_out_image(name: str, size: int) -> np.ndarray:
     from skimage import data
 
-    from ..evaluate import prepare_image
 
     return prepare_image(getattr(data, name)()[..., :3], size, name)
 
@@ -69,7 +79,6 @@ def _one_convolution() -> bytes:
     dynamic height and width: the least work a convolutional network on those inputs can do."""
     from onnx import TensorProto, helper, numpy_helper
 
-    from ...runtime.onnx_backend import small_onnx_model
 
     rng = np.random.default_rng(0)
     weights = numpy_helper.from_array(rng.normal(0.0, 0.1, (3, 6, 3, 3)).astype(np.float32), "w")
@@ -125,14 +134,6 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
     eye sees of each held-out image under every method (:func:`_plot_seen`); ``tradeoff``, the
     share of the gap closed against ms at the first speed size for ``wiener``, ``fista_steps``
     FISTA steps alone, the model and ``fast`` (:func:`_plot_tradeoff`)."""
-    from tqdm import tqdm
-
-    from ...specs.display import decode, get_display
-    from ...physics.kernel import build_kernel, build_reference_kernel
-    from ...vision.metrics import evaluate_seen
-    from ...runtime.learned import LearnedModel
-    from ...solvers import make_problem, objective, solve
-    from ...solvers.wiener import gradient_plan, projected_gradient
 
     model = LearnedModel(model_path, providers=("CPUExecutionProvider",))
     trained_on = set(json.loads(model.metadata.get("vrcorrect.train", "{}")).get("images", []))
@@ -268,10 +269,7 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
 def _plot_seen(pictures: list[tuple[dict, dict[str, np.ndarray]]], display, path: Path) -> None:
     """One row per held-out image (first held-out eye): the target as the eye sees it with
     glasses, then what it sees of each method's displayed image, with FLIP and objective."""
-    from ...plumbing.fileio import write_with
-    from ..plots import _pyplot
-
-    plt = _pyplot()
+    plt = pyplot()
     columns = [("target", "target (glasses on)"), ("none", "uncorrected"), ("wiener", "wiener"),
                ("precorrected", "pre-correction alone"), ("learned", "learned"), ("fast", "fast")]
     fig, axes = plt.subplots(len(pictures), len(columns), figsize=(2.3 * len(columns), 2.9 * len(pictures)),
@@ -291,17 +289,13 @@ def _plot_seen(pictures: list[tuple[dict, dict[str, np.ndarray]]], display, path
                  f"{case['cylinder_D']:+.2f} x {case['axis_deg']:.0f}, pupil {case['pupil_mm']:.1f} mm "
                  "(objective relative to uncorrected)", fontsize=9)
     fig.tight_layout()
-    write_with(path, lambda tmp: fig.savefig(tmp, format="png", dpi=100), force=True)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)
 
 
 def _plot_tradeoff(s: dict[str, Any], speed: dict[str, Any], path: Path) -> None:
     """Share of the gap closed (held-out mean) against ms at the first speed size: ``wiener``,
     the FISTA-step curve, the model's whole pass and ``fast``; the 80 % and 100x targets dashed."""
-    from ...plumbing.fileio import write_with
-    from ..plots import _pyplot
-
-    plt = _pyplot()
+    plt = pyplot()
     label = speed["sizes"][0]
     fig, ax = plt.subplots(figsize=(7, 4.5))
     ks = speed["fista_steps"]
@@ -326,8 +320,7 @@ def _plot_tradeoff(s: dict[str, Any], speed: dict[str, Any], path: Path) -> None
     ax.set_title("Learned correction: speed against accuracy on held-out images and eyes", fontsize=9)
     ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
-    write_with(path, lambda tmp: fig.savefig(tmp, format="png", dpi=110), force=True)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def _tradeoff_lines(s: dict[str, Any], speed: dict[str, Any]) -> list[str]:
@@ -435,8 +428,6 @@ def _markdown(model, display, eyes, images, size, rows, s, speed, pictures: dict
 
 def _relative(path: Path, document: Path | None) -> str:
     """``path`` as a link from ``document``'s folder (POSIX separators)."""
-    import os
-
     base = Path(document).resolve().parent if document is not None else Path.cwd()
     return Path(os.path.relpath(Path(path).resolve(), base)).as_posix()
 

@@ -44,7 +44,23 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ...plumbing.images import prepare_image
 from . import machine_description, markdown_table, write_section
+from ...physics.kernel import build_kernel, build_reference_kernel
+from ...runtime.corrector import Corrector
+from ...runtime.fft import fft_grid
+from ...runtime.gl import download_texture, headless_context, release, render_target, upload_texture
+from ...runtime.motion import motion_for, view_shift
+from ...runtime.scene import DemoScene, eye_position, perspective, rotation_y, SceneConfig, translation
+from ...solvers import make_problem, solve
+from ...solvers.wiener import FistaState, gradient_plan, projected_gradient
+from ...specs.display import decode, get_display
+from ...specs.prescription import EyeRx, Prescription
+from ...vision.forward import simulate_lms
+from ...vision.metrics import evaluate_seen
+from ..plots import pyplot, save_figure
+from tqdm import tqdm
+import os
 
 PHOTO = "astronaut"
 DISPLAY = "desktop"
@@ -91,13 +107,9 @@ class Case:
     size: int
 
     def target(self, image_u8: np.ndarray) -> np.ndarray:
-        from ...specs.display import decode
-
         return decode("srgb", image_u8.astype(np.float32) / 255).astype(np.float32)
 
     def problem(self, image_u8: np.ndarray):
-        from ...solvers import make_problem
-
         return make_problem(self.target(image_u8), self.kernel, self.reference)
 
     @property
@@ -111,11 +123,6 @@ class Case:
 def make_case(size: int = 256, pan_frames: int = 20, pan_px: int = PAN_PX, display_name: str = DISPLAY) -> Case:
     """The eye -2.00 / -1.00 x 120 (4 mm pupil) on ``display_name``; the photograph large enough
     for a pan of ``pan_frames`` frames of ``pan_px`` px across a ``size`` window."""
-    from ...specs.display import get_display
-    from ..evaluate import prepare_image
-    from ...physics.kernel import build_kernel, build_reference_kernel
-    from ...specs.prescription import EyeRx
-
     display = get_display(display_name)
     eye = EyeRx(**EYE)
     from skimage import data
@@ -131,8 +138,6 @@ def make_case(size: int = 256, pan_frames: int = 20, pan_px: int = PAN_PX, displ
 
 
 def _residual(image: np.ndarray, problem) -> np.ndarray:
-    from ...vision.forward import simulate_lms
-
     lms, _ = simulate_lms(image.astype(np.float32), problem.kernel, "fft" if problem.kernel.size > 1 else "auto")
     return lms.astype(np.float64) - problem.target_lms.astype(np.float64)
 
@@ -152,8 +157,6 @@ def guarded(x: np.ndarray, problem, r0: np.ndarray | None = None) -> tuple[np.nd
 
 
 def _jod(shown: np.ndarray, problem, case: Case) -> float:
-    from ...vision.metrics import evaluate_seen
-
     m, _ = evaluate_seen(shown, problem.target, case.kernel, case.display, reference_kernel=case.reference)
     return float(m.jod)
 
@@ -172,9 +175,6 @@ def still_convergence(case: Case, ks: Sequence[int] = STILL_KS, frames: int = 20
     """Frame after frame on the still image, k iterations each, continued from the last frame's
     FISTA state (the GPU's warm start on a still source); each frame guarded.  Returns
     ``{"series": {k: Series}, "fast": objective, "none": objective, "fast_jod", "none_jod"}``."""
-    from ...solvers import solve
-    from ...solvers.wiener import gradient_plan, projected_gradient
-
     p = case.problem(case.still_u8)
     plan = gradient_plan(p.kernel, p.target.shape[:2])
     r0 = _residual(p.target, p)
@@ -230,7 +230,6 @@ def cut_targets(case: Case, frames: int, px: int = PAN_PX) -> tuple[list[np.ndar
     the first frame after the cut."""
     from skimage import data
 
-    from ..evaluate import prepare_image
 
     first = frames // 2
     other = prepare_image(getattr(data, CUT_PHOTO)()[..., :3], case.photo_u8.shape[0], CUT_PHOTO)
@@ -245,10 +244,6 @@ def head_turn_targets(ctx, case: Case, frames: int, deg_per_frame: float = TURN_
     (the cube turns and the banner scrolls as well); returns the 8-bit frames and the known shift of
     each frame after the first from the change of the eye's pose
     (:func:`~vrcorrect.runtime.motion.view_shift`, as ``vrcorrect xr`` computes it), as (dy, dx)."""
-    from ...runtime.gl import download_texture
-    from ...runtime.motion import view_shift
-    from ...runtime.scene import DemoScene, SceneConfig, eye_position, perspective, rotation_y, translation
-
     s = case.size
     config = SceneConfig()
     projection = perspective(config.fov_y_deg, 1.0, 0.05, 60.0)
@@ -276,8 +271,6 @@ def phase_correlation_shift(previous: np.ndarray, current: np.ndarray) -> tuple[
     (``current(p) ~ previous(p - d)``), or ``None`` for a scene cut:
     :func:`vrcorrect.runtime.motion.motion_for` (phase correlation of their luminance, a cut below
     its confidence threshold; what the mirror, the overlay and xr run), in the bench's (dy, dx)."""
-    from ...runtime.motion import motion_for
-
     motion = motion_for(previous, current)
     return None if motion is None else (motion[1], motion[0])
 
@@ -308,9 +301,6 @@ def motion_sequence(case: Case, images: Sequence[np.ndarray], known: Sequence[An
     ``reprojected`` series then.  The ``estimated`` strategy uses :func:`phase_correlation_shift`
     (a cold start where it reports a cut).  Returns ``{"series": {strategy: Series}, "fast": [...],
     "none": [...], "shifts": [estimated (dy, dx) or None per transition]}``."""
-    from ...solvers import solve
-    from ...solvers.wiener import FistaState, gradient_plan, projected_gradient
-
     problems = [case.problem(im) for im in images]
     plan = gradient_plan(case.kernel, problems[0].target.shape[:2])
     r0s = [_residual(p.target, p) for p in problems]
@@ -376,8 +366,6 @@ def sequences(ctx, case: Case, frames: int, k: int = PAN_K, with_jod: bool = Tru
 
 
 def _prescription():
-    from ...specs.prescription import EyeRx, Prescription
-
     eye = EyeRx(**EYE)
     return Prescription(right=eye, left=eye)
 
@@ -386,10 +374,6 @@ def gpu_check(ctx, case: Case, k: int = 4, frames: int = 10) -> dict[str, float]
     """``frames`` frames of the still image at ``k`` through the GPU ``Corrector`` (filter
     ``fista``) against the CPU twin: the GPU's own objective fraction of the last frame and the
     CPU's (``guarded``), and the largest difference between the two solutions."""
-    from ...runtime.corrector import Corrector
-    from ...runtime.gl import release, render_target, upload_texture
-    from ...solvers.wiener import projected_gradient
-
     image = case.still_u8
     size = (image.shape[1], image.shape[0])
     c = Corrector(ctx, _prescription(), case.display, "right", filter="fista", iterations_per_frame=k)
@@ -424,10 +408,6 @@ def stage_ms(ctx, case: Case, size: int, ks: Sequence[int] = TIMING_KS, repeats:
     ``size x size``: ``glFinish`` then the clock after each stage (``Corrector.profile``); one
     warm-up frame (spectra and allocations), then the median of ``repeats`` frames per ``k`` (the
     warm start goes on across them, as it would)."""
-    from ..evaluate import prepare_image
-    from ...runtime.corrector import Corrector
-    from ...runtime.gl import release, render_target, upload_texture
-
     from skimage import data
 
     image = np.round(np.clip(prepare_image(getattr(data, PHOTO)()[..., :3], size, PHOTO), 0, 1) * 255
@@ -501,8 +481,6 @@ def cost_model(ks: Sequence[int], size: tuple[int, int] = HEADSET_EYE, margin: i
     (it minimises the objective over the whole padded field, blur spilling onto the black surround
     included, not the cropped one).  Per frame both also decode (RGBA8 in, rgba32f out), start
     (four images in, three out), blend (three in, one out) and encode (one in, RGBA8 out)."""
-    from ...runtime.fft import fft_grid
-
     grid = fft_grid(size[0], size[1], margin)
     p = size[0] * size[1]
     frame_bytes = (4 + 16) * p + 16 * 7 * p + 16 * 5 * p + (16 + 4) * p   # decode, start, guard's blend, encode
@@ -558,9 +536,6 @@ def run_realtime_bench(out: Path = Path("docs/benchmarks.md"), write: bool = Tru
                        plot_still: Path | None = None, plot_pan: Path | None = None) -> str:
     """Run the four parts (see the module docstring); returns the Markdown and, with ``write``,
     writes the ``realtime`` section of ``out`` and the two plots beside it."""
-    from tqdm import tqdm
-
-    from ...runtime.gl import headless_context
 
     size, frames = (48, 4) if quick else (256, 20)
     still_ks = (1, 4) if quick else STILL_KS
@@ -587,9 +562,6 @@ def run_realtime_bench(out: Path = Path("docs/benchmarks.md"), write: bool = Tru
         steps.update()
     finally:
         ctx.release()
-    from ...specs.display import get_display
-    from ...physics.kernel import build_kernel, build_reference_kernel
-    from ...specs.prescription import EyeRx
 
     headset = get_display("quest2")
     margin = max(build_kernel(EyeRx(**EYE), headset).size, build_reference_kernel(EyeRx(**EYE), headset).size)
@@ -608,8 +580,6 @@ def run_realtime_bench(out: Path = Path("docs/benchmarks.md"), write: bool = Tru
 
 def _markdown(case: Case, still: dict, pan: dict, check: dict, timing: list, costs: list, renderer: str,
               frames: int, quick: bool, plot_still: Path, plot_pan: Path, headset_margin: int) -> str:
-    import os
-
     s = case.size
     eye = f"{EYE['sphere_D']:+.2f} / {EYE['cylinder_D']:+.2f} x {EYE['axis_deg']:g}, {EYE['pupil_diameter_mm']:g} mm pupil"
     shown_frames = [f for f in (1, 2, 5, 10, 20) if f <= frames]
@@ -712,10 +682,7 @@ def _markdown(case: Case, still: dict, pan: dict, check: dict, timing: list, cos
 
 
 def _plot_still(still: dict, case: Case, path: Path) -> None:
-    from ...plumbing.fileio import write_with
-    from ..plots import _pyplot
-
-    plt = _pyplot()
+    plt = pyplot()
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
     for k, ser in still["series"].items():
         n = range(1, len(ser.ratio) + 1)
@@ -741,15 +708,11 @@ def _plot_still(still: dict, case: Case, path: Path) -> None:
                  f"{EYE['cylinder_D']:+.2f} x {EYE['axis_deg']:g}: k FISTA iterations per frame, warm-started",
                  fontsize=9)
     fig.tight_layout()
-    write_with(path, lambda tmp: fig.savefig(tmp, format="png", dpi=100), force=True)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)
 
 
 def _plot_pan(pan: dict, case: Case, path: Path) -> None:
-    from ...plumbing.fileio import write_with
-    from ..plots import _pyplot
-
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, len(pan), figsize=(4 * len(pan), 3.8), sharey=True)
     axes = np.atleast_1d(axes)
     for a, (name, seq) in zip(axes, pan.items()):
@@ -769,5 +732,4 @@ def _plot_pan(pan: dict, case: Case, path: Path) -> None:
     axes[0].legend(fontsize=6)
     fig.suptitle(f"Moving sequences, {case.size}x{case.size}, k = {PAN_K} FISTA iterations per frame", fontsize=9)
     fig.tight_layout()
-    write_with(path, lambda tmp: fig.savefig(tmp, format="png", dpi=100), force=True)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)

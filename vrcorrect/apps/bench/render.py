@@ -26,14 +26,18 @@ from pathlib import Path
 import numpy as np
 
 from . import machine_description, markdown_table, write_section
+from ...plumbing.charts import siemens_star
+from ...runtime.corrector import Corrector
+from ...runtime.gl import headless_context, release, render_target, upload_texture
+from ...runtime.onnx_backend import write_one_minus_x_model
+from ...specs.prescription import bundled_sample_path, load_prescription
+from tqdm import tqdm
 
 EYE_SIZE = (1832, 1920)                          # width, height of one Quest 2 eye
 SEPARABLE_SIZE = (256, 256)
 
 
 def _frame_image(width: int, height: int) -> np.ndarray:
-    from ...plumbing.charts import siemens_star
-
     star = siemens_star(min(width, height))
     img = np.zeros((height, width, 3), np.float32)
     h, w = star.shape[:2]
@@ -63,12 +67,6 @@ def _time_frames(ctx, correctors, src, fbos, how: str, repeats: int) -> list[flo
 def run_render_bench(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), write: bool = True,
                      size: tuple[int, int] = EYE_SIZE) -> str:
     """Measure every case; returns the Markdown (and writes the ``render`` section of ``out``)."""
-    from tqdm import tqdm
-
-    from ...specs.prescription import bundled_sample_path, load_prescription
-    from ...runtime.corrector import Corrector
-    from ...runtime.gl import headless_context, release, render_target, upload_texture
-    from ...runtime.onnx_backend import write_one_minus_x_model
 
     ctx = headless_context(require=430)
     renderer = ctx.info.get("GL_RENDERER", "?")

@@ -16,6 +16,9 @@ import sys
 from pathlib import Path
 
 from . import machine_description, markdown_table, write_section
+from ..plots import pyplot, save_figure
+from statistics import median
+from tqdm import tqdm
 
 RESOLUTIONS = {"256": (256, 256), "512": (512, 512), "1024": (1024, 1024), "1832x1920": (1920, 1832)}
 
@@ -98,9 +101,6 @@ def run_solver_bench(out: Path = Path("docs/benchmarks.md"), plot: Path = Path("
                      resolutions: list[str] | None = None, repeats: int = 3, write: bool = True,
                      progress: bool = True) -> str:
     """Measure every case (median of ``repeats`` runs for the timings) and return the Markdown."""
-    from statistics import median
-
-    from tqdm import tqdm
 
     resolutions = resolutions or list(RESOLUTIONS)
     best: dict[tuple, float] = {}
@@ -163,10 +163,7 @@ def run_solver_bench(out: Path = Path("docs/benchmarks.md"), plot: Path = Path("
 
 
 def _plot(points, path: Path) -> None:
-    from ...plumbing.fileio import write_with
-    from ..plots import _pyplot
-
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
     colours = {"wiener": "tab:green", "fast": "tab:blue", "paper": "tab:orange", "conventional": "tab:red",
                "none": "grey"}
@@ -181,5 +178,4 @@ def _plot(points, path: Path) -> None:
     ax.set_ylabel("relative objective gap to best known optimum")
     ax.set_title("Correction methods: speed vs accuracy (-1.5 D, desktop)")
     fig.tight_layout()
-    write_with(path, lambda tmp: fig.savefig(tmp, format="png", dpi=110), force=True)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)

@@ -27,7 +27,8 @@ from pathlib import Path
 from typing import Iterator
 
 from . import machine_description, markdown_table, write_section
-from ...plumbing.errors import InputError, VrcorrectError
+from ...plumbing.errors import InputError, ValidationError, VrcorrectError
+from ...runtime.xr import _CPU_ONLY as CPU_ONLY_STAGES, XR_STAGES, XrApp, XrConfig
 
 EYE_SIZES = ((1832, 1920), (512, 512))          # a Quest 2 eye, and a small one for the loop's overhead
 RUNTIME_SOURCE = Path(__file__).resolve().parents[3] / "tests" / "xr_runtime" / "xr_test_runtime.c"
@@ -95,12 +96,7 @@ def _environment(**values: str) -> Iterator[None]:
 def run_xr_bench(repeats: int = 3, out: Path = Path("docs/benchmarks.md"), write: bool = True,
                  sizes=EYE_SIZES) -> str:
     """Measure each eye size; returns the Markdown (and writes the ``xr`` section of ``out``)."""
-    from ...runtime.xr import _CPU_ONLY as CPU_ONLY_STAGES
-    from ...runtime.xr import XR_STAGES, XrApp, XrConfig
-
     if not (isinstance(repeats, int) and 1 <= repeats <= 1000):
-        from ...plumbing.errors import ValidationError
-
         raise ValidationError("--repeats", repeats, "a whole number from 1 to 1000")
     columns, results = [], []
     renderer = runtime = ""

@@ -1,0 +1,142 @@
+"""What the command modules share: the eye, display and kernel options every modelling command
+takes, the kernel build with its progress bar, the input's notes, and the memory check.
+
+The physics is imported inside the functions that use it: every ``vrcorrect`` run builds the whole
+argument parser (imports every command module), and ``vrcorrect --help`` or a mistyped path should
+not wait seconds for scipy, colour-science and the kernels.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Sequence
+
+import numpy as np
+
+from ..plumbing.errors import ValidationError
+
+if TYPE_CHECKING:
+    from ..physics.kernel import EyeKernel, KernelOptions
+    from ..specs.display import DisplayProfile
+    from ..specs.prescription import EyeRx
+
+
+def kernel_progress(desc: str) -> Callable[[int, int], None]:
+    """A tqdm progress callback for kernel builds (silent when stderr is not a terminal)."""
+    from tqdm import tqdm
+
+    bar = tqdm(desc=desc, unit="PSF", disable=None, leave=False, file=sys.stderr)
+
+    def update(done: int, total: int) -> None:
+        bar.update(1)
+
+    update.close = bar.close  # type: ignore[attr-defined]
+    return update
+
+
+def load_eye(args: argparse.Namespace) -> tuple[Path, EyeRx]:
+    from ..specs.prescription import bundled_sample_path, load_prescription
+
+    path = Path(args.rx) if args.rx else bundled_sample_path()
+    return path, load_prescription(path).eye(args.eye)
+
+
+def kernel_options(args: argparse.Namespace) -> KernelOptions:
+    from ..physics.kernel import KernelOptions  # noqa: F811  (the run-time class; the one above is for hints)
+    from ..physics.optics import OpticsOptions
+
+    distance = None
+    if getattr(args, "distance_m", None) is not None:
+        distance = math.inf if args.distance_m in ("inf", "infinity") else _positive_float("--distance-m", args.distance_m)
+    optics = OpticsOptions(chromatic_aberration=not args.no_lca, viewing_distance_m=distance,
+                           reference_wavelength_nm=args.reference_wavelength_nm)
+    return KernelOptions(energy_fraction=args.energy_fraction, wavelength_tolerance=args.wavelength_tolerance,
+                         wavelength_step_nm=args.wavelength_step_nm, optics=optics)
+
+
+def _positive_float(field: str, text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValidationError(field, text, "a number of metres or 'inf'") from None
+    return value
+
+
+def build_eye_kernel(args: argparse.Namespace, eye: EyeRx, display: DisplayProfile) -> EyeKernel:
+    from ..physics.kernel import build_kernel
+
+    bar = kernel_progress("building eye kernel")
+    try:
+        return build_kernel(eye, display, kernel_options(args), progress=bar)
+    finally:
+        bar.close()
+
+
+def add_model_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rx", metavar="RX.json", help="prescription file (default: the bundled sample)")
+    p.add_argument("--eye", choices=("right", "left"), default="right", help="which eye (default right)")
+    p.add_argument("--display", default="quest2", metavar="PRESET",
+                   help="display preset or profile .json (default quest2; list: vrcorrect displays)")
+    g = p.add_argument_group("model")
+    g.add_argument("--no-lca", action="store_true", help="leave out the eye's longitudinal chromatic aberration")
+    g.add_argument("--distance-m", metavar="M",
+                   help="viewing distance in metres, or 'inf' for the paper's setting (default: the display's)")
+    g.add_argument("--reference-wavelength-nm", type=float, default=555.0,
+                   help="wavelength at which the prescription holds (default 555)")
+    g.add_argument("--energy-fraction", type=float, default=0.995,
+                   help="fraction of PSF energy the kernel keeps (default 0.995)")
+    g.add_argument("--wavelength-tolerance", type=float, default=1 / 255,
+                   help="accepted error of the wavelength step against 1 nm (default 1/255)")
+    g.add_argument("--wavelength-step-nm", type=int, choices=(80, 40, 20, 10, 5, 1),
+                   help="force a wavelength step instead of choosing one")
+
+
+def print_notes(notes: Sequence[str]) -> None:
+    for note in notes:
+        print(f"vrcorrect: note: {note}", file=sys.stderr)
+
+
+def available_memory_bytes() -> float | None:
+    """Memory available to a new allocation now (Linux ``MemAvailable``), or None where unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def check_memory(method: str, height: int, width: int) -> None:
+    """Refuse, before any work, an image whose correction would not fit in memory (one line)."""
+    from ..solvers import PEAK_MEMORY, peak_memory_bytes
+
+    available = available_memory_bytes()
+    need = peak_memory_bytes(method, height, width)
+    if available is None or need <= 0.9 * available:
+        return
+    fixed, per_pixel = PEAK_MEMORY[method]
+    side = int(math.sqrt(max(0.9 * available - fixed, 0.0) / per_pixel))
+    raise ValidationError("input", f"{width}x{height} pixels",
+                          f"an image that fits in memory: {method} needs about {need / 2**30:.1f} GiB for it "
+                          f"(about {per_pixel:.0f} bytes a pixel), {available / 2**30:.1f} GiB is available now; "
+                          f"up to about {side}x{side} here")
+
+
+def finite_json(value: Any, where: str, notes: list[str]) -> Any:
+    """``value`` with every non-finite float replaced by ``None`` (JSON has no Infinity or NaN),
+    each replacement explained in ``notes``: ``"metrics.psnr: null (inf: ...)"``."""
+    if isinstance(value, dict):
+        return {k: finite_json(v, f"{where}.{k}" if where else str(k), notes) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(v, f"{where}[{i}]", notes) for i, v in enumerate(value)]
+    if isinstance(value, (float, np.floating)) and not math.isfinite(float(value)):
+        why = ("the two images are identical, so the error is zero" if where.endswith("psnr") and value > 0
+               else "not a finite number")
+        notes.append(f"{where}: null ({float(value)}: {why})")
+        return None
+    return value

@@ -1,0 +1,61 @@
+"""``vrcorrect simulate``: what an eye sees of an image on a display."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from ..plumbing.errors import ValidationError
+from .common import add_model_options, build_eye_kernel, load_eye, print_notes
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from ..plumbing.fileio import check_readable
+
+    check_readable(args.input)                      # before the heavy imports: a typo is told at once
+    from ..specs.display import decode, encode, get_display
+    from ..plumbing.fileio import check_writable
+    from ..vision.forward import what_the_eye_sees
+    from ..plumbing.imageio import read_image, write_png
+
+    out = Path(args.output)
+    if out.suffix.lower() != ".png":
+        raise ValidationError("--output", str(out), "a path ending in .png")
+    check_writable(out, force=args.force)
+    rx_path, eye = load_eye(args)
+    display = get_display(args.display)
+    notes: list[str] = []
+    image = read_image(args.input, notes)
+    print_notes(notes)
+    t0 = time.perf_counter()
+    kernel = build_eye_kernel(args, eye, display)
+    t1 = time.perf_counter()
+    seen, info = what_the_eye_sees(decode(display, image), kernel, method=args.method)
+    t2 = time.perf_counter()
+    write_png(out, encode(display, seen), bits=16 if args.sixteen_bit else 8, force=args.force)
+    if args.explain:
+        print(f"prescription {rx_path} ({args.eye} eye): sphere {eye.sphere_D:+.2f} D, cylinder "
+              f"{eye.cylinder_D:+.2f} D, axis {eye.axis_deg:g} deg, pupil {eye.pupil_diameter_mm:g} mm")
+        print(f"display {display.name} ({display.title}): {display.pixels_per_degree:.1f} pixels per degree, "
+              f"transfer {display.transfer}")
+        for line in kernel.decisions:
+            print(f"  - {line}")
+        shortcut = "grey image: exact achromatic shortcut" if info.achromatic else "colour image"
+        print(f"  - forward model: {info.path} path, {shortcut}, {info.convolutions} convolution(s) of "
+              f"{image.shape[1]}x{image.shape[0]} px")
+        print(f"  - time: kernel {t1 - t0:.2f} s, simulation {t2 - t1:.2f} s")
+    print(f"wrote {out}: what the {args.eye} eye sees on {display.title}")
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("simulate", help="what an eye sees of an image on a display")
+    p.add_argument("input", metavar="IN", help="image file (PNG, JPEG, ...; sRGB code values)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.png")
+    add_model_options(p)
+    p.add_argument("--method", choices=("auto", "fft", "direct"), default="auto", help="convolution path")
+    p.add_argument("--explain", action="store_true", help="print every modelling decision")
+    p.add_argument("--16bit", dest="sixteen_bit", action="store_true", help="write a 16-bit PNG")
+    p.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
+    p.set_defaults(func=cmd_simulate)
