@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -51,7 +53,18 @@ def test_correct_sixteen_bit_and_paper_iterations(tmp_path, small_png):
     out = tmp_path / "o.png"
     assert run("correct", str(small_png), "-o", str(out), "--method", "paper", "--iterations", "5",
                "--16bit", "--reference", "ideal", "--contrast", "0.8") == 0
-    assert Image.open(out).mode in ("I;16", "RGB", "I;16B") or out.read_bytes()[24] == 16
+    data = out.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR"
+    width, height, depth, colour = struct.unpack(">IIBB", data[16:26])
+    assert (width, height) == Image.open(small_png).size
+    assert depth == 16 and colour == 2                       # 16 bits per sample, truecolour (RGB)
+    idat, pos = b"", 8                                        # the pixels: one filter byte and 6 bytes a pixel per row
+    while pos < len(data):
+        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        if kind == b"IDAT":
+            idat += data[pos + 8:pos + 8 + length]
+        pos += 12 + length
+    assert len(zlib.decompress(idat)) == height * (1 + 6 * width)
 
 
 @pytest.mark.parametrize("extra,field", [
