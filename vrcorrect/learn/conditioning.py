@@ -146,8 +146,6 @@ def model_inputs(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKern
         plan = gradient_plan(kernel, image.shape[:2])
     problem = make_problem(image, kernel, reference_kernel)
     if steps > 0:
-        from ..solvers.wiener import projected_gradient
-
         pre = projected_gradient(problem, steps, plan)
     else:
         pre = precorrect(image, kernel, reference_kernel, mu_rel, 0)
@@ -182,8 +180,6 @@ def precorrect(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel
     if kernel.size == 1:
         return np.ascontiguousarray(image, dtype=np.float32)
     if steps > 0:
-        from ..solvers import make_problem
-
         return projected_gradient(make_problem(image, kernel, reference_kernel), steps, plan)
     filters = correction_filters(kernel, mu_rel, reference_kernel)
     out = apply_filters(np.moveaxis(image, 2, 0), filters.taps)

@@ -198,7 +198,7 @@ def _init_worker(images: Sequence[np.ndarray], display: Any, threads: int | None
     if threads is not None:
         os.environ["OMP_NUM_THREADS"] = str(threads)
         try:
-            import torch
+            import torch  # optional: torch (the solve and learn extras)
 
             torch.set_num_threads(threads)
         except ImportError:  # pragma: no cover - torch is needed by fast anyway
@@ -351,7 +351,7 @@ RAY_ADDRESSES = "local (a one-node Ray started here), auto, HOST:PORT or ray://H
 
 def _import_ray(ray_address: str) -> Any:
     try:
-        import ray
+        import ray  # optional: ray (vrcorrect dataset --ray only)
     except ImportError:
         raise InputError(f"--ray {ray_address}: Ray is not installed; install vrcorrect's optional extra "
                          f"'ray' (in the vrcorrect folder): {RAY_INSTALL}") from None

@@ -98,8 +98,8 @@ def onnx_bytes(model: torch.nn.Module) -> bytes:
 
 def fp16_weights(model_proto):
     """A copy with every float32 initializer of 16 or more values stored as float16 and cast back."""
-    import onnx
-    from onnx import helper, numpy_helper
+    import onnx  # optional: onnx (the learn extra)
+    from onnx import helper, numpy_helper  # optional: onnx (the learn extra)
 
     m = onnx.ModelProto()
     m.CopyFrom(model_proto)
@@ -124,7 +124,7 @@ def fp16_weights(model_proto):
 
 
 def _run_ort(data: bytes, inputs: dict[str, np.ndarray]) -> np.ndarray:
-    import onnxruntime as ort
+    import onnxruntime as ort  # optional: onnxruntime (the learn and realtime extras)
 
     session = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
     return session.run(None, inputs)[0]
@@ -155,7 +155,7 @@ def export_onnx(checkpoint: str | Path, out: str | Path, fp16: bool = False, for
         Unreadable checkpoint, existing ``out`` without ``force``, or onnxruntime differing
         from torch by more than :data:`FP32_TOLERANCE` (nothing is written then).
     """
-    import onnx
+    import onnx  # optional: onnx (the learn extra)
 
     out = Path(out)
     if out.suffix.lower() != ".onnx":

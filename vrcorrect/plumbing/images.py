@@ -59,7 +59,7 @@ def prepare_image(image: np.ndarray, size: int, name: str = "image") -> np.ndarr
         float32 ``(size, size, 3)`` in [0, 1].
     """
     from skimage.transform import resize  # optional dependency (the metrics and test extras)
-    from skimage.util import img_as_float32
+    from skimage.util import img_as_float32  # optional: scikit-image (the metrics and test extras)
 
     size = check_size(size)
     a = np.asarray(image)
@@ -91,7 +91,7 @@ def bundled_images(size: int = 256) -> list[tuple[str, np.ndarray]]:
     size = check_size(size)
     images: list[tuple[str, np.ndarray]] = []
     try:
-        import skimage.data as skdata
+        import skimage.data as skdata  # optional: scikit-image (the metrics and test extras)
     except ImportError:  # pragma: no cover - scikit-image is a dependency
         skdata = None
     for name in SKIMAGE_PHOTOS:

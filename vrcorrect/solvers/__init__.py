@@ -151,7 +151,7 @@ def solve(problem: Problem, method: str = "fast", progress: Callable[[int, int],
         return _solve_learned(problem, **options)
     if method not in METHODS:
         raise ValidationError("method", method, "one of " + ", ".join(METHODS + (LEARNED,)))
-    from .wiener import wiener
+    from .wiener import wiener  # here, not above: wiener imports Problem from this module
 
     if method == "fast":
         from .admm import fast as fn                 # numpy only

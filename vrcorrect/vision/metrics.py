@@ -178,7 +178,7 @@ def psnr(reference: np.ndarray, test: np.ndarray, data_range: float = 1.0) -> fl
     mse = float(np.mean((a - b) ** 2))
     if mse == 0.0:
         return math.inf
-    from skimage.metrics import peak_signal_noise_ratio
+    from skimage.metrics import peak_signal_noise_ratio  # optional: scikit-image (the metrics extra)
 
     return float(peak_signal_noise_ratio(a, b, data_range=dr))
 
@@ -238,7 +238,7 @@ def ssim(reference: np.ndarray, test: np.ndarray, data_range: float = 1.0) -> fl
     if side < 3:
         return _global_ssim(a, b, dr)
     win = min(SSIM_WIN_SIZE, side if side % 2 == 1 else side - 1)
-    from skimage.metrics import structural_similarity
+    from skimage.metrics import structural_similarity  # optional: scikit-image (the metrics extra)
 
     return float(structural_similarity(a, b, data_range=dr, channel_axis=-1, win_size=win))
 
@@ -279,7 +279,7 @@ def flip(reference_srgb: np.ndarray, test_srgb: np.ndarray,
     a, b = _check_pair(reference_srgb, test_srgb, require_rgb=True, names=names)
     a = np.ascontiguousarray(_check_unit_range(a, names[0]), dtype=np.float32)
     b = np.ascontiguousarray(_check_unit_range(b, names[1]), dtype=np.float32)
-    import flip_evaluator
+    import flip_evaluator  # optional: flip-evaluator (the metrics extra)
 
     try:
         error_map, mean_error, _params = flip_evaluator.evaluate(
@@ -313,7 +313,7 @@ def _import_cvvdp():
     succeeds.  Nothing ColorVideoVDP calls uses them.
     """
     try:
-        import torch
+        import torch  # optional: torch (the solve and learn extras)
     except ImportError as exc:
         raise InputError(f"ColorVideoVDP needs torch, which is not installed ({exc}); install the 'metrics' "
                          "and 'solve' extras (bash tools/setup.sh)") from None
@@ -330,7 +330,7 @@ def _import_cvvdp():
                 lib.define(f"{op}(Tensor dets, Tensor scores, float iou_threshold) -> Tensor")
             _TORCHVISION_SCHEMAS.append(lib)
     try:
-        import pycvvdp
+        import pycvvdp  # optional: cvvdp (the metrics extra)
     except ImportError as exc:
         raise InputError(f"ColorVideoVDP (PyPI 'cvvdp') cannot be imported ({exc}); install the 'metrics' extra "
                          "(bash tools/setup.sh)") from None

@@ -75,6 +75,7 @@ def write_section(path: Path, name: str, body: str) -> None:
 # ---------------------------------------------------------------- the command
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    # each bench is imported only when it runs: it brings its own stack (GL, onnxruntime, torch, the metrics)
     if args.what == "kernel":
         from .kernel import run_kernel_bench
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from . import machine_description, markdown_table, write_section
 from ...plumbing.errors import ValidationError
+from ...plumbing.fileio import write_text_atomic
 from ...plumbing.images import prepare_image
 from ...learn.dataset import HELD_OUT_IMAGES
 from ...physics.kernel import build_kernel, build_reference_kernel
@@ -52,7 +53,7 @@ FISTA_STEPS = (1, 3, 5, 8, 12, 20)
 
 
 def _held_out_image(name: str, size: int) -> np.ndarray:
-    from skimage import data
+    from skimage import data  # optional: scikit-image (bundled photographs)
 
 
     return prepare_image(getattr(data, name)()[..., :3], size, name)
@@ -77,7 +78,7 @@ def _median_ms(fn, repeats: int) -> float:
 def _one_convolution() -> bytes:
     """An ONNX graph of one 3x3 convolution from 6 channels (image and pre-correction) to 3, with
     dynamic height and width: the least work a convolutional network on those inputs can do."""
-    from onnx import TensorProto, helper, numpy_helper
+    from onnx import TensorProto, helper, numpy_helper  # optional: onnx (the learn extra)
 
 
     rng = np.random.default_rng(0)
@@ -96,7 +97,7 @@ def speed_floor(size: tuple[int, int] = (512, 512), repeats: int = 5,
     onnxruntime's CPU provider at ``size``: one 3x3 convolution (:func:`_one_convolution`) and
     untrained conditioned U-Nets of each ``(width, depth)`` in ``unets`` (``None`` when torch,
     which builds them, is not installed)."""
-    import onnxruntime as ort
+    import onnxruntime as ort  # optional: onnxruntime (the learn and realtime extras)
 
     H, W = size
     rng = np.random.default_rng(1)
@@ -107,8 +108,8 @@ def speed_floor(size: tuple[int, int] = (512, 512), repeats: int = 5,
     out: list[tuple[str, float | None]] = [
         ("one 3x3 convolution, 6 to 3 channels", _median_ms(lambda: session.run(None, feeds), repeats))]
     try:
-        from ...learn.export import onnx_bytes
-        from ...learn.model import ConditionedUNet, UNetConfig
+        from ...learn.export import onnx_bytes  # torch: only this bench's model export needs it
+        from ...learn.model import ConditionedUNet, UNetConfig  # torch
     except ImportError:                                    # torch: the learn extra
         return out + [(f"U-Net width {w}, depth {d} (untrained)", None) for w, d in unets]
     image = {"image": rng.random((1, 3, H, W), dtype=np.float32),
@@ -258,8 +259,6 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
             _plot_tradeoff(summary, speed, tradeoff)
         write_section(out, "learned", body)
         if card is not None:
-            from ...plumbing.fileio import write_text_atomic
-
             card_md = _markdown(model, display, eye_list, images, size, rows, summary, speed, pictures_written,
                                 card)
             write_text_atomic(card, _card(model, summary, speed, card_md), force=True)

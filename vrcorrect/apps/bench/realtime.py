@@ -125,7 +125,7 @@ def make_case(size: int = 256, pan_frames: int = 20, pan_px: int = PAN_PX, displ
     for a pan of ``pan_frames`` frames of ``pan_px`` px across a ``size`` window."""
     display = get_display(display_name)
     eye = EyeRx(**EYE)
-    from skimage import data
+    from skimage import data  # optional: scikit-image (bundled photographs)
 
     photo = prepare_image(getattr(data, PHOTO)()[..., :3], size + pan_px * max(pan_frames - 1, 0), PHOTO)
     return Case(display=display, kernel=build_kernel(eye, display), reference=build_reference_kernel(eye, display),
@@ -210,7 +210,7 @@ def pan_targets(case: Case, frames: int, px: int = PAN_PX, photo: np.ndarray | N
 def zoom_targets(case: Case, frames: int) -> list[np.ndarray]:
     """``frames`` 8-bit views of the photograph's centre zooming in: the crop shrinks linearly
     from the whole photograph to ``case.size`` and is resized to ``case.size`` (anti-aliased)."""
-    from skimage.transform import resize
+    from skimage.transform import resize  # optional: scikit-image
 
     n, s = case.photo_u8.shape[0], case.size
     out = []
@@ -228,7 +228,7 @@ def cut_targets(case: Case, frames: int, px: int = PAN_PX) -> tuple[list[np.ndar
     """A clip with a cut: the pan across the case's photograph for the first half of ``frames``,
     then a pan across another photograph (:data:`CUT_PHOTO`); returns the frames and the index of
     the first frame after the cut."""
-    from skimage import data
+    from skimage import data  # optional: scikit-image (bundled photographs)
 
 
     first = frames // 2
@@ -408,7 +408,7 @@ def stage_ms(ctx, case: Case, size: int, ks: Sequence[int] = TIMING_KS, repeats:
     ``size x size``: ``glFinish`` then the clock after each stage (``Corrector.profile``); one
     warm-up frame (spectra and allocations), then the median of ``repeats`` frames per ``k`` (the
     warm start goes on across them, as it would)."""
-    from skimage import data
+    from skimage import data  # optional: scikit-image (bundled photographs)
 
     image = np.round(np.clip(prepare_image(getattr(data, PHOTO)()[..., :3], size, PHOTO), 0, 1) * 255
                      ).astype(np.uint8)
