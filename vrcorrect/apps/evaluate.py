@@ -1,5 +1,7 @@
 """The paper's evaluation: every correction method on every refractive problem.
 
+(About 750 lines: the run, its panels and its two tables are used only by this command.)
+
 ``vrcorrect evaluate`` reproduces the comparison of ChromaCorrect (Güzel et
 al. 2023, Sec. 4 and Fig. 6): five refractive problems at ±1.5 D, several
 images, the conventional method (Montalto et al. 2015), the paper's

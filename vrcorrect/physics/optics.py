@@ -1,6 +1,10 @@
 """Optics of the eye: Zernike wavefronts, chromatic aberration and the
 pixel-sampled point-spread function.
 
+(One file of about 1,000 lines on purpose: the wave-optics and geometric-optics PSFs share the
+refraction state, the options and the pixel sampling, and :func:`psf_pixels` chooses between them
+per wavelength; split apart, the two models would import each other.)
+
 Conventions (see DESIGN.md):
 
 * Zernike polynomials follow OSA/ANSI Z80.28: single index ``j = (n(n+2)+m)/2``,

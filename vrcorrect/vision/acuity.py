@@ -1,5 +1,8 @@
 """Simulated eye-chart acuity after Watson & Ahumada (2008).
 
+(One file of about 800 lines on purpose: the chart, the template-matching observer and its
+calibration are one method with shared constants, tested together in ``tests/test_acuity.py``.)
+
 Which line of a logMAR chart of Sloan letters does this eye read on this
 display?  A. B. Watson and A. J. Ahumada, "Predicting visual acuity from
 wavefront aberrations", Journal of Vision 8(4):17 (2008): the letter passes

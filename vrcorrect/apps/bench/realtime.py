@@ -1,6 +1,8 @@
 """``vrcorrect bench realtime``: projected gradient (FISTA) spread over frames, the GPU method of
 issue 15, against ``fast`` (the converged CPU optimum).
 
+(About 750 lines: four measurements that share their eye, images and plots, one bench.)
+
 Four parts, one section of ``docs/benchmarks.md`` and two plots beside it (``realtime_still.png``,
 ``realtime_motion.png``):
 
