@@ -28,10 +28,10 @@ import numpy as np
 from ..plumbing.errors import ValidationError
 
 if TYPE_CHECKING:  # annotations only: importing these at run time would slow the command line's start
-    from ..vision.acuity import AcuityScore, Chart, Observer
-    from ..specs.display import DisplayProfile
     from ..physics.kernel import EyeKernel, KernelOptions
+    from ..specs.display import DisplayProfile
     from ..specs.prescription import EyeRx
+    from ..vision.acuity import AcuityScore, Chart, Observer
 
 __all__ = ["METHODS", "AcuityResult", "measure_acuity", "acuity_panel", "add_parser", "cmd_acuity"]
 
@@ -147,9 +147,9 @@ def measure_acuity(eye: EyeRx, display: DisplayProfile, methods: Sequence[str] =
     -------
     AcuityResult
     """
-    from ..vision.acuity import Observer, build_chart, score_acuity
     from ..physics.kernel import build_kernel, build_reference_kernel
     from ..solvers import make_problem, solve
+    from ..vision.acuity import Observer, build_chart, score_acuity
 
     chosen = _check_methods(methods)
     if not (isinstance(contrast, (int, float)) and 0.0 < contrast <= 1.0):
@@ -387,11 +387,11 @@ def cmd_acuity(args: argparse.Namespace) -> int:
     """``vrcorrect acuity``: read the chart, print the table, write the JSON and the panel."""
     from tqdm import tqdm
 
-    from ..vision.acuity import Observer, chart_lines
-    from .common import kernel_options, load_eye
-    from ..specs.display import get_display
     from ..plumbing.fileio import text_writer, write_together
     from ..plumbing.imageio import png_writer
+    from ..specs.display import get_display
+    from ..vision.acuity import Observer, chart_lines
+    from .common import kernel_options, load_eye
 
     methods = _check_methods(args.methods)
     _check_outputs(args)

@@ -10,12 +10,24 @@ from pathlib import Path
 
 from ..plumbing.errors import InputError, ValidationError
 from ..runtime.model_path import DEFAULT_MODEL
-from .common import (add_model_options, build_eye_kernel, check_memory, finite_json, kernel_options, load_eye,
-                     print_notes)
+from .common import (
+    add_model_options,
+    build_eye_kernel,
+    check_memory,
+    finite_json,
+    kernel_options,
+    load_eye,
+    print_notes,
+)
 
 
 def cmd_correct(args: argparse.Namespace) -> int:
-    from ..plumbing.fileio import check_readable, check_writable, text_writer, write_together
+    from ..plumbing.fileio import (
+        check_readable,
+        check_writable,
+        text_writer,
+        write_together,
+    )
 
     out = Path(args.output)
     if out.suffix.lower() != ".png":
@@ -39,11 +51,11 @@ def cmd_correct(args: argparse.Namespace) -> int:
     if args.model is not None and args.method != "learned":
         raise ValidationError("--model", args.model, "only with --method learned")
     check_readable(args.input)                      # before the heavy imports: a typo is told at once
-    from ..specs.display import decode, encode, get_display
-    from ..plumbing.imageio import png_writer, read_image
     from ..physics.kernel import build_reference_kernel
-    from ..vision.metrics import evaluate_seen
+    from ..plumbing.imageio import png_writer, read_image
     from ..solvers import make_problem, solve
+    from ..specs.display import decode, encode, get_display
+    from ..vision.metrics import evaluate_seen
 
     learned = _learned_model(args) if args.method == "learned" else None
     rx_path, eye = load_eye(args)

@@ -10,8 +10,8 @@ from ..plumbing.errors import ValidationError
 
 
 def cmd_displays(args: argparse.Namespace) -> int:
-    from .bench import markdown_table
     from ..specs.display import get_display, preset_names
+    from .bench import markdown_table
 
     if args.fit:
         return _displays_fit(args)
@@ -37,8 +37,8 @@ def cmd_displays(args: argparse.Namespace) -> int:
 
 
 def _displays_fit(args: argparse.Namespace) -> int:
-    from ..specs.display import fit_spectra, read_spectra_csv
     from ..plumbing.fileio import check_writable
+    from ..specs.display import fit_spectra, read_spectra_csv
 
     if args.plot:
         if Path(args.plot).suffix.lower() != ".png":

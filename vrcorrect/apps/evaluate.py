@@ -64,7 +64,13 @@ from typing import Any, Iterable, Mapping, NamedTuple, Sequence
 import numpy as np
 
 from ..plumbing.errors import InputError, ValidationError
-from ..plumbing.images import bundled_images, check_size, folder_images, prepare_image, safe_name
+from ..plumbing.images import (
+    bundled_images,
+    check_size,
+    folder_images,
+    prepare_image,
+    safe_name,
+)
 
 __all__ = [
     "EvalPrescription",
@@ -582,12 +588,12 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
     """
     from tqdm import tqdm
 
-    from ..specs.display import DisplayProfile, decode, get_display
-    from ..plumbing.fileio import check_writable, text_writer, write_together
     from ..physics.kernel import KernelOptions, build_kernel
-    from ..vision.metrics import evaluate_seen
     from ..physics.optics import OpticsOptions
+    from ..plumbing.fileio import check_writable, text_writer, write_together
     from ..solvers import make_problem, solve
+    from ..specs.display import DisplayProfile, decode, get_display
+    from ..vision.metrics import evaluate_seen
 
     t_start = time.perf_counter()
     methods = _check_methods(methods)

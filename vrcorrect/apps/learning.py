@@ -22,9 +22,9 @@ def _pair(field: str, values: list[float] | None, default: tuple[float, float]) 
 
 
 def cmd_dataset(args: argparse.Namespace) -> int:
-    from ..plumbing.images import bundled_images, folder_images
     from ..learn.conditioning import SamplingRanges
     from ..learn.dataset import HELD_OUT_IMAGES, DatasetConfig, build_dataset, check_ray
+    from ..plumbing.images import bundled_images, folder_images
 
     d = SamplingRanges()
     ranges = SamplingRanges(sphere_D=_pair("--sphere-D", args.sphere_D, d.sphere_D),

@@ -13,9 +13,9 @@ from .common import add_model_options, build_eye_kernel, kernel_options, load_ey
 
 
 def cmd_psf(args: argparse.Namespace) -> int:
-    from ..specs.display import get_display
-    from ..plumbing.fileio import check_writable, text_writer, write_together
     from ..physics.kernel import monochromatic_psf
+    from ..plumbing.fileio import check_writable, text_writer, write_together
+    from ..specs.display import get_display
 
     out = Path(args.output)
     if out.suffix.lower() != ".npy":

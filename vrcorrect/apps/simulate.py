@@ -14,10 +14,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from ..plumbing.fileio import check_readable
 
     check_readable(args.input)                      # before the heavy imports: a typo is told at once
-    from ..specs.display import decode, encode, get_display
     from ..plumbing.fileio import check_writable
-    from ..vision.forward import what_the_eye_sees
     from ..plumbing.imageio import read_image, write_png
+    from ..specs.display import decode, encode, get_display
+    from ..vision.forward import what_the_eye_sees
 
     out = Path(args.output)
     if out.suffix.lower() != ".png":

@@ -25,11 +25,17 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..plumbing.errors import ValidationError
 from ..physics.kernel import EyeKernel
-from ..specs.prescription import EyeRx
+from ..plumbing.errors import ValidationError
 from ..solvers import make_problem
-from ..solvers.wiener import apply_filters, correction_filters, gradient_plan, gradient_step, projected_gradient
+from ..solvers.wiener import (
+    apply_filters,
+    correction_filters,
+    gradient_plan,
+    gradient_step,
+    projected_gradient,
+)
+from ..specs.prescription import EyeRx
 
 #: Regulariser of the pre-correction channels, relative to ``||K||^2`` (one of ``wiener``'s candidates).
 PRECORRECTION_MU_REL = 0.1

@@ -42,6 +42,7 @@ import multiprocessing
 import os
 import sys
 import time
+import uuid
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass, field
@@ -49,17 +50,22 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
+from .. import __version__
+from ..physics.kernel import KernelOptions, build_kernel, build_reference_kernel
 from ..plumbing.errors import InputError, ValidationError, VrcorrectError
 from ..plumbing.fileio import write_text_atomic, write_with
-from .conditioning import PRECORRECTION_MU_REL, PRECORRECTION_STEPS, SamplingRanges, eye_features, precorrect
-from .. import __version__
-from ..physics.kernel import build_kernel, build_reference_kernel, KernelOptions
 from ..solvers import make_problem, objective, solve
 from ..specs.display import decode, get_display
 from ..specs.prescription import EyeRx
-from tqdm import tqdm
-import uuid
+from .conditioning import (
+    PRECORRECTION_MU_REL,
+    PRECORRECTION_STEPS,
+    SamplingRanges,
+    eye_features,
+    precorrect,
+)
 
 #: Images kept out of the default data set: ``vrcorrect bench learned`` scores models on them.
 HELD_OUT_IMAGES = ("rocket", "retina")

@@ -20,18 +20,18 @@ from __future__ import annotations
 
 import io
 import json
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from .. import __version__
 from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.fileio import check_writable, write_with
 from .model import UNetConfig
 from .train import load_checkpoint, model_from_checkpoint
-from .. import __version__
-import warnings
 
 OPSET = 17
 FORMAT = "vrcorrect-learned-v1"

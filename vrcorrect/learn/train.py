@@ -52,13 +52,13 @@ from typing import Any
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
+from .. import __version__
 from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.fileio import write_text_atomic, write_with
 from .dataset import load_shard, read_manifest
 from .model import ConditionedUNet, UNetConfig
-from .. import __version__
-from tqdm import tqdm
 
 CHECKPOINT = "checkpoint.pt"
 LOG = "log.csv"

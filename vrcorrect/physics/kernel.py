@@ -29,20 +29,31 @@ decision is recorded in :attr:`EyeKernel.decisions`:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
-from ..specs.display import DisplayProfile
 from ..plumbing.errors import ValidationError
-from .optics import (OpticsOptions, PixelPsf, RefractiveState, crop_center, depth_of_focus_D,
-                     diffraction_blur_rad, energy_size, max_meridian_power_D, pixel_angle_rad,
-                     psf_pixels, refractive_state, ARCMIN_RAD)
-from .perception import INTEGRATION_GRID_NM, normalised_weights
+from ..specs.display import DisplayProfile
 from ..specs.prescription import EyeRx
-import dataclasses
+from .optics import (
+    ARCMIN_RAD,
+    OpticsOptions,
+    PixelPsf,
+    RefractiveState,
+    crop_center,
+    depth_of_focus_D,
+    diffraction_blur_rad,
+    energy_size,
+    max_meridian_power_D,
+    pixel_angle_rad,
+    psf_pixels,
+    refractive_state,
+)
+from .perception import INTEGRATION_GRID_NM, normalised_weights
 
 STEPS_NM = (80, 40, 20, 10, 5, 1)
 NODE_ORIGIN_NM = 390.0

@@ -11,10 +11,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
 
 from .errors import ValidationError
 from .fileio import package_data
-from PIL import Image, ImageDraw, ImageFont
 
 
 def _check_size(size: int) -> None:

@@ -12,10 +12,10 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+from PIL import Image, UnidentifiedImageError
 
 from .errors import InputError, ValidationError
 from .fileio import write_with
-from PIL import Image, UnidentifiedImageError
 
 #: Largest image accepted (pixels), to refuse decompression bombs with a clear message.
 MAX_PIXELS = 8192 * 8192

@@ -7,8 +7,8 @@ picture sources (which list folders with :func:`image_files`).
 
 from __future__ import annotations
 
-from pathlib import Path
 import re
+from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -58,8 +58,9 @@ def prepare_image(image: np.ndarray, size: int, name: str = "image") -> np.ndarr
     numpy.ndarray
         float32 ``(size, size, 3)`` in [0, 1].
     """
-    from skimage.transform import resize  # optional dependency (the metrics and test extras)
-    from skimage.util import img_as_float32  # optional: scikit-image (the metrics and test extras)
+    # optional: scikit-image (the metrics and test extras)
+    from skimage.transform import resize
+    from skimage.util import img_as_float32
 
     size = check_size(size)
     a = np.asarray(image)

@@ -17,9 +17,9 @@ from typing import Callable, Protocol
 
 import numpy as np
 
+from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
 from ..vision.forward import check_image, simulate_lms
-from ..physics.kernel import EyeKernel
 
 METHODS = ("none", "wiener", "fast", "paper", "conventional")
 """The numerical methods: each needs only the problem."""
@@ -151,10 +151,11 @@ def solve(problem: Problem, method: str = "fast", progress: Callable[[int, int],
         return _solve_learned(problem, **options)
     if method not in METHODS:
         raise ValidationError("method", method, "one of " + ", ".join(METHODS + (LEARNED,)))
-    from .wiener import wiener  # here, not above: wiener imports Problem from this module
+    # the methods' modules import Problem from this one, so they are imported here, not above
+    from .wiener import wiener
 
     if method == "fast":
-        from .admm import fast as fn                 # numpy only
+        from .admm import fast as fn
     elif method in ("paper", "conventional"):
         from . import iterative  # imports torch: outside the timed region
 

@@ -24,8 +24,8 @@ from typing import Callable
 import numpy as np
 import torch
 
-from . import Problem, scale_contrast
 from ..physics.perception import OPPONENT_MATRIX
+from . import Problem, scale_contrast
 from .wiener import padded_shape
 
 

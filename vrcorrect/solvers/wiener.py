@@ -24,18 +24,17 @@ compression of the target is the separate ``contrast`` option of every method.
 
 from __future__ import annotations
 
-from typing import Sequence
-
 import functools
 import math
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 import scipy.fft
 
+from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
 from ..vision.forward import check_image
-from ..physics.kernel import EyeKernel
 from . import Problem, scale_contrast
 
 DEFAULT_REGULARISATION = (0.03, 0.1, 0.3)

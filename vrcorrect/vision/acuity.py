@@ -169,11 +169,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..specs.display import DisplayProfile, get_display
-from ..plumbing.errors import ModelLimitError, ValidationError
-from .forward import check_image, simulate_lms
 from ..physics.kernel import EyeKernel, KernelOptions, build_kernel
+from ..plumbing.errors import ModelLimitError, ValidationError
+from ..specs.display import DisplayProfile, get_display
 from ..specs.prescription import EyeRx
+from .forward import check_image, simulate_lms
 
 __all__ = [
     "SLOAN_LETTERS", "LETTERS_PER_LINE", "LOGMAR_STEP", "MIN_LETTER_PX", "CRITERION",

@@ -25,9 +25,9 @@ import numpy as np
 import scipy.fft
 import scipy.ndimage
 
-from ..plumbing.errors import ValidationError
 from ..physics.kernel import EyeKernel
 from ..physics.perception import apply_matrix
+from ..plumbing.errors import ValidationError
 
 METHODS = ("auto", "fft", "direct")
 

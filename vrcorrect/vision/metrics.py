@@ -47,20 +47,20 @@ therefore validates everything first and passes float32 C-contiguous arrays.
 
 from __future__ import annotations
 
+import importlib.util
 import math
+import os
+import sys
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from ..specs.display import DisplayProfile, encode
-from ..plumbing.errors import InputError, ValidationError
-from .forward import check_image, lms_to_display, simulate_lms
 from ..physics.kernel import EyeKernel
 from ..physics.perception import apply_matrix
-import importlib.util
-import os
-import sys
+from ..plumbing.errors import InputError, ValidationError
+from ..specs.display import DisplayProfile, encode
+from .forward import check_image, lms_to_display, simulate_lms
 
 __all__ = [
     "RANGE_TOLERANCE",
@@ -178,7 +178,8 @@ def psnr(reference: np.ndarray, test: np.ndarray, data_range: float = 1.0) -> fl
     mse = float(np.mean((a - b) ** 2))
     if mse == 0.0:
         return math.inf
-    from skimage.metrics import peak_signal_noise_ratio  # optional: scikit-image (the metrics extra)
+    # optional: scikit-image (the metrics extra)
+    from skimage.metrics import peak_signal_noise_ratio
 
     return float(peak_signal_noise_ratio(a, b, data_range=dr))
 
@@ -238,7 +239,8 @@ def ssim(reference: np.ndarray, test: np.ndarray, data_range: float = 1.0) -> fl
     if side < 3:
         return _global_ssim(a, b, dr)
     win = min(SSIM_WIN_SIZE, side if side % 2 == 1 else side - 1)
-    from skimage.metrics import structural_similarity  # optional: scikit-image (the metrics extra)
+    # optional: scikit-image (the metrics extra)
+    from skimage.metrics import structural_similarity
 
     return float(structural_similarity(a, b, data_range=dr, channel_axis=-1, win_size=win))
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from . import machine_description, markdown_table, median_seconds, write_section
-from ...specs.display import get_display, preset_names
 from ...physics.kernel import build_kernel
+from ...specs.display import get_display, preset_names
 from ...specs.prescription import EyeRx
+from . import machine_description, markdown_table, median_seconds, write_section
 
 HEADSETS = ("quest2", "quest3", "index", "vivepro")
 

@@ -20,6 +20,7 @@ cases (``plot``) and the gap closed against ms (``tradeoff``) - and, with ``card
 from __future__ import annotations
 
 import json
+import os
 import statistics
 import sys
 import time
@@ -27,13 +28,13 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
-from . import machine_description, markdown_table, write_section
+from ...learn.dataset import HELD_OUT_IMAGES
+from ...physics.kernel import build_kernel, build_reference_kernel
 from ...plumbing.errors import ValidationError
 from ...plumbing.fileio import write_text_atomic
 from ...plumbing.images import prepare_image
-from ...learn.dataset import HELD_OUT_IMAGES
-from ...physics.kernel import build_kernel, build_reference_kernel
 from ...runtime.learned import LearnedModel
 from ...runtime.onnx_backend import small_onnx_model
 from ...solvers import make_problem, objective, solve
@@ -41,8 +42,7 @@ from ...solvers.wiener import gradient_plan, projected_gradient
 from ...specs.display import decode, get_display
 from ...vision.metrics import evaluate_seen
 from ..plots import pyplot, save_figure
-from tqdm import tqdm
-import os
+from . import machine_description, markdown_table, write_section
 
 EYE_SEED = 20261123
 #: Untrained U-Net sizes (width, depth) whose speed :func:`speed_floor` measures beside the model.
@@ -78,7 +78,11 @@ def _median_ms(fn, repeats: int) -> float:
 def _one_convolution() -> bytes:
     """An ONNX graph of one 3x3 convolution from 6 channels (image and pre-correction) to 3, with
     dynamic height and width: the least work a convolutional network on those inputs can do."""
-    from onnx import TensorProto, helper, numpy_helper  # optional: onnx (the learn extra)
+    from onnx import (  # optional: onnx (the learn extra)
+        TensorProto,
+        helper,
+        numpy_helper,
+    )
 
 
     rng = np.random.default_rng(0)
@@ -108,8 +112,9 @@ def speed_floor(size: tuple[int, int] = (512, 512), repeats: int = 5,
     out: list[tuple[str, float | None]] = [
         ("one 3x3 convolution, 6 to 3 channels", _median_ms(lambda: session.run(None, feeds), repeats))]
     try:
-        from ...learn.export import onnx_bytes  # torch: only this bench's model export needs it
-        from ...learn.model import ConditionedUNet, UNetConfig  # torch
+        # torch: only this bench's model export needs it
+        from ...learn.export import onnx_bytes
+        from ...learn.model import ConditionedUNet, UNetConfig
     except ImportError:                                    # torch: the learn extra
         return out + [(f"U-Net width {w}, depth {d} (untrained)", None) for w, d in unets]
     image = {"image": rng.random((1, 3, H, W), dtype=np.float32),

@@ -38,6 +38,7 @@ Four parts, one section of ``docs/benchmarks.md`` and two plots beside it (``rea
 from __future__ import annotations
 
 import math
+import os
 import statistics
 import time
 from dataclasses import dataclass, field
@@ -45,15 +46,28 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
-from ...plumbing.images import prepare_image
-from . import machine_description, markdown_table, write_section
 from ...physics.kernel import build_kernel, build_reference_kernel
+from ...plumbing.images import prepare_image
 from ...runtime.corrector import Corrector
 from ...runtime.fft import fft_grid
-from ...runtime.gl import download_texture, headless_context, release, render_target, upload_texture
+from ...runtime.gl import (
+    download_texture,
+    headless_context,
+    release,
+    render_target,
+    upload_texture,
+)
 from ...runtime.motion import motion_for, view_shift
-from ...runtime.scene import DemoScene, eye_position, perspective, rotation_y, SceneConfig, translation
+from ...runtime.scene import (
+    DemoScene,
+    SceneConfig,
+    eye_position,
+    perspective,
+    rotation_y,
+    translation,
+)
 from ...solvers import make_problem, solve
 from ...solvers.wiener import FistaState, gradient_plan, projected_gradient
 from ...specs.display import decode, get_display
@@ -61,8 +75,7 @@ from ...specs.prescription import EyeRx, Prescription
 from ...vision.forward import simulate_lms
 from ...vision.metrics import evaluate_seen
 from ..plots import pyplot, save_figure
-from tqdm import tqdm
-import os
+from . import machine_description, markdown_table, write_section
 
 PHOTO = "astronaut"
 DISPLAY = "desktop"

@@ -24,14 +24,14 @@ import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
-from . import machine_description, markdown_table, write_section
 from ...plumbing.charts import siemens_star
 from ...runtime.corrector import Corrector
 from ...runtime.gl import headless_context, release, render_target, upload_texture
 from ...runtime.onnx_backend import write_one_minus_x_model
 from ...specs.prescription import bundled_sample_path, load_prescription
-from tqdm import tqdm
+from . import machine_description, markdown_table, write_section
 
 EYE_SIZE = (1832, 1920)                          # width, height of one Quest 2 eye
 SEPARABLE_SIZE = (256, 256)

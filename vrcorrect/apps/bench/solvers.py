@@ -14,11 +14,12 @@ import json
 import subprocess
 import sys
 from pathlib import Path
-
-from . import machine_description, markdown_table, write_section
-from ..plots import pyplot, save_figure
 from statistics import median
+
 from tqdm import tqdm
+
+from ..plots import pyplot, save_figure
+from . import machine_description, markdown_table, write_section
 
 RESOLUTIONS = {"256": (256, 256), "512": (512, 512), "1024": (1024, 1024), "1832x1920": (1920, 1832)}
 
