@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -186,6 +187,51 @@ def test_preset_arrays_are_read_only():
         spd.values[0, 0] = 1.0
     with pytest.raises(ValueError):
         spd.wavelength_nm[0] = 1.0
+
+
+def _preset_file(name: str) -> Path:
+    return Path(D.__file__).resolve().parents[2] / "data" / "displays" / f"{name}.json"
+
+
+def test_preset_files_are_the_presets():
+    """One profile file per preset under vrcorrect/data/displays/, and no other file there."""
+    folder = _preset_file("desktop").parent
+    assert sorted(p.name for p in folder.iterdir()) == sorted(f"{n}.json" for n in D.preset_names())
+
+
+@pytest.mark.parametrize("name", D.preset_names())
+def test_a_copy_of_a_preset_file_loads_as_a_user_profile_equal_to_the_preset(name, tmp_path):
+    """A preset file is a user's profile file: copied elsewhere and loaded by path, it gives the
+    same profile, number for number, and its file states where its numbers come from."""
+    text = _preset_file(name).read_text(encoding="utf-8")
+    doc = json.loads(text)
+    assert doc["schema"] == D.PROFILE_SCHEMA and doc["name"] == name
+    assert doc["sources"] and doc["photometry_sources"]
+    copy = tmp_path / f"my_{name}.json"
+    copy.write_text(text, encoding="utf-8")
+    mine, preset = D.get_display(str(copy)), D.get_display(name)
+    assert mine is not preset
+    for field in ("name", "title", "kind", "pixels_per_degree", "distance_m", "transfer", "resolution_px",
+                  "sources", "photometry"):
+        assert getattr(mine, field) == getattr(preset, field), field
+    np.testing.assert_array_equal(mine.primaries.wavelength_nm, preset.primaries.wavelength_nm)
+    np.testing.assert_array_equal(mine.primaries.values, preset.primaries.values)
+    assert (mine.primaries.labels, mine.primaries.source) == (preset.primaries.labels, preset.primaries.source)
+
+
+@pytest.mark.parametrize("name", D.preset_names())
+def test_the_ppd_a_preset_file_states_is_the_one_its_geometry_gives(name):
+    """The sources' "-> N ppd" is written text: it must agree with the pitch or field of view."""
+    p = D.get_display(name)
+    stated = re.findall(r"-> ([0-9.]+) ppd", p.sources)
+    assert len(stated) <= 1
+    for value in stated:
+        assert value == f"{p.pixels_per_degree:.2f}"
+
+
+def test_oled_proxy_bands():
+    assert D.OLED_PROXY_BANDS == {"red": ((620.0, 35.0, 1.0),), "green": ((530.0, 35.0, 1.0),),
+                                  "blue": ((460.0, 25.0, 1.0),)}
 
 
 def test_get_display_unknown_lists_presets():
@@ -618,3 +664,38 @@ def test_load_profile_unreadable(tmp_path):
     arr = write_json(tmp_path / "list.json", [1, 2])  # type: ignore[arg-type]
     with pytest.raises(InputError, match="object"):
         D.load_display_profile(arr)
+
+
+def test_load_profile_with_colour_and_gaussian_primaries(tmp_path):
+    base = {"schema": "vrcorrect.display/1", "name": "m", "kind": "headset", "pixels_per_degree": 20,
+            "distance_m": 1.5}
+    p = D.load_display_profile(write_json(tmp_path / "c.json", {**base, "colour_primaries": "Apple Studio Display",
+                                                                "photometry_sources": "measured"}))
+    assert p.primaries is D.get_display("desktop").primaries
+    assert p.photometry.sources == "measured"
+    bands = {"red": [[610, 20, 1], [590, 40, 0.2]], "green": [[540, 30, 0.8]], "blue": [[450, 20, 1.5]]}
+    g = D.load_display_profile(write_json(tmp_path / "g.json", {**base, "gaussian_primaries": bands}))
+    wl = g.primaries.wavelength_nm
+    np.testing.assert_allclose(g.primaries.channel("red"), gauss(wl, 610, 20) + 0.2 * gauss(wl, 590, 40))
+    np.testing.assert_allclose(g.primaries.channel("blue"), 1.5 * gauss(wl, 450, 20))
+    assert g.primaries.source == "parametric: sum of Gaussians"
+
+
+@pytest.mark.parametrize("doc, fields", [
+    ({"colour_primaries": "Sony BVM"}, ["colour_primaries"]),
+    ({"colour_primaries": "Apple Studio Display", "preset_primaries": "desktop"}, ["spectra_csv"]),
+    ({"gaussian_primaries": [620, 35, 1]}, ["gaussian_primaries"]),
+    ({"gaussian_primaries": {"red": [[620, 35, 1]], "green": [], "blue": [[460, 0, 1], [900, 10, -1]],
+                             "colour": 1, "source": 3}},
+     ["gaussian_primaries.green", "gaussian_primaries.blue[0]", "gaussian_primaries.blue[1]",
+      "gaussian_primaries.source", "gaussian_primaries.colour"]),
+    ({"gaussian_primaries": {"red": [[620, 35, 0]], "green": [[530, 35, 1]], "blue": [[460, 25, 1]]}},
+     ["primaries.values"]),
+    ({"preset_primaries": "desktop", "photometry_sources": 5}, ["photometry_sources"]),
+])
+def test_load_profile_primaries_and_photometry_sources_problems(tmp_path, doc, fields):
+    base = {"schema": "vrcorrect.display/1", "name": "m", "kind": "monitor", "distance_m": 0.5,
+            "pixels_per_degree": 30}
+    with pytest.raises(ValidationErrors) as info:
+        D.load_display_profile(write_json(tmp_path / "p.json", {**base, **doc}))
+    assert [p.field for p in info.value.problems] == fields

@@ -1,2 +1,3 @@
 """Layer 1, what the user and the hardware are, as plain validated data: the eye's
-prescription (``prescription``) and the display's profile (``display``)."""
+prescription (``prescription``) and the display's profile (``display``), with the checks their
+validators share (``validation``)."""
