@@ -23,9 +23,8 @@ import json
 import os
 import statistics
 import sys
-import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -42,7 +41,7 @@ from ...solvers.wiener import gradient_plan, projected_gradient
 from ...specs.display import decode, get_display
 from ...vision.metrics import evaluate_seen
 from ..plots import pyplot, save_figure
-from . import machine_description, markdown_table, write_section
+from . import machine_description, markdown_table, median_seconds, write_section
 
 EYE_SEED = 20261123
 #: Untrained U-Net sizes (width, depth) whose speed :func:`speed_floor` measures beside the model.
@@ -65,14 +64,8 @@ def held_out_eyes(ranges, count: int, seed: int = EYE_SEED) -> list:
     return [ranges.sample(rng) for _ in range(count)]
 
 
-def _median_ms(fn, repeats: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return 1e3 * statistics.median(times)
+def _median_ms(fn: Callable[[], object], repeats: int) -> float:
+    return 1e3 * median_seconds(fn, repeats)[0]
 
 
 def _one_convolution() -> bytes:
