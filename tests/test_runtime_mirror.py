@@ -19,16 +19,19 @@ from hypothesis import strategies as st
 
 from vrcorrect.plumbing.errors import InputError, ValidationError
 from vrcorrect.runtime import gl as G
+from vrcorrect.apps.realtime_options import parse_iterations_per_frame
 from vrcorrect.runtime.mirror import (
-    ITERATIONS_RANGE, KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_MAP, KEY_RIGHT_BRACKET, MOD_ALT, MOD_CONTROL, MOD_SHIFT,
-    MOD_SUPER, STAGES, VIEWS, Adjust, Iterations, Mirror, MirrorConfig, MirrorState, Screenshot, build_font_atlas,
-    eye_viewports, key_map_text, layout_text, next_iterations, next_state, panel_instances,
-    parse_iterations_per_frame, text_width,
+    KEY_MAP, STAGES, VIEWS, Adjust, Mirror, MirrorConfig, MirrorState, eye_viewports, next_state,
 )
-from vrcorrect.runtime.scene import (
-    EYES, DemoScene, FolderSource, AnimatedImageSource, SceneConfig, SourceSpec, StillSource, VideoSource,
-    cube_mesh, fit_rect, frame_at, frame_index, open_source, parse_size, parse_source, perspective,
-    scene_transforms,
+from vrcorrect.runtime.scene import DemoScene, SceneConfig, cube_mesh, open_source, perspective, scene_transforms
+from vrcorrect.runtime.sources import (
+    EYES, AnimatedImageSource, FolderSource, SourceSpec, StillSource, VideoSource, fit_rect, frame_at, frame_index,
+    parse_size, parse_source,
+)
+from vrcorrect.runtime.text import build_font_atlas, layout_text, panel_instances, text_width
+from vrcorrect.runtime.window import (
+    ITERATIONS_RANGE, KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET, MOD_ALT, MOD_CONTROL, MOD_SHIFT, MOD_SUPER,
+    Iterations, Screenshot, key_map_text, next_iterations,
 )
 
 REPO = Path(__file__).resolve().parents[1]
@@ -138,7 +141,7 @@ def test_key_map_lists_every_key_that_does_something():
     # an upper-case letter of a key that has no separate shift action is the same key
     assert {h for h in handled if h.lower() in listed or h in listed} == handled
     assert listed <= handled | {h.lower() for h in handled}
-    text = key_map_text()
+    text = key_map_text(KEY_MAP)
     assert text.startswith("keys:") and all(k in text for k, _ in KEY_MAP)
 
 
@@ -216,9 +219,9 @@ def test_parse_source_errors_name_what_is_supported(tmp_path):
 
 
 def test_video_without_ffmpeg_is_a_clear_error(tmp_path, monkeypatch):
-    import vrcorrect.runtime.scene as scene
+    import vrcorrect.runtime.sources as sources
 
-    monkeypatch.setattr(scene, "_ffmpeg_available", lambda: False)
+    monkeypatch.setattr(sources, "_ffmpeg_available", lambda: False)
     (tmp_path / "clip.mkv").write_bytes(b"")
     with pytest.raises(InputError, match="imageio-ffmpeg.*animated GIF"):
         parse_source(str(tmp_path / "clip.mkv"))

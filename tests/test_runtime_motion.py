@@ -16,9 +16,9 @@ from vrcorrect.plumbing.images import bundled_images
 from vrcorrect.specs.prescription import EyeRx, Prescription
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector
-from vrcorrect.runtime.mirror import start_motion, take_motion
 from vrcorrect.runtime.motion import CUT_CONFIDENCE, MotionTracker, estimate_shift, motion_for
-from vrcorrect.runtime.scene import FolderSource, SourceSpec, open_source
+from vrcorrect.runtime.scene import open_source
+from vrcorrect.runtime.sources import FolderSource, SourceSpec, start_motion, take_motion
 from vrcorrect.solvers import make_problem, objective, solve
 from vrcorrect.solvers.wiener import FistaState, projected_gradient
 

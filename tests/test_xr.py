@@ -227,7 +227,7 @@ def test_frames_run_ends_cleanly_through_every_state(srgb_run):
 
 def test_submitted_images_are_each_eyes_own_correction(srgb_run, gl, rx_file):
     from vrcorrect.runtime.gl import download_texture
-    from vrcorrect.runtime.scene import StillSource
+    from vrcorrect.runtime.sources import StillSource
 
     _, out = srgb_run
     frames = _frames(out)
@@ -403,7 +403,7 @@ def test_mirror_shows_what_is_sent_and_closing_it_ends_the_session(x_display, xr
         def draw_and_close(textures):
             draw(textures)
             shown.append(read_framebuffer(app.ctx.screen, components=3))
-            app._glfw_session.glfw.set_window_should_close(app.window, True)
+            app.glfw.set_window_should_close(app.window, True)
 
         app._draw_mirror = draw_and_close
         summary = app.run(handle_sigint=False)
@@ -426,7 +426,7 @@ def test_mirror_keys_change_the_iterations_and_the_run_reports_the_objective(x_d
     is collected a frame late for the summary."""
     import glfw
 
-    from vrcorrect.runtime.mirror import KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET
+    from vrcorrect.runtime.window import KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET
     from vrcorrect.runtime.xr import XrApp, XrConfig
 
     _runtime_in_this_process(xr_runtime, tmp_path, monkeypatch)

@@ -18,7 +18,9 @@ import threading
 from typing import Any, Iterator, Sequence
 
 from ..plumbing.errors import VrcorrectError
-from . import acuity_chart, bench, correct, demo, displays, evaluate, learning, psf, render, rx, simulate
+from . import (
+    acuity_chart, bench, correct, demo, displays, evaluate, learning, mirror, overlay, psf, render, rx, simulate, xr,
+)
 
 EXIT_USAGE = 2
 EXIT_INTERNAL = 3
@@ -30,21 +32,9 @@ def build_parser() -> argparse.ArgumentParser:
         "wavelength, cone responses)."))
     sub = ap.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for command in (simulate, correct, evaluate, acuity_chart, learning, psf, rx, displays, demo, render):
+    for command in (simulate, correct, evaluate, acuity_chart, learning, psf, rx, displays, demo, render, mirror,
+                    overlay, xr):
         command.add_parser(sub)
-
-    from ..runtime.mirror import add_parser as add_mirror_parser
-
-    add_mirror_parser(sub)
-
-    from ..runtime.overlay import add_parser as add_overlay_parser
-
-    add_overlay_parser(sub)
-
-    from ..runtime.xr import add_parser as add_xr_parser
-
-    add_xr_parser(sub)
-
     bench.add_parser(sub)
     return ap
 

@@ -8,9 +8,9 @@ import sys
 from pathlib import Path
 
 from ..plumbing.errors import ValidationError
-from ..runtime.mirror import add_filter_options, filter_options, parse_frames
 from ..runtime.model_path import model_for_backend
 from .common import add_model_options, kernel_options, print_notes
+from .realtime_options import add_filter_options, filter_options, parse_frames
 
 
 def cmd_render(args: argparse.Namespace) -> int:

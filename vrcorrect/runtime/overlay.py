@@ -1,12 +1,14 @@
-"""The overlay compositor (``vrcorrect overlay``): for applications that cannot call the library.
+"""The overlay compositor (``vrcorrect overlay``; its command line is :mod:`vrcorrect.apps.overlay`):
+for applications that cannot call the library.
 
 It takes frames from an external source - a video file, a folder of images, a still image
-(:mod:`vrcorrect.runtime.scene`), or a region of the X11 screen (:class:`~vrcorrect.runtime.scene.ScreenSource`)
-- corrects each one with one :class:`~vrcorrect.runtime.corrector.Corrector` (a monitor is seen
-by both eyes, so one eye's prescription: the right eye's unless told), and presents it
-full-screen on the primary monitor, or in a window of a given size. Each frame the source is
-fitted (aspect kept, centred on black) into one reused texture of the output size; nothing is
-allocated on the GPU per frame after the first.
+(:mod:`vrcorrect.runtime.sources`), or a region of the X11 screen
+(:class:`~vrcorrect.runtime.sources.ScreenSource`) - corrects each one with one
+:class:`~vrcorrect.runtime.corrector.Corrector` (a monitor is seen by both eyes, so one eye's
+prescription: the right eye's unless told), and presents it full-screen on the primary monitor,
+or in a window of a given size. Each frame the source is fitted (aspect kept, centred on black)
+into one reused texture of the output size; nothing is allocated on the GPU per frame after the
+first.
 
 The screen grab must not see the overlay's own window, or the picture would feed back into
 itself. So the grabbed region and the window never overlap: in a window the region defaults
@@ -22,35 +24,38 @@ objective as a fraction of uncorrected (read a frame late: no wait for the GPU).
 file is polled every frame (:meth:`Corrector.poll <vrcorrect.runtime.corrector.Corrector.poll>`):
 an edit takes effect live, an invalid file keeps the last good prescription and says why (on
 stdout and in the window). Frames per second and milliseconds per stage are printed once per
-second and on exit.
+second and on exit. The window shell is :mod:`vrcorrect.runtime.window`.
 
 Layer 5: numpy, Pillow, moderngl, glfw, mss; never torch.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..plumbing.errors import ValidationError, VrcorrectError
-from .gl import Rect, format_ms
-from .mirror import (
-    ITERATION_KEYS, KEY_ESCAPE, MOD_ALT, MOD_CONTROL, MOD_SUPER, GlfwSession, Iterations, Screenshot, StageTimes,
-    TextOverlay, _letter, add_filter_options, add_reprojection_option, build_font_atlas, change_iterations,
-    filter_options, iteration_key, key_map_text, knob_text, panel_instances, parse_frames, start_motion,
-    take_motion, text_width, write_screenshot,
+from ..plumbing.errors import ValidationError
+from .corrector import Corrector
+from .gl import Rect, check_gl_errors, format_ms, release
+from .sources import PictureSource, ScreenSource, open_picture_source, parse_source, screen_bounds, start_motion, \
+    take_motion
+from .text import TextOverlay, build_font_atlas, key_map_panel, panel_instances
+from .window import (
+    ITERATION_KEYS, KEY_ESCAPE, MOD_ALT, MOD_CONTROL, MOD_SUPER, Iterations, KeyedWindowApp, Screenshot, StageTimes,
+    change_iterations, iteration_key, key_letter, knob_text,
 )
-from .scene import parse_region, parse_size, parse_source
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    from types import ModuleType
 
 __all__ = [
-    "KEY_MAP", "STAGES", "SCREEN", "OverlayState", "next_state", "rects_overlap", "place_window",
-    "full_screen_region", "default_display", "OverlayConfig", "Overlay", "add_parser", "cmd_overlay",
+    "KEY_MAP", "STAGES", "SCREEN", "OverlayState", "next_state", "rects_overlap", "place_window", "default_region",
+    "full_screen_region", "default_display", "OverlayConfig", "Overlay",
 ]
 
 SCREEN = "screen"
@@ -85,14 +90,16 @@ class OverlayState:
     running: bool = True
 
 
-def next_state(state: OverlayState, key: int, mods: int = 0
-               ) -> tuple[OverlayState, tuple[Screenshot | Iterations, ...]]:
+OverlayAction = Screenshot | Iterations
+
+
+def next_state(state: OverlayState, key: int, mods: int = 0) -> tuple[OverlayState, tuple[OverlayAction, ...]]:
     """The state after pressing ``key`` (a GLFW key code) with modifier bits ``mods``, and the
     side effects to perform. Keys with Control, Alt or Super, and keys not in
     :data:`KEY_MAP`, change nothing."""
     if mods & (MOD_CONTROL | MOD_ALT | MOD_SUPER):
         return state, ()
-    letter = _letter(key)
+    letter = key_letter(key)
     if key == KEY_ESCAPE or letter == "q":
         return replace(state, running=False), ()
     if letter == "c":
@@ -250,7 +257,7 @@ class OverlayConfig:
 # --------------------------------------------------------------------------
 
 
-class Overlay:
+class Overlay(KeyedWindowApp[OverlayState, OverlayAction]):
     """The overlay (see the module docstring). Use as a context manager, or call :meth:`close`.
 
     Raises
@@ -266,20 +273,14 @@ class Overlay:
     state, corrector, source, status, frame, timings_ms, screenshots, region, output_size
     """
 
-    def __init__(self, config: OverlayConfig, *, echo: Callable[[str], None] | None = print):
-        from ..specs.display import get_display
-        from ..specs.prescription import bundled_sample_path
-        from .corrector import RxSnapshot
-        from .scene import screen_bounds
+    key_map = KEY_MAP
+    screenshot_prefix = "vrcorrect-overlay"
 
+    def __init__(self, config: OverlayConfig, *, echo: Callable[[str], None] | None = print):
+        super().__init__(echo)
         self.config = config
-        self._echo = echo
-        self.rx_path = Path(config.rx) if config.rx is not None else bundled_sample_path()
-        self._rx = RxSnapshot.read(self.rx_path)  # read once; a bad file fails here, before any window
-        self.display = get_display(config.display or default_display(config.source))
-        if self.display.transfer != "srgb":
-            raise ValidationError("--display", f"{self.display.name} (transfer {self.display.transfer})",
-                                  "a display with the sRGB transfer (the real-time path encodes sRGB only)")
+        # read once; a bad file fails here, before any window
+        self._read_inputs(config.rx, config.display or default_display(config.source))
         self.spec = None
         if config.source != SCREEN:
             self.spec = parse_source(config.source)
@@ -288,17 +289,16 @@ class Overlay:
                                       "(the demo scene is the mirror's: vrcorrect mirror)")
         self.screen = screen_bounds() if config.source == SCREEN else None
         self.state = OverlayState()
-        self.status = ""
-        self.frame = 0
         self.timings_ms: dict[str, tuple[float | None, float]] = {}
-        self.screenshots: list[Path] = []
         self.reports: list[str] = []
         self.region: Rect | None = None
-        self._actions: list[Screenshot | Iterations] = []
-        self._session = self.ctx = self.window = self.source = self.corrector = self.text = self._times = None
+        self.source: PictureSource | None = None
+        self.corrector: Corrector | None = None
+        self.text: TextOverlay | None = None
+        self._times: StageTimes | None = None
         self._sums: dict[str, list[float]] = {}
         try:
-            self._open_window()
+            self._open()
             self._build()
         except BaseException:
             self.close()
@@ -306,19 +306,10 @@ class Overlay:
         self._t0 = self._report_t0 = time.perf_counter()
         self._report_frame0 = 0
 
-    def _say(self, text: str) -> None:
-        if self._echo is not None:
-            self._echo(text)
-
-    def _set_status(self, text: str) -> None:
-        if text and text != self.status:
-            self._say(text)
-        self.status = text
-
-    def _open_window(self) -> None:
+    def _open(self) -> None:
+        """Place the grabbed region and the window apart (see the module docstring), open the window."""
         cfg = self.config
-        session = self._session = GlfwSession(cfg.platform)
-        glfw = session.glfw
+        glfw = self._start_glfw(cfg.platform)
         position = None
         if cfg.window is None:
             if self.screen is not None:
@@ -328,19 +319,18 @@ class Overlay:
             self.region = cfg.region or default_region(cfg.window, self.screen)
             position = place_window(cfg.window, self.region, self.screen)
         width, height = cfg.window or (1, 1)
-        session.open(width, height, cfg.title, visible=cfg.visible, vsync=cfg.vsync, fullscreen=cfg.window is None,
-                     position=position, key_callback=self.key_callback)
-        self.window, self.ctx = session.window, session.ctx
+        session = self._open_window(width, height, cfg.title, platform=cfg.platform, visible=cfg.visible,
+                                    vsync=cfg.vsync, fullscreen=cfg.window is None, position=position)
         self.output_size = session.framebuffer_size
         if position is not None and cfg.visible:
             x, y = glfw.get_window_pos(self.window)
             if rects_overlap(Rect(max(x, 0), max(y, 0), *cfg.window), self.region):
-                self._say(f"warning: the window manager put the window at {x},{y}, over the grabbed region; "
-                          "move it off the region")
+                self.say(f"warning: the window manager put the window at {x},{y}, over the grabbed region; "
+                         "move it off the region")
 
     @staticmethod
-    def _monitors(glfw) -> tuple[Rect, list[Rect]]:
-        def rect(m) -> Rect:
+    def _monitors(glfw: "ModuleType") -> tuple[Rect, list[Rect]]:
+        def rect(m: Any) -> Rect:
             x, y = glfw.get_monitor_pos(m)
             mode = glfw.get_video_mode(m)
             return Rect(max(int(x), 0), max(int(y), 0), int(mode.size.width), int(mode.size.height))
@@ -351,76 +341,53 @@ class Overlay:
         return rect(primary), [rect(m) for m in glfw.get_monitors() if m != primary]
 
     def _build(self) -> None:
-        from .corrector import Corrector
-        from .gl import check_gl_errors
-        from .scene import ScreenSource, open_source
-
         cfg, ctx = self.config, self.ctx
         w, h = self.output_size
         if self.region is not None:
             self.source = ScreenSource(ctx, w, h, self.region)
         else:
-            self.source = open_source(ctx, self.spec, w, h, folder_interval_s=cfg.folder_interval_s)
-        self._say(f"building the {cfg.eye} eye's correction for {self.display.name} ({self.source.label}, {w}x{h})...")
+            self.source = open_picture_source(ctx, self.spec, w, h, folder_interval_s=cfg.folder_interval_s)
+        self.say(f"building the {cfg.eye} eye's correction for {self.display.name} ({self.source.label}, {w}x{h})...")
         t0 = time.perf_counter()
         self.corrector = Corrector(ctx, self._rx, self.display, cfg.eye, cfg.backend,
                                    **dict(cfg.corrector_options))
-        self._say(f"  built in {time.perf_counter() - t0:.1f} s")
+        self.say(f"  built in {time.perf_counter() - t0:.1f} s")
         start_motion(self.source, [self.corrector], cfg.reprojection)
         atlas = build_font_atlas(cfg.font_px)
         self.text = TextOverlay(ctx, atlas)
-        self._key_tab_stops = (max(text_width(atlas, k) for k, _ in KEY_MAP) + cfg.font_px,)
         self._times = StageTimes(ctx, STAGES)
         check_gl_errors(ctx, "overlay set-up")
 
     # ------------------------------------------------------------ keys and state
 
-    def key_callback(self, window: Any, key: int, scancode: int, action: int, mods: int) -> None:
-        """GLFW key callback: presses go through :func:`next_state` (repeats and releases are ignored)."""
-        if action != 1:  # GLFW_PRESS
-            return
-        new, actions = next_state(self.state, key, mods)
-        if new.show_keys and not self.state.show_keys:
-            self._say(key_map_text(KEY_MAP))
-        self.state = new
-        self._actions.extend(actions)
-        if not new.running and self.window is not None:
-            self._session.glfw.set_window_should_close(self.window, True)
+    def _next_state(self, key: int, mods: int) -> tuple[OverlayState, tuple[OverlayAction, ...]]:
+        return next_state(self.state, key, mods)
 
     def _poll(self) -> None:
         c = self.corrector
         if c.poll():
             rx = c.eye_rx
-            self._set_status(f"{self.rx_path.name} reloaded: {self.config.eye} eye {rx.sphere_D:+.2f} / "
-                             f"{rx.cylinder_D:+.2f} x {rx.axis_deg:.0f}")
-            self._status_until = time.perf_counter() + 3.0
+            self.set_status(f"{self.rx_path.name} reloaded: {self.config.eye} eye {rx.sphere_D:+.2f} / "
+                            f"{rx.cylinder_D:+.2f} x {rx.axis_deg:.0f}", hold_s=3.0)
         elif c.status:
-            self._set_status(c.status)
-            self._status_until = math.inf
-        elif self.status and time.perf_counter() > getattr(self, "_status_until", 0.0):
-            self.status = ""
+            self.set_status(c.status, hold_s=math.inf)
+        else:
+            self._expire_status()
 
     # ------------------------------------------------------------ frames
 
-    def source_time(self) -> float:
-        step = self.config.time_step_s
-        return self.frame * step if step is not None else time.perf_counter() - self._t0
-
     def render(self) -> bool:
         """Draw one frame into the back buffer (no swap); True if a screenshot is due."""
-        from .gl import check_gl_errors
-
         self._accumulate(self._times.collect())
-        actions, self._actions = self._actions, []
+        actions = self._take_actions()
         for action in actions:
             if isinstance(action, Iterations):
-                self._set_status(change_iterations([self.corrector], action.up))
-                self._status_until = time.perf_counter() + 3.0
+                self.set_status(change_iterations([self.corrector], action.up), hold_s=3.0)
         self._poll()
         ctx, state = self.ctx, self.state
         self.corrector.enabled = state.correction
         with self._times.stage("source"):
-            texture = self.source.render(self.source_time())[1]
+            texture = self.source.render(self.frame_time())[1]
             motion = take_motion(self.source, [self.corrector])
         with self._times.stage("correct"):
             self.corrector.apply(texture, ctx.screen, motion_px=motion)
@@ -430,10 +397,8 @@ class Overlay:
             if self.status and self.config.show_messages:
                 quads.append(panel_instances(atlas, [self.status[:160]], 8, 8, background=(0.3, 0.0, 0.0, 0.85))[0])
             if state.show_keys:
-                lines = ["keys"] + [f"{k}\t{what}" for k, what in KEY_MAP]
                 y = 8 + (2 * atlas.line_height if quads else 0)
-                quads.append(panel_instances(atlas, lines, 8, y, background=(0.05, 0.1, 0.25, 0.85),
-                                             tab_stops=self._key_tab_stops)[0])
+                quads.append(key_map_panel(atlas, KEY_MAP, 8, y, self.config.font_px))
             if quads:
                 self.text.draw(np.concatenate(quads), ctx.screen, self.output_size)
         check_gl_errors(ctx, f"overlay frame {self.frame}")
@@ -468,45 +433,14 @@ class Overlay:
             parts.append(knob)
         line = "  ".join(parts)
         self.reports.append(line)
-        self._say(line)
+        self.say(line)
         self._sums, self._report_t0, self._report_frame0 = {}, now, self.frame
         return line
 
-    def read_screen(self) -> np.ndarray:
-        """The back buffer as drawn, ``(H, W, 3)`` uint8, top row first."""
-        from .gl import read_framebuffer
-
-        return read_framebuffer(self.ctx.screen, components=3)
-
-    def screenshot(self) -> Path:
-        """Write the back buffer to a new PNG in ``screenshot_dir``; returns its path."""
-        path = write_screenshot(self.config.screenshot_dir, "vrcorrect-overlay", self.read_screen())
-        self.screenshots.append(path)
-        return path
-
-    def step(self) -> None:
-        """One frame: render, a screenshot if asked for, swap, events, the report when due."""
-        glfw = self._session.glfw
-        if self.render():
-            try:
-                self._set_status(f"screenshot {self.screenshot()}")
-                self._status_until = time.perf_counter() + 3.0
-            except VrcorrectError as exc:
-                self._set_status(f"no screenshot: {exc}")
-        with self._times.stage("present"):
-            glfw.swap_buffers(self.window)
-        self.frame += 1
-        glfw.poll_events()
+    def _after_frame(self) -> None:
+        """The report, when one is due."""
         if time.perf_counter() - self._report_t0 >= self.config.report_interval_s:
             self.report()
-
-    @property
-    def running(self) -> bool:
-        if not self.state.running or self.window is None:
-            return False
-        if self.config.frames is not None and self.frame >= self.config.frames:
-            return False
-        return not self._session.glfw.window_should_close(self.window)
 
     def run(self) -> int:
         """Render frames until :attr:`running` is False, then report; returns the frame count."""
@@ -519,86 +453,10 @@ class Overlay:
 
     def close(self) -> None:
         """Release every GL object, close the window and terminate GLFW."""
-        from .gl import release
-
         if self.ctx is not None:
             for obj in (self.corrector, self.text, self.source, self._times):
                 if obj is not None:
                     obj.release()
             release(self.ctx)
-        self.corrector = self.text = self.source = self._times = self.ctx = None
-        if self._session is not None:
-            self._session.close()
-        self._session = self.window = None
-
-    def __enter__(self) -> "Overlay":
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
-
-# --------------------------------------------------------------------------
-# Command line: vrcorrect overlay
-# --------------------------------------------------------------------------
-
-
-def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Add the ``overlay`` sub-command to an argparse ``subparsers`` object."""
-    p = subparsers.add_parser(
-        "overlay", help="correct frames from a video, images or the screen and show them full-screen",
-        description=("Show frames from an external source (a video, a folder of images, an image, or a\n"
-                     "region of the X11 screen) corrected for one eye, full-screen on the primary monitor\n"
-                     "or in a window. Needs a display (X11) and OpenGL 4.3."),
-        epilog=key_map_text(KEY_MAP), formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--source", required=True, metavar="VIDEO|DIR|IMAGE|screen",
-                   help="a video (or animated GIF/PNG/WebP), a folder of images shown in turn, an image, or "
-                        "'screen' (a region of the X11 screen)")
-    p.add_argument("--region", metavar="X,Y,W,H",
-                   help="with screen: the rectangle to grab (default: another monitor full-screen; with --window, "
-                        "the screen's top-left, the window's size, the window placed beside it)")
-    p.add_argument("--rx", metavar="RX.json", help="prescription (default: the bundled sample); reloaded when it "
-                                                   "changes on disk")
-    p.add_argument("--eye", default="right", metavar="right|left",
-                   help="whose prescription (a monitor is seen by both eyes; default right)")
-    p.add_argument("--display", metavar="PRESET",
-                   help="display preset or profile .json (default: desktop for screen, quest2 otherwise)")
-    p.add_argument("--window", metavar="WxH", help="a window of this size instead of full-screen")
-    p.add_argument("--frames", metavar="N", help="render N frames and exit (tests, CI)")
-    p.add_argument("--backend", default="glsl", metavar="glsl|onnx", help="correction backend (default glsl)")
-    p.add_argument("--model", metavar="M.onnx", help="ONNX model for --backend onnx")
-    add_filter_options(p)
-    add_reprojection_option(p)
-    p.add_argument("--screenshot-dir", default=".", metavar="DIR", help="where p writes screenshots (default .)")
-    p.set_defaults(func=cmd_overlay)
-    return p
-
-
-def cmd_overlay(args: argparse.Namespace) -> int:
-    """``vrcorrect overlay``: check the arguments, open the overlay, run it, print a summary."""
-    from .model_path import model_for_backend
-
-    frames = parse_frames(args.frames)
-    options = filter_options(args)
-    model = model_for_backend(args.backend, args.model)
-    if model:
-        options["model"] = model
-    config = OverlayConfig(
-        source=args.source, region=None if args.region is None else parse_region(args.region), rx=args.rx,
-        eye=args.eye, display=args.display, window=None if args.window is None else parse_size(args.window, "--window"),
-        frames=frames, screenshot_dir=args.screenshot_dir, backend=args.backend, corrector_options=options,
-        reprojection=not args.no_reprojection,
-        vsync=frames is None)
-    t0 = time.perf_counter()
-    with Overlay(config) as overlay:
-        print(key_map_text(KEY_MAP))
-        t1 = time.perf_counter()
-        overlay.run()
-        t2 = time.perf_counter()
-        n = overlay.frame
-        print(f"{n} frame(s) in {t2 - t1:.2f} s ({1e3 * (t2 - t1) / max(n, 1):.1f} ms per frame; set-up "
-              f"{t1 - t0:.1f} s) at {overlay.output_size[0]}x{overlay.output_size[1]} on "
-              f"{overlay.ctx.info.get('GL_RENDERER', '?')}")
-        for path in overlay.screenshots:
-            print(f"wrote {path}")
-    return 0
+        self.corrector = self.text = self.source = self._times = None
+        self._close_window()

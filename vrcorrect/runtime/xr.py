@@ -1,5 +1,5 @@
 """The headset path: an OpenXR session through pyopenxr, each eye corrected before it is
-submitted (``vrcorrect xr``).
+submitted (``vrcorrect xr``, whose command line is :mod:`vrcorrect.apps.xr`).
 
 The OpenXR instance enables ``XR_KHR_opengl_enable``; the OpenGL context is a GLFW window's
 (X11/GLX: the session is bound with ``XrGraphicsBindingOpenGLXlibKHR``; the window is hidden
@@ -30,35 +30,50 @@ wait for the GPU); the run's summary gives the median objective per eye.
 
 Tests drive it against a small runtime compiled from ``tests/xr_runtime/`` (no headset).
 Layer 5: numpy, moderngl, glfw, pyopenxr; never torch.
+
+Longer than 700 lines on purpose: one OpenXR session's life (instance, GL binding, swapchains,
+frame loop, tear-down) is one object whose steps share its handles, beside the pure parts it needs.
 """
 
 from __future__ import annotations
 
-import argparse
 import ctypes
 import math
 import os
 import signal
 import statistics
+import sys
 import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from types import FrameType
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..plumbing.errors import VrcorrectError, ValidationError
-from .mirror import add_filter_options, add_reprojection_option, take_motion
+from ..plumbing.errors import ValidationError, VrcorrectError
+from .corrector import Corrector
+from .gl import check_gl_errors, fullscreen_triangle, release
 from .motion import view_shift
-from .scene import EYES, parse_region, parse_source
+from .scene import DemoScene, open_source
+from .shaders import compile_program
+from .sources import EYES, EyeSource, ScreenSource, parse_region, parse_source, screen_bounds, start_motion, \
+    take_motion
+from .window import (
+    MOD_ALT, MOD_CONTROL, MOD_SUPER, GLFW_PRESS, StageTimes, WindowApp, XrUnavailableError, change_iterations,
+    iteration_key, knob_text, require_moderngl, require_xr,
+)
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    import moderngl
 
 __all__ = [
     "EXIT_NO_RUNTIME", "EXIT_SESSION_LOST", "EXIT_GRACE_S", "GL_SRGB8_ALPHA8", "GL_RGBA8", "XR_STAGES",
+    "XR_CPU_ONLY_STAGES",
     "XrUnavailableError", "XrSessionError", "XrConfig", "SessionTracker", "choose_swapchain_format",
     "pose_matrix", "view_matrix", "projection_from_fov", "no_runtime_message", "XrApp", "XrRunSummary",
-    "add_parser", "cmd_xr",
 ]
 
 EXIT_NO_RUNTIME = 69
@@ -80,11 +95,8 @@ XR_STAGES = ("wait", "begin", "locate", "scene", "acquire", "correct left", "cor
 display), ``begin``, ``locate``, ``acquire`` (acquire + wait for both swapchain images),
 ``release`` and ``end`` (``xrEndFrame``) are CPU time; the others have GPU time too.
 ``convert`` runs only with ``GL_RGBA8`` swapchains; ``mirror`` only with ``--mirror``."""
-_CPU_ONLY = ("wait", "begin", "locate", "acquire", "release", "end")
-
-
-class XrUnavailableError(VrcorrectError, RuntimeError):
-    """No OpenXR runtime, or no headset: the message is the paragraph shown to the user."""
+XR_CPU_ONLY_STAGES = ("wait", "begin", "locate", "acquire", "release", "end")
+"""The stages of :data:`XR_STAGES` timed on the CPU only (the OpenXR calls)."""
 
 
 class XrSessionError(VrcorrectError, RuntimeError):
@@ -342,21 +354,10 @@ class XrRunSummary:
 # --------------------------------------------------------------------------
 
 
-def _xr():
-    try:
-        import xr
-    except ImportError as exc:  # pragma: no cover - the realtime extra is installed in CI
-        raise XrUnavailableError(f"pyopenxr is not installed ({exc}); install the realtime extra: "
-                                 "pip install -e '.[realtime]' (tools/setup.sh does)") from None
-    return xr
-
-
 class _CapturedStderr:
     """Collects what C code (the OpenXR loader) writes to file descriptor 2 while active."""
 
     def __enter__(self) -> "_CapturedStderr":
-        import sys
-
         sys.stderr.flush()
         self._file = tempfile.TemporaryFile()
         self._saved = os.dup(2)
@@ -364,7 +365,7 @@ class _CapturedStderr:
         self.text = ""
         return self
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         os.dup2(self._saved, 2)
         os.close(self._saved)
         self._file.seek(0)
@@ -380,7 +381,7 @@ def _loader_detail(text: str) -> str:
     return ""
 
 
-class XrApp:
+class XrApp(WindowApp):
     """The headset application (see the module docstring). Use as a context manager or call
     :meth:`close`; :meth:`run` runs the session and returns an :class:`XrRunSummary`.
 
@@ -397,29 +398,21 @@ class XrApp:
     """
 
     def __init__(self, config: XrConfig = XrConfig(), *, echo: Callable[[str], None] | None = print):
-        from ..specs.display import get_display
-        from ..specs.prescription import bundled_sample_path
-        from .corrector import RxSnapshot
-
+        super().__init__(echo)
         self.config = config
-        self._echo = echo
-        self.rx_path = Path(config.rx) if config.rx is not None else bundled_sample_path()
-        self._rx = RxSnapshot.read(self.rx_path)  # read once for both eyes; a bad file fails here
-        self.display = get_display(config.display)
-        if self.display.transfer != "srgb":
-            raise ValidationError("--display", f"{config.display} (transfer {self.display.transfer})",
-                                  "a display with the sRGB transfer (the real-time path encodes sRGB only)")
+        self._read_inputs(config.rx, config.display)  # read once for both eyes; a bad file fails here
         self.spec = None if config.source == "screen" else parse_source(config.source)
         self.region = parse_region(config.region) if config.region is not None else None
-        self.xr = xr = _xr()
+        self.xr = xr = require_xr()
         # a session or instance on its way out: pyopenxr raises the qualified success too
         self._lost_errors = (xr.SessionLostError, xr.InstanceLostError, xr.SessionLossPending)
         self.tracker = SessionTracker()
         self.summary = XrRunSummary()
         self.instance = self.system_id = self.session = self.space = None
         self.swapchains: list[dict[str, Any]] = []
-        self.correctors: dict[str, Any] = {}
-        self._glfw_session = self.window = self.ctx = self.source = self._times = None
+        self.correctors: dict[str, Corrector] = {}
+        self.source: EyeSource | None = None
+        self._times: StageTimes | None = None
         self._mirror_prog = self._mirror_vao = self._convert_prog = self._convert_vao = None
         self._sampler = None
         self._quit_reason: str | None = None
@@ -432,7 +425,7 @@ class XrApp:
         self._last_views: dict[str, np.ndarray] = {}    # each eye's view matrix at its last frame
         try:
             self._create_instance()
-            self._open_window()
+            self._open_gl_window()
             self._create_session()
             self._build()
         except BaseException:
@@ -440,10 +433,6 @@ class XrApp:
             raise
 
     # ------------------------------------------------------------ set-up
-
-    def _say(self, text: str) -> None:
-        if self._echo is not None:
-            self._echo(text)
 
     def _call(self, what: str, fn: Callable[..., Any], *args: Any) -> Any:
         """Run a pyopenxr call; its failures become :class:`XrSessionError` naming the call."""
@@ -473,7 +462,7 @@ class XrApp:
             except xr.ExtensionNotPresentError:
                 error = "extension"
         if captured.text and os.environ.get("VRCORRECT_DEBUG"):
-            self._say(captured.text.rstrip())
+            self.say(captured.text.rstrip())
         if error == "extension":
             raise XrUnavailableError("the active OpenXR runtime does not offer XR_KHR_opengl_enable (OpenGL), which "
                                      "vrcorrect xr needs; Monado and SteamVR do. Without a headset, vrcorrect mirror "
@@ -512,19 +501,15 @@ class XrApp:
         if result.is_exception():
             raise XrSessionError(f"xrGetOpenGLGraphicsRequirementsKHR failed: {result}")
 
-    def _open_window(self) -> None:
-        from .mirror import GlfwSession
-
+    def _open_gl_window(self) -> None:
         cfg = self.config
         w, h = self.eye_size
         mh = min(cfg.mirror_height, h)
         self.mirror_size = (2 * max(1, round(w * mh / h)), mh)
-        session = self._glfw_session = GlfwSession("x11")  # the session binding is Xlib/GLX
         title = f"vrcorrect xr mirror: what each eye is sent ({self.summary.system})"
         self._title = title
-        session.open(*(self.mirror_size if cfg.mirror else (64, 64)), title, visible=cfg.mirror, vsync=False,
-                     key_callback=self.key_callback)
-        self.window, self.ctx = session.window, session.ctx
+        self._open_window(*(self.mirror_size if cfg.mirror else (64, 64)), title,
+                          platform="x11", visible=cfg.mirror, vsync=False)  # the session binding is Xlib/GLX
         self.summary.renderer = self.ctx.info.get("GL_RENDERER", "?")
         major, minor = self.ctx.version_code // 100, self.ctx.version_code % 100 // 10
         req = self.gl_requirements
@@ -534,7 +519,7 @@ class XrApp:
                                  f"{int(req.min_api_version_supported) >> 48}.{(int(req.min_api_version_supported) >> 32) & 0xFFFF}")
 
     def _create_session(self) -> None:
-        xr, glfw = self.xr, self._glfw_session.glfw
+        xr, glfw = self.xr, self.glfw
         glfw.make_context_current(self.window)
         display = glfw.get_x11_display()
         context = glfw.get_glx_context(self.window)
@@ -568,12 +553,6 @@ class XrApp:
                 chain["framebuffers"].append(self.ctx.framebuffer(color_attachments=[tex]))
 
     def _build(self) -> None:
-        from .corrector import Corrector
-        from .gl import check_gl_errors, fullscreen_triangle
-        from .mirror import StageTimes, start_motion
-        from .scene import ScreenSource, open_source, screen_bounds
-        from .shaders import compile_program
-
         cfg, ctx = self.config, self.ctx
         w, h = self.eye_size
         ctx.disable_direct(_GL_FRAMEBUFFER_SRGB)  # sRGB swapchains store the corrector's codes as they are
@@ -582,12 +561,12 @@ class XrApp:
         else:
             self.source = open_source(ctx, self.spec, w, h, folder_interval_s=cfg.folder_interval_s)
         for eye in EYES:
-            self._say(f"building the {eye} eye's correction ({self.display.name}) ...")
+            self.say(f"building the {eye} eye's correction ({self.display.name}) ...")
             t0 = time.perf_counter()
             self.correctors[eye] = Corrector(ctx, self._rx, self.display, eye, cfg.backend,
                                              **dict(cfg.corrector_options))
-            self._say(f"  built in {time.perf_counter() - t0:.1f} s")
-        if self.spec is None or not hasattr(self.source, "_draws"):     # a head-locked picture source
+            self.say(f"  built in {time.perf_counter() - t0:.1f} s")
+        if not isinstance(self.source, DemoScene):     # a head-locked picture source
             start_motion(self.source, self.correctors.values(), cfg.reprojection)
         if self.format == GL_RGBA8:
             # correct into an sRGB texture; sampling it decodes to linear light, written into the linear swapchain
@@ -601,7 +580,7 @@ class XrApp:
             # sampling either swapchain format gives linear light: encode it for the window
             self._mirror_prog = compile_program(ctx, "passthrough.glsl", defines={"ENCODE_SRGB": None})
             self._mirror_vao = fullscreen_triangle(ctx, self._mirror_prog)
-        self._times = StageTimes(ctx, XR_STAGES, cpu_only=_CPU_ONLY)
+        self._times = StageTimes(ctx, XR_STAGES, cpu_only=XR_CPU_ONLY_STAGES)
         check_gl_errors(ctx, "xr set-up")
 
     # ------------------------------------------------------------ events
@@ -609,19 +588,15 @@ class XrApp:
     def key_callback(self, window: Any, key: int, scancode: int, action: int, mods: int) -> None:
         """GLFW key callback of the mirror window: ``[`` / ``]`` halve / double the iterations per
         frame of both eyes (``filter="fista"``); presses only, without Control, Alt or Super."""
-        from .mirror import MOD_ALT, MOD_CONTROL, MOD_SUPER, change_iterations, iteration_key
-
         knob = iteration_key(key)
-        if action != 1 or knob is None or mods & (MOD_CONTROL | MOD_ALT | MOD_SUPER):
+        if action != GLFW_PRESS or knob is None or mods & (MOD_CONTROL | MOD_ALT | MOD_SUPER):
             return
-        self._say(change_iterations(self.correctors.values(), knob.up))
+        self.say(change_iterations(self.correctors.values(), knob.up))
         self._last_poll = 0.0                   # the title shows it at the next frame
 
     def knob_text(self) -> str | None:
         """Iterations per frame and each eye's objective as a fraction of uncorrected (a frame late),
         or None without ``filter="fista"``."""
-        from .mirror import knob_text
-
         return knob_text(self.correctors, self.eye_size)
 
     def request_quit(self, reason: str) -> None:
@@ -629,7 +604,7 @@ class XrApp:
         if self._quit_reason is None:
             self._quit_reason = reason
 
-    def _on_sigint(self, signum: int, frame: Any) -> None:
+    def _on_sigint(self, signum: int, frame: FrameType | None) -> None:
         self._interrupts += 1
         self.request_quit("interrupted")
 
@@ -645,13 +620,13 @@ class XrApp:
                 return "lost"
             kind = xr.StructureType(buffer.type)
             if kind == xr.StructureType.EVENT_DATA_INSTANCE_LOSS_PENDING:
-                self._say("the runtime is going away (instance loss pending)")
+                self.say("the runtime is going away (instance loss pending)")
                 return "lost"
             if kind != xr.StructureType.EVENT_DATA_SESSION_STATE_CHANGED:
                 continue
             event = ctypes.cast(ctypes.byref(buffer), ctypes.POINTER(xr.EventDataSessionStateChanged)).contents
             state = SESSION_STATES[int(event.state)] if 0 <= int(event.state) < len(SESSION_STATES) else "UNKNOWN"
-            self._say(f"session state: {state}")
+            self.say(f"session state: {state}")
             action = self.tracker.on_state(state)
             if action == "begin":
                 self._call("xrBeginSession", xr.begin_session, self.session, xr.SessionBeginInfo(
@@ -698,7 +673,7 @@ class XrApp:
             t_s = self._scene_time(frame_state.predicted_display_time)
             motions: dict[str, tuple[int, int] | None] = {}
             with times.stage("scene"):
-                if hasattr(self.source, "_draws"):  # the demo scene: from each tracked eye
+                if isinstance(self.source, DemoScene):  # the demo scene: from each tracked eye
                     eye_views = {}
                     for eye, v in zip(EYES, views):
                         o, p = v.pose.orientation, v.pose.position
@@ -752,7 +727,7 @@ class XrApp:
         self.summary.frames_total += 1
         if layers:
             if self.config.mirror:
-                self._glfw_session.glfw.swap_buffers(self.window)
+                self.glfw.swap_buffers(self.window)
             self.summary.frames += 1
             self.summary.frame_ms.append(1e3 * (time.perf_counter() - t_frame))
             self._rendered_pending = True
@@ -787,13 +762,12 @@ class XrApp:
                     self.summary.objective.setdefault(eye, []).append(fraction)
         self._rendered_pending = False
 
-    def _draw_mirror(self, textures: Sequence[Any]) -> None:
-        import moderngl
-
+    def _draw_mirror(self, textures: Sequence["moderngl.Texture"]) -> None:
+        moderngl = require_moderngl()
         ctx = self.ctx
         screen = ctx.screen
         screen.use()
-        width, height = self._glfw_session.framebuffer_size
+        width, height = self._session.framebuffer_size
         half = width // 2
         if self._sampler is None:
             self._sampler = ctx.sampler(filter=(moderngl.LINEAR, moderngl.LINEAR), repeat_x=False, repeat_y=False)
@@ -812,23 +786,21 @@ class XrApp:
         self._last_poll = now
         for eye, corrector in self.correctors.items():
             if corrector.poll():
-                self._say(f"{self.rx_path.name} reloaded: {eye} eye rebuilt")
+                self.say(f"{self.rx_path.name} reloaded: {eye} eye rebuilt")
             elif corrector.status and corrector.status != self._status.get(eye):
-                self._say(f"{eye} eye: {corrector.status}")  # e.g. an invalid edit: the last good Rx is kept
+                self.say(f"{eye} eye: {corrector.status}")  # e.g. an invalid edit: the last good Rx is kept
             self._status[eye] = corrector.status
         knob = self.knob_text()
         if knob and self.config.mirror and self.window is not None:
-            self._glfw_session.glfw.set_window_title(self.window, f"{self._title}   {knob}")
+            self.glfw.set_window_title(self.window, f"{self._title}   {knob}")
 
     def run(self, *, handle_sigint: bool = True) -> XrRunSummary:
         """Run the session until it ends (see the module docstring); returns the summary."""
-        from .gl import check_gl_errors
-
         xr = self.xr
         previous = None
         if handle_sigint and threading.current_thread() is threading.main_thread():
             previous = signal.signal(signal.SIGINT, self._on_sigint)
-        glfw = self._glfw_session.glfw
+        glfw = self.glfw
         try:
             while True:
                 try:
@@ -849,7 +821,7 @@ class XrApp:
                         self.summary.reason = "interrupted"
                         break
                     if self.tracker.running and self._exit_requested_at is None:
-                        self._say(f"ending the session ({self._quit_reason}) ...")
+                        self.say(f"ending the session ({self._quit_reason}) ...")
                         self._call("xrRequestExitSession", xr.request_exit_session, self.session)
                         self._exit_requested_at = time.monotonic()
                     elif not self.tracker.running and self._exit_requested_at is None:
@@ -857,7 +829,7 @@ class XrApp:
                         break
                     elif self._exit_requested_at is not None \
                             and time.monotonic() - self._exit_requested_at > EXIT_GRACE_S:
-                        self._say(f"the runtime did not end the session within {EXIT_GRACE_S:g} s; leaving")
+                        self.say(f"the runtime did not end the session within {EXIT_GRACE_S:g} s; leaving")
                         self.summary.reason = "no exit"
                         break
                 if self.tracker.running:
@@ -884,8 +856,6 @@ class XrApp:
 
     def close(self) -> None:
         """Destroy swapchains, space, session and instance; release GL objects; close the window."""
-        from .gl import release
-
         xr = getattr(self, "xr", None)
         if self.ctx is not None:
             for c in self.correctors.values():
@@ -913,16 +883,7 @@ class XrApp:
             if self.instance is not None:
                 _quietly(xr.destroy_instance, self.instance)
                 self.instance = None
-        if self._glfw_session is not None:
-            self._glfw_session.close()
-            self._glfw_session = None
-        self.window = self.ctx = None
-
-    def __enter__(self) -> "XrApp":
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
+        self._close_window()
 
 
 def _address(handle: Any) -> int:
@@ -941,98 +902,3 @@ def _quietly(fn: Callable[..., Any], *args: Any) -> None:
         fn(*args)
     except Exception:  # tear-down: a lost session's handles may already be gone
         pass
-
-
-# --------------------------------------------------------------------------
-# Command line: vrcorrect xr
-# --------------------------------------------------------------------------
-
-
-def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Add the ``xr`` sub-command to an argparse ``subparsers`` object."""
-    p = subparsers.add_parser(
-        "xr", help="the headset: an OpenXR session, each eye corrected before it is submitted",
-        description=("Run an OpenXR session (pyopenxr, XR_KHR_opengl_enable, X11/GLX) and submit each eye's image,\n"
-                     "corrected for that eye's prescription: the 3D demo scene from the tracked eyes, or a\n"
-                     "picture source. Needs an OpenXR runtime (Monado, SteamVR) and a headset; without one it\n"
-                     f"says so and exits with status {EXIT_NO_RUNTIME}. Ctrl-C (or closing the mirror window) ends\n"
-                     f"the session cleanly (status 0); a session the runtime lost exits with status {EXIT_SESSION_LOST}."),
-        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--rx", metavar="RX.json", help="prescription (default: the bundled sample); reloaded when it "
-                                                   "changes on disk")
-    p.add_argument("--display", default="quest2", metavar="PRESET",
-                   help="the headset's display preset or profile .json (default quest2; list: vrcorrect displays)")
-    p.add_argument("--source", default="demo", metavar="demo|IMAGE|VIDEO|DIR|screen",
-                   help="the 3D scene seen from the tracked eyes (default), an image, a video (or animated "
-                        "GIF/PNG/WebP), a folder of images shown in turn, or the X11 screen")
-    p.add_argument("--region", metavar="X,Y,W,H", help="with --source screen: the part of the screen (default all)")
-    p.add_argument("--frames", metavar="N", help="leave after N rendered frames (tests, benchmarks)")
-    p.add_argument("--mirror", action="store_true", help="show what each eye is sent in a window")
-    p.add_argument("--mirror-height", default="480", metavar="PX", help="the mirror window's height (default 480)")
-    p.add_argument("--validation", action="store_true",
-                   help="insert Khronos' core validation layer (bundled with pyopenxr; messages on stdout)")
-    p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl", help="correction backend (default glsl)")
-    p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx")
-    add_filter_options(p)
-    add_reprojection_option(p)
-    p.set_defaults(func=cmd_xr)
-    return p
-
-
-def _parse_int(text: str, field: str, low: int, high: int, what: str) -> int:
-    try:
-        value = int(text)
-    except (TypeError, ValueError):
-        value = low - 1
-    if not low <= value <= high:
-        raise ValidationError(field, text, f"a whole number of {what} from {low} to {high}")
-    return value
-
-
-def cmd_xr(args: argparse.Namespace) -> int:
-    """``vrcorrect xr``: check the arguments, run the session, print a summary."""
-    import sys
-
-    from .mirror import filter_options, parse_frames
-
-    frames = parse_frames(args.frames)
-    options = filter_options(args)
-    mirror_height = _parse_int(args.mirror_height, "--mirror-height", 16, 4096, "pixels")
-    if args.region is not None and args.source != "screen":
-        raise ValidationError("--region", args.region, "only with --source screen")
-    if args.source != "screen":
-        parse_source(args.source)
-    from .model_path import model_for_backend
-
-    model = model_for_backend(args.backend, args.model)
-    if model:
-        options["model"] = model
-    config = XrConfig(rx=args.rx, display=args.display, source=args.source, region=args.region, frames=frames,
-                      mirror=args.mirror, mirror_height=mirror_height, validation=args.validation,
-                      backend=args.backend, corrector_options=options, reprojection=not args.no_reprojection)
-    try:
-        app = XrApp(config)
-    except XrUnavailableError as exc:
-        print(f"vrcorrect xr: {exc}", file=sys.stderr)
-        return EXIT_NO_RUNTIME
-    with app:
-        s = app.summary
-        print(f"runtime: {s.runtime}; system: {s.system}; {s.eye_size[0]}x{s.eye_size[1]} per eye; swapchains "
-              f"{s.swapchain_format}; OpenGL: {s.renderer}")
-        t0 = time.perf_counter()
-        summary = app.run()
-        wall = time.perf_counter() - t0
-    print(f"session ended ({summary.reason}); states: {' -> '.join(summary.states)}")
-    n = summary.frames
-    print(f"{n} frame(s) rendered, {summary.frames_total} submitted, in {wall:.2f} s"
-          + (f" (median {statistics.median(summary.frame_ms):.1f} ms per rendered frame)" if summary.frame_ms else ""))
-    for name, (gpu, cpu) in summary.medians().items():
-        print(f"  {name:<14} gpu {'-' if gpu is None else f'{gpu:.2f}'} ms, cpu {cpu:.2f} ms (median)")
-    if summary.objective:
-        print(f"  fista, {summary.iterations_per_frame} iteration(s) per frame at the end; objective as a fraction "
-              "of uncorrected (median over frames): "
-              + ", ".join(f"{eye} {statistics.median(v):.3f}" for eye, v in summary.objective.items()))
-    if summary.reason == "session lost":
-        print(f"vrcorrect xr: the runtime lost the session (LOSS_PENDING); exit status {EXIT_SESSION_LOST}",
-              file=sys.stderr)
-    return summary.exit_code

@@ -1,0 +1,89 @@
+"""Options the real-time commands share (``render``, ``mirror``, ``overlay``, ``xr``): the GLSL
+strategy and its iterations per frame, ``--no-reprojection``, ``--frames``, and the corrector
+options they make, each checked with a one-line error naming the option."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from ..plumbing.errors import ValidationError
+from ..runtime.model_path import model_for_backend
+from ..runtime.window import ITERATIONS_RANGE
+
+__all__ = ["FILTER_CHOICES", "parse_frames", "parse_whole_number", "parse_iterations_per_frame", "add_rx_option",
+           "add_filter_options", "add_reprojection_option", "filter_options", "corrector_options"]
+
+FILTER_CHOICES = ("fista", "fft", "separable")
+
+
+def parse_whole_number(text: str | int | None, field: str, low: int, high: int, what: str) -> int:
+    """``text`` as a whole number from ``low`` to ``high`` (``what``: the unit named in the error)."""
+    try:
+        value = int(text)
+    except (TypeError, ValueError):
+        value = low - 1
+    if isinstance(text, bool) or not low <= value <= high:
+        raise ValidationError(field, text, f"a whole number of {what} from {low} to {high}")
+    return value
+
+
+def parse_frames(text: str | None, field: str = "--frames", most: int = 10_000_000) -> int | None:
+    """Check ``--frames``: ``None`` (run until closed) or a whole number from 1 to ``most``."""
+    return None if text is None else parse_whole_number(text, field, 1, most, "frames")
+
+
+def parse_iterations_per_frame(text: str | int | None, field: str = "--iterations-per-frame") -> int | None:
+    """Check ``--iterations-per-frame``: ``None`` (the default) or a whole number in
+    :data:`~vrcorrect.runtime.window.ITERATIONS_RANGE`."""
+    return None if text is None else parse_whole_number(text, field, *ITERATIONS_RANGE, "iterations")
+
+
+def add_rx_option(p: argparse.ArgumentParser) -> None:
+    """``--rx``, watched for changes (``mirror``, ``overlay``, ``xr``)."""
+    p.add_argument("--rx", metavar="RX.json", help="prescription (default: the bundled sample); reloaded when it "
+                                                   "changes on disk")
+
+
+def add_filter_options(p: argparse.ArgumentParser) -> None:
+    """``--filter`` and ``--iterations-per-frame`` (``render``, ``mirror``, ``overlay``, ``xr``)."""
+    low, high = ITERATIONS_RANGE
+    p.add_argument("--filter", choices=FILTER_CHOICES, default="fista",
+                   help="GLSL strategy: fista (default; projected-gradient iterations on the true objective, "
+                        "warm-started from frame to frame, converging to the optimum over frames), fft (one pass of "
+                        "the regularised inverse by FFT compute shaders, blended per frame: cheaper, further from "
+                        "the optimum) or separable (low-rank spatial filters of that inverse)")
+    p.add_argument("--iterations-per-frame", metavar="K",
+                   help=f"with --filter fista: iterations per frame, {low} to {high} (default 4; the speed-accuracy "
+                        "knob)")
+
+
+def add_reprojection_option(p: argparse.ArgumentParser) -> None:
+    """``--no-reprojection`` (``mirror``, ``overlay``, ``xr``)."""
+    p.add_argument("--no-reprojection", action="store_true",
+                   help="with --filter fista: warm-start each frame from the previous solution as it was, instead "
+                        "of moved by the motion since the last frame (an image, folder, video or screen source: "
+                        "the pictures' estimated shift, with a cold start on a scene cut; xr's demo scene: the "
+                        "turn of the tracked head)")
+
+
+def filter_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The :class:`~vrcorrect.runtime.corrector.Corrector` options of :func:`add_filter_options`'s
+    arguments (checked: one line naming the option when wrong)."""
+    k = parse_iterations_per_frame(args.iterations_per_frame)
+    options: dict[str, Any] = {"filter": args.filter}
+    if k is not None:
+        if args.filter != "fista":
+            raise ValidationError("--iterations-per-frame", args.iterations_per_frame, "only with --filter fista")
+        options["iterations_per_frame"] = k
+    return options
+
+
+def corrector_options(args: argparse.Namespace) -> dict[str, Any]:
+    """:func:`filter_options` and, with ``--backend onnx``, the model (``--model``, or the default
+    model): the correctors' options of ``mirror``, ``overlay`` and ``xr``."""
+    options = filter_options(args)
+    model = model_for_backend(args.backend, args.model)
+    if model:
+        options["model"] = model
+    return options
