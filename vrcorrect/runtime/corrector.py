@@ -1,5 +1,8 @@
 """The plugin: correct an eye's texture for that eye's prescription, in OpenGL.
 
+(Over 700 lines because the per-frame GL work of three strategies and two backends reads best in one
+class; what is designed on the CPU is in :mod:`vrcorrect.runtime.eye_model`.)
+
 ``Corrector(ctx, rx, display, eye, backend)`` is built once per prescription and
 eye; ``apply(src_texture, dst_framebuffer)`` then runs every frame:
 
@@ -51,13 +54,10 @@ default k = 4 is the smallest k within 5 % of ``fast`` by frame 5 and past it by
 of a second at 90 Hz; k = 2 needs 10 frames to come within 5 %, k = 1 twenty), at 2 k + 3 = 11 FFT
 round trips per frame (docs/benchmarks.md).
 
-For ``"fft"`` and ``"separable"`` the regulariser and the blend weight are chosen once per eye, by the CPU
-``wiener`` method on the bundled sample image (so the GPU result equals
-``wiener(problem, regularisation=(mu,), beta=beta, design=False, grid=..., margin=...)``
-on the CPU up to float32 with ``filter="fft"``, and ``wiener(problem,
-regularisation=(mu,), beta=beta)`` up to the bank's rank tolerance with
-``"separable"``; the GPU blends along the regularised inverse only, as ``wiener`` with
-``descent=False``: the CPU method's extra projected-gradient direction is not computed here).  All GPU objects are made at build time or
+For ``"fft"`` and ``"separable"`` the regulariser and the blend weight are chosen once per eye by
+the CPU ``wiener`` method on the bundled sample image (:mod:`vrcorrect.runtime.eye_model`, which
+designs on the CPU what the GPU uploads, and says how the GPU result relates to ``wiener``'s).
+All GPU objects are made at build time or
 on the first frame of a given size; later frames allocate nothing.  ``poll()``
 reloads the prescription file when it changes on disk and keeps the last good
 state (with a message in ``status``) when the new file is invalid.
@@ -71,187 +71,33 @@ import logging
 import math
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Callable, Union
 
 import numpy as np
 
 from ..plumbing.errors import ValidationError, VrcorrectError
+from ..specs.display import DisplayProfile, get_display
+from ..specs.prescription import EyeRx, Prescription, load_prescription
+from .eye_model import (BACKENDS, FILTERS, MAX_ITERATIONS_PER_FRAME, CorrectorOptions,  # noqa: F401  (re-exported)
+                        EyeModel, build_eye_model, check_iterations)
 from .fft import FftBankGL, fft_grid
-from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
-from .gl import check_gl_errors, fullscreen_triangle, release
+from .filters import SeparableBank
+from .gl import check_gl_errors, download_texture, fullscreen_triangle, release
+from .onnx_backend import OnnxModel
 from .shaders import compile_compute, compile_program
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    import moderngl
+
+    from .learned import LearnedEye, LearnedModel
 
 __all__ = ["CorrectorOptions", "EyeModel", "Corrector", "RxSnapshot", "BACKENDS", "build_eye_model"]
 
 log = logging.getLogger(__name__)
 
-BACKENDS = ("glsl", "onnx")
-FILTERS = ("fft", "separable", "fista")
-MAX_ITERATIONS_PER_FRAME = 256
 _GROUP = 16                                     # local_size of filter_bank.glsl
-
-
-def _check_iterations(value) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or \
-            not 0 <= value <= MAX_ITERATIONS_PER_FRAME:
-        raise ValidationError("iterations_per_frame", value, f"a whole number from 0 to {MAX_ITERATIONS_PER_FRAME}")
-    return int(value)
-
-
-@dataclass(frozen=True)
-class CorrectorOptions:
-    """How the correction is designed (frozen; defaults are the product's).
-
-    Attributes
-    ----------
-    regularisation
-        Candidate regularisers (relative to the kernel's spectral norm squared) tried by the
-        CPU ``wiener`` on the sample image; the best is kept.
-    beta
-        Fixed blend weight in [0, 1]; ``None``: chosen with the regulariser.
-    reference
-        ``"glasses"`` (the target is what the eye sees wearing its glasses) or ``"ideal"``.
-    design_tolerance
-        Truncation of the designed filters (see ``correction_filters``).
-    rank_tolerance
-        Reconstruction error of the separable bank (see ``separable_bank``).
-    choice_size
-        Side of the sample image the regulariser and blend are chosen on (pixels).
-    model
-        ONNX model path for ``backend="onnx"``.
-    filter
-        ``"fista"`` (default), ``"fft"`` or ``"separable"`` (see the module docstring).
-    iterations_per_frame
-        ``"fista"``: projected-gradient iterations per frame (the speed-accuracy knob; 0 keeps the
-        start, the guard still applies); also changeable live (:attr:`Corrector.iterations_per_frame`).
-    blend
-        ``"frame"`` (FFT strategy, default when ``beta`` is None): the blend weight minimising the
-        objective is computed on the GPU for every frame, as the CPU ``wiener`` does per image, so
-        no frame is made worse than uncorrected (three more FFT filterings and a reduction);
-        ``"fixed"``: the weight chosen once on the sample image (cheaper; a compromise).
-        ``"fista"`` always blends its solution with the target by the best weight of the frame.
-    """
-
-    regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
-    beta: float | None = None
-    reference: str = "glasses"
-    design_tolerance: float = 1e-3
-    rank_tolerance: float = DEFAULT_RANK_TOLERANCE
-    choice_size: int = 128
-    model: str | None = None
-    kernel_options: Any = None
-    filter: str = "fista"
-    blend: str = "frame"
-    iterations_per_frame: int = 4
-
-    def __post_init__(self) -> None:
-        if not self.regularisation or not all(isinstance(m, (int, float)) and m > 0 for m in self.regularisation):
-            raise ValidationError("regularisation", self.regularisation, "one or more numbers > 0")
-        if self.beta is not None and not (isinstance(self.beta, (int, float)) and 0.0 <= self.beta <= 1.0):
-            raise ValidationError("beta", self.beta, "a number in [0, 1] or None")
-        if self.reference not in ("glasses", "ideal"):
-            raise ValidationError("reference", self.reference, "'glasses' or 'ideal'")
-        if self.filter not in FILTERS:
-            raise ValidationError("filter", self.filter, "one of " + ", ".join(FILTERS))
-        _check_iterations(self.iterations_per_frame)
-        if self.blend not in ("frame", "fixed"):
-            raise ValidationError("blend", self.blend, "'frame' or 'fixed'")
-
-    @property
-    def per_frame_blend(self) -> bool:
-        return self.blend == "frame" and self.beta is None and self.filter == "fft"
-
-
-@dataclass(frozen=True, eq=False)
-class EyeModel:
-    """Everything the GPU needs for one eye, computed on the CPU (numpy)."""
-
-    eye: Any                                     # EyeRx
-    kernel: Any                                  # EyeKernel
-    reference: Any                               # EyeKernel of the glasses-on eye, or None (ideal)
-    identity: bool                               # nothing to correct
-    correction: SeparableBank | None             # the separable strategy's banks (None for "fft")
-    simulation: SeparableBank | None
-    mu_rel: float
-    beta: float
-    build_seconds: float
-    notes: tuple[str, ...] = field(default_factory=tuple)
-
-    @property
-    def margin(self) -> int:
-        """Border of the FFT grid around the image (one kernel width)."""
-        return max(self.kernel.size, self.reference.size if self.reference is not None else 1)
-
-
-def _sample_target(size: int) -> np.ndarray:
-    from ..specs.display import decode
-    from ..plumbing.fileio import package_data
-    from ..plumbing.imageio import read_image
-
-    img = read_image(package_data("sample.png"))
-    h, w = img.shape[:2]
-    s = min(h, w)
-    img = img[(h - s) // 2:(h - s) // 2 + s, (w - s) // 2:(w - s) // 2 + s]
-    step = max(1, s // size)
-    n = s // step
-    lin = decode("srgb", img[:n * step, :n * step].astype(np.float64))
-    return lin.reshape(n, step, n, step, 3).mean(axis=(1, 3)).astype(np.float32)      # area average
-
-
-def _identity_bank() -> SeparableBank:
-    return separable_bank(np.eye(3)[:, :, None, None])
-
-
-def build_eye_model(eye_rx, display, options: CorrectorOptions = CorrectorOptions()) -> EyeModel:
-    """Kernel, regulariser, blend weight (and, for the separable strategy, both banks) for one
-    eye (CPU, numpy)."""
-    from ..physics.kernel import KernelOptions, build_kernel, build_reference_kernel
-    from ..solvers import make_problem
-    from ..solvers.wiener import correction_filters, wiener
-
-    t0 = time.perf_counter()
-    separable = options.filter == "separable"
-    kopts = options.kernel_options or KernelOptions()
-    kernel = build_kernel(eye_rx, display, kopts)
-    notes = []
-    simulation = None
-    if separable:
-        sim_taps = np.einsum("ik,kjyx->ijyx", np.linalg.inv(kernel.matrix), kernel.kernel)   # A^-1 K
-        simulation = separable_bank(sim_taps, options.rank_tolerance)
-    reference = build_reference_kernel(eye_rx, display, kopts) if options.reference == "glasses" else None
-
-    def identity(why: str) -> EyeModel:
-        notes.append(why + ": the correction is the identity")
-        return EyeModel(eye=eye_rx, kernel=kernel, reference=reference, identity=True,
-                        correction=_identity_bank() if separable else None, simulation=simulation, mu_rel=0.0,
-                        beta=1.0, build_seconds=time.perf_counter() - t0, notes=tuple(notes))
-
-    if kernel.identity or kernel.size == 1:
-        return identity("the eye is sharp at this display (identity kernel)")
-    if reference is not None and reference.kernel.shape == kernel.kernel.shape and \
-            np.allclose(reference.kernel, kernel.kernel, rtol=0, atol=1e-9):
-        return identity("the eye sees as well as with its glasses (nothing to correct)")
-    if options.filter == "fista":
-        notes.append(f"projected gradient (FISTA), {options.iterations_per_frame} iteration(s) per frame, "
-                     "warm-started from frame to frame, blended with the target by the frame's best weight")
-        return EyeModel(eye=eye_rx, kernel=kernel, reference=reference, identity=False, correction=None,
-                        simulation=simulation, mu_rel=0.0, beta=1.0, build_seconds=time.perf_counter() - t0,
-                        notes=tuple(notes))
-    problem = make_problem(_sample_target(options.choice_size), kernel, reference)
-    _, settings = wiener(problem, regularisation=options.regularisation, beta=options.beta,
-                         tolerance=options.design_tolerance, design=separable, descent=False)
-    mu = settings.get("mu_rel") or options.regularisation[0]
-    beta = float(settings["beta"]) if settings.get("mu_rel") is not None else 0.0
-    notes.append(f"regulariser {mu:g} and blend {beta:.3f} chosen by wiener on the sample image")
-    correction = None
-    if separable:
-        filters = correction_filters(kernel, mu, reference, options.design_tolerance)
-        correction = separable_bank(filters.taps, options.rank_tolerance)
-    return EyeModel(eye=eye_rx, kernel=kernel, reference=reference, identity=False, correction=correction,
-                    simulation=simulation, mu_rel=float(mu), beta=beta,
-                    build_seconds=time.perf_counter() - t0, notes=tuple(notes))
 
 
 class _FrameBlend:
@@ -260,7 +106,7 @@ class _FrameBlend:
     ``solution``: the projected-gradient guard, ``run``'s ``kd`` is the residual ``K x - T`` of the
     solution and ``delta`` the solution ``x`` itself (the blend is ``t + beta (x - t)``)."""
 
-    def __init__(self, ctx, size: tuple[int, int], solution: bool = False):
+    def __init__(self, ctx: "moderngl.Context", size: tuple[int, int], solution: bool = False):
         self.ctx, self.size = ctx, size
         W, H = size
         self.groups = (math.ceil(W / 16), math.ceil(H / 16))
@@ -275,7 +121,8 @@ class _FrameBlend:
         self.history = [ctx.buffer(reserve=16) for _ in range(2)]
         self.frames = 0
 
-    def run(self, linear, r0, kd, delta, out) -> None:
+    def run(self, linear: "moderngl.Texture", r0: "moderngl.Texture", kd: "moderngl.Texture",
+            delta: "moderngl.Texture", out: "moderngl.Texture") -> None:
         ctx = self.ctx
         self.result.bind_to_storage_buffer(3)
         self.partials.bind_to_storage_buffer(4)
@@ -326,7 +173,7 @@ class _FrameBlend:
 class _BankGL:
     """One separable bank's taps on the GPU and its two compute programs."""
 
-    def __init__(self, ctx, program: str, bank: SeparableBank, border: str):
+    def __init__(self, ctx: "moderngl.Context", program: str, bank: SeparableBank, border: str):
         self.ctx, self.bank = ctx, bank
         C = bank.components
         self.layers = L = (C + 3) // 4
@@ -351,7 +198,8 @@ class _BankGL:
         self.cols_prog = compile_compute(ctx, program, defines={**defines, "PASS_COLS": None})
         self.rows_prog["u_select"].write(select.reshape(L, 4, 3).tobytes())
 
-    def run(self, linear_in, rows_array, out, uniforms: dict[str, float] | None = None) -> None:
+    def run(self, linear_in: "moderngl.Texture", rows_array: "moderngl.TextureArray", out: "moderngl.Texture",
+            uniforms: dict[str, float] | None = None) -> None:
         W, H = linear_in.size
         ctx = self.ctx
         linear_in.use(0)
@@ -388,22 +236,24 @@ class RxSnapshot:
     (an edit made during the builds included) and handles it as hot reload does, keeping the
     last good prescription when the new file is invalid."""
 
-    prescription: Any          # Prescription
+    prescription: Prescription
     path: Path | None          # None: not from a file (nothing to watch)
     stamp: tuple[int, int] | None
 
     @classmethod
     def read(cls, path: str | os.PathLike[str]) -> "RxSnapshot":
-        from ..specs.prescription import load_prescription
-
         path = Path(path)
         stamp = _file_stamp(path)
         return cls(load_prescription(path), path, stamp)
 
 
-def _load_rx(rx):
-    from ..specs.prescription import Prescription
+RxSource = Union[str, "os.PathLike[str]", Prescription, RxSnapshot]
+"""What :class:`Corrector` takes as ``rx``: a prescription JSON path, a prescription, or a snapshot."""
 
+_Slot = Union[OnnxModel, "LearnedEye"]            # what runs the ONNX backend's frames
+
+
+def _load_rx(rx: RxSource) -> RxSnapshot:
     if isinstance(rx, RxSnapshot):
         return rx
     if isinstance(rx, Prescription):
@@ -413,7 +263,7 @@ def _load_rx(rx):
     raise ValidationError("rx", type(rx).__name__, "a prescription JSON path, a Prescription or an RxSnapshot")
 
 
-def _file_stamp(path: Path) -> tuple[float, int] | None:
+def _file_stamp(path: Path) -> tuple[int, int] | None:
     try:
         st = path.stat()
     except OSError:
@@ -437,16 +287,16 @@ class Corrector:
     eye
         ``"right"`` or ``"left"``.
     backend
-        ``"glsl"`` (the wiener fallback) or ``"onnx"`` (a model through onnxruntime; needs ``model=``).
+        ``"glsl"`` (the wiener fallback) or ``"onnx"`` (a model through onnxruntime; needs ``model=``;
+        nothing is designed for the GLSL strategies then, ``filter=`` only picks :meth:`simulate`'s bank).
     **options
         Fields of :class:`CorrectorOptions`.
     """
 
     POLL_INTERVAL_S = 0.25
 
-    def __init__(self, ctx, rx, display, eye: str, backend: str = "glsl", **options):
-        from ..specs.display import DisplayProfile, get_display
-
+    def __init__(self, ctx: "moderngl.Context", rx: RxSource, display: str | os.PathLike[str] | DisplayProfile,
+                 eye: str, backend: str = "glsl", **options: Any):
         if backend not in BACKENDS:
             raise ValidationError("backend", backend, "one of " + ", ".join(BACKENDS))
         if eye not in ("right", "left"):
@@ -454,7 +304,7 @@ class Corrector:
         if ctx.version_code < 430:
             raise ValidationError("ctx", f"OpenGL {ctx.version_code}", "a context with OpenGL 4.3 or newer")
         self.ctx, self.eye_name, self.backend = ctx, eye, backend
-        self.options = CorrectorOptions(**options)
+        self.options = CorrectorOptions(backend=backend, **options)
         self.display = display if isinstance(display, DisplayProfile) else get_display(display)
         if self.display.transfer != "srgb":
             raise ValidationError("display transfer", f"{self.display.transfer} ({self.display.name})",
@@ -465,7 +315,7 @@ class Corrector:
         self.enabled = True
         self.status = ""
         self.timings_ms: dict[str, float] = {}
-        self.profile: Any = None                            # called with each stage's name once issued
+        self.profile: Callable[[str], None] | None = None   # called with each stage's name once issued
         self._offset = (0.0, 0.0, 0.0)                      # live sphere, cylinder, axis changes
         self._sized: dict[tuple[int, int], dict[str, Any]] = {}
         self._decode = {srgb: compile_compute(ctx, "correction.glsl", defines={"PASS_DECODE": None, "LAYERS": 1,
@@ -474,11 +324,10 @@ class Corrector:
                         for srgb in (True, False)}
         self._present = compile_program(ctx, "passthrough.glsl", defines={"ENCODE_SRGB": None})
         self._present_vao = fullscreen_triangle(ctx, self._present)
-        self._onnx = None
-        self._learned = None
+        self._onnx: _Slot | None = None
+        self._learned: LearnedModel | None = None
         if backend == "onnx":
-            from .learned import LearnedModel, is_learned_model
-            from .onnx_backend import OnnxModel
+            from .learned import LearnedModel, is_learned_model  # start-up time: loads the optics and solvers
 
             if not self.options.model:
                 raise ValidationError("model", None, "an ONNX model path for backend 'onnx'")
@@ -486,13 +335,16 @@ class Corrector:
                 self._learned = LearnedModel(self.options.model)
             else:
                 self._onnx = OnnxModel(self.options.model)
-        self._banks: tuple[_BankGL, _BankGL] | None = None
-        self.model: EyeModel | None = None
+        self._correction_bank: _BankGL | None = None   # filter="separable" (the GLSL backend's correction)
+        self._simulation_bank: _BankGL | None = None   # filter="separable" (simulate)
+        self.model: EyeModel                           # set by _rebuild below
         self._iterations = self.options.iterations_per_frame
-        self._fista_start = compile_compute(ctx, "fista.glsl") if self.options.filter == "fista" else None
+        self._fista_start = compile_compute(ctx, "fista.glsl") \
+            if self.options.filter == "fista" and backend == "glsl" else None
+        self._step = 0.0                               # filter="fista": the gradient step 1 / ||K||^2
         self._warm_size: tuple[int, int] | None = None   # size whose FISTA state the next frame continues
         self._momentum = 1.0
-        self._motion_gl = (0, 0)                          # the next frame's reprojection, GL texels
+        self._motion_gl: tuple[int, int] = (0, 0)         # the next frame's reprojection, GL texels
         self._rebuild(self.prescription.eye(eye))
         check_gl_errors(ctx, "Corrector build")
 
@@ -505,7 +357,7 @@ class Corrector:
 
     @iterations_per_frame.setter
     def iterations_per_frame(self, value: int) -> None:
-        self._iterations = _check_iterations(value)
+        self._iterations = check_iterations(value)
 
     def reset(self) -> None:
         """Make the next frame a cold start (``filter="fista"``: iterations from the target, momentum
@@ -514,17 +366,22 @@ class Corrector:
         self._momentum = 1.0
 
     @property
-    def eye_rx(self):
+    def eye_rx(self) -> EyeRx:
         """This eye's prescription as corrected now (file plus live changes)."""
         return self.model.eye
 
-    def _with_offset(self, base):
+    @property
+    def live_offset(self) -> tuple[float, float, float]:
+        """The live changes :meth:`adjust` made, ``(sphere_D, cylinder_D, axis_deg)``, on top of the file's."""
+        return self._offset
+
+    def _with_offset(self, base: EyeRx) -> EyeRx:
         ds, dc, da = self._offset
         return base.with_changes(sphere_D=base.sphere_D + ds, cylinder_D=base.cylinder_D + dc,
                                  axis_deg=(base.axis_deg + da) % 180.0)
 
-    def _rebuild(self, base_eye) -> None:
-        from ..solvers.wiener import spectral_norm_squared
+    def _rebuild(self, base_eye: EyeRx) -> None:
+        from ..solvers.wiener import spectral_norm_squared  # start-up time: scipy loads with the first eye
 
         eye = self._with_offset(base_eye)
         if self._learned is not None:               # an eye outside the trained range: refused before the work
@@ -535,15 +392,16 @@ class Corrector:
             if self._onnx is not None:
                 self._onnx.release()
             self._onnx = bound
-        banks = None
-        if self.options.filter == "separable":
-            banks = (_BankGL(self.ctx, "correction.glsl", model.correction, "mirror"),
-                     _BankGL(self.ctx, "simulation.glsl", model.simulation, "zero"))
-        old = self._banks
-        self._banks, self.model = banks, model
+        old = (self._correction_bank, self._simulation_bank)
+        self._correction_bank = None if model.correction is None else \
+            _BankGL(self.ctx, "correction.glsl", model.correction, "mirror")
+        self._simulation_bank = None if model.simulation is None else \
+            _BankGL(self.ctx, "simulation.glsl", model.simulation, "zero")
+        self.model = model
         self._step = float(np.float32(1.0 / spectral_norm_squared(model.kernel.kernel)))   # 1 / ||K||^2
-        for b in old or ():
-            b.release()
+        for b in old:
+            if b is not None:
+                b.release()
         self._release_sized()                      # per-size work depends on the eye: remade on use
         self.reset()
 
@@ -582,8 +440,6 @@ class Corrector:
         if stamp == self._stamp:
             return False
         self._stamp = stamp
-        from ..specs.prescription import load_prescription
-
         try:
             rx = load_prescription(self.rx_path)
             self._rebuild(rx.eye(self.eye_name))
@@ -604,19 +460,20 @@ class Corrector:
             ctx = self.ctx
             W, H = size
 
-            def tex():
+            def tex() -> "moderngl.Texture":
                 t = ctx.texture(size, 4, dtype="f4")
                 t.filter = (ctx.NEAREST, ctx.NEAREST)
                 return t
 
             res = {"linear": tex(), "corrected": tex(), "seen": tex()}
-            if self.options.filter == "fista":
+            if self._fista_start is not None:
                 res.update(x=tex(), y=tex(), t_prev=tex(), target=tex(), r=tex(), r0=tex(), kd=tex(),
                            x_src=tex(), y_src=tex(), t_prev_src=tex())   # a shifted warm start's sources
-            elif self._banks is None and self.options.per_frame_blend:
+            elif self._per_frame_blend:
                 res.update(delta=tex(), r0=tex(), kd=tex())
-            if self._banks is not None:
-                rows = ctx.texture_array((W, H, max(b.layers for b in self._banks)), 4, dtype="f4")
+            if self._simulation_bank is not None:
+                banks = (b for b in (self._correction_bank, self._simulation_bank) if b is not None)
+                rows = ctx.texture_array((W, H, max(b.layers for b in banks)), 4, dtype="f4")
                 rows.filter = (ctx.NEAREST, ctx.NEAREST)
                 res["rows"] = rows
             else:
@@ -624,45 +481,50 @@ class Corrector:
             self._sized[size] = res
         return res
 
+    @property
+    def _per_frame_blend(self) -> bool:
+        """The GLSL backend's FFT strategy computes the blend weight of every frame on the GPU."""
+        return self.backend == "glsl" and self.options.per_frame_blend
+
     def _fft_banks(self, size: tuple[int, int]) -> dict[str, Any]:
-        """The FFT strategy's banks for this image size (spectra computed on the CPU once per size)."""
-        from ..solvers.wiener import centred_kernel, inverse_spectrum
+        """The FFT strategy's banks for this image size (spectra computed on the CPU once per size):
+        the forward model for :meth:`simulate`, and what the GLSL backend's correction needs."""
+        from ..solvers.wiener import centred_kernel, inverse_spectrum  # start-up time (see _rebuild)
 
         m = self.model
         margin = m.margin
         grid = fft_grid(*size, margin)
         k = m.kernel
-        sim = np.einsum("ik,kjyx->ijyx", np.linalg.inv(k.matrix),
-                        np.fft.fft2(centred_kernel(k.kernel, grid), axes=(2, 3)))            # A^-1 K(f)
-        out = {"fft_sim": FftBankGL(self.ctx, sim, size, margin, border="zero", combine="clip")}
-        if not m.identity and self.options.filter == "fista":
-            Kf = np.fft.fft2(centred_kernel(k.kernel, grid), axes=(2, 3))
-            Tf = (np.fft.fft2(centred_kernel(m.reference.kernel, grid), axes=(2, 3)) if m.reference is not None
-                  else np.broadcast_to(k.matrix[:, :, None, None], Kf.shape))
-            # K y - T and K^H r (exact linear convolutions, black outside), the target T = K_ref t or A t
+        Kf = np.fft.fft2(centred_kernel(k.kernel, grid), axes=(2, 3))                    # K(f), once
+        sim = np.einsum("ik,kjyx->ijyx", np.linalg.inv(k.matrix), Kf)                     # A^-1 K(f)
+        out: dict[str, Any] = {"fft_sim": FftBankGL(self.ctx, sim, size, margin, border="zero", combine="clip")}
+        if m.identity or self.backend != "glsl":
+            return out
+        # the target's spectrum: T = K_ref t (glasses) or A t (ideal)
+        Tf = (np.fft.fft2(centred_kernel(m.reference.kernel, grid), axes=(2, 3)) if m.reference is not None
+              else np.broadcast_to(k.matrix[:, :, None, None], Kf.shape))
+        if self._fista_start is not None:
+            # K y - T and K^H r (exact linear convolutions, black outside)
             out["fft_k"] = FftBankGL(self.ctx, Kf, size, margin, border="zero", combine=("residual", "fista"),
                                      adjoint=True)
             out["fft_target"] = FftBankGL(self.ctx, Tf, size, margin, border="zero", combine="raw")
             out["blend"] = _FrameBlend(self.ctx, size, solution=True)
-        elif not m.identity:
-            spectrum = inverse_spectrum(k, m.mu_rel, grid, m.reference)
-            frame = self.options.per_frame_blend
-            out["fft_correct"] = FftBankGL(self.ctx, spectrum, size, margin, border="mirror",
-                                           combine="delta" if frame else "correct")
-            if frame:
-                Kf = np.fft.fft2(centred_kernel(k.kernel, grid), axes=(2, 3))
-                Tf = (np.fft.fft2(centred_kernel(m.reference.kernel, grid), axes=(2, 3)) if m.reference is not None
-                      else k.matrix[:, :, None, None])
-                out["fft_r0"] = FftBankGL(self.ctx, Kf - Tf, size, margin, border="zero", combine="raw")
-                out["fft_k"] = FftBankGL(self.ctx, Kf, size, margin, border="zero", combine="raw")
-                out["blend"] = _FrameBlend(self.ctx, size)
+            return out
+        spectrum = inverse_spectrum(k, m.mu_rel, grid, m.reference)
+        frame = self._per_frame_blend
+        out["fft_correct"] = FftBankGL(self.ctx, spectrum, size, margin, border="mirror",
+                                       combine="delta" if frame else "correct")
+        if frame:
+            out["fft_r0"] = FftBankGL(self.ctx, Kf - Tf, size, margin, border="zero", combine="raw")
+            out["fft_k"] = FftBankGL(self.ctx, Kf, size, margin, border="zero", combine="raw")
+            out["blend"] = _FrameBlend(self.ctx, size)
         return out
 
     def fft_grid_for(self, size: tuple[int, int]) -> tuple[tuple[int, int], int]:
         """The FFT strategy's ``(NY, NX)`` grid and margin for an image of ``size`` (W, H)."""
         return fft_grid(*size, self.model.margin), self.model.margin
 
-    def _decode_source(self, src) -> dict[str, Any]:
+    def _decode_source(self, src: "moderngl.Texture") -> dict[str, Any]:
         res = self._resources(tuple(src.size))
         srgb = src.dtype == "f1"
         prog = self._decode[srgb]
@@ -674,16 +536,15 @@ class Corrector:
         self.ctx.memory_barrier()
         return res
 
-    def _correct(self, res) -> Any:
+    def _correct(self, res: dict[str, Any]) -> "moderngl.Texture":
         if not self.enabled:
             return res["linear"]
         if self._onnx is not None:
             self._onnx.run(res["linear"], res["corrected"])
         elif self.model.identity:
             return res["linear"]
-        elif self._banks is not None:
-            self._banks[0].run(res["linear"], res["rows"], res["corrected"],
-                               {"u_beta": self.model.beta})
+        elif self._correction_bank is not None:
+            self._correction_bank.run(res["linear"], res["rows"], res["corrected"], {"u_beta": self.model.beta})
         elif self._fista_start is not None:
             self._fista_frame(res)
         elif "blend" in res:                        # per-frame blend weight, on the GPU
@@ -695,10 +556,10 @@ class Corrector:
             res["fft_correct"].run(res["linear"], res["corrected"], beta=self.model.beta)
         return res["corrected"]
 
-    def _fista_frame(self, res) -> None:
+    def _fista_frame(self, res: dict[str, Any]) -> None:
         """``k`` projected-gradient (FISTA) iterations on the true objective, warm-started from the
         previous frame's solution, then the guard (module docstring)."""
-        from ..solvers.wiener import fista_momentum
+        from ..solvers.wiener import fista_momentum  # start-up time (see _rebuild; already loaded here)
 
         ctx = self.ctx
         linear = res["linear"]
@@ -748,8 +609,6 @@ class Corrector:
     def solution(self, size: tuple[int, int]) -> np.ndarray | None:
         """``filter="fista"``: the current solution ``x`` for images of ``size`` (W, H) before the
         guard's blend, linear RGB ``(H, W, 3)`` float32 rows top first (reads it back: a sync)."""
-        from .gl import download_texture
-
         res = self._sized.get(tuple(size))
         return None if res is None or "x" not in res else download_texture(res["x"])[..., :3].copy()
 
@@ -773,7 +632,8 @@ class Corrector:
         res = self._sized.get(tuple(size))
         return res["blend"].beta() if res is not None and "blend" in res else None
 
-    def _present_to(self, texture, dst, viewport) -> None:
+    def _present_to(self, texture: "moderngl.Texture", dst: "moderngl.Framebuffer",
+                    viewport: tuple[int, int, int, int] | None) -> None:
         texture.use(0)
         self._present["u_source"] = 0
         dst.use()
@@ -781,7 +641,7 @@ class Corrector:
         dst.viewport = vp
         self._present_vao.render(mode=self.ctx.TRIANGLES, vertices=3)
 
-    def _set_motion(self, motion_px) -> None:
+    def _set_motion(self, motion_px: tuple[float, float] | None) -> None:
         """Keep ``motion_px`` = ``(dx, dy)`` (image pixels, x to the right, y down, rounded to whole
         pixels; ``None``: no motion) for this frame's warm start, in GL texel coordinates (rows
         bottom first, so y flips)."""
@@ -797,7 +657,7 @@ class Corrector:
         big = 1 << 20
         self._motion_gl = (int(round(min(max(dx, -big), big))), -int(round(min(max(dy, -big), big))))
 
-    def apply(self, src_texture, dst_framebuffer, viewport: tuple[int, int, int, int] | None = None,
+    def apply(self, src_texture: "moderngl.Texture", dst_framebuffer: "moderngl.Framebuffer", viewport: tuple[int, int, int, int] | None = None,
               motion_px: tuple[float, float] | None = None) -> None:
         """Correct ``src_texture`` (RGBA8 sRGB code values, or float linear light) into
         ``dst_framebuffer`` (sRGB-encoded), in ``viewport`` (GL x, y, width, height) or all of it.
@@ -825,7 +685,7 @@ class Corrector:
         if self.profile is not None:
             self.profile(stage)
 
-    def simulate(self, src_texture, dst_framebuffer, viewport: tuple[int, int, int, int] | None = None,
+    def simulate(self, src_texture: "moderngl.Texture", dst_framebuffer: "moderngl.Framebuffer", viewport: tuple[int, int, int, int] | None = None,
                  corrected: bool = True, motion_px: tuple[float, float] | None = None) -> None:
         """What this eye sees of ``src_texture`` as displayed (after the correction when
         ``corrected`` and the correction is enabled), sRGB-encoded into ``dst_framebuffer``;
@@ -834,8 +694,8 @@ class Corrector:
         self._set_motion(motion_px)
         res = self._decode_source(src_texture)
         shown = self._correct(res) if corrected else res["linear"]
-        if self._banks is not None:
-            self._banks[1].run(shown, res["rows"], res["seen"])
+        if self._simulation_bank is not None:
+            self._simulation_bank.run(shown, res["rows"], res["seen"])
         else:
             res["fft_sim"].run(shown, res["seen"])
         self._present_to(res["seen"], dst_framebuffer, viewport)
@@ -859,8 +719,9 @@ class Corrector:
         return info
 
     def release(self) -> None:
-        for b in self._banks or ():
-            b.release()
+        for b in (self._correction_bank, self._simulation_bank):
+            if b is not None:
+                b.release()
         self._release_sized()
         release(self._present_vao, self._present, *self._decode.values(), self._fista_start)
         if self._onnx is not None:

@@ -17,12 +17,16 @@ the flip (see the notes in the code).  Layer 5: numpy and moderngl.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..plumbing.errors import ValidationError
 from .gl import release
 from .shaders import compile_compute
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    import moderngl
 
 __all__ = ["fft_grid", "FftBankGL", "MAX_FFT_SIZE"]
 
@@ -59,7 +63,7 @@ class FftBankGL:
     of the bank's linear convolution).  Everything is compiled and allocated here, none per run.
     """
 
-    def __init__(self, ctx, spectrum_image: np.ndarray, image_size: tuple[int, int], margin: int,
+    def __init__(self, ctx: "moderngl.Context", spectrum_image: np.ndarray, image_size: tuple[int, int], margin: int,
                  border: str = "mirror", combine: str | tuple[str, ...] = "correct", adjoint: bool = False):
         if border not in ("mirror", "zero"):
             raise ValidationError("border", border, "'mirror' or 'zero'")
@@ -97,8 +101,9 @@ class FftBankGL:
         for t in (self.bank, self.spec, self.spec_out, self.filtered):
             t.filter = (ctx.NEAREST, ctx.NEAREST)
 
-    def run(self, linear_in, out, beta: float = 1.0, *, combine: str | None = None, adjoint: bool = False,
-            other=None, solution=None, step: float = 0.0, weight: float = 0.0) -> None:
+    def run(self, linear_in: "moderngl.Texture", out: "moderngl.Texture", beta: float = 1.0, *,
+            combine: str | None = None, adjoint: bool = False, other: "moderngl.Texture | None" = None,
+            solution: "moderngl.Texture | None" = None, step: float = 0.0, weight: float = 0.0) -> None:
         """``linear_in`` (rgba32f, W x H) -> ``out`` (rgba32f): filtered (by the bank, or its
         conjugate transpose with ``adjoint``), then combined (``combine``, default the bank's own).
 

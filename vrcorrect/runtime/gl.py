@@ -26,9 +26,11 @@ the one last used, and if that framebuffer was deleted the driver raises
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Mapping
+from types import ModuleType
+from typing import TYPE_CHECKING, Mapping, Protocol
 
 import numpy as np
+import numpy.typing as npt
 
 from ..plumbing.errors import GLError, GLUnavailableError, ValidationError
 
@@ -44,9 +46,9 @@ _FILTERS = ("nearest", "linear", "mipmap")
 _SRGB_FORMATS = {3: 0x8C41, 4: 0x8C43}  # GL_SRGB8, GL_SRGB8_ALPHA8
 
 
-def _moderngl():
+def _moderngl() -> ModuleType:
     try:
-        import moderngl
+        import moderngl  # optional dependency (the realtime extra): a clear error when it is missing
     except ImportError as exc:  # pragma: no cover - the realtime extra is installed in CI
         raise GLUnavailableError(f"moderngl is not installed ({exc}); install the realtime extra: "
                                  "pip install -e '.[realtime]' (tools/setup.sh does)") from None
@@ -179,7 +181,7 @@ def _gl_rows(image: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------
 
 
-def _texture_code(dtype: Any, field: str) -> str:
+def _texture_code(dtype: npt.DTypeLike, field: str) -> str:
     try:
         dt = np.dtype(dtype)
     except TypeError:
@@ -271,7 +273,7 @@ def download_texture(texture: "moderngl.Texture") -> np.ndarray:
     return _gl_rows(data.reshape(height, width, texture.components))
 
 
-def render_target(ctx: "moderngl.Context", *, width: int, height: int, dtype: Any = np.uint8,
+def render_target(ctx: "moderngl.Context", *, width: int, height: int, dtype: npt.DTypeLike = np.uint8,
                   components: int = 4, filter: str = "nearest") -> tuple["moderngl.Texture", "moderngl.Framebuffer"]:
     """A texture to draw into and its framebuffer: ``(texture, framebuffer)``.
 
@@ -288,7 +290,7 @@ def render_target(ctx: "moderngl.Context", *, width: int, height: int, dtype: An
     return texture, ctx.framebuffer(color_attachments=[texture])
 
 
-def read_framebuffer(framebuffer: "moderngl.Framebuffer", *, components: int = 3, dtype: Any = np.uint8,
+def read_framebuffer(framebuffer: "moderngl.Framebuffer", *, components: int = 3, dtype: npt.DTypeLike = np.uint8,
                      rect: Rect | None = None) -> np.ndarray:
     """Pixels of colour attachment 0 (or of a window's default framebuffer) as ``(H, W, C)``,
     top row first. ``rect`` (image terms) reads part of it."""
@@ -350,7 +352,13 @@ def draw_fullscreen(vao: "moderngl.VertexArray", framebuffer: "moderngl.Framebuf
     vao.render(mode=moderngl.TRIANGLES, vertices=3)
 
 
-def release(*objects: Any) -> None:
+class Releasable(Protocol):
+    """What :func:`release` takes: a moderngl object (texture, buffer, program, framebuffer, ...)."""
+
+    def release(self) -> None: ...
+
+
+def release(*objects: Releasable | None) -> None:
     """Release moderngl objects in the order given (``None`` is skipped).
 
     A framebuffer that is the context's bound one (its last ``use()``) is unbound first, by

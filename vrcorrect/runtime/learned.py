@@ -31,14 +31,22 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..plumbing.errors import InputError, ValidationError
 from ..learn.conditioning import SamplingRanges, check_eye, eye_features, model_inputs
+from ..physics.kernel import EyeKernel, build_kernel, build_reference_kernel
+from ..plumbing.errors import InputError, ValidationError
+from ..solvers.wiener import GradientPlan, gradient_plan
+from ..specs.display import DisplayProfile
 from ..specs.prescription import EyeRx
 from .model_path import DEFAULT_MODEL, model_for_backend  # noqa: F401  (re-exported)
+from .onnx_backend import run_slot
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    import moderngl
+    import onnxruntime
 
 LEARNED_FORMAT = "vrcorrect-learned-v1"
 INPUTS = ("image", "precorrected", "eye")
@@ -46,9 +54,9 @@ INPUTS = ("image", "precorrected", "eye")
 GRADIENT_INPUT = "gradient"
 
 
-def _session(path: Path, providers: tuple[str, ...] | None):
+def _session(path: Path, providers: tuple[str, ...] | None) -> "onnxruntime.InferenceSession":
     try:
-        import onnxruntime as ort
+        import onnxruntime as ort  # optional dependency (the realtime extra): needed only to load a model
     except ImportError as exc:  # pragma: no cover - the realtime extra is installed in CI
         raise InputError(f"onnxruntime is not installed ({exc}); pip install -e '.[realtime]'") from None
     if not path.is_file():
@@ -88,7 +96,7 @@ class LearnedModel:
         self.gradient_input = GRADIENT_INPUT in inputs
         try:
             self.ranges = SamplingRanges.from_dict(json.loads(meta["vrcorrect.ranges"]))
-            self.display: dict[str, Any] = json.loads(meta["vrcorrect.specs.display"])
+            self.display: dict[str, Any] = json.loads(meta["vrcorrect.display"])
             self.mu_rel = float(meta["vrcorrect.precorrection_mu_rel"])
             self.precorrection_steps = int(meta.get("vrcorrect.precorrection_steps", "0"))
             self.reference = meta.get("vrcorrect.reference", "glasses")
@@ -97,7 +105,7 @@ class LearnedModel:
         self.metadata = meta
         self.providers = self.session.get_providers()
 
-    def check(self, eye: EyeRx, display) -> EyeRx:
+    def check(self, eye: EyeRx, display: DisplayProfile) -> EyeRx:
         """Refuse, before any kernel is built, an eye outside the trained range or a display other
         than the trained one (one line naming the range and suggesting ``wiener`` or ``fast``);
         returns the eye as checked."""
@@ -107,7 +115,8 @@ class LearnedModel:
                                   f"{self.path.name} was trained for); for other displays use --method wiener or fast")
         return e
 
-    def for_eye(self, eye: EyeRx, display, kernel=None, reference_kernel=None) -> "LearnedEye":
+    def for_eye(self, eye: EyeRx, display: DisplayProfile, kernel: EyeKernel | None = None,
+                reference_kernel: EyeKernel | None = None) -> "LearnedEye":
         """The model bound to one eye on ``display`` (kernels built here unless given).
 
         Raises
@@ -115,8 +124,6 @@ class LearnedModel:
         ValidationError
             The eye is outside the trained range, or the display is not the trained one.
         """
-        from ..physics.kernel import build_kernel, build_reference_kernel
-
         e = self.check(eye, display)
         kernel = kernel if kernel is not None else build_kernel(e, display)
         if reference_kernel is None and self.reference == "glasses":
@@ -127,11 +134,11 @@ class LearnedModel:
 class LearnedEye:
     """One eye's learned correction: ``infer(image_chw) -> displayed_chw`` (the slot's signature)."""
 
-    def __init__(self, model: LearnedModel, eye: EyeRx, kernel, reference_kernel):
+    def __init__(self, model: LearnedModel, eye: EyeRx, kernel: EyeKernel, reference_kernel: EyeKernel | None):
         self.model, self.eye, self.kernel, self.reference_kernel = model, eye, kernel, reference_kernel
         self.features = eye_features(eye, model.ranges)[None]
         self._buffers: dict[tuple[int, int], np.ndarray] = {}
-        self._plans: dict[tuple[int, int], Any] = {}
+        self._plans: dict[tuple[int, int], GradientPlan] = {}
 
     def precorrected(self, image_chw: np.ndarray) -> np.ndarray:
         """The pre-correction channels ``(3, H, W)`` the model is fed with."""
@@ -148,8 +155,6 @@ class LearnedEye:
         plan = None
         grad = self.model.gradient_input
         if grad or (self.model.precorrection_steps > 0 and self.kernel.size > 1):
-            from ..solvers.wiener import gradient_plan
-
             size = hwc.shape[:2]
             plan = self._plans.get(size)
             if plan is None:
@@ -177,10 +182,8 @@ class LearnedEye:
         out = self.model.session.run(None, feeds)[0]
         return np.clip(out[0], 0.0, 1.0).astype(np.float32, copy=False)
 
-    def run(self, src_texture, dst_texture) -> None:
+    def run(self, src_texture: "moderngl.Texture", dst_texture: "moderngl.Texture") -> None:
         """The ONNX slot's frame (rgba32f textures, GL orientation): see :func:`run_slot`."""
-        from .onnx_backend import run_slot
-
         run_slot(self.infer, self._buffers, src_texture, dst_texture)
 
     def release(self) -> None:

@@ -21,6 +21,7 @@ Layer 5: numpy only (``numpy.fft``); never torch.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from ..plumbing.errors import ValidationError
 
@@ -91,7 +92,7 @@ def motion_for(prev: np.ndarray | None, new: np.ndarray, scale: tuple[float, flo
     return int(round(dx * scale[0])), int(round(dy * scale[1]))
 
 
-def _as_matrix(m, field: str) -> np.ndarray:
+def _as_matrix(m: npt.ArrayLike, field: str) -> np.ndarray:
     a = np.asarray(m, dtype=np.float64)
     if a.shape != (4, 4) or not np.all(np.isfinite(a)):
         raise ValidationError(field, f"shape {a.shape}" if a.shape != (4, 4) else "a matrix with NaN or inf",
@@ -99,7 +100,8 @@ def _as_matrix(m, field: str) -> np.ndarray:
     return a
 
 
-def view_shift(view_before, view_after, projection, size: tuple[int, int]) -> tuple[int, int] | None:
+def view_shift(view_before: npt.ArrayLike, view_after: npt.ArrayLike, projection: npt.ArrayLike,
+               size: tuple[int, int]) -> tuple[int, int] | None:
     """The whole-pixel displacement ``(dx, dy)`` (x to the right, y down) of distant content at the
     centre of an eye's image when the eye turns from ``view_before`` to ``view_after`` (4x4
     world-to-eye matrices, OpenGL convention: the eye looks down -z) under ``projection`` (4x4,

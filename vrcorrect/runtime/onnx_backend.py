@@ -20,10 +20,15 @@ Layer 5: numpy and onnxruntime only.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from ..plumbing.errors import InputError, ValidationError
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    import moderngl
+    import onnx
 
 __all__ = ["OnnxModel", "run_slot", "small_onnx_model", "write_one_minus_x_model"]
 
@@ -33,7 +38,7 @@ class OnnxModel:
 
     def __init__(self, path: str | Path, providers: tuple[str, ...] | None = None):
         try:
-            import onnxruntime as ort
+            import onnxruntime as ort  # optional dependency (the realtime extra): needed only to load a model
         except ImportError as exc:  # pragma: no cover - the realtime extra is installed in CI
             raise InputError(f"onnxruntime is not installed ({exc}); pip install -e '.[realtime]'") from None
         p = Path(path)
@@ -54,8 +59,9 @@ class OnnxModel:
             raise ValidationError("model input", f"{inputs[0].type} {shape}", "float32 of shape (1, 3, H, W)")
         self.path = p
         self.input_name = inputs[0].name
-        self.fixed_hw = tuple(shape[2:]) if all(isinstance(d, int) for d in shape[2:]) else None
-        self.providers = self.session.get_providers()
+        self.fixed_hw: tuple[int, int] | None = (shape[2], shape[3]) if all(isinstance(d, int) for d in shape[2:]) \
+            else None
+        self.providers: list[str] = self.session.get_providers()
         self._buffers: dict[tuple[int, int], np.ndarray] = {}
 
     def infer(self, image_chw: np.ndarray) -> np.ndarray:
@@ -68,7 +74,7 @@ class OnnxModel:
             raise ValidationError("model output", f"shape {out.shape}", f"(1, 3, {H}, {W})")
         return np.clip(out[0], 0.0, 1.0).astype(np.float32, copy=False)
 
-    def run(self, src_texture, dst_texture) -> None:
+    def run(self, src_texture: "moderngl.Texture", dst_texture: "moderngl.Texture") -> None:
         """rgba32f ``src`` -> model -> rgba32f ``dst`` (same size, GL orientation)."""
         run_slot(self.infer, self._buffers, src_texture, dst_texture)
 
@@ -76,7 +82,8 @@ class OnnxModel:
         self._buffers.clear()
 
 
-def run_slot(infer, buffers: dict[tuple[int, int], np.ndarray], src_texture, dst_texture) -> None:
+def run_slot(infer: Callable[[np.ndarray], np.ndarray], buffers: dict[tuple[int, int], np.ndarray],
+             src_texture: "moderngl.Texture", dst_texture: "moderngl.Texture") -> None:
     """The slot's frame: read the rgba32f ``src`` back, flip it to image orientation, ``infer``
     ``(3, H, W) -> (3, H, W)``, flip back and write ``dst``; one buffer per size in ``buffers``."""
     W, H = src_texture.size
@@ -91,11 +98,11 @@ def run_slot(infer, buffers: dict[tuple[int, int], np.ndarray], src_texture, dst
     dst_texture.write(buf)
 
 
-def small_onnx_model(graph):
+def small_onnx_model(graph: "onnx.GraphProto") -> "onnx.ModelProto":
     """A hand-built ``graph`` (``onnx.helper``) as a checked model of opset 17 and IR version 8,
     which onnxruntime 1.17 and later read (needs the ``onnx`` package)."""
-    import onnx
-    from onnx import helper
+    import onnx  # optional dependency (tests and benchmarks only)
+    from onnx import helper  # the same optional dependency
 
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 8
@@ -107,8 +114,8 @@ def write_one_minus_x_model(path: str | Path) -> None:
     """Write a trivial model of the slot's contract, ``y = 1 - x`` on float32 ``(1, 3, H, W)``
     with dynamic ``H`` and ``W`` (needs the ``onnx`` package): to exercise and time the slot
     before a learned model exists."""
-    import onnx
-    from onnx import TensorProto, helper
+    import onnx  # optional dependency (tests and benchmarks only)
+    from onnx import TensorProto, helper  # the same optional dependency
 
     x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 3, "H", "W"])
     y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, "H", "W"])

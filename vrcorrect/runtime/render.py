@@ -10,13 +10,20 @@ benchmarks.  Layer 5 (numpy, moderngl; onnxruntime for the ONNX backend).
 
 from __future__ import annotations
 
+import os
 import time
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
 from ..plumbing.errors import ValidationError
+from ..specs.display import DisplayProfile
 from ..vision.forward import check_image
+from .corrector import Corrector, RxSource
+from .gl import check_gl_errors, headless_context, read_framebuffer, release, render_target, upload_texture
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    import moderngl
 
 __all__ = ["VIEWS", "MAX_FRAMES", "SETTLED_FRAMES", "check_frames", "render_frame"]
 
@@ -27,17 +34,18 @@ MAX_FRAMES = 10_000
 SETTLED_FRAMES = 10
 
 
-def check_frames(frames, field: str = "frames") -> int:
+def check_frames(frames: object, field: str = "frames") -> int:
     """``frames``: a whole number from 1 to :data:`MAX_FRAMES`."""
     if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or not 1 <= frames <= MAX_FRAMES:
         raise ValidationError(field, frames, f"a whole number of frames from 1 to {MAX_FRAMES}")
     return int(frames)
 
 
-def render_frame(image: np.ndarray, rx, display, eye: str = "right", backend: str = "glsl",
-                 view: str = "corrected", ctx=None, frames: int = 1,
+def render_frame(image: np.ndarray, rx: RxSource, display: str | os.PathLike[str] | DisplayProfile,
+                 eye: str = "right", backend: str = "glsl", view: str = "corrected",
+                 ctx: "moderngl.Context | None" = None, frames: int = 1,
                  progress: Callable[[int, int], None] | None = None,
-                 **options) -> tuple[np.ndarray, dict[str, Any]]:
+                 **options: Any) -> tuple[np.ndarray, dict[str, Any]]:
     """Correct (or simulate) one ``(H, W, 3)`` image of sRGB code values in [0, 1] (float) or
     uint8, ``frames`` times as a still video (the last frame is returned); returns the 8-bit result
     ``(H, W, 3)`` and what was built (``Corrector.describe()`` plus ``build_s``, ``frame_s`` (all
@@ -45,9 +53,6 @@ def render_frame(image: np.ndarray, rx, display, eye: str = "right", backend: st
     frame's objective over uncorrected where the GPU computes it (``filter="fista"`` and the
     per-frame blend), else None).  ``ctx``: an existing context (default: a new headless one);
     ``progress(done, total)`` is called after each frame."""
-    from .corrector import Corrector
-    from .gl import check_gl_errors, headless_context, read_framebuffer, release, render_target, upload_texture
-
     if view not in VIEWS:
         raise ValidationError("view", view, "one of " + ", ".join(VIEWS))
     frames = check_frames(frames)
@@ -55,7 +60,7 @@ def render_frame(image: np.ndarray, rx, display, eye: str = "right", backend: st
     if img.dtype != np.uint8:
         img = np.round(img.astype(np.float64) * 255).astype(np.uint8)
     own = ctx is None
-    if own:
+    if ctx is None:
         ctx = headless_context(require=430)
     corrector = src = tex = fbo = None
     try:

@@ -451,7 +451,7 @@ def _translate_build_error(message: str, program: ProgramSource) -> str:
 
 
 def _build(program: ProgramSource, build: Callable[[], T]) -> T:
-    import moderngl
+    import moderngl  # optional dependency (the realtime extra): the loader itself works without GL
 
     try:
         return build()

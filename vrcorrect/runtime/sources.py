@@ -36,9 +36,10 @@ from typing import TYPE_CHECKING, Any, Callable, Hashable, Iterable, Iterator, P
 import numpy as np
 
 from ..plumbing.errors import InputError, ValidationError
+from ..plumbing.images import IMAGE_SUFFIXES, image_files
 from .gl import Rect, draw_fullscreen, fullscreen_triangle, release, render_target, upload_texture, write_texture
 from .shaders import compile_program
-from .window import REALTIME_EXTRA, import_optional, runs_fista
+from .window import import_optional, runs_fista
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
@@ -57,9 +58,6 @@ __all__ = [
 
 EYES = ("left", "right")
 """The eyes, in the order the mirror shows them (left eye on the left)."""
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".gif", ".ppm", ".pgm", ".tga")
-"""Image files a source may be (read with Pillow); GIF, PNG (APNG) and WebP may be animated."""
 
 ANIMATED_SUFFIXES = (".gif", ".png", ".webp")
 """Image files that are played as a video when they hold more than one frame."""
@@ -172,13 +170,10 @@ def folder_images(folder: str | Path) -> tuple[Path, ...]:
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder")
-    try:
-        files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
-    except OSError as exc:
-        raise InputError(f"{folder}: cannot list the folder ({exc.strerror or exc})") from None
+    files = image_files(folder)
     if not files:
         raise InputError(f"{folder}: no images in the folder (looked for {' '.join(IMAGE_SUFFIXES)})")
-    return tuple(files)
+    return files
 
 
 def fit_rect(src_width: int, src_height: int, dst_width: int, dst_height: int) -> Rect:

@@ -1,0 +1,227 @@
+"""What the GPU needs for one eye, designed on the CPU: :func:`build_eye_model`.
+
+:class:`~vrcorrect.runtime.corrector.Corrector` builds one :class:`EyeModel` per eye and
+prescription (again at every prescription change) and uploads it; everything here is numpy.
+
+* Every backend: the eye's kernel ``K`` and, for ``reference="glasses"``, the glasses-on eye's
+  kernel (the target ``T = K_ref t``); whether there is anything to correct (``identity``); for
+  ``filter="separable"`` the forward model's bank ``A^-1 K`` (the preview, ``simulate``).
+* ``backend="glsl"`` with ``filter="fft"`` or ``"separable"``: the regulariser and the blend weight,
+  chosen once per eye by the CPU ``wiener`` method on the bundled sample image (so the GPU result
+  equals ``wiener(problem, regularisation=(mu,), beta=beta, design=False, grid=..., margin=...)`` on
+  the CPU up to float32 with ``filter="fft"``, and ``wiener(problem, regularisation=(mu,),
+  beta=beta)`` up to the bank's rank tolerance with ``"separable"``; the GPU blends along the
+  regularised inverse only, as ``wiener`` with ``descent=False``: the CPU method's extra
+  projected-gradient direction is not computed here); for ``"separable"`` also the correction's
+  filters as a separable bank (:mod:`vrcorrect.runtime.filters`).
+* ``backend="glsl"`` with ``filter="fista"``: nothing more (the iterations minimise the objective
+  itself, on the GPU).
+* ``backend="onnx"``: nothing more either (the model corrects; no ``wiener`` solve, no filters).
+
+Layer 5: numpy only; never torch.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..plumbing.errors import ValidationError
+from ..plumbing.fileio import package_data
+from ..plumbing.imageio import read_image
+from ..specs.display import DisplayProfile, decode
+from ..specs.prescription import EyeRx
+from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    from ..physics.kernel import EyeKernel, KernelOptions
+
+__all__ = ["BACKENDS", "FILTERS", "MAX_ITERATIONS_PER_FRAME", "CorrectorOptions", "EyeModel", "build_eye_model",
+           "check_iterations"]
+
+BACKENDS = ("glsl", "onnx")
+FILTERS = ("fft", "separable", "fista")
+MAX_ITERATIONS_PER_FRAME = 256
+
+
+def check_iterations(value: object) -> int:
+    """``iterations_per_frame``: a whole number from 0 to :data:`MAX_ITERATIONS_PER_FRAME`."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or \
+            not 0 <= value <= MAX_ITERATIONS_PER_FRAME:
+        raise ValidationError("iterations_per_frame", value, f"a whole number from 0 to {MAX_ITERATIONS_PER_FRAME}")
+    return int(value)
+
+
+@dataclass(frozen=True)
+class CorrectorOptions:
+    """How the correction is designed (frozen; defaults are the product's).
+
+    Attributes
+    ----------
+    regularisation
+        Candidate regularisers (relative to the kernel's spectral norm squared) tried by the
+        CPU ``wiener`` on the sample image; the best is kept.
+    beta
+        Fixed blend weight in [0, 1]; ``None``: chosen with the regulariser.
+    reference
+        ``"glasses"`` (the target is what the eye sees wearing its glasses) or ``"ideal"``.
+    design_tolerance
+        Truncation of the designed filters (see ``correction_filters``).
+    rank_tolerance
+        Reconstruction error of the separable bank (see ``separable_bank``).
+    choice_size
+        Side of the sample image the regulariser and blend are chosen on (pixels).
+    model
+        ONNX model path for ``backend="onnx"``.
+    kernel_options
+        How the eye's kernels are built (``None``: :class:`~vrcorrect.physics.kernel.KernelOptions`'
+        defaults).
+    filter
+        ``"fista"`` (default), ``"fft"`` or ``"separable"`` (see :mod:`vrcorrect.runtime.corrector`).
+    iterations_per_frame
+        ``"fista"``: projected-gradient iterations per frame (the speed-accuracy knob; 0 keeps the
+        start, the guard still applies); also changeable live (:attr:`Corrector.iterations_per_frame`).
+    blend
+        ``"frame"`` (FFT strategy, default when ``beta`` is None): the blend weight minimising the
+        objective is computed on the GPU for every frame, as the CPU ``wiener`` does per image, so
+        no frame is made worse than uncorrected (three more FFT filterings and a reduction);
+        ``"fixed"``: the weight chosen once on the sample image (cheaper; a compromise).
+        ``"fista"`` always blends its solution with the target by the best weight of the frame.
+    backend
+        What corrects: ``"glsl"`` (the strategies of ``filter``) or ``"onnx"`` (a model: no
+        regulariser, blend or filters are designed for it).  The :class:`Corrector` sets it from its
+        own ``backend`` argument.
+    """
+
+    regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
+    beta: float | None = None
+    reference: str = "glasses"
+    design_tolerance: float = 1e-3
+    rank_tolerance: float = DEFAULT_RANK_TOLERANCE
+    choice_size: int = 128
+    model: str | None = None
+    kernel_options: KernelOptions | None = None
+    filter: str = "fista"
+    blend: str = "frame"
+    iterations_per_frame: int = 4
+    backend: str = "glsl"
+
+    def __post_init__(self) -> None:
+        if not self.regularisation or not all(isinstance(m, (int, float)) and m > 0 for m in self.regularisation):
+            raise ValidationError("regularisation", self.regularisation, "one or more numbers > 0")
+        if self.beta is not None and not (isinstance(self.beta, (int, float)) and 0.0 <= self.beta <= 1.0):
+            raise ValidationError("beta", self.beta, "a number in [0, 1] or None")
+        if self.reference not in ("glasses", "ideal"):
+            raise ValidationError("reference", self.reference, "'glasses' or 'ideal'")
+        if self.filter not in FILTERS:
+            raise ValidationError("filter", self.filter, "one of " + ", ".join(FILTERS))
+        check_iterations(self.iterations_per_frame)
+        if self.blend not in ("frame", "fixed"):
+            raise ValidationError("blend", self.blend, "'frame' or 'fixed'")
+        if self.backend not in BACKENDS:
+            raise ValidationError("backend", self.backend, "one of " + ", ".join(BACKENDS))
+
+    @property
+    def per_frame_blend(self) -> bool:
+        """The FFT strategy's blend weight is computed for every frame, on the GPU."""
+        return self.blend == "frame" and self.beta is None and self.filter == "fft"
+
+
+@dataclass(frozen=True, eq=False)
+class EyeModel:
+    """Everything the GPU needs for one eye, computed on the CPU (numpy).
+
+    ``correction`` is the separable strategy's correction bank (``None`` for the other strategies
+    and the ONNX backend), ``simulation`` its forward-model bank (``None`` unless
+    ``filter="separable"``); ``mu_rel`` and ``beta`` are ``wiener``'s choice (``0`` and ``1`` where
+    nothing was chosen)."""
+
+    eye: EyeRx
+    kernel: EyeKernel
+    reference: EyeKernel | None                  # the glasses-on eye's, or None (ideal)
+    identity: bool                               # nothing to correct
+    correction: SeparableBank | None
+    simulation: SeparableBank | None
+    mu_rel: float
+    beta: float
+    build_seconds: float
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def margin(self) -> int:
+        """Border of the FFT grid around the image (one kernel width)."""
+        return max(self.kernel.size, self.reference.size if self.reference is not None else 1)
+
+
+def _sample_target(size: int) -> np.ndarray:
+    img = read_image(package_data("sample.png"))
+    h, w = img.shape[:2]
+    s = min(h, w)
+    img = img[(h - s) // 2:(h - s) // 2 + s, (w - s) // 2:(w - s) // 2 + s]
+    step = max(1, s // size)
+    n = s // step
+    lin = decode("srgb", img[:n * step, :n * step].astype(np.float64))
+    return lin.reshape(n, step, n, step, 3).mean(axis=(1, 3)).astype(np.float32)      # area average
+
+
+def _identity_bank() -> SeparableBank:
+    return separable_bank(np.eye(3)[:, :, None, None])
+
+
+def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
+                    options: CorrectorOptions = CorrectorOptions()) -> EyeModel:
+    """Kernel, regulariser, blend weight (and, for the separable strategy, both banks) for one
+    eye (CPU, numpy); only what ``options.backend`` and ``options.filter`` use (module docstring)."""
+    # start-up time: optics and solvers (scipy) load with the first eye, not with the CLI's imports
+    from ..physics.kernel import KernelOptions, build_kernel, build_reference_kernel
+    from ..solvers import make_problem
+    from ..solvers.wiener import correction_filters, wiener
+
+    t0 = time.perf_counter()
+    separable = options.filter == "separable"
+    designs = options.backend == "glsl"             # the ONNX backend corrects with its model
+    kopts = options.kernel_options or KernelOptions()
+    kernel = build_kernel(eye_rx, display, kopts)
+    notes: list[str] = []
+    simulation = None
+    if separable:
+        sim_taps = np.einsum("ik,kjyx->ijyx", np.linalg.inv(kernel.matrix), kernel.kernel)   # A^-1 K
+        simulation = separable_bank(sim_taps, options.rank_tolerance)
+    reference = build_reference_kernel(eye_rx, display, kopts) if options.reference == "glasses" else None
+
+    def model(correction: SeparableBank | None = None, mu_rel: float = 0.0, beta: float = 1.0,
+              identity: bool = False) -> EyeModel:
+        return EyeModel(eye=eye_rx, kernel=kernel, reference=reference, identity=identity, correction=correction,
+                        simulation=simulation, mu_rel=mu_rel, beta=beta,
+                        build_seconds=time.perf_counter() - t0, notes=tuple(notes))
+
+    def nothing_to_correct(why: str) -> EyeModel:
+        notes.append(why + ": the correction is the identity")
+        return model(_identity_bank() if separable and designs else None, identity=True)
+
+    if kernel.identity or kernel.size == 1:
+        return nothing_to_correct("the eye is sharp at this display (identity kernel)")
+    if reference is not None and reference.kernel.shape == kernel.kernel.shape and \
+            np.allclose(reference.kernel, kernel.kernel, rtol=0, atol=1e-9):
+        return nothing_to_correct("the eye sees as well as with its glasses (nothing to correct)")
+    if not designs:
+        notes.append("the ONNX model corrects (no regulariser, blend or filters designed)")
+        return model()
+    if options.filter == "fista":
+        notes.append(f"projected gradient (FISTA), {options.iterations_per_frame} iteration(s) per frame, "
+                     "warm-started from frame to frame, blended with the target by the frame's best weight")
+        return model()
+    problem = make_problem(_sample_target(options.choice_size), kernel, reference)
+    _, settings = wiener(problem, regularisation=options.regularisation, beta=options.beta,
+                         tolerance=options.design_tolerance, design=separable, descent=False)
+    mu = settings.get("mu_rel") or options.regularisation[0]
+    beta = float(settings["beta"]) if settings.get("mu_rel") is not None else 0.0
+    notes.append(f"regulariser {mu:g} and blend {beta:.3f} chosen by wiener on the sample image")
+    correction = None
+    if separable:
+        filters = correction_filters(kernel, mu, reference, options.design_tolerance)
+        correction = separable_bank(filters.taps, options.rank_tolerance)
+    return model(correction, float(mu), beta)
