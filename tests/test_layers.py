@@ -117,6 +117,18 @@ def test_fast_and_wiener_solve_without_torch():
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 
 
+def test_building_the_command_line_loads_no_heavy_stack():
+    """Every ``vrcorrect`` run builds the whole parser: it must not wait for the physics, the
+    solvers, the metrics, torch or GL (apps/__init__: imports "on use")."""
+    heavy = ("scipy", "colour", "torch", "moderngl", "glfw", "xr", "matplotlib", "onnxruntime",
+             "vrcorrect.physics.kernel", "vrcorrect.solvers", "vrcorrect.vision.metrics")
+    code = ("import sys; from vrcorrect.apps.cli import build_parser; build_parser(); "
+            f"print(' '.join(m for m in {heavy!r} if m in sys.modules))")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "", f"building the parser imported: {result.stdout}"
+
+
 def test_model_path_does_not_import_torch():
     code = ("import sys; import vrcorrect.apps.cli, vrcorrect.vision.forward, vrcorrect.physics.kernel, "
             "vrcorrect.apps.demo; from vrcorrect.apps.cli import build_parser; build_parser(); "

@@ -24,8 +24,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+from tqdm import tqdm
 
 from ..plumbing.errors import ValidationError
+from ..plumbing.fileio import check_writable, text_writer, write_together
+from ..plumbing.imageio import png_writer
+from ..specs.display import encode, get_display
+from .common import add_model_options, kernel_options, load_eye
 
 if TYPE_CHECKING:  # annotations only: importing these at run time would slow the command line's start
     from ..physics.kernel import EyeKernel, KernelOptions
@@ -147,7 +153,7 @@ def measure_acuity(eye: EyeRx, display: DisplayProfile, methods: Sequence[str] =
     -------
     AcuityResult
     """
-    from ..physics.kernel import build_kernel, build_reference_kernel
+    from ..physics.kernel import build_kernel, build_reference_kernel  # on use: start-up time (apps/__init__)
     from ..solvers import make_problem, solve
     from ..vision.acuity import Observer, build_chart, score_acuity
 
@@ -258,8 +264,6 @@ def line_table(result: AcuityResult) -> list[str]:
 
 
 def _default_font(px: int):
-    from PIL import ImageFont
-
     try:
         return ImageFont.load_default(size=px)
     except TypeError:  # pragma: no cover - Pillow without FreeType
@@ -276,10 +280,7 @@ def acuity_panel(result: AcuityResult, title: str | None = None) -> np.ndarray:
     seen lines are scaled up by a whole factor (nearest neighbour) when the display's pixels make
     them too small to look at.
     """
-    from PIL import Image, ImageDraw
-
-    from ..specs.display import encode
-    from ..vision.forward import lms_to_display
+    from ..vision.forward import lms_to_display  # on use: start-up time (apps/__init__)
 
     chart, kernel, display = result.chart, result.kernel, result.display
     columns = _columns(result)
@@ -345,8 +346,6 @@ def acuity_panel(result: AcuityResult, title: str | None = None) -> np.ndarray:
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``acuity`` sub-command to an argparse ``subparsers`` object."""
-    from .common import add_model_options
-
     p = subparsers.add_parser(
         "acuity", help="which line of an eye chart the eye reads, uncorrected and with each correction",
         description=("Simulate reading a logMAR chart of Sloan letters (Watson & Ahumada 2008: the eye's optics, "
@@ -371,8 +370,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _check_outputs(args: argparse.Namespace) -> None:
-    from ..plumbing.fileio import check_writable
-
     if args.json is not None and args.json != "-":
         if Path(args.json).suffix.lower() != ".json":
             raise ValidationError("--json", args.json, "a path ending in .json, or '-'")
@@ -385,13 +382,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
 
 def cmd_acuity(args: argparse.Namespace) -> int:
     """``vrcorrect acuity``: read the chart, print the table, write the JSON and the panel."""
-    from tqdm import tqdm
-
-    from ..plumbing.fileio import text_writer, write_together
-    from ..plumbing.imageio import png_writer
-    from ..specs.display import get_display
-    from ..vision.acuity import Observer, chart_lines
-    from .common import kernel_options, load_eye
+    from ..vision.acuity import Observer, chart_lines  # on use: start-up time (apps/__init__)
 
     methods = _check_methods(args.methods)
     _check_outputs(args)

@@ -19,7 +19,20 @@ from typing import Any, Iterator, Sequence
 
 from ..plumbing.errors import VrcorrectError
 from . import (
-    acuity_chart, bench, correct, demo, displays, evaluate, learning, mirror, overlay, psf, render, rx, simulate, xr,
+    acuity_chart,
+    bench,
+    correct,
+    demo,
+    displays,
+    evaluate,
+    learning,
+    mirror,
+    overlay,
+    psf,
+    render,
+    rx,
+    simulate,
+    xr,
 )
 
 EXIT_USAGE = 2

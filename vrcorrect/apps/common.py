@@ -15,8 +15,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
 from ..plumbing.errors import ValidationError
+from ..specs.prescription import bundled_sample_path, load_prescription
 
 if TYPE_CHECKING:
     from ..physics.kernel import EyeKernel, KernelOptions
@@ -26,8 +28,6 @@ if TYPE_CHECKING:
 
 def kernel_progress(desc: str) -> Callable[[int, int], None]:
     """A tqdm progress callback for kernel builds (silent when stderr is not a terminal)."""
-    from tqdm import tqdm
-
     bar = tqdm(desc=desc, unit="PSF", disable=None, leave=False, file=sys.stderr)
 
     def update(done: int, total: int) -> None:
@@ -38,8 +38,6 @@ def kernel_progress(desc: str) -> Callable[[int, int], None]:
 
 
 def load_eye(args: argparse.Namespace) -> tuple[Path, EyeRx]:
-    from ..specs.prescription import bundled_sample_path, load_prescription
-
     path = Path(args.rx) if args.rx else bundled_sample_path()
     return path, load_prescription(path).eye(args.eye)
 
@@ -66,7 +64,7 @@ def _positive_float(field: str, text: str) -> float:
 
 
 def build_eye_kernel(args: argparse.Namespace, eye: EyeRx, display: DisplayProfile) -> EyeKernel:
-    from ..physics.kernel import build_kernel
+    from ..physics.kernel import build_kernel  # on use: start-up time (apps/__init__)
 
     bar = kernel_progress("building eye kernel")
     try:
@@ -113,7 +111,7 @@ def available_memory_bytes() -> float | None:
 
 def check_memory(method: str, height: int, width: int) -> None:
     """Refuse, before any work, an image whose correction would not fit in memory (one line)."""
-    from ..solvers import PEAK_MEMORY, peak_memory_bytes
+    from ..solvers import PEAK_MEMORY, peak_memory_bytes  # on use: start-up time (apps/__init__)
 
     available = available_memory_bytes()
     need = peak_memory_bytes(method, height, width)

@@ -8,8 +8,13 @@ import sys
 import time
 from pathlib import Path
 
+from tqdm import tqdm
+
 from ..plumbing.errors import InputError, ValidationError
+from ..plumbing.fileio import check_readable, check_writable, text_writer, write_together
+from ..plumbing.imageio import png_writer, read_image
 from ..runtime.model_path import DEFAULT_MODEL
+from ..specs.display import decode, encode, get_display
 from .common import (
     add_model_options,
     build_eye_kernel,
@@ -22,13 +27,6 @@ from .common import (
 
 
 def cmd_correct(args: argparse.Namespace) -> int:
-    from ..plumbing.fileio import (
-        check_readable,
-        check_writable,
-        text_writer,
-        write_together,
-    )
-
     out = Path(args.output)
     if out.suffix.lower() != ".png":
         raise ValidationError("--output", str(out), "a path ending in .png")
@@ -51,10 +49,8 @@ def cmd_correct(args: argparse.Namespace) -> int:
     if args.model is not None and args.method != "learned":
         raise ValidationError("--model", args.model, "only with --method learned")
     check_readable(args.input)                      # before the heavy imports: a typo is told at once
-    from ..physics.kernel import build_reference_kernel
-    from ..plumbing.imageio import png_writer, read_image
+    from ..physics.kernel import build_reference_kernel  # on use: start-up time (apps/__init__)
     from ..solvers import make_problem, solve
-    from ..specs.display import decode, encode, get_display
     from ..vision.metrics import evaluate_seen
 
     learned = _learned_model(args) if args.method == "learned" else None
@@ -79,8 +75,6 @@ def cmd_correct(args: argparse.Namespace) -> int:
         options["tolerance"] = args.tolerance
     bar = None
     if args.method in ("paper", "fast", "conventional"):
-        from tqdm import tqdm
-
         bar = tqdm(desc=f"{args.method}", unit="it", disable=None, leave=False, file=sys.stderr)
     def progress(done: int, total: int) -> None:
         if bar is not None:
@@ -125,7 +119,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
 
 def _learned_model(args: argparse.Namespace):
     """The learned model of ``--model`` (default: the shipped one), its reference checked."""
-    from ..runtime.learned import LearnedModel
+    from ..runtime.learned import LearnedModel  # on use: start-up time (apps/__init__)
 
     path = Path(args.model) if args.model else DEFAULT_MODEL
     if args.model is None and not path.is_file():

@@ -11,15 +11,18 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
 
+from ..plumbing.charts import sample_image_path, siemens_star
 from ..plumbing.errors import InputError
 from ..plumbing.fileio import check_writable
+from ..plumbing.imageio import read_image, write_png
+from ..specs.display import decode, encode, get_display
+from ..specs.prescription import EyeRx, bundled_sample_path, load_prescription
 
 
 def _label(img: np.ndarray, text: str) -> np.ndarray:
     """Put a caption strip above an sRGB image."""
-    from PIL import Image, ImageDraw, ImageFont
-
     h, w, _ = img.shape
     strip = Image.new("RGB", (w, 22), "white")
     draw = ImageDraw.Draw(strip)
@@ -48,10 +51,6 @@ def run_demo(out: Path, display_name: str = "quest2", force: bool = False) -> It
     # the physics is imported here, not above: every vrcorrect run imports this module to build its parser
     from ..physics.kernel import KernelOptions, build_kernel
     from ..physics.optics import OpticsOptions
-    from ..plumbing.charts import sample_image_path, siemens_star
-    from ..plumbing.imageio import read_image, write_png
-    from ..specs.display import decode, encode, get_display
-    from ..specs.prescription import EyeRx, bundled_sample_path, load_prescription
     from ..vision.forward import what_the_eye_sees
 
     out = Path(out)

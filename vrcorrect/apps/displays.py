@@ -7,12 +7,12 @@ import math
 from pathlib import Path
 
 from ..plumbing.errors import ValidationError
+from ..plumbing.fileio import check_writable
+from ..specs.display import fit_spectra, get_display, preset_names, read_spectra_csv
+from .bench import markdown_table
 
 
 def cmd_displays(args: argparse.Namespace) -> int:
-    from ..specs.display import get_display, preset_names
-    from .bench import markdown_table
-
     if args.fit:
         return _displays_fit(args)
     if args.plot:
@@ -37,9 +37,6 @@ def cmd_displays(args: argparse.Namespace) -> int:
 
 
 def _displays_fit(args: argparse.Namespace) -> int:
-    from ..plumbing.fileio import check_writable
-    from ..specs.display import fit_spectra, read_spectra_csv
-
     if args.plot:
         if Path(args.plot).suffix.lower() != ".png":
             raise ValidationError("--plot", args.plot, "a path ending in .png")
@@ -51,8 +48,8 @@ def _displays_fit(args: argparse.Namespace) -> int:
     for label, rms, mx in zip(measured.labels, fit.rms_error, fit.max_error):
         print(f"  {label:6s} smooth non-negative fit: rms error {rms * 100:.2f}% of peak, max {mx * 100:.2f}%")
     if args.plot:
-        from ..plumbing.fileio import write_with
-        from .plots import plot_spectra_fit
+        from ..plumbing.fileio import write_with  # on use: start-up time (apps/__init__)
+        from .plots import plot_spectra_fit  # on use: start-up time (apps/__init__)
 
         write_with(Path(args.plot), lambda tmp: plot_spectra_fit(measured, fit, tmp), force=args.force)
         print(f"wrote {args.plot}")

@@ -62,15 +62,16 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, NamedTuple, Sequence
 
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+from tqdm import tqdm
 
 from ..plumbing.errors import InputError, ValidationError
-from ..plumbing.images import (
-    bundled_images,
-    check_size,
-    folder_images,
-    prepare_image,
-    safe_name,
-)
+from ..plumbing.fileio import check_writable, text_writer, write_together
+from ..plumbing.images import bundled_images, check_size, folder_images, prepare_image, safe_name
+from ..specs.display import DisplayProfile, decode, get_display
+from ..specs.prescription import EyeRx
+from .acuity_chart import measure_acuity
+from .bench import machine_description, markdown_table
 
 __all__ = [
     "EvalPrescription",
@@ -124,8 +125,6 @@ _LABELS = {"target": "target", "none": "uncorrected"}
 
 def prescription_eye(rx: EvalPrescription):
     """The :class:`vrcorrect.specs.prescription.EyeRx` of ``rx``: 4 mm pupil, no accommodation."""
-    from ..specs.prescription import EyeRx
-
     return EyeRx(sphere_D=rx.sphere_D, cylinder_D=rx.cylinder_D, axis_deg=rx.axis_deg,
                  pupil_diameter_mm=PUPIL_DIAMETER_MM, accommodation_D=0.0)
 
@@ -178,8 +177,6 @@ def panel_size(size: int, columns: int, height: int | None = None) -> tuple[int,
 
 
 def _font(px: int):
-    from PIL import ImageFont
-
     try:
         return ImageFont.load_default(size=px)
     except TypeError:  # pragma: no cover - Pillow without FreeType sizes
@@ -201,7 +198,7 @@ def _to_uint8(rgb: np.ndarray) -> np.ndarray:
 
 def _magma(error_map: np.ndarray) -> np.ndarray:
     """An ``(H, W)`` FLIP map in [0, 1] as magma-coloured uint8 RGB."""
-    from matplotlib import colormaps
+    from matplotlib import colormaps  # on use: start-up time (apps/__init__)
 
     rgba = colormaps["magma"](np.clip(np.asarray(error_map, dtype=np.float64), 0.0, 1.0))
     return _to_uint8(rgba[..., :3])
@@ -209,8 +206,6 @@ def _magma(error_map: np.ndarray) -> np.ndarray:
 
 def _legend(height: int, size: int) -> np.ndarray:
     """What goes under the target column (``height x size``): the colour bar of the FLIP maps."""
-    from PIL import Image, ImageDraw
-
     im = Image.new("RGB", (size, height), "white")
     draw = ImageDraw.Draw(im)
     px = _font_px(size)
@@ -230,8 +225,6 @@ def _legend(height: int, size: int) -> np.ndarray:
 
 def _compose_panel(title: str, columns: Sequence[tuple[list[str], np.ndarray, np.ndarray]]):
     """A PIL image: ``columns`` of (caption lines, seen sRGB, image under it as uint8 RGB), one shape."""
-    from PIL import Image, ImageDraw
-
     h, size = columns[0][1].shape[:2]
     width, height = panel_size(size, len(columns), h)
     im = Image.new("RGB", (width, height), "white")
@@ -387,8 +380,6 @@ def _verdicts(summary: Sequence[Mapping[str, Any]]) -> list[str]:
 
 def summary_table(summary: Sequence[Mapping[str, Any]]) -> str:
     """The Markdown table of :func:`run_evaluation`'s ``summary``."""
-    from .bench import markdown_table
-
     has_acuity = any("acuity_logmar" in s for s in summary)
     head = ["prescription", "method", "JOD ↑"] + (["acuity logMAR ↓", "acuity, sharp templates ↓"]
                                                   if has_acuity else [])
@@ -406,8 +397,6 @@ def _logmar_text(value: float | None) -> str:
 
 
 def _rows_table(rows: Sequence[Mapping[str, Any]]) -> str:
-    from .bench import markdown_table
-
     return markdown_table(
         ["image", "prescription", "method", "JOD", "FLIP", "SSIM", "PSNR dB", "objective", "FLIP (LMS)",
          "SSIM (LMS)", "PSNR (LMS) dB", "seconds", "iterations"],
@@ -427,8 +416,6 @@ def _csv_text(rows: Sequence[Mapping[str, Any]]) -> str:
 
 def _markdown(rows, summary, verdicts, display, size, images, methods, seconds_total,
               wins: Sequence[str] = ()) -> str:
-    from .bench import machine_description, markdown_table
-
     rx_table = markdown_table(
         ["key", "problem", "sphere D", "cylinder D", "axis deg", "principal meridians D"],
         [[rx.key, rx.title, f"{rx.sphere_D:+.2f}", f"{rx.cylinder_D:+.2f}", f"{rx.axis_deg:g}",
@@ -484,7 +471,7 @@ def _markdown(rows, summary, verdicts, display, size, images, methods, seconds_t
 
 
 def _check_methods(methods: Iterable[str]) -> tuple[str, ...]:
-    from ..solvers import METHODS
+    from ..solvers import METHODS  # on use: start-up time (apps/__init__)
 
     allowed = tuple(m for m in METHODS if m != "none")
     if isinstance(methods, str):
@@ -586,13 +573,9 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
     InputError
         An output exists (without ``force``) or cannot be written.
     """
-    from tqdm import tqdm
-
-    from ..physics.kernel import KernelOptions, build_kernel
+    from ..physics.kernel import KernelOptions, build_kernel  # on use: start-up time (apps/__init__)
     from ..physics.optics import OpticsOptions
-    from ..plumbing.fileio import check_writable, text_writer, write_together
     from ..solvers import make_problem, solve
-    from ..specs.display import DisplayProfile, decode, get_display
     from ..vision.metrics import evaluate_seen
 
     t_start = time.perf_counter()
@@ -666,8 +649,6 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
 
     acuity_logmar: dict[str, dict[str, float | None]] = {}
     if acuity:
-        from .acuity_chart import measure_acuity
-
         bar = tqdm(total=len(PRESCRIPTIONS), desc="acuity", unit="eye", disable=None if progress else True,
                    leave=False)
         try:
@@ -730,8 +711,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """``vrcorrect evaluate``: run :func:`run_evaluation` and print where the outputs are and the summary."""
-    from ..specs.display import get_display
-
     size = check_size(args.size)
     methods = _check_methods(args.methods)
     display = get_display(args.display)

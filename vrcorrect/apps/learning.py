@@ -10,6 +10,7 @@ import os
 from pathlib import Path
 
 from ..plumbing.errors import ValidationError
+from ..plumbing.images import bundled_images, folder_images
 
 
 def _pair(field: str, values: list[float] | None, default: tuple[float, float]) -> tuple[float, float]:
@@ -22,9 +23,8 @@ def _pair(field: str, values: list[float] | None, default: tuple[float, float]) 
 
 
 def cmd_dataset(args: argparse.Namespace) -> int:
-    from ..learn.conditioning import SamplingRanges
+    from ..learn.conditioning import SamplingRanges  # on use: start-up time (apps/__init__)
     from ..learn.dataset import HELD_OUT_IMAGES, DatasetConfig, build_dataset, check_ray
-    from ..plumbing.images import bundled_images, folder_images
 
     d = SamplingRanges()
     ranges = SamplingRanges(sphere_D=_pair("--sphere-D", args.sphere_D, d.sphere_D),
@@ -51,7 +51,7 @@ def cmd_dataset(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from ..learn.model import UNetConfig
+    from ..learn.model import UNetConfig  # on use: start-up time (apps/__init__)
     from ..learn.train import TrainConfig, train
 
     config = TrainConfig(steps=args.steps, batch_size=args.batch_size, learning_rate=args.learning_rate,

@@ -11,7 +11,11 @@ from ..runtime.mirror import KEY_MAP, Mirror, MirrorConfig
 from ..runtime.sources import parse_size, parse_source
 from ..runtime.window import key_map_text, knob_text
 from .realtime_options import (
-    add_filter_options, add_reprojection_option, add_rx_option, corrector_options, parse_frames,
+    add_filter_options,
+    add_reprojection_option,
+    add_rx_option,
+    corrector_options,
+    parse_frames,
 )
 
 __all__ = ["add_parser", "cmd_mirror"]

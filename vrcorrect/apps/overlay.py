@@ -11,7 +11,11 @@ from ..runtime.overlay import KEY_MAP, Overlay, OverlayConfig
 from ..runtime.sources import parse_region, parse_size
 from ..runtime.window import key_map_text
 from .realtime_options import (
-    add_filter_options, add_reprojection_option, add_rx_option, corrector_options, parse_frames,
+    add_filter_options,
+    add_reprojection_option,
+    add_rx_option,
+    corrector_options,
+    parse_frames,
 )
 
 __all__ = ["add_parser", "cmd_overlay"]

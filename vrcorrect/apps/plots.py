@@ -11,7 +11,7 @@ from ..plumbing.fileio import write_with
 
 def pyplot():
     """matplotlib's pyplot on the Agg backend (imported on first use: start-up time of every command)."""
-    import matplotlib
+    import matplotlib  # on use: start-up time (apps/__init__)
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

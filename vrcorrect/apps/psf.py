@@ -9,13 +9,14 @@ from pathlib import Path
 import numpy as np
 
 from ..plumbing.errors import ValidationError
+from ..plumbing.fileio import check_writable, text_writer, write_together
+from ..specs.display import get_display
 from .common import add_model_options, build_eye_kernel, kernel_options, load_eye
+from .plots import plot_psf
 
 
 def cmd_psf(args: argparse.Namespace) -> int:
-    from ..physics.kernel import monochromatic_psf
-    from ..plumbing.fileio import check_writable, text_writer, write_together
-    from ..specs.display import get_display
+    from ..physics.kernel import monochromatic_psf  # on use: start-up time (apps/__init__)
 
     out = Path(args.output)
     if out.suffix.lower() != ".npy":
@@ -59,8 +60,6 @@ def cmd_psf(args: argparse.Namespace) -> int:
     text = json.dumps(meta, indent=2) + "\n"
     outputs = [(out, save_array), (sidecar, text_writer(text))]
     if args.png:
-        from .plots import plot_psf
-
         outputs.append((Path(args.png), lambda tmp: plot_psf(array, meta, tmp)))
     write_together(outputs, force=args.force)   # all or nothing
     print(f"wrote {out} ({'x'.join(map(str, array.shape))}) and {sidecar}" + (f" and {args.png}" if args.png else ""))

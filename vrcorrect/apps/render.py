@@ -7,17 +7,19 @@ import argparse
 import sys
 from pathlib import Path
 
+from tqdm import tqdm
+
 from ..plumbing.errors import ValidationError
+from ..plumbing.fileio import check_readable, check_writable
+from ..plumbing.imageio import read_image, write_png
 from ..runtime.model_path import model_for_backend
+from ..specs.prescription import bundled_sample_path, load_prescription
 from .common import add_model_options, kernel_options, print_notes
 from .realtime_options import add_filter_options, filter_options, parse_frames
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from ..plumbing.fileio import check_readable, check_writable
-    from ..plumbing.imageio import read_image, write_png
-    from ..specs.prescription import bundled_sample_path, load_prescription
-    from ..runtime.render import MAX_FRAMES, SETTLED_FRAMES, render_frame
+    from ..runtime.render import MAX_FRAMES, SETTLED_FRAMES, render_frame  # on use: start-up time (apps/__init__)
 
     out = Path(args.output)
     if out.suffix.lower() != ".png":
@@ -36,7 +38,6 @@ def cmd_render(args: argparse.Namespace) -> int:
     print_notes(notes)
     if model:
         options["model"] = model
-    from tqdm import tqdm
 
     with tqdm(total=frames, desc="render", unit="frame", disable=None, leave=False, file=sys.stderr) as bar:
         def progress(done: int, total: int) -> None:

@@ -6,10 +6,10 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..specs.prescription import load_prescription, validate_file, write_template
+
 
 def cmd_rx_new(args: argparse.Namespace) -> int:
-    from ..specs.prescription import write_template
-
     write_template(Path(args.path), force=args.force)
     print(f"wrote {args.path}: a commented prescription template; fill in both eyes, then run "
           f"'vrcorrect rx validate {args.path}'")
@@ -17,15 +17,12 @@ def cmd_rx_new(args: argparse.Namespace) -> int:
 
 
 def cmd_rx_validate(args: argparse.Namespace) -> int:
-    from ..specs.prescription import validate_file
-
     problems = validate_file(Path(args.path))
     if problems:
         print(f"{args.path}: {len(problems)} problem{'s' if len(problems) != 1 else ''}:", file=sys.stderr)
         for p in problems:
             print(f"  - {p}", file=sys.stderr)
         return 1
-    from ..specs.prescription import load_prescription
 
     rx = load_prescription(Path(args.path))
     print(f"{args.path}: valid")

@@ -7,17 +7,15 @@ import time
 from pathlib import Path
 
 from ..plumbing.errors import ValidationError
+from ..plumbing.fileio import check_readable, check_writable
+from ..plumbing.imageio import read_image, write_png
+from ..specs.display import decode, encode, get_display
 from .common import add_model_options, build_eye_kernel, load_eye, print_notes
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from ..plumbing.fileio import check_readable
-
     check_readable(args.input)                      # before the heavy imports: a typo is told at once
-    from ..plumbing.fileio import check_writable
-    from ..plumbing.imageio import read_image, write_png
-    from ..specs.display import decode, encode, get_display
-    from ..vision.forward import what_the_eye_sees
+    from ..vision.forward import what_the_eye_sees  # on use: start-up time (apps/__init__)
 
     out = Path(args.output)
     if out.suffix.lower() != ".png":

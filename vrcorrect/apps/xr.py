@@ -14,7 +14,12 @@ from ..runtime.sources import parse_source
 from ..runtime.window import XrUnavailableError
 from ..runtime.xr import EXIT_NO_RUNTIME, EXIT_SESSION_LOST, XrApp, XrConfig
 from .realtime_options import (
-    add_filter_options, add_reprojection_option, add_rx_option, filter_options, parse_frames, parse_whole_number,
+    add_filter_options,
+    add_reprojection_option,
+    add_rx_option,
+    filter_options,
+    parse_frames,
+    parse_whole_number,
 )
 
 __all__ = ["add_parser", "cmd_xr"]

@@ -28,13 +28,7 @@ import numpy as np
 from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
 from ..solvers import make_problem
-from ..solvers.wiener import (
-    apply_filters,
-    correction_filters,
-    gradient_plan,
-    gradient_step,
-    projected_gradient,
-)
+from ..solvers.wiener import apply_filters, correction_filters, gradient_plan, gradient_step, projected_gradient
 from ..specs.prescription import EyeRx
 
 #: Regulariser of the pre-correction channels, relative to ``||K||^2`` (one of ``wiener``'s candidates).

@@ -59,13 +59,7 @@ from ..plumbing.fileio import write_text_atomic, write_with
 from ..solvers import make_problem, objective, solve
 from ..specs.display import decode, get_display
 from ..specs.prescription import EyeRx
-from .conditioning import (
-    PRECORRECTION_MU_REL,
-    PRECORRECTION_STEPS,
-    SamplingRanges,
-    eye_features,
-    precorrect,
-)
+from .conditioning import PRECORRECTION_MU_REL, PRECORRECTION_STEPS, SamplingRanges, eye_features, precorrect
 
 #: Images kept out of the default data set: ``vrcorrect bench learned`` scores models on them.
 HELD_OUT_IMAGES = ("rocket", "retina")

@@ -80,8 +80,15 @@ import numpy as np
 from ..plumbing.errors import ValidationError, VrcorrectError
 from ..specs.display import DisplayProfile, get_display
 from ..specs.prescription import EyeRx, Prescription, load_prescription
-from .eye_model import (BACKENDS, FILTERS, MAX_ITERATIONS_PER_FRAME, CorrectorOptions,  # noqa: F401  (re-exported)
-                        EyeModel, build_eye_model, check_iterations)
+from .eye_model import (  # noqa: F401  (re-exported)
+    BACKENDS,
+    FILTERS,
+    MAX_ITERATIONS_PER_FRAME,
+    CorrectorOptions,
+    EyeModel,
+    build_eye_model,
+    check_iterations,
+)
 from .fft import FftBankGL, fft_grid
 from .filters import SeparableBank
 from .gl import check_gl_errors, download_texture, fullscreen_triangle, release

@@ -46,8 +46,20 @@ from .scene import open_source
 from .sources import EYES, EyeSource, parse_source, start_motion, take_motion
 from .text import TextOverlay, build_font_atlas, key_map_panel, panel_instances, text_width
 from .window import (
-    ITERATION_KEYS, KEY_ESCAPE, MOD_ALT, MOD_CONTROL, MOD_SHIFT, MOD_SUPER, Iterations, KeyedWindowApp, Screenshot,
-    StageTimes, change_iterations, iteration_key, key_letter, knob_text,
+    ITERATION_KEYS,
+    KEY_ESCAPE,
+    MOD_ALT,
+    MOD_CONTROL,
+    MOD_SHIFT,
+    MOD_SUPER,
+    Iterations,
+    KeyedWindowApp,
+    Screenshot,
+    StageTimes,
+    change_iterations,
+    iteration_key,
+    key_letter,
+    knob_text,
 )
 
 if TYPE_CHECKING:  # pragma: no cover - typing only

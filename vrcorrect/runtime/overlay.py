@@ -42,12 +42,30 @@ import numpy as np
 from ..plumbing.errors import ValidationError
 from .corrector import Corrector
 from .gl import Rect, check_gl_errors, format_ms, release
-from .sources import PictureSource, ScreenSource, open_picture_source, parse_source, screen_bounds, start_motion, \
-    take_motion
+from .sources import (
+    PictureSource,
+    ScreenSource,
+    open_picture_source,
+    parse_source,
+    screen_bounds,
+    start_motion,
+    take_motion,
+)
 from .text import TextOverlay, build_font_atlas, key_map_panel, panel_instances
 from .window import (
-    ITERATION_KEYS, KEY_ESCAPE, MOD_ALT, MOD_CONTROL, MOD_SUPER, Iterations, KeyedWindowApp, Screenshot, StageTimes,
-    change_iterations, iteration_key, key_letter, knob_text,
+    ITERATION_KEYS,
+    KEY_ESCAPE,
+    MOD_ALT,
+    MOD_CONTROL,
+    MOD_SUPER,
+    Iterations,
+    KeyedWindowApp,
+    Screenshot,
+    StageTimes,
+    change_iterations,
+    iteration_key,
+    key_letter,
+    knob_text,
 )
 
 if TYPE_CHECKING:  # pragma: no cover - typing only

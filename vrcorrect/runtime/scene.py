@@ -25,7 +25,9 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
+from PIL import Image, ImageDraw
 
+from ..plumbing.charts import colour_bars, siemens_star, text_chart
 from ..plumbing.errors import ValidationError
 from .gl import check_gl_errors, release, upload_texture
 from .shaders import compile_program
@@ -236,8 +238,6 @@ def _rings(size: int) -> np.ndarray:
 def chart_atlas(tile_px: int = 256) -> np.ndarray:
     """The cube's texture: a 3 x 2 grid of ``tile_px`` tiles, sRGB codes ``(2t, 3t, 4)`` uint8:
     Siemens star (36 spokes), text, colour bars / row 2: checkerboard, zone plate, star (72)."""
-    from ..plumbing.charts import colour_bars, siemens_star, text_chart
-
     t = tile_px
     tiles = [siemens_star(t, 36), text_chart(t, t), colour_bars(t, t),
              _checker(t, 16), _rings(t), siemens_star(t, 72)]
@@ -253,8 +253,6 @@ def chart_atlas(tile_px: int = 256) -> np.ndarray:
 
 def text_banner(text: str, height_px: int = 64) -> np.ndarray:
     """One line of ``text``, dark on a light band, as sRGB codes ``(height_px, W, 4)`` uint8."""
-    from PIL import Image, ImageDraw
-
     if not (isinstance(height_px, int) and 8 <= height_px <= 512):
         raise ValidationError("height_px", height_px, "an integer from 8 to 512")
     font = default_font(int(height_px * 0.62))
@@ -287,7 +285,7 @@ class DemoScene:
     label = "demo scene"
 
     def __init__(self, ctx: "moderngl.Context", width: int, height: int, config: SceneConfig = SceneConfig()):
-        from ..specs.display import srgb_to_linear   # lazy: colour-science's tables, not needed to import the runtime
+        from ..specs.display import srgb_to_linear  # lazy: colour-science's tables, not needed to import the runtime
 
         self.ctx, self.size, self.config = ctx, (int(width), int(height)), config
         self._objects: list[Any] = []

@@ -34,19 +34,20 @@ from types import ModuleType
 from typing import TYPE_CHECKING, Any, Callable, Hashable, Iterable, Iterator, Protocol, Sequence
 
 import numpy as np
+from PIL import Image
 
 from ..plumbing.errors import InputError, ValidationError
+from ..plumbing.imageio import read_image
 from ..plumbing.images import IMAGE_SUFFIXES, image_files
 from .gl import Rect, draw_fullscreen, fullscreen_triangle, release, render_target, upload_texture, write_texture
+from .motion import MotionTracker
 from .shaders import compile_program
 from .window import import_optional, runs_fista
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
-    from PIL import Image
 
     from .corrector import Corrector
-    from .motion import MotionTracker
 
 __all__ = [
     "EYES", "IMAGE_SUFFIXES", "ANIMATED_SUFFIXES", "VIDEO_SUFFIXES", "MAX_EYE_SIZE",
@@ -318,8 +319,6 @@ def _as_codes(image: np.ndarray) -> np.ndarray:
 
 def _read_codes(path: Path) -> np.ndarray:
     """An image file's sRGB codes, uint8 ``(H, W, 3)``."""
-    from ..plumbing.imageio import read_image
-
     return _as_codes(read_image(path))
 
 
@@ -374,8 +373,6 @@ class PictureSource:
     def track_motion(self) -> None:
         """Estimate the content's motion between consecutive pictures on the CPU, before upload
         (:mod:`vrcorrect.runtime.motion`), for :meth:`take_motion`."""
-        from .motion import MotionTracker
-
         if self.motion is None:
             self.motion = MotionTracker()
             if self._codes is not None:                      # the picture shown already: the first
@@ -441,8 +438,6 @@ class AnimatedImageSource(PictureSource):
         super().__init__(ctx, width, height)
 
     def _open(self) -> None:
-        from PIL import Image
-
         try:
             self._image = Image.open(self.path)
             count = min(int(getattr(self._image, "n_frames", 1)), self.MAX_FRAMES)
@@ -458,8 +453,6 @@ class AnimatedImageSource(PictureSource):
     @staticmethod
     def is_animated(path: str | Path) -> bool:
         """True if the image file holds more than one frame."""
-        from PIL import Image
-
         try:
             with Image.open(path) as im:
                 return int(getattr(im, "n_frames", 1)) > 1

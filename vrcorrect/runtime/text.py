@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Mapping, Sequence
 
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
 
 from ..plumbing.errors import ValidationError
 from .gl import release, upload_texture
@@ -24,7 +25,6 @@ from .window import require_moderngl
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
-    from PIL import ImageFont
 
 __all__ = ["Glyph", "FontAtlas", "default_font", "build_font_atlas", "INSTANCE_FLOATS", "layout_text",
            "text_width", "panel_instances", "key_map_panel", "TextOverlay"]
@@ -34,8 +34,6 @@ Colour = tuple[float, float, float, float]
 
 def default_font(size_px: int) -> "ImageFont.ImageFont | ImageFont.FreeTypeFont":
     """Pillow's default font at ``size_px`` (its fixed bitmap font where Pillow lacks FreeType)."""
-    from PIL import ImageFont
-
     try:
         return ImageFont.load_default(size=size_px)
     except TypeError:  # pragma: no cover - Pillow without FreeType
@@ -73,8 +71,6 @@ class FontAtlas:
 def build_font_atlas(size_px: int = 13) -> FontAtlas:
     """Render the printable ASCII characters (32-126) with Pillow's default font at
     ``size_px`` (its bitmap font where Pillow lacks FreeType) into a coverage atlas."""
-    from PIL import Image, ImageDraw
-
     if not (isinstance(size_px, int) and 6 <= size_px <= 96):
         raise ValidationError("size_px", size_px, "an integer from 6 to 96 pixels")
     font = default_font(size_px)

@@ -26,13 +26,15 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
-from typing import (
-    TYPE_CHECKING, Any, Callable, Generic, Iterable, Iterator, Mapping, Protocol, Self, Sequence, TypeVar,
-)
+from typing import TYPE_CHECKING, Any, Callable, Generic, Iterable, Iterator, Mapping, Protocol, Self, Sequence, TypeVar
 
 import numpy as np
 
 from ..plumbing.errors import GLUnavailableError, InputError, ValidationError, VrcorrectError
+from ..plumbing.imageio import write_png
+from ..specs.display import get_display
+from ..specs.prescription import bundled_sample_path
+from .corrector import RxSnapshot
 from .gl import read_framebuffer, timer_query_ms
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -100,7 +102,6 @@ def srgb_display(name_or_path: str | Path) -> "DisplayProfile":
         Another transfer (names ``--display``): the real-time path encodes sRGB only.
     """
     # lazy: the display module loads colour-science's tables, not needed to build the CLI's parser
-    from ..specs.display import get_display
 
     display = get_display(name_or_path)
     if display.transfer != "srgb":
@@ -255,8 +256,6 @@ class StageTimes:
 def write_screenshot(folder: str | Path, prefix: str, pixels: np.ndarray) -> Path:
     """Write ``pixels`` (``(H, W, 3)`` uint8) to a new ``PREFIX-DATE-TIME-NNN.png`` in
     ``folder`` (made if needed); returns its path."""
-    from ..plumbing.imageio import write_png
-
     folder = Path(folder)
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -409,8 +408,6 @@ class WindowApp:
         """Read the prescription once (``None``: the bundled sample; a bad file fails here, before
         any window; later edits come through each corrector's poll) and the sRGB display."""
         # lazy: the prescription module loads its schema, not needed to build the CLI's parser
-        from ..specs.prescription import bundled_sample_path
-        from .corrector import RxSnapshot
 
         self.rx_path = Path(rx) if rx is not None else bundled_sample_path()
         self._rx: RxSnapshot = RxSnapshot.read(self.rx_path)

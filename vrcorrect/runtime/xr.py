@@ -59,11 +59,20 @@ from .gl import check_gl_errors, fullscreen_triangle, release
 from .motion import view_shift
 from .scene import DemoScene, open_source
 from .shaders import compile_program
-from .sources import EYES, EyeSource, ScreenSource, parse_region, parse_source, screen_bounds, start_motion, \
-    take_motion
+from .sources import EYES, EyeSource, ScreenSource, parse_region, parse_source, screen_bounds, start_motion, take_motion
 from .window import (
-    MOD_ALT, MOD_CONTROL, MOD_SUPER, GLFW_PRESS, StageTimes, WindowApp, XrUnavailableError, change_iterations,
-    iteration_key, knob_text, require_moderngl, require_xr,
+    GLFW_PRESS,
+    MOD_ALT,
+    MOD_CONTROL,
+    MOD_SUPER,
+    StageTimes,
+    WindowApp,
+    XrUnavailableError,
+    change_iterations,
+    iteration_key,
+    knob_text,
+    require_moderngl,
+    require_xr,
 )
 
 if TYPE_CHECKING:  # pragma: no cover - typing only

@@ -39,14 +39,7 @@ import numpy as np
 import scipy.fft
 
 from . import Problem
-from .wiener import (
-    centred_kernel,
-    gram,
-    inv3,
-    mirror_fill,
-    padded_shape,
-    spectral_norm_squared,
-)
+from .wiener import centred_kernel, gram, inv3, mirror_fill, padded_shape, spectral_norm_squared
 
 __all__ = ["fast", "coarse_kernel"]
 

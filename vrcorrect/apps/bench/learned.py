@@ -71,11 +71,7 @@ def _median_ms(fn: Callable[[], object], repeats: int) -> float:
 def _one_convolution() -> bytes:
     """An ONNX graph of one 3x3 convolution from 6 channels (image and pre-correction) to 3, with
     dynamic height and width: the least work a convolutional network on those inputs can do."""
-    from onnx import (  # optional: onnx (the learn extra)
-        TensorProto,
-        helper,
-        numpy_helper,
-    )
+    from onnx import TensorProto, helper, numpy_helper  # optional: onnx (the learn extra)
 
 
     rng = np.random.default_rng(0)

@@ -52,22 +52,9 @@ from ...physics.kernel import build_kernel, build_reference_kernel
 from ...plumbing.images import prepare_image
 from ...runtime.corrector import Corrector
 from ...runtime.fft import fft_grid
-from ...runtime.gl import (
-    download_texture,
-    headless_context,
-    release,
-    render_target,
-    upload_texture,
-)
+from ...runtime.gl import download_texture, headless_context, release, render_target, upload_texture
 from ...runtime.motion import motion_for, view_shift
-from ...runtime.scene import (
-    DemoScene,
-    SceneConfig,
-    eye_position,
-    perspective,
-    rotation_y,
-    translation,
-)
+from ...runtime.scene import DemoScene, SceneConfig, eye_position, perspective, rotation_y, translation
 from ...solvers import make_problem, solve
 from ...solvers.wiener import FistaState, gradient_plan, projected_gradient
 from ...specs.display import decode, get_display

@@ -26,9 +26,10 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-from . import machine_description, markdown_table, write_section
 from ...plumbing.errors import InputError, ValidationError, VrcorrectError
-from ...runtime.xr import XR_CPU_ONLY_STAGES as CPU_ONLY_STAGES, XR_STAGES, XrApp, XrConfig
+from ...runtime.xr import XR_CPU_ONLY_STAGES as CPU_ONLY_STAGES
+from ...runtime.xr import XR_STAGES, XrApp, XrConfig
+from . import machine_description, markdown_table, write_section
 
 EYE_SIZES = ((1832, 1920), (512, 512))          # a Quest 2 eye, and a small one for the loop's overhead
 RUNTIME_SOURCE = Path(__file__).resolve().parents[3] / "tests" / "xr_runtime" / "xr_test_runtime.c"

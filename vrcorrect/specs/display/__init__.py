@@ -39,18 +39,6 @@ from __future__ import annotations
 from typing import Any
 
 from . import profile_files
-from .profile import (
-    KINDS,
-    PROFILE_SCHEMA,
-    TRANSFERS,
-    DisplayProfile,
-    Photometry,
-    ppd_from_fov,
-    ppd_from_pitch,
-)
-from .profile_files import get_display, load_display_profile, preset_names
-from .spectra import Spectra, SpectraFit, fit_spectra, gaussian_spectra, read_spectra_csv
-from .transfer import decode, encode, linear_to_srgb, srgb_to_linear
 
 # Importable from here as from the single module this package once was, though not in __all__:
 # ranges, defaults and labels.
@@ -58,12 +46,30 @@ from .profile import (  # noqa: F401
     AMBIENT_LUX_RANGE,
     CONTRAST_RANGE,
     DEFAULT_PHOTOMETRY,
+    KINDS,
     PEAK_LUMINANCE_RANGE,
     PPD_RANGE,
+    PROFILE_SCHEMA,
     REFLECTIVITY_RANGE,
+    TRANSFERS,
+    DisplayProfile,
+    Photometry,
     default_photometry,
+    ppd_from_fov,
+    ppd_from_pitch,
 )
-from .spectra import CSV_MIN_ROWS, CSV_WAVELENGTH_RANGE_NM, RGB_LABELS  # noqa: F401
+from .profile_files import get_display, load_display_profile, preset_names
+from .spectra import (  # noqa: F401
+    CSV_MIN_ROWS,
+    CSV_WAVELENGTH_RANGE_NM,
+    RGB_LABELS,
+    Spectra,
+    SpectraFit,
+    fit_spectra,
+    gaussian_spectra,
+    read_spectra_csv,
+)
+from .transfer import decode, encode, linear_to_srgb, srgb_to_linear
 
 __all__ = [
     "Spectra",

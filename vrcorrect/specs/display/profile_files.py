@@ -23,9 +23,9 @@ from ...plumbing.fileio import package_data
 from ..validation import FileWording, Range, check_number, read_utf8_text, unknown_key_problem
 from .profile import (
     KINDS,
+    PHOTOMETRY_RULES,
     PPD_RANGE,
     PPD_RULE,
-    PHOTOMETRY_RULES,
     PROFILE_SCHEMA,
     DisplayProfile,
     Photometry,
