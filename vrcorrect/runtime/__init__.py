@@ -1,17 +1,28 @@
-"""Layer 5: the real-time path (GLSL and onnxruntime backends, the moderngl pipeline).
+"""Layer 5: the real-time library (GLSL and onnxruntime backends, the moderngl pipeline, the
+windows and the OpenXR session). A library, not an application: the commands that run it are in
+:mod:`vrcorrect.apps`.
 
 Modules here may import layers 0-4 but never torch (DESIGN.md: the render loop needs numpy,
-moderngl, glfw, onnxruntime), and never :mod:`vrcorrect.solvers.iterative`;
+moderngl, glfw, onnxruntime, pyopenxr), and never :mod:`vrcorrect.solvers.iterative`;
 ``tests/test_layers.py`` enforces both.
 
-* :mod:`vrcorrect.runtime.shaders` - the GLSL loader (``shaders/``: includes, defines,
-  stages, ``#line`` mapping of compiler messages back to files); text only, no GL needed.
-* :mod:`vrcorrect.runtime.gl` - contexts (headless EGL), GL error checks, the fullscreen
-  triangle, texture upload/download with the one place that handles OpenGL's bottom-up rows.
-* :mod:`vrcorrect.runtime.scene` - what the mirror shows each eye: the 3D demo scene, or an
-  image, a folder of images, an animated image or a video, as eye textures of sRGB codes.
-* :mod:`vrcorrect.runtime.mirror` - the desktop mirror window (``vrcorrect mirror``): both eyes
-  side by side through their Correctors, keys as a pure state machine, a timing panel.
+The correction
+  * ``corrector`` - :class:`Corrector`, the one owner of an eye's state: prescription (read once,
+    hot-reloaded), live offsets, the per-size GPU resources and the warm start.
+  * ``eye_model`` - what the CPU prepares for an eye (kernel, regulariser, filters) per backend.
+  * ``fft``, ``filters`` - the GPU FFT bank and the separable filter bank.
+  * ``learned``, ``onnx_backend``, ``model_path`` - the learned model on onnxruntime.
+  * ``motion`` - reprojection of the warm start (head pose, phase correlation).
+  * ``render`` - one image through the pipeline, headless (``vrcorrect render``).
+GL and shaders
+  * ``gl`` - contexts (headless EGL), GL error checks, textures with the one place that handles
+    OpenGL's bottom-up rows; ``shaders`` - the GLSL loader (``shaders/``), text only.
+What is shown and where
+  * ``sources`` - picture sources (still, folder, animated, video, screen grab); ``scene`` - the
+    3D demo scene; ``text`` - font atlas and text layout.
+  * ``window`` - the window shell the apps share (optional imports, GLFW, sRGB check, stage
+    times, screenshots); ``mirror``, ``overlay``, ``xr`` - the desktop mirror, the screen overlay
+    and the OpenXR headset loop; ``xrlayer`` - the OpenXR API layer's engine.
 
 Importing this package imports neither moderngl nor glfw; the submodules that need them do.
 """
