@@ -668,7 +668,7 @@ def _markdown(case: Case, still: dict, pan: dict, check: dict, timing: list, cos
         "### GPU cost model per eye: 1832 x 1920 (Quest 2), a projection, not a measurement\n\n"
         f"FFT grid {grid[1]}x{grid[0]} (the image plus the eye's {headset_margin} px kernel margin on the quest2 "
         "preset, padded to powers of two). Bytes counted pass by pass as the shaders run them "
-        "(`bench_realtime.round_trip_bytes`): each round trip reads and writes the grid's two complex64 layers "
+        "(`vrcorrect.apps.bench.realtime.round_trip_bytes`): each round trip reads and writes the grid's two complex64 layers "
         "in every FFT pass and reads the 3x3 complex spectrum (72 bytes per grid point) in the multiply, "
         "plus the per-frame decode, warm start, guard and encode. Projected at "
         f"{bw / 1e3:.2f} TB/s: {FFT_BANDWIDTH['what']}. That assumes these shaders move bytes as fast as a "
