@@ -14,13 +14,18 @@ fi
 # the llvmpipe software rasteriser (moderngl's headless context: libEGL.so.1 + libEGL_mesa,
 # libGL.so.1 + libGLX_mesa, swrast_dri.so), and Xvfb with the X libraries the glfw wheel's
 # libglfw.so loads at run time (X11, X11-xcb, Xext, Xrender, Xrandr, Xinerama, Xcursor, Xi,
-# Xxf86vm); gcc and libc6-dev: the headset tests compile a small OpenXR runtime (tests/xr_runtime/).
+# Xxf86vm); gcc and libc6-dev: the headset tests compile a small OpenXR runtime (tests/xr_runtime/);
+# libopenxr-dev (OpenXR headers), libx11-dev, libgl-dev, libglx-dev: `vrcorrect layer install` and its tests
+# compile the OpenXR API layer (layer/) and a C test application (tests/xr_gl_app/).
 # One dpkg-query for all of them, so a set-up that changed nothing stays quick.
 need_apt=()
 "$PY" -c 'import ensurepip, venv' 2>/dev/null || need_apt+=(python3-venv)
+# the OpenXR layer embeds this Python: its headers and shared libpython (Debian's python3-dev)
+"$PY" -c 'import os, sys, sysconfig; sys.exit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")))' \
+  2>/dev/null || need_apt+=(python3-dev)
 gl_debs=(libegl1 libegl-mesa0 libgl1 libglx-mesa0 libgl1-mesa-dri xvfb
          libx11-6 libx11-xcb1 libxext6 libxrender1 libxrandr2 libxinerama1 libxcursor1 libxi6 libxxf86vm1
-         gcc libc6-dev)
+         gcc libc6-dev libopenxr-dev libx11-dev libgl-dev libglx-dev)
 if command -v dpkg-query >/dev/null; then
   have=$(dpkg-query -W -f='${Package} ${db:Status-Abbrev}\n' "${gl_debs[@]}" 2>/dev/null | awk '$2 == "ii" {print $1}' || true)
   for p in "${gl_debs[@]}"; do

@@ -18,22 +18,8 @@ import threading
 from typing import Any, Iterator, Sequence
 
 from ..plumbing.errors import VrcorrectError
-from . import (
-    acuity_chart,
-    bench,
-    correct,
-    demo,
-    displays,
-    evaluate,
-    learning,
-    mirror,
-    overlay,
-    psf,
-    render,
-    rx,
-    simulate,
-    xr,
-)
+from . import acuity_chart, bench, correct, demo, displays, evaluate, layer, learning, mirror, overlay, psf, render, rx
+from . import simulate, xr
 
 EXIT_USAGE = 2
 EXIT_INTERNAL = 3
@@ -46,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for command in (simulate, correct, evaluate, acuity_chart, learning, psf, rx, displays, demo, render, mirror,
-                    overlay, xr):
+                    overlay, xr, layer):
         command.add_parser(sub)
     bench.add_parser(sub)
     return ap

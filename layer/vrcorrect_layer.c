@@ -1,0 +1,876 @@
+/* vrcorrect's OpenXR API layer: a thin C shim around vrcorrect.runtime.xrlayer (Python).
+ *
+ * Loaded by the OpenXR loader from a layer manifest (implicit: `vrcorrect layer install`;
+ * explicit for tests: XR_API_LAYER_PATH + XR_ENABLE_API_LAYERS). For OpenGL sessions
+ * (XR_KHR_opengl_enable, Xlib/GLX binding) it gives every application swapchain of a supported
+ * format (GL_SRGB8_ALPHA8, GL_RGBA8) a layer-owned output swapchain of the same format and size.
+ * At xrEndFrame, for every view of every projection layer, the Python engine corrects the
+ * application's last released image over the submitted imageRect into the output swapchain, and
+ * the frame goes down the chain with a copy of the frame description that names the output
+ * swapchains. The application's structures and images are never written. The GL state the
+ * correction touches is saved before and restored after.
+ *
+ * Anything the layer cannot do passes the frame through unchanged and logs one line naming the
+ * reason (a Vulkan or Direct3D session, no Python, an engine failure, a GL error, ...).
+ *
+ * Python: when the process has none running, the shim starts one (libpython is linked; the
+ * prefix and sys.path entries come from vrcorrect_layer.cfg beside the library, written by
+ * `vrcorrect layer install`); when it has (a pyopenxr application), it takes the GIL with
+ * PyGILState_Ensure. Python is never finalised by the layer.
+ *
+ * Environment: DISABLE_VRCORRECT_LAYER (the manifest's disable_environment: the loader skips the
+ * layer), VRCORRECT_LAYER_LOG (log file), VRCORRECT_LAYER_FORMATS (comma-separated hex GL formats
+ * the layer corrects, a subset of 0x8C43,0x8058; default both); the engine reads the others
+ * (vrcorrect/runtime/xrlayer.py).
+ *
+ * Limits of this first version: one OpenGL session per instance is corrected; a projection view
+ * must use imageArrayIndex 0 of a 2D, single-sample, single-mip swapchain; the first frame after a
+ * prescription (re)load blocks xrEndFrame for the eye models' build (seconds, CPU).
+ *
+ * The loader negotiation structures are declared here from the OpenXR loader specification
+ * ("OpenXR Loader - Design and Operation", API layer interface version 1); the core types come
+ * from the Khronos headers (Debian libopenxr-dev), with a fallback below for machines without them.
+ */
+#define _GNU_SOURCE
+#include <Python.h>
+#include <dlfcn.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <pthread.h>
+
+#define XR_USE_GRAPHICS_API_OPENGL
+#define XR_USE_PLATFORM_XLIB
+#include <X11/Xlib.h>
+#include <GL/glx.h>
+#include <openxr/openxr.h>
+#include <openxr/openxr_platform.h>
+
+#define LAYER_NAME "XR_APILAYER_VRCORRECT_correction"
+#define EXPORT __attribute__((visibility("default")))
+
+/* ------------------------------------------------------------------ loader negotiation (spec) */
+enum {
+    LOADER_STRUCT_LOADER_INFO = 1, LOADER_STRUCT_API_LAYER_REQUEST = 2,
+    LOADER_STRUCT_API_LAYER_CREATE_INFO = 4, LOADER_STRUCT_API_LAYER_NEXT_INFO = 5,
+};
+#define MAX_API_LAYER_NAME_SIZE 256
+#define API_LAYER_MAX_SETTINGS_PATH_SIZE 512
+
+typedef struct {
+    int32_t structType; uint32_t structVersion; size_t structSize;
+    uint32_t minInterfaceVersion, maxInterfaceVersion;
+    XrVersion minApiVersion, maxApiVersion;
+} LayerNegotiateLoaderInfo;
+
+struct LayerApiLayerNextInfo;
+typedef struct {
+    int32_t structType; uint32_t structVersion; size_t structSize;
+    void *loaderInstance;
+    char settings_file_location[API_LAYER_MAX_SETTINGS_PATH_SIZE];
+    struct LayerApiLayerNextInfo *nextInfo;
+} LayerApiLayerCreateInfo;
+
+typedef XrResult (XRAPI_PTR *PFN_createApiLayerInstance)(const XrInstanceCreateInfo *, const LayerApiLayerCreateInfo *,
+                                                         XrInstance *);
+typedef struct LayerApiLayerNextInfo {
+    int32_t structType; uint32_t structVersion; size_t structSize;
+    char layerName[MAX_API_LAYER_NAME_SIZE];
+    PFN_xrGetInstanceProcAddr nextGetInstanceProcAddr;
+    PFN_createApiLayerInstance nextCreateApiLayerInstance;
+    struct LayerApiLayerNextInfo *next;
+} LayerApiLayerNextInfo;
+
+typedef struct {
+    int32_t structType; uint32_t structVersion; size_t structSize;
+    uint32_t layerInterfaceVersion; XrVersion layerApiVersion;
+    PFN_xrGetInstanceProcAddr getInstanceProcAddr;
+    PFN_createApiLayerInstance createApiLayerInstance;
+} LayerNegotiateApiLayerRequest;
+
+/* ------------------------------------------------------------------ GL through glXGetProcAddress */
+#define L_GL_SRGB8_ALPHA8 0x8C43
+#define L_GL_RGBA8 0x8058
+#define L_GL_FRAMEBUFFER_SRGB 0x8DB9
+#define L_GL_PRIMITIVE_RESTART 0x8F9D
+#define L_GL_PRIMITIVE_RESTART_FIXED_INDEX 0x8D69
+#define L_GL_PROGRAM_POINT_SIZE 0x8642
+#define L_GL_TEXTURE_CUBE_MAP_SEAMLESS 0x884F
+#define L_GL_RASTERIZER_DISCARD 0x8C89
+#define L_GL_DRAW_FRAMEBUFFER_BINDING 0x8CA6
+#define L_GL_READ_FRAMEBUFFER_BINDING 0x8CAA
+#define L_GL_DRAW_FRAMEBUFFER 0x8CA9
+#define L_GL_READ_FRAMEBUFFER 0x8CA8
+#define L_GL_CURRENT_PROGRAM 0x8B8D
+#define L_GL_VERTEX_ARRAY_BINDING 0x85B5
+#define L_GL_ACTIVE_TEXTURE 0x84E0
+#define L_GL_TEXTURE0 0x84C0
+#define L_GL_TEXTURE_BINDING_2D_ARRAY 0x8C1D
+#define L_GL_TEXTURE_2D_ARRAY 0x8C1A
+#define L_GL_SAMPLER_BINDING 0x8919
+#define L_GL_ARRAY_BUFFER 0x8892
+#define L_GL_ARRAY_BUFFER_BINDING 0x8894
+#define L_GL_PIXEL_PACK_BUFFER 0x88EB
+#define L_GL_PIXEL_UNPACK_BUFFER 0x88EC
+#define L_GL_PIXEL_PACK_BUFFER_BINDING 0x88ED
+#define L_GL_PIXEL_UNPACK_BUFFER_BINDING 0x88EF
+#define L_GL_COPY_READ_BUFFER 0x8F36
+#define L_GL_COPY_WRITE_BUFFER 0x8F37
+#define L_GL_SHADER_STORAGE_BUFFER 0x90D2
+#define L_GL_SHADER_STORAGE_BUFFER_BINDING 0x90D3
+#define L_GL_UNIFORM_BUFFER 0x8A11
+#define L_GL_UNIFORM_BUFFER_BINDING 0x8A28
+#define L_GL_IMAGE_BINDING_NAME 0x8F3A
+#define L_GL_IMAGE_BINDING_LEVEL 0x8F3B
+#define L_GL_IMAGE_BINDING_LAYERED 0x8F3C
+#define L_GL_IMAGE_BINDING_LAYER 0x8F3D
+#define L_GL_IMAGE_BINDING_ACCESS 0x8F3E
+#define L_GL_IMAGE_BINDING_FORMAT 0x906E
+#define L_GL_BLEND_SRC_RGB 0x80C9
+#define L_GL_BLEND_DST_RGB 0x80C8
+#define L_GL_BLEND_SRC_ALPHA 0x80CB
+#define L_GL_BLEND_DST_ALPHA 0x80CA
+#define L_GL_BLEND_EQUATION_RGB 0x8009
+#define L_GL_BLEND_EQUATION_ALPHA 0x883D
+#define L_GL_PACK_ALIGNMENT_ 0x0D05
+#define L_GL_UNPACK_ALIGNMENT_ 0x0CF5
+#define UNITS 8
+
+static struct {
+    void (*GetIntegerv)(GLenum, GLint *);
+    void (*GetIntegeri_v)(GLenum, GLuint, GLint *);
+    void (*GetBooleanv)(GLenum, GLboolean *);
+    GLboolean (*IsEnabled)(GLenum);
+    void (*Enable)(GLenum);
+    void (*Disable)(GLenum);
+    GLenum (*GetError)(void);
+    void (*UseProgram)(GLuint);
+    void (*BindVertexArray)(GLuint);
+    void (*BindFramebuffer)(GLenum, GLuint);
+    void (*Viewport)(GLint, GLint, GLsizei, GLsizei);
+    void (*Scissor)(GLint, GLint, GLsizei, GLsizei);
+    void (*ActiveTexture)(GLenum);
+    void (*BindTexture)(GLenum, GLuint);
+    void (*BindSampler)(GLuint, GLuint);
+    void (*BindBuffer)(GLenum, GLuint);
+    void (*BindBufferBase)(GLenum, GLuint, GLuint);
+    void (*BindImageTexture)(GLuint, GLuint, GLint, GLboolean, GLint, GLenum, GLenum);
+    void (*ColorMask)(GLboolean, GLboolean, GLboolean, GLboolean);
+    void (*DepthMask)(GLboolean);
+    void (*BlendFuncSeparate)(GLenum, GLenum, GLenum, GLenum);
+    void (*BlendEquationSeparate)(GLenum, GLenum);
+    void (*PixelStorei)(GLenum, GLint);
+    void (*Finish)(void);
+    GLXContext (*GetCurrentContext)(void);
+} gl;
+
+static int load_gl(void) {
+    if (gl.GetIntegerv) return 1;
+    void *lib = dlopen("libGL.so.1", RTLD_NOW | RTLD_GLOBAL);
+    if (!lib) return 0;
+    void *(*gpa)(const char *) = (void *(*)(const char *))dlsym(lib, "glXGetProcAddressARB");
+    if (!gpa) return 0;
+#define GET(field, name) *(void **)&gl.field = gpa(name); if (!gl.field) return 0;
+    GET(GetIntegeri_v, "glGetIntegeri_v") GET(GetBooleanv, "glGetBooleanv") GET(IsEnabled, "glIsEnabled")
+    GET(Enable, "glEnable") GET(Disable, "glDisable") GET(GetError, "glGetError") GET(UseProgram, "glUseProgram")
+    GET(BindVertexArray, "glBindVertexArray") GET(BindFramebuffer, "glBindFramebuffer") GET(Viewport, "glViewport")
+    GET(Scissor, "glScissor") GET(ActiveTexture, "glActiveTexture") GET(BindTexture, "glBindTexture")
+    GET(BindSampler, "glBindSampler") GET(BindBuffer, "glBindBuffer") GET(BindBufferBase, "glBindBufferBase")
+    GET(BindImageTexture, "glBindImageTexture") GET(ColorMask, "glColorMask") GET(DepthMask, "glDepthMask")
+    GET(BlendFuncSeparate, "glBlendFuncSeparate") GET(BlendEquationSeparate, "glBlendEquationSeparate")
+    GET(PixelStorei, "glPixelStorei") GET(Finish, "glFinish") GET(GetCurrentContext, "glXGetCurrentContext")
+    GET(GetIntegerv, "glGetIntegerv")
+#undef GET
+    return 1;
+}
+
+/* The GL state the correction (moderngl) may touch, saved before and restored after. */
+static const GLenum CAPS[] = {GL_BLEND, GL_DEPTH_TEST, GL_CULL_FACE, GL_STENCIL_TEST, GL_SCISSOR_TEST, GL_DITHER,
+                              L_GL_FRAMEBUFFER_SRGB, L_GL_PRIMITIVE_RESTART, L_GL_PRIMITIVE_RESTART_FIXED_INDEX,
+                              L_GL_PROGRAM_POINT_SIZE, L_GL_TEXTURE_CUBE_MAP_SEAMLESS, L_GL_RASTERIZER_DISCARD};
+#define NCAPS (sizeof CAPS / sizeof CAPS[0])
+typedef struct {
+    GLboolean caps[NCAPS];
+    GLint program, vao, draw_fb, read_fb, viewport[4], scissor[4], active, array_buffer, pack, unpack, copy_read,
+        copy_write, ssbo, ubo, pack_align, unpack_align;
+    GLint tex2d[UNITS], tex2d_array[UNITS], sampler[UNITS];
+    GLint ssbo_at[UNITS], ubo_at[UNITS];
+    GLint image[UNITS][6];
+    GLboolean color_mask[4], depth_mask;
+    GLint blend[6];
+} GlState;
+
+static void save_gl(GlState *s) {
+    for (size_t i = 0; i < NCAPS; i++) s->caps[i] = gl.IsEnabled(CAPS[i]);
+    gl.GetIntegerv(L_GL_CURRENT_PROGRAM, &s->program);
+    gl.GetIntegerv(L_GL_VERTEX_ARRAY_BINDING, &s->vao);
+    gl.GetIntegerv(L_GL_DRAW_FRAMEBUFFER_BINDING, &s->draw_fb);
+    gl.GetIntegerv(L_GL_READ_FRAMEBUFFER_BINDING, &s->read_fb);
+    gl.GetIntegerv(GL_VIEWPORT, s->viewport);
+    gl.GetIntegerv(GL_SCISSOR_BOX, s->scissor);
+    gl.GetIntegerv(L_GL_ACTIVE_TEXTURE, &s->active);
+    gl.GetIntegerv(L_GL_ARRAY_BUFFER_BINDING, &s->array_buffer);
+    gl.GetIntegerv(L_GL_PIXEL_PACK_BUFFER_BINDING, &s->pack);
+    gl.GetIntegerv(L_GL_PIXEL_UNPACK_BUFFER_BINDING, &s->unpack);
+    gl.GetIntegerv(L_GL_COPY_READ_BUFFER, &s->copy_read);
+    gl.GetIntegerv(L_GL_COPY_WRITE_BUFFER, &s->copy_write);
+    gl.GetIntegerv(L_GL_SHADER_STORAGE_BUFFER_BINDING, &s->ssbo);
+    gl.GetIntegerv(L_GL_UNIFORM_BUFFER_BINDING, &s->ubo);
+    gl.GetIntegerv(L_GL_PACK_ALIGNMENT_, &s->pack_align);
+    gl.GetIntegerv(L_GL_UNPACK_ALIGNMENT_, &s->unpack_align);
+    for (GLuint u = 0; u < UNITS; u++) {
+        gl.ActiveTexture(L_GL_TEXTURE0 + u);
+        gl.GetIntegerv(GL_TEXTURE_BINDING_2D, &s->tex2d[u]);
+        gl.GetIntegerv(L_GL_TEXTURE_BINDING_2D_ARRAY, &s->tex2d_array[u]);
+        gl.GetIntegerv(L_GL_SAMPLER_BINDING, &s->sampler[u]);
+        gl.GetIntegeri_v(L_GL_SHADER_STORAGE_BUFFER_BINDING, u, &s->ssbo_at[u]);
+        gl.GetIntegeri_v(L_GL_UNIFORM_BUFFER_BINDING, u, &s->ubo_at[u]);
+        gl.GetIntegeri_v(L_GL_IMAGE_BINDING_NAME, u, &s->image[u][0]);
+        gl.GetIntegeri_v(L_GL_IMAGE_BINDING_LEVEL, u, &s->image[u][1]);
+        gl.GetIntegeri_v(L_GL_IMAGE_BINDING_LAYERED, u, &s->image[u][2]);
+        gl.GetIntegeri_v(L_GL_IMAGE_BINDING_LAYER, u, &s->image[u][3]);
+        gl.GetIntegeri_v(L_GL_IMAGE_BINDING_ACCESS, u, &s->image[u][4]);
+        gl.GetIntegeri_v(L_GL_IMAGE_BINDING_FORMAT, u, &s->image[u][5]);
+    }
+    gl.ActiveTexture((GLenum)s->active);
+    gl.GetBooleanv(GL_COLOR_WRITEMASK, s->color_mask);
+    gl.GetBooleanv(GL_DEPTH_WRITEMASK, &s->depth_mask);
+    gl.GetIntegerv(L_GL_BLEND_SRC_RGB, &s->blend[0]);
+    gl.GetIntegerv(L_GL_BLEND_DST_RGB, &s->blend[1]);
+    gl.GetIntegerv(L_GL_BLEND_SRC_ALPHA, &s->blend[2]);
+    gl.GetIntegerv(L_GL_BLEND_DST_ALPHA, &s->blend[3]);
+    gl.GetIntegerv(L_GL_BLEND_EQUATION_RGB, &s->blend[4]);
+    gl.GetIntegerv(L_GL_BLEND_EQUATION_ALPHA, &s->blend[5]);
+}
+
+static void restore_gl(const GlState *s) {
+    for (size_t i = 0; i < NCAPS; i++) (s->caps[i] ? gl.Enable : gl.Disable)(CAPS[i]);
+    gl.UseProgram((GLuint)s->program);
+    gl.BindVertexArray((GLuint)s->vao);
+    gl.BindFramebuffer(L_GL_DRAW_FRAMEBUFFER, (GLuint)s->draw_fb);
+    gl.BindFramebuffer(L_GL_READ_FRAMEBUFFER, (GLuint)s->read_fb);
+    gl.Viewport(s->viewport[0], s->viewport[1], s->viewport[2], s->viewport[3]);
+    gl.Scissor(s->scissor[0], s->scissor[1], s->scissor[2], s->scissor[3]);
+    for (GLuint u = 0; u < UNITS; u++) {
+        gl.ActiveTexture(L_GL_TEXTURE0 + u);
+        gl.BindTexture(GL_TEXTURE_2D, (GLuint)s->tex2d[u]);
+        gl.BindTexture(L_GL_TEXTURE_2D_ARRAY, (GLuint)s->tex2d_array[u]);
+        gl.BindSampler(u, (GLuint)s->sampler[u]);
+        gl.BindBufferBase(L_GL_SHADER_STORAGE_BUFFER, u, (GLuint)s->ssbo_at[u]);
+        gl.BindBufferBase(L_GL_UNIFORM_BUFFER, u, (GLuint)s->ubo_at[u]);
+        gl.BindImageTexture(u, (GLuint)s->image[u][0], s->image[u][1], (GLboolean)s->image[u][2], s->image[u][3],
+                            (GLenum)s->image[u][4], (GLenum)s->image[u][5]);
+    }
+    gl.ActiveTexture((GLenum)s->active);
+    gl.BindBuffer(L_GL_ARRAY_BUFFER, (GLuint)s->array_buffer);
+    gl.BindBuffer(L_GL_PIXEL_PACK_BUFFER, (GLuint)s->pack);
+    gl.BindBuffer(L_GL_PIXEL_UNPACK_BUFFER, (GLuint)s->unpack);
+    gl.BindBuffer(L_GL_COPY_READ_BUFFER, (GLuint)s->copy_read);
+    gl.BindBuffer(L_GL_COPY_WRITE_BUFFER, (GLuint)s->copy_write);
+    gl.BindBuffer(L_GL_SHADER_STORAGE_BUFFER, (GLuint)s->ssbo);
+    gl.BindBuffer(L_GL_UNIFORM_BUFFER, (GLuint)s->ubo);
+    gl.PixelStorei(L_GL_PACK_ALIGNMENT_, s->pack_align);
+    gl.PixelStorei(L_GL_UNPACK_ALIGNMENT_, s->unpack_align);
+    gl.ColorMask(s->color_mask[0], s->color_mask[1], s->color_mask[2], s->color_mask[3]);
+    gl.DepthMask(s->depth_mask);
+    gl.BlendFuncSeparate((GLenum)s->blend[0], (GLenum)s->blend[1], (GLenum)s->blend[2], (GLenum)s->blend[3]);
+    gl.BlendEquationSeparate((GLenum)s->blend[4], (GLenum)s->blend[5]);
+}
+
+/* ------------------------------------------------------------------ logging (one line a reason) */
+static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
+static char log_path[1024];
+
+static void resolve_log_path(void) {
+    const char *env = getenv("VRCORRECT_LAYER_LOG");
+    if (env && *env) { snprintf(log_path, sizeof log_path, "%s", env); return; }
+    const char *state = getenv("XDG_STATE_HOME"), *home = getenv("HOME");
+    if (state && *state) snprintf(log_path, sizeof log_path, "%s/vrcorrect/layer.log", state);
+    else if (home && *home) snprintf(log_path, sizeof log_path, "%s/.local/state/vrcorrect/layer.log", home);
+    else log_path[0] = 0;
+}
+
+static void layer_log(const char *fmt, ...) {
+    char line[1024];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(line, sizeof line, fmt, ap);
+    va_end(ap);
+    fprintf(stderr, "vrcorrect layer: %s\n", line);
+    if (!log_path[0]) resolve_log_path();
+    if (!log_path[0]) return;
+    char dir[1024];
+    snprintf(dir, sizeof dir, "%s", log_path);
+    for (char *p = dir + 1; *p; p++)
+        if (*p == '/') { *p = 0; mkdir(dir, 0755); *p = '/'; }
+    FILE *f = fopen(log_path, "a");
+    if (!f) return;
+    time_t now = time(NULL);
+    struct tm tm;
+    gmtime_r(&now, &tm);
+    char stamp[32];
+    strftime(stamp, sizeof stamp, "%Y-%m-%dT%H:%M:%SZ", &tm);
+    fprintf(f, "%s %s\n", stamp, line);
+    fclose(f);
+}
+
+/* ------------------------------------------------------------------ state */
+#define MAX_SWAPCHAINS 32
+#define MAX_IMAGES 8
+#define MAX_VIEWS 4
+#define MAX_LAYERS 16
+
+typedef struct {
+    XrSwapchain app, out;        /* out == XR_NULL_HANDLE: passed through */
+    XrSession session;
+    int64_t format;
+    uint32_t width, height, app_count, out_count;
+    GLuint app_tex[MAX_IMAGES], out_tex[MAX_IMAGES];
+    uint32_t acquired[MAX_IMAGES]; /* FIFO of acquired, not yet released indices */
+    int nacquired;
+    int released;                  /* last released index, -1 none */
+    uint32_t out_index;            /* the output image acquired for this frame */
+} Chain;
+
+static struct {
+    PFN_xrGetInstanceProcAddr next_gipa;
+    XrInstance instance;
+    PFN_xrDestroyInstance DestroyInstance;
+    PFN_xrCreateSession CreateSession;
+    PFN_xrDestroySession DestroySession;
+    PFN_xrCreateSwapchain CreateSwapchain;
+    PFN_xrDestroySwapchain DestroySwapchain;
+    PFN_xrEnumerateSwapchainImages EnumerateSwapchainImages;
+    PFN_xrAcquireSwapchainImage AcquireSwapchainImage;
+    PFN_xrWaitSwapchainImage WaitSwapchainImage;
+    PFN_xrReleaseSwapchainImage ReleaseSwapchainImage;
+    PFN_xrEndFrame EndFrame;
+    PFN_xrEnumerateViewConfigurationViews EnumerateViewConfigurationViews;
+    XrSession session;             /* the corrected (OpenGL) session, or XR_NULL_HANDLE */
+    GLXContext context;
+    int session_gl;
+    Chain chains[MAX_SWAPCHAINS];
+    PyObject *engine;              /* vrcorrect.runtime.xrlayer.Engine, or NULL */
+    int python_failed, engine_failed;
+    int we_initialised;
+    char last_reason[256];
+} L;
+
+/* Log a pass-through reason once (until a different reason or a corrected frame comes). */
+static void pass_reason(const char *reason) {
+    if (strcmp(reason, L.last_reason) == 0) return;
+    snprintf(L.last_reason, sizeof L.last_reason, "%s", reason);
+    layer_log("pass-through: %s", reason);
+}
+
+static Chain *chain_of(XrSwapchain h) {
+    for (int i = 0; i < MAX_SWAPCHAINS; i++)
+        if (L.chains[i].app == h && h != XR_NULL_HANDLE) return &L.chains[i];
+    return NULL;
+}
+
+/* ------------------------------------------------------------------ embedded Python */
+static void self_dir(char *out, size_t size) {
+    Dl_info info;
+    out[0] = 0;
+    if (dladdr((void *)self_dir, &info) && info.dli_fname) {
+        snprintf(out, size, "%s", info.dli_fname);
+        char *slash = strrchr(out, '/');
+        if (slash) *slash = 0; else out[0] = 0;
+    }
+}
+
+/* vrcorrect_layer.cfg beside the library: "home=<python prefix>" and "path=<sys.path entry>" lines,
+ * written by the build (`vrcorrect layer install`). */
+static int read_cfg(char home[1024], char paths[16][1024], int *npaths) {
+    char dir[1024], file[1200];
+    self_dir(dir, sizeof dir);
+    snprintf(file, sizeof file, "%s/vrcorrect_layer.cfg", dir);
+    FILE *f = fopen(file, "r");
+    *npaths = 0;
+    home[0] = 0;
+    if (!f) return 0;
+    char line[1000];
+    while (fgets(line, sizeof line, f)) {
+        line[strcspn(line, "\r\n")] = 0;
+        if (strncmp(line, "home=", 5) == 0) snprintf(home, 1024, "%s", line + 5);
+        else if (strncmp(line, "path=", 5) == 0 && *npaths < 16) snprintf(paths[(*npaths)++], 1024, "%s", line + 5);
+    }
+    fclose(f);
+    return 1;
+}
+
+static int python_start(void) {
+    if (L.python_failed) return 0;
+    char home[1024], paths[16][1024];
+    int npaths = 0;
+    read_cfg(home, paths, &npaths);
+    if (!Py_IsInitialized()) {
+        /* The loader opens layers with RTLD_LOCAL: make libpython's symbols global, or Python's own
+         * extension modules (lib-dynload) cannot resolve them. */
+        Dl_info pyinfo;
+        if (dladdr((void *)Py_IsInitialized, &pyinfo) && pyinfo.dli_fname)
+            dlopen(pyinfo.dli_fname, RTLD_NOW | RTLD_GLOBAL | RTLD_NOLOAD);
+        PyConfig config;
+        PyConfig_InitIsolatedConfig(&config);
+        config.install_signal_handlers = 0;
+        config.site_import = 1;
+        PyStatus status = PyStatus_Ok();
+        if (home[0]) status = PyConfig_SetBytesString(&config, &config.home, home);
+        if (!PyStatus_Exception(status)) status = Py_InitializeFromConfig(&config);
+        PyConfig_Clear(&config);
+        if (PyStatus_Exception(status)) {
+            L.python_failed = 1;
+            layer_log("pass-through: Python could not start in this process (%s)",
+                      status.err_msg ? status.err_msg : "unknown");
+            return 0;
+        }
+        L.we_initialised = 1;
+        PyEval_SaveThread();       /* the GIL is taken per call with PyGILState_Ensure */
+    }
+    PyGILState_STATE g = PyGILState_Ensure();
+    PyObject *sys_path = PySys_GetObject("path");  /* borrowed */
+    for (int i = npaths - 1; sys_path && i >= 0; i--) {
+        PyObject *p = PyUnicode_DecodeFSDefault(paths[i]);
+        if (p && PySequence_Contains(sys_path, p) == 0) PyList_Insert(sys_path, 0, p);
+        Py_XDECREF(p);
+    }
+    PyErr_Clear();
+    PyGILState_Release(g);
+    return 1;
+}
+
+static void python_error(const char *what) {
+    PyObject *type, *value, *tb;
+    PyErr_Fetch(&type, &value, &tb);
+    PyObject *s = value ? PyObject_Str(value) : NULL;
+    const char *text = s ? PyUnicode_AsUTF8(s) : NULL;
+    layer_log("pass-through: %s: %s%s%s", what, type ? ((PyTypeObject *)type)->tp_name : "error",
+              text ? ": " : "", text ? text : "");
+    Py_XDECREF(s);
+    Py_XDECREF(type);
+    Py_XDECREF(value);
+    Py_XDECREF(tb);
+    PyErr_Clear();
+}
+
+/* Calls a method of the engine; returns its result as a new reference, or NULL (logged). */
+static PyObject *engine_call(const char *method, const char *format, ...) {
+    if (!L.engine) return NULL;
+    va_list ap;
+    va_start(ap, format);
+    PyObject *args = Py_VaBuildValue(format, ap);
+    va_end(ap);
+    PyObject *fn = args ? PyObject_GetAttrString(L.engine, method) : NULL;
+    PyObject *result = fn ? PyObject_CallObject(fn, args) : NULL;
+    Py_XDECREF(fn);
+    Py_XDECREF(args);
+    if (!result) {
+        char what[128];
+        snprintf(what, sizeof what, "the correction engine failed in %s", method);
+        python_error(what);
+    }
+    return result;
+}
+
+static void engine_start(uint32_t view_w, uint32_t view_h, const char *vendor) {
+    if (L.engine || L.engine_failed || !python_start()) return;
+    PyGILState_STATE g = PyGILState_Ensure();
+    PyObject *module = PyImport_ImportModule("vrcorrect.runtime.xrlayer");
+    if (!module) {
+        python_error("cannot import vrcorrect.runtime.xrlayer");
+        L.engine_failed = 1;
+    } else {
+        PyObject *cls = PyObject_GetAttrString(module, "Engine");
+        L.engine = cls ? PyObject_CallFunction(cls, "(IIs)", view_w, view_h, vendor) : NULL;
+        Py_XDECREF(cls);
+        Py_DECREF(module);
+        if (!L.engine) {
+            python_error("cannot start the correction engine");
+            L.engine_failed = 1;
+        }
+    }
+    PyGILState_Release(g);
+}
+
+static void engine_stop(void) {
+    if (!L.engine) return;
+    PyGILState_STATE g = PyGILState_Ensure();
+    PyObject *r = engine_call("close", "()");
+    Py_XDECREF(r);
+    Py_CLEAR(L.engine);
+    PyGILState_Release(g);
+}
+
+/* ------------------------------------------------------------------ intercepted calls */
+static XrResult XRAPI_CALL layer_GetInstanceProcAddr(XrInstance, const char *, PFN_xrVoidFunction *);
+
+static XrResult XRAPI_CALL layer_DestroyInstance(XrInstance instance) {
+    engine_stop();
+    XrResult r = L.DestroyInstance(instance);
+    L.instance = XR_NULL_HANDLE;
+    return r;
+}
+
+static const char *binding_name(XrStructureType t) {
+    switch ((int)t) {
+    case 1000025000: return "Vulkan (XR_KHR_vulkan_enable)";
+    case 1000027000: return "Direct3D 11 (XR_KHR_D3D11_enable)";
+    case 1000028000: return "Direct3D 12 (XR_KHR_D3D12_enable)";
+    case 1000024001: return "OpenGL ES (XR_KHR_opengl_es_enable)";
+    case 1000023002: return "OpenGL on XCB (XR_KHR_opengl_enable, XCB binding)";
+    case 1000023003: return "OpenGL on Wayland (XR_KHR_opengl_enable, Wayland binding)";
+    case 1000048004: return "OpenGL through EGL (XR_MNDX_egl_enable)";
+    default: return NULL;
+    }
+}
+
+static XrResult XRAPI_CALL layer_CreateSession(XrInstance instance, const XrSessionCreateInfo *info, XrSession *session) {
+    const XrGraphicsBindingOpenGLXlibKHR *binding = NULL;
+    const char *other = NULL;
+    for (const XrBaseInStructure *b = info ? (const XrBaseInStructure *)info->next : NULL; b; b = b->next) {
+        if (b->type == XR_TYPE_GRAPHICS_BINDING_OPENGL_XLIB_KHR) binding = (const XrGraphicsBindingOpenGLXlibKHR *)b;
+        else if (binding_name(b->type)) other = binding_name(b->type);
+    }
+    L.last_reason[0] = 0;
+    if (!binding) {     /* decided from the application's request: the session passes through whatever the runtime says */
+        char reason[256];
+        snprintf(reason, sizeof reason, "the application renders with %s; vrcorrect corrects OpenGL (Xlib/GLX) "
+                 "sessions only so far (Vulkan is the next step)", other ? other : "a graphics API it does not name");
+        pass_reason(reason);
+        return L.CreateSession(instance, info, session);
+    }
+    XrResult r = L.CreateSession(instance, info, session);
+    if (XR_FAILED(r)) return r;
+    if (L.session != XR_NULL_HANDLE) {
+        pass_reason("a second session at once: only the first is corrected");
+        return r;
+    }
+    if (!L.EnumerateSwapchainImages || !L.AcquireSwapchainImage || !L.WaitSwapchainImage ||
+        !L.ReleaseSwapchainImage || !L.DestroySwapchain || !L.EndFrame) {
+        pass_reason("the next layer or runtime lacks a swapchain or frame function");
+        return r;
+    }
+    if (!load_gl()) {
+        pass_reason("libGL.so.1 or a GL entry point could not be loaded");
+        return r;
+    }
+    L.session = *session;
+    L.context = binding->glxContext;
+    L.session_gl = 1;
+    uint32_t w = 0, h = 0, n = 0;
+    XrViewConfigurationView views[MAX_VIEWS];
+    for (uint32_t i = 0; i < MAX_VIEWS; i++) views[i] = (XrViewConfigurationView){.type = XR_TYPE_VIEW_CONFIGURATION_VIEW};
+    if (L.EnumerateViewConfigurationViews &&
+        XR_SUCCEEDED(L.EnumerateViewConfigurationViews(instance, info->systemId,
+                                                       XR_VIEW_CONFIGURATION_TYPE_PRIMARY_STEREO, MAX_VIEWS, &n, views))
+        && n > 0) {
+        w = views[0].recommendedImageRectWidth;
+        h = views[0].recommendedImageRectHeight;
+    }
+    engine_start(w, h, "OpenGL");
+    return r;
+}
+
+static void destroy_outputs(XrSession session) {
+    for (int i = 0; i < MAX_SWAPCHAINS; i++) {
+        Chain *c = &L.chains[i];
+        if (c->app == XR_NULL_HANDLE || c->session != session) continue;
+        if (c->out != XR_NULL_HANDLE) L.DestroySwapchain(c->out);
+        memset(c, 0, sizeof *c);
+    }
+}
+
+static XrResult XRAPI_CALL layer_DestroySession(XrSession session) {
+    if (session == L.session && L.engine) {
+        /* GL objects are deleted only on the session's context; otherwise they are dropped unreleased */
+        int current = gl.GetCurrentContext && gl.GetCurrentContext() == L.context;
+        PyGILState_STATE g = PyGILState_Ensure();
+        PyObject *res = engine_call("release_gl", "(i)", current);
+        Py_XDECREF(res);
+        PyGILState_Release(g);
+    }
+    destroy_outputs(session);   /* the application should have destroyed its swapchains: outputs go first */
+    if (session == L.session) {
+        L.session = XR_NULL_HANDLE;
+        L.session_gl = 0;
+    }
+    return L.DestroySession(session);
+}
+
+static int enumerate_gl_images(XrSwapchain h, GLuint *tex, uint32_t *count) {
+    XrSwapchainImageOpenGLKHR images[MAX_IMAGES];
+    uint32_t n = 0;
+    if (XR_FAILED(L.EnumerateSwapchainImages(h, 0, &n, NULL)) || n == 0 || n > MAX_IMAGES) return 0;
+    for (uint32_t i = 0; i < n; i++) images[i] = (XrSwapchainImageOpenGLKHR){.type = XR_TYPE_SWAPCHAIN_IMAGE_OPENGL_KHR};
+    if (XR_FAILED(L.EnumerateSwapchainImages(h, n, &n, (XrSwapchainImageBaseHeader *)images))) return 0;
+    for (uint32_t i = 0; i < n; i++) tex[i] = images[i].image;
+    *count = n;
+    return 1;
+}
+
+/* The formats the layer corrects: GL_SRGB8_ALPHA8 and GL_RGBA8, or the comma-separated list in
+ * VRCORRECT_LAYER_FORMATS (hex; a way to restrict the layer, e.g. to sRGB swapchains only). */
+static int format_supported(int64_t format) {
+    if (format != L_GL_SRGB8_ALPHA8 && format != L_GL_RGBA8) return 0;
+    const char *list = getenv("VRCORRECT_LAYER_FORMATS");
+    if (!list || !*list) return 1;
+    for (const char *p = list; *p;) {
+        char *end;
+        long long v = strtoll(p, &end, 16);
+        if (end == p) break;
+        if (v == format) return 1;
+        p = end;
+        while (*p == ',' || *p == ' ') p++;
+    }
+    return 0;
+}
+
+static XrResult XRAPI_CALL layer_CreateSwapchain(XrSession session, const XrSwapchainCreateInfo *info,
+                                                 XrSwapchain *swapchain) {
+    XrResult r = L.CreateSwapchain(session, info, swapchain);
+    if (XR_FAILED(r) || session != L.session || !L.session_gl) return r;
+    Chain *c = NULL;
+    for (int i = 0; i < MAX_SWAPCHAINS && !c; i++)
+        if (L.chains[i].app == XR_NULL_HANDLE) c = &L.chains[i];
+    if (!c) {
+        pass_reason("more swapchains than the layer tracks (32): the newest is passed through");
+        return r;
+    }
+    memset(c, 0, sizeof *c);
+    c->app = *swapchain;
+    c->session = session;
+    c->format = info->format;
+    c->width = info->width;
+    c->height = info->height;
+    c->released = -1;
+    char reason[256] = "";
+    if (!format_supported(info->format))
+        snprintf(reason, sizeof reason, "swapchain format 0x%llX is not supported (GL_SRGB8_ALPHA8 0x8C43 or "
+                 "GL_RGBA8 0x8058 are)", (unsigned long long)info->format);
+    else if (info->arraySize != 1 || info->faceCount != 1 || info->sampleCount != 1 || info->mipCount != 1)
+        snprintf(reason, sizeof reason, "a swapchain with arraySize %u, faceCount %u, sampleCount %u, mipCount %u "
+                 "(only 1, 1, 1, 1 is corrected)", info->arraySize, info->faceCount, info->sampleCount, info->mipCount);
+    else if (!(info->usageFlags & XR_SWAPCHAIN_USAGE_COLOR_ATTACHMENT_BIT))
+        snprintf(reason, sizeof reason, "a swapchain without COLOR_ATTACHMENT usage (a depth buffer?) is not corrected");
+    if (reason[0]) {
+        if (info->usageFlags & XR_SWAPCHAIN_USAGE_COLOR_ATTACHMENT_BIT) pass_reason(reason);
+        return r;
+    }
+    if (!enumerate_gl_images(c->app, c->app_tex, &c->app_count)) {
+        pass_reason("could not list the application's swapchain images");
+        return r;
+    }
+    XrSwapchainCreateInfo out = *info;
+    out.next = NULL;
+    out.createFlags = 0;
+    out.usageFlags = XR_SWAPCHAIN_USAGE_COLOR_ATTACHMENT_BIT | XR_SWAPCHAIN_USAGE_SAMPLED_BIT;
+    XrSwapchain h = XR_NULL_HANDLE;
+    XrResult ro = L.CreateSwapchain(session, &out, &h);
+    if (XR_FAILED(ro)) {
+        char why[128];
+        snprintf(why, sizeof why, "the runtime refused the layer's output swapchain (XrResult %d)", ro);
+        pass_reason(why);
+        return r;
+    }
+    if (!enumerate_gl_images(h, c->out_tex, &c->out_count)) {
+        L.DestroySwapchain(h);
+        pass_reason("could not list the output swapchain's images");
+        return r;
+    }
+    c->out = h;
+    return r;
+}
+
+static XrResult XRAPI_CALL layer_DestroySwapchain(XrSwapchain swapchain) {
+    Chain *c = chain_of(swapchain);
+    if (c) {
+        if (c->out != XR_NULL_HANDLE) L.DestroySwapchain(c->out);
+        memset(c, 0, sizeof *c);
+    }
+    return L.DestroySwapchain(swapchain);
+}
+
+static XrResult XRAPI_CALL layer_AcquireSwapchainImage(XrSwapchain swapchain, const XrSwapchainImageAcquireInfo *info,
+                                                       uint32_t *index) {
+    XrResult r = L.AcquireSwapchainImage(swapchain, info, index);
+    Chain *c = chain_of(swapchain);
+    if (XR_SUCCEEDED(r) && c && c->nacquired < MAX_IMAGES) c->acquired[c->nacquired++] = *index;
+    return r;
+}
+
+static XrResult XRAPI_CALL layer_ReleaseSwapchainImage(XrSwapchain swapchain, const XrSwapchainImageReleaseInfo *info) {
+    XrResult r = L.ReleaseSwapchainImage(swapchain, info);
+    Chain *c = chain_of(swapchain);
+    if (XR_SUCCEEDED(r) && c && c->nacquired > 0) {
+        c->released = (int)c->acquired[0];
+        memmove(c->acquired, c->acquired + 1, sizeof(uint32_t) * (size_t)(c->nacquired - 1));
+        c->nacquired--;
+    }
+    return r;
+}
+
+/* Corrects every view; fills the copies. Returns 1 when the frame goes down corrected. */
+static int correct_frame(const XrFrameEndInfo *info, XrCompositionLayerProjection *layers,
+                         XrCompositionLayerProjectionView (*views)[MAX_VIEWS], const XrCompositionLayerBaseHeader **list) {
+    if (!L.session_gl) return 0;
+    if (L.python_failed || L.engine_failed || !L.engine) return 0;   /* logged when it happened */
+    if (info->layerCount > MAX_LAYERS) { pass_reason("more than 16 composition layers"); return 0; }
+    int projections = 0;
+    for (uint32_t k = 0; k < info->layerCount; k++) {
+        const XrCompositionLayerBaseHeader *b = info->layers[k];
+        list[k] = b;
+        if (!b || b->type != XR_TYPE_COMPOSITION_LAYER_PROJECTION) continue;
+        const XrCompositionLayerProjection *p = (const XrCompositionLayerProjection *)b;
+        if (p->viewCount > MAX_VIEWS) { pass_reason("a projection layer with more than 4 views"); return 0; }
+        for (uint32_t v = 0; v < p->viewCount; v++) {
+            Chain *c = chain_of(p->views[v].subImage.swapchain);
+            if (!c || c->out == XR_NULL_HANDLE) return 0;     /* the reason was logged at xrCreateSwapchain */
+            if (c->released < 0) { pass_reason("a view's swapchain has no released image"); return 0; }
+            if (p->views[v].subImage.imageArrayIndex != 0) { pass_reason("imageArrayIndex != 0"); return 0; }
+        }
+        projections++;
+    }
+    if (!projections) return 0;
+    if (gl.GetCurrentContext() != L.context) {
+        pass_reason("the session's GLX context is not current at xrEndFrame");
+        return 0;
+    }
+    PyGILState_STATE g = PyGILState_Ensure();
+    int ok = 1;
+    PyObject *go = engine_call("begin_frame", "()");
+    if (!go || !PyObject_IsTrue(go)) ok = 0;                   /* off, no prescription, ...: the engine logs why */
+    Py_XDECREF(go);
+    if (!ok) { PyGILState_Release(g); return 0; }
+    GlState saved;
+    save_gl(&saved);
+    while (gl.GetError() != GL_NO_ERROR) {}                     /* the application's errors are not ours */
+    /* fixed-function state the application may have left on, which would clip or blend the layer's draws */
+    const GLenum off[] = {GL_SCISSOR_TEST, GL_BLEND, GL_DEPTH_TEST, GL_CULL_FACE, GL_STENCIL_TEST,
+                          L_GL_RASTERIZER_DISCARD, L_GL_FRAMEBUFFER_SRGB};
+    for (size_t i = 0; i < sizeof off / sizeof off[0]; i++) gl.Disable(off[i]);
+    gl.ColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+    gl.BindBuffer(L_GL_PIXEL_PACK_BUFFER, 0);
+    gl.BindBuffer(L_GL_PIXEL_UNPACK_BUFFER, 0);
+    /* acquire each output swapchain once, correct its views, release */
+    Chain *acquired[MAX_LAYERS * MAX_VIEWS];
+    int nacq = 0;
+    uint32_t view_index = 0;
+    for (uint32_t k = 0; k < info->layerCount && ok; k++) {
+        const XrCompositionLayerBaseHeader *b = info->layers[k];
+        if (!b || b->type != XR_TYPE_COMPOSITION_LAYER_PROJECTION) continue;
+        layers[k] = *(const XrCompositionLayerProjection *)b;
+        for (uint32_t v = 0; v < layers[k].viewCount && ok; v++, view_index++) {
+            const XrCompositionLayerProjectionView *src = &((const XrCompositionLayerProjection *)b)->views[v];
+            Chain *c = chain_of(src->subImage.swapchain);
+            int have = 0;
+            for (int a = 0; a < nacq; a++) have |= acquired[a] == c;
+            uint32_t idx = 0;
+            if (!have) {
+                XrSwapchainImageWaitInfo wait = {XR_TYPE_SWAPCHAIN_IMAGE_WAIT_INFO, NULL, XR_INFINITE_DURATION};
+                XrResult r = L.AcquireSwapchainImage(c->out, NULL, &idx);
+                if (XR_FAILED(r)) { pass_reason("could not acquire an output swapchain image"); ok = 0; break; }
+                c->out_index = idx;
+                acquired[nacq++] = c;
+                if (XR_FAILED(L.WaitSwapchainImage(c->out, &wait))) { pass_reason("waiting for an output image failed"); ok = 0; break; }
+            }
+            idx = c->out_index;
+            XrRect2Di rect = src->subImage.imageRect;
+            PyObject *res = engine_call("correct", "(IIiIIiiiiIi)", view_index, c->app_tex[c->released], (int)c->format,
+                                        c->width, c->height, rect.offset.x, rect.offset.y, rect.extent.width,
+                                        rect.extent.height, c->out_tex[idx], (int)(v));
+            if (!res || !PyObject_IsTrue(res)) ok = 0;
+            Py_XDECREF(res);
+            views[k][v] = *src;
+            views[k][v].subImage.swapchain = c->out;
+        }
+        layers[k].views = views[k];
+        list[k] = (const XrCompositionLayerBaseHeader *)&layers[k];
+    }
+    GLenum err = gl.GetError();
+    if (ok && err != GL_NO_ERROR) {
+        char why[96];
+        snprintf(why, sizeof why, "a GL error 0x%04X during the correction", err);
+        pass_reason(why);
+        ok = 0;
+    }
+    while (gl.GetError() != GL_NO_ERROR) {}
+    restore_gl(&saved);
+    for (int a = 0; a < nacq; a++) L.ReleaseSwapchainImage(acquired[a]->out, NULL);
+    PyObject *done = engine_call("end_frame", "(i)", ok);
+    Py_XDECREF(done);
+    PyGILState_Release(g);
+    if (ok) L.last_reason[0] = 0;
+    return ok;
+}
+
+static XrResult XRAPI_CALL layer_EndFrame(XrSession session, const XrFrameEndInfo *info) {
+    if (session != L.session || !info || info->layerCount == 0) return L.EndFrame(session, info);
+    XrCompositionLayerProjection layers[MAX_LAYERS];
+    XrCompositionLayerProjectionView views[MAX_LAYERS][MAX_VIEWS];
+    const XrCompositionLayerBaseHeader *list[MAX_LAYERS];
+    pthread_mutex_lock(&lock);
+    int corrected = correct_frame(info, layers, views, list);
+    pthread_mutex_unlock(&lock);
+    if (!corrected) return L.EndFrame(session, info);
+    XrFrameEndInfo copy = *info;
+    copy.layers = list;
+    return L.EndFrame(session, &copy);
+}
+
+/* ------------------------------------------------------------------ dispatch and negotiation */
+static XrResult XRAPI_CALL layer_GetInstanceProcAddr(XrInstance instance, const char *name, PFN_xrVoidFunction *function) {
+    if (!name || !function) return XR_ERROR_VALIDATION_FAILURE;
+#define HOOK(n) if (strcmp(name, "xr" #n) == 0) { \
+        if (instance != XR_NULL_HANDLE && !L.n) return L.next_gipa(instance, name, function); \
+        *function = (PFN_xrVoidFunction)layer_##n; return XR_SUCCESS; }
+    if (strcmp(name, "xrGetInstanceProcAddr") == 0) {
+        *function = (PFN_xrVoidFunction)layer_GetInstanceProcAddr;
+        return XR_SUCCESS;
+    }
+    if (L.next_gipa && instance != XR_NULL_HANDLE) {
+        HOOK(DestroyInstance) HOOK(CreateSession) HOOK(DestroySession) HOOK(CreateSwapchain) HOOK(DestroySwapchain)
+        HOOK(AcquireSwapchainImage) HOOK(ReleaseSwapchainImage) HOOK(EndFrame)
+    }
+#undef HOOK
+    if (!L.next_gipa) return XR_ERROR_HANDLE_INVALID;
+    return L.next_gipa(instance, name, function);
+}
+
+static XrResult XRAPI_CALL layer_CreateApiLayerInstance(const XrInstanceCreateInfo *info,
+                                                        const LayerApiLayerCreateInfo *layer_info, XrInstance *instance) {
+    if (!layer_info || !layer_info->nextInfo || strcmp(layer_info->nextInfo->layerName, LAYER_NAME) != 0)
+        return XR_ERROR_INITIALIZATION_FAILED;
+    LayerApiLayerNextInfo *mine = layer_info->nextInfo;
+    LayerApiLayerCreateInfo down = *layer_info;
+    down.nextInfo = mine->next;
+    XrResult r = mine->nextCreateApiLayerInstance(info, &down, instance);
+    if (XR_FAILED(r)) return r;
+    memset(&L, 0, sizeof L);
+    L.next_gipa = mine->nextGetInstanceProcAddr;
+    L.instance = *instance;
+#define NEXT(n) if (XR_FAILED(L.next_gipa(*instance, "xr" #n, (PFN_xrVoidFunction *)&L.n))) L.n = NULL;
+    NEXT(DestroyInstance) NEXT(CreateSession) NEXT(DestroySession) NEXT(CreateSwapchain) NEXT(DestroySwapchain)
+    NEXT(EnumerateSwapchainImages) NEXT(AcquireSwapchainImage) NEXT(WaitSwapchainImage) NEXT(ReleaseSwapchainImage)
+    NEXT(EndFrame) NEXT(EnumerateViewConfigurationViews)
+#undef NEXT
+    return r;
+}
+
+EXPORT XrResult XRAPI_CALL xrNegotiateLoaderApiLayerInterface(const LayerNegotiateLoaderInfo *loader, const char *name,
+                                                              LayerNegotiateApiLayerRequest *request) {
+    if (!loader || !request || loader->structType != LOADER_STRUCT_LOADER_INFO ||
+        request->structType != LOADER_STRUCT_API_LAYER_REQUEST || loader->minInterfaceVersion > 1 ||
+        loader->maxInterfaceVersion < 1)
+        return XR_ERROR_INITIALIZATION_FAILED;
+    if (name && strcmp(name, LAYER_NAME) != 0) return XR_ERROR_INITIALIZATION_FAILED;
+    request->layerInterfaceVersion = 1;
+    request->layerApiVersion = XR_CURRENT_API_VERSION;
+    request->getInstanceProcAddr = layer_GetInstanceProcAddr;
+    request->createApiLayerInstance = layer_CreateApiLayerInstance;
+    return XR_SUCCESS;
+}

@@ -1,0 +1,268 @@
+"""``vrcorrect layer install | uninstall | status``: vrcorrect as an implicit OpenXR API layer.
+
+``install`` compiles ``layer/vrcorrect_layer.c`` (the C shim that embeds this Python and runs
+:mod:`vrcorrect.runtime.xrlayer`) with the machine's C compiler into the user's data folder
+(``$XDG_DATA_HOME/vrcorrect/layer/``, default ``~/.local/share``), writes beside it
+``vrcorrect_layer.cfg`` (the Python home and the ``sys.path`` entries the embedded interpreter
+needs), writes the layer configuration (prescription, display) to
+``$XDG_CONFIG_HOME/vrcorrect/layer.json`` and the implicit-layer manifest to
+``$XDG_DATA_HOME/openxr/1/api_layers/implicit.d/`` (default ``~/.local/share``: where the OpenXR
+loader looks for a user's layers), which the loader reads for every application.  ``DISABLE_VRCORRECT_LAYER=1`` in an application's
+environment makes the loader skip the layer.  A user's file is never overwritten without
+``--force`` (files the command wrote itself are recognised and replaced).
+
+``status`` says whether the loader will find the layer, which prescription and display it will
+use, and the last lines of its log.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import site
+import subprocess
+import sys
+import sysconfig
+from pathlib import Path
+from typing import Mapping
+
+from ..plumbing.errors import InputError, ValidationError
+from ..runtime.xrlayer import DISABLE_ENV, LAYER_NAME, OFF_ENV, config_path, log_path, off_file, read_config
+
+ROOT = Path(__file__).resolve().parents[2]
+SOURCE = ROOT / "layer" / "vrcorrect_layer.c"
+LIBRARY = "libvrcorrect_layer.so"
+MANIFEST = "vrcorrect_layer.json"
+MARK = "written by vrcorrect layer install"
+
+
+def _env(env: Mapping[str, str] | None) -> Mapping[str, str]:
+    return os.environ if env is None else env
+
+
+def manifest_dir(env: Mapping[str, str] | None = None) -> Path:
+    """The user's implicit-layer folder the loader searches: ``$XDG_DATA_HOME/openxr/1/api_layers/
+    implicit.d`` (default ``~/.local/share``).  The Khronos loader looks for API-layer manifests in
+    ``$XDG_DATA_HOME``, ``$XDG_DATA_DIRS``, ``$XDG_CONFIG_DIRS`` and ``/etc``, not in
+    ``$XDG_CONFIG_HOME`` (which it reads only for ``active_runtime.json``): checked with pyopenxr's
+    loader, ``XR_LOADER_DEBUG=all``."""
+    env = _env(env)
+    base = env.get("XDG_DATA_HOME") or str(Path(env.get("HOME") or Path.home()) / ".local" / "share")
+    return Path(base) / "openxr" / "1" / "api_layers" / "implicit.d"
+
+
+def library_dir(env: Mapping[str, str] | None = None) -> Path:
+    """Where ``install`` puts the compiled layer."""
+    env = _env(env)
+    base = env.get("XDG_DATA_HOME") or str(Path(env.get("HOME") or Path.home()) / ".local" / "share")
+    return Path(base) / "vrcorrect" / "layer"
+
+
+def build_layer(folder: Path, *, cc: str | None = None) -> Path:
+    """Compile the layer into ``folder`` and write its ``vrcorrect_layer.cfg``; returns the library.
+
+    Raises
+    ------
+    InputError
+        No C compiler, no OpenXR headers (Debian: ``libopenxr-dev``), no shared libpython, or a
+        compiler error (its first lines)."""
+    compiler = shutil.which(cc or os.environ.get("CC", "cc")) or shutil.which("gcc")
+    if compiler is None:
+        raise InputError("no C compiler (cc or gcc) to build the OpenXR layer: install gcc")
+    if not sysconfig.get_config_var("Py_ENABLE_SHARED"):
+        raise InputError(f"{sys.executable} has no shared libpython to embed in the OpenXR layer; "
+                         "use a Python built with --enable-shared")
+    include = sysconfig.get_paths()["include"]
+    libdir = sysconfig.get_config_var("LIBDIR")
+    version = sysconfig.get_config_var("LDVERSION") or sysconfig.get_python_version()
+    folder.mkdir(parents=True, exist_ok=True)
+    library = folder / LIBRARY
+    tmp = folder / (LIBRARY + ".tmp")
+    cmd = [compiler, "-std=c11", "-O2", "-Wall", "-Wextra", "-Wno-format-truncation", "-shared", "-fPIC",
+           "-fvisibility=hidden", f"-I{include}", "-o", str(tmp), str(SOURCE), f"-L{libdir}", f"-lpython{version}",
+           f"-Wl,-rpath,{libdir}", "-ldl", "-lm", "-lpthread"]
+    build = subprocess.run(cmd, capture_output=True, text=True)
+    if build.returncode != 0:
+        first = " ".join(build.stderr.strip().splitlines()[:3])
+        hint = " (install the OpenXR headers: apt-get install libopenxr-dev)" if "openxr" in build.stderr else ""
+        raise InputError(f"building {SOURCE.name} failed{hint}: {first}")
+    tmp.replace(library)
+    paths = [str(ROOT), *site.getsitepackages()]
+    lines = [f"# {MARK}", f"home={sys.base_prefix}", *(f"path={p}" for p in paths)]
+    (folder / "vrcorrect_layer.cfg").write_text("\n".join(lines) + "\n")
+    return library
+
+
+def manifest_text(library: Path) -> str:
+    """The API-layer manifest (loader file format 1.0.0) naming ``library``."""
+    return json.dumps({
+        "file_format_version": "1.0.0",
+        "api_layer": {
+            "name": LAYER_NAME,
+            "library_path": str(library),
+            "api_version": "1.0",
+            "implementation_version": "1",
+            "description": f"vrcorrect: pre-corrects each eye's image for that eye's prescription ({MARK})",
+            "disable_environment": DISABLE_ENV,
+        },
+    }, indent=4) + "\n"
+
+
+def _ours(path: Path) -> bool:
+    try:
+        return MARK in path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def _check_free(path: Path, force: bool) -> None:
+    if path.exists() and not force and not _ours(path):
+        raise InputError(f"{path} exists and was not written by vrcorrect; pass --force to replace it")
+
+
+def cmd_install(args: argparse.Namespace, env: Mapping[str, str] | None = None) -> int:
+    from ..specs.display import get_display
+    from ..specs.prescription import load_prescription
+
+    env = _env(env)
+    rx = Path(args.rx).expanduser().resolve() if args.rx else None
+    if rx is not None:
+        load_prescription(rx)                        # refused before anything is written
+    if args.display:
+        get_display(args.display)
+    if args.iterations is not None and not 1 <= args.iterations <= 64:
+        raise ValidationError("--iterations-per-frame", args.iterations, "1 to 64")
+    manifest = manifest_dir(env) / MANIFEST
+    config = config_path(env)
+    _check_free(manifest, args.force)
+    if rx is not None or args.display or args.iterations is not None:
+        _check_free(config, args.force)
+    library = build_layer(library_dir(env))
+    if rx is not None or args.display or args.iterations is not None or not config.exists():
+        doc = {"comment": MARK}
+        if config.exists() and _ours(config):
+            try:
+                doc.update(json.loads(config.read_text(encoding="utf-8")))
+            except (OSError, json.JSONDecodeError):
+                pass
+        if rx is not None:
+            doc["rx"] = str(rx)
+        if args.display:
+            doc["display"] = args.display
+        if args.iterations is not None:
+            doc.setdefault("options", {})["iterations_per_frame"] = args.iterations
+        config.parent.mkdir(parents=True, exist_ok=True)
+        config.write_text(json.dumps(doc, indent=2) + "\n")
+    manifest.parent.mkdir(parents=True, exist_ok=True)
+    manifest.write_text(manifest_text(library))
+    print(f"built {library}")
+    print(f"wrote {manifest} (implicit layer {LAYER_NAME}; {DISABLE_ENV}=1 disables it)")
+    print(f"configuration {config}")
+    if "rx" not in json.loads(config.read_text(encoding="utf-8")) and not env.get("VRCORRECT_RX"):
+        print("no prescription yet: frames pass through until one is set (vrcorrect layer install --rx FILE)")
+    return 0
+
+
+def cmd_uninstall(args: argparse.Namespace, env: Mapping[str, str] | None = None) -> int:
+    env = _env(env)
+    manifest = manifest_dir(env) / MANIFEST
+    if not manifest.exists():
+        print(f"not installed ({manifest} does not exist)")
+        return 0
+    _check_free(manifest, args.force)
+    manifest.unlink()
+    folder = library_dir(env)
+    for name in (LIBRARY, "vrcorrect_layer.cfg"):
+        (folder / name).unlink(missing_ok=True)
+    print(f"removed {manifest} and the layer in {folder} (the configuration {config_path(env)} is kept)")
+    return 0
+
+
+def status_lines(env: Mapping[str, str] | None = None, tail: int = 10) -> list[str]:
+    """What ``status`` prints."""
+    env = _env(env)
+    lines = []
+    manifest = manifest_dir(env) / MANIFEST
+    if not manifest.exists():
+        lines.append(f"layer: not installed ({manifest} does not exist; run vrcorrect layer install)")
+    else:
+        try:
+            doc = json.loads(manifest.read_text(encoding="utf-8"))
+            library = Path(doc["api_layer"]["library_path"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            lines.append(f"layer: {manifest} is not a valid layer manifest ({exc}); the loader will skip it")
+            library = None
+        if library is not None:
+            found = "the loader will find it" if library.is_file() else f"but {library} is missing: the loader will skip it"
+            lines.append(f"layer: {manifest} names {library}; {found}")
+    if env.get(DISABLE_ENV):
+        lines.append(f"disabled in this environment: {DISABLE_ENV}={env[DISABLE_ENV]} (the loader skips the layer)")
+    if env.get("XR_RUNTIME_JSON"):
+        lines.append(f"runtime: XR_RUNTIME_JSON={env['XR_RUNTIME_JSON']}")
+    off = off_file(env)
+    value = env.get(OFF_ENV, "").strip().lower()
+    if value and value not in ("0", "false", "no", "off"):
+        lines.append(f"switched off: {OFF_ENV}={env[OFF_ENV]} (frames pass through)")
+    elif off.exists():
+        lines.append(f"switched off: {off} exists (frames pass through; delete it to switch on)")
+    try:
+        config = read_config(env)
+    except (InputError, ValidationError) as exc:
+        lines.append(f"configuration: {exc}")
+        config = None
+    if config is not None:
+        where = config.source or f"{config_path(env)} (absent)"
+        lines.append(f"configuration: {where}")
+        if config.rx is None:
+            lines.append("prescription: none (frames pass through until one is set)")
+        else:
+            from ..plumbing.errors import VrcorrectError
+            from ..specs.prescription import load_prescription
+
+            try:
+                load_prescription(config.rx)
+                lines.append(f"prescription: {config.rx} (valid)")
+            except VrcorrectError as exc:
+                lines.append(f"prescription: {config.rx} is not usable, frames pass through: {exc}")
+        lines.append(f"display: {config.display or 'the preset matching the runtime view size, else quest2'}")
+    log = log_path(env)
+    if log.exists():
+        last = log.read_text(encoding="utf-8", errors="replace").splitlines()[-tail:]
+        lines.append(f"log: {log} (last {len(last)} lines)")
+        lines.extend(f"  {line}" for line in last)
+    else:
+        lines.append(f"log: {log} (nothing logged yet)")
+    return lines
+
+
+def cmd_status(args: argparse.Namespace, env: Mapping[str, str] | None = None) -> int:
+    print("\n".join(status_lines(env, tail=args.lines)))
+    return 0
+
+
+def cmd_layer(args: argparse.Namespace) -> int:
+    return {"install": cmd_install, "uninstall": cmd_uninstall, "status": cmd_status}[args.action](args)
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("layer", help="install vrcorrect as an implicit OpenXR API layer (OpenGL applications)",
+                       description=__doc__.split("\n\n")[0].replace("``", ""))
+    actions = p.add_subparsers(dest="action", metavar="ACTION")
+    actions.required = True
+    i = actions.add_parser("install", help="build the layer and write its manifest and configuration")
+    i.add_argument("--rx", help="prescription JSON the layer corrects for")
+    i.add_argument("--display", help="display preset or profile JSON (default: the preset matching the "
+                                     "runtime's view size, else quest2)")
+    i.add_argument("--iterations-per-frame", dest="iterations", type=int,
+                   help="FISTA iterations per frame and eye (1-64; default the Corrector's)")
+    i.add_argument("--force", action="store_true", help="replace files vrcorrect did not write")
+    i.set_defaults(func=cmd_layer)
+    u = actions.add_parser("uninstall", help="remove the manifest and the built layer")
+    u.add_argument("--force", action="store_true", help="remove a manifest vrcorrect did not write")
+    u.set_defaults(func=cmd_layer)
+    s = actions.add_parser("status", help="will the loader find it; prescription, display, last log lines")
+    s.add_argument("--lines", type=int, default=10, help="log lines to show (default 10)")
+    s.set_defaults(func=cmd_layer)
+    p.set_defaults(func=cmd_layer)
