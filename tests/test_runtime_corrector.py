@@ -210,6 +210,34 @@ def test_live_adjust_and_its_limits(gl, tmp_path):
         c.release()
 
 
+def test_a_prebuilt_eye_model_gives_the_same_correction_and_a_wrong_eye_is_refused(gl, tmp_path, images):
+    """``eye_model=``: designed elsewhere (a worker thread), uploaded by the constructor; the same
+    frames as a corrector that designs its own.  A model of another eye is refused."""
+    from vrcorrect.runtime.corrector import CorrectorOptions, RxSnapshot, build_eye_model
+
+    path = tmp_path / "rx.json"
+    doc = rx_doc(-1.5, -0.5, 180)                   # axis 180: the corrector's own build wraps it to 0
+    doc["left"] = dict(doc["left"], sphere_D=-3.0)
+    path.write_text(json.dumps(doc))
+    snapshot = RxSnapshot.read(path)
+    display = get_display("quest2")
+    options = {"filter": "fista", "iterations_per_frame": 2}
+    model = build_eye_model(snapshot.prescription.eye("right"), display, CorrectorOptions(**options))
+    img = images[0][1]
+    own = Corrector(gl, snapshot, display, "right", **options)
+    given = Corrector(gl, snapshot, display, "right", eye_model=model, **options)
+    try:
+        assert given.model is model and given.rx_path == path
+        for _ in range(3):                          # the warm-started frames too
+            assert np.array_equal(run(gl, given, img), run(gl, own, img))
+        assert given.poll() is False                # watching the file as usual
+    finally:
+        own.release()
+        given.release()
+    with pytest.raises(ValidationError, match="eye_model"):
+        Corrector(gl, snapshot, display, "left", eye_model=model, **options)
+
+
 def _touch(path: Path, text: str) -> None:
     path.write_text(text)
     st = path.stat()

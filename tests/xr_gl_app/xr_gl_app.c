@@ -10,7 +10,7 @@
  *   APP_IMAGE_LEFT    raw image of the left eye (W*H*4 bytes, W x H the runtime's view size)
  *   APP_IMAGE_RIGHT   the right eye's
  *   APP_FRAMES        frames to submit (default 3)
- *   APP_FORMAT        "srgb" (GL_SRGB8_ALPHA8, default) or "rgba8" (GL_RGBA8)
+ *   APP_FORMAT        "srgb" (GL_SRGB8_ALPHA8, default), "rgba8" (GL_RGBA8) or "rgba16f" (GL_RGBA16F)
  *   APP_RECT          "x,y,w,h": submit this imageRect (GL pixels from the bottom left) instead of all
  *   APP_LAYERS        comma-separated API layer names to enable in xrCreateInstance
  *   APP_OUT_DIR       after each frame, write the app's own released images there as
@@ -69,7 +69,8 @@ int main(void) {
     if (!gipa) FAIL("no xrGetInstanceProcAddr in %s", loader);
     int frames_wanted = getenv("APP_FRAMES") ? atoi(getenv("APP_FRAMES")) : 3;
     const char *fmt = getenv("APP_FORMAT");
-    int64_t format = (fmt && strcmp(fmt, "rgba8") == 0) ? GL_RGBA8 : GL_SRGB8_ALPHA8;
+    int64_t format = (fmt && strcmp(fmt, "rgba8") == 0) ? GL_RGBA8
+                   : (fmt && strcmp(fmt, "rgba16f") == 0) ? GL_RGBA16F : GL_SRGB8_ALPHA8;
 
     /* ---------------------------------------------------------------- GL: window and 4.5 core context */
     Display *dpy = XOpenDisplay(NULL);

@@ -15,7 +15,8 @@
  *   XRTEST_OUT_DIR      write runtime.log (calls and state changes, one a line) and
  *                       frame_NNNNN_view_V.npy (uint8 (H, W, 4), top row first) there
  *   XRTEST_VIEW_SIZE    recommended size of each view, WxH (default 256x256)
- *   XRTEST_FORMATS      swapchain formats offered, in order: "srgb,rgba8" (default), "rgba8", ...
+ *   XRTEST_FORMATS      swapchain formats offered, in order: "srgb,rgba8" (default), "rgba8", ...; names
+ *                       srgb (GL_SRGB8_ALPHA8), rgba8 (GL_RGBA8), rgba16f (GL_RGBA16F)
  *   XRTEST_LOSS_AFTER   after this many xrEndFrame calls the session goes LOSS_PENDING
  *   XRTEST_STOP_AFTER   after this many xrEndFrame calls the runtime asks the app to quit
  *   XRTEST_YAW_MRAD     the head turns left about the vertical axis through its centre by this many
@@ -75,6 +76,7 @@ static const char *STATE_NAMES[] = {"UNKNOWN", "IDLE", "READY", "SYNCHRONIZED", 
 #define OPAQUE_BLEND 1
 #define GL_SRGB8_ALPHA8 0x8C43
 #define GL_RGBA8 0x8058
+#define GL_RGBA16F 0x881A
 
 typedef struct { int32_t type; const void *next; } XrBase;
 typedef struct { float x, y, z, w; } XrQuaternionf;
@@ -264,6 +266,16 @@ static XrResult enumerate_instance_extension_properties(const char *layer, uint3
     });
 }
 
+
+/* XRTEST_FORMATS' names: "srgb" (GL_SRGB8_ALPHA8), "rgba8" (GL_RGBA8), "rgba16f" (GL_RGBA16F: half floats,
+ * dumped clamped to [0, 1] as 8-bit values by glGetTexImage); 0 for any other name */
+static int64_t format_named(const char *name, size_t n) {
+    if (n == 4 && strncmp(name, "srgb", n) == 0) return GL_SRGB8_ALPHA8;
+    if (n == 5 && strncmp(name, "rgba8", n) == 0) return GL_RGBA8;
+    if (n == 7 && strncmp(name, "rgba16f", n) == 0) return GL_RGBA16F;
+    return 0;
+}
+
 static XrResult create_instance(const XrInstanceCreateInfo *info, XrHandle *instance) {
     if (!info || !instance) return XR_ERROR_VALIDATION_FAILURE;
     if (rt.instance) return XR_ERROR_LIMIT_REACHED;
@@ -280,12 +292,14 @@ static XrResult create_instance(const XrInstanceCreateInfo *info, XrHandle *inst
         return XR_ERROR_RUNTIME_FAILURE;
     const char *formats = getenv("XRTEST_FORMATS");
     if (!formats) formats = "srgb,rgba8";
-    if (strstr(formats, "srgb") && (!strstr(formats, "rgba8") || strstr(formats, "srgb") < strstr(formats, "rgba8"))) {
-        rt.formats[rt.nformats++] = GL_SRGB8_ALPHA8;
-        if (strstr(formats, "rgba8")) rt.formats[rt.nformats++] = GL_RGBA8;
-    } else {
-        if (strstr(formats, "rgba8")) rt.formats[rt.nformats++] = GL_RGBA8;
-        if (strstr(formats, "srgb")) rt.formats[rt.nformats++] = GL_SRGB8_ALPHA8;
+    for (const char *p = formats; *p;) {          /* comma-separated names, in order; unknown names are skipped */
+        p += strspn(p, " ,");
+        size_t n = strcspn(p, " ,");
+        int64_t f = format_named(p, n);
+        int seen = 0;
+        for (int i = 0; i < rt.nformats; i++) seen |= rt.formats[i] == f;
+        if (f && !seen && rt.nformats < (int)(sizeof rt.formats / sizeof rt.formats[0])) rt.formats[rt.nformats++] = f;
+        p += n;
     }
     rt.loss_after = env_long("XRTEST_LOSS_AFTER", 0);
     rt.stop_after = env_long("XRTEST_STOP_AFTER", 0);

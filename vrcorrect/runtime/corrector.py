@@ -270,6 +270,21 @@ def _load_rx(rx: RxSource) -> RxSnapshot:
     raise ValidationError("rx", type(rx).__name__, "a prescription JSON path, a Prescription or an RxSnapshot")
 
 
+def _check_eye_model(model: EyeModel, base: EyeRx, side: str) -> None:
+    """A prebuilt model must be of this prescription's eye (as given, or with the axis wrapped into
+    [0, 180) as :meth:`Corrector._rebuild` designs it)."""
+    if not isinstance(model, EyeModel):
+        raise ValidationError("eye_model", type(model).__name__, "an EyeModel (build_eye_model)")
+    if model.eye not in (base, base.with_changes(axis_deg=base.axis_deg % 180.0)):
+        raise ValidationError("eye_model.eye", _eye_text(model.eye),
+                              f"a model of this prescription's {side} eye ({_eye_text(base)})")
+
+
+def _eye_text(e: EyeRx) -> str:
+    return (f"sphere {e.sphere_D:+g} D, cylinder {e.cylinder_D:+g} D, axis {e.axis_deg:g} deg, "
+            f"pupil {e.pupil_diameter_mm:g} mm" + (", higher order" if e.higher_order is not None else ""))
+
+
 def _file_stamp(path: Path) -> tuple[int, int] | None:
     try:
         st = path.stat()
@@ -296,6 +311,12 @@ class Corrector:
     backend
         ``"glsl"`` (the wiener fallback) or ``"onnx"`` (a model through onnxruntime; needs ``model=``;
         nothing is designed for the GLSL strategies then, ``filter=`` only picks :meth:`simulate`'s bank).
+    eye_model
+        A prebuilt :class:`EyeModel` for this eye, display and options (from :func:`build_eye_model`,
+        e.g. on a worker thread): the first build uploads it instead of designing it here, so
+        construction does only the GL work.  Its ``eye`` must be this prescription's eye for
+        ``eye`` (``ValidationError`` otherwise); later rebuilds (:meth:`adjust`, :meth:`poll`)
+        design their own.
     **options
         Fields of :class:`CorrectorOptions`.
     """
@@ -303,7 +324,7 @@ class Corrector:
     POLL_INTERVAL_S = 0.25
 
     def __init__(self, ctx: "moderngl.Context", rx: RxSource, display: str | os.PathLike[str] | DisplayProfile,
-                 eye: str, backend: str = "glsl", **options: Any):
+                 eye: str, backend: str = "glsl", *, eye_model: EyeModel | None = None, **options: Any):
         if backend not in BACKENDS:
             raise ValidationError("backend", backend, "one of " + ", ".join(BACKENDS))
         if eye not in ("right", "left"):
@@ -318,6 +339,8 @@ class Corrector:
                                   "srgb (the real-time path encodes sRGB only so far)")
         snapshot = _load_rx(rx)
         self.prescription, self.rx_path, self._stamp = snapshot.prescription, snapshot.path, snapshot.stamp
+        if eye_model is not None:                           # refused before any GL object is made
+            _check_eye_model(eye_model, self.prescription.eye(eye), eye)
         self._last_poll = time.monotonic()
         self.enabled = True
         self.status = ""
@@ -352,7 +375,7 @@ class Corrector:
         self._warm_size: tuple[int, int] | None = None   # size whose FISTA state the next frame continues
         self._momentum = 1.0
         self._motion_gl: tuple[int, int] = (0, 0)         # the next frame's reprojection, GL texels
-        self._rebuild(self.prescription.eye(eye))
+        self._rebuild(self.prescription.eye(eye), prebuilt=eye_model)
         check_gl_errors(ctx, "Corrector build")
 
     # ------------------------------------------------------------------ state
@@ -387,13 +410,13 @@ class Corrector:
         return base.with_changes(sphere_D=base.sphere_D + ds, cylinder_D=base.cylinder_D + dc,
                                  axis_deg=(base.axis_deg + da) % 180.0)
 
-    def _rebuild(self, base_eye: EyeRx) -> None:
+    def _rebuild(self, base_eye: EyeRx, prebuilt: EyeModel | None = None) -> None:
         from ..solvers.wiener import spectral_norm_squared  # start-up time: scipy loads with the first eye
 
         eye = self._with_offset(base_eye)
         if self._learned is not None:               # an eye outside the trained range: refused before the work
             self._learned.check(eye, self.display)
-        model = build_eye_model(eye, self.display, self.options)
+        model = prebuilt if prebuilt is not None else build_eye_model(eye, self.display, self.options)
         if self._learned is not None:
             bound = self._learned.for_eye(model.eye, self.display, model.kernel, model.reference)
             if self._onnx is not None:

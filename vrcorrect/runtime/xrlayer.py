@@ -22,6 +22,15 @@ written as they are into an sRGB output image (``GL_FRAMEBUFFER_SRGB`` off), or 
 light for an RGBA8 output image, as ``vrcorrect xr`` does.  The application's textures are only
 sampled (their parameters are never set); the shim saves and restores the GL state around.
 
+The eye models (:func:`~vrcorrect.runtime.eye_model.build_eye_model`: PSFs, kernels, filter design;
+seconds of CPU) are built on a background thread, never in ``xrEndFrame``: frames pass through
+meanwhile (one log line, "building the eye models ..."), and on the first frame after the build
+the two Correctors are made on the application's thread from the prebuilt models (GL resources
+only).  Hot reload works the same way: the engine watches the prescription file's stamp, keeps
+correcting with the current Correctors while the new models build, then swaps them; an invalid new
+file keeps the last good prescription (one log line).  One build at a time: a change during a
+build starts another after it.  (The shim releases the GIL between its calls, so the worker runs.)
+
 Configuration (:class:`LayerConfig`): ``$XDG_CONFIG_HOME/vrcorrect/layer.json`` (or the file named by
 ``VRCORRECT_LAYER_CONFIG``) with ``rx`` (prescription path), ``display`` (preset or profile path;
 absent: the preset whose per-eye resolution equals the runtime's recommended view size, else
@@ -38,6 +47,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -250,8 +260,9 @@ class Engine:
         self.display: Any = None
         self.rx_path: Path | None = None
         self._rx_failed_stamp: Any = _NEVER          # the stamp of the prescription file that failed to build
+        self._rx_stamp: Any = _NEVER                 # the stamp of the file the correctors were built from
         self._build_error: str | None = None
-        self._statuses: set[str] = set()
+        self._job: _Build | None = None              # the eye models being built on the worker thread
         self._last_check = -1.0
         self._off_reason: str | None = None
         self._config: LayerConfig | None = None
@@ -272,10 +283,13 @@ class Engine:
     # ------------------------------------------------------------ configuration and prescription
 
     def _check(self) -> str | None:
-        """Re-read the off switch, the configuration and the prescription (at most every 0.25 s);
-        returns the reason to pass through, or None."""
+        """Re-read the off switch, the configuration and the prescription file's stamp (at most
+        every 0.25 s), start a build when the file changed, install a finished one (every frame);
+        returns the reason to pass through, or None (also while the first models build: no
+        correctors yet, nothing to log)."""
         now = time.monotonic()
         if now - self._last_check < _CHECK_INTERVAL_S and self._last_check >= 0:
+            self._finish_build()
             return self._off_reason or self._config_error or self._build_error
         self._last_check = now
         self._off_reason = _off(self.env)
@@ -290,46 +304,78 @@ class Engine:
         if config != self._config:
             self._config = config
             self._release_correctors()
-            self._rx_failed_stamp = _NEVER
+            self._rx_failed_stamp = self._rx_stamp = _NEVER
+            self._build_error = None
         if config.rx is None:
             self._build_error = (f"no prescription: set rx in {config_path(self.env)} (vrcorrect layer install --rx) "
                                  f"or {RX_ENV}")
             return self._build_error
-        if self.correctors:
-            reloaded = [c.poll() for c in self.correctors.values()]   # hot reload, per eye
-            statuses = {c.status for c in self.correctors.values() if c.status}
-            for status in sorted(statuses - self._statuses):          # an invalid file keeps the last good one
-                self.log.line(status)
-            self._statuses = statuses
-            if any(reloaded):
-                self.log.line(f"{config.rx}: reloaded")
-            return None
+        self._finish_build()
         stamp = _stamp(config.rx)
-        if stamp == self._rx_failed_stamp:
-            return self._build_error                 # the same bad file: not rebuilt every frame
-        self._build(config, stamp)
-        return self._build_error
+        if self._job is None and stamp != self._rx_stamp and stamp != self._rx_failed_stamp:
+            self._start_build(config)      # the same bad file is not rebuilt; a change during a build waits
+        return None if self.correctors else self._build_error
 
-    def _build(self, config: LayerConfig, stamp: tuple[int, int] | None) -> None:
-        from .corrector import Corrector, RxSnapshot
+    def _start_build(self, config: LayerConfig) -> None:
+        """Build both eyes' models on a daemon thread (CPU: numpy, scipy)."""
+        reload = bool(self.correctors)
+        job = _Build(config, reload)
+        if not reload:
+            self._build_error = None
+        self.log.line(f"building the eye models for {config.rx}" + (" (changed; correcting with the current "
+                                                                    "ones meanwhile)" if reload else "") + " ...")
+        job.thread = threading.Thread(target=job.run, args=(self.view_size,), daemon=True,
+                                      name="vrcorrect-layer-build")
+        self._job = job
+        job.thread.start()
 
-        t0 = time.perf_counter()
-        try:
-            snapshot = RxSnapshot.read(config.rx)
-            display, why = choose_display(config.display, self.view_size)
-            correctors = {}
-            for eye in ("left", "right"):
-                correctors[eye] = Corrector(self._gl(), snapshot, display, eye, **dict(config.options))
-        except Exception as exc:  # noqa: BLE001  (every failure is a pass-through with its reason)
-            for c in locals().get("correctors", {}).values():
-                c.release()
-            self._rx_failed_stamp = stamp
-            self._build_error = f"prescription {config.rx}: {_one_line(exc)}"
+    def _finish_build(self) -> None:
+        """On the application's thread: when the worker is done, make the Correctors from its
+        models (GL resources only) and swap them in, or record why not."""
+        job = self._job
+        if job is None or job.thread is None or job.thread.is_alive():
             return
-        self.correctors, self.display, self.rx_path = correctors, display, config.rx
+        self._job = None
+        config = job.config
+        if config != self._config:
+            return                                   # built for an earlier configuration: a new build follows
+        reload = bool(self.correctors)
+        correctors: dict[str, Any] = {}
+        error = job.error
+        if error is None:
+            from .corrector import Corrector
+
+            try:
+                for eye in ("left", "right"):
+                    correctors[eye] = Corrector(self._gl(), job.snapshot, job.display, eye,
+                                                eye_model=job.models[eye], **dict(config.options))
+            except Exception as exc:  # noqa: BLE001  (every failure is a pass-through with its reason)
+                error = exc
+                for c in correctors.values():
+                    try:
+                        c.release()
+                    except Exception:  # noqa: BLE001
+                        pass
+                correctors = {}
+        stamp = job.snapshot.stamp if job.snapshot is not None else job.stamp
+        if error is not None:
+            self._rx_failed_stamp = stamp
+            if reload:                               # an invalid edit keeps the last good prescription
+                self.log.line(f"{config.rx}: not reloaded, keeping the last good prescription: {_one_line(error)}")
+            else:
+                self._build_error = f"prescription {config.rx}: {_one_line(error)}"
+            return
+        self._release_correctors()
+        self.correctors, self.display, self.rx_path = correctors, job.display, config.rx
+        self._rx_stamp = stamp
+        self._rx_failed_stamp = _NEVER
         self._build_error = None
-        self.log.line(f"correcting with {config.rx} on display {display.name} ({why}); built in "
-                      f"{time.perf_counter() - t0:.1f} s")
+        seconds = time.perf_counter() - job.t0
+        if reload:
+            self.log.line(f"{config.rx}: reloaded (built in {seconds:.1f} s)")
+        else:
+            self.log.line(f"correcting with {config.rx} on display {job.display.name} ({job.why}); built in "
+                          f"{seconds:.1f} s")
 
     def _gl(self) -> Any:
         if self.ctx is None:
@@ -365,7 +411,7 @@ class Engine:
         if reason:
             self.log.reason(reason)
             return False
-        return True
+        return bool(self.correctors)             # none yet: the eye models are building (logged once)
 
     def correct(self, view_index: int, src_texture: int, src_format: int, src_width: int, src_height: int,
                 x: int, y: int, width: int, height: int, dst_texture: int, view_in_layer: int = -1) -> bool:
@@ -525,6 +571,44 @@ class Engine:
 
     def close(self) -> None:
         self.log.line(f"closed after {self.frames} corrected frames")
+
+
+class _Build:
+    """One build of both eyes' models, run on a worker thread: the prescription file read once
+    (:class:`~vrcorrect.runtime.corrector.RxSnapshot`), the display chosen, and
+    :func:`~vrcorrect.runtime.eye_model.build_eye_model` per eye with the options a
+    :class:`~vrcorrect.runtime.corrector.Corrector` computes from the same configuration (so its
+    correction is the same as one that designs its own).  No GL; never raises (``error``)."""
+
+    def __init__(self, config: LayerConfig, reload: bool):
+        self.config, self.reload = config, reload
+        self.stamp = _stamp(config.rx) if config.rx is not None else None
+        self.thread: threading.Thread | None = None
+        self.snapshot: Any = None
+        self.display: Any = None
+        self.why = ""
+        self.models: dict[str, Any] = {}
+        self.error: BaseException | None = None
+        self.t0 = time.perf_counter()
+
+    def run(self, view_size: tuple[int, int]) -> None:
+        try:
+            from .corrector import RxSnapshot
+            from .eye_model import CorrectorOptions, build_eye_model
+
+            options = dict(self.config.options)
+            backend = options.pop("backend", "glsl")    # Corrector(backend=...) then CorrectorOptions(backend=...)
+            opts = CorrectorOptions(backend=backend, **options)
+            self.snapshot = RxSnapshot.read(self.config.rx)
+            self.display, self.why = choose_display(self.config.display, view_size)
+            for eye in ("left", "right"):
+                rx = self.snapshot.prescription.eye(eye)
+                # the eye as the Corrector designs it (its live offset is zero: the axis wraps into [0, 180))
+                rx = rx.with_changes(sphere_D=rx.sphere_D + 0.0, cylinder_D=rx.cylinder_D + 0.0,
+                                     axis_deg=(rx.axis_deg + 0.0) % 180.0)
+                self.models[eye] = build_eye_model(rx, self.display, opts)
+        except BaseException as exc:  # noqa: BLE001  (reported on the application's thread)
+            self.error = exc
 
 
 def _stage(source: str, stage: str) -> str:
