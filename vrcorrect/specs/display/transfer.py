@@ -6,7 +6,7 @@ Clip to [0, 1]; NaN stays NaN; the result has the input's floating dtype.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -81,23 +81,23 @@ def decode(profile_or_transfer: DisplayProfile | str, v: np.ndarray) -> np.ndarr
     ``"linear"``: identity. Clips to [0, 1]; NaN stays NaN; dtype follows
     the input.
     """
-    name = _transfer_name(profile_or_transfer)
-    if name == "srgb":
-        return srgb_to_linear(v)
-    arr, cast = _as_float_array(v)
-    x = np.clip(arr, 0.0, 1.0)
-    if name == "gamma2.2":
-        x = x**2.2
-    return _finish(x.astype(arr.dtype, copy=False), cast)
+    return _apply_transfer(profile_or_transfer, v, srgb_to_linear, 2.2)
 
 
 def encode(profile_or_transfer: DisplayProfile | str, v: np.ndarray) -> np.ndarray:
     """Linear light in [0, 1] -> display code values (inverse of :func:`decode`)."""
+    return _apply_transfer(profile_or_transfer, v, linear_to_srgb, 1.0 / 2.2)
+
+
+def _apply_transfer(profile_or_transfer: DisplayProfile | str, v: np.ndarray,
+                    srgb: Callable[[np.ndarray], np.ndarray], gamma_exponent: float) -> np.ndarray:
+    """:func:`decode` and :func:`encode`: ``srgb`` for an sRGB display, ``v ** gamma_exponent``
+    for gamma 2.2, identity for linear; clipped to [0, 1], dtype following the input."""
     name = _transfer_name(profile_or_transfer)
     if name == "srgb":
-        return linear_to_srgb(v)
+        return srgb(v)
     arr, cast = _as_float_array(v)
     x = np.clip(arr, 0.0, 1.0)
     if name == "gamma2.2":
-        x = x ** (1.0 / 2.2)
+        x = x**gamma_exponent
     return _finish(x.astype(arr.dtype, copy=False), cast)
