@@ -2,16 +2,29 @@
  *
  * Loaded by the OpenXR loader from a layer manifest (implicit: `vrcorrect layer install`;
  * explicit for tests: XR_API_LAYER_PATH + XR_ENABLE_API_LAYERS). For OpenGL sessions
- * (XR_KHR_opengl_enable, Xlib/GLX binding) it gives every application swapchain of a supported
- * format (GL_SRGB8_ALPHA8, GL_RGBA8) a layer-owned output swapchain of the same format and size.
- * At xrEndFrame, for every view of every projection layer, the Python engine corrects the
- * application's last released image over the submitted imageRect into the output swapchain, and
- * the frame goes down the chain with a copy of the frame description that names the output
- * swapchains. The application's structures and images are never written. The GL state the
- * correction touches is saved before and restored after.
+ * (XR_KHR_opengl_enable, Xlib/GLX binding) and Vulkan sessions (XR_KHR_vulkan_enable,
+ * XR_KHR_vulkan_enable2: vrcorrect_vulkan.c) it gives every application swapchain of a supported
+ * format a layer-owned output swapchain of the same format and size. At xrEndFrame, for every view
+ * of every projection layer, the Python engine corrects the application's last released image over
+ * the submitted imageRect into the output swapchain, and the frame goes down the chain with a copy
+ * of the frame description that names the output swapchains. The application's structures and
+ * images are never written.
+ *
+ * OpenGL: the engine runs on the application's GL context (current at xrEndFrame); the GL state the
+ * correction touches is saved before and restored after. Formats: GL_RGBA16F, GL_RGB10_A2,
+ * GL_SRGB8_ALPHA8, GL_RGBA8.
+ * Vulkan: the engine runs on a GL context of its own (headless EGL); the submitted rects are copied
+ * on the application's queue into images of the layer's whose memory GL imports, and the corrected
+ * result is copied back into the output images (vrcorrect_vulkan.c). Formats: R16G16B16A16_SFLOAT,
+ * A2B10G10R10_UNORM_PACK32, R8G8B8A8_SRGB/UNORM, B8G8R8A8_SRGB/UNORM.
  *
  * Anything the layer cannot do passes the frame through unchanged and logs one line naming the
- * reason (a Vulkan or Direct3D session, no Python, an engine failure, a GL error, ...).
+ * reason (a Direct3D or OpenGL ES session, a format outside the lists, a Vulkan device without
+ * external memory, no Python, an engine failure, a GL error, ...).
+ *
+ * Nothing holds xrEndFrame up while a prescription (re)loads: the engine builds the eye models on a
+ * worker thread and passes frames through (first load) or keeps the current correction (reload)
+ * meanwhile; the shim releases the GIL between its calls so that the worker runs.
  *
  * Python: when the process has none running, the shim starts one (libpython is linked; the
  * prefix and sys.path entries come from vrcorrect_layer.cfg beside the library, written by
@@ -19,36 +32,28 @@
  * PyGILState_Ensure. Python is never finalised by the layer.
  *
  * Environment: DISABLE_VRCORRECT_LAYER (the manifest's disable_environment: the loader skips the
- * layer), VRCORRECT_LAYER_LOG (log file), VRCORRECT_LAYER_FORMATS (comma-separated hex GL formats
- * the layer corrects, a subset of 0x8C43,0x8058; default both); the engine reads the others
- * (vrcorrect/runtime/xrlayer.py).
+ * layer), VRCORRECT_LAYER_LOG (log file), VRCORRECT_LAYER_FORMATS (comma-separated hex swapchain
+ * formats the layer corrects, a subset of the lists above; default all); the engine reads the
+ * others (vrcorrect/runtime/xrlayer.py).
  *
- * Limits of this first version: one OpenGL session per instance is corrected; a projection view
- * must use imageArrayIndex 0 of a 2D, single-sample, single-mip swapchain; the first frame after a
- * prescription (re)load blocks xrEndFrame for the eye models' build (seconds, CPU).
+ * Limits: one session per instance is corrected; a projection view must use imageArrayIndex 0 of a
+ * 2D, single-sample, single-mip swapchain; views beyond two and other composition layers pass
+ * through.
  *
  * The loader negotiation structures are declared here from the OpenXR loader specification
- * ("OpenXR Loader - Design and Operation", API layer interface version 1); the core types come
- * from the Khronos headers (Debian libopenxr-dev), with a fallback below for machines without them.
+ * ("OpenXR Loader - Design and Operation", API layer interface version 1), which the Khronos headers
+ * (Debian libopenxr-dev 1.0.20) do not declare; every other type comes from the Khronos headers
+ * (libopenxr-dev, libvulkan-dev, libgl-dev, libx11-dev).
  */
-#define _GNU_SOURCE
-#include <Python.h>
+#include "vrcorrect_layer.h"
+
 #include <dlfcn.h>
 #include <stdarg.h>
-#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
-#include <time.h>
 #include <pthread.h>
-
-#define XR_USE_GRAPHICS_API_OPENGL
-#define XR_USE_PLATFORM_XLIB
-#include <X11/Xlib.h>
-#include <GL/glx.h>
-#include <openxr/openxr.h>
-#include <openxr/openxr_platform.h>
 
 #define LAYER_NAME "XR_APILAYER_VRCORRECT_correction"
 #define EXPORT __attribute__((visibility("default")))
@@ -95,6 +100,8 @@ typedef struct {
 /* ------------------------------------------------------------------ GL through glXGetProcAddress */
 #define L_GL_SRGB8_ALPHA8 0x8C43
 #define L_GL_RGBA8 0x8058
+#define L_GL_RGB10_A2 0x8059
+#define L_GL_RGBA16F 0x881A
 #define L_GL_FRAMEBUFFER_SRGB 0x8DB9
 #define L_GL_PRIMITIVE_RESTART 0x8F9D
 #define L_GL_PRIMITIVE_RESTART_FIXED_INDEX 0x8D69
@@ -284,6 +291,7 @@ static void restore_gl(const GlState *s) {
 /* ------------------------------------------------------------------ logging (one line a reason) */
 static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
 static char log_path[1024];
+LayerState L;
 
 static void resolve_log_path(void) {
     const char *env = getenv("VRCORRECT_LAYER_LOG");
@@ -294,7 +302,7 @@ static void resolve_log_path(void) {
     else log_path[0] = 0;
 }
 
-static void layer_log(const char *fmt, ...) {
+void layer_log(const char *fmt, ...) {
     char line[1024];
     va_list ap;
     va_start(ap, fmt);
@@ -318,59 +326,39 @@ static void layer_log(const char *fmt, ...) {
     fclose(f);
 }
 
-/* ------------------------------------------------------------------ state */
-#define MAX_SWAPCHAINS 32
-#define MAX_IMAGES 8
-#define MAX_VIEWS 4
-#define MAX_LAYERS 16
-
-typedef struct {
-    XrSwapchain app, out;        /* out == XR_NULL_HANDLE: passed through */
-    XrSession session;
-    int64_t format;
-    uint32_t width, height, app_count, out_count;
-    GLuint app_tex[MAX_IMAGES], out_tex[MAX_IMAGES];
-    uint32_t acquired[MAX_IMAGES]; /* FIFO of acquired, not yet released indices */
-    int nacquired;
-    int released;                  /* last released index, -1 none */
-    uint32_t out_index;            /* the output image acquired for this frame */
-} Chain;
-
-static struct {
-    PFN_xrGetInstanceProcAddr next_gipa;
-    XrInstance instance;
-    PFN_xrDestroyInstance DestroyInstance;
-    PFN_xrCreateSession CreateSession;
-    PFN_xrDestroySession DestroySession;
-    PFN_xrCreateSwapchain CreateSwapchain;
-    PFN_xrDestroySwapchain DestroySwapchain;
-    PFN_xrEnumerateSwapchainImages EnumerateSwapchainImages;
-    PFN_xrAcquireSwapchainImage AcquireSwapchainImage;
-    PFN_xrWaitSwapchainImage WaitSwapchainImage;
-    PFN_xrReleaseSwapchainImage ReleaseSwapchainImage;
-    PFN_xrEndFrame EndFrame;
-    PFN_xrEnumerateViewConfigurationViews EnumerateViewConfigurationViews;
-    XrSession session;             /* the corrected (OpenGL) session, or XR_NULL_HANDLE */
-    GLXContext context;
-    int session_gl;
-    Chain chains[MAX_SWAPCHAINS];
-    PyObject *engine;              /* vrcorrect.runtime.xrlayer.Engine, or NULL */
-    int python_failed, engine_failed;
-    int we_initialised;
-    char last_reason[256];
-} L;
-
 /* Log a pass-through reason once (until a different reason or a corrected frame comes). */
-static void pass_reason(const char *reason) {
+void pass_reason(const char *reason) {
     if (strcmp(reason, L.last_reason) == 0) return;
     snprintf(L.last_reason, sizeof L.last_reason, "%s", reason);
     layer_log("pass-through: %s", reason);
 }
 
-static Chain *chain_of(XrSwapchain h) {
+Chain *chain_of(XrSwapchain h) {
     for (int i = 0; i < MAX_SWAPCHAINS; i++)
         if (L.chains[i].app == h && h != XR_NULL_HANDLE) return &L.chains[i];
     return NULL;
+}
+
+double now_ms(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return 1e3 * (double)ts.tv_sec + 1e-6 * (double)ts.tv_nsec;
+}
+
+/* VRCORRECT_LAYER_FORMATS: a comma-separated list of hex formats the layer may correct (a way to
+ * restrict it, e.g. to sRGB swapchains only); unset or empty: every format of the lists. */
+int format_allowed(int64_t format) {
+    const char *list = getenv("VRCORRECT_LAYER_FORMATS");
+    if (!list || !*list) return 1;
+    for (const char *p = list; *p;) {
+        char *end;
+        long long v = strtoll(p, &end, 16);
+        if (end == p) break;
+        if (v == format) return 1;
+        p = end;
+        while (*p == ',' || *p == ' ') p++;
+    }
+    return 0;
 }
 
 /* ------------------------------------------------------------------ embedded Python */
@@ -459,7 +447,7 @@ static void python_error(const char *what) {
 }
 
 /* Calls a method of the engine; returns its result as a new reference, or NULL (logged). */
-static PyObject *engine_call(const char *method, const char *format, ...) {
+PyObject *engine_call(const char *method, const char *format, ...) {
     if (!L.engine) return NULL;
     va_list ap;
     va_start(ap, format);
@@ -511,14 +499,15 @@ static XrResult XRAPI_CALL layer_GetInstanceProcAddr(XrInstance, const char *, P
 
 static XrResult XRAPI_CALL layer_DestroyInstance(XrInstance instance) {
     engine_stop();
+    vk_forget_instance();
     XrResult r = L.DestroyInstance(instance);
     L.instance = XR_NULL_HANDLE;
     return r;
 }
 
+/* Sessions the layer does not correct, named for the log line. */
 static const char *binding_name(XrStructureType t) {
     switch ((int)t) {
-    case 1000025000: return "Vulkan (XR_KHR_vulkan_enable)";
     case 1000027000: return "Direct3D 11 (XR_KHR_D3D11_enable)";
     case 1000028000: return "Direct3D 12 (XR_KHR_D3D12_enable)";
     case 1000024001: return "OpenGL ES (XR_KHR_opengl_es_enable)";
@@ -529,18 +518,34 @@ static const char *binding_name(XrStructureType t) {
     }
 }
 
+/* The runtime's recommended view size (0 x 0 when it does not say). */
+static void view_size(XrInstance instance, XrSystemId system, uint32_t *w, uint32_t *h) {
+    uint32_t n = 0;
+    XrViewConfigurationView views[MAX_VIEWS];
+    for (uint32_t i = 0; i < MAX_VIEWS; i++) views[i] = (XrViewConfigurationView){.type = XR_TYPE_VIEW_CONFIGURATION_VIEW};
+    *w = *h = 0;
+    if (L.EnumerateViewConfigurationViews &&
+        XR_SUCCEEDED(L.EnumerateViewConfigurationViews(instance, system, XR_VIEW_CONFIGURATION_TYPE_PRIMARY_STEREO,
+                                                       MAX_VIEWS, &n, views)) && n > 0) {
+        *w = views[0].recommendedImageRectWidth;
+        *h = views[0].recommendedImageRectHeight;
+    }
+}
+
 static XrResult XRAPI_CALL layer_CreateSession(XrInstance instance, const XrSessionCreateInfo *info, XrSession *session) {
-    const XrGraphicsBindingOpenGLXlibKHR *binding = NULL;
+    const XrGraphicsBindingOpenGLXlibKHR *glx = NULL;
+    const XrGraphicsBindingVulkanKHR *vulkan = NULL;
     const char *other = NULL;
     for (const XrBaseInStructure *b = info ? (const XrBaseInStructure *)info->next : NULL; b; b = b->next) {
-        if (b->type == XR_TYPE_GRAPHICS_BINDING_OPENGL_XLIB_KHR) binding = (const XrGraphicsBindingOpenGLXlibKHR *)b;
+        if (b->type == XR_TYPE_GRAPHICS_BINDING_OPENGL_XLIB_KHR) glx = (const XrGraphicsBindingOpenGLXlibKHR *)b;
+        else if (b->type == XR_TYPE_GRAPHICS_BINDING_VULKAN_KHR) vulkan = (const XrGraphicsBindingVulkanKHR *)b;
         else if (binding_name(b->type)) other = binding_name(b->type);
     }
     L.last_reason[0] = 0;
-    if (!binding) {     /* decided from the application's request: the session passes through whatever the runtime says */
+    if (!glx && !vulkan) {     /* decided from the application's request: the session passes through whatever the runtime says */
         char reason[256];
-        snprintf(reason, sizeof reason, "the application renders with %s; vrcorrect corrects OpenGL (Xlib/GLX) "
-                 "sessions only so far (Vulkan is the next step)", other ? other : "a graphics API it does not name");
+        snprintf(reason, sizeof reason, "the application renders with %s; vrcorrect corrects OpenGL (Xlib/GLX) and "
+                 "Vulkan sessions", other ? other : "a graphics API it does not name");
         pass_reason(reason);
         return L.CreateSession(instance, info, session);
     }
@@ -555,85 +560,118 @@ static XrResult XRAPI_CALL layer_CreateSession(XrInstance instance, const XrSess
         pass_reason("the next layer or runtime lacks a swapchain or frame function");
         return r;
     }
-    if (!load_gl()) {
-        pass_reason("libGL.so.1 or a GL entry point could not be loaded");
-        return r;
+    if (glx) {
+        if (!load_gl()) {
+            pass_reason("libGL.so.1 or a GL entry point could not be loaded");
+            return r;
+        }
+        L.context = glx->glxContext;
+        L.api = API_GL;
+    } else {
+        char reason[256] = "";
+        if (!vk_session_start(vulkan, reason, sizeof reason)) {
+            vk_session_stop();
+            pass_reason(reason);
+            return r;
+        }
+        L.api = API_VULKAN;
     }
     L.session = *session;
-    L.context = binding->glxContext;
-    L.session_gl = 1;
-    uint32_t w = 0, h = 0, n = 0;
-    XrViewConfigurationView views[MAX_VIEWS];
-    for (uint32_t i = 0; i < MAX_VIEWS; i++) views[i] = (XrViewConfigurationView){.type = XR_TYPE_VIEW_CONFIGURATION_VIEW};
-    if (L.EnumerateViewConfigurationViews &&
-        XR_SUCCEEDED(L.EnumerateViewConfigurationViews(instance, info->systemId,
-                                                       XR_VIEW_CONFIGURATION_TYPE_PRIMARY_STEREO, MAX_VIEWS, &n, views))
-        && n > 0) {
-        w = views[0].recommendedImageRectWidth;
-        h = views[0].recommendedImageRectHeight;
-    }
-    engine_start(w, h, "OpenGL");
+    uint32_t w, h;
+    view_size(instance, info->systemId, &w, &h);
+    engine_start(w, h, L.api == API_GL ? "OpenGL" : "Vulkan");
     return r;
 }
 
-static void destroy_outputs(XrSession session) {
-    for (int i = 0; i < MAX_SWAPCHAINS; i++) {
-        Chain *c = &L.chains[i];
-        if (c->app == XR_NULL_HANDLE || c->session != session) continue;
-        if (c->out != XR_NULL_HANDLE) L.DestroySwapchain(c->out);
-        memset(c, 0, sizeof *c);
-    }
+static void release_engine_gl(void) {
+    if (!L.engine) return;
+    /* OpenGL: objects are deleted only on the session's context, else dropped unreleased; Vulkan: the
+     * engine's own context */
+    int current = L.api == API_VULKAN || (gl.GetCurrentContext && gl.GetCurrentContext() == L.context);
+    PyGILState_STATE g = PyGILState_Ensure();
+    PyObject *res = engine_call("release_gl", "(i)", current);
+    Py_XDECREF(res);
+    PyGILState_Release(g);
+}
+
+static void forget_chain(Chain *c) {
+    int id = (int)(c - L.chains);
+    if (L.api == API_VULKAN) vk_chain_stop(c, id);
+    if (c->out != XR_NULL_HANDLE) L.DestroySwapchain(c->out);
+    memset(c, 0, sizeof *c);
 }
 
 static XrResult XRAPI_CALL layer_DestroySession(XrSession session) {
-    if (session == L.session && L.engine) {
-        /* GL objects are deleted only on the session's context; otherwise they are dropped unreleased */
-        int current = gl.GetCurrentContext && gl.GetCurrentContext() == L.context;
-        PyGILState_STATE g = PyGILState_Ensure();
-        PyObject *res = engine_call("release_gl", "(i)", current);
-        Py_XDECREF(res);
-        PyGILState_Release(g);
-    }
-    destroy_outputs(session);   /* the application should have destroyed its swapchains: outputs go first */
     if (session == L.session) {
+        for (int i = 0; i < MAX_SWAPCHAINS; i++)   /* the application should have destroyed its swapchains */
+            if (L.chains[i].app != XR_NULL_HANDLE && L.chains[i].session == session) forget_chain(&L.chains[i]);
+        release_engine_gl();
+        if (L.api == API_VULKAN) vk_session_stop();
         L.session = XR_NULL_HANDLE;
-        L.session_gl = 0;
+        L.api = API_NONE;
     }
     return L.DestroySession(session);
 }
 
-static int enumerate_gl_images(XrSwapchain h, GLuint *tex, uint32_t *count) {
-    XrSwapchainImageOpenGLKHR images[MAX_IMAGES];
+static int enumerate_images(XrSwapchain h, GLuint *tex, VkImage *images, uint32_t *count) {
+    XrSwapchainImageOpenGLKHR gl_images[MAX_IMAGES];
+    XrSwapchainImageVulkanKHR vk_images[MAX_IMAGES];
     uint32_t n = 0;
     if (XR_FAILED(L.EnumerateSwapchainImages(h, 0, &n, NULL)) || n == 0 || n > MAX_IMAGES) return 0;
-    for (uint32_t i = 0; i < n; i++) images[i] = (XrSwapchainImageOpenGLKHR){.type = XR_TYPE_SWAPCHAIN_IMAGE_OPENGL_KHR};
-    if (XR_FAILED(L.EnumerateSwapchainImages(h, n, &n, (XrSwapchainImageBaseHeader *)images))) return 0;
-    for (uint32_t i = 0; i < n; i++) tex[i] = images[i].image;
+    for (uint32_t i = 0; i < n; i++) {
+        gl_images[i] = (XrSwapchainImageOpenGLKHR){.type = XR_TYPE_SWAPCHAIN_IMAGE_OPENGL_KHR};
+        vk_images[i] = (XrSwapchainImageVulkanKHR){.type = XR_TYPE_SWAPCHAIN_IMAGE_VULKAN_KHR};
+    }
+    XrSwapchainImageBaseHeader *list = L.api == API_GL ? (XrSwapchainImageBaseHeader *)gl_images
+                                                       : (XrSwapchainImageBaseHeader *)vk_images;
+    if (XR_FAILED(L.EnumerateSwapchainImages(h, n, &n, list))) return 0;
+    for (uint32_t i = 0; i < n; i++) {
+        if (L.api == API_GL) tex[i] = gl_images[i].image;
+        else images[i] = vk_images[i].image;
+    }
     *count = n;
     return 1;
 }
 
-/* The formats the layer corrects: GL_SRGB8_ALPHA8 and GL_RGBA8, or the comma-separated list in
- * VRCORRECT_LAYER_FORMATS (hex; a way to restrict the layer, e.g. to sRGB swapchains only). */
-static int format_supported(int64_t format) {
-    if (format != L_GL_SRGB8_ALPHA8 && format != L_GL_RGBA8) return 0;
-    const char *list = getenv("VRCORRECT_LAYER_FORMATS");
-    if (!list || !*list) return 1;
-    for (const char *p = list; *p;) {
-        char *end;
-        long long v = strtoll(p, &end, 16);
-        if (end == p) break;
-        if (v == format) return 1;
-        p = end;
-        while (*p == ',' || *p == ' ') p++;
+static const char *gl_format_name(int64_t format) {
+    switch (format) {
+    case L_GL_RGBA16F: return "GL_RGBA16F";
+    case L_GL_RGB10_A2: return "GL_RGB10_A2";
+    case L_GL_SRGB8_ALPHA8: return "GL_SRGB8_ALPHA8";
+    case L_GL_RGBA8: return "GL_RGBA8";
+    default: return NULL;
     }
-    return 0;
 }
 
 static XrResult XRAPI_CALL layer_CreateSwapchain(XrSession session, const XrSwapchainCreateInfo *info,
                                                  XrSwapchain *swapchain) {
-    XrResult r = L.CreateSwapchain(session, info, swapchain);
-    if (XR_FAILED(r) || session != L.session || !L.session_gl) return r;
+    if (session != L.session || L.api == API_NONE || !info) return L.CreateSwapchain(session, info, swapchain);
+    int api = L.api;
+    const char *name = api == API_GL ? gl_format_name(info->format) : vk_format_name(info->format);
+    char reason[256] = "";
+    if (!name)
+        snprintf(reason, sizeof reason, "swapchain format 0x%llX is not supported (%s are)", (unsigned long long)info->format,
+                 api == API_GL ? "GL_RGBA16F 0x881A, GL_RGB10_A2 0x8059, GL_SRGB8_ALPHA8 0x8C43, GL_RGBA8 0x8058"
+                               : "R16G16B16A16_SFLOAT 0x61, A2B10G10R10_UNORM_PACK32 0x40, R8G8B8A8_SRGB 0x2B, "
+                                 "B8G8R8A8_SRGB 0x32, R8G8B8A8_UNORM 0x25, B8G8R8A8_UNORM 0x2C");
+    else if (!format_allowed(info->format))
+        snprintf(reason, sizeof reason, "swapchain format %s 0x%llX is left out by VRCORRECT_LAYER_FORMATS", name,
+                 (unsigned long long)info->format);
+    else if (info->arraySize != 1 || info->faceCount != 1 || info->sampleCount != 1 || info->mipCount != 1)
+        snprintf(reason, sizeof reason, "a swapchain with arraySize %u, faceCount %u, sampleCount %u, mipCount %u "
+                 "(only 1, 1, 1, 1 is corrected)", info->arraySize, info->faceCount, info->sampleCount, info->mipCount);
+    else if (!(info->usageFlags & XR_SWAPCHAIN_USAGE_COLOR_ATTACHMENT_BIT))
+        snprintf(reason, sizeof reason, "a swapchain without COLOR_ATTACHMENT usage (a depth buffer?) is not corrected");
+    /* Vulkan: the layer copies the submitted rects out of the application's images, which needs their
+     * TRANSFER_SRC usage; the application's own structure is left as it is */
+    XrSwapchainCreateInfo app = *info;
+    if (!reason[0] && api == API_VULKAN) app.usageFlags |= XR_SWAPCHAIN_USAGE_TRANSFER_SRC_BIT;
+    XrResult r = L.CreateSwapchain(session, &app, swapchain);
+    if (XR_FAILED(r)) return r;
+    if (reason[0]) {
+        if (info->usageFlags & XR_SWAPCHAIN_USAGE_COLOR_ATTACHMENT_BIT) pass_reason(reason);
+        return r;
+    }
     Chain *c = NULL;
     for (int i = 0; i < MAX_SWAPCHAINS && !c; i++)
         if (L.chains[i].app == XR_NULL_HANDLE) c = &L.chains[i];
@@ -648,50 +686,40 @@ static XrResult XRAPI_CALL layer_CreateSwapchain(XrSession session, const XrSwap
     c->width = info->width;
     c->height = info->height;
     c->released = -1;
-    char reason[256] = "";
-    if (!format_supported(info->format))
-        snprintf(reason, sizeof reason, "swapchain format 0x%llX is not supported (GL_SRGB8_ALPHA8 0x8C43 or "
-                 "GL_RGBA8 0x8058 are)", (unsigned long long)info->format);
-    else if (info->arraySize != 1 || info->faceCount != 1 || info->sampleCount != 1 || info->mipCount != 1)
-        snprintf(reason, sizeof reason, "a swapchain with arraySize %u, faceCount %u, sampleCount %u, mipCount %u "
-                 "(only 1, 1, 1, 1 is corrected)", info->arraySize, info->faceCount, info->sampleCount, info->mipCount);
-    else if (!(info->usageFlags & XR_SWAPCHAIN_USAGE_COLOR_ATTACHMENT_BIT))
-        snprintf(reason, sizeof reason, "a swapchain without COLOR_ATTACHMENT usage (a depth buffer?) is not corrected");
-    if (reason[0]) {
-        if (info->usageFlags & XR_SWAPCHAIN_USAGE_COLOR_ATTACHMENT_BIT) pass_reason(reason);
-        return r;
-    }
-    if (!enumerate_gl_images(c->app, c->app_tex, &c->app_count)) {
+    if (!enumerate_images(c->app, c->app_tex, c->app_image, &c->app_count)) {
         pass_reason("could not list the application's swapchain images");
         return r;
     }
     XrSwapchainCreateInfo out = *info;
     out.next = NULL;
     out.createFlags = 0;
-    out.usageFlags = XR_SWAPCHAIN_USAGE_COLOR_ATTACHMENT_BIT | XR_SWAPCHAIN_USAGE_SAMPLED_BIT;
+    out.usageFlags = XR_SWAPCHAIN_USAGE_COLOR_ATTACHMENT_BIT | XR_SWAPCHAIN_USAGE_SAMPLED_BIT |
+                     (api == API_VULKAN ? XR_SWAPCHAIN_USAGE_TRANSFER_DST_BIT : 0);
     XrSwapchain h = XR_NULL_HANDLE;
     XrResult ro = L.CreateSwapchain(session, &out, &h);
     if (XR_FAILED(ro)) {
-        char why[128];
-        snprintf(why, sizeof why, "the runtime refused the layer's output swapchain (XrResult %d)", ro);
-        pass_reason(why);
-        return r;
-    }
-    if (!enumerate_gl_images(h, c->out_tex, &c->out_count)) {
-        L.DestroySwapchain(h);
-        pass_reason("could not list the output swapchain's images");
+        snprintf(reason, sizeof reason, "the runtime refused the layer's output swapchain (XrResult %d)", ro);
+        pass_reason(reason);
         return r;
     }
     c->out = h;
+    if (!enumerate_images(h, c->out_tex, c->out_image, &c->out_count)) {
+        snprintf(reason, sizeof reason, "could not list the output swapchain's images");
+    } else if (api == API_VULKAN) {
+        vk_chain_start(c, (int)(c - L.chains), reason, sizeof reason);
+    }
+    if (reason[0]) {
+        if (api == API_VULKAN) vk_chain_stop(c, (int)(c - L.chains));
+        L.DestroySwapchain(h);
+        c->out = XR_NULL_HANDLE;
+        pass_reason(reason);
+    }
     return r;
 }
 
 static XrResult XRAPI_CALL layer_DestroySwapchain(XrSwapchain swapchain) {
     Chain *c = chain_of(swapchain);
-    if (c) {
-        if (c->out != XR_NULL_HANDLE) L.DestroySwapchain(c->out);
-        memset(c, 0, sizeof *c);
-    }
+    if (c) forget_chain(c);
     return L.DestroySwapchain(swapchain);
 }
 
@@ -714,38 +742,13 @@ static XrResult XRAPI_CALL layer_ReleaseSwapchainImage(XrSwapchain swapchain, co
     return r;
 }
 
-/* Corrects every view; fills the copies. Returns 1 when the frame goes down corrected. */
-static int correct_frame(const XrFrameEndInfo *info, XrCompositionLayerProjection *layers,
-                         XrCompositionLayerProjectionView (*views)[MAX_VIEWS], const XrCompositionLayerBaseHeader **list) {
-    if (!L.session_gl) return 0;
-    if (L.python_failed || L.engine_failed || !L.engine) return 0;   /* logged when it happened */
-    if (info->layerCount > MAX_LAYERS) { pass_reason("more than 16 composition layers"); return 0; }
-    int projections = 0;
-    for (uint32_t k = 0; k < info->layerCount; k++) {
-        const XrCompositionLayerBaseHeader *b = info->layers[k];
-        list[k] = b;
-        if (!b || b->type != XR_TYPE_COMPOSITION_LAYER_PROJECTION) continue;
-        const XrCompositionLayerProjection *p = (const XrCompositionLayerProjection *)b;
-        if (p->viewCount > MAX_VIEWS) { pass_reason("a projection layer with more than 4 views"); return 0; }
-        for (uint32_t v = 0; v < p->viewCount; v++) {
-            Chain *c = chain_of(p->views[v].subImage.swapchain);
-            if (!c || c->out == XR_NULL_HANDLE) return 0;     /* the reason was logged at xrCreateSwapchain */
-            if (c->released < 0) { pass_reason("a view's swapchain has no released image"); return 0; }
-            if (p->views[v].subImage.imageArrayIndex != 0) { pass_reason("imageArrayIndex != 0"); return 0; }
-        }
-        projections++;
-    }
-    if (!projections) return 0;
+/* OpenGL: each view corrected on the application's context straight into the acquired output image
+ * (the GL state saved before and restored after). Returns 1 when every view was corrected. */
+static int gl_correct_views(const FrameView *views, uint32_t nviews) {
     if (gl.GetCurrentContext() != L.context) {
         pass_reason("the session's GLX context is not current at xrEndFrame");
         return 0;
     }
-    PyGILState_STATE g = PyGILState_Ensure();
-    int ok = 1;
-    PyObject *go = engine_call("begin_frame", "()");
-    if (!go || !PyObject_IsTrue(go)) ok = 0;                   /* off, no prescription, ...: the engine logs why */
-    Py_XDECREF(go);
-    if (!ok) { PyGILState_Release(g); return 0; }
     GlState saved;
     save_gl(&saved);
     while (gl.GetError() != GL_NO_ERROR) {}                     /* the application's errors are not ours */
@@ -756,40 +759,15 @@ static int correct_frame(const XrFrameEndInfo *info, XrCompositionLayerProjectio
     gl.ColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
     gl.BindBuffer(L_GL_PIXEL_PACK_BUFFER, 0);
     gl.BindBuffer(L_GL_PIXEL_UNPACK_BUFFER, 0);
-    /* acquire each output swapchain once, correct its views, release */
-    Chain *acquired[MAX_LAYERS * MAX_VIEWS];
-    int nacq = 0;
-    uint32_t view_index = 0;
-    for (uint32_t k = 0; k < info->layerCount && ok; k++) {
-        const XrCompositionLayerBaseHeader *b = info->layers[k];
-        if (!b || b->type != XR_TYPE_COMPOSITION_LAYER_PROJECTION) continue;
-        layers[k] = *(const XrCompositionLayerProjection *)b;
-        for (uint32_t v = 0; v < layers[k].viewCount && ok; v++, view_index++) {
-            const XrCompositionLayerProjectionView *src = &((const XrCompositionLayerProjection *)b)->views[v];
-            Chain *c = chain_of(src->subImage.swapchain);
-            int have = 0;
-            for (int a = 0; a < nacq; a++) have |= acquired[a] == c;
-            uint32_t idx = 0;
-            if (!have) {
-                XrSwapchainImageWaitInfo wait = {XR_TYPE_SWAPCHAIN_IMAGE_WAIT_INFO, NULL, XR_INFINITE_DURATION};
-                XrResult r = L.AcquireSwapchainImage(c->out, NULL, &idx);
-                if (XR_FAILED(r)) { pass_reason("could not acquire an output swapchain image"); ok = 0; break; }
-                c->out_index = idx;
-                acquired[nacq++] = c;
-                if (XR_FAILED(L.WaitSwapchainImage(c->out, &wait))) { pass_reason("waiting for an output image failed"); ok = 0; break; }
-            }
-            idx = c->out_index;
-            XrRect2Di rect = src->subImage.imageRect;
-            PyObject *res = engine_call("correct", "(IIiIIiiiiIi)", view_index, c->app_tex[c->released], (int)c->format,
-                                        c->width, c->height, rect.offset.x, rect.offset.y, rect.extent.width,
-                                        rect.extent.height, c->out_tex[idx], (int)(v));
-            if (!res || !PyObject_IsTrue(res)) ok = 0;
-            Py_XDECREF(res);
-            views[k][v] = *src;
-            views[k][v].subImage.swapchain = c->out;
-        }
-        layers[k].views = views[k];
-        list[k] = (const XrCompositionLayerBaseHeader *)&layers[k];
+    int ok = 1;
+    for (uint32_t i = 0; i < nviews && ok; i++) {
+        const FrameView *f = &views[i];
+        Chain *c = f->chain;
+        PyObject *res = engine_call("correct", "(IIiIIiiiiIi)", f->index, c->app_tex[c->released], (int)c->format,
+                                    c->width, c->height, f->rect.offset.x, f->rect.offset.y, f->rect.extent.width,
+                                    f->rect.extent.height, c->out_tex[c->out_index], (int)f->view);
+        if (!res || !PyObject_IsTrue(res)) ok = 0;
+        Py_XDECREF(res);
     }
     GLenum err = gl.GetError();
     if (ok && err != GL_NO_ERROR) {
@@ -800,21 +778,108 @@ static int correct_frame(const XrFrameEndInfo *info, XrCompositionLayerProjectio
     }
     while (gl.GetError() != GL_NO_ERROR) {}
     restore_gl(&saved);
+    return ok;
+}
+
+/* Collects the frame's projection views; 0 when the frame passes through (the reason logged). */
+static int collect_views(const XrFrameEndInfo *info, FrameView *views, uint32_t *nviews) {
+    if (info->layerCount > MAX_LAYERS) { pass_reason("more than 16 composition layers"); return 0; }
+    uint32_t n = 0;
+    for (uint32_t k = 0; k < info->layerCount; k++) {
+        const XrCompositionLayerBaseHeader *b = info->layers[k];
+        if (!b || b->type != XR_TYPE_COMPOSITION_LAYER_PROJECTION) continue;
+        const XrCompositionLayerProjection *p = (const XrCompositionLayerProjection *)b;
+        if (p->viewCount > MAX_VIEWS) { pass_reason("a projection layer with more than 4 views"); return 0; }
+        for (uint32_t v = 0; v < p->viewCount; v++) {
+            Chain *c = chain_of(p->views[v].subImage.swapchain);
+            if (!c || c->out == XR_NULL_HANDLE) return 0;     /* the reason was logged at xrCreateSwapchain */
+            if (c->released < 0) { pass_reason("a view's swapchain has no released image"); return 0; }
+            if (p->views[v].subImage.imageArrayIndex != 0) { pass_reason("imageArrayIndex != 0"); return 0; }
+            XrRect2Di rect = p->views[v].subImage.imageRect;
+            if (rect.offset.x < 0 || rect.offset.y < 0 || rect.extent.width < 1 || rect.extent.height < 1 ||
+                (uint32_t)(rect.offset.x + rect.extent.width) > c->width ||
+                (uint32_t)(rect.offset.y + rect.extent.height) > c->height) {
+                pass_reason("a view's imageRect lies outside its swapchain image");
+                return 0;
+            }
+            views[n] = (FrameView){k, v, n, c, rect};
+            n++;
+        }
+    }
+    *nviews = n;
+    return n > 0;
+}
+
+/* Acquires (and waits for) the output image of every chain the frame's views use, once each. */
+int acquire_outputs(const FrameView *views, uint32_t nviews, Chain **acquired, int *nacq) {
+    for (uint32_t i = 0; i < nviews; i++) {
+        Chain *c = views[i].chain;
+        int have = 0;
+        for (int a = 0; a < *nacq; a++) have |= acquired[a] == c;
+        if (have) continue;
+        uint32_t idx = 0;
+        if (XR_FAILED(L.AcquireSwapchainImage(c->out, NULL, &idx))) {
+            pass_reason("could not acquire an output swapchain image");
+            return 0;
+        }
+        c->out_index = idx;
+        acquired[(*nacq)++] = c;
+        XrSwapchainImageWaitInfo wait = {XR_TYPE_SWAPCHAIN_IMAGE_WAIT_INFO, NULL, XR_INFINITE_DURATION};
+        if (XR_FAILED(L.WaitSwapchainImage(c->out, &wait))) {
+            pass_reason("waiting for an output image failed");
+            return 0;
+        }
+    }
+    return 1;
+}
+
+/* Corrects every view; fills the copies. Returns 1 when the frame goes down corrected. */
+static int correct_frame(const XrFrameEndInfo *info, XrCompositionLayerProjection *layers,
+                         XrCompositionLayerProjectionView (*copies)[MAX_VIEWS], const XrCompositionLayerBaseHeader **list) {
+    if (L.api == API_NONE) return 0;
+    if (L.python_failed || L.engine_failed || !L.engine) return 0;   /* logged when it happened */
+    FrameView views[MAX_LAYERS * MAX_VIEWS];
+    uint32_t nviews = 0;
+    if (!collect_views(info, views, &nviews)) return 0;
+    PyGILState_STATE g = PyGILState_Ensure();
+    PyObject *go = engine_call("begin_frame", "()");
+    int ok = go && PyObject_IsTrue(go);                          /* off, no prescription, ...: the engine logs why */
+    Py_XDECREF(go);
+    if (!ok) { PyGILState_Release(g); return 0; }
+    Chain *acquired[MAX_LAYERS * MAX_VIEWS];
+    int nacq = 0;
+    double sync_ms[3] = {-1, -1, -1};               /* Vulkan: copy in and wait, glFinish, copy out */
+    if (L.api == API_GL) {
+        ok = acquire_outputs(views, nviews, acquired, &nacq) && gl_correct_views(views, nviews);
+    } else {
+        ok = vk_correct_views(views, nviews, acquired, &nacq, sync_ms);  /* acquires the outputs after the GL work */
+    }
     for (int a = 0; a < nacq; a++) L.ReleaseSwapchainImage(acquired[a]->out, NULL);
-    PyObject *done = engine_call("end_frame", "(i)", ok);
+    PyObject *done = engine_call("end_frame", "(i(ddd))", ok, sync_ms[0], sync_ms[1], sync_ms[2]);
     Py_XDECREF(done);
     PyGILState_Release(g);
-    if (ok) L.last_reason[0] = 0;
-    return ok;
+    if (!ok) return 0;
+    for (uint32_t k = 0; k < info->layerCount; k++) list[k] = info->layers[k];
+    for (uint32_t i = 0; i < nviews; i++) {
+        const FrameView *f = &views[i];
+        const XrCompositionLayerProjection *p = (const XrCompositionLayerProjection *)info->layers[f->layer];
+        layers[f->layer] = *p;
+        copies[f->layer][f->view] = p->views[f->view];
+        copies[f->layer][f->view].subImage.swapchain = f->chain->out;
+        layers[f->layer].views = copies[f->layer];
+        list[f->layer] = (const XrCompositionLayerBaseHeader *)&layers[f->layer];
+    }
+    L.last_reason[0] = 0;
+    return 1;
 }
 
 static XrResult XRAPI_CALL layer_EndFrame(XrSession session, const XrFrameEndInfo *info) {
     if (session != L.session || !info || info->layerCount == 0) return L.EndFrame(session, info);
     XrCompositionLayerProjection layers[MAX_LAYERS];
-    XrCompositionLayerProjectionView views[MAX_LAYERS][MAX_VIEWS];
+    XrCompositionLayerProjectionView copies[MAX_LAYERS][MAX_VIEWS];
     const XrCompositionLayerBaseHeader *list[MAX_LAYERS];
     pthread_mutex_lock(&lock);
-    int corrected = correct_frame(info, layers, views, list);
+    int corrected = correct_frame(info, layers, copies, list);
     pthread_mutex_unlock(&lock);
     if (!corrected) return L.EndFrame(session, info);
     XrFrameEndInfo copy = *info;
@@ -835,6 +900,11 @@ static XrResult XRAPI_CALL layer_GetInstanceProcAddr(XrInstance instance, const 
     if (L.next_gipa && instance != XR_NULL_HANDLE) {
         HOOK(DestroyInstance) HOOK(CreateSession) HOOK(DestroySession) HOOK(CreateSwapchain) HOOK(DestroySwapchain)
         HOOK(AcquireSwapchainImage) HOOK(ReleaseSwapchainImage) HOOK(EndFrame)
+        PFN_xrVoidFunction hook = vk_hook(name);          /* NULL unless the application enabled the extension */
+        if (hook) {
+            *function = hook;
+            return XR_SUCCESS;
+        }
     }
 #undef HOOK
     if (!L.next_gipa) return XR_ERROR_HANDLE_INVALID;
@@ -858,6 +928,7 @@ static XrResult XRAPI_CALL layer_CreateApiLayerInstance(const XrInstanceCreateIn
     NEXT(EnumerateSwapchainImages) NEXT(AcquireSwapchainImage) NEXT(WaitSwapchainImage) NEXT(ReleaseSwapchainImage)
     NEXT(EndFrame) NEXT(EnumerateViewConfigurationViews)
 #undef NEXT
+    vk_fetch_next(*instance);
     return r;
 }
 

@@ -1,7 +1,7 @@
 """``vrcorrect layer install | uninstall | status``: vrcorrect as an implicit OpenXR API layer.
 
-``install`` compiles ``layer/vrcorrect_layer.c`` (the C shim that embeds this Python and runs
-:mod:`vrcorrect.runtime.xrlayer`) with the machine's C compiler into the user's data folder
+``install`` compiles ``layer/`` (``vrcorrect_layer.c`` and ``vrcorrect_vulkan.c``: the C shim that
+embeds this Python and runs :mod:`vrcorrect.runtime.xrlayer`) with the machine's C compiler into the user's data folder
 (``$XDG_DATA_HOME/vrcorrect/layer/``, default ``~/.local/share``), writes beside it
 ``vrcorrect_layer.cfg`` (the Python home and the ``sys.path`` entries the embedded interpreter
 needs), writes the layer configuration (prescription, display) to
@@ -32,7 +32,7 @@ from ..plumbing.errors import InputError, ValidationError
 from ..runtime.xrlayer import DISABLE_ENV, LAYER_NAME, OFF_ENV, config_path, log_path, off_file, read_config
 
 ROOT = Path(__file__).resolve().parents[2]
-SOURCE = ROOT / "layer" / "vrcorrect_layer.c"
+SOURCES = (ROOT / "layer" / "vrcorrect_layer.c", ROOT / "layer" / "vrcorrect_vulkan.c")
 LIBRARY = "libvrcorrect_layer.so"
 MANIFEST = "vrcorrect_layer.json"
 MARK = "written by vrcorrect layer install"
@@ -66,8 +66,8 @@ def build_layer(folder: Path, *, cc: str | None = None) -> Path:
     Raises
     ------
     InputError
-        No C compiler, no OpenXR headers (Debian: ``libopenxr-dev``), no shared libpython, or a
-        compiler error (its first lines)."""
+        No C compiler, no OpenXR or Vulkan headers (Debian: ``libopenxr-dev``, ``libvulkan-dev``),
+        no shared libpython, or a compiler error (its first lines)."""
     compiler = shutil.which(cc or os.environ.get("CC", "cc")) or shutil.which("gcc")
     if compiler is None:
         raise InputError("no C compiler (cc or gcc) to build the OpenXR layer: install gcc")
@@ -81,13 +81,14 @@ def build_layer(folder: Path, *, cc: str | None = None) -> Path:
     library = folder / LIBRARY
     tmp = folder / (LIBRARY + ".tmp")
     cmd = [compiler, "-std=c11", "-O2", "-Wall", "-Wextra", "-Wno-format-truncation", "-shared", "-fPIC",
-           "-fvisibility=hidden", f"-I{include}", "-o", str(tmp), str(SOURCE), f"-L{libdir}", f"-lpython{version}",
+           "-fvisibility=hidden", f"-I{include}", "-o", str(tmp), *map(str, SOURCES), f"-L{libdir}", f"-lpython{version}",
            f"-Wl,-rpath,{libdir}", "-ldl", "-lm", "-lpthread"]
     build = subprocess.run(cmd, capture_output=True, text=True)
     if build.returncode != 0:
         first = " ".join(build.stderr.strip().splitlines()[:3])
-        hint = " (install the OpenXR headers: apt-get install libopenxr-dev)" if "openxr" in build.stderr else ""
-        raise InputError(f"building {SOURCE.name} failed{hint}: {first}")
+        hint = (" (install the OpenXR and Vulkan headers: apt-get install libopenxr-dev libvulkan-dev)"
+                if "openxr" in build.stderr or "vulkan" in build.stderr else "")
+        raise InputError(f"building the OpenXR layer ({SOURCES[0].parent}) failed{hint}: {first}")
     tmp.replace(library)
     paths = [str(ROOT), *site.getsitepackages()]
     lines = [f"# {MARK}", f"home={sys.base_prefix}", *(f"path={p}" for p in paths)]
@@ -247,7 +248,7 @@ def cmd_layer(args: argparse.Namespace) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("layer", help="install vrcorrect as an implicit OpenXR API layer (OpenGL applications)",
+    p = sub.add_parser("layer", help="install vrcorrect as an implicit OpenXR API layer (OpenGL and Vulkan applications)",
                        description=__doc__.split("\n\n")[0].replace("``", ""))
     actions = p.add_subparsers(dest="action", metavar="ACTION")
     actions.required = True

@@ -1,26 +1,47 @@
 """The OpenXR API layer's engine: what ``layer/vrcorrect_layer.c`` (a thin C shim that embeds
-Python) calls on the application's thread, with the application's GL context current.
+Python) calls on the application's thread.
 
-The shim intercepts the application's OpenXR calls; for OpenGL sessions it gives each application
-swapchain a layer-owned output swapchain and, at ``xrEndFrame``, asks :class:`Engine` to correct
-the application's last released image over the submitted ``imageRect`` into the output image;
-the frame then goes down with the output swapchains in place of the application's.
+The shim intercepts the application's OpenXR calls; for OpenGL and Vulkan sessions it gives each
+application swapchain a layer-owned output swapchain and, at ``xrEndFrame``, has :class:`Engine`
+correct the application's last released image over the submitted ``imageRect`` into the output
+image; the frame then goes down with the output swapchains in place of the application's.
 
-Per frame the shim calls :meth:`Engine.begin_frame` (``False``: pass the frame through),
-:meth:`Engine.correct` once per view and :meth:`Engine.end_frame`.  Every failure becomes a
-pass-through (``False``) and one log line naming the reason (a reason is logged again only after
-a corrected frame or a different reason); the engine never raises into the shim.
+Per frame the shim calls :meth:`Engine.begin_frame` (``False``: pass the frame through), then once
+per view :meth:`Engine.correct` (OpenGL) or :meth:`Engine.correct_vulkan` and then
+:meth:`Engine.finish` (Vulkan), and :meth:`Engine.end_frame`.  Every failure becomes a pass-through
+(``False``) and one log line naming the reason (a reason is logged again only after a corrected
+frame or a different reason); the engine never raises into the shim.
 
 The correction is the project's :class:`~vrcorrect.runtime.corrector.Corrector`, one per view
 (view 0 the left eye, view 1 the right, as in ``XR_VIEW_CONFIGURATION_TYPE_PRIMARY_STEREO``), built
-from the user's prescription JSON and display profile on a moderngl context attached to the
-application's GL context.  The source image is read with ``texelFetch`` over the submitted rect
-(linear light for both swapchain formats: GL decodes an sRGB image, an RGBA8 image holds linear
-light), encoded to sRGB code values into a layer-owned RGBA8 texture (for an sRGB swapchain, the
-application's codes exactly, which the Corrector decodes itself); the corrected sRGB codes are
-written as they are into an sRGB output image (``GL_FRAMEBUFFER_SRGB`` off), or decoded to linear
-light for an RGBA8 output image, as ``vrcorrect xr`` does.  The application's textures are only
-sampled (their parameters are never set); the shim saves and restores the GL state around.
+from the user's prescription JSON and display profile.  Around it, two passes of
+``shaders/layer_copy.glsl``:
+
+* *decode*: the submitted rect, texel for texel, into a layer-owned staging texture: sRGB code
+  values (RGBA8) for an 8-bit swapchain, which the Corrector decodes itself (for an sRGB swapchain
+  exactly the application's codes; an 8-bit UNORM swapchain holds linear light, encoded here), or
+  linear light clamped to [0, 1] (RGBA32F) for a 10-bit or half-float swapchain;
+* *encode*: the Corrector's sRGB-encoded result into the output image's rect in the swapchain's own
+  encoding: the code values as they are for an sRGB swapchain, linear light otherwise, with the
+  application's alpha.  **Values outside [0, 1]** (a float swapchain holds linear light, which an
+  engine rendering in HDR lets exceed 1): the correction works on the part in [0, 1], what the
+  display shows up to its white; the rest of each value (``v - clamp(v, 0, 1)``) is carried through
+  uncorrected and added back, so nothing the application rendered is lost or clipped.  The engine
+  says so in the log the first time it corrects such a swapchain.
+
+*OpenGL sessions*: the engine runs on the application's GL context (current at ``xrEndFrame``),
+through a moderngl context attached to it; the application's textures are only sampled, through a
+sampler object of the layer's (their parameters are never set); the shim saves and restores the GL
+state around.  Formats: ``GL_RGBA16F``, ``GL_RGB10_A2``, ``GL_SRGB8_ALPHA8``, ``GL_RGBA8``.
+
+*Vulkan sessions*: a Vulkan application has no GL context, so the engine makes its own (headless
+EGL, Mesa's llvmpipe here) and makes it current only inside its calls.  The shim copies the submitted
+rects on the application's queue into Vulkan images of its own whose memory the engine imports
+(:meth:`Engine.import_images`, ``GL_EXT_memory_object_fd`` through ctypes: moderngl has no wrapper),
+the engine corrects from there into a second shared image, and the shim copies that into the
+output image.  32-bit formats are imported as ``GL_R32UI`` and (un)packed in the shader
+(``R8G8B8A8``/``B8G8R8A8``, sRGB or not, ``A2B10G10R10``), the half-float one as ``GL_RGBA16F``.  A
+Vulkan image's first row is its top row: the passes flip the rect into GL's orientation and back.
 
 The eye models (:func:`~vrcorrect.runtime.eye_model.build_eye_model`: PSFs, kernels, filter design;
 seconds of CPU) are built on a background thread, never in ``xrEndFrame``: frames pass through
@@ -44,6 +65,8 @@ Layer 5: numpy and moderngl, never torch, never :mod:`vrcorrect.apps`.
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import json
 import os
 import sys
@@ -51,12 +74,21 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Iterator, Mapping
 
 from ..plumbing.errors import InputError, ValidationError
+from .gl import fullscreen_triangle, headless_context, release
+from .shaders import compile_program
 
-__all__ = ["LAYER_NAME", "DISABLE_ENV", "OFF_ENV", "LayerConfig", "Engine", "config_path", "log_path",
-           "off_file", "eye_of_view", "read_config"]
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    import moderngl
+
+    from ..specs.display import DisplayProfile
+    from .corrector import Corrector, RxSnapshot
+    from .eye_model import EyeModel
+
+__all__ = ["LAYER_NAME", "DISABLE_ENV", "OFF_ENV", "LayerConfig", "Engine", "SwapchainFormat", "GL_FORMATS",
+           "VK_FORMATS", "config_path", "log_path", "off_file", "eye_of_view", "read_config"]
 
 LAYER_NAME = "XR_APILAYER_VRCORRECT_correction"
 DISABLE_ENV = "DISABLE_VRCORRECT_LAYER"      # the manifest's disable_environment: the loader skips the layer
@@ -64,34 +96,62 @@ OFF_ENV = "VRCORRECT_LAYER_OFF"              # the engine's live off switch (the
 CONFIG_ENV = "VRCORRECT_LAYER_CONFIG"
 RX_ENV = "VRCORRECT_RX"
 LOG_ENV = "VRCORRECT_LAYER_LOG"
-GL_SRGB8_ALPHA8 = 0x8C43
-GL_RGBA8 = 0x8058
 _GL_FRAMEBUFFER_SRGB = 0x8DB9
+_GL_TEXTURE_2D = 0x0DE1
+_GL_TEXTURE_BINDING_2D = 0x8069
+_GL_R32UI = 0x8236
+_GL_RGBA16F = 0x881A
+_GL_HANDLE_TYPE_OPAQUE_FD_EXT = 0x9586
 _CHECK_INTERVAL_S = 0.25
 _REPORT_INTERVAL_S = 1.0
 _QUERY_MAX_MS = 0xFFFFFFFF / 1e6
 _NEVER = object()
+# shaders/layer_copy.glsl's codes
+_ENCODINGS = {"srgb": 0, "linear": 1, "float": 2}
+_PACKINGS = {"rgba8": 0, "bgra8": 1, "a2b10g10r10": 2}
 
-_COPY_SHADER = """
-#version 430
-#if defined VERTEX_SHADER
-in vec2 in_pos;
-void main() { gl_Position = vec4(in_pos, 0.0, 1.0); }
-#elif defined FRAGMENT_SHADER
-uniform sampler2D u_source;
-uniform ivec2 u_offset;
-uniform bool u_encode;
-out vec4 f_color;
-vec3 encode(vec3 c) {
-    c = clamp(c, 0.0, 1.0);
-    return mix(12.92 * c, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), c));
+
+@dataclass(frozen=True)
+class SwapchainFormat:
+    """A swapchain format the layer corrects: what its stored values mean.
+
+    ``encoding``: ``"srgb"`` (sRGB code values), ``"linear"`` (normalized linear light) or
+    ``"float"`` (linear light, any value); ``bits`` per colour channel; ``packing``: for a Vulkan
+    32-bit format, how the 32 bits hold the channels (``"rgba8"``, ``"bgra8"``, ``"a2b10g10r10"``),
+    ``None`` for a texture GL reads and writes itself."""
+
+    name: str
+    encoding: str
+    bits: int
+    packing: str | None = None
+
+    @property
+    def stage_codes(self) -> bool:
+        """The Corrector's input: sRGB code values (8-bit formats), else linear light in a float texture."""
+        return self.bits == 8
+
+
+GL_SRGB8_ALPHA8 = 0x8C43
+GL_RGBA8 = 0x8058
+GL_RGB10_A2 = 0x8059
+GL_RGBA16F = 0x881A
+GL_FORMATS = {
+    GL_RGBA16F: SwapchainFormat("GL_RGBA16F", "float", 16),
+    GL_RGB10_A2: SwapchainFormat("GL_RGB10_A2", "linear", 10),
+    GL_SRGB8_ALPHA8: SwapchainFormat("GL_SRGB8_ALPHA8", "srgb", 8),
+    GL_RGBA8: SwapchainFormat("GL_RGBA8", "linear", 8),
 }
-void main() {
-    vec4 texel = texelFetch(u_source, ivec2(gl_FragCoord.xy) + u_offset, 0);
-    f_color = u_encode ? vec4(encode(texel.rgb), texel.a) : texel;
+"""The OpenGL swapchain formats the layer corrects (``GLenum`` -> meaning)."""
+
+VK_FORMATS = {
+    97: SwapchainFormat("VK_FORMAT_R16G16B16A16_SFLOAT", "float", 16),
+    64: SwapchainFormat("VK_FORMAT_A2B10G10R10_UNORM_PACK32", "linear", 10, "a2b10g10r10"),
+    43: SwapchainFormat("VK_FORMAT_R8G8B8A8_SRGB", "srgb", 8, "rgba8"),
+    50: SwapchainFormat("VK_FORMAT_B8G8R8A8_SRGB", "srgb", 8, "bgra8"),
+    37: SwapchainFormat("VK_FORMAT_R8G8B8A8_UNORM", "linear", 8, "rgba8"),
+    44: SwapchainFormat("VK_FORMAT_B8G8R8A8_UNORM", "linear", 8, "bgra8"),
 }
-#endif
-"""
+"""The Vulkan swapchain formats the layer corrects (``VkFormat`` -> meaning)."""
 
 
 def _config_home(env: Mapping[str, str]) -> Path:
@@ -227,7 +287,7 @@ def _stamp(path: Path) -> tuple[int, int] | None:
     return (st.st_mtime_ns, st.st_size)
 
 
-def choose_display(name: str | None, view_size: tuple[int, int]) -> tuple[Any, str]:
+def choose_display(name: str | None, view_size: tuple[int, int]) -> tuple[DisplayProfile, str]:
     """The display profile and why it was chosen: the user's, else the preset whose per-eye
     resolution equals the runtime's recommended view size, else ``quest2``."""
     from ..specs.display import get_display, preset_names
@@ -245,9 +305,77 @@ def choose_display(name: str | None, view_size: tuple[int, int]) -> tuple[Any, s
                                    "set display in the layer configuration")
 
 
+class _MemoryObjects:
+    """``GL_EXT_memory_object_fd`` through ctypes (moderngl has no wrapper): Vulkan memory, exported
+    as a file descriptor by the shim, as the storage of a GL texture of the engine's own EGL context."""
+
+    def __init__(self, ctx: "moderngl.Context"):
+        missing = sorted({"GL_EXT_memory_object", "GL_EXT_memory_object_fd"} - set(ctx.extensions))
+        if missing:
+            raise RuntimeError(f"the engine's GL ({ctx.info.get('GL_RENDERER', '?')}) lacks {' and '.join(missing)}, "
+                               "needed to import the Vulkan application's images")
+        egl = ctypes.CDLL("libEGL.so.1")
+        lookup = egl.eglGetProcAddress
+        lookup.restype = ctypes.c_void_p
+        lookup.argtypes = [ctypes.c_char_p]
+        u32, i32, u64, ptr = ctypes.c_uint, ctypes.c_int, ctypes.c_uint64, ctypes.POINTER(ctypes.c_uint)
+
+        def fn(name: str, restype: Any, *argtypes: Any) -> Any:
+            address = lookup(name.encode())
+            if not address:
+                raise RuntimeError(f"EGL gives no {name}")
+            return ctypes.CFUNCTYPE(restype, *argtypes)(address)
+
+        self.create_memory = fn("glCreateMemoryObjectsEXT", None, i32, ptr)
+        self.delete_memory = fn("glDeleteMemoryObjectsEXT", None, i32, ptr)
+        self.import_fd = fn("glImportMemoryFdEXT", None, u32, u64, u32, i32)
+        self.storage = fn("glTexStorageMem2DEXT", None, u32, i32, u32, i32, i32, u32, u64)
+        self.gen_textures = fn("glGenTextures", None, i32, ptr)
+        self.delete_textures = fn("glDeleteTextures", None, i32, ptr)
+        self.bind_texture = fn("glBindTexture", None, u32, u32)
+        self.get_integer = fn("glGetIntegerv", None, u32, ctypes.POINTER(ctypes.c_int))
+        self.get_error = fn("glGetError", u32)
+
+    def texture(self, fd: int, size: int, width: int, height: int, internal_format: int) -> tuple[int, int]:
+        """A texture whose storage is the memory behind ``fd`` (GL owns ``fd`` from here): (texture, memory object)."""
+        while self.get_error():
+            pass
+        memory = ctypes.c_uint(0)
+        self.create_memory(1, ctypes.byref(memory))
+        self.import_fd(memory.value, size, _GL_HANDLE_TYPE_OPAQUE_FD_EXT, fd)
+        texture = ctypes.c_uint(0)
+        self.gen_textures(1, ctypes.byref(texture))
+        previous = ctypes.c_int(0)
+        self.get_integer(_GL_TEXTURE_BINDING_2D, ctypes.byref(previous))
+        self.bind_texture(_GL_TEXTURE_2D, texture.value)
+        self.storage(_GL_TEXTURE_2D, 1, internal_format, width, height, memory.value, 0)
+        self.bind_texture(_GL_TEXTURE_2D, previous.value)
+        error = self.get_error()
+        if error:
+            self.free(texture.value, memory.value)
+            raise RuntimeError(f"GL error 0x{error:04X} importing a {width}x{height} Vulkan image ({size} bytes)")
+        return texture.value, memory.value
+
+    def free(self, texture: int, memory: int) -> None:
+        self.delete_textures(1, ctypes.byref(ctypes.c_uint(texture)))
+        self.delete_memory(1, ctypes.byref(ctypes.c_uint(memory)))
+
+
+@dataclass
+class _SharedChain:
+    """A Vulkan swapchain's two shared images as the engine's textures: ``input`` (the submitted rects,
+    copied there by the shim) and ``result`` (the correction, copied from there into the output image)."""
+
+    format: SwapchainFormat
+    input: "moderngl.Texture"
+    result: "moderngl.Texture"
+    names: tuple[tuple[int, int], ...]           # (texture, memory object) of each, for the deletion
+
+
 class Engine:
     """The layer's correction engine (module docstring).  ``view_width``/``view_height``: the
-    runtime's recommended view size (0 when unknown); ``api``: the session's graphics API."""
+    runtime's recommended view size (0 when unknown); ``api``: the session's graphics API
+    (``"OpenGL"``: the application's context; ``"Vulkan"``: a headless context of the engine's)."""
 
     def __init__(self, view_width: int = 0, view_height: int = 0, api: str = "OpenGL",
                  env: Mapping[str, str] | None = None):
@@ -255,9 +383,9 @@ class Engine:
         self.log = _Log(log_path(self.env))
         self.view_size = (int(view_width), int(view_height))
         self.api = api
-        self.ctx: Any = None
-        self.correctors: dict[str, Any] = {}
-        self.display: Any = None
+        self.ctx: moderngl.Context | None = None
+        self.correctors: dict[str, Corrector] = {}
+        self.display: DisplayProfile | None = None
         self.rx_path: Path | None = None
         self._rx_failed_stamp: Any = _NEVER          # the stamp of the prescription file that failed to build
         self._rx_stamp: Any = _NEVER                 # the stamp of the file the correctors were built from
@@ -267,14 +395,19 @@ class Engine:
         self._off_reason: str | None = None
         self._config: LayerConfig | None = None
         self._config_error: str | None = None
-        self._textures: dict[tuple[int, int, int], Any] = {}
-        self._staging: dict[tuple[int, int, str], Any] = {}
-        self._copy = None
-        self._copy_vao = None
-        self._queries: dict[str, Any] = {}
+        self._external: dict[tuple[int, int, int], moderngl.Texture] = {}    # the application's textures (OpenGL)
+        self._staging: dict[tuple[int, int, str], moderngl.Texture] = {}
+        self._framebuffers: dict[int, moderngl.Framebuffer] = {}             # by the texture's GL name
+        self._programs: dict[tuple[str, bool], tuple[moderngl.Program, moderngl.VertexArray]] = {}
+        self._sampler: moderngl.Sampler | None = None
+        self._memory: _MemoryObjects | None = None
+        self._chains: dict[int, _SharedChain] = {}
+        self._announced: set[str] = set()
+        self._queries: dict[str, list[moderngl.Query]] = {}
         self._cpu_ms: dict[str, list[float]] = {}
         self._gpu_ms: dict[str, list[float | None]] = {}
         self._query_used: dict[str, list[bool]] = {}
+        self._sync_ms: list[tuple[float, float, float]] = []
         self._last_report = time.monotonic()
         self.frames = 0
         self.log.line(f"loaded ({api} session, runtime view size {view_width}x{view_height}, "
@@ -340,7 +473,7 @@ class Engine:
         if config != self._config:
             return                                   # built for an earlier configuration: a new build follows
         reload = bool(self.correctors)
-        correctors: dict[str, Any] = {}
+        correctors: dict[str, Corrector] = {}
         error = job.error
         if error is None:
             from .corrector import Corrector
@@ -374,21 +507,33 @@ class Engine:
         if reload:
             self.log.line(f"{config.rx}: reloaded (built in {seconds:.1f} s)")
         else:
+            assert job.display is not None
             self.log.line(f"correcting with {config.rx} on display {job.display.name} ({job.why}); built in "
                           f"{seconds:.1f} s")
 
-    def _gl(self) -> Any:
+    def _gl(self) -> "moderngl.Context":
+        """The engine's moderngl context: attached to the application's current one (OpenGL), or a
+        headless one of its own (Vulkan), made on first use."""
         if self.ctx is None:
             import moderngl
 
-            ctx = moderngl.create_context()             # attaches to the application's current context
+            ctx = moderngl.create_context() if self.api == "OpenGL" else headless_context(require=430)
             if ctx.version_code < 430:
                 raise ValidationError("OpenGL version", ctx.version_code, "4.3 or newer (compute shaders)")
             self.ctx = ctx
-            self._copy = ctx.program(vertex_shader=_stage(_COPY_SHADER, "VERTEX_SHADER"),
-                                     fragment_shader=_stage(_COPY_SHADER, "FRAGMENT_SHADER"))
-            self._copy_vao = _triangle(ctx, self._copy)
+            self._sampler = ctx.sampler(filter=(moderngl.NEAREST, moderngl.NEAREST), repeat_x=False, repeat_y=False)
         return self.ctx
+
+    @contextlib.contextmanager
+    def _current(self) -> Iterator["moderngl.Context"]:
+        """The engine's context, current for the block: the application's is current already
+        (OpenGL); the engine's own is made current and the previous one restored after (Vulkan)."""
+        ctx = self._gl()
+        if self.api == "OpenGL":
+            yield ctx
+        else:
+            with ctx:
+                yield ctx
 
     def _release_correctors(self) -> None:
         for c in self.correctors.values():
@@ -403,9 +548,8 @@ class Engine:
     def begin_frame(self) -> bool:
         """Whether this frame is corrected (False: pass through; the reason is logged once)."""
         try:
-            if self.ctx is None:
-                self._gl()
-            reason = self._check()
+            with self._current():
+                reason = self._check()
         except Exception as exc:  # noqa: BLE001
             reason = f"the engine could not start on this GL context: {_one_line(exc)}"
         if reason:
@@ -415,63 +559,160 @@ class Engine:
 
     def correct(self, view_index: int, src_texture: int, src_format: int, src_width: int, src_height: int,
                 x: int, y: int, width: int, height: int, dst_texture: int, view_in_layer: int = -1) -> bool:
-        """Correct GL texture ``src_texture`` (an application swapchain image, ``src_format``,
+        """OpenGL: correct GL texture ``src_texture`` (an application swapchain image, ``src_format``,
         ``src_width`` x ``src_height``) over the rect (x, y, width, height; GL pixels, origin at the
         bottom left) into the same rect of ``dst_texture`` (the output image, same format and size).
         Returns False (with one log line) when it could not."""
         try:
             view = view_in_layer if view_in_layer >= 0 else view_index
             eye = eye_of_view(view)
-            if src_format not in (GL_SRGB8_ALPHA8, GL_RGBA8):
-                raise ValidationError("swapchain format", hex(src_format), "GL_SRGB8_ALPHA8 or GL_RGBA8")
-            if width < 1 or height < 1 or x < 0 or y < 0 or x + width > src_width or y + height > src_height:
-                raise ValidationError("imageRect", (x, y, width, height),
-                                      f"inside the {src_width}x{src_height} swapchain image")
+            fmt = GL_FORMATS.get(src_format)
+            if fmt is None:
+                raise ValidationError("swapchain format", hex(src_format),
+                                      ", ".join(f"{f.name} {hex(code)}" for code, f in GL_FORMATS.items()))
+            _check_rect(x, y, width, height, src_width, src_height)
             ctx = self._gl()
-            srgb = src_format == GL_SRGB8_ALPHA8
-            src = self._external(src_texture, src_width, src_height, srgb)
-            dst = self._external(dst_texture, src_width, src_height, srgb)
-            codes = self._stage_texture(width, height, "f1")
-            # the submitted rect, read as linear light (GL decodes an sRGB image; an RGBA8 image holds
-            # linear light) and encoded to sRGB code values in the layer's own RGBA8 texture: for an
-            # sRGB swapchain exactly the application's codes, what the Corrector decodes itself
-            fb_in = self._framebuffer(codes)
-            ctx.disable_direct(_GL_FRAMEBUFFER_SRGB)
-            fb_in.use()
-            fb_in.viewport = (0, 0, width, height)
-            src.use(0)
-            self._copy["u_source"] = 0
-            self._copy["u_offset"] = (x, y)
-            self._copy["u_encode"] = True
-            self._copy_vao.render(mode=ctx.TRIANGLES, vertices=3)
-            t0 = time.perf_counter()
-            query = self._query(eye)
-            with query:
-                ctx.disable_direct(_GL_FRAMEBUFFER_SRGB)
-                if srgb:
-                    self.correctors[eye].apply(codes, self._framebuffer(dst), viewport=(x, y, width, height))
-                else:
-                    encoded = self._stage_texture(width, height, "srgb")
-                    self.correctors[eye].apply(codes, self._framebuffer(encoded))
-                    self._to_linear(encoded, dst, (x, y, width, height))
-            error = ctx.error
-            if error != "GL_NO_ERROR":
-                raise RuntimeError(f"a GL error ({error}) during the correction")
-            self._cpu_ms.setdefault(eye, []).append(1e3 * (time.perf_counter() - t0))
+            src = self._application_texture(src_texture, src_width, src_height, fmt)
+            dst = self._application_texture(dst_texture, src_width, src_height, fmt)
+            self._correct_rect(ctx, eye, fmt, src, dst, (x, y, width, height), flip=False)
             return True
         except Exception as exc:  # noqa: BLE001
             self.log.reason(f"view {view_index}: {_one_line(exc)}")
             return False
 
-    def end_frame(self, corrected: bool) -> None:
+    def import_images(self, chain: int, vk_format: int, width: int, height: int, input_fd: int, input_size: int,
+                      result_fd: int, result_size: int) -> bool:
+        """Vulkan: import a swapchain's two shared images (their memory as file descriptors, which the
+        engine takes over: GL owns each once imported, the engine closes it otherwise) into the
+        engine's context.  Returns False (with one log line) when it could not."""
+        fds = [input_fd, result_fd]
+        names: list[tuple[int, int]] = []
+        try:
+            fmt = VK_FORMATS.get(vk_format)
+            if fmt is None:
+                raise ValidationError("swapchain format", hex(vk_format),
+                                      ", ".join(f"{f.name} {hex(code)}" for code, f in VK_FORMATS.items()))
+            with self._current() as ctx:
+                if self._memory is None:
+                    self._memory = _MemoryObjects(ctx)
+                packed = fmt.packing is not None
+                internal, components, dtype = (_GL_R32UI, 1, "u4") if packed else (_GL_RGBA16F, 4, "f2")
+                textures = []
+                for i, size in ((0, input_size), (1, result_size)):
+                    fd, fds[i] = fds[i], -1
+                    names.append(self._memory.texture(fd, size, width, height, internal))
+                    textures.append(ctx.external_texture(names[-1][0], (width, height), components, 0, dtype))
+                self.release_images(chain)
+                self._chains[chain] = _SharedChain(fmt, textures[0], textures[1], tuple(names))
+            self.log.line(f"Vulkan swapchain {chain}: {fmt.name} {width}x{height}, shared with the engine's GL")
+            return True
+        except Exception as exc:  # noqa: BLE001
+            for fd in fds:
+                if fd >= 0:
+                    os.close(fd)
+            if self._memory is not None:
+                for texture, memory in names:
+                    self._memory.free(texture, memory)
+            self.log.reason(f"Vulkan swapchain {chain}: {_one_line(exc)}")
+            return False
+
+    def release_images(self, chain: int) -> None:
+        """Vulkan: let go of a swapchain's shared images (before the shim frees their memory)."""
+        shared = self._chains.pop(chain, None)
+        if shared is None or self.ctx is None:
+            return
+        try:
+            with self._current():
+                for texture in (shared.input, shared.result):
+                    release(self._framebuffers.pop(texture.glo, None))
+                    texture.release()                # an external texture: moderngl forgets it, deletes nothing
+                if self._memory is not None:
+                    for texture_name, memory in shared.names:
+                        self._memory.free(texture_name, memory)
+        except Exception as exc:  # noqa: BLE001
+            self.log.reason(f"Vulkan swapchain {chain}: releasing its images: {_one_line(exc)}")
+
+    def correct_vulkan(self, view_index: int, chain: int, x: int, y: int, width: int, height: int,
+                       view_in_layer: int = -1) -> bool:
+        """Vulkan: correct the rect (x, y, width, height; Vulkan pixels, origin at the top left) of
+        swapchain ``chain``'s shared ``input`` image into the same rect of its ``result`` image."""
+        try:
+            view = view_in_layer if view_in_layer >= 0 else view_index
+            eye = eye_of_view(view)
+            shared = self._chains.get(chain)
+            if shared is None:
+                raise ValidationError("swapchain", chain, "one whose images the engine imported")
+            _check_rect(x, y, width, height, *shared.input.size)
+            with self._current() as ctx:
+                self._correct_rect(ctx, eye, shared.format, shared.input, shared.result, (x, y, width, height),
+                                   flip=True)
+            return True
+        except Exception as exc:  # noqa: BLE001
+            self.log.reason(f"view {view_index}: {_one_line(exc)}")
+            return False
+
+    def finish(self) -> bool:
+        """Vulkan: wait for the GL work of the frame (``glFinish``), before the shim copies the results."""
+        try:
+            with self._current() as ctx:
+                ctx.finish()
+            return True
+        except Exception as exc:  # noqa: BLE001
+            self.log.reason(f"glFinish: {_one_line(exc)}")
+            return False
+
+    def _correct_rect(self, ctx: "moderngl.Context", eye: str, fmt: SwapchainFormat, src: "moderngl.Texture",
+                      dst: "moderngl.Texture", rect: tuple[int, int, int, int], flip: bool) -> None:
+        """Decode the rect of ``src`` into staging, correct it for ``eye``, encode the result into the
+        rect of ``dst`` (module docstring)."""
+        x, y, width, height = rect
+        if fmt.encoding == "float" and fmt.name not in self._announced:
+            self._announced.add(fmt.name)
+            self.log.line(f"{fmt.name} swapchain (linear light): the correction works on values in [0, 1]; the "
+                          "part of each value outside [0, 1] is carried through uncorrected")
+        packed = fmt.packing is not None
+        common = {"u_packing": _PACKINGS.get(fmt.packing or "", 0), "u_encoding": _ENCODINGS[fmt.encoding],
+                  "u_offset": (x, y), "u_height": height, "u_flip": flip}
+        staging = self._stage_texture(width, height, "f1" if fmt.stage_codes else "f4")
+        result = self._stage_texture(width, height, "result")
+        ctx.disable_direct(_GL_FRAMEBUFFER_SRGB)
+        program, vao = self._program("DECODE", packed)
+        _set_uniforms(program, {**common, "u_source": 0, "u_stage_codes": fmt.stage_codes})
+        self._bind(src, 0)
+        fb = self._framebuffer(staging)
+        fb.use()
+        ctx.viewport = (0, 0, width, height)
+        vao.render(mode=ctx.TRIANGLES, vertices=3)
+        t0 = time.perf_counter()
+        with self._query(eye):
+            self.correctors[eye].apply(staging, self._framebuffer(result))
+        ctx.disable_direct(_GL_FRAMEBUFFER_SRGB)
+        program, vao = self._program("ENCODE", packed)
+        _set_uniforms(program, {**common, "u_source": 0, "u_result": 1, "u_carry": fmt.encoding == "float"})
+        self._bind(src, 0)
+        self._bind(result, 1)
+        fb = self._framebuffer(dst)
+        fb.use()
+        ctx.viewport = rect
+        vao.render(mode=ctx.TRIANGLES, vertices=3)
+        error = ctx.error
+        if error != "GL_NO_ERROR":
+            raise RuntimeError(f"a GL error ({error}) during the correction")
+        self._cpu_ms.setdefault(eye, []).append(1e3 * (time.perf_counter() - t0))
+
+    def end_frame(self, corrected: bool, sync_ms: tuple[float, float, float] = (-1.0, -1.0, -1.0)) -> None:
         """Per-frame bookkeeping: each eye's time, logged once a second.  GPU time comes from a
         timer query per eye and frame, read a frame later from a two-slot ring (no wait for the
-        frame just issued); CPU time is the layer's own time in the call (issuing the work)."""
+        frame just issued); CPU time is the layer's own time in the call (issuing the work).
+        ``sync_ms`` (Vulkan): the shim's copy into the shared images with its fence wait, the
+        ``glFinish``, and the copy into the output images, in ms (-1: an OpenGL session)."""
         try:
             if not corrected:
                 return
             self.log.corrected()
             self.frames += 1
+            if sync_ms[0] >= 0:
+                self._sync_ms.append(tuple(float(v) for v in sync_ms))   # type: ignore[arg-type]
             now = time.monotonic()
             if now - self._last_report >= _REPORT_INTERVAL_S and self._cpu_ms:
                 parts = []
@@ -483,60 +724,70 @@ class Engine:
                                 f"{sum(gpu) / len(gpu):.1f}" if gpu else "-")
                     parts.append(f"{eye} GPU {gpu_text} ms, CPU {sum(cpu) / len(cpu):.1f} ms")
                 count = max(len(v) for v in self._cpu_ms.values())
-                self.log.line(f"{self.frames} frames corrected; per eye (mean of {count} frames): " + "; ".join(parts))
+                line = f"{self.frames} frames corrected; per eye (mean of {count} frames): " + "; ".join(parts)
+                if self._sync_ms:
+                    mean = [sum(s[i] for s in self._sync_ms) / len(self._sync_ms) for i in range(3)]
+                    line += (f"; per frame, Vulkan copy in and wait {mean[0]:.2f} ms, glFinish {mean[1]:.2f} ms, "
+                             f"copy out {mean[2]:.2f} ms")
+                self.log.line(line)
                 self._cpu_ms.clear()
                 self._gpu_ms.clear()
+                self._sync_ms.clear()
                 self._last_report = now
         except Exception as exc:  # noqa: BLE001
             self.log.reason(f"timing: {_one_line(exc)}")
 
     # ------------------------------------------------------------ GL objects
 
-    def _external(self, name: int, width: int, height: int, srgb: bool) -> Any:
+    def _program(self, stage: str, packed: bool) -> tuple["moderngl.Program", "moderngl.VertexArray"]:
+        key = (stage, packed)
+        if key not in self._programs:
+            defines: dict[str, None] = {stage: None}
+            if packed:
+                defines["PACKED"] = None
+            program = compile_program(self._gl(), "layer_copy.glsl", defines=defines)
+            self._programs[key] = (program, fullscreen_triangle(self._gl(), program))
+        return self._programs[key]
+
+    def _bind(self, texture: "moderngl.Texture", unit: int) -> None:
+        """``texture`` on ``unit`` with the layer's nearest-texel sampler (the texture's own
+        parameters are never set: it may be the application's)."""
+        texture.use(unit)
+        assert self._sampler is not None
+        self._sampler.use(unit)
+
+    def _application_texture(self, name: int, width: int, height: int, fmt: SwapchainFormat) -> "moderngl.Texture":
         key = (int(name), width, height)
-        tex = self._textures.get(key)
+        tex = self._external.get(key)
         if tex is None:
-            tex = self.ctx.external_texture(int(name), (width, height), 4, 0, "f1")
-            self._textures[key] = tex
+            tex = self._gl().external_texture(int(name), (width, height), 4, 0, "f2" if fmt.encoding == "float" else "f1")
+            self._external[key] = tex
         return tex
 
-    def _stage_texture(self, width: int, height: int, kind: str) -> Any:
+    def _stage_texture(self, width: int, height: int, kind: str) -> "moderngl.Texture":
+        """The layer's own textures: ``"f1"``/``"f4"`` staging (the Corrector's input), ``"result"``
+        (RGBA8: the Corrector's sRGB-encoded output)."""
         key = (width, height, kind)
         tex = self._staging.get(key)
         if tex is None:
-            ctx = self.ctx
-            if kind == "srgb":
-                tex = ctx.texture((width, height), 4, internal_format=GL_SRGB8_ALPHA8)
-            else:
-                tex = ctx.texture((width, height), 4, dtype=kind)
-            tex.filter = (ctx.NEAREST, ctx.NEAREST)
+            tex = self._gl().texture((width, height), 4, dtype="f1" if kind == "result" else kind)
             self._staging[key] = tex
         return tex
 
-    def _framebuffer(self, texture: Any) -> Any:
-        fb = getattr(texture, "_layer_fb", None)
+    def _framebuffer(self, texture: "moderngl.Texture") -> "moderngl.Framebuffer":
+        fb = self._framebuffers.get(texture.glo)
         if fb is None:
-            fb = self.ctx.framebuffer(color_attachments=[texture])
-            texture._layer_fb = fb
+            fb = self._gl().framebuffer(color_attachments=[texture])
+            self._framebuffers[texture.glo] = fb
         return fb
 
-    def _to_linear(self, encoded: Any, dst: Any, rect: tuple[int, int, int, int]) -> None:
-        """Sample the sRGB-encoded correction (GL decodes it) into the linear output image's rect."""
-        fb = self._framebuffer(dst)
-        fb.use()
-        fb.viewport = rect
-        encoded.use(0)
-        self._copy["u_source"] = 0
-        self._copy["u_offset"] = (-rect[0], -rect[1])
-        self._copy["u_encode"] = False
-        self._copy_vao.render(mode=self.ctx.TRIANGLES, vertices=3)
-
-    def _query(self, eye: str) -> Any:
+    def _query(self, eye: str) -> "moderngl.Query":
         """This frame's timer query for ``eye``; the slot's previous use (two frames ago) is read
         first (``None`` when it saturated: a 32-bit nanosecond count ends at 4.29 s)."""
         ring = self._queries.get(eye)
         if ring is None:
-            ring = self._queries[eye] = [self.ctx.query(time=True), self.ctx.query(time=True)]
+            ctx = self._gl()
+            ring = self._queries[eye] = [ctx.query(time=True), ctx.query(time=True)]
             self._query_used[eye] = [False, False]
         slot = self.frames % 2
         if self._query_used[eye][slot]:
@@ -548,29 +799,49 @@ class Engine:
     def release_gl(self, current: bool = True) -> None:
         """Release every GL object (the session is going away); with ``current`` False (the
         session's context is not current) the objects are only forgotten, no GL call is made."""
-        if current:
-            self._release_correctors()
-            objects = [*self._staging.values(), *(q for ring in self._queries.values() for q in ring),
-                       self._copy_vao, getattr(self._copy_vao, "_layer_vbo", None), self._copy]
-            objects += [getattr(t, "_layer_fb", None) for t in self._textures.values()]   # never the app's textures
-            for obj in objects:
-                for o in (getattr(obj, "_layer_fb", None), obj):
-                    try:
-                        if o is not None:
-                            o.release()
-                    except Exception:  # noqa: BLE001
-                        pass
+        if current and self.ctx is not None:
+            for chain in list(self._chains):
+                self.release_images(chain)
+            try:
+                with self._current():
+                    self._release_correctors()
+                    release(*self._framebuffers.values())       # never the application's textures themselves
+                    release(*self._staging.values(), *(q for ring in self._queries.values() for q in ring),
+                            *(o for pair in self._programs.values() for o in reversed(pair)), self._sampler)
+            except Exception:  # noqa: BLE001
+                pass
+            if self.api != "OpenGL":
+                try:
+                    self.ctx.release()                           # the engine's own context
+                except Exception:  # noqa: BLE001
+                    pass
         self.correctors = {}
-        self._textures.clear()
+        self._chains.clear()
+        self._external.clear()
         self._staging.clear()
+        self._framebuffers.clear()
+        self._programs.clear()
         self._queries.clear()
         self._query_used.clear()
-        self._copy = self._copy_vao = None
+        self._sampler = None
+        self._memory = None
         self.ctx = None
         self._config = None
 
     def close(self) -> None:
         self.log.line(f"closed after {self.frames} corrected frames")
+
+
+def _check_rect(x: int, y: int, width: int, height: int, image_width: int, image_height: int) -> None:
+    if width < 1 or height < 1 or x < 0 or y < 0 or x + width > image_width or y + height > image_height:
+        raise ValidationError("imageRect", (x, y, width, height), f"inside the {image_width}x{image_height} swapchain image")
+
+
+def _set_uniforms(program: "moderngl.Program", values: Mapping[str, Any]) -> None:
+    """Set the uniforms the program has (the compiler drops those a stage does not use)."""
+    for name, value in values.items():
+        if name in program:
+            program[name] = value
 
 
 class _Build:
@@ -584,10 +855,10 @@ class _Build:
         self.config, self.reload = config, reload
         self.stamp = _stamp(config.rx) if config.rx is not None else None
         self.thread: threading.Thread | None = None
-        self.snapshot: Any = None
-        self.display: Any = None
+        self.snapshot: RxSnapshot | None = None
+        self.display: DisplayProfile | None = None
         self.why = ""
-        self.models: dict[str, Any] = {}
+        self.models: dict[str, EyeModel] = {}
         self.error: BaseException | None = None
         self.t0 = time.perf_counter()
 
@@ -609,20 +880,6 @@ class _Build:
                 self.models[eye] = build_eye_model(rx, self.display, opts)
         except BaseException as exc:  # noqa: BLE001  (reported on the application's thread)
             self.error = exc
-
-
-def _stage(source: str, stage: str) -> str:
-    version, rest = source.strip().split("\n", 1)
-    return f"{version}\n#define {stage}\n{rest}"
-
-
-def _triangle(ctx: Any, program: Any) -> Any:
-    import numpy as np
-
-    vbo = ctx.buffer(np.array([-1, -1, 3, -1, -1, 3], dtype="f4").tobytes())
-    vao = ctx.vertex_array(program, [(vbo, "2f", "in_pos")])
-    vao._layer_vbo = vbo
-    return vao
 
 
 def _one_line(exc: BaseException) -> str:
