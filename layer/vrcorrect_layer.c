@@ -841,6 +841,7 @@ static int correct_frame(const XrFrameEndInfo *info, XrCompositionLayerProjectio
     FrameView views[MAX_LAYERS * MAX_VIEWS];
     uint32_t nviews = 0;
     if (!collect_views(info, views, &nviews)) return 0;
+    double t0 = now_ms();
     PyGILState_STATE g = PyGILState_Ensure();
     PyObject *go = engine_call("begin_frame", "()");
     int ok = go && PyObject_IsTrue(go);                          /* off, no prescription, ...: the engine logs why */
@@ -855,7 +856,8 @@ static int correct_frame(const XrFrameEndInfo *info, XrCompositionLayerProjectio
         ok = vk_correct_views(views, nviews, acquired, &nacq, sync_ms);  /* acquires the outputs after the GL work */
     }
     for (int a = 0; a < nacq; a++) L.ReleaseSwapchainImage(acquired[a]->out, NULL);
-    PyObject *done = engine_call("end_frame", "(i(ddd))", ok, sync_ms[0], sync_ms[1], sync_ms[2]);
+    /* the layer's time in this xrEndFrame (the correction, and for Vulkan the copies and waits) */
+    PyObject *done = engine_call("end_frame", "(i(dddd))", ok, now_ms() - t0, sync_ms[0], sync_ms[1], sync_ms[2]);
     Py_XDECREF(done);
     PyGILState_Release(g);
     if (!ok) return 0;

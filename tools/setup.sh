@@ -18,8 +18,8 @@ fi
 # libopenxr-dev (OpenXR headers), libx11-dev, libgl-dev, libglx-dev, libvulkan-dev (Vulkan headers):
 # `vrcorrect layer install` and its tests compile the OpenXR API layer (layer/), the test runtime
 # (tools/xr_test_runtime.sh) and C test applications (tests/xr_gl_app/, tests/xr_vk_app/);
-# libvulkan1 and mesa-vulkan-drivers: the Vulkan loader and Mesa's lavapipe, the Vulkan device of the
-# layer's Vulkan tests; libopenxr-utils: Khronos's sample application hello_xr, which the layer tests
+# libvulkan1, mesa-vulkan-drivers and vulkan-validationlayers: the Vulkan loader, Mesa's lavapipe (the
+# Vulkan device of the layer's Vulkan tests) and Khronos's validation, which those tests run; libopenxr-utils: Khronos's sample application hello_xr, which the layer tests
 # run unmodified; xserver-xorg-core and xserver-xorg-video-dummy: an X server without a screen for
 # hello_xr's OpenGL window (it needs XFree86-VidModeExtension, which Xvfb lacks).
 # One dpkg-query for all of them, so a set-up that changed nothing stays quick.
@@ -31,7 +31,8 @@ need_apt=()
 gl_debs=(libegl1 libegl-mesa0 libgl1 libglx-mesa0 libgl1-mesa-dri xvfb
          libx11-6 libx11-xcb1 libxext6 libxrender1 libxrandr2 libxinerama1 libxcursor1 libxi6 libxxf86vm1
          gcc libc6-dev libopenxr-dev libx11-dev libgl-dev libglx-dev libvulkan-dev
-         libvulkan1 mesa-vulkan-drivers libopenxr-utils xserver-xorg-core xserver-xorg-video-dummy)
+         libvulkan1 mesa-vulkan-drivers vulkan-validationlayers libopenxr-utils xserver-xorg-core
+         xserver-xorg-video-dummy)
 if command -v dpkg-query >/dev/null; then
   have=$(dpkg-query -W -f='${Package} ${db:Status-Abbrev}\n' "${gl_debs[@]}" 2>/dev/null | awk '$2 == "ii" {print $1}' || true)
   for p in "${gl_debs[@]}"; do

@@ -10,20 +10,27 @@
  *   APP_IMAGE_LEFT    raw image of the left eye (W*H*4 bytes, W x H the runtime's view size)
  *   APP_IMAGE_RIGHT   the right eye's
  *   APP_FRAMES        frames to submit (default 3)
- *   APP_FORMAT        "srgb" (GL_SRGB8_ALPHA8, default), "rgba8" (GL_RGBA8) or "rgba16f" (GL_RGBA16F)
+ *   APP_FORMAT        the swapchains' format, or "LEFT,RIGHT" for one each: "srgb" (GL_SRGB8_ALPHA8, default),
+ *                     "rgba8" (GL_RGBA8), "rgb10a2" (GL_RGB10_A2), "rgba16f" (GL_RGBA16F), "rgba16" (GL_RGBA16);
+ *                     the picture's bytes are uploaded as GL_UNSIGNED_BYTE (GL converts them)
+ *   APP_GAIN          "g": the half-float swapchains get the picture as floats v / 255 * g instead (above 1 for
+ *                     g > 1, as HDR rendering gives); alpha 1
  *   APP_RECT          "x,y,w,h": submit this imageRect (GL pixels from the bottom left) instead of all
  *   APP_LAYERS        comma-separated API layer names to enable in xrCreateInstance
  *   APP_OUT_DIR       after each frame, write the app's own released images there as
  *                     app_NNNNN_view_V.raw (W*H*4 bytes, GL row order) to prove they are untouched
  *   APP_SCISSOR       "1": leave GL_SCISSOR_TEST on (a small box) at xrEndFrame, as a careless app might
- *   APP_BINDING       "vulkan": ask for a session with an (empty) XrGraphicsBindingVulkanKHR instead of the
- *                     GLX binding, as a Vulkan application would; exits 3 when xrCreateSession fails
+ *   APP_BINDING       "d3d11": ask for a session with an (empty) XrGraphicsBindingD3D11KHR instead of the
+ *                     GLX binding, as a Direct3D 11 application would; exits 3 when xrCreateSession fails
+ *   APP_CHECK         "1": after each xrEndFrame read each eye's released image back in the type it was uploaded
+ *                     in and fail unless it holds exactly that
  *   APP_SIDE_BY_SIDE  "1": one swapchain twice as wide, the left eye's picture and view in its left half
  *   APP_STOP_FILE     run until this file exists (then at least APP_FRAMES frames), 20 ms a frame
  * Prints one line per step to stdout; exit status 0 when the session life cycle completed.
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -49,6 +56,15 @@ static XrInstance instance;
 
 typedef GLXContext (*CreateContextAttribs)(Display *, GLXFBConfig, GLXContext, Bool, const int *);
 
+static int64_t format_named(const char *name, size_t n) {
+    static const struct { const char *name; int64_t format; } names[] = {
+        {"srgb", GL_SRGB8_ALPHA8}, {"rgba8", GL_RGBA8}, {"rgb10a2", GL_RGB10_A2}, {"rgba16f", GL_RGBA16F},
+        {"rgba16", GL_RGBA16}};
+    for (size_t i = 0; i < sizeof names / sizeof names[0]; i++)
+        if (strlen(names[i].name) == n && strncmp(names[i].name, name, n) == 0) return names[i].format;
+    return 0;
+}
+
 static unsigned char *read_raw(const char *path, size_t size) {
     if (!path) return NULL;
     FILE *f = fopen(path, "rb");
@@ -68,9 +84,15 @@ int main(void) {
     gipa = (PFN_xrGetInstanceProcAddr)dlsym(lib, "xrGetInstanceProcAddr");
     if (!gipa) FAIL("no xrGetInstanceProcAddr in %s", loader);
     int frames_wanted = getenv("APP_FRAMES") ? atoi(getenv("APP_FRAMES")) : 3;
-    const char *fmt = getenv("APP_FORMAT");
-    int64_t format = (fmt && strcmp(fmt, "rgba8") == 0) ? GL_RGBA8
-                   : (fmt && strcmp(fmt, "rgba16f") == 0) ? GL_RGBA16F : GL_SRGB8_ALPHA8;
+    int64_t formats[2] = {GL_SRGB8_ALPHA8, GL_SRGB8_ALPHA8};
+    if (getenv("APP_FORMAT")) {
+        const char *spec = getenv("APP_FORMAT"), *comma = strchr(spec, ',');
+        formats[0] = format_named(spec, comma ? (size_t)(comma - spec) : strlen(spec));
+        formats[1] = comma ? format_named(comma + 1, strlen(comma + 1)) : formats[0];
+        if (!formats[0] || !formats[1]) FAIL("APP_FORMAT: unknown format in %s", spec);
+    }
+    float gain = getenv("APP_GAIN") ? (float)atof(getenv("APP_GAIN")) : 0.0f;
+    int check = getenv("APP_CHECK") != NULL;
 
     /* ---------------------------------------------------------------- GL: window and 4.5 core context */
     Display *dpy = XOpenDisplay(NULL);
@@ -147,13 +169,12 @@ int main(void) {
     binding.glxContext = ctx;
     XrSessionCreateInfo sci = {XR_TYPE_SESSION_CREATE_INFO, &binding, 0, system};
     XrSession session;
-    if (getenv("APP_BINDING") && strcmp(getenv("APP_BINDING"), "vulkan") == 0) {
-        /* XrGraphicsBindingVulkanKHR's type and next, the rest zero: this application has no Vulkan device */
-        struct { XrStructureType type; const void *next; void *rest[4]; uint32_t family, index; } vk = {
-            (XrStructureType)1000025000, NULL, {NULL, NULL, NULL, NULL}, 0, 0};
-        sci.next = &vk;
+    if (getenv("APP_BINDING") && strcmp(getenv("APP_BINDING"), "d3d11") == 0) {
+        /* XrGraphicsBindingD3D11KHR's type and next, its device pointer zero: this application has no D3D device */
+        struct { XrStructureType type; const void *next; void *device; } d3d = {(XrStructureType)1000027000, NULL, NULL};
+        sci.next = &d3d;
         XrResult r = xrCreateSession(instance, &sci, &session);
-        printf("vulkan create_session %d\n", (int)r);
+        printf("d3d11 create_session %d\n", (int)r);
         if (XR_FAILED(r)) {
             xrDestroyInstance(instance);
             return 3;
@@ -174,7 +195,7 @@ int main(void) {
     for (int e = 0; e < nchains; e++) {
         XrSwapchainCreateInfo info = {XR_TYPE_SWAPCHAIN_CREATE_INFO};
         info.usageFlags = XR_SWAPCHAIN_USAGE_COLOR_ATTACHMENT_BIT | XR_SWAPCHAIN_USAGE_SAMPLED_BIT;
-        info.format = format;
+        info.format = formats[e];
         info.sampleCount = info.faceCount = info.arraySize = info.mipCount = 1;
         info.width = (uint32_t)CW;
         info.height = (uint32_t)H;
@@ -187,7 +208,17 @@ int main(void) {
         for (uint32_t i = 0; i < counts[e]; i++) images[e][i] = imgs[i].image;
     }
     if (sbs) chains[1] = chains[0], images[1][0] = images[0][0], counts[1] = counts[0];
-    printf("swapchains %dx%d format=0x%llx\n", CW, H, (unsigned long long)format);
+    if (sbs) formats[1] = formats[0];
+    printf("swapchains %dx%d formats 0x%llx,0x%llx\n", CW, H, (unsigned long long)formats[0],
+           (unsigned long long)formats[1]);
+    /* with a gain, the half-float swapchains get floats: v / 255 * gain, alpha 1 */
+    float *floats[2] = {NULL, NULL};
+    for (int e = 0; e < 2; e++) {
+        if (!gain || formats[e] != GL_RGBA16F) continue;
+        floats[e] = malloc(bytes * sizeof(float));
+        for (size_t i = 0; i < bytes; i++) floats[e][i] = i % 4 == 3 ? 1.0f : pictures[e][i] / 255.0f * gain;
+    }
+    float *readback_floats = malloc(bytes * sizeof(float) * (size_t)(sbs ? 2 : 1));
 
     /* ---------------------------------------------------------------- the frame loop */
     int running = 0, frames = 0, exit_requested = 0, done = 0;
@@ -238,7 +269,8 @@ int main(void) {
                 int c = sbs ? 0 : e, x0 = sbs ? e * W : 0;
                 glBindTexture(GL_TEXTURE_2D, images[c][index[c]]);
                 glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
-                glTexSubImage2D(GL_TEXTURE_2D, 0, x0, 0, W, H, GL_RGBA, GL_UNSIGNED_BYTE, pictures[e]);
+                if (floats[e]) glTexSubImage2D(GL_TEXTURE_2D, 0, x0, 0, W, H, GL_RGBA, GL_FLOAT, floats[e]);
+                else glTexSubImage2D(GL_TEXTURE_2D, 0, x0, 0, W, H, GL_RGBA, GL_UNSIGNED_BYTE, pictures[e]);
                 glBindTexture(GL_TEXTURE_2D, 0);
                 released[e] = index[c];
                 pv[e] = (XrCompositionLayerProjectionView){XR_TYPE_COMPOSITION_LAYER_PROJECTION_VIEW};
@@ -270,6 +302,23 @@ int main(void) {
         if (layer.views != pv && submit) FAIL("the frame description changed");
         if (submit && (pv[0].subImage.swapchain != chains[0] || pv[1].subImage.swapchain != chains[1]))
             FAIL("the application's projection views were written");
+        for (int e = 0; e < 2 && submit && check; e++) {   /* each eye's image: exactly what was uploaded */
+            int c = sbs ? 0 : e, x0 = sbs ? e * W : 0;
+            glBindTexture(GL_TEXTURE_2D, images[c][released[e]]);
+            glPixelStorei(GL_PACK_ALIGNMENT, 1);
+            if (floats[e]) glGetTexImage(GL_TEXTURE_2D, 0, GL_RGBA, GL_FLOAT, readback_floats);
+            else glGetTexImage(GL_TEXTURE_2D, 0, GL_RGBA, GL_UNSIGNED_BYTE, readback);
+            glBindTexture(GL_TEXTURE_2D, 0);
+            for (int y = 0; y < H; y++) {
+                size_t at = ((size_t)y * CW + x0) * 4, row = (size_t)y * W * 4, n = (size_t)W * 4;
+                /* a half float holds v / 255 * gain to within 2^-11 of it: compared as such */
+                for (size_t i = 0; floats[e] && i < n; i++)
+                    if (fabsf(readback_floats[at + i] - floats[e][row + i]) > 1e-3f * (1.0f + fabsf(floats[e][row + i])))
+                        FAIL("the %s eye's swapchain image changed across xrEndFrame", e ? "right" : "left");
+                if (!floats[e] && memcmp(readback + at, pictures[e] + row, n) != 0)
+                    FAIL("the %s eye's swapchain image changed across xrEndFrame", e ? "right" : "left");
+            }
+        }
         if (submit) {
             for (int e = 0; e < 2 && out_dir; e++) {   /* each eye's W x H part of its swapchain image */
                 int c = sbs ? 0 : e, x0 = sbs ? e * W : 0;
@@ -300,12 +349,16 @@ int main(void) {
     CHECK(xrDestroySpace(space));
     CHECK(xrDestroySession(session));
     CHECK(xrDestroyInstance(instance));
+    if (check) printf("images checked unchanged after every frame\n");
     printf("done %d frames\n", frames);
     glXMakeCurrent(dpy, None, NULL);
     glXDestroyContext(dpy, ctx);
     XDestroyWindow(dpy, win);
     XCloseDisplay(dpy);
     free(readback);
+    free(readback_floats);
+    free(floats[0]);
+    free(floats[1]);
     free(pictures[0]);
     free(pictures[1]);
     return 0;

@@ -40,7 +40,9 @@
  *                          "rgba16f,rgb10a2,srgb,bgra8srgb,rgba8,bgra8"; names the session's API lacks are
  *                          skipped): rgba16f (GL_RGBA16F, R16G16B16A16_SFLOAT), rgb10a2 (GL_RGB10_A2,
  *                          A2B10G10R10_UNORM_PACK32), srgb (GL_SRGB8_ALPHA8, R8G8B8A8_SRGB), bgra8srgb
- *                          (B8G8R8A8_SRGB), rgba8 (GL_RGBA8, R8G8B8A8_UNORM), bgra8 (B8G8R8A8_UNORM)
+ *                          (B8G8R8A8_SRGB), rgba8 (GL_RGBA8, R8G8B8A8_UNORM), bgra8 (B8G8R8A8_UNORM), and,
+ *                          offered only when named, rgba16 (GL_RGBA16, R16G16B16A16_UNORM; dumped as uint16
+ *                          (H, W, 4))
  *   XRTEST_FRAME_MS        pace xrWaitFrame to this period, as a compositor does (default: no pacing,
  *                          a predicted period of 11.1 ms)
  *   XRTEST_LOSS_AFTER      after this many xrEndFrame calls the session goes LOSS_PENDING
@@ -91,6 +93,7 @@ typedef struct {
 #define L_GL_RGBA8 0x8058
 #define L_GL_RGB10_A2 0x8059
 #define L_GL_RGBA16F 0x881A
+#define L_GL_RGBA16 0x805B
 #define L_GL_HALF_FLOAT 0x140B
 #define L_GL_UNSIGNED_INT_2_10_10_10_REV 0x8368
 #define L_GL_PIXEL_PACK_BUFFER 0x88EB
@@ -115,8 +118,9 @@ typedef struct {
 #define ID(handle) ((uintptr_t)(handle))
 
 enum { API_NONE, API_GL, API_VULKAN };
-/* how a format is read back and written: 8-bit RGBA, 8-bit BGRA (reordered), packed 10-bit, half float */
-enum { K_RGBA8, K_BGRA8, K_PACKED10, K_HALF };
+/* how a format is read back and written: 8-bit RGBA, 8-bit BGRA (reordered), packed 10-bit, half float,
+ * 16-bit unsigned normalized */
+enum { K_RGBA8, K_BGRA8, K_PACKED10, K_HALF, K_U16 };
 static const struct { const char *name; int64_t gl; int64_t vk; int kind; } FORMATS[] = {
     {"rgba16f", L_GL_RGBA16F, VK_FORMAT_R16G16B16A16_SFLOAT, K_HALF},
     {"rgb10a2", L_GL_RGB10_A2, VK_FORMAT_A2B10G10R10_UNORM_PACK32, K_PACKED10},
@@ -124,6 +128,7 @@ static const struct { const char *name; int64_t gl; int64_t vk; int kind; } FORM
     {"bgra8srgb", 0, VK_FORMAT_B8G8R8A8_SRGB, K_BGRA8},
     {"rgba8", L_GL_RGBA8, VK_FORMAT_R8G8B8A8_UNORM, K_RGBA8},
     {"bgra8", 0, VK_FORMAT_B8G8R8A8_UNORM, K_BGRA8},
+    {"rgba16", L_GL_RGBA16, VK_FORMAT_R16G16B16A16_UNORM, K_U16},
 };
 #define NFORMATS (int)(sizeof FORMATS / sizeof FORMATS[0])
 static const char *DEFAULT_FORMATS = "rgba16f,rgb10a2,srgb,bgra8srgb,rgba8,bgra8";
@@ -1293,10 +1298,10 @@ static XrResult begin_frame(XrSession session, const XrFrameBeginInfo *info) {
     return discarded ? XR_FRAME_DISCARDED : XR_SUCCESS;
 }
 
-/* bytes per pixel of an image as read back, and of a row of the .npy */
-static int pixel_bytes(int kind) { return kind == K_HALF ? 8 : 4; }
+/* bytes per pixel of an image as read back and in the .npy */
+static int pixel_bytes(int kind) { return kind == K_HALF || kind == K_U16 ? 8 : 4; }
 
-/* `.npy` of rows top first: u1 (H, W, 4), <u4 (H, W) or <f2 (H, W, 4) */
+/* `.npy` of rows top first: u1 (H, W, 4), <u4 (H, W), <f2 (H, W, 4) or <u2 (H, W, 4) */
 static void write_npy(const char *path, const uint8_t *pixels, int w, int h, int kind) {
     FILE *f = fopen(path, "wb");
     if (!f) return;
@@ -1304,7 +1309,7 @@ static void write_npy(const char *path, const uint8_t *pixels, int w, int h, int
     int n = kind == K_PACKED10
         ? snprintf(header, sizeof header, "{'descr': '<u4', 'fortran_order': False, 'shape': (%d, %d), }", h, w)
         : snprintf(header, sizeof header, "{'descr': '%s', 'fortran_order': False, 'shape': (%d, %d, 4), }",
-                   kind == K_HALF ? "<f2" : "|u1", h, w);
+                   kind == K_HALF ? "<f2" : kind == K_U16 ? "<u2" : "|u1", h, w);
     int total = ((10 + n + 1 + 63) / 64) * 64; /* magic(6) + version(2) + len(2) + header + '\n' */
     uint16_t hlen = (uint16_t)(total - 10);
     fwrite("\x93NUMPY\x01\x00", 1, 8, f);
@@ -1333,7 +1338,7 @@ static uint8_t *read_image(Swapchain *s) {
         gl.PixelStorei(GL_PACK_ALIGNMENT, 1);
         gl.BindTexture(GL_TEXTURE_2D, s->tex[s->released_index]);
         GLenum type = kind == K_HALF ? L_GL_HALF_FLOAT : kind == K_PACKED10 ? L_GL_UNSIGNED_INT_2_10_10_10_REV
-                                                                             : GL_UNSIGNED_BYTE;
+                    : kind == K_U16 ? GL_UNSIGNED_SHORT : GL_UNSIGNED_BYTE;
         gl.GetTexImage(GL_TEXTURE_2D, 0, GL_RGBA, type, raw);
         gl.BindTexture(GL_TEXTURE_2D, (GLuint)previous);
         gl.PixelStorei(GL_PACK_ALIGNMENT, alignment);

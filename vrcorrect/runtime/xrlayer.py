@@ -408,6 +408,7 @@ class Engine:
         self._gpu_ms: dict[str, list[float | None]] = {}
         self._query_used: dict[str, list[bool]] = {}
         self._sync_ms: list[tuple[float, float, float]] = []
+        self._frame_ms: list[float] = []
         self._last_report = time.monotonic()
         self.frames = 0
         self.log.line(f"loaded ({api} session, runtime view size {view_width}x{view_height}, "
@@ -700,19 +701,23 @@ class Engine:
             raise RuntimeError(f"a GL error ({error}) during the correction")
         self._cpu_ms.setdefault(eye, []).append(1e3 * (time.perf_counter() - t0))
 
-    def end_frame(self, corrected: bool, sync_ms: tuple[float, float, float] = (-1.0, -1.0, -1.0)) -> None:
+    def end_frame(self, corrected: bool, timings_ms: tuple[float, float, float, float] = (-1.0, -1.0, -1.0, -1.0)
+                  ) -> None:
         """Per-frame bookkeeping: each eye's time, logged once a second.  GPU time comes from a
         timer query per eye and frame, read a frame later from a two-slot ring (no wait for the
         frame just issued); CPU time is the layer's own time in the call (issuing the work).
-        ``sync_ms`` (Vulkan): the shim's copy into the shared images with its fence wait, the
-        ``glFinish``, and the copy into the output images, in ms (-1: an OpenGL session)."""
+        ``timings_ms`` (from the shim): the layer's whole time in this ``xrEndFrame``, then for a
+        Vulkan session the copy into the shared images with its fence wait, the ``glFinish``, and
+        the copy into the output images (-1 for an OpenGL session)."""
         try:
             if not corrected:
                 return
             self.log.corrected()
             self.frames += 1
-            if sync_ms[0] >= 0:
-                self._sync_ms.append(tuple(float(v) for v in sync_ms))   # type: ignore[arg-type]
+            if timings_ms[0] >= 0:
+                self._frame_ms.append(float(timings_ms[0]))
+            if timings_ms[1] >= 0:
+                self._sync_ms.append((float(timings_ms[1]), float(timings_ms[2]), float(timings_ms[3])))
             now = time.monotonic()
             if now - self._last_report >= _REPORT_INTERVAL_S and self._cpu_ms:
                 parts = []
@@ -725,6 +730,8 @@ class Engine:
                     parts.append(f"{eye} GPU {gpu_text} ms, CPU {sum(cpu) / len(cpu):.1f} ms")
                 count = max(len(v) for v in self._cpu_ms.values())
                 line = f"{self.frames} frames corrected; per eye (mean of {count} frames): " + "; ".join(parts)
+                if self._frame_ms:
+                    line += f"; in xrEndFrame {sum(self._frame_ms) / len(self._frame_ms):.1f} ms"
                 if self._sync_ms:
                     mean = [sum(s[i] for s in self._sync_ms) / len(self._sync_ms) for i in range(3)]
                     line += (f"; per frame, Vulkan copy in and wait {mean[0]:.2f} ms, glFinish {mean[1]:.2f} ms, "
@@ -733,6 +740,7 @@ class Engine:
                 self._cpu_ms.clear()
                 self._gpu_ms.clear()
                 self._sync_ms.clear()
+                self._frame_ms.clear()
                 self._last_report = now
         except Exception as exc:  # noqa: BLE001
             self.log.reason(f"timing: {_one_line(exc)}")

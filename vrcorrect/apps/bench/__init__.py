@@ -97,6 +97,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from .xr import run_xr_bench
 
         print(run_xr_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
+    elif args.what == "layer":
+        from .layer import run_layer_bench
+
+        print(run_layer_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     elif args.what == "realtime":
         from .realtime import run_realtime_bench
 
@@ -114,13 +118,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                 plot=Path(args.out).with_name("learned_heldout.png"),
                                 tradeoff=Path(args.out).with_name("learned_tradeoff.png"))["markdown"])
     else:
-        raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, xr or learned")
+        raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, xr, layer or learned")
     return 0
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md")
-    p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "xr", "learned"),
+    p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "xr", "layer", "learned"),
                    help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
     p.add_argument("--resolutions", nargs="+", metavar="R",
