@@ -718,7 +718,7 @@ def test_brackets_change_the_iterations_live_and_the_panel_shows_them(fista_mirr
     # the panel's objective is the frame before the last one's, read without touching the live sums
     right = m.correctors["right"]
     before = right.last_objective_fraction(size)
-    blend = right._sized[size]["blend"]
+    blend = right.strategy._sized[size].blend
     live = blend.result
 
     class NoRead:
