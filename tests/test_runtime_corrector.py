@@ -319,8 +319,8 @@ def test_render_command_writes_each_view(tmp_path, images, capsys):
         outs[view] = np.asarray(Image.open(out))
         assert outs[view].shape == images[0][1].shape
     printed = capsys.readouterr().out
-    # the default: projected gradient, 10 frames of the still picture (a settled view)
-    assert "projected gradient (FISTA), 4 iteration(s) per frame, 10 frame(s) warm-started" in printed
+    # the default: ADMM, 10 frames of the still picture (a settled view)
+    assert "ADMM, 2 iteration(s) per frame, 10 frame(s) warm-started, 4 FFT round trips a frame" in printed
     assert "wrote" in printed
     assert not np.array_equal(outs["corrected"], images[0][1])
     assert not np.array_equal(outs["seen-corrected"], outs["seen-uncorrected"])

@@ -718,20 +718,20 @@ def test_brackets_change_the_iterations_live_and_the_panel_shows_them(fista_mirr
     # the panel's objective is the frame before the last one's, read without touching the live sums
     right = m.correctors["right"]
     before = right.last_objective_fraction(size)
-    blend = right.strategy._sized[size].blend
-    live = blend.result
+    guard = right.strategy._sized[size].blend.guard
+    live = guard.result
 
     class NoRead:
         def read(self, *a, **k):
             raise AssertionError("the panel must not read the frame in flight")
 
     m.render()
-    blend.result = NoRead()
+    guard.result = NoRead()
     try:
         lines = "\n".join(m.panel_lines())
         assert right.previous_objective_fraction(size) == pytest.approx(before, abs=1e-7)
     finally:
-        blend.result = live
+        guard.result = live
     assert "fista k 4" in lines and f"right {before:.3f}" in lines and 0 < before < 1
     press(m, "c")                                                                # correction off: no figure
     m.render()
@@ -742,7 +742,7 @@ def test_brackets_change_the_iterations_live_and_the_panel_shows_them(fista_mirr
 def test_brackets_without_fista_say_so(mirror):
     press(mirror, KEY_RIGHT_BRACKET)
     mirror.render()
-    assert "only with --filter fista" in mirror.status
+    assert "only with --filter admm or fista" in mirror.status
     assert all(c.options.filter == "fft" for c in mirror.correctors.values())
     assert not any(line.startswith("fista") for line in mirror.panel_lines())
 
@@ -871,7 +871,7 @@ def test_no_gpu_allocations_per_frame_after_warm_up(mirror, monkeypatch):
     (["--rx", "/no/such/rx.json"], "rx.json"),
     (["--model", "m.onnx"], "only with --backend onnx"),
     (["--filter", "fista", "--iterations-per-frame", "65"], "--iterations-per-frame"),
-    (["--filter", "separable", "--iterations-per-frame", "4"], "only with --filter fista"),
+    (["--filter", "separable", "--iterations-per-frame", "4"], "only with --filter admm or fista"),
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(args, message, capsys):
     from vrcorrect.apps.cli import main

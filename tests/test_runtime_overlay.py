@@ -237,7 +237,7 @@ def test_brackets_change_the_iterations_live_and_the_report_shows_them(overlay):
         o.corrector = own
     press(o, KEY_RIGHT_BRACKET)                                  # the fft corrector has no knob: says so
     o.render()
-    assert "only with --filter fista" in o.status
+    assert "only with --filter admm or fista" in o.status
     assert "fista" not in o.report()
 
 
@@ -383,7 +383,7 @@ def test_region_outside_the_screen_is_refused(x_display):
     (["--source", "screen", "--backend", "onnx", "--model", "/no/such/m.onnx"], "an existing ONNX model file"),
     (["--source", __file__, "--region", "0,0,4,4"], "--region"),
     (["--source", "screen", "--filter", "fista", "--iterations-per-frame", "0"], "--iterations-per-frame"),
-    (["--source", "screen", "--filter", "separable", "--iterations-per-frame", "2"], "only with --filter fista"),
+    (["--source", "screen", "--filter", "separable", "--iterations-per-frame", "2"], "only with --filter admm or fista"),
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(args, message, capsys):
     from vrcorrect.apps.cli import main

@@ -482,7 +482,7 @@ def test_no_headset_says_so(x_display, xr_runtime, tmp_path):
     (["--source", "nope.png"], "nope.png"),
     (["--model", "m.onnx"], "--backend onnx"),
     (["--filter", "fista", "--iterations-per-frame", "99"], "--iterations-per-frame"),
-    (["--filter", "fft", "--iterations-per-frame", "8"], "only with --filter fista"),
+    (["--filter", "fft", "--iterations-per-frame", "8"], "only with --filter admm or fista"),
 ])
 def test_bad_options_name_the_field(args, words, tmp_path):
     env = _env(tmp_path / "nowhere.json", tmp_path)

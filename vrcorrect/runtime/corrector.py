@@ -192,10 +192,7 @@ class Corrector:
         self.gpu = Gpu(ctx)
         self._offset = (0.0, 0.0, 0.0)                      # live sphere, cylinder, axis changes
         self._iterations = self.options.iterations_per_frame
-        self._decode = {srgb: compile_compute(ctx, "correction.glsl", defines={"PASS_DECODE": None, "LAYERS": 1,
-                                                                          "RADIUS": 0,
-                                                                          **({"SOURCE_SRGB": None} if srgb else {})})
-                        for srgb in (True, False)}
+        self._decode: dict[tuple[bool, str], "moderngl.ComputeShader"] = {}
         self.encoder = Encoder(self.gpu)
         self._seen: dict[tuple[int, int], "moderngl.Texture"] = {}
         self._onnx: OnnxModel | None = None
@@ -355,13 +352,18 @@ class Corrector:
         self.gpu.begin("decode")
         size = tuple(src.size)
         linear = self.strategy.decode_target(size)
-        self.gpu.run("decode", self._decode[src.dtype == "f1"], groups_2d(size), sample={"u_source": src},
-                     write={0: linear})
+        key = (src.dtype == "f1", linear.dtype)
+        program = self._decode.get(key)
+        if program is None:                         # one per source kind and target format, made once
+            program = self._decode[key] = compile_compute(
+                self.ctx, "correction.glsl", defines={"PASS_DECODE": None, "LAYERS": 1, "RADIUS": 0,
+                                                      **({"LINEAR_FMT": "rgba16f", "LINEAR_HALF": None}
+                                                         if linear.dtype == "f2" else {}),
+                                                      **({"SOURCE_SRGB": None} if key[0] else {})})
+        self.gpu.run("decode", program, groups_2d(size), sample={"u_source": src}, write={0: linear})
         return linear
 
     def _correct(self, linear: "moderngl.Texture") -> "moderngl.Texture":
-        if not self.enabled:
-            return linear
         self.gpu.begin("correct")
         motion, self._motion_gl = self._motion_gl, (0, 0)
         return self.strategy.correct(linear, motion)
@@ -418,12 +420,13 @@ class Corrector:
         t0 = time.perf_counter()
         self._set_motion(motion_px)
         linear = self._decode_source(src_texture)
-        shown = self._correct(linear)
-        self.gpu.begin("present")
-        if shown is linear:
-            self.encoder.present(linear, dst_framebuffer, viewport)
-        else:
+        if self.enabled:
+            shown = self._correct(linear)
+            self.gpu.begin("present")
             self.strategy.present(shown, dst_framebuffer, viewport)
+        else:
+            self.gpu.begin("present")
+            self.encoder.present(linear, dst_framebuffer, viewport)
         self.gpu.end()
         self.timings_ms = {"correct": 1e3 * (time.perf_counter() - t0)}
 
@@ -436,9 +439,7 @@ class Corrector:
         t0 = time.perf_counter()
         self._set_motion(motion_px)
         linear = self._decode_source(src_texture)
-        shown = self._correct(linear) if corrected else linear
-        if shown is not linear:
-            shown = self.strategy.shown_texture(shown)
+        shown = self.strategy.shown_texture(self._correct(linear)) if corrected and self.enabled else linear
         self.gpu.begin("simulate")
         size = tuple(linear.size)
         seen = self._seen.get(size)

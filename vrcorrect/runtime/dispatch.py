@@ -40,14 +40,21 @@ def texel_bytes(texture: Texture) -> int:
     return int(texture.components) * _COMPONENT_BYTES[texture.dtype]
 
 
-def resource_bytes(resource: Any, rows: int | None = None) -> int:
-    """Bytes of a texture, a texture array (every layer) or a buffer; ``rows``: only that many rows
-    of each layer."""
+Part = Union[int, tuple[int, int]]
+"""The part of a texture a pass touches: that many rows of each layer, or (rows, layers)."""
+
+
+def resource_bytes(resource: Any, part: Part | None = None) -> int:
+    """Bytes of a texture, a texture array (every layer) or a buffer; ``part``: only that many rows
+    of each layer, or ``(rows, layers)``."""
     if hasattr(resource, "components"):
         size = tuple(resource.size)
         width, height = size[0], size[1]
         layers = size[2] if len(size) > 2 else 1
-        return width * (height if rows is None else min(rows, height)) * layers * texel_bytes(resource)
+        rows = height
+        if part is not None:
+            rows, layers = (part, layers) if isinstance(part, int) else part
+        return width * min(rows, height) * min(layers, size[2] if len(size) > 2 else 1) * texel_bytes(resource)
     return int(resource.size)                            # a buffer
 
 
@@ -166,7 +173,8 @@ class Gpu:
             modify: Mapping[int, Texture] | None = None,
             buffers: Mapping[int, tuple["moderngl.Buffer", str]] | None = None,
             uniforms: Mapping[str, Any] | None = None,
-            rows: Mapping[str | int, int] | None = None,
+            rows: Mapping[str | int, Part] | None = None,
+            written: Mapping[int, Part] | None = None,
             round_trip: bool = False) -> None:
         """Bind and run one compute pass, then a memory barrier.
 
@@ -174,9 +182,10 @@ class Gpu:
         ``read`` / ``write`` / ``modify``: image unit -> texture bound read-only, write-only or
         read-write (every layer of an array); ``buffers``: storage-buffer binding -> (buffer,
         ``"r"``, ``"w"`` or ``"rw"``); ``uniforms``: set when the program has them; ``rows``: a
-        sampled texture's uniform name or an image unit -> the rows of it the pass touches (default:
-        all);
-        ``round_trip``: this pass is the spectral product of an FFT round trip."""
+        sampled texture's uniform name or an image unit -> the part of it the pass touches, rows of
+        each layer or ``(rows, layers)`` (default: all; for a ``modify`` binding, the part read);
+        ``written``: a ``modify`` binding's unit -> the part written, where it differs from the part
+        read; ``round_trip``: this pass is the spectral product of an FFT round trip."""
         partial = rows or {}
         nread = nwritten = 0
         for unit, (uniform, texture) in enumerate((sample or {}).items()):
@@ -188,7 +197,9 @@ class Gpu:
                 texture.bind_to_image(binding, read="r" in access, write="w" in access)
                 n = resource_bytes(texture, partial.get(binding))
                 nread += n if "r" in access else 0
-                nwritten += n if "w" in access else 0
+                if "w" in access:
+                    nwritten += resource_bytes(texture, (written or {})[binding]) if access == "rw" and \
+                        binding in (written or {}) else n
         for binding, (buffer, access) in (buffers or {}).items():
             buffer.bind_to_storage_buffer(binding)
             nread += buffer.size if "r" in access else 0
@@ -202,14 +213,19 @@ class Gpu:
 
     def draw(self, name: str, vao: "moderngl.VertexArray", program: "moderngl.Program",
              framebuffer: "moderngl.Framebuffer", viewport: tuple[int, int, int, int], *,
-             sample: Mapping[str, Texture] | None = None, uniforms: Mapping[str, Any] | None = None) -> None:
-        """A full-screen fragment pass: sample ``sample`` and write ``framebuffer`` in ``viewport``
-        (counted as the viewport's pixels at the first colour attachment's texel size)."""
+             sample: Mapping[str, Texture] | None = None, uniforms: Mapping[str, Any] | None = None,
+             buffers: Mapping[int, "moderngl.Buffer"] | None = None, rows: Mapping[str, Part] | None = None) -> None:
+        """A full-screen fragment pass: sample ``sample`` (``rows`` as for :meth:`run`), read the
+        storage ``buffers``, and write ``framebuffer`` in ``viewport`` (counted as the viewport's
+        pixels at the first colour attachment's texel size)."""
         nread = 0
         for unit, (uniform, texture) in enumerate((sample or {}).items()):
             texture.use(unit)
             program[uniform] = unit
-            nread += resource_bytes(texture)
+            nread += resource_bytes(texture, (rows or {}).get(uniform))
+        for binding, buffer in (buffers or {}).items():
+            buffer.bind_to_storage_buffer(binding)
+            nread += buffer.size
         for key, value in (uniforms or {}).items():
             if key in program:
                 program[key] = value

@@ -35,6 +35,7 @@ from ..plumbing.imageio import write_png
 from ..specs.display import get_display
 from ..specs.prescription import bundled_sample_path
 from .corrector import RxSnapshot
+from .eye_model import ITERATIONS_RANGE, ITERATIVE_FILTERS
 from .gl import read_framebuffer, timer_query_ms
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -48,7 +49,7 @@ __all__ = [
     "srgb_display", "GlfwSession", "StageTimes", "write_screenshot",
     "GLFW_PRESS", "KEY_ESCAPE", "KEY_LEFT_BRACKET", "KEY_RIGHT_BRACKET", "MOD_SHIFT", "MOD_CONTROL", "MOD_ALT",
     "MOD_SUPER", "key_letter", "key_map_text", "Screenshot", "Iterations", "ITERATIONS_RANGE", "ITERATION_KEYS",
-    "iteration_key", "next_iterations", "runs_fista", "change_iterations", "knob_text", "WindowApp", "KeyState",
+    "iteration_key", "next_iterations", "runs_iterations", "change_iterations", "knob_text", "WindowApp", "KeyState",
     "FrameConfig", "KeyedWindowApp",
 ]
 
@@ -280,11 +281,9 @@ KEY_ESCAPE = 256
 KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET = 91, 93      # GLFW_KEY_LEFT_BRACKET, GLFW_KEY_RIGHT_BRACKET ('[', ']')
 MOD_SHIFT, MOD_CONTROL, MOD_ALT, MOD_SUPER = 0x1, 0x2, 0x4, 0x8
 
-ITERATIONS_RANGE = (1, 64)
-"""The iterations-per-frame knob's range on the command line and the keys (``filter="fista"``)."""
-
 ITERATION_KEYS: tuple[tuple[str, str], ...] = (
-    ("[ / ]", f"iterations per frame /2, x2 ({ITERATIONS_RANGE[0]}-{ITERATIONS_RANGE[1]}; --filter fista)"),
+    ("[ / ]", f"iterations per frame /2, x2 ({ITERATIONS_RANGE[0]}-{ITERATIONS_RANGE[1]}; "
+              f"--filter {' or '.join(ITERATIVE_FILTERS)})"),
 )
 """The knob's keys, in the mirror's, the overlay's and the headset mirror's key maps."""
 
@@ -323,38 +322,40 @@ def next_iterations(k: int, up: bool) -> int:
     return min(high, max(low, 2 * k if up else k // 2))
 
 
-def runs_fista(corrector: "Corrector") -> bool:
-    """True if ``corrector`` runs projected gradient spread over frames (GLSL, ``filter="fista"``)."""
-    return corrector.backend == "glsl" and corrector.options.filter == "fista"
+def runs_iterations(corrector: "Corrector") -> bool:
+    """True if ``corrector`` runs iterations spread over frames (GLSL, ``filter`` ``"admm"`` or
+    ``"fista"``)."""
+    return corrector.backend == "glsl" and corrector.options.filter in ITERATIVE_FILTERS
 
 
 def change_iterations(correctors: Iterable["Corrector"], up: bool) -> str:
-    """Double (``up``) or halve the iterations per frame of every corrector running projected
-    gradient (``filter="fista"``, GLSL backend), all to one value (:func:`next_iterations` of the
-    first's); returns the status message."""
-    fista = [c for c in correctors if runs_fista(c)]
-    if not fista:
-        return "iterations per frame: only with --filter fista"
-    k = next_iterations(fista[0].iterations_per_frame, up)
-    for c in fista:
+    """Double (``up``) or halve the iterations per frame of every corrector that iterates over
+    frames (:func:`runs_iterations`), all to one value (:func:`next_iterations` of the first's);
+    returns the status message."""
+    iterating = [c for c in correctors if runs_iterations(c)]
+    if not iterating:
+        return f"iterations per frame: only with --filter {' or '.join(ITERATIVE_FILTERS)}"
+    k = next_iterations(iterating[0].iterations_per_frame, up)
+    for c in iterating:
         c.iterations_per_frame = k
     return f"iterations per frame: {k}"
 
 
 def knob_text(correctors: Mapping[str, "Corrector"], size: tuple[int, int], running: bool = True) -> str | None:
-    """``"fista k 4   objective left 0.41 right 0.43 of uncorrected"`` for the correctors (by eye)
-    that run projected gradient, or None when none does.  The objectives are the frame before the
+    """``"admm k 2   objective left 0.41 right 0.43 of uncorrected"`` for the correctors (by eye)
+    that iterate over frames, or None when none does.  The objectives are the frame before the
     last one's (:meth:`~vrcorrect.runtime.corrector.Corrector.previous_objective_fraction`: no
     wait for the GPU); ``running`` False (correction off, or not shown) prints ``-``."""
-    fista = {eye: c for eye, c in correctors.items() if runs_fista(c)}
-    if not fista:
+    iterating = {eye: c for eye, c in correctors.items() if runs_iterations(c)}
+    if not iterating:
         return None
-    ks = sorted({c.iterations_per_frame for c in fista.values()})
+    ks = sorted({c.iterations_per_frame for c in iterating.values()})
+    methods = "/".join(sorted({c.options.filter for c in iterating.values()}))
     parts = []
-    for eye, c in fista.items():
+    for eye, c in iterating.items():
         value = c.previous_objective_fraction(size) if running and c.enabled else None
         parts.append(f"{eye} {'-' if value is None else f'{value:.3f}'}")
-    return f"fista k {'/'.join(map(str, ks))}   objective {' '.join(parts)} of uncorrected"
+    return f"{methods} k {'/'.join(map(str, ks))}   objective {' '.join(parts)} of uncorrected"
 
 
 # --------------------------------------------------------------------------

@@ -23,7 +23,8 @@ that does not get there within :data:`EXIT_GRACE_S`, ends it at once.
 No OpenXR runtime installed: :class:`XrUnavailableError`, one paragraph saying what is missing
 and how to get one (``vrcorrect mirror`` works without), exit status :data:`EXIT_NO_RUNTIME`.
 
-With ``--filter fista`` each eye runs projected-gradient iterations spread over frames; in the
+With an iterative method (``--filter admm``, the default, or ``fista``) each eye runs its iterations
+spread over frames; in the
 ``--mirror`` window ``[`` / ``]`` halve / double the iterations per frame live, and the window's
 title shows them with each eye's objective as a fraction of uncorrected (read a frame late, no
 wait for the GPU); the run's summary gives the median objective per eye.
@@ -73,6 +74,7 @@ from .window import (
     knob_text,
     require_moderngl,
     require_xr,
+    runs_iterations,
 )
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -282,7 +284,7 @@ class XrConfig:
     time_step_s
         Fixed scene time per rendered frame; ``None``: the runtime's predicted display times.
     reprojection
-        With ``filter="fista"``: start each frame's iterations from the previous solution moved by
+        With an iterative method (``admm``, ``fista``): start each frame's iterations from the previous solution moved by
         the motion since the last frame: in the demo scene the change of each eye's tracked
         orientation (:func:`~vrcorrect.runtime.motion.view_shift`), for a picture source (head-locked)
         the pictures' estimated shift, with a cold start on a scene cut.  ``False``: the plain warm
@@ -336,10 +338,12 @@ class XrRunSummary:
     eye_size: tuple[int, int] = (0, 0)
     renderer: str = ""
     objective: dict[str, list[float]] = field(default_factory=dict)
-    """``filter="fista"``: each eye's objective as a fraction of uncorrected, per rendered frame
+    """Iterative methods: each eye's objective as a fraction of uncorrected, per rendered frame
     (read a frame late)."""
     iterations_per_frame: int | None = None
-    """``filter="fista"``: the iterations per frame at the end (the keys may change them)."""
+    """Iterative methods: the iterations per frame at the end (the keys may change them)."""
+    method: str = ""
+    """The correction's method (``filter``)."""
 
     @property
     def exit_code(self) -> int:
@@ -596,7 +600,7 @@ class XrApp(WindowApp):
 
     def key_callback(self, window: Any, key: int, scancode: int, action: int, mods: int) -> None:
         """GLFW key callback of the mirror window: ``[`` / ``]`` halve / double the iterations per
-        frame of both eyes (``filter="fista"``); presses only, without Control, Alt or Super."""
+        frame of both eyes (iterative methods); presses only, without Control, Alt or Super."""
         knob = iteration_key(key)
         if action != GLFW_PRESS or knob is None or mods & (MOD_CONTROL | MOD_ALT | MOD_SUPER):
             return
@@ -605,7 +609,7 @@ class XrApp(WindowApp):
 
     def knob_text(self) -> str | None:
         """Iterations per frame and each eye's objective as a fraction of uncorrected (a frame late),
-        or None without ``filter="fista"``."""
+        or None without an iterative method."""
         return knob_text(self.correctors, self.eye_size)
 
     def request_quit(self, reason: str) -> None:
@@ -750,7 +754,7 @@ class XrApp(WindowApp):
         leaves nothing of the last view in sight resets the eye's iterations (a cold start)."""
         previous, self._last_views[eye] = self._last_views.get(eye), view
         corrector = self.correctors[eye]
-        if not self.config.reprojection or previous is None or corrector.options.filter != "fista":
+        if not self.config.reprojection or previous is None or not runs_iterations(corrector):
             return None
         shift = view_shift(previous, view, projection, self.eye_size)
         w, h = self.eye_size
@@ -857,8 +861,10 @@ class XrApp(WindowApp):
             self.summary.states = list(self.tracker.history)
             if self._times is not None and self.ctx is not None:
                 self._collect_times()
-            ks = {c.iterations_per_frame for c in self.correctors.values() if c.options.filter == "fista"}
+            iterating = [c for c in self.correctors.values() if runs_iterations(c)]
+            ks = {c.iterations_per_frame for c in iterating}
             self.summary.iterations_per_frame = ks.pop() if len(ks) == 1 else None
+            self.summary.method = "/".join(sorted({c.options.filter for c in iterating}))
         return self.summary
 
     # ------------------------------------------------------------ tear-down

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from .admm import AdmmStrategy
 from .base import Encoder, FrameBlend, Strategy
 from .fista import FistaStrategy
 from .onepass import FftInverse, SeparableInverse
@@ -41,7 +42,8 @@ class Identity(Strategy):
         return linear
 
 
-STRATEGIES: dict[str, type[Strategy]] = {"fista": FistaStrategy, "fft": FftInverse, "separable": SeparableInverse}
+STRATEGIES: dict[str, type[Strategy]] = {"admm": AdmmStrategy, "fista": FistaStrategy, "fft": FftInverse,
+                                         "separable": SeparableInverse}
 """The GLSL backend's strategy for each ``method``."""
 
 

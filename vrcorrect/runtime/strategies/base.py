@@ -32,7 +32,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
     from ..eye_model import CorrectorOptions, EyeModel
 
-__all__ = ["Strategy", "Encoder", "FrameBlend", "float_texture", "GROUP", "groups_2d"]
+__all__ = ["Strategy", "Encoder", "FrameBlend", "GuardResult", "float_texture", "GROUP", "groups_2d"]
 
 GROUP = 16
 """Side of the 16 x 16 work groups of the per-pixel passes."""
@@ -141,39 +141,21 @@ class Strategy:
         self._inputs.clear()
 
 
-class FrameBlend:
-    """The per-frame blend weight (``shaders/blend.glsl``): two reductions and the blend.
+class GuardResult:
+    """The guard's result on the GPU, ``(beta, <r0, Kd>, <Kd, Kd>, <r0, r0>)`` (16 bytes), and a
+    two-slot ring of earlier frames' copies (made on the GPU): the previous frame's figures can be
+    read while this frame's work is still queued, with no wait for the GPU."""
 
-    ``solution``: the projected-gradient guard, ``run``'s ``kd`` is the residual ``K x - T`` of the
-    solution and ``delta`` the solution ``x`` itself (the blend is ``t + beta (x - t)``)."""
-
-    def __init__(self, gpu: Gpu, size: Size, solution: bool = False):
-        ctx = gpu.ctx
-        self.gpu, self.size = gpu, size
-        W, H = size
-        self.groups = (math.ceil(W / GROUP), math.ceil(H / GROUP))
-        extra = {"SOLUTION": None} if solution else {}
-        self.p_partial = compile_compute(ctx, "blend.glsl", defines={"PARTIAL": None, **extra})
-        self.p_final = compile_compute(ctx, "blend.glsl", defines={"FINAL": None})
-        self.p_apply = compile_compute(ctx, "blend.glsl", defines={"APPLY": None, **extra})
+    def __init__(self, ctx: "moderngl.Context"):
+        self.ctx = ctx
         self.result = ctx.buffer(reserve=16)
-        self.partials = ctx.buffer(reserve=16 * self.groups[0] * self.groups[1])
-        # each frame's sums are copied on the GPU into a ring: the previous frame's can be read
-        # while this frame's work is still queued (no wait for the GPU)
         self.history = [ctx.buffer(reserve=16) for _ in range(2)]
         self.frames = 0
 
-    def run(self, linear: "moderngl.Texture", r0: "moderngl.Texture", kd: "moderngl.Texture",
-            delta: "moderngl.Texture", out: "moderngl.Texture") -> None:
-        gpu = self.gpu
-        gpu.run("blend sums", self.p_partial, (*self.groups, 1), sample={"u_r0": r0, "u_kd": kd},
-                buffers={4: (self.partials, "w")})
-        gpu.run("blend weight", self.p_final, (1, 1, 1), buffers={3: (self.result, "w"), 4: (self.partials, "r")},
-                uniforms={"u_count": self.groups[0] * self.groups[1]})
-        gpu.ctx.copy_buffer(self.history[self.frames % 2], self.result)
+    def keep(self) -> None:
+        """After the pass that wrote :attr:`result`: copy it into the ring (on the GPU)."""
+        self.ctx.copy_buffer(self.history[self.frames % 2], self.result)
         self.frames += 1
-        gpu.run("blend", self.p_apply, (*self.groups, 1), sample={"u_linear_in": linear, "u_delta": delta},
-                write={1: out}, buffers={3: (self.result, "r")})
 
     def beta(self) -> float:
         return float(np.frombuffer(self.result.read(), np.float32)[0])
@@ -196,7 +178,51 @@ class FrameBlend:
         return objective_fraction_of(*(float(v) for v in np.frombuffer(data, np.float32)))
 
     def release(self) -> None:
-        release(self.p_partial, self.p_final, self.p_apply, self.result, self.partials, *self.history)
+        release(self.result, *self.history)
+
+
+class FrameBlend:
+    """The per-frame blend weight (``shaders/blend.glsl``): two reductions and the blend.
+
+    ``solution``: the projected-gradient guard, ``run``'s ``kd`` is the residual ``K x - T`` of the
+    solution and ``delta`` the solution ``x`` itself (the blend is ``t + beta (x - t)``)."""
+
+    def __init__(self, gpu: Gpu, size: Size, solution: bool = False):
+        ctx = gpu.ctx
+        self.gpu, self.size = gpu, size
+        W, H = size
+        self.groups = (math.ceil(W / GROUP), math.ceil(H / GROUP))
+        extra = {"SOLUTION": None} if solution else {}
+        self.p_partial = compile_compute(ctx, "blend.glsl", defines={"PARTIAL": None, **extra})
+        self.p_final = compile_compute(ctx, "blend.glsl", defines={"FINAL": None})
+        self.p_apply = compile_compute(ctx, "blend.glsl", defines={"APPLY": None, **extra})
+        self.guard = GuardResult(ctx)
+        self.partials = ctx.buffer(reserve=16 * self.groups[0] * self.groups[1])
+
+    @property
+    def result(self) -> "moderngl.Buffer":
+        return self.guard.result
+
+    def run(self, linear: "moderngl.Texture", r0: "moderngl.Texture", kd: "moderngl.Texture",
+            delta: "moderngl.Texture", out: "moderngl.Texture") -> None:
+        gpu = self.gpu
+        gpu.run("blend sums", self.p_partial, (*self.groups, 1), sample={"u_r0": r0, "u_kd": kd},
+                buffers={4: (self.partials, "w")})
+        gpu.run("blend weight", self.p_final, (1, 1, 1),
+                buffers={3: (self.guard.result, "w"), 4: (self.partials, "r")},
+                uniforms={"u_count": self.groups[0] * self.groups[1]})
+        self.guard.keep()
+        gpu.run("blend", self.p_apply, (*self.groups, 1), sample={"u_linear_in": linear, "u_delta": delta},
+                write={1: out}, buffers={3: (self.guard.result, "r")})
+
+    def beta(self) -> float:
+        return self.guard.beta()
+
+    def objective_fraction(self, previous: bool = False) -> float | None:
+        return self.guard.objective_fraction(previous)
+
+    def release(self) -> None:
+        release(self.p_partial, self.p_final, self.p_apply, self.guard, self.partials)
 
 
 def objective_fraction_of(beta: float, s_rk: float, s_kk: float, s_rr: float) -> float | None:
