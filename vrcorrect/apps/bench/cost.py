@@ -24,7 +24,6 @@ passes (seconds instead of minutes on a software renderer; no wall times then). 
 from __future__ import annotations
 
 import json
-import math
 import statistics
 import time
 from dataclasses import dataclass
