@@ -1,13 +1,15 @@
 // Separable low-rank 3x3 filter bank (vrcorrect.runtime.filters): a library for compute programs.
 // Pass selection (define exactly one): PASS_DECODE, PASS_ROWS, PASS_COLS.
-//   PASS_DECODE: u_source (RGBA8 code values or float) -> u_linear image (rgba32f, linear light).
+//   PASS_DECODE: u_source (RGBA8 code values or float) -> u_linear image (LINEAR_FMT, default
+//                rgba32f; linear light).
 //   PASS_ROWS:   u_linear -> u_rows_out (image2DArray, layer l holds components 4l..4l+3):
 //                h_c(x, y) = sum_t row_c[t] * in_{channel(c)}(x - (t - R), y)
 //   PASS_COLS:   u_rows_in (sampler2DArray) -> u_out (rgba32f): acc_i(x, Y) =
 //                sum_l sum_t dot(col_{i,l}[t], h_l(x, Y - (t - R))), then combine(acc, target).
 // All indices are GL texel coordinates (row 0 at the bottom; the caller flips the vertical taps).
 // Defines: LAYERS (number of 4-component layers), RADIUS (R), BORDER_ZERO (else mirrored repeat),
-// SOURCE_SRGB (PASS_DECODE: the source holds sRGB code values).
+// SOURCE_SRGB (PASS_DECODE: the source holds sRGB code values), LINEAR_HALF (PASS_DECODE: LINEAR_FMT
+// is 16-bit).
 #ifndef VRCORRECT_FILTER_BANK_GLSL
 #define VRCORRECT_FILTER_BANK_GLSL
 
@@ -16,8 +18,11 @@ layout(local_size_x = 16, local_size_y = 16) in;
 #include "borders.glsl"
 
 #if defined PASS_DECODE
+#ifndef LINEAR_FMT
+#define LINEAR_FMT rgba32f
+#endif
 uniform sampler2D u_source;
-layout(rgba32f, binding = 0) writeonly uniform image2D u_linear;
+layout(LINEAR_FMT, binding = 0) writeonly uniform image2D u_linear;
 void main() {
     ivec2 p = ivec2(gl_GlobalInvocationID.xy);
     ivec2 size = imageSize(u_linear);
@@ -25,6 +30,10 @@ void main() {
     vec4 c = texelFetch(u_source, p, 0);
 #if defined SOURCE_SRGB
     c.rgb = srgb_to_linear(c.rgb);
+#endif
+#if defined LINEAR_HALF
+    // rounded to nearest before the store (a driver's own conversion may truncate: llvmpipe's does)
+    c.rgb = vec3(unpackHalf2x16(packHalf2x16(c.rg)), unpackHalf2x16(packHalf2x16(vec2(c.b, 0.0))).x);
 #endif
     imageStore(u_linear, p, vec4(c.rgb, 1.0));
 }

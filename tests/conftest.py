@@ -7,6 +7,7 @@ a missing piece fails with what to install.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import shutil
@@ -105,3 +106,31 @@ def gl(headless_gl):
         check_gl_errors(headless_gl, "before the test")
         yield headless_gl
         check_gl_errors(headless_gl, "after the test")
+
+
+GL_FACTORIES = ("texture", "texture_array", "texture3d", "texture_cube", "depth_texture", "buffer", "program",
+                "compute_shader", "framebuffer", "simple_framebuffer", "renderbuffer", "vertex_array",
+                "simple_vertex_array", "query", "sampler")
+"""The context's methods that make GPU objects (what "allocates nothing per frame" counts)."""
+
+
+@contextlib.contextmanager
+def count_gl_objects(ctx):
+    """Count the GPU objects made on ``ctx`` inside the block: yields a list that gets one factory
+    name per object made."""
+    made: list[str] = []
+    originals = {name: getattr(ctx, name) for name in GL_FACTORIES if hasattr(ctx, name)}
+
+    def counting(name, make):
+        def factory(*args, **kwargs):
+            made.append(name)
+            return make(*args, **kwargs)
+        return factory
+
+    for name, make in originals.items():
+        setattr(ctx, name, counting(name, make))
+    try:
+        yield made
+    finally:
+        for name in originals:
+            delattr(ctx, name)

@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import count_gl_objects
 
 from vrcorrect.specs.display import decode, encode
 from vrcorrect.plumbing.errors import ValidationError
@@ -159,14 +160,11 @@ def test_no_gpu_allocations_per_frame(gl, fista, photo):
     f = Frames(gl, fista, photo)
     try:
         f.frame()
-        before = {id(o) for o in gl.objects} if gl.objects else set()
-        sized = {k: {n: id(v) for n, v in r.items()} for k, r in fista._sized.items()}
-        for k in (4, 1, 0):
-            fista.iterations_per_frame = k
-            f.frame()
-        assert {k: {n: id(v) for n, v in r.items()} for k, r in fista._sized.items()} == sized
-        if gl.objects:
-            assert {id(o) for o in gl.objects} == before
+        with count_gl_objects(gl) as made:
+            for k in (4, 1, 0):
+                fista.iterations_per_frame = k
+                f.frame()
+        assert made == []
     finally:
         f.release()
 
@@ -339,7 +337,7 @@ def test_render_command_fista_frames_and_its_errors(tmp_path, photo, capsys):
     missing = str(tmp_path / "missing.png")                       # options are checked before the input
     for args, words in ((["--filter", "fista", "--iterations-per-frame", "65"], "--iterations-per-frame"),
                         (["--filter", "fista", "--iterations-per-frame", "x"], "--iterations-per-frame"),
-                        (["--filter", "fft", "--iterations-per-frame", "4"], "only with --filter fista"),
+                        (["--filter", "fft", "--iterations-per-frame", "4"], "only with --filter admm or fista"),
                         (["--filter", "fista", "--frames", "0"], "--frames"),
                         (["--frames", "many"], "--frames")):
         assert main(["render", missing, "-o", str(tmp_path / "o.png"), *args]) == 2, args
@@ -348,17 +346,21 @@ def test_render_command_fista_frames_and_its_errors(tmp_path, photo, capsys):
     assert not (tmp_path / "o.png").exists()
 
 
-def test_fista_is_the_default_gpu_method_everywhere():
-    """Projected gradient is what a user gets without asking: the Corrector's default, and the
-    default ``--filter`` of render, mirror, overlay and xr; ``wiener``'s one-pass inverse (fft,
-    separable) stays selectable; render runs a settled view (10 frames) by default."""
+def test_admm_is_the_default_gpu_method_everywhere_and_fista_stays_selectable():
+    """ADMM over frames is what a user gets without asking: the Corrector's default (2 iterations a
+    frame), and the default ``--filter`` of render, mirror, overlay and xr; projected gradient
+    (fista, 4 a frame by default) and ``wiener``'s one-pass inverse (fft, separable) stay
+    selectable; render runs a settled view (10 frames) by default."""
     from vrcorrect.apps.cli import build_parser
     from vrcorrect.runtime.corrector import CorrectorOptions
 
-    assert CorrectorOptions().filter == "fista" and CorrectorOptions().iterations_per_frame == 4
+    assert CorrectorOptions().filter == "admm" and CorrectorOptions().iterations_per_frame == 2
+    assert CorrectorOptions(filter="fista").iterations_per_frame == 4
+    assert CorrectorOptions(filter="fista", iterations_per_frame=3).iterations_per_frame == 3
     parser = build_parser()
     for command in (["render", "in.png", "-o", "out.png"], ["mirror"], ["overlay", "--source", "screen"], ["xr"]):
         args = parser.parse_args(command)
-        assert args.filter == "fista", command
+        assert args.filter == "admm", command
+        assert parser.parse_args([*command, "--filter", "fista"]).filter == "fista"
         assert parser.parse_args([*command, "--filter", "fft"]).filter == "fft"
         assert parser.parse_args([*command, "--filter", "separable"]).filter == "separable"

@@ -8,13 +8,14 @@ import argparse
 from typing import Any
 
 from ..plumbing.errors import ValidationError
+from ..runtime.eye_model import DEFAULT_ITERATIONS, FILTERS, ITERATIONS_RANGE, ITERATIVE_FILTERS
 from ..runtime.model_path import model_for_backend
-from ..runtime.window import ITERATIONS_RANGE
 
 __all__ = ["FILTER_CHOICES", "parse_frames", "parse_whole_number", "parse_iterations_per_frame", "add_rx_option",
            "add_filter_options", "add_reprojection_option", "filter_options", "corrector_options"]
 
-FILTER_CHOICES = ("fista", "fft", "separable")
+FILTER_CHOICES = FILTERS
+_ITERATIVE = " or ".join(ITERATIVE_FILTERS)
 
 
 def parse_whole_number(text: str | int | None, field: str, low: int, high: int, what: str) -> int:
@@ -35,7 +36,7 @@ def parse_frames(text: str | None, field: str = "--frames", most: int = 10_000_0
 
 def parse_iterations_per_frame(text: str | int | None, field: str = "--iterations-per-frame") -> int | None:
     """Check ``--iterations-per-frame``: ``None`` (the default) or a whole number in
-    :data:`~vrcorrect.runtime.window.ITERATIONS_RANGE`."""
+    :data:`~vrcorrect.runtime.eye_model.ITERATIONS_RANGE`."""
     return None if text is None else parse_whole_number(text, field, *ITERATIONS_RANGE, "iterations")
 
 
@@ -48,20 +49,23 @@ def add_rx_option(p: argparse.ArgumentParser) -> None:
 def add_filter_options(p: argparse.ArgumentParser) -> None:
     """``--filter`` and ``--iterations-per-frame`` (``render``, ``mirror``, ``overlay``, ``xr``)."""
     low, high = ITERATIONS_RANGE
-    p.add_argument("--filter", choices=FILTER_CHOICES, default="fista",
-                   help="GLSL strategy: fista (default; projected-gradient iterations on the true objective, "
-                        "warm-started from frame to frame, converging to the optimum over frames), fft (one pass of "
-                        "the regularised inverse by FFT compute shaders, blended per frame: cheaper, further from "
-                        "the optimum) or separable (low-rank spatial filters of that inverse)")
+    p.add_argument("--filter", choices=FILTER_CHOICES, default=FILTER_CHOICES[0],
+                   help="GLSL method: admm (default; fast's ADMM iterations on the true objective, warm-started from "
+                        "frame to frame with their duals, converging to the optimum over frames), fista "
+                        "(projected-gradient iterations spread over frames: the same optimum, about twice the cost "
+                        "per frame for the same quality), fft (one pass of the regularised inverse by FFT compute "
+                        "shaders, blended per frame: further from the optimum) or separable (low-rank spatial "
+                        "filters of that inverse)")
     p.add_argument("--iterations-per-frame", metavar="K",
-                   help=f"with --filter fista: iterations per frame, {low} to {high} (default 4; the speed-accuracy "
-                        "knob)")
+                   help=f"with --filter {_ITERATIVE}: iterations per frame, {low} to {high} (default "
+                        + ", ".join(f"{k} for {m}" for m, k in DEFAULT_ITERATIONS.items())
+                        + "; the speed-accuracy knob)")
 
 
 def add_reprojection_option(p: argparse.ArgumentParser) -> None:
     """``--no-reprojection`` (``mirror``, ``overlay``, ``xr``)."""
     p.add_argument("--no-reprojection", action="store_true",
-                   help="with --filter fista: warm-start each frame from the previous solution as it was, instead "
+                   help=f"with --filter {_ITERATIVE}: warm-start each frame from the previous solution as it was, instead "
                         "of moved by the motion since the last frame (an image, folder, video or screen source: "
                         "the pictures' estimated shift, with a cold start on a scene cut; xr's demo scene: the "
                         "turn of the tracked head)")
@@ -73,8 +77,8 @@ def filter_options(args: argparse.Namespace) -> dict[str, Any]:
     k = parse_iterations_per_frame(args.iterations_per_frame)
     options: dict[str, Any] = {"filter": args.filter}
     if k is not None:
-        if args.filter != "fista":
-            raise ValidationError("--iterations-per-frame", args.iterations_per_frame, "only with --filter fista")
+        if args.filter not in ITERATIVE_FILTERS:
+            raise ValidationError("--iterations-per-frame", args.iterations_per_frame, f"only with --filter {_ITERATIVE}")
         options["iterations_per_frame"] = k
     return options
 

@@ -15,7 +15,10 @@ from ..plumbing.imageio import read_image, write_png
 from ..runtime.model_path import model_for_backend
 from ..specs.prescription import bundled_sample_path, load_prescription
 from .common import add_model_options, kernel_options, print_notes
+from ..runtime.eye_model import ITERATIVE_FILTERS
 from .realtime_options import add_filter_options, filter_options, parse_frames
+
+METHOD_TITLES = {"admm": "ADMM", "fista": "projected gradient (FISTA)"}
 
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -27,7 +30,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     options = {"kernel_options": kernel_options(args), **filter_options(args)}
     frames = parse_frames(args.frames, "--frames", MAX_FRAMES)
     if frames is None:
-        frames = SETTLED_FRAMES if args.backend == "glsl" and options["filter"] == "fista" else 1
+        frames = SETTLED_FRAMES if args.backend == "glsl" and options["filter"] in ITERATIVE_FILTERS else 1
     check_readable(args.input)
     check_writable(out, force=args.force)
     model = model_for_backend(args.backend, args.model)
@@ -51,9 +54,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     print(f"{info['renderer']}: {args.eye} eye, sphere {info['sphere_D']:+.2f} D, cylinder {info['cylinder_D']:+.2f} D, "
           f"axis {info['axis_deg']:g} deg on {info['display']}; backend {info['backend']}")
     fraction = info.get("objective_fraction")
-    if args.backend == "glsl" and info["filter"] == "fista":
-        print(f"  projected gradient (FISTA), {info.get('iterations_per_frame', '-')} iteration(s) per frame, "
-              f"{frames} frame(s) warm-started, FFT margin {info['margin']} px"
+    if args.backend == "glsl" and info["filter"] in ITERATIVE_FILTERS:
+        print(f"  {METHOD_TITLES[info['filter']]}, {info.get('iterations_per_frame', '-')} iteration(s) per frame, "
+              f"{frames} frame(s) warm-started, {info.get('fft_round_trips_per_frame', '-')} FFT round trips a frame"
               + (f"; last frame's objective {fraction:.3f} of uncorrected" if fraction is not None else ""))
     elif args.backend == "glsl" and "ranks" in info:
         print(f"  separable filters {info['filter_size']} px, ranks {info['ranks']} ({info['taps_per_pixel']} "
@@ -78,8 +81,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx")
     add_filter_options(p)
     p.add_argument("--frames", metavar="N",
-                   help="run N frames of the input as a still video and write the last; with --filter fista each "
-                        "frame continues the last one's iterations (default: 10 with fista, a still view settled "
+                   help="run N frames of the input as a still video and write the last; with --filter admm or fista each "
+                        "frame continues the last one's iterations (default: 10 with admm and fista, a still view settled "
                         "after a tenth of a second at 90 Hz; 1 with the one-pass filters and the onnx backend)")
     p.add_argument("--view", choices=("corrected", "seen-corrected", "seen-uncorrected"), default="corrected",
                    help="the displayed image (default) or what the eye sees of it")

@@ -89,7 +89,7 @@ def cmd_xr(args: argparse.Namespace) -> int:
     for name, (gpu, cpu) in summary.medians().items():
         print(f"  {name:<14} gpu {'-' if gpu is None else f'{gpu:.2f}'} ms, cpu {cpu:.2f} ms (median)")
     if summary.objective:
-        print(f"  fista, {summary.iterations_per_frame} iteration(s) per frame at the end; objective as a fraction "
+        print(f"  {summary.method}, {summary.iterations_per_frame} iteration(s) per frame at the end; objective as a fraction "
               "of uncorrected (median over frames): "
               + ", ".join(f"{eye} {statistics.median(v):.3f}" for eye, v in summary.objective.items()))
     if summary.reason == "session lost":

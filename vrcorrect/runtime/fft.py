@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..plumbing.errors import ValidationError
+from .dispatch import Gpu
 from .gl import release
 from .shaders import compile_compute
 
@@ -101,64 +102,44 @@ class FftBankGL:
         for t in (self.bank, self.spec, self.spec_out, self.filtered):
             t.filter = (ctx.NEAREST, ctx.NEAREST)
 
-    def run(self, linear_in: "moderngl.Texture", out: "moderngl.Texture", beta: float = 1.0, *,
+    def run(self, gpu: Gpu, linear_in: "moderngl.Texture", out: "moderngl.Texture", beta: float = 1.0, *,
             combine: str | None = None, adjoint: bool = False, other: "moderngl.Texture | None" = None,
             solution: "moderngl.Texture | None" = None, step: float = 0.0, weight: float = 0.0) -> None:
         """``linear_in`` (rgba32f, W x H) -> ``out`` (rgba32f): filtered (by the bank, or its
-        conjugate transpose with ``adjoint``), then combined (``combine``, default the bank's own).
+        conjugate transpose with ``adjoint``), then combined (``combine``, default the bank's own);
+        the six passes run through ``gpu`` (counted there).
 
         ``"residual"`` subtracts ``other`` (rgba32f); ``"fista"`` takes ``linear_in`` as the
         residual, ``out`` as the extrapolated point ``y`` and ``solution`` as ``x`` and updates both
         in place with the gradient step ``step`` and the momentum weight ``weight``.
         """
-        ctx = self.ctx
         ny, nx = self.grid
         W, H = self.size
         mode = self.combine if combine is None else combine
         if mode not in self.p_combine or adjoint not in self.p_mul:
             raise ValidationError("combine", f"{mode}{' (adjoint)' if adjoint else ''}",
                                   "a mode this bank was built for: " + ", ".join(self.p_combine))
-        linear_in.use(0)
-        self.p_rows["u_linear_in"] = 0
-        self.spec.bind_to_image(0, read=False, write=True)
-        self.p_rows.run(ny, 2, 1)
-        ctx.memory_barrier()
-        self.spec.bind_to_image(0, read=True, write=True)
-        self.p_cols.run(nx, 2, 1)
-        ctx.memory_barrier()
-        self.spec.bind_to_image(0, read=True, write=False)
-        self.spec_out.bind_to_image(1, read=False, write=True)
-        self.bank.use(1)
-        p_mul = self.p_mul[adjoint]
-        p_mul["u_bank"] = 1
-        p_mul.run(math.ceil(nx / 16), math.ceil(ny / 16), 1)
-        ctx.memory_barrier()
-        self.spec_out.bind_to_image(0, read=True, write=True)
-        self.p_icols.run(nx, 2, 1)
-        ctx.memory_barrier()
-        self.spec_out.bind_to_image(0, read=True, write=False)
-        self.filtered.bind_to_image(1, read=False, write=True)
-        self.p_irows["u_size"] = (W, H)
-        self.p_irows.run(ny, 2, 1)
-        ctx.memory_barrier()
+        gpu.run("fft rows", self.p_rows, (ny, 2, 1), sample={"u_linear_in": linear_in}, write={0: self.spec})
+        gpu.run("fft columns", self.p_cols, (nx, 2, 1), modify={0: self.spec})
+        gpu.run("spectral product", self.p_mul[adjoint], (math.ceil(nx / 16), math.ceil(ny / 16), 1),
+                sample={"u_bank": self.bank}, read={0: self.spec}, write={1: self.spec_out}, round_trip=True)
+        gpu.run("inverse fft columns", self.p_icols, (nx, 2, 1), modify={0: self.spec_out})
+        gpu.run("inverse fft rows", self.p_irows, (ny, 2, 1), read={0: self.spec_out}, write={1: self.filtered},
+                uniforms={"u_size": (W, H)})
         p = self.p_combine[mode]
-        self.filtered.bind_to_image(0, read=True, write=False)
-        linear_in.use(0)
-        p["u_linear_in"] = 0
+        groups = (math.ceil(W / 16), math.ceil(H / 16), 1)
+        # only the correct and delta combines read the target's texels; the others take its size
+        size_only = {} if mode in ("correct", "delta") else {"u_linear_in": 0}
         if mode == "fista":
-            out.bind_to_image(1, read=True, write=True)
-            solution.bind_to_image(2, read=True, write=True)
-            p["u_step"] = float(step)
-            p["u_weight"] = float(weight)
+            gpu.run("combine " + mode, p, groups, sample={"u_linear_in": linear_in}, read={0: self.filtered},
+                    modify={1: out, 2: solution}, uniforms={"u_step": float(step), "u_weight": float(weight)},
+                    rows=size_only)
         else:
-            out.bind_to_image(1, read=False, write=True)
-            if "u_beta" in p:
-                p["u_beta"] = float(beta)
+            sample = {"u_linear_in": linear_in}
             if mode == "residual":
-                other.use(2)
-                p["u_other"] = 2
-        p.run(math.ceil(W / 16), math.ceil(H / 16), 1)
-        ctx.memory_barrier()
+                sample["u_other"] = other
+            gpu.run("combine " + mode, p, groups, sample=sample, read={0: self.filtered}, write={1: out},
+                    uniforms={"u_beta": float(beta)}, rows=size_only)
 
     def release(self) -> None:
         release(self.p_rows, self.p_cols, self.p_icols, *self.p_mul.values(), self.p_irows,

@@ -42,7 +42,7 @@ from ..plumbing.images import IMAGE_SUFFIXES, image_files
 from .gl import Rect, draw_fullscreen, fullscreen_triangle, release, render_target, upload_texture, write_texture
 from .motion import MotionTracker
 from .shaders import compile_program
-from .window import import_optional, runs_fista
+from .window import import_optional, runs_iterations
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
@@ -670,7 +670,7 @@ def start_motion(source: EyeSource, correctors: Iterable["Corrector"], reproject
     pictures' motion when ``reprojection`` is on and a corrector runs projected gradient; returns
     whether it does.  The demo scene is rendered on the GPU and its motion (a 3D camera and objects)
     is not a global shift: it keeps the plain warm start."""
-    if reprojection and any(runs_fista(c) for c in correctors) and hasattr(source, "track_motion"):
+    if reprojection and any(runs_iterations(c) for c in correctors) and hasattr(source, "track_motion"):
         source.track_motion()
         return True
     return False
@@ -684,7 +684,7 @@ def take_motion(source: EyeSource, correctors: Iterable["Corrector"]) -> tuple[i
     motion = take() if take is not None else (0, 0)
     if motion == "cut":
         for c in correctors:
-            if runs_fista(c):
+            if runs_iterations(c):
                 c.reset()
         return None
     return motion

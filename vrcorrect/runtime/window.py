@@ -33,22 +33,23 @@ import numpy as np
 from ..plumbing.errors import GLUnavailableError, InputError, ValidationError, VrcorrectError
 from ..plumbing.imageio import write_png
 from ..specs.display import get_display
-from ..specs.prescription import bundled_sample_path
-from .corrector import RxSnapshot
+from ..specs.prescription import EyeRx, bundled_sample_path
+from .corrector import Corrector, RxSnapshot
+from .eye_model import ITERATIONS_RANGE, ITERATIVE_FILTERS
+from .eye_source import EyeSource, EyeUpdate
 from .gl import read_framebuffer, timer_query_ms
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
     from ..specs.display import DisplayProfile
-    from .corrector import Corrector, RxSnapshot
 
 __all__ = [
     "REALTIME_EXTRA", "XrUnavailableError", "import_optional", "require_moderngl", "require_glfw", "require_xr",
     "srgb_display", "GlfwSession", "StageTimes", "write_screenshot",
     "GLFW_PRESS", "KEY_ESCAPE", "KEY_LEFT_BRACKET", "KEY_RIGHT_BRACKET", "MOD_SHIFT", "MOD_CONTROL", "MOD_ALT",
     "MOD_SUPER", "key_letter", "key_map_text", "Screenshot", "Iterations", "ITERATIONS_RANGE", "ITERATION_KEYS",
-    "iteration_key", "next_iterations", "runs_fista", "change_iterations", "knob_text", "WindowApp", "KeyState",
+    "iteration_key", "next_iterations", "runs_iterations", "change_iterations", "knob_text", "WindowApp", "KeyState",
     "FrameConfig", "KeyedWindowApp",
 ]
 
@@ -280,11 +281,9 @@ KEY_ESCAPE = 256
 KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET = 91, 93      # GLFW_KEY_LEFT_BRACKET, GLFW_KEY_RIGHT_BRACKET ('[', ']')
 MOD_SHIFT, MOD_CONTROL, MOD_ALT, MOD_SUPER = 0x1, 0x2, 0x4, 0x8
 
-ITERATIONS_RANGE = (1, 64)
-"""The iterations-per-frame knob's range on the command line and the keys (``filter="fista"``)."""
-
 ITERATION_KEYS: tuple[tuple[str, str], ...] = (
-    ("[ / ]", f"iterations per frame /2, x2 ({ITERATIONS_RANGE[0]}-{ITERATIONS_RANGE[1]}; --filter fista)"),
+    ("[ / ]", f"iterations per frame /2, x2 ({ITERATIONS_RANGE[0]}-{ITERATIONS_RANGE[1]}; "
+              f"--filter {' or '.join(ITERATIVE_FILTERS)})"),
 )
 """The knob's keys, in the mirror's, the overlay's and the headset mirror's key maps."""
 
@@ -323,38 +322,40 @@ def next_iterations(k: int, up: bool) -> int:
     return min(high, max(low, 2 * k if up else k // 2))
 
 
-def runs_fista(corrector: "Corrector") -> bool:
-    """True if ``corrector`` runs projected gradient spread over frames (GLSL, ``filter="fista"``)."""
-    return corrector.backend == "glsl" and corrector.options.filter == "fista"
+def runs_iterations(corrector: "Corrector") -> bool:
+    """True if ``corrector`` runs iterations spread over frames (GLSL, ``filter`` ``"admm"`` or
+    ``"fista"``)."""
+    return corrector.backend == "glsl" and corrector.options.filter in ITERATIVE_FILTERS
 
 
 def change_iterations(correctors: Iterable["Corrector"], up: bool) -> str:
-    """Double (``up``) or halve the iterations per frame of every corrector running projected
-    gradient (``filter="fista"``, GLSL backend), all to one value (:func:`next_iterations` of the
-    first's); returns the status message."""
-    fista = [c for c in correctors if runs_fista(c)]
-    if not fista:
-        return "iterations per frame: only with --filter fista"
-    k = next_iterations(fista[0].iterations_per_frame, up)
-    for c in fista:
+    """Double (``up``) or halve the iterations per frame of every corrector that iterates over
+    frames (:func:`runs_iterations`), all to one value (:func:`next_iterations` of the first's);
+    returns the status message."""
+    iterating = [c for c in correctors if runs_iterations(c)]
+    if not iterating:
+        return f"iterations per frame: only with --filter {' or '.join(ITERATIVE_FILTERS)}"
+    k = next_iterations(iterating[0].iterations_per_frame, up)
+    for c in iterating:
         c.iterations_per_frame = k
     return f"iterations per frame: {k}"
 
 
 def knob_text(correctors: Mapping[str, "Corrector"], size: tuple[int, int], running: bool = True) -> str | None:
-    """``"fista k 4   objective left 0.41 right 0.43 of uncorrected"`` for the correctors (by eye)
-    that run projected gradient, or None when none does.  The objectives are the frame before the
+    """``"admm k 2   objective left 0.41 right 0.43 of uncorrected"`` for the correctors (by eye)
+    that iterate over frames, or None when none does.  The objectives are the frame before the
     last one's (:meth:`~vrcorrect.runtime.corrector.Corrector.previous_objective_fraction`: no
     wait for the GPU); ``running`` False (correction off, or not shown) prints ``-``."""
-    fista = {eye: c for eye, c in correctors.items() if runs_fista(c)}
-    if not fista:
+    iterating = {eye: c for eye, c in correctors.items() if runs_iterations(c)}
+    if not iterating:
         return None
-    ks = sorted({c.iterations_per_frame for c in fista.values()})
+    ks = sorted({c.iterations_per_frame for c in iterating.values()})
+    methods = "/".join(sorted({c.options.filter for c in iterating.values()}))
     parts = []
-    for eye, c in fista.items():
+    for eye, c in iterating.items():
         value = c.previous_objective_fraction(size) if running and c.enabled else None
         parts.append(f"{eye} {'-' if value is None else f'{value:.3f}'}")
-    return f"fista k {'/'.join(map(str, ks))}   objective {' '.join(parts)} of uncorrected"
+    return f"{methods} k {'/'.join(map(str, ks))}   objective {' '.join(parts)} of uncorrected"
 
 
 # --------------------------------------------------------------------------
@@ -385,6 +386,41 @@ class WindowApp:
         self._session: GlfwSession | None = None
         self.window: Any = None                           # a GLFW window handle
         self.ctx: moderngl.Context | None = None
+        self.correctors: dict[str, Corrector] = {}
+        self.eye_source: EyeSource | None = None
+
+    def _start_eyes(self, ctx: "moderngl.Context", eyes: Sequence[str], backend: str,
+                    options: Mapping[str, Any]) -> None:
+        """Each eye's :class:`~vrcorrect.runtime.corrector.Corrector`, designed now (the start: the
+        window says "building"), from the one read of the prescription; then the
+        :class:`~vrcorrect.runtime.eye_source.EyeSource` that watches the file and designs later
+        changes off the render thread (:meth:`_poll_eyes`)."""
+        for eye in eyes:
+            self.say(f"building the {eye} eye's correction ({_eye_words(self._rx.prescription.eye(eye))} on "
+                     f"{self.display.name})...")
+            t0 = time.perf_counter()
+            self.correctors[eye] = Corrector(ctx, self._rx, self.display, eye, backend, **dict(options))
+            self.say(f"  built in {time.perf_counter() - t0:.1f} s")
+        first = self.correctors[eyes[0]]
+        self.eye_source = EyeSource(self._rx, self.display, first.options, eyes=tuple(eyes), check=first.check_eye)
+
+    def _poll_eyes(self) -> tuple[list[EyeUpdate], list[str]]:
+        """Install the eyes the :class:`~vrcorrect.runtime.eye_source.EyeSource` has designed since
+        the last frame (GL work only) and return them with its messages; never waits."""
+        if self.eye_source is None:
+            return [], []
+        updates, messages = self.eye_source.poll()
+        for u in updates:
+            corrector = self.correctors[u.eye]
+            corrector.install(u.model, u.prescription)
+            corrector.set_offset(u.offset)
+        return updates, messages
+
+    def _adjust_eye(self, eye: str, sphere_D: float = 0.0, cylinder_D: float = 0.0, axis_deg: float = 0.0) -> EyeRx:
+        """Have ``eye`` redesigned with these live changes on top of its current ones, off the render
+        thread; returns the eye it will be (``ValidationError`` at once when out of range)."""
+        ds, dc, da = self.correctors[eye].live_offset
+        return self.eye_source.adjust(eye, (ds + sphere_D, dc + cylinder_D, da + axis_deg))
 
     def say(self, text: str) -> None:
         """A progress or status line for the user (to ``echo``)."""
@@ -406,7 +442,8 @@ class WindowApp:
 
     def _read_inputs(self, rx: str | Path | None, display: str | Path) -> None:
         """Read the prescription once (``None``: the bundled sample; a bad file fails here, before
-        any window; later edits come through each corrector's poll) and the sRGB display."""
+        any window; later edits come through the eye source, :meth:`_poll_eyes`) and the sRGB
+        display."""
         # lazy: the prescription module loads its schema, not needed to build the CLI's parser
 
         self.rx_path = Path(rx) if rx is not None else bundled_sample_path()
@@ -442,7 +479,11 @@ class WindowApp:
         """GLFW key callback (none by default)."""
 
     def _close_window(self) -> None:
-        """Close the window and terminate GLFW (release GL objects first)."""
+        """Stop the eye source's worker, close the window and terminate GLFW (release GL objects
+        first)."""
+        if self.eye_source is not None:
+            self.eye_source.close()
+            self.eye_source = None
         if self._session is not None:
             self._session.close()
         self._session = self.window = self.ctx = None
@@ -569,3 +610,7 @@ class KeyedWindowApp(WindowApp, Generic[StateT, ActionT]):
         """Seconds of source time for the frame about to be rendered: ``time_step_s`` per frame, or the clock."""
         step = self.config.time_step_s
         return self.frame * step if step is not None else time.perf_counter() - self._t0
+
+
+def _eye_words(e: EyeRx) -> str:
+    return f"{e.sphere_D:+.2f} / {e.cylinder_D:+.2f} x {e.axis_deg:.0f}"

@@ -23,7 +23,8 @@ that does not get there within :data:`EXIT_GRACE_S`, ends it at once.
 No OpenXR runtime installed: :class:`XrUnavailableError`, one paragraph saying what is missing
 and how to get one (``vrcorrect mirror`` works without), exit status :data:`EXIT_NO_RUNTIME`.
 
-With ``--filter fista`` each eye runs projected-gradient iterations spread over frames; in the
+With an iterative method (``--filter admm``, the default, or ``fista``) each eye runs its iterations
+spread over frames; in the
 ``--mirror`` window ``[`` / ``]`` halve / double the iterations per frame live, and the window's
 title shows them with each eye's objective as a fraction of uncorrected (read a frame late, no
 wait for the GPU); the run's summary gives the median objective per eye.
@@ -73,6 +74,7 @@ from .window import (
     knob_text,
     require_moderngl,
     require_xr,
+    runs_iterations,
 )
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -282,7 +284,7 @@ class XrConfig:
     time_step_s
         Fixed scene time per rendered frame; ``None``: the runtime's predicted display times.
     reprojection
-        With ``filter="fista"``: start each frame's iterations from the previous solution moved by
+        With an iterative method (``admm``, ``fista``): start each frame's iterations from the previous solution moved by
         the motion since the last frame: in the demo scene the change of each eye's tracked
         orientation (:func:`~vrcorrect.runtime.motion.view_shift`), for a picture source (head-locked)
         the pictures' estimated shift, with a cold start on a scene cut.  ``False``: the plain warm
@@ -336,10 +338,12 @@ class XrRunSummary:
     eye_size: tuple[int, int] = (0, 0)
     renderer: str = ""
     objective: dict[str, list[float]] = field(default_factory=dict)
-    """``filter="fista"``: each eye's objective as a fraction of uncorrected, per rendered frame
+    """Iterative methods: each eye's objective as a fraction of uncorrected, per rendered frame
     (read a frame late)."""
     iterations_per_frame: int | None = None
-    """``filter="fista"``: the iterations per frame at the end (the keys may change them)."""
+    """Iterative methods: the iterations per frame at the end (the keys may change them)."""
+    method: str = ""
+    """The correction's method (``filter``)."""
 
     @property
     def exit_code(self) -> int:
@@ -430,7 +434,6 @@ class XrApp(WindowApp):
         self._last_poll = 0.0
         self._first_display_time: int | None = None
         self._rendered_pending = False
-        self._status: dict[str, str] = {}
         self._last_views: dict[str, np.ndarray] = {}    # each eye's view matrix at its last frame
         try:
             self._create_instance()
@@ -569,12 +572,7 @@ class XrApp(WindowApp):
             self.source = ScreenSource(ctx, w, h, self.region or screen_bounds())
         else:
             self.source = open_source(ctx, self.spec, w, h, folder_interval_s=cfg.folder_interval_s)
-        for eye in EYES:
-            self.say(f"building the {eye} eye's correction ({self.display.name}) ...")
-            t0 = time.perf_counter()
-            self.correctors[eye] = Corrector(ctx, self._rx, self.display, eye, cfg.backend,
-                                             **dict(cfg.corrector_options))
-            self.say(f"  built in {time.perf_counter() - t0:.1f} s")
+        self._start_eyes(ctx, EYES, cfg.backend, cfg.corrector_options)
         if not isinstance(self.source, DemoScene):     # a head-locked picture source
             start_motion(self.source, self.correctors.values(), cfg.reprojection)
         if self.format == GL_RGBA8:
@@ -596,7 +594,7 @@ class XrApp(WindowApp):
 
     def key_callback(self, window: Any, key: int, scancode: int, action: int, mods: int) -> None:
         """GLFW key callback of the mirror window: ``[`` / ``]`` halve / double the iterations per
-        frame of both eyes (``filter="fista"``); presses only, without Control, Alt or Super."""
+        frame of both eyes (iterative methods); presses only, without Control, Alt or Super."""
         knob = iteration_key(key)
         if action != GLFW_PRESS or knob is None or mods & (MOD_CONTROL | MOD_ALT | MOD_SUPER):
             return
@@ -605,7 +603,7 @@ class XrApp(WindowApp):
 
     def knob_text(self) -> str | None:
         """Iterations per frame and each eye's objective as a fraction of uncorrected (a frame late),
-        or None without ``filter="fista"``."""
+        or None without an iterative method."""
         return knob_text(self.correctors, self.eye_size)
 
     def request_quit(self, reason: str) -> None:
@@ -750,7 +748,7 @@ class XrApp(WindowApp):
         leaves nothing of the last view in sight resets the eye's iterations (a cold start)."""
         previous, self._last_views[eye] = self._last_views.get(eye), view
         corrector = self.correctors[eye]
-        if not self.config.reprojection or previous is None or corrector.options.filter != "fista":
+        if not self.config.reprojection or previous is None or not runs_iterations(corrector):
             return None
         shift = view_shift(previous, view, projection, self.eye_size)
         w, h = self.eye_size
@@ -789,16 +787,15 @@ class XrApp(WindowApp):
         self._sampler.clear(0)
 
     def _poll_files(self) -> None:
+        updates, messages = self._poll_eyes()             # installs what the worker designed; never waits
+        for u in updates:
+            self.say(f"{self.rx_path.name} reloaded: {u.eye} eye rebuilt")
+        for message in messages:
+            self.say(message)                              # e.g. an invalid edit: the last good Rx is kept
         now = time.monotonic()
         if now - self._last_poll < 1.0:
             return
         self._last_poll = now
-        for eye, corrector in self.correctors.items():
-            if corrector.poll():
-                self.say(f"{self.rx_path.name} reloaded: {eye} eye rebuilt")
-            elif corrector.status and corrector.status != self._status.get(eye):
-                self.say(f"{eye} eye: {corrector.status}")  # e.g. an invalid edit: the last good Rx is kept
-            self._status[eye] = corrector.status
         knob = self.knob_text()
         if knob and self.config.mirror and self.window is not None:
             self.glfw.set_window_title(self.window, f"{self._title}   {knob}")
@@ -857,8 +854,10 @@ class XrApp(WindowApp):
             self.summary.states = list(self.tracker.history)
             if self._times is not None and self.ctx is not None:
                 self._collect_times()
-            ks = {c.iterations_per_frame for c in self.correctors.values() if c.options.filter == "fista"}
+            iterating = [c for c in self.correctors.values() if runs_iterations(c)]
+            ks = {c.iterations_per_frame for c in iterating}
             self.summary.iterations_per_frame = ks.pop() if len(ks) == 1 else None
+            self.summary.method = "/".join(sorted({c.options.filter for c in iterating}))
         return self.summary
 
     # ------------------------------------------------------------ tear-down

@@ -1,0 +1,461 @@
+#version 430 core
+// ADMM over frames, the real-time path's default (vrcorrect.runtime.strategies.admm; its CPU twin,
+// equal per iteration to float tolerance, is vrcorrect.solvers.realtime.AdmmFrames, which states the
+// mathematics). One frame, per eye:
+//   ROWS_TARGET  decoded target t (image rows) -> its row spectra, 3 channels      [glasses target only]
+//   COLUMNS      MODE_TARGET: column FFTs, T = K_ref t per frequency, inverse column FFTs
+//   ROWS_START   T per grid row (inverse row FFTs; IDEAL: A t), stored inside the image; the warm
+//                (or cold) start of the state w, q; the reflections a1, a2 -> row spectra, 6 channels
+//   COLUMNS      MODE_ADMM: U = G (K^H A1 + n A2), KU = K U, G = (K^H K + n I)^-1 computed here
+//   ROWS_UPDATE  u, Ku by inverse row FFTs; w += alpha (Ku - prox(w)), q += alpha (u - proj(q));
+//                then the next a1, a2 (or, LAST, z = proj(q) and t for the guard) -> row spectra
+//   COLUMNS      MODE_GUARD: K z and K t
+//   ROWS_GUARD   r0 = K t - T, kd = K z - K t: each image row's sums <r0, kd>, <kd, kd>, <r0, r0>
+//   GUARD_FINAL  the rows' sums -> beta = clip(-<r0, kd> / <kd, kd>, 0, 1) (the guard's weight)
+//   BLEND        x = t + beta (proj(q) - t) into an image (previews; the frame's own present is
+//                admm_present.glsl)
+// The grid (NX x NY, powers of two) holds the image at the origin (GL texel coordinates, rows bottom
+// first; the kernels' spectra are uploaded for the vertically flipped kernels) and a black surround.
+// Row spectra are real-to-complex: each real channel keeps columns 0..NX/2 (HX = NX/2 + 1) of its
+// row transform, two channels transformed together as a + ib and split; u_spec is an HX x NY x 6
+// array of complex values, written in place by every pass. One work group per row (NX/PER threads)
+// or per spectrum column (NY/PER threads); each thread keeps PER values of each channel in
+// registers and the line being transformed is in shared memory; twiddle factors are a table
+// (u_twiddle: cos, sin of 2 pi m / TW_N, m < TW_N / 2) instead of cos/sin in every butterfly.
+// HALF: 16-bit float storage (rg16f, rgba16f; arithmetic in 32 bits, and a value a pass both stores
+// and uses is used as stored); else 32-bit.
+// Defines: NX, NY, LOG2_NX, LOG2_NY, HX, TW_N, PER, WG_X = NX / PER, WG_Y = NY / PER (the work groups
+// of the row and column passes: a literal, as GLSL 4.30's layout asks), IMG_W, IMG_H, HALF, IDEAL,
+// one pass, its mode.
+#if defined COMPUTE_SHADER
+
+#if defined HALF
+#define SPEC_FMT rg16f
+#define IMG_FMT rgba16f
+#else
+#define SPEC_FMT rg32f
+#define IMG_FMT rgba32f
+#endif
+
+// A value as a 16-bit texture holds it, rounded to nearest (packHalf2x16). Every value stored in a
+// 16-bit texture goes through these first: a driver's own conversion in imageStore may truncate
+// instead (Mesa's llvmpipe does), which would bias every stored value toward zero.
+vec2 stored2(vec2 v) {
+#if defined HALF
+    return unpackHalf2x16(packHalf2x16(v));
+#else
+    return v;
+#endif
+}
+
+vec3 stored(vec3 v) {
+#if defined HALF
+    return vec3(stored2(v.xy), stored2(vec2(v.z, 0.0)).x);
+#else
+    return v;
+#endif
+}
+
+vec2 cmul(vec2 a, vec2 b) { return vec2(a.x * b.x - a.y * b.y, a.x * b.y + a.y * b.x); }
+vec2 conj2(vec2 a) { return vec2(a.x, -a.y); }
+vec2 times_i(vec2 a) { return vec2(-a.y, a.x); }
+
+#if defined ROWS_TARGET || defined ROWS_START || defined ROWS_UPDATE || defined ROWS_GUARD
+#define LINE NX
+#define LOG2_LINE LOG2_NX
+#define WG WG_X
+#define ROWS_PASS
+#elif defined COLUMNS
+#define LINE NY
+#define LOG2_LINE LOG2_NY
+#define WG WG_Y
+#endif
+
+#if defined LINE
+layout(local_size_x = WG) in;
+shared vec2 line[LINE];
+uniform sampler2D u_twiddle;                   // (TW_N / 2) x 1, rg32f: cos, sin of 2 pi m / TW_N
+layout(SPEC_FMT, binding = 0) uniform image2DArray u_spec;
+#define lid int(gl_LocalInvocationID.x)
+
+int bit_reverse(int i) { return int(bitfieldReverse(uint(i)) >> uint(32 - LOG2_LINE)); }
+
+// In-place radix-2 FFT of line[] (input in bit-reversed order); sign -1: forward, +1: inverse
+// (unscaled).
+void fft_line(float sign) {
+    for (int s = 1; s <= LOG2_LINE; ++s) {
+        int half_len = 1 << (s - 1);
+        int stride = TW_N >> s;
+        for (int k = lid; k < (LINE >> 1); k += WG) {
+            int j = k & (half_len - 1);
+            int i0 = ((k >> (s - 1)) << s) + j;
+            int i1 = i0 + half_len;
+            vec2 w = texelFetch(u_twiddle, ivec2(j * stride, 0), 0).xy;
+            w.y *= sign;
+            vec2 u = line[i0];
+            vec2 v = cmul(line[i1], w);
+            line[i0] = u + v;
+            line[i1] = u - v;
+        }
+        barrier();
+    }
+}
+#endif
+
+#if defined ROWS_PASS
+// Forward transform of the real pair (a, b) (PER values per thread at x = lid + WG m), split into
+// the two half spectra, stored in layers la and lb of row `row` (lb < 0: b is zero, only a's kept).
+void forward_pair(vec2 ab[PER], int row, int la, int lb) {
+    for (int m = 0; m < PER; ++m) line[bit_reverse(lid + WG * m)] = ab[m];
+    barrier();
+    fft_line(-1.0);
+    for (int k = lid; k <= NX / 2; k += WG) {
+        vec2 c = line[k];
+        vec2 d = conj2(line[(NX - k) & (NX - 1)]);
+        imageStore(u_spec, ivec3(k, row, la), vec4(stored2(0.5 * (c + d)), 0.0, 0.0));
+        if (lb >= 0) {
+            vec2 e = 0.5 * (c - d);
+            imageStore(u_spec, ivec3(k, row, lb), vec4(stored2(vec2(e.y, -e.x)), 0.0, 0.0));   // (c - d) / 2i
+        }
+    }
+    barrier();
+}
+
+// Inverse transform of the half spectra in layers la, lb of row `row` (lb < 0: b is zero): the real
+// pair (a, b) at x = lid + WG m, scaled by 1 / NX.
+void inverse_pair(int row, int la, int lb, out vec2 ab[PER]) {
+    for (int k = lid; k <= NX / 2; k += WG) {
+        vec2 A = imageLoad(u_spec, ivec3(k, row, la)).xy;
+        vec2 B = lb >= 0 ? imageLoad(u_spec, ivec3(k, row, lb)).xy : vec2(0.0);
+        if (k == 0 || k == NX / 2) { A.y = 0.0; B.y = 0.0; }     // a real row's DC and Nyquist terms
+        line[bit_reverse(k)] = A + times_i(B);
+        if (k > 0 && k < NX / 2) line[bit_reverse(NX - k)] = conj2(A) + times_i(conj2(B));
+    }
+    barrier();
+    fft_line(1.0);
+    for (int m = 0; m < PER; ++m) ab[m] = line[lid + WG * m] * (1.0 / float(NX));
+    barrier();
+}
+
+// Three real pairs from six channels (two vec3 per position) and back.
+void forward_six(vec3 p[PER], vec3 q[PER], int row) {
+    vec2 ab[PER];
+    for (int m = 0; m < PER; ++m) ab[m] = p[m].xy;
+    forward_pair(ab, row, 0, 1);
+    for (int m = 0; m < PER; ++m) ab[m] = vec2(p[m].z, q[m].x);
+    forward_pair(ab, row, 2, 3);
+    for (int m = 0; m < PER; ++m) ab[m] = q[m].yz;
+    forward_pair(ab, row, 4, 5);
+}
+
+void inverse_six(int row, out vec3 p[PER], out vec3 q[PER]) {
+    vec2 ab[PER], cd[PER], ef[PER];
+    inverse_pair(row, 0, 1, ab);
+    inverse_pair(row, 2, 3, cd);
+    inverse_pair(row, 4, 5, ef);
+    for (int m = 0; m < PER; ++m) {
+        p[m] = vec3(ab[m], cd[m].x);
+        q[m] = vec3(cd[m].y, ef[m]);
+    }
+}
+
+uniform float u_keep;          // the data step's keep = rho n / (2 + rho n)
+uniform float u_alpha;         // over-relaxation
+
+bool inside(ivec2 p) { return all(greaterThanEqual(p, ivec2(0))) && p.x < IMG_W && p.y < IMG_H; }
+vec3 prox(vec3 w, vec3 T, bool in_image) { return in_image ? u_keep * w + (1.0 - u_keep) * T : w; }
+vec3 proj(vec3 q, bool in_image) { return in_image ? clamp(q, 0.0, 1.0) : vec3(0.0); }
+#endif
+
+// ------------------------------------------------------------------ ROWS_TARGET
+#if defined ROWS_TARGET
+uniform sampler2D u_t;                          // the decoded target, IMG_W x IMG_H
+void main() {
+    int y = int(gl_WorkGroupID.x);
+    vec3 t[PER];
+    for (int m = 0; m < PER; ++m) {
+        int x = lid + WG * m;
+        t[m] = x < IMG_W ? texelFetch(u_t, ivec2(x, y), 0).rgb : vec3(0.0);
+    }
+    vec2 ab[PER];
+    for (int m = 0; m < PER; ++m) ab[m] = t[m].rg;
+    forward_pair(ab, y, 0, 1);
+    for (int m = 0; m < PER; ++m) ab[m] = vec2(t[m].b, 0.0);
+    forward_pair(ab, y, 2, -1);
+}
+#endif
+
+// ------------------------------------------------------------------ COLUMNS
+#if defined COLUMNS
+#if defined MODE_TARGET
+#define CH_IN 3
+#define CH_OUT 3
+#else
+#define CH_IN 6
+#define CH_OUT 6
+#endif
+uniform sampler2DArray u_kernel;                // HX x NY x 9: K_ij (cone i, primary j) at layer 3 i + j
+uniform int u_rows_in;                          // rows of u_spec holding data (the rest is zero)
+uniform int u_rows_out;                         // rows of the result that are stored
+uniform float u_norm2;                          // n = ||K||^2
+
+vec2 kernel_at(int kx, int ky, int i, int j) { return texelFetch(u_kernel, ivec3(kx, ky, 3 * i + j), 0).xy; }
+
+void main() {
+    int kx = int(gl_WorkGroupID.x);
+    vec2 v[CH_IN > CH_OUT ? CH_IN : CH_OUT][PER];
+    for (int c = 0; c < CH_IN; ++c) {
+        for (int m = 0; m < PER; ++m) {
+            int ky = lid + WG * m;
+            line[bit_reverse(ky)] = ky < u_rows_in ? imageLoad(u_spec, ivec3(kx, ky, c)).xy : vec2(0.0);
+        }
+        barrier();
+        fft_line(-1.0);
+        for (int m = 0; m < PER; ++m) v[c][m] = line[lid + WG * m];
+        barrier();
+    }
+    for (int m = 0; m < PER; ++m) {
+        int ky = lid + WG * m;
+        vec2 K[3][3];
+        for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < 3; ++j) K[i][j] = kernel_at(kx, ky, i, j);
+#if defined MODE_TARGET
+        vec2 x[3] = vec2[3](v[0][m], v[1][m], v[2][m]);
+        for (int i = 0; i < 3; ++i) v[i][m] = cmul(K[i][0], x[0]) + cmul(K[i][1], x[1]) + cmul(K[i][2], x[2]);
+#elif defined MODE_GUARD
+        for (int half_ = 0; half_ < 2; ++half_) {
+            int o = 3 * half_;
+            vec2 x[3] = vec2[3](v[o][m], v[o + 1][m], v[o + 2][m]);
+            for (int i = 0; i < 3; ++i)
+                v[o + i][m] = cmul(K[i][0], x[0]) + cmul(K[i][1], x[1]) + cmul(K[i][2], x[2]);
+        }
+#else   // MODE_ADMM
+        // R = K^H A1 + n A2
+        vec2 R[3];
+        for (int j = 0; j < 3; ++j)
+            R[j] = cmul(conj2(K[0][j]), v[0][m]) + cmul(conj2(K[1][j]), v[1][m]) + cmul(conj2(K[2][j]), v[2][m])
+                   + u_norm2 * v[3 + j][m];
+        // G = (K^H K + n I)^-1 by cofactors (the matrix is Hermitian; its inverse too)
+        vec2 M[3][3];
+        for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < 3; ++j)
+                M[i][j] = cmul(conj2(K[0][i]), K[0][j]) + cmul(conj2(K[1][i]), K[1][j]) + cmul(conj2(K[2][i]), K[2][j]);
+        for (int i = 0; i < 3; ++i) M[i][i].x += u_norm2;
+        vec2 A_ = cmul(M[1][1], M[2][2]) - cmul(M[1][2], M[2][1]);
+        vec2 B_ = cmul(M[1][2], M[2][0]) - cmul(M[1][0], M[2][2]);
+        vec2 C_ = cmul(M[1][0], M[2][1]) - cmul(M[1][1], M[2][0]);
+        vec2 det = cmul(M[0][0], A_) + cmul(M[0][1], B_) + cmul(M[0][2], C_);
+        vec2 inv_det = conj2(det) / dot(det, det);
+        vec2 G[3][3];
+        G[0][0] = cmul(A_, inv_det);
+        G[0][1] = cmul(cmul(M[0][2], M[2][1]) - cmul(M[0][1], M[2][2]), inv_det);
+        G[0][2] = cmul(cmul(M[0][1], M[1][2]) - cmul(M[0][2], M[1][1]), inv_det);
+        G[1][0] = cmul(B_, inv_det);
+        G[1][1] = cmul(cmul(M[0][0], M[2][2]) - cmul(M[0][2], M[2][0]), inv_det);
+        G[1][2] = cmul(cmul(M[0][2], M[1][0]) - cmul(M[0][0], M[1][2]), inv_det);
+        G[2][0] = cmul(C_, inv_det);
+        G[2][1] = cmul(cmul(M[0][1], M[2][0]) - cmul(M[0][0], M[2][1]), inv_det);
+        G[2][2] = cmul(cmul(M[0][0], M[1][1]) - cmul(M[0][1], M[1][0]), inv_det);
+        vec2 U[3];
+        for (int i = 0; i < 3; ++i) U[i] = cmul(G[i][0], R[0]) + cmul(G[i][1], R[1]) + cmul(G[i][2], R[2]);
+        for (int i = 0; i < 3; ++i) {
+            v[i][m] = U[i];
+            v[3 + i][m] = cmul(K[i][0], U[0]) + cmul(K[i][1], U[1]) + cmul(K[i][2], U[2]);
+        }
+#endif
+    }
+    for (int c = 0; c < CH_OUT; ++c) {
+        for (int m = 0; m < PER; ++m) line[bit_reverse(lid + WG * m)] = v[c][m];
+        barrier();
+        fft_line(1.0);
+        for (int m = 0; m < PER; ++m) {
+            int ky = lid + WG * m;
+            if (ky < u_rows_out)
+                imageStore(u_spec, ivec3(kx, ky, c), vec4(stored2(line[ky] * (1.0 / float(NY))), 0.0, 0.0));
+        }
+        barrier();
+    }
+}
+#endif
+
+// ------------------------------------------------------------------ ROWS_START
+#if defined ROWS_START
+uniform sampler2D u_t;                          // this frame's target
+uniform sampler2D u_t_prev;                     // the previous frame's target, T
+uniform sampler2D u_T_prev;
+uniform bool u_cold;
+uniform ivec2 u_shift;                          // the content's motion since the last frame (GL texels)
+uniform mat3 u_matrix;                          // IDEAL: T = A t
+layout(IMG_FMT, binding = 1) writeonly uniform image2D u_T;
+layout(IMG_FMT, binding = 2) readonly uniform image2D u_w_src;
+layout(IMG_FMT, binding = 3) readonly uniform image2D u_q_src;
+layout(IMG_FMT, binding = 4) writeonly uniform image2D u_w;
+layout(IMG_FMT, binding = 5) writeonly uniform image2D u_q;
+void main() {
+    int y = int(gl_WorkGroupID.x);
+    vec3 T[PER];
+#if defined IDEAL
+    for (int m = 0; m < PER; ++m) {
+        ivec2 p = ivec2(lid + WG * m, y);
+        T[m] = inside(p) ? u_matrix * texelFetch(u_t, p, 0).rgb : vec3(0.0);
+    }
+#else
+    {
+        vec2 ab[PER], c0[PER];
+        inverse_pair(y, 0, 1, ab);
+        inverse_pair(y, 2, -1, c0);
+        for (int m = 0; m < PER; ++m) T[m] = vec3(ab[m], c0[m].x);
+    }
+#endif
+    vec3 a1[PER], a2[PER];
+    for (int m = 0; m < PER; ++m) {
+        ivec2 p = ivec2(lid + WG * m, y);
+        bool in_image = inside(p);
+        vec3 Tp = T[m];
+        vec3 t = vec3(0.0);
+        if (in_image) {
+            Tp = stored(Tp);
+            imageStore(u_T, p, vec4(Tp, 1.0));
+            t = texelFetch(u_t, p, 0).rgb;
+        }
+        vec3 w, q;
+        if (u_cold) {
+            w = Tp;
+            q = t;
+        } else if (!in_image) {
+            w = imageLoad(u_w_src, p).rgb;
+            q = imageLoad(u_q_src, p).rgb;
+        } else {
+            ivec2 s = p - u_shift;
+            if (inside(s)) {
+                w = imageLoad(u_w_src, s).rgb + (Tp - texelFetch(u_T_prev, s, 0).rgb);
+                q = imageLoad(u_q_src, s).rgb + (t - texelFetch(u_t_prev, s, 0).rgb);
+            } else {                            // exposed by the motion: cold
+                w = Tp;
+                q = t;
+            }
+        }
+        w = stored(w);
+        q = stored(q);
+        imageStore(u_w, p, vec4(w, 1.0));
+        imageStore(u_q, p, vec4(q, 1.0));
+        a1[m] = 2.0 * prox(w, Tp, in_image) - w;
+        a2[m] = 2.0 * proj(q, in_image) - q;
+    }
+    forward_six(a1, a2, y);
+}
+#endif
+
+// ------------------------------------------------------------------ ROWS_UPDATE
+// (NO_UPDATE, with LAST: no iteration this frame; only the guard's input from the state as it is.)
+#if defined ROWS_UPDATE
+uniform sampler2D u_T;                          // this frame's T inside the image
+uniform sampler2D u_t;                          // LAST: the target, for the guard
+layout(IMG_FMT, binding = 2) uniform image2D u_w;
+layout(IMG_FMT, binding = 3) uniform image2D u_q;
+void main() {
+    int y = int(gl_WorkGroupID.x);
+#if !defined NO_UPDATE
+    vec3 u[PER], Ku[PER];
+    inverse_six(y, u, Ku);
+#endif
+    vec3 a1[PER], a2[PER];
+    for (int m = 0; m < PER; ++m) {
+        ivec2 p = ivec2(lid + WG * m, y);
+        bool in_image = inside(p);
+        vec3 q = imageLoad(u_q, p).rgb;
+#if !defined NO_UPDATE
+        vec3 T = in_image ? texelFetch(u_T, p, 0).rgb : vec3(0.0);
+        vec3 w = imageLoad(u_w, p).rgb;
+        vec3 pw = prox(w, T, in_image);
+        vec3 pq = proj(q, in_image);
+        w = stored(w + u_alpha * (Ku[m] - pw));
+        q = stored(q + u_alpha * (u[m] - pq));
+        imageStore(u_w, p, vec4(w, 1.0));
+        imageStore(u_q, p, vec4(q, 1.0));
+#endif
+#if defined LAST
+        a1[m] = proj(q, in_image);                                     // z
+        a2[m] = in_image ? texelFetch(u_t, p, 0).rgb : vec3(0.0);      // t
+#else
+        a1[m] = 2.0 * prox(w, T, in_image) - w;
+        a2[m] = 2.0 * proj(q, in_image) - q;
+#endif
+    }
+#if defined LAST
+    if (y >= IMG_H) return;                     // z and t are zero there (uniform per work group)
+#endif
+    forward_six(a1, a2, y);
+}
+#endif
+
+// ------------------------------------------------------------------ ROWS_GUARD
+#if defined ROWS_GUARD
+uniform sampler2D u_T;
+layout(std430, binding = 4) writeonly buffer Partials { vec4 u_partials[]; };
+shared vec4 sums[WG];
+void main() {
+    int y = int(gl_WorkGroupID.x);
+    vec3 Kz[PER], Kt[PER];
+    inverse_six(y, Kz, Kt);
+    vec4 s = vec4(0.0);
+    for (int m = 0; m < PER; ++m) {
+        ivec2 p = ivec2(lid + WG * m, y);
+        if (p.x < IMG_W) {
+            vec3 r0 = Kt[m] - texelFetch(u_T, p, 0).rgb;
+            vec3 kd = Kz[m] - Kt[m];
+            s += vec4(dot(r0, kd), dot(kd, kd), dot(r0, r0), 0.0);
+        }
+    }
+    sums[lid] = s;
+    barrier();
+    for (int stride = WG / 2; stride > 0; stride >>= 1) {
+        if (lid < stride) sums[lid] += sums[lid + stride];
+        barrier();
+    }
+    if (lid == 0) u_partials[y] = sums[0];
+}
+#endif
+
+// ------------------------------------------------------------------ GUARD_FINAL
+#if defined GUARD_FINAL
+layout(local_size_x = 256) in;
+layout(std430, binding = 3) writeonly buffer Guard { float u_beta; float u_sums[3]; };
+layout(std430, binding = 4) readonly buffer Partials { vec4 u_partials[]; };
+shared vec4 sums[256];
+void main() {
+    uint i = gl_LocalInvocationIndex;
+    vec4 s = vec4(0.0);
+    for (int k = int(i); k < IMG_H; k += 256) s += u_partials[k];
+    sums[i] = s;
+    barrier();
+    for (uint stride = 128u; stride > 0u; stride >>= 1u) {
+        if (i < stride) sums[i] += sums[i + stride];
+        barrier();
+    }
+    if (i == 0u) {
+        u_sums[0] = sums[0].x;
+        u_sums[1] = sums[0].y;
+        u_sums[2] = sums[0].z;
+        u_beta = sums[0].y > 1e-10 * sums[0].z ? clamp(-sums[0].x / sums[0].y, 0.0, 1.0) : 0.0;
+    }
+}
+#endif
+
+// ------------------------------------------------------------------ BLEND
+#if defined BLEND
+layout(local_size_x = 16, local_size_y = 16) in;
+uniform sampler2D u_t;
+uniform sampler2D u_q;
+layout(std430, binding = 3) readonly buffer Guard { float u_beta; float u_sums[3]; };
+layout(rgba32f, binding = 1) writeonly uniform image2D u_out;
+void main() {
+    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
+    if (p.x >= IMG_W || p.y >= IMG_H) return;
+    vec3 t = texelFetch(u_t, p, 0).rgb;
+    vec3 z = clamp(texelFetch(u_q, p, 0).rgb, 0.0, 1.0);
+    imageStore(u_out, p, vec4(t + u_beta * (z - t), 1.0));
+}
+#endif
+
+#endif

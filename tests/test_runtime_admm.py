@@ -1,0 +1,370 @@
+"""The real-time default, ADMM over frames, on a real headless GL context (Mesa llvmpipe in CI)
+against its CPU twin ``vrcorrect.solvers.realtime.AdmmFrames``; the twin against ``fast``; the
+counted cost of a frame against a hand count; half-precision storage against single."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import count_gl_objects
+
+from vrcorrect.physics.kernel import build_kernel, build_reference_kernel
+from vrcorrect.plumbing.errors import ValidationError
+from vrcorrect.plumbing.images import bundled_images
+from vrcorrect.runtime import gl as G
+from vrcorrect.runtime.corrector import Corrector
+from vrcorrect.runtime.dispatch import CostLedger, resource_bytes
+from vrcorrect.solvers import make_problem, objective, solve
+from vrcorrect.solvers.admm import _admm
+from vrcorrect.solvers.realtime import AdmmFrames, admm_grid, guard_weight
+from vrcorrect.specs.display import decode, get_display
+from vrcorrect.specs.prescription import EyeRx, Prescription
+
+W, H = 56, 40                     # not square, not a power of two
+EYE = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=120.0, pupil_diameter_mm=4.0)
+RX = Prescription(right=EYE, left=EYE)
+
+
+@pytest.fixture(scope="module")
+def clip():
+    """Eight 8-bit windows of the astronaut, the content moving (-3, -2) px a frame."""
+    big = np.round(bundled_images(96)[0][1] * 255).astype(np.uint8)
+    return [np.ascontiguousarray(big[10 + 2 * f:10 + 2 * f + H, 5 + 3 * f:5 + 3 * f + W]) for f in range(8)]
+
+
+@pytest.fixture(scope="module")
+def photo():
+    """The astronaut, 8-bit, W x H."""
+    return np.ascontiguousarray(np.round(bundled_images(64)[0][1][:H, :W] * 255).astype(np.uint8))
+
+
+def linear(image_u8: np.ndarray) -> np.ndarray:
+    return decode("srgb", image_u8.astype(np.float32) / 255).astype(np.float32)
+
+
+class Run:
+    """A GPU corrector and its CPU twin fed the same frames."""
+
+    def __init__(self, ctx, precision="single", k=2, display="quest2", reference="glasses", eye=EYE):
+        self.ctx = ctx
+        rx = Prescription(right=eye, left=eye)
+        self.c = Corrector(ctx, rx, display, "right", filter="admm", precision=precision, iterations_per_frame=k,
+                           reference=reference)
+        d = get_display(display)
+        self.twin = AdmmFrames(build_kernel(eye, d), build_reference_kernel(eye, d) if reference == "glasses" else None,
+                               (H, W), precision=precision)
+        self.k = k
+        self.src = G.upload_texture(ctx, np.zeros((H, W, 3), np.uint8))
+        self.tex, self.fbo = G.render_target(ctx, width=W, height=H)
+
+    def frame(self, image_u8, motion=None, k=None):
+        G.write_texture(self.src, image_u8)
+        self.c.apply(self.src, self.fbo, motion_px=motion)
+        return self.twin.frame(linear(image_u8), self.k if k is None else k, shift=motion)
+
+    def release(self):
+        self.c.release()
+        G.release(self.fbo, self.tex, self.src)
+
+
+@pytest.mark.parametrize("reference", ["glasses", "ideal"])
+def test_gl_equals_the_cpu_twin_iteration_by_iteration(gl, clip, reference):
+    """Single precision: k = 0, 1, 2 iterations on frame after frame, with the content moving and the
+    warm start reprojected, the GPU's solution equals the twin's to 1e-5 and its own guard (weight
+    and objective) the twin's to 1e-5."""
+    for k in (0, 1, 2):
+        r = Run(gl, "single", k, reference=reference)
+        try:
+            for f, image in enumerate(clip[:4]):
+                cpu = r.frame(image, None if f == 0 else (-3, -2))
+                gpu = r.c.solution((W, H))
+                assert np.abs(gpu - cpu.solution).max() <= 1e-5, (k, f)
+                assert r.c.last_objective_fraction((W, H)) == pytest.approx(cpu.objective / cpu.uncorrected, abs=1e-5)
+                if k:
+                    assert r.c.last_blend((W, H)) == pytest.approx(cpu.beta, abs=1e-5)
+        finally:
+            r.release()
+
+
+def test_half_precision_gl_equals_its_twin_and_single_precision_to_1e3(gl, clip):
+    """Half precision (the default).  One iteration from the cold start: the GPU equals the twin that
+    rounds at the same points to two float16 steps.  Over eight frames of a moving clip the two
+    implementations' rounding ties part (a value on either side of a float16 step) without
+    drifting: the solutions stay within 8 steps at most and 3e-4 on average, the objectives within
+    1e-4; and half precision keeps the single-precision objective to 1e-3."""
+    step = 2.0 ** -11                                  # a float16 step in [0.5, 1)
+    one = Run(gl, "half", 1)
+    try:
+        cpu = one.frame(clip[0])
+        assert np.abs(one.c.solution((W, H)) - cpu.solution).max() <= 2 * step
+    finally:
+        one.release()
+    half, single = Run(gl, "half"), Run(gl, "single")
+    try:
+        for f, image in enumerate(clip):
+            motion = None if f == 0 else (-3, -2)
+            cpu = half.frame(image, motion)
+            ref = single.frame(image, motion)
+            diff = np.abs(half.c.solution((W, H)) - cpu.solution)
+            assert diff.max() <= 8 * step and diff.mean() <= 3e-4, (f, diff.max(), diff.mean())
+            fraction = half.c.last_objective_fraction((W, H))
+            assert fraction == pytest.approx(cpu.objective / cpu.uncorrected, abs=1e-4)
+            assert cpu.objective == pytest.approx(ref.objective, rel=1e-3)
+            assert fraction == pytest.approx(single.c.last_objective_fraction((W, H)), rel=1e-3)
+    finally:
+        half.release()
+        single.release()
+
+
+def test_the_twin_converges_to_fasts_optimum(photo):
+    """The twin is fast's ADMM (the same split, rho and over-relaxation) on another grid and from
+    another start: run long, both reach the same box-constrained optimum of the same objective."""
+    d = get_display("desktop")
+    K = build_kernel(EYE, d)
+    target = linear(photo)
+    p = make_problem(target, K, None)
+    t_lms = np.ascontiguousarray(np.moveaxis(p.target_lms, 2, 0))
+    t = np.ascontiguousarray(np.moveaxis(p.target, 2, 0))
+    z_fast, *_ = _admm(K.kernel, t_lms, t, 0.1, 1.8, 1.0, 400, 0.0, track=False)
+    twin = AdmmFrames(K, None, (H, W), precision="single")
+    frame = twin.frame(target, 400)
+    fast_objective = objective(np.moveaxis(z_fast, 0, 2), p)
+    assert objective(frame.solution, p) == pytest.approx(fast_objective, rel=2e-3)
+    assert frame.objective == pytest.approx(objective(frame.shown, p), rel=1e-4)   # the guard's own figure
+    assert np.abs(frame.solution - np.moveaxis(z_fast, 0, 2)).mean() <= 2e-3
+
+
+def test_still_view_reaches_fast_and_frames_continue_like_one_long_run(gl, photo):
+    """On a still view, two frames of k = 2 are one frame of k = 4 (the warm start is exact with
+    the duals); the default reaches within 5 % of fast's objective in 10 frames (on the GPU, its own
+    guard's figure) and no frame is worse than uncorrected."""
+    image = photo
+    two, four = Run(gl, "single", 2), Run(gl, "single", 4)
+    try:
+        two.frame(image)
+        two.frame(image)
+        four.frame(image)
+        assert np.abs(two.c.solution((W, H)) - four.c.solution((W, H))).max() <= 1e-5
+        d = get_display("quest2")
+        p = make_problem(linear(image), build_kernel(EYE, d), build_reference_kernel(EYE, d))
+        fast = solve(p, "fast").objective
+        none = objective(p.target, p)
+        r = Run(gl)                                               # the defaults: half precision, k = 2
+        ratios = []
+        for _ in range(10):
+            r.frame(image)
+            ratios.append(r.c.last_objective_fraction((W, H)) * none / fast)
+        r.release()
+        assert all(x <= none / fast + 1e-6 for x in ratios)
+        assert ratios[-1] <= 1.05, ratios
+        assert ratios[0] > ratios[-1]
+    finally:
+        two.release()
+        four.release()
+
+
+def test_cold_start_after_reset_resize_and_new_prescription(gl, clip):
+    """A reset, a new size and a new prescription each make the next frame the cold frame a fresh
+    corrector makes."""
+    r = Run(gl, "single")
+    fresh = Run(gl, "single")
+    try:
+        for image in clip[:3]:
+            r.frame(image)
+        fresh.frame(clip[3])
+        cold = fresh.c.solution((W, H))
+        r.c.reset()
+        r.frame(clip[3])
+        assert np.abs(r.c.solution((W, H)) - cold).max() <= 1e-6
+        # a resize: frames of another size, then back to this one
+        small = G.upload_texture(gl, np.ascontiguousarray(clip[0][:24, :32]))
+        tex, fbo = G.render_target(gl, width=32, height=24)
+        r.c.apply(small, fbo)
+        G.release(fbo, tex, small)
+        r.frame(clip[2])
+        r.c.reset()                           # (another size keeps its own state: reset, then compare)
+        r.frame(clip[3])
+        assert np.abs(r.c.solution((W, H)) - cold).max() <= 1e-6
+        # a new prescription (adjust): cold, and for the new eye
+        r.c.adjust(sphere_D=-0.5)
+        r.frame(clip[3])
+        other = Corrector(gl, Prescription(right=EYE.with_changes(sphere_D=-2.5), left=EYE), "quest2", "right",
+                          filter="admm", precision="single", iterations_per_frame=2)
+        try:
+            other.apply(r.src, r.fbo)
+            assert np.abs(r.c.solution((W, H)) - other.solution((W, H))).max() <= 1e-6
+        finally:
+            other.release()
+    finally:
+        r.release()
+        fresh.release()
+
+
+def test_flat_fields_come_back_unchanged_away_from_the_border(gl):
+    """A flat field inside the gamut is its own optimum away from the edges.  The black surround
+    asks for brighter edges, and the optimum (``fast``'s too) spreads that inward by up to about
+    four kernel widths; ten frames of the default bring the GPU there, and beyond four kernel widths
+    every field is unchanged to 1/255."""
+    size = 160
+    c = Corrector(gl, RX, "quest2", "right")
+    src = G.upload_texture(gl, np.zeros((size, size, 3), np.uint8))
+    tex, fbo = G.render_target(gl, width=size, height=size)
+    try:
+        m = 4 * c.model.kernel.size
+        assert size - 2 * m >= 16
+        for srgb in ((235, 235, 235), (200, 240, 220), (180, 40, 40), (20, 30, 90)):
+            G.write_texture(src, np.full((size, size, 3), srgb, np.uint8))
+            c.reset()
+            for _ in range(10):
+                c.apply(src, fbo)
+            inner = G.read_framebuffer(fbo)[m:size - m, m:size - m].astype(int)
+            assert np.abs(inner - np.array(srgb)).max() <= 1, srgb
+    finally:
+        c.release()
+        G.release(fbo, tex, src)
+
+
+@pytest.mark.parametrize("image", ["black", "white", "noise"])
+def test_extreme_images_and_a_strong_eye_stay_finite_and_in_range(gl, image):
+    """All black, all white and uniform noise, for a -12 D eye with 6 mm pupil and 3 D of cylinder
+    (the far end of the accepted range on quest2): finite solutions in [0, 1], a guard weight in
+    [0, 1], a frame no worse than uncorrected."""
+    rng = np.random.default_rng(1)
+    img = {"black": np.zeros((H, W, 3), np.uint8), "white": np.full((H, W, 3), 255, np.uint8),
+           "noise": rng.integers(0, 256, (H, W, 3), dtype=np.uint8)}[image]
+    eye = EyeRx(sphere_D=-12.0, cylinder_D=-3.0, axis_deg=45.0, pupil_diameter_mm=6.0)
+    r = Run(gl, eye=eye)
+    try:
+        for _ in range(3):
+            r.frame(img)
+        x = r.c.solution((W, H))
+        assert np.all(np.isfinite(x)) and x.min() >= 0 and x.max() <= 1
+        beta = r.c.last_blend((W, H))
+        assert 0.0 <= beta <= 1.0
+        fraction = r.c.last_objective_fraction((W, H))
+        assert fraction is None or fraction <= 1.0 + 1e-6
+    finally:
+        r.release()
+
+
+def test_a_frame_allocates_nothing_after_the_first(gl, clip):
+    r = Run(gl)
+    try:
+        r.frame(clip[0])
+        r.c.simulate(r.src, r.fbo)
+        with count_gl_objects(gl) as made:
+            for f, image in enumerate(clip[1:4]):
+                r.frame(image, (-3, -2) if f else None)
+                r.c.simulate(r.src, r.fbo)
+            r.c.iterations_per_frame = 0
+            r.frame(clip[4])
+        assert made == []
+    finally:
+        r.release()
+
+
+def test_admm_grid_and_guard_weight():
+    assert admm_grid(1832, 1920, 17) == (2048, 2048)
+    assert admm_grid(1, 1, 1) == (16, 16)
+    assert admm_grid(100, 50, 31) == (128, 256)              # (NY, NX)
+    assert guard_weight(-1.0, 2.0) == 0.5
+    assert guard_weight(1.0, 2.0) == 0.0                 # a correction that only hurts: none of it
+    assert guard_weight(-5.0, 2.0) == 1.0
+    assert guard_weight(-1.0, 0.0) == 0.0
+    assert guard_weight(-1e-12, 1e-12, 1.0) == 0.0       # negligible beside the residual
+
+
+# ------------------------------------------------------------------ the counted cost
+
+
+def test_a_round_trip_is_counted_pass_by_pass_as_a_hand_count(gl):
+    """One FFT round trip of the FISTA bank (six passes) on a 48 x 40 image, K x - T: the ledger's
+    dispatches and bytes equal a count by hand of the textures each pass binds."""
+    from vrcorrect.runtime.dispatch import Gpu
+    from vrcorrect.runtime.fft import FftBankGL, fft_grid
+
+    size, margin = (48, 40), 5
+    ny, nx = fft_grid(*size, margin)
+    assert (ny, nx) == (64, 64)
+    spectrum = np.zeros((3, 3, ny, nx), complex)
+    bank = FftBankGL(gl, spectrum, size, margin, border="zero", combine="residual")
+    ledger = CostLedger()
+    gpu = Gpu(gl, ledger)
+    a, b, out = (G.render_target(gl, width=48, height=40, dtype=np.float32)[0] for _ in range(3))
+    try:
+        bank.run(gpu, a, out, other=b)
+        n, p = nx * ny, 48 * 40
+        spec = 2 * 8 * n                             # two complex64 layers of the grid
+        by_hand = [
+            ("fft rows", 16 * p, spec),                               # the image in, the spectrum out
+            ("fft columns", spec, spec),                              # in place
+            ("spectral product", 9 * 8 * n + spec, spec),             # the 3x3 spectrum and the spectrum in
+            ("inverse fft columns", spec, spec),
+            ("inverse fft rows", spec, 2 * 8 * p),                    # the image's window of two layers out
+            ("combine residual", 2 * 8 * p + 16 * p, 16 * p),         # filtered and `other` in (the target's
+        ]                                                             # size only), the residual out
+        assert [(r.name, r.bytes_read, r.bytes_written) for r in ledger.records] == by_hand
+        assert ledger.dispatches == 6 and ledger.fft_round_trips == 1
+        assert ledger.bytes == sum(r + w for _, r, w in by_hand)
+    finally:
+        bank.release()
+        G.release(a, b, out)
+
+
+def test_an_admm_frame_is_counted_as_its_passes(gl, clip):
+    """One default frame (k = 2, half precision, the glasses target) at 56 x 40: 1 decode, 2 target,
+    1 start, 2 k iteration, 3 guard passes and the present; k + 2 round trips; the bytes of the
+    spectra passes by hand (HX x NY complex half floats per layer)."""
+    r = Run(gl, "half", 2)
+    try:
+        r.frame(clip[0])
+        r.c.ledger = ledger = CostLedger()
+        r.frame(clip[1])
+        names = [rec.name for rec in ledger.records]
+        assert names == ["decode", "rows: target t", "columns: T = K_ref t", "rows: T, warm start, reflections",
+                         "columns: ADMM solve", "rows: update, reflections", "columns: ADMM solve",
+                         "rows: update, guard input", "columns: K z, K t", "rows: guard sums", "guard weight",
+                         "blend and encode"]
+        assert ledger.fft_round_trips == 4 and ledger.dispatches == 12
+        ny, nx = admm_grid(W, H, max(r.c.model.kernel.size, r.c.model.reference.size))
+        hx = nx // 2 + 1
+        layer = hx * ny * 4                                   # one complex half-float layer
+        twiddle = (max(nx, ny) // 2) * 8
+        kernel = 9 * layer
+        cols = {rec.name: rec for rec in ledger.records if rec.name.startswith("columns")}
+        assert (cols["columns: ADMM solve"].bytes_read, cols["columns: ADMM solve"].bytes_written) == \
+            (twiddle + kernel + 6 * layer, 6 * layer)
+        assert (cols["columns: T = K_ref t"].bytes_read, cols["columns: T = K_ref t"].bytes_written) == \
+            (twiddle + kernel + 3 * layer * H // ny, 3 * layer)
+        assert cols["columns: K z, K t"].bytes_written == 6 * layer * H // ny
+        state = nx * ny * 8                                   # w or q, rgba16f on the grid
+        update = next(rec for rec in ledger.records if rec.name == "rows: update, reflections")
+        assert update.bytes_read == twiddle + W * H * 8 + 6 * layer + 2 * state     # T, spectra, w, q
+        assert update.bytes_written == 6 * layer + 2 * state
+        assert ledger.bytes == sum(rec.bytes for rec in ledger.records)
+        assert resource_bytes(r.c.strategy._sized[(W, H)].spec) == 6 * layer
+    finally:
+        r.release()
+
+
+def test_counting_refuses_nothing_and_a_cold_frame_reads_no_previous_state(gl, clip):
+    """The first (cold) frame does not read the last frame's state; a warm one does."""
+    r = Run(gl, "half", 2)
+    try:
+        r.c.ledger = ledger = CostLedger()
+        r.frame(clip[0])
+        cold = next(rec for rec in ledger.records if rec.name.startswith("rows: T, warm"))
+        ledger.clear()
+        r.frame(clip[1])
+        warm = next(rec for rec in ledger.records if rec.name.startswith("rows: T, warm"))
+        ny, nx = r.c.strategy._sized[(W, H)].grid
+        assert warm.bytes_read - cold.bytes_read == 2 * nx * ny * 8 + 2 * W * H * 8   # w, q; t_prev, T_prev
+    finally:
+        r.release()
+
+
+def test_bad_options_are_refused(gl):
+    with pytest.raises(ValidationError, match="precision"):
+        Corrector(gl, RX, "quest2", "right", filter="admm", precision="double")
+    with pytest.raises(ValidationError, match="iterations_per_frame"):
+        Corrector(gl, RX, "quest2", "right", filter="admm", iterations_per_frame=-1)

@@ -1,0 +1,317 @@
+"""``method="admm"`` (the default): ADMM iterations on the true objective, spread over frames.
+
+``fast``'s exact iteration (the boundary-aware split with its per-frequency 3x3 solve,
+over-relaxed), continued from frame to frame with its duals, on the GPU (``shaders/admm.glsl``).
+The mathematics, the warm start, the guard and the storage precision are stated once, on the CPU
+twin the GPU is held to (:class:`vrcorrect.solvers.realtime.AdmmFrames`: one GL iteration equals
+one CPU iteration to float tolerance, ``tests/test_runtime_admm.py``).  Per frame:
+``iterations_per_frame + 2`` FFT round trips (the target ``T = K_ref t``, the iterations, the
+guard's ``K z`` and ``K t``; none for ``T`` with the ideal target ``A t``), each round trip as few
+passes as the data allow:
+
+* the spectral product is fused into the column pass (column FFTs, the 3x3 products, inverse column
+  FFTs: one read and one write of the grid's spectra), and ``G = (K^H K + n I)^-1`` is computed
+  there from ``K`` instead of read;
+* the per-pixel work is fused into the row passes (the inverse row FFTs of one iteration, the
+  update of the state, the forward row FFTs of the next);
+* spectra are real-to-complex (half the columns), the kernels' spectra too;
+* twiddle factors come from a table;
+* ``precision="half"`` (the default) stores every texture in 16-bit floats (arithmetic in 32
+  bits): half the bytes of ``"single"``, the objective unchanged to 1e-3 (the tests say by how
+  much).
+
+The state (``w``, ``q`` on the grid), the decoded target and ``T`` are double-buffered: each frame
+reads the last frame's and writes the other (a reprojected warm start reads other texels than it
+writes), so nothing is copied and nothing is allocated after the first frame of a size.
+
+Layer 5: numpy, moderngl; never torch.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ...plumbing.errors import ValidationError
+from ..eye_model import check_iterations
+from ..gl import fullscreen_triangle, release
+from ..shaders import compile_compute, compile_program
+from .base import GuardResult, Size, Strategy, float_texture, groups_2d
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    import moderngl
+
+__all__ = ["AdmmStrategy", "PER_THREAD"]
+
+PER_THREAD = 8
+"""Values of each channel one thread of a row or column pass keeps (the work group is the line's
+length over this)."""
+
+
+@dataclass
+class AdmmBuffers:
+    """One image size's GPU state of the ADMM strategy (pairs: this frame's and the last one's)."""
+
+    grid: tuple[int, int]                      # (NY, NX)
+    t: list["moderngl.Texture"]                # decoded targets
+    T: list["moderngl.Texture"]                # the target retina inside the image
+    w: list["moderngl.Texture"]                # the state on the grid
+    q: list["moderngl.Texture"]
+    spec: "moderngl.TextureArray"              # row and column spectra, HX x NY x 6
+    kernel: "moderngl.TextureArray"            # K's half spectrum, HX x NY x 9
+    reference: "moderngl.TextureArray | None"  # K_ref's (None: the ideal target A t)
+    twiddle: "moderngl.Texture"
+    partials: "moderngl.Buffer"
+    guard: GuardResult
+    out: "moderngl.Texture"                    # the previews' blended frame
+    programs: dict[str, "moderngl.ComputeShader"]
+    present: "moderngl.Program"
+    present_vao: "moderngl.VertexArray"
+    current: int = 0                           # which of each pair holds the state
+    warm: bool = False
+    next_t: int = 1                            # the slot this frame's target is decoded into
+    frames: int = field(default=0)
+
+    def release(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, list):
+                release(*value)
+            elif isinstance(value, dict):
+                release(*value.values())
+            elif hasattr(value, "release"):
+                value.release()
+
+
+class AdmmStrategy(Strategy):
+    name = "admm"
+    iterative = True
+
+    def __init__(self, *args: Any, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        from ...solvers.realtime import ADMM_RELAXATION, ADMM_RHO  # start-up time: scipy with the first eye
+        from ...solvers.wiener import spectral_norm_squared  # the same
+
+        m = self.model
+        self.half = self.options.precision == "half"
+        self.norm2 = spectral_norm_squared(m.kernel.kernel)
+        self.keep = float(np.float32(ADMM_RHO * self.norm2 / (2.0 + ADMM_RHO * self.norm2)))
+        self.alpha = float(np.float32(ADMM_RELAXATION))
+        self._iterations = self.options.iterations_per_frame
+        self._sized: dict[Size, AdmmBuffers] = {}
+        self._last: AdmmBuffers | None = None
+
+    @property
+    def iterations_per_frame(self) -> int:
+        return self._iterations
+
+    @iterations_per_frame.setter
+    def iterations_per_frame(self, value: int) -> None:
+        self._iterations = check_iterations(value)
+
+    def reset(self) -> None:
+        for b in self._sized.values():
+            b.warm = False
+
+    # ------------------------------------------------------------------ per size
+
+    def _buffers(self, size: Size) -> AdmmBuffers:
+        b = self._sized.get(size)
+        if b is None:
+            b = self._sized[size] = self._make(size)
+        return b
+
+    def _make(self, size: Size) -> AdmmBuffers:
+        from ...solvers.realtime import admm_grid  # start-up time (as above)
+
+        ctx, m = self.ctx, self.model
+        W, H = size
+        ksize = max(m.kernel.size, m.reference.size if m.reference is not None else 1)
+        ny, nx = grid = admm_grid(W, H, ksize)
+        if max(nx, ny) > MAX_ADMM_GRID:
+            raise ValidationError("image size", f"{W}x{H} with a {ksize} px kernel",
+                                  f"a grid of at most {MAX_ADMM_GRID} px per side (the image plus the kernel "
+                                  f"less one, padded to a power of two)")
+        hx = nx // 2 + 1
+        dtype = "f2" if self.half else "f4"
+        tw_n = max(nx, ny)
+        defines = {"NX": nx, "NY": ny, "LOG2_NX": int(math.log2(nx)), "LOG2_NY": int(math.log2(ny)), "HX": hx,
+                   "TW_N": tw_n, "PER": PER_THREAD, "WG_X": nx // PER_THREAD, "WG_Y": ny // PER_THREAD, "IMG_W": W, "IMG_H": H}
+        if self.half:
+            defines["HALF"] = None
+        if m.reference is None:
+            defines["IDEAL"] = None
+
+        def program(pass_: str, **extra: None) -> "moderngl.ComputeShader":
+            return compile_compute(ctx, "admm.glsl", defines={**defines, pass_: None, **extra})
+
+        programs = {"rows_start": program("ROWS_START"), "cols_admm": program("COLUMNS", MODE_ADMM=None),
+                    "rows_update": program("ROWS_UPDATE"), "rows_last": program("ROWS_UPDATE", LAST=None),
+                    "rows_guard_input": program("ROWS_UPDATE", LAST=None, NO_UPDATE=None),
+                    "cols_guard": program("COLUMNS", MODE_GUARD=None), "rows_guard": program("ROWS_GUARD"),
+                    "guard_final": program("GUARD_FINAL"), "blend": program("BLEND")}
+        if m.reference is not None:
+            programs["rows_target"] = program("ROWS_TARGET")
+            programs["cols_target"] = program("COLUMNS", MODE_TARGET=None)
+        present = compile_program(ctx, "admm_present.glsl")
+
+        def spectrum_array(kernel: np.ndarray) -> "moderngl.TextureArray":
+            arr = ctx.texture_array((hx, ny, 9), 2, half_spectrum(kernel, grid, dtype).tobytes(), dtype=dtype)
+            arr.filter = (ctx.NEAREST, ctx.NEAREST)
+            return arr
+
+        spec = ctx.texture_array((hx, ny, 6), 2, dtype=dtype)
+        spec.filter = (ctx.NEAREST, ctx.NEAREST)
+        angles = 2.0 * np.pi * np.arange(tw_n // 2) / tw_n
+        twiddle = ctx.texture((tw_n // 2, 1), 2, np.stack([np.cos(angles), np.sin(angles)], -1).astype(np.float32)
+                              .tobytes(), dtype="f4")
+        twiddle.filter = (ctx.NEAREST, ctx.NEAREST)
+        return AdmmBuffers(
+            grid=grid, t=[float_texture(ctx, size, dtype) for _ in range(2)],
+            T=[float_texture(ctx, size, dtype) for _ in range(2)],
+            w=[float_texture(ctx, (nx, ny), dtype) for _ in range(2)],
+            q=[float_texture(ctx, (nx, ny), dtype) for _ in range(2)],
+            spec=spec, kernel=spectrum_array(m.kernel.kernel),
+            reference=None if m.reference is None else spectrum_array(m.reference.kernel),
+            twiddle=twiddle, partials=ctx.buffer(reserve=16 * H), guard=GuardResult(ctx),
+            out=float_texture(ctx, size), programs=programs, present=present,
+            present_vao=fullscreen_triangle(ctx, present))
+
+    # ------------------------------------------------------------------ frames
+
+    def decode_target(self, size: Size) -> "moderngl.Texture":
+        b = self._buffers(size)
+        b.next_t = 1 - b.current
+        return b.t[b.next_t]
+
+    def correct(self, linear: "moderngl.Texture", motion_gl: tuple[int, int]) -> "moderngl.Texture":
+        gpu = self.gpu
+        size = tuple(linear.size)
+        b = self._buffers(size)
+        W, H = size
+        ny, nx = b.grid
+        hx = nx // 2 + 1
+        old, new = b.current, 1 - b.current
+        if linear is not b.t[b.next_t]:
+            raise ValidationError("linear", "a texture not from decode_target", "this strategy's decode target")
+        P = b.programs
+        twiddle = {"u_twiddle": b.twiddle}
+        cold = not b.warm
+        if b.reference is not None:
+            gpu.begin("target")
+            gpu.run("rows: target t", P["rows_target"], (H, 1, 1), sample={**twiddle, "u_t": linear},
+                    write={0: b.spec}, rows={0: (H, 3)})
+            gpu.run("columns: T = K_ref t", P["cols_target"], (hx, 1, 1),
+                    sample={**twiddle, "u_kernel": b.reference}, modify={0: b.spec},
+                    uniforms={"u_rows_in": H, "u_rows_out": ny}, rows={0: (H, 3)}, written={0: (ny, 3)},
+                    round_trip=True)
+        gpu.begin("start")
+        sample = {**twiddle, "u_t": linear}
+        if not cold:
+            sample.update(u_t_prev=b.t[old], u_T_prev=b.T[old])
+        images: dict[str, dict[int, Any]] = {"write": {1: b.T[new], 4: b.w[new], 5: b.q[new]}, "read": {},
+                                             "modify": {}}
+        if b.reference is not None:               # reads T's spectra (3 layers), writes the reflections' (6)
+            images["modify"][0] = b.spec
+        else:
+            images["write"][0] = b.spec
+        if not cold:
+            images["read"].update({2: b.w[old], 3: b.q[old]})
+        gpu.run("rows: T, warm start, reflections", P["rows_start"], (ny, 1, 1), sample=sample,
+                uniforms={"u_cold": cold, "u_shift": (0, 0) if cold else motion_gl, "u_keep": self.keep,
+                          "u_matrix": tuple(float(v) for v in self.model.kernel.matrix.T.ravel())},
+                rows={0: (ny, 3)}, written={0: (ny, 6)}, **images)
+        gpu.begin("iterations")
+        k = self._iterations
+        for i in range(k):
+            gpu.run("columns: ADMM solve", P["cols_admm"], (hx, 1, 1), sample={**twiddle, "u_kernel": b.kernel},
+                    modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.norm2},
+                    round_trip=True)
+            last = i == k - 1
+            sample = {**twiddle, "u_T": b.T[new]}
+            if last:
+                sample["u_t"] = linear
+            gpu.run("rows: update" + (", guard input" if last else ", reflections"),
+                    P["rows_last" if last else "rows_update"], (ny, 1, 1), sample=sample,
+                    modify={0: b.spec, 2: b.w[new], 3: b.q[new]}, uniforms={"u_keep": self.keep, "u_alpha": self.alpha},
+                    written={0: (H, 6)} if last else None)
+        if k == 0:
+            gpu.run("rows: guard input", P["rows_guard_input"], (H, 1, 1), sample={**twiddle, "u_t": linear},
+                    read={3: b.q[new]}, write={0: b.spec}, rows={0: (H, 6), 3: H})
+        gpu.begin("guard")
+        gpu.run("columns: K z, K t", P["cols_guard"], (hx, 1, 1), sample={**twiddle, "u_kernel": b.kernel},
+                modify={0: b.spec}, uniforms={"u_rows_in": H, "u_rows_out": H}, rows={0: (H, 6)},
+                written={0: (H, 6)}, round_trip=True)
+        gpu.run("rows: guard sums", P["rows_guard"], (H, 1, 1), sample={**twiddle, "u_T": b.T[new]},
+                read={0: b.spec}, buffers={4: (b.partials, "w")}, rows={0: (H, 6)})
+        gpu.run("guard weight", P["guard_final"], (1, 1, 1), buffers={3: (b.guard.result, "w"), 4: (b.partials, "r")})
+        b.guard.keep()
+        b.current, b.warm = new, True
+        b.frames += 1
+        self._last = b
+        return linear
+
+    def present(self, shown: "moderngl.Texture", dst: "moderngl.Framebuffer",
+                viewport: tuple[int, int, int, int] | None) -> None:
+        b = self._last
+        size = tuple(shown.size)
+        vp = viewport if viewport is not None else (0, 0, *dst.size)
+        self.gpu.draw("blend and encode", b.present_vao, b.present, dst, vp,
+                      sample={"u_t": shown, "u_q": b.q[b.current]}, uniforms={"u_size": size},
+                      buffers={3: b.guard.result}, rows={"u_q": size[1]})
+
+    def shown_texture(self, shown: "moderngl.Texture") -> "moderngl.Texture":
+        b = self._last
+        size = tuple(shown.size)
+        self.gpu.run("blend", b.programs["blend"], groups_2d(size), sample={"u_t": shown, "u_q": b.q[b.current]},
+                     write={1: b.out}, buffers={3: (b.guard.result, "r")}, rows={"u_q": size[1]})
+        return b.out
+
+    # ------------------------------------------------------------------ read-backs
+
+    def objective_fraction(self, size: Size, previous: bool = False) -> float | None:
+        b = self._sized.get(size)
+        return None if b is None or not b.frames else b.guard.objective_fraction(previous)
+
+    def blend_weight(self, size: Size) -> float | None:
+        b = self._sized.get(size)
+        return None if b is None or not b.frames else b.guard.beta()
+
+    def solution(self, size: Size) -> np.ndarray | None:
+        b = self._sized.get(size)
+        if b is None or not b.frames:
+            return None
+        W, H = size
+        q = np.frombuffer(b.q[b.current].read(), np.float16 if self.half else np.float32)
+        q = q.reshape(b.grid[0], b.grid[1], 4)[:H, :W, :3].astype(np.float32)
+        return np.ascontiguousarray(np.clip(q, 0.0, 1.0)[::-1])
+
+    def describe(self) -> dict[str, Any]:
+        rt = self._iterations + 1 + (self.model.reference is not None)
+        return {"iterations_per_frame": self._iterations, "precision": self.options.precision,
+                "fft_round_trips_per_frame": rt}
+
+    def release(self) -> None:
+        for b in self._sized.values():
+            b.release()
+        self._sized.clear()
+        self._last = None
+        super().release()
+
+
+MAX_ADMM_GRID = 4096
+"""Largest FFT grid side (the line a work group transforms sits in shared memory: 32 KiB at 4096)."""
+
+
+def half_spectrum(kernel: np.ndarray, grid: tuple[int, int], dtype: str) -> np.ndarray:
+    """The real-to-complex spectrum of a ``(3, 3, s, s)`` kernel in GL orientation (vertically
+    flipped) on ``grid``, centred on the origin, as the texture holds it: ``(9, NY, NX/2 + 1, 2)``
+    (real, imaginary) in float16 or float32 (``dtype`` ``"f2"``/``"f4"``), from float64."""
+    from ...solvers.realtime import kernel_half_spectrum  # start-up time (as above)
+
+    Kf = kernel_half_spectrum(np.ascontiguousarray(kernel[:, :, ::-1, :]), grid)
+    out = np.stack([Kf.real, Kf.imag], axis=-1).reshape(9, grid[0], grid[1] // 2 + 1, 2)
+    return out.astype(np.float16 if dtype == "f2" else np.float32)

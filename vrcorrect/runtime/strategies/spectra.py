@@ -1,0 +1,39 @@
+"""The eye's kernel spectra on a power-of-two FFT grid, computed on the CPU for the strategies that
+upload whole 3x3 complex spectra (:class:`~vrcorrect.runtime.fft.FftBankGL`: FISTA, the one-pass
+FFT inverse and the preview's forward model).
+
+Layer 5: numpy only.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    from ..eye_model import EyeModel
+
+__all__ = ["kernel_spectra", "simulation_spectrum"]
+
+
+def kernel_spectra(model: "EyeModel", grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """``K(f)`` and the target operator ``T(f)`` (``K_ref(f)`` with glasses, else the colour
+    matrix ``A`` at every frequency), full complex ``(3, 3, NY, NX)`` spectra on ``grid``."""
+    from ...solvers.wiener import centred_kernel  # start-up time: scipy with the first eye
+
+    k = model.kernel
+    Kf = np.fft.fft2(centred_kernel(k.kernel, grid), axes=(2, 3))
+    Tf = (np.fft.fft2(centred_kernel(model.reference.kernel, grid), axes=(2, 3)) if model.reference is not None
+          else np.broadcast_to(k.matrix[:, :, None, None], Kf.shape))
+    return Kf, Tf
+
+
+def simulation_spectrum(model: "EyeModel", grid: tuple[int, int]) -> np.ndarray:
+    """The forward model's bank ``A^-1 K(f)`` (what the eye sees, in display RGB) on ``grid``."""
+    from ...solvers.wiener import centred_kernel  # start-up time (as above)
+
+    k = model.kernel
+    Kf = np.fft.fft2(centred_kernel(k.kernel, grid), axes=(2, 3))
+    return np.einsum("ik,kjyx->ijyx", np.linalg.inv(k.matrix), Kf)

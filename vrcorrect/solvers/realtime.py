@@ -1,0 +1,313 @@
+"""The real-time iterations frame by frame, on the CPU: the twins of the GPU strategies
+(:mod:`vrcorrect.runtime.strategies`), used by ``vrcorrect bench realtime``, ``bench cost`` and the
+tests that hold the GPU to them.
+
+**ADMM over frames** (:class:`AdmmFrames`, the GPU's default).  ``fast``'s boundary-aware split
+(:mod:`vrcorrect.solvers.admm`): on a periodic grid holding the image and a black surround, the
+retina ``v = K u`` (its data term only inside the image) and the displayed image ``z = u`` (the box
+[0, 1] inside, 0 outside), each step exact.  Written in the form that needs the least state, two
+fields on the grid: ``w`` (the argument of the data step) and ``q`` (that of the box), from which
+``v = prox(w)``, ``d1 = w - prox(w)``, ``z = proj(q)`` and ``d2 = q - proj(q)``.  One iteration:
+
+    a1 = 2 prox(w) - w,   a2 = 2 proj(q) - q                       (reflections)
+    U  = G (K^H A1 + n A2),   KU = K U                               (per frequency, exact)
+    w += alpha (Ku - prox(w)),   q += alpha (u - proj(q))            (over-relaxed by alpha)
+
+with ``A = F(a)``, ``G = (K^H K + n I)^-1``, ``n = ||K||^2`` (the kernel's spectral norm squared,
+at DC), ``prox(w) = keep w + (1 - keep) T`` inside the image (``keep = rho n / (2 + rho n)``) and
+``w`` outside, ``proj(q) = clip(q, 0, 1)`` inside and 0 outside.  That is ``fast``'s iteration
+exactly (the same split, over-relaxation and steps; ``rho`` :data:`ADMM_RHO`, tuned for frames), one
+FFT round trip of six real channels each.
+
+* **Cold start** (the first frame, a cut, a new prescription): ``w = T`` on the whole grid (the
+  target retina, ``K_ref t``, spilling into the surround), ``q = t`` inside and 0 outside: the
+  target as the image with the retina it should make, zero duals.  No transform beyond ``T``'s.
+* **Warm start**: the previous frame's ``w`` and ``q`` moved by the change of target inside the
+  image, ``q += t - t_prev`` and ``w += T - T_prev`` (the surround, where neither the data term
+  nor the box looks at the target, is kept as it is); with the content's whole-pixel motion ``d``
+  the image's part of both is first reprojected (``x(p) <- x(p - d)``, pixels the motion exposes
+  starting cold), the surround staying where it is (it belongs to the window, not to the
+  content).  On a still view N frames of k iterations are N k iterations of ``fast``'s ADMM.
+* **Guard**: after the iterations, ``z = proj(q)`` and the target ``t`` are transformed once more
+  (``K z`` and ``K t``, one round trip) and the frame shown is ``t + beta (z - t)`` with the
+  ``beta`` in [0, 1] that minimises the objective (:func:`guard_weight`): no frame is worse than
+  uncorrected.
+
+Per frame: ``k + 2`` FFT round trips (the target ``T = K_ref t``, ``k`` iterations, the guard).
+
+**Storage precision.**  ``precision="half"`` rounds to IEEE half precision (``float16``) at every
+point where the GPU stores a value in a 16-bit texture: the decoded target, the row spectra between
+the passes, ``w``, ``q``, ``T`` and the kernels' spectra; arithmetic stays float32 (float64 for the
+kernel's spectrum before it is rounded).  ``"single"`` stores float32.
+
+Grid: powers of two (the GPU's radix-2 FFT), at least the image plus the kernel less one in each
+direction, the image at the origin (:func:`admm_grid`); spectra are real-to-complex (half the
+columns), as the GPU keeps them.
+
+Layer 4: numpy and scipy.fft; no torch.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.fft
+
+from ..physics.kernel import EyeKernel
+from ..plumbing.errors import ValidationError
+from .wiener import centred_kernel, spectral_norm_squared
+
+__all__ = ["PRECISIONS", "ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "guard_weight", "kernel_half_spectrum",
+           "hermitian_inverse", "AdmmFrames", "AdmmFrame"]
+
+PRECISIONS = ("half", "single")
+ADMM_RHO = 0.2
+"""The penalty, relative to ``||K||^2``: twice ``fast``'s 0.1.  Warm-started ADMM at two iterations a
+frame keeps more of ``fast``'s gain on content that changes by more than a shift (the demo scene's
+head turn, 256 px, quest2: 77 % of the objective gain at 0.2 against 73 % at 0.1, 75 % at 0.5),
+with still views, pans and cuts unchanged to 1 %: a sweep of 0.1 to 1 with the over-relaxation at
+1.6 and 1.8 (``docs/benchmarks.md``, real-time section)."""
+ADMM_RELAXATION = 1.8           # fast's over-relaxation
+MIN_GRID = 16
+
+
+def admm_grid(width: int, height: int, kernel_size: int) -> tuple[int, int]:
+    """The ``(NY, NX)`` power-of-two grid of the ADMM strategy: the image at the origin and room
+    for the blur of a ``kernel_size`` kernel around it (a linear convolution with no wrap-around)."""
+    def side(n: int) -> int:
+        return max(MIN_GRID, 1 << math.ceil(math.log2(n + kernel_size - 1)))
+
+    return side(height), side(width)
+
+
+def guard_weight(s_rk: float, s_kk: float, s_rr: float = 0.0) -> float:
+    """The blend weight in [0, 1] minimising ``|r0 + beta Kd|^2`` from ``s_rk = <r0, Kd>`` and
+    ``s_kk = <Kd, Kd>``: ``clip(-s_rk / s_kk, 0, 1)``; 0 when ``Kd`` is 0 or negligible beside
+    ``r0`` (``s_kk <= 1e-10 s_rr``, ``s_rr = <r0, r0>``: the correction is the target itself, to
+    rounding)."""
+    return 0.0 if not s_kk > 1e-10 * s_rr else min(max(-s_rk / s_kk, 0.0), 1.0)
+
+
+def kernel_half_spectrum(kernel: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
+    """The real-to-complex spectrum ``(3, 3, NY, NX/2 + 1)`` of a ``(3, 3, s, s)`` kernel centred on
+    the origin of ``grid``, in float64 (complex128)."""
+    return scipy.fft.rfft2(centred_kernel(np.asarray(kernel, np.float64), grid), axes=(2, 3), workers=-1)
+
+
+def _store(a: np.ndarray, half: bool) -> np.ndarray:
+    """What a texture holds of ``a``: float16 rounding (``half``) or float32."""
+    return a.astype(np.float16).astype(np.float32) if half else a.astype(np.float32, copy=False)
+
+
+def _store_complex(a: np.ndarray, half: bool) -> np.ndarray:
+    if not half:
+        return a.astype(np.complex64, copy=False)
+    return (_store(a.real, True) + 1j * _store(a.imag, True)).astype(np.complex64)
+
+
+def _mv(M: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Per-frequency ``out[i] = sum_j M[i, j] x[j]`` (complex64)."""
+    out = np.empty((3,) + x.shape[1:], np.complex64)
+    for i in range(3):
+        out[i] = M[i, 0] * x[0] + M[i, 1] * x[1] + M[i, 2] * x[2]
+    return out
+
+
+def hermitian_inverse(Kf: np.ndarray, n: float) -> np.ndarray:
+    """``G = (K^H K + n I)^-1`` per frequency for ``K`` stored as ``(3, 3, ...)`` planes, by
+    cofactors of the Hermitian matrix (what the GPU computes in its column pass), complex64."""
+    K = Kf.astype(np.complex128)
+    M = np.empty((3, 3) + K.shape[2:], np.complex128)
+    for i in range(3):
+        for j in range(3):
+            M[i, j] = np.conj(K[0, i]) * K[0, j] + np.conj(K[1, i]) * K[1, j] + np.conj(K[2, i]) * K[2, j]
+        M[i, i] += n
+    a, b, c = M[0, 0], M[0, 1], M[0, 2]
+    d, e, f = M[1, 0], M[1, 1], M[1, 2]
+    g, h, i_ = M[2, 0], M[2, 1], M[2, 2]
+    A_, B_, C_ = e * i_ - f * h, f * g - d * i_, d * h - e * g
+    inv = 1.0 / (a * A_ + b * B_ + c * C_)
+    G = np.empty_like(M)
+    G[0, 0], G[0, 1], G[0, 2] = A_ * inv, (c * h - b * i_) * inv, (b * f - c * e) * inv
+    G[1, 0], G[1, 1], G[1, 2] = B_ * inv, (a * i_ - c * g) * inv, (c * d - a * f) * inv
+    G[2, 0], G[2, 1], G[2, 2] = C_ * inv, (b * g - a * h) * inv, (a * e - b * d) * inv
+    return G.astype(np.complex64)
+
+
+@dataclass(frozen=True)
+class AdmmFrame:
+    """One frame of :class:`AdmmFrames`: the image shown (``(H, W, 3)`` float32), its objective
+    (the mean squared LMS error of what the eye sees, as :func:`vrcorrect.solvers.objective`), the
+    guard's weight, the solution before the guard and the uncorrected objective."""
+
+    shown: np.ndarray
+    objective: float
+    beta: float
+    solution: np.ndarray
+    uncorrected: float
+
+
+class AdmmFrames:
+    """ADMM over frames for one eye and image size (module docstring).
+
+    Parameters
+    ----------
+    kernel
+        The eye's kernel.
+    reference
+        The glasses-on eye's kernel (the target ``T = K_ref t``), or ``None`` for the ideal target
+        ``A t``.
+    shape
+        The images' ``(H, W)``.
+    precision
+        ``"half"`` or ``"single"`` storage (module docstring).
+    rho, relaxation
+        ADMM's penalty (relative to ``||K||^2``) and over-relaxation (``fast``'s).
+    """
+
+    def __init__(self, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int],
+                 precision: str = "half", rho: float = ADMM_RHO, relaxation: float = ADMM_RELAXATION):
+        if precision not in PRECISIONS:
+            raise ValidationError("precision", precision, "one of " + ", ".join(PRECISIONS))
+        H, W = (int(v) for v in shape)
+        self.shape = (H, W)
+        self.half = precision == "half"
+        size = max(kernel.size, reference.size if reference is not None else 1)
+        self.grid = P = admm_grid(W, H, size)
+        self.n2 = n2 = spectral_norm_squared(kernel.kernel)
+        self.Kf = _store_complex(self._spectrum(kernel.kernel), self.half)
+        self.Rf = None if reference is None else _store_complex(self._spectrum(reference.kernel), self.half)
+        self.A = kernel.matrix.astype(np.float32)
+        self.G = hermitian_inverse(self.Kf, n2)
+        self.Kh = np.ascontiguousarray(np.conj(np.swapaxes(self.Kf, 0, 1)))
+        self.keep = np.float32(rho * n2 / (2.0 + rho * n2))
+        self.alpha = np.float32(relaxation)
+        self.inside = np.zeros(P, bool)
+        self.inside[:H, :W] = True
+        self.w: np.ndarray | None = None
+        self.q: np.ndarray | None = None
+        self.t_prev: np.ndarray | None = None
+        self.T_prev: np.ndarray | None = None
+
+    def _spectrum(self, k: np.ndarray) -> np.ndarray:
+        return kernel_half_spectrum(k, self.grid)
+
+    # ------------------------------------------------------------------ transforms, as the GPU stores them
+
+    def _forward(self, a: np.ndarray) -> np.ndarray:
+        """Row transforms (stored), then column transforms (in the column pass, not stored)."""
+        rows = _store_complex(scipy.fft.rfft(a, axis=-1, workers=-1), self.half)
+        return scipy.fft.fft(rows, axis=-2, workers=-1).astype(np.complex64)
+
+    def _inverse(self, A: np.ndarray) -> np.ndarray:
+        """Column inverse transforms (the column pass stores their result), then row inverses."""
+        cols = _store_complex(scipy.fft.ifft(A, axis=-2, workers=-1), self.half)
+        return scipy.fft.irfft(cols, n=self.grid[1], axis=-1, workers=-1).astype(np.float32)
+
+    def _on_grid(self, image_chw: np.ndarray) -> np.ndarray:
+        g = np.zeros((3,) + self.grid, np.float32)
+        g[:, :self.shape[0], :self.shape[1]] = image_chw
+        return g
+
+    def target(self, t: np.ndarray) -> np.ndarray:
+        """``T`` on the grid: ``K_ref t`` (or ``A t``) for a ``(3, H, W)`` target."""
+        if self.Rf is None:
+            return self._on_grid(np.einsum("ij,jyx->iyx", self.A, t))
+        return self._inverse(_mv(self.Rf, self._forward(self._on_grid(t))))
+
+    def prox(self, w: np.ndarray, T: np.ndarray) -> np.ndarray:
+        out = w.copy()
+        out[:, self.inside] = self.keep * w[:, self.inside] + (1 - self.keep) * T[:, self.inside]
+        return out
+
+    def proj(self, q: np.ndarray) -> np.ndarray:
+        z = np.clip(q, 0.0, 1.0)
+        z[:, ~self.inside] = 0.0
+        return z
+
+    # ------------------------------------------------------------------ frames
+
+    def reset(self) -> None:
+        """The next frame starts cold."""
+        self.w = self.q = self.t_prev = self.T_prev = None
+
+    def start(self, t: np.ndarray, T: np.ndarray, shift: tuple[int, int] | None = None) -> None:
+        """This frame's starting ``w``, ``q`` (module docstring); ``shift``: the content's motion
+        ``(dx, dy)`` in whole pixels (x right, y down); with no state: cold."""
+        H, W = self.shape
+        if self.w is None:
+            self.w, self.q = T.copy(), self._on_grid(t)
+        else:
+            w, q = self.w.copy(), self.q.copy()
+            t_prev, T_prev = self.t_prev, self.T_prev
+            if shift is not None and tuple(shift) != (0, 0):
+                w[:, :H, :W], q[:, :H, :W], t_prev, T_prev = (
+                    self._reproject(a, shift, cold) for a, cold in
+                    ((w[:, :H, :W], T[:, :H, :W]), (q[:, :H, :W], t), (t_prev, t), (T_prev, T[:, :H, :W])))
+            w[:, :H, :W] += T[:, :H, :W] - T_prev
+            q[:, :H, :W] += t - t_prev
+            self.w, self.q = w, q
+        self.w, self.q = _store(self.w, self.half), _store(self.q, self.half)
+        self.t_prev, self.T_prev = t, T[:, :H, :W].copy()
+
+    @staticmethod
+    def _reproject(a: np.ndarray, shift: tuple[int, int], cold: np.ndarray) -> np.ndarray:
+        """``(3, H, W)`` ``a`` moved by ``shift = (dx, dy)``; pixels the motion exposes from ``cold``."""
+        dx, dy = (int(v) for v in shift)
+        _, H, W = a.shape
+        out = cold.copy()
+        if abs(dx) < W and abs(dy) < H:
+            ys, yd = (slice(0, H - dy), slice(dy, H)) if dy >= 0 else (slice(-dy, H), slice(0, H + dy))
+            xs, xd = (slice(0, W - dx), slice(dx, W)) if dx >= 0 else (slice(-dx, W), slice(0, W + dx))
+            out[:, yd, xd] = a[:, ys, xs]
+        return out
+
+    def iterate(self, T: np.ndarray) -> None:
+        """One ADMM iteration on the state (module docstring)."""
+        w, q = self.w, self.q
+        pw, pq = self.prox(w, T), self.proj(q)
+        A1 = self._forward(2 * pw - w)
+        A2 = self._forward(2 * pq - q)
+        R = _mv(self.Kh, A1) + np.float32(self.n2) * A2
+        U = _mv(self.G, R)
+        KU = _mv(self.Kf, U)
+        u, Ku = self._inverse(U), self._inverse(KU)
+        self.w = _store(w + self.alpha * (Ku - pw), self.half)
+        self.q = _store(q + self.alpha * (u - pq), self.half)
+
+    def frame(self, target: np.ndarray, iterations: int, shift: tuple[int, int] | None = None,
+              cold: bool = False) -> AdmmFrame:
+        """One frame: ``target`` ``(H, W, 3)`` linear RGB in [0, 1]; ``iterations`` ADMM iterations
+        from the warm start (``cold``: from the target; ``shift``: the content's motion ``(dx,
+        dy)``), then the guard."""
+        H, W = self.shape
+        t = _store(np.ascontiguousarray(np.moveaxis(np.asarray(target, np.float32), 2, 0)), self.half)
+        if t.shape != (3, H, W):
+            raise ValidationError("target", f"shape {np.shape(target)}", f"({H}, {W}, 3)")
+        if cold:
+            self.reset()
+        T = self.target(t)
+        T_inside = _store(T[:, :H, :W], self.half)
+        T = T.copy()
+        T[:, :H, :W] = T_inside                      # the GPU keeps T inside the image as stored
+        self.start(t, T, shift)
+        for _ in range(iterations):
+            self.iterate(T)
+        return self.guard(t, T_inside)
+
+    def guard(self, t: np.ndarray, T_inside: np.ndarray) -> AdmmFrame:
+        H, W = self.shape
+        z = self.proj(self.q)[:, :H, :W]
+        Kz = self._inverse(_mv(self.Kf, self._forward(self._on_grid(z))))[:, :H, :W]
+        Kt = self._inverse(_mv(self.Kf, self._forward(self._on_grid(t))))[:, :H, :W]
+        r0 = (Kt - T_inside).astype(np.float64)
+        kd = (Kz - Kt).astype(np.float64)
+        s_rk, s_kk, s_rr = float(np.vdot(r0, kd)), float(np.vdot(kd, kd)), float(np.vdot(r0, r0))
+        beta = guard_weight(s_rk, s_kk, s_rr)
+        n = float(r0.size)
+        shown = t + np.float32(beta) * (z - t)
+        return AdmmFrame(shown=np.ascontiguousarray(np.moveaxis(shown, 0, 2)),
+                         objective=(s_rr + 2 * beta * s_rk + beta * beta * s_kk) / n, beta=beta,
+                         solution=np.ascontiguousarray(np.moveaxis(z, 0, 2)), uncorrected=s_rr / n)
