@@ -703,16 +703,18 @@ static XrResult XRAPI_CALL layer_CreateSwapchain(XrSession session, const XrSwap
         return r;
     }
     c->out = h;
+    int failed = 0;
     if (!enumerate_images(h, c->out_tex, c->out_image, &c->out_count)) {
         snprintf(reason, sizeof reason, "could not list the output swapchain's images");
+        failed = 1;
     } else if (api == API_VULKAN) {
-        vk_chain_start(c, (int)(c - L.chains), reason, sizeof reason);
+        failed = !vk_chain_start(c, (int)(c - L.chains), reason, sizeof reason);   /* reason "": the engine logged */
     }
-    if (reason[0]) {
+    if (failed) {
         if (api == API_VULKAN) vk_chain_stop(c, (int)(c - L.chains));
         L.DestroySwapchain(h);
         c->out = XR_NULL_HANDLE;
-        pass_reason(reason);
+        if (reason[0]) pass_reason(reason);
     }
     return r;
 }

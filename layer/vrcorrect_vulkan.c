@@ -483,10 +483,7 @@ int vk_chain_start(Chain *c, int chain_id, char *reason, size_t size) {
     int ok = res && PyObject_IsTrue(res);
     Py_XDECREF(res);
     PyGILState_Release(g);
-    if (!ok) {
-        snprintf(reason, size, "the engine could not import the layer's Vulkan images into its GL context (see above)");
-        return 0;
-    }
+    if (!ok) return 0;                             /* the engine logged why (one line) */
     c->imported = 1;
     return 1;
 }

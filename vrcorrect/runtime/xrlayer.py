@@ -614,7 +614,7 @@ class Engine:
             if self._memory is not None:
                 for texture, memory in names:
                     self._memory.free(texture, memory)
-            self.log.reason(f"Vulkan swapchain {chain}: {_one_line(exc)}")
+            self.log.reason(f"the Vulkan application's images cannot be shared with the engine's GL: {_one_line(exc)}")
             return False
 
     def release_images(self, chain: int) -> None:

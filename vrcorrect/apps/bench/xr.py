@@ -55,7 +55,7 @@ def build_test_runtime(folder: Path) -> Path:
 
 
 @contextmanager
-def _x_display() -> Iterator[str]:
+def x_display() -> Iterator[str]:
     """``DISPLAY`` if set, else a private Xvfb for the duration."""
     if os.environ.get("DISPLAY"):
         yield os.environ["DISPLAY"]
@@ -101,7 +101,7 @@ def run_xr_bench(repeats: int = 3, out: Path = Path("docs/benchmarks.md"), write
         raise ValidationError("--repeats", repeats, "a whole number from 1 to 1000")
     columns, results = [], []
     renderer = runtime = ""
-    with tempfile.TemporaryDirectory() as tmp, _x_display():
+    with tempfile.TemporaryDirectory() as tmp, x_display():
         manifest = build_test_runtime(Path(tmp))
         for w, h in sizes:
             with _environment(XR_RUNTIME_JSON=str(manifest), XRTEST_VIEW_SIZE=f"{w}x{h}"):
