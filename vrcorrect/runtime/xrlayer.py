@@ -676,26 +676,13 @@ class Engine:
                   "u_offset": (x, y), "u_height": height, "u_flip": flip}
         staging = self._stage_texture(width, height, "f1" if fmt.stage_codes else "f4")
         result = self._stage_texture(width, height, "result")
-        ctx.disable_direct(_GL_FRAMEBUFFER_SRGB)
-        program, vao = self._program("DECODE", packed)
-        _set_uniforms(program, {**common, "u_source": 0, "u_stage_codes": fmt.stage_codes})
-        self._bind(src, 0)
-        fb = self._framebuffer(staging)
-        fb.use()
-        ctx.viewport = (0, 0, width, height)
-        vao.render(mode=ctx.TRIANGLES, vertices=3)
+        self._draw("DECODE", packed, {**common, "u_source": 0, "u_stage_codes": fmt.stage_codes}, [src], staging,
+                   (0, 0, width, height))
         t0 = time.perf_counter()
         with self._query(eye):
             self.correctors[eye].apply(staging, self._framebuffer(result))
-        ctx.disable_direct(_GL_FRAMEBUFFER_SRGB)
-        program, vao = self._program("ENCODE", packed)
-        _set_uniforms(program, {**common, "u_source": 0, "u_result": 1, "u_carry": fmt.encoding == "float"})
-        self._bind(src, 0)
-        self._bind(result, 1)
-        fb = self._framebuffer(dst)
-        fb.use()
-        ctx.viewport = rect
-        vao.render(mode=ctx.TRIANGLES, vertices=3)
+        self._draw("ENCODE", packed, {**common, "u_source": 0, "u_result": 1, "u_carry": fmt.encoding == "float"},
+                   [src, result], dst, rect)
         error = ctx.error
         if error != "GL_NO_ERROR":
             raise RuntimeError(f"a GL error ({error}) during the correction")
@@ -757,12 +744,26 @@ class Engine:
             self._programs[key] = (program, fullscreen_triangle(self._gl(), program))
         return self._programs[key]
 
-    def _bind(self, texture: "moderngl.Texture", unit: int) -> None:
-        """``texture`` on ``unit`` with the layer's nearest-texel sampler (the texture's own
-        parameters are never set: it may be the application's)."""
-        texture.use(unit)
+    def _draw(self, stage: str, packed: bool, uniforms: Mapping[str, Any], textures: list["moderngl.Texture"],
+              target: "moderngl.Texture", viewport: tuple[int, int, int, int]) -> None:
+        """One pass of ``layer_copy.glsl`` into ``target`` over ``viewport``, ``textures`` on units 0, 1, ...
+        read through the layer's nearest-texel sampler (a texture's own parameters are never set: it
+        may be the application's), which is unbound again after the pass (the Corrector's passes
+        sample with their textures' own parameters)."""
+        ctx = self._gl()
+        ctx.disable_direct(_GL_FRAMEBUFFER_SRGB)
+        program, vao = self._program(stage, packed)
+        _set_uniforms(program, uniforms)
         assert self._sampler is not None
-        self._sampler.use(unit)
+        for unit, texture in enumerate(textures):
+            texture.use(unit)
+            self._sampler.use(unit)
+        fb = self._framebuffer(target)
+        fb.use()
+        ctx.viewport = viewport
+        vao.render(mode=ctx.TRIANGLES, vertices=3)
+        for unit in range(len(textures)):
+            self._sampler.clear(unit)
 
     def _application_texture(self, name: int, width: int, height: int, fmt: SwapchainFormat) -> "moderngl.Texture":
         key = (int(name), width, height)
