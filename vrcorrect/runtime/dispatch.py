@@ -154,6 +154,9 @@ class Gpu:
         self.dry_run = False
         """Bind and count every pass but run none (``vrcorrect bench cost --dry-run``: a frame's
         count in seconds on a software renderer; what the frame computes is then meaningless)."""
+        self.dry_run_idle = False
+        """With :attr:`dry_run`: count indirect dispatches as given no work groups (what the early
+        stop's plan decides on a still, converged view)."""
 
     def begin(self, stage: str) -> None:
         """The passes that follow belong to ``stage``; the stage before it is over."""
@@ -221,8 +224,9 @@ class Gpu:
             else:
                 program.run(*groups)
             self.ctx.memory_barrier()
-        if indirect is not None and self.ledger is not None and not self.dry_run:
-            args = tuple(int(v) for v in memoryview(indirect[0].read(12, offset=indirect[1])).cast("I"))
+        if indirect is not None and self.ledger is not None and (not self.dry_run or self.dry_run_idle):
+            args = (0, 1, 1) if self.dry_run else \
+                tuple(int(v) for v in memoryview(indirect[0].read(12, offset=indirect[1])).cast("I"))
             if 0 in args:                                  # the GPU gave it no work: it did nothing
                 self._count(name + " (skipped)", args, 0, 0, False, "skipped")
                 return
