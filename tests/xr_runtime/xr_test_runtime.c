@@ -24,7 +24,7 @@
  * opened at run time (no link-time dependency): `cc -shared -fPIC xr_test_runtime.c -ldl -lm`.
  *
  * Environment (all optional):
- *   XRTEST_OUT_DIR         write runtime.log and the frames there:
+ *   XRTEST_OUT_DIR         write runtime.log and the frames there (the folder is made when missing):
  *                          runtime.log: one line per call that creates, destroys or changes state
  *                          (instance, session, swapchains, spaces, actions, graphics devices), per
  *                          state change and per xrEndFrame ("end_frame N layers=L views=S:x,y,wxh ..."),
@@ -64,6 +64,7 @@
 #include <string.h>
 #include <time.h>
 #include <unistd.h>
+#include <sys/stat.h>
 
 #include <X11/Xlib.h>
 #include <GL/glx.h>
@@ -432,7 +433,14 @@ static XrResult create_instance(const XrInstanceCreateInfo *info, XrInstance *in
     memset(&rt, 0, sizeof rt);
     memcpy(rt.enabled, enabled, sizeof enabled);
     const char *out = getenv("XRTEST_OUT_DIR");
-    if (out) snprintf(rt.out_dir, sizeof rt.out_dir, "%s", out);
+    if (out) {                                   /* made, with its parents, when missing */
+        snprintf(rt.out_dir, sizeof rt.out_dir, "%s", out);
+        char dir[sizeof rt.out_dir];
+        snprintf(dir, sizeof dir, "%s", out);
+        for (char *p = dir + 1; *p; p++)
+            if (*p == '/') { *p = 0; mkdir(dir, 0755); *p = '/'; }
+        mkdir(dir, 0755);
+    }
     const char *stop = getenv("XRTEST_STOP_FILE");
     if (stop) snprintf(rt.stop_file, sizeof rt.stop_file, "%s", stop);
     rt.view_w = rt.view_h = 256;

@@ -703,6 +703,9 @@ class Engine:
             self.frames += 1
             if timings_ms[0] >= 0:
                 self._frame_ms.append(float(timings_ms[0]))
+                if self.frames == 1:               # shaders compiled, buffers made on the application's thread
+                    self.log.line(f"first corrected frame: {timings_ms[0]:.0f} ms in xrEndFrame (the Correctors' "
+                                  "GL set-up: shaders and buffers)")
             if timings_ms[1] >= 0:
                 self._sync_ms.append((float(timings_ms[1]), float(timings_ms[2]), float(timings_ms[3])))
             now = time.monotonic()

@@ -39,7 +39,9 @@ SIZES = ((96, 64), (256, 256))
 _LINE = re.compile(r"per eye \(mean of (\d+) frames\): left GPU (\S+) ms, CPU ([\d.]+) ms; right GPU (\S+) ms, "
                    r"CPU ([\d.]+) ms; in xrEndFrame ([\d.]+) ms(?:; per frame, Vulkan copy in and wait ([\d.]+) ms, "
                    r"glFinish ([\d.]+) ms, copy out ([\d.]+) ms)?")
-COLUMNS = ("left GPU", "left CPU", "right GPU", "right CPU", "xrEndFrame", "copy in + wait", "glFinish", "copy out")
+_FIRST = re.compile(r"first corrected frame: ([\d.]+) ms in xrEndFrame")
+COLUMNS = ("left GPU", "left CPU", "right GPU", "right CPU", "xrEndFrame", "copy in + wait", "glFinish", "copy out",
+           "first frame")
 
 
 def _compile(api: str, folder: Path) -> Path:
@@ -112,10 +114,12 @@ def _measure(api: str, app: Path, manifest: Path, layer_dir: Path, picture: Path
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
+    first = [float(m.group(1)) for m in map(_FIRST.search, log.read_text().splitlines()) if m]
     values = []
     for m in timing()[1:lines + 1]:
         numbers = m.groups()[1:]
-        values.append(tuple(float(v) if v not in (None, "-") and not v.startswith(">") else None for v in numbers))
+        values.append(tuple(float(v) if v not in (None, "-") and not v.startswith(">") else None for v in numbers)
+                      + (first[0] if first else None,))
     return values
 
 
@@ -149,23 +153,27 @@ def run_layer_bench(repeats: int = 3, out: Path = Path("docs/benchmarks.md"), wr
     options = CorrectorOptions()
     steps = []
     for row in rows:
-        if row[1] == "Vulkan" and "-" not in row[-4:]:
-            own = sum(float(v) for v in row[-3:])
-            steps.append(f"{own:.2f} ms at {row[0]}, {100 * own / float(row[-4]):.2f} % of the layer's time in "
+        if row[1] == "Vulkan" and "-" not in row[-5:-1]:
+            own = sum(float(v) for v in row[-4:-1])
+            steps.append(f"{own:.2f} ms at {row[0]}, {100 * own / float(row[-5]):.2f} % of the layer's time in "
                          "xrEndFrame")
     body = (
         "## The OpenXR layer per frame, OpenGL and Vulkan sessions (`vrcorrect bench layer`)\n\n"
         f"Machine: {machine_description()}; no GPU: OpenGL is Mesa llvmpipe and Vulkan is Mesa lavapipe, both "
         "software rendering on the CPU. The project's two test applications (tests/xr_gl_app under Xvfb, "
         "tests/xr_vk_app) against the test runtime (tests/xr_runtime, through pyopenxr's loader), with the layer "
-        "and the bundled sample prescription and image, quest2 profile, sRGB swapchains, the Corrector's default "
-        f"correction ({options.filter}, {options.iterations_per_frame} iterations a frame). Each cell is the median of "
+        "and the bundled sample prescription and image (a still picture, both eyes), quest2 profile, sRGB swapchains, "
+        f"the Corrector's default correction ({options.filter}, {options.iterations_per_frame} iterations a frame; "
+        "once a still view has converged its early stop, on by default, skips the iterations, so a small view costs "
+        "milliseconds: `vrcorrect bench realtime` measures moving content). Each cell is the median of "
         f"{repeats} one-second means the layer logs (the first left out), in ms: each eye's GPU time (timer "
         "queries) and CPU time (issuing its correction), the layer's whole time in xrEndFrame, and, for Vulkan, "
         "the steps the OpenGL path does not have: the copy of the submitted rects into the shared images with "
         "the wait for the application's queue (there is no GL_EXT_semaphore_fd on llvmpipe, so the layer waits on "
         "a fence and calls glFinish), glFinish, and the copy of the result into the output image (not waited "
-        "for). `-` where the figure does not exist.\n\n"
+        "for). `first frame`: the layer's time in the first corrected frame's xrEndFrame (one run), where the "
+        "Correctors compile their shaders and make their buffers on the application's thread: the application "
+        "stalls for it once. `-` where the figure does not exist.\n\n"
         + markdown_table(["view", "session", *COLUMNS], rows)
         + "\n\nThe Vulkan path's own steps (copy in and wait, glFinish, copy out) took "
         + ("; ".join(steps) or "-")
