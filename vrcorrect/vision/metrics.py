@@ -69,6 +69,7 @@ __all__ = [
     "ssim",
     "flip",
     "jod",
+    "video_jod",
     "lms_objective",
     "evaluate_seen",
 ]
@@ -386,9 +387,126 @@ def jod(reference_srgb: np.ndarray, test_srgb: np.ndarray, display: DisplayProfi
                               "(ColorVideoVDP's pyramid needs two)")
     a = np.ascontiguousarray(_check_unit_range(a, names[0]), dtype=np.float32)
     b = np.ascontiguousarray(_check_unit_range(b, names[1]), dtype=np.float32)
+    torch, metric = _cvvdp_for(display, a.shape[1], a.shape[0])
+    with torch.no_grad():
+        q, _stats = metric.predict(torch.from_numpy(b), torch.from_numpy(a), dim_order="HWC")
+    return float(q)
+
+
+#: Highest frame rate :func:`video_jod` accepts (Hz): ColorVideoVDP's temporal filters span a quarter
+#: of a second, so their frame buffers grow with the rate (about 250 frames at 1000 Hz).
+VIDEO_JOD_MAX_FPS = 1000.0
+
+
+def _frames_array(frames: Any, name: str) -> np.ndarray:
+    """``frames`` (an ``(F, H, W, 3)`` array or a sequence of ``(H, W, 3)`` frames) as one float32
+    C-contiguous ``(F, H, W, 3)`` array in [0, 1], checked frame by frame (no float64 copy of the
+    whole clip)."""
+    if isinstance(frames, np.ndarray) or hasattr(frames, "__array_interface__"):
+        arr = np.asarray(frames)
+        if arr.dtype.kind not in "biuf":
+            raise ValidationError(f"{name}.dtype", str(arr.dtype), "a real numeric array (float, int or bool)")
+        if arr.ndim != 4 or arr.shape[3] != 3:
+            raise ValidationError(f"{name}.shape", arr.shape, "(frames, height, width, 3)")
+        seq: Any = arr
+    elif isinstance(frames, (list, tuple)):
+        seq = frames
+    else:
+        raise ValidationError(name, type(frames).__name__,
+                              "an (F, H, W, 3) array or a list of (H, W, 3) frames of sRGB code values")
+    if len(seq) < 1:
+        raise ValidationError(f"{name}.shape", getattr(seq, "shape", (0,)), "at least 1 frame")
+    first = np.shape(seq[0])
+    if len(first) != 3 or first[2] != 3:
+        raise ValidationError(f"{name}[0].shape", first, "(height, width, 3)")
+    if min(first[:2]) < JOD_MIN_SIDE:
+        raise ValidationError(f"{name}.shape", (len(seq), *first), f"frames of at least {JOD_MIN_SIDE}x{JOD_MIN_SIDE} "
+                              "pixels (ColorVideoVDP's pyramid needs two)")
+    out = np.empty((len(seq), *first), dtype=np.float32)
+    for i in range(len(seq)):
+        frame = _as_float_array(seq[i], f"{name}[{i}]") if not isinstance(seq, np.ndarray) else seq[i]
+        if frame.shape != first:
+            raise ValidationError(f"{name}[{i}].shape", frame.shape, f"the shape of {name}[0], {first}")
+        frame = frame.astype(np.float64, copy=False)
+        _check_finite(frame, f"{name}[{i}]")
+        out[i] = _check_unit_range(frame, f"{name}[{i}]")
+    return out
+
+
+def video_jod(reference_frames: Any, test_frames: Any, display: DisplayProfile, fps: float) -> float:
+    """ColorVideoVDP quality of the clip ``test_frames`` against ``reference_frames`` on
+    ``display``, in JOD, in video mode: the metric's temporal channels (sustained and transient)
+    see flicker and changes from frame to frame that per-frame scores miss.
+
+    Viewing conditions exactly as :func:`jod` (geometry from ``display.pixels_per_degree`` and the
+    frame size; photometry from ``display.photometry``, sRGB encoding); the clip is scored with
+    ``predict(test, reference, dim_order="FHWC", frames_per_second=fps)``.
+
+    Parameters
+    ----------
+    reference_frames, test_frames
+        ``(F, H, W, 3)`` arrays, or sequences of ``F`` arrays ``(H, W, 3)``, of sRGB-encoded code
+        values in [0, 1] (float, int or bool arrays as for :func:`jod`: values, not 8-bit codes),
+        one shape, ``F >= 1``, each side at least :data:`JOD_MIN_SIDE` pixels.  Excursions outside
+        [0, 1] up to :data:`RANGE_TOLERANCE` are clipped; larger ones raise.  ``F == 1`` is a
+        still image: ColorVideoVDP then runs in image mode and the result equals
+        :func:`jod` of the two frames (``fps`` is checked but has no effect).
+    display
+        A :class:`vrcorrect.specs.display.DisplayProfile`.
+    fps
+        The rate the clips are shown at, frames per second: a finite number in
+        (0, :data:`VIDEO_JOD_MAX_FPS`] (90 for a headset).
+
+    Returns
+    -------
+    float
+        JOD, at most 10 (identical clips score 10 to float precision).
+
+    Notes
+    -----
+    Meant for short clips as a headset shows them: seconds, up to a few hundred frames of up to
+    about 512x512 pixels.  Memory: both clips are held as float32 (``12 F H W`` bytes each: 71 MB
+    for a 1-second 90-frame clip at 256x256) plus ColorVideoVDP's buffers for a quarter of a second
+    of frames; the frames are processed one at a time on the CPU.  Time grows with ``F H W``:
+    measured on 2 busy CPU cores, that 90-frame 256x256 clip took 38 s and 380 MB above the
+    process's baseline, 90 frames at 64x64 about 1 s.
+
+    A still clip is not a still image to ColorVideoVDP: an image is scored as if seen briefly (its
+    quality is scaled by the calibrated ``image_int`` = 0.578 before the JOD mapping), a clip for
+    its whole duration.  So ``F >= 2`` copies of one image pair lose more:
+    ``10 - video_jod = (10 - jod) * image_int ** -jod_exp`` = 1.67 times the image's loss (with the
+    metric's ``jod_exp`` = 0.930, where the loss exceeds about 0.004 JOD), the same for any ``F``
+    and any rate; measured agreement within 0.001 JOD (tests/test_video_jod.py).
+
+    Raises
+    ------
+    ValidationError
+        Naming ``reference_frames``/``test_frames`` (not ``(F, H, W, 3)``, no frame, frames too
+        small, a frame of another shape, NaN/inf, out of range), ``fps`` or ``display``.
+    InputError
+        When ColorVideoVDP or torch is not installed.
+    """
+    if not isinstance(display, DisplayProfile):
+        raise ValidationError("display", type(display).__name__, "a DisplayProfile (vrcorrect.specs.display.get_display)")
+    if isinstance(fps, bool) or not isinstance(fps, (int, float, np.integer, np.floating)) \
+            or not (math.isfinite(float(fps)) and 0.0 < float(fps) <= VIDEO_JOD_MAX_FPS):
+        raise ValidationError("fps", fps, f"a frame rate in (0, {VIDEO_JOD_MAX_FPS:g}] frames per second")
+    a = _frames_array(reference_frames, "reference_frames")
+    b = _frames_array(test_frames, "test_frames")
+    if a.shape != b.shape:
+        raise ValidationError("test_frames.shape", b.shape, f"the shape of reference_frames, {a.shape}")
+    torch, metric = _cvvdp_for(display, a.shape[2], a.shape[1])
+    with torch.no_grad():
+        q, _stats = metric.predict(torch.from_numpy(b), torch.from_numpy(a), dim_order="FHWC",
+                                   frames_per_second=float(fps))
+    return float(q)
+
+
+def _cvvdp_for(display: DisplayProfile, width: int, height: int):
+    """ColorVideoVDP under ``display``'s viewing conditions for ``width`` x ``height`` images (what
+    :func:`jod` and :func:`video_jod` share); returns ``(torch, metric)``."""
     torch, pycvvdp = _import_cvvdp()
     ph = display.photometry
-    height, width = a.shape[:2]
     metric = pycvvdp.cvvdp(
         display_name=display.name,
         display_geometry=pycvvdp.vvdp_display_geometry((width, height), ppd=float(display.pixels_per_degree)),
@@ -396,9 +514,7 @@ def jod(reference_srgb: np.ndarray, test_srgb: np.ndarray, display: DisplayProfi
             ph.peak_luminance_cd_m2, contrast=ph.contrast, source_colorspace="sRGB", EOTF="sRGB",
             E_ambient=ph.ambient_lux, k_refl=ph.reflectivity, name=display.name),
         device=torch.device("cpu"), quiet=True)
-    with torch.no_grad():
-        q, _stats = metric.predict(torch.from_numpy(b), torch.from_numpy(a), dim_order="HWC")
-    return float(q)
+    return torch, metric
 
 
 def lms_objective(lms: np.ndarray, target_lms: np.ndarray) -> float:
