@@ -21,8 +21,8 @@ from tqdm import tqdm
 from ..plumbing.clips import MAX_CLIP_FRAMES, Clip, FrameFolder, clip_kind, open_clip, resample_indices
 from ..plumbing.errors import ValidationError
 
-__all__ = ["MAX_RATE", "CLIP_HELP", "add_clip_options", "input_clip", "ClipPlan", "plan_frames", "output_folder",
-           "frames_bar", "planned_frames"]
+__all__ = ["MAX_RATE", "CLIP_HELP", "add_input_output", "add_clip_options", "input_clip", "ClipPlan", "plan_frames",
+           "output_folder", "frames_bar", "planned_frames"]
 
 MAX_RATE = 1000.0
 """Highest ``--fps`` / ``--clip-fps`` accepted (frames per second)."""
@@ -32,6 +32,13 @@ CLIP_HELP = ("IN may also be a clip: a folder of frames (its images in natural o
              "ffmpeg). A clip's frames are written to -o as a FOLDER of frame_00000.png, frame_00001.png, ... "
              f"(created; an existing non-empty folder needs --force), all or nothing. At most {MAX_CLIP_FRAMES} "
              "frames of at most 8192x8192 pixels, one size.")
+
+
+def add_input_output(p: argparse.ArgumentParser, image_help: str) -> None:
+    """``IN`` (an image, or a clip) and ``-o OUT`` (a PNG, or a clip's folder)."""
+    p.add_argument("input", metavar="IN", help=f"{image_help}, or a clip: folder of frames, animated GIF/PNG/WebP, "
+                                               "video file")
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output PNG; for a clip, output folder")
 
 
 def add_clip_options(p: argparse.ArgumentParser, *, fps_help: str) -> None:

@@ -17,8 +17,17 @@ from ..plumbing.fileio import check_readable, check_writable, text_writer, write
 from ..plumbing.imageio import png_writer, read_image
 from ..runtime.model_path import DEFAULT_MODEL
 from ..specs.display import decode, encode, get_display
-from .clips import CLIP_HELP, ClipPlan, add_clip_options, frames_bar, input_clip, output_folder, plan_frames, \
-    planned_frames
+from .clips import (
+    CLIP_HELP,
+    ClipPlan,
+    add_clip_options,
+    add_input_output,
+    frames_bar,
+    input_clip,
+    output_folder,
+    plan_frames,
+    planned_frames,
+)
 from .common import (
     add_model_options,
     build_eye_kernel,
@@ -269,9 +278,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "with --method (the offline ceiling of the real-time path), each source frame "
                                    "once unless --fps asks for another rate; --report then holds each frame's "
                                    "objective, a summary, and ColorVideoVDP in video mode of what the eye sees.")
-    p.add_argument("input", metavar="IN", help="image file (sRGB code values), or a clip: folder of frames, animated "
-                                               "GIF/PNG/WebP, video file")
-    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output PNG; for a clip, output folder")
+    add_input_output(p, "image file (sRGB code values)")
     add_model_options(p)
     p.add_argument("--method", choices=("conventional", "paper", "fast", "wiener", "learned"), default="fast",
                    help="correction method (default fast)")

@@ -17,8 +17,17 @@ from ..plumbing.fileio import check_readable, check_writable
 from ..plumbing.imageio import read_image, write_png
 from ..runtime.model_path import model_for_backend
 from ..specs.prescription import bundled_sample_path, load_prescription
-from .clips import CLIP_HELP, ClipPlan, add_clip_options, frames_bar, input_clip, output_folder, plan_frames, \
-    planned_frames
+from .clips import (
+    CLIP_HELP,
+    ClipPlan,
+    add_clip_options,
+    add_input_output,
+    frames_bar,
+    input_clip,
+    output_folder,
+    plan_frames,
+    planned_frames,
+)
 from .common import add_model_options, kernel_options, print_notes
 from ..runtime.eye_model import ITERATIVE_FILTERS
 from .realtime_options import add_filter_options, add_reprojection_option, filter_options, parse_frames
@@ -61,8 +70,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         result, info = render_frame(image, rx, args.display, args.eye, args.backend, view=args.view,
                                     frames=frames, progress=progress, **options)
     write_png(out, result / 255.0, bits=8, force=args.force)
-    print(f"{info['renderer']}: {args.eye} eye, sphere {info['sphere_D']:+.2f} D, cylinder {info['cylinder_D']:+.2f} D, "
-          f"axis {info['axis_deg']:g} deg on {info['display']}; backend {info['backend']}")
+    _print_eye(args, info)
     fraction = info.get("objective_fraction")
     if args.backend == "glsl" and info["filter"] in ITERATIVE_FILTERS:
         print(f"  {METHOD_TITLES[info['filter']]}, {info.get('iterations_per_frame', '-')} iteration(s) per frame, "
@@ -108,21 +116,26 @@ def _render_clip(args: argparse.Namespace, plan: ClipPlan) -> int:
     return 0
 
 
+def _print_eye(args: argparse.Namespace, info: dict) -> None:
+    print(f"{info['renderer']}: {args.eye} eye, sphere {info['sphere_D']:+.2f} D, cylinder {info['cylinder_D']:+.2f} "
+          f"D, axis {info['axis_deg']:g} deg on {info['display']}; backend {info['backend']}")
+
+
 def _median(values) -> float | None:
     kept = [v for v in values if v is not None]
     return float(np.median(kept)) if kept else None
 
 
 def _print_clip_summary(args: argparse.Namespace, plan: ClipPlan, info: dict) -> None:
-    print(f"{info['renderer']}: {args.eye} eye, sphere {info['sphere_D']:+.2f} D, cylinder {info['cylinder_D']:+.2f} D, "
-          f"axis {info['axis_deg']:g} deg on {info['display']}; backend {info['backend']}")
+    _print_eye(args, info)
     print(f"  {plan.text}")
     iterative = args.backend == "glsl" and info["filter"] in ITERATIVE_FILTERS and args.view != "seen-uncorrected"
     if iterative:
         title = METHOD_TITLES[info["filter"]]
         if info["motion_tracked"]:
             cuts = info["cuts"]
-            where = (": at frame " + ", ".join(str(c) for c in cuts[:10]) + (" ..." if len(cuts) > 10 else ""))                 if cuts else ""
+            shown = ", ".join(str(c) for c in cuts[:10]) + (" ..." if len(cuts) > 10 else "")
+            where = f": at frame {shown}" if cuts else ""
             carry = (f"warm start carried across frames, moved by the estimated motion; {len(cuts)} cut(s) detected"
                      f"{where} (cold start)")
         else:
@@ -151,17 +164,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "(a video's frame rate, an animation's frame durations, a folder's --clip-fps); one "
                                    "corrector carries its warm start from frame to frame, moved by the picture's "
                                    "estimated motion and restarted cold on a scene cut, as in a headset.")
-    p.add_argument("input", metavar="IN", help="image (PNG/JPEG, sRGB), or a clip: folder of frames, animated "
-                                               "GIF/PNG/WebP, video file")
-    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output PNG; for a clip, output folder")
+    add_input_output(p, "image (PNG/JPEG, sRGB)")
     add_model_options(p)
     p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl", help="correction backend (default glsl)")
     p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx")
     add_filter_options(p)
     p.add_argument("--frames", metavar="N",
-                   help="run N frames of the input as a still video and write the last; with --filter admm or fista each "
-                        "frame continues the last one's iterations (default: 10 with admm and fista, a still view settled "
-                        "after a tenth of a second at 90 Hz; 1 with the one-pass filters and the onnx backend)")
+                   help="a still image: run N frames of it as a still video and write the last; with --filter admm or "
+                        "fista each frame continues the last one's iterations (default: 10 with admm and fista, a "
+                        "still view settled after a tenth of a second at 90 Hz; 1 with the one-pass filters and the "
+                        "onnx backend)")
     p.add_argument("--view", choices=("corrected", "seen-corrected", "seen-uncorrected"), default="corrected",
                    help="the displayed image (default) or what the eye sees of it")
     add_reprojection_option(p)

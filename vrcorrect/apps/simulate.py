@@ -11,8 +11,17 @@ from ..plumbing.errors import ValidationError
 from ..plumbing.fileio import check_readable, check_writable
 from ..plumbing.imageio import read_image, write_png
 from ..specs.display import decode, encode, get_display
-from .clips import CLIP_HELP, ClipPlan, add_clip_options, frames_bar, input_clip, output_folder, plan_frames, \
-    planned_frames
+from .clips import (
+    CLIP_HELP,
+    ClipPlan,
+    add_clip_options,
+    add_input_output,
+    frames_bar,
+    input_clip,
+    output_folder,
+    plan_frames,
+    planned_frames,
+)
 from .common import add_model_options, build_eye_kernel, load_eye, print_notes
 
 
@@ -85,9 +94,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="what an eye sees of an image on a display; of each frame of a clip",
                        description="What an eye sees of an image on a display. " + CLIP_HELP + " Each source frame "
                                    "of a clip is simulated once unless --fps asks for another rate.")
-    p.add_argument("input", metavar="IN", help="image file (PNG, JPEG, ...; sRGB code values), or a clip: folder of "
-                                               "frames, animated GIF/PNG/WebP, video file")
-    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output PNG; for a clip, output folder")
+    add_input_output(p, "image file (PNG, JPEG, ...; sRGB code values)")
     add_model_options(p)
     p.add_argument("--method", choices=("auto", "fft", "direct"), default="auto", help="convolution path")
     p.add_argument("--explain", action="store_true", help="print every modelling decision")

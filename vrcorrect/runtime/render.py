@@ -16,9 +16,10 @@ benchmarks.  Layer 5 (numpy, moderngl; onnxruntime for the ONNX backend).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
-from typing import TYPE_CHECKING, Any, Callable, Hashable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Hashable, Iterable, Iterator
 
 import numpy as np
 
@@ -69,20 +70,15 @@ def render_frame(image: np.ndarray, rx: RxSource, display: str | os.PathLike[str
     frame's objective over uncorrected where the GPU computes it (``filter="fista"`` and the
     per-frame blend), else None).  ``ctx``: an existing context (default: a new headless one);
     ``progress(done, total)`` is called after each frame."""
-    if view not in VIEWS:
-        raise ValidationError("view", view, "one of " + ", ".join(VIEWS))
+    _check_view(view)
     frames = check_frames(frames)
     img = _codes(image, "image")
-    own = ctx is None
-    if ctx is None:
-        ctx = headless_context(require=430)
-    corrector = src = tex = fbo = None
-    try:
-        t0 = time.perf_counter()
-        corrector = Corrector(ctx, rx, display, eye, backend, **options)
+    with _corrector_session(ctx, rx, display, eye, backend, options) as (ctx, corrector, held, build_s):
         t1 = time.perf_counter()
         src = upload_texture(ctx, img)
+        held.append(src)
         tex, fbo = render_target(ctx, width=img.shape[1], height=img.shape[0])
+        held += [tex, fbo]
         total = frames if view != "seen-uncorrected" else 1
         for done in range(1, total + 1):
             if view == "corrected":
@@ -98,13 +94,35 @@ def render_frame(image: np.ndarray, rx: RxSource, display: str | os.PathLike[str
         info = corrector.describe()
         fraction = corrector.last_objective_fraction((img.shape[1], img.shape[0])) \
             if view != "seen-uncorrected" and corrector.enabled else None
-        info.update(build_s=t1 - t0, frame_s=t2 - t1, renderer=ctx.info.get("GL_RENDERER", "?"), view=view,
+        info.update(build_s=build_s, frame_s=t2 - t1, renderer=ctx.info.get("GL_RENDERER", "?"), view=view,
                     frames=frames, objective_fraction=fraction)
         return out, info
+
+
+def _check_view(view: str) -> None:
+    if view not in VIEWS:
+        raise ValidationError("view", view, "one of " + ", ".join(VIEWS))
+
+
+@contextlib.contextmanager
+def _corrector_session(ctx: "moderngl.Context | None", rx: RxSource, display: Any, eye: str, backend: str,
+                       options: dict[str, Any]) -> Iterator[tuple["moderngl.Context", Corrector, list[Any], float]]:
+    """``(ctx, corrector, held, build_s)``: a Corrector on ``ctx`` (default: a new headless context,
+    released at the end), a list the caller adds its GL objects to (all released when the block
+    ends, however it ends) and the seconds the Corrector took to build."""
+    own = ctx is None
+    if ctx is None:
+        ctx = headless_context(require=430)
+    corrector = None
+    held: list[Any] = []
+    try:
+        t0 = time.perf_counter()
+        corrector = Corrector(ctx, rx, display, eye, backend, **options)
+        yield ctx, corrector, held, time.perf_counter() - t0
     finally:
         if corrector is not None:
             corrector.release()
-        release(fbo, tex, src)
+        release(*reversed(held))
         if own:
             ctx.release()
 
@@ -145,16 +163,8 @@ def render_clip(frames: Iterable[tuple[Hashable, np.ndarray]], rx: RxSource,
     ``objective_fractions`` (each frame's objective over uncorrected as the GPU computed it,
     read one frame late without a stall, the last one at the end; ``None`` where there is none:
     ``seen-uncorrected``, methods without a per-frame guard)."""
-    if view not in VIEWS:
-        raise ValidationError("view", view, "one of " + ", ".join(VIEWS))
-    own = ctx is None
-    if ctx is None:
-        ctx = headless_context(require=430)
-    corrector = src = tex = fbo = None
-    try:
-        t0 = time.perf_counter()
-        corrector = Corrector(ctx, rx, display, eye, backend, **options)
-        build_s = time.perf_counter() - t0
+    _check_view(view)
+    with _corrector_session(ctx, rx, display, eye, backend, options) as (ctx, corrector, held, build_s):
         iterates = runs_iterations(corrector) and view != "seen-uncorrected"
         tracker = MotionTracker() if reprojection and iterates else None
         guarded = view != "seen-uncorrected" and corrector.enabled
@@ -170,9 +180,12 @@ def render_clip(frames: Iterable[tuple[Hashable, np.ndarray]], rx: RxSource,
             if size is None:
                 size = (img.shape[1], img.shape[0])
                 src = upload_texture(ctx, img)
+                held.append(src)
                 tex, fbo = render_target(ctx, width=size[0], height=size[1])
+                held += [tex, fbo]
             elif (img.shape[1], img.shape[0]) != size:
-                raise ValidationError(f"frames[{index}].shape", img.shape, f"the clip's frame size, {size[1]}x{size[0]}")
+                raise ValidationError(f"frames[{index}].shape", img.shape,
+                                      f"the clip's frame size, {size[1]}x{size[0]}")
             else:
                 write_texture(src, img)
             motion: tuple[int, int] | None = None
@@ -204,13 +217,7 @@ def render_clip(frames: Iterable[tuple[Hashable, np.ndarray]], rx: RxSource,
             fractions[-1] = corrector.last_objective_fraction(size)
         check_gl_errors(ctx, "render_clip")
         info = corrector.describe()
-        info.update(renderer=ctx.info.get("GL_RENDERER", "?"), view=view, build_s=build_s, frames=index + 1,
-                    size=size, cuts=cuts, motion_tracked=tracker is not None, frame_ms=frame_ms,
+        info.update(renderer=ctx.info.get("GL_RENDERER", "?"), view=view, build_s=build_s,
+                    frames=index + 1, size=size, cuts=cuts, motion_tracked=tracker is not None, frame_ms=frame_ms,
                     objective_fractions=fractions)
         return info
-    finally:
-        if corrector is not None:
-            corrector.release()
-        release(fbo, tex, src)
-        if own:
-            ctx.release()
