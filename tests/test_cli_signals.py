@@ -5,7 +5,6 @@ metric is infinite (PSNR of identical images) is still valid JSON."""
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys

@@ -18,6 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vrcorrect.plumbing.errors import InputError, ValidationError
+from vrcorrect.runtime import eye_source as eye_source_module
 from vrcorrect.runtime import gl as G
 from vrcorrect.apps.realtime_options import parse_iterations_per_frame
 from vrcorrect.runtime.mirror import (
@@ -547,6 +548,13 @@ def press(m: Mirror, ch: str | int, mods: int = 0) -> None:
     m.key_callback(m.window, k, 0, GLFW_RELEASE, mods)
 
 
+def settle(app) -> None:
+    """What the last frame started designing (a file edit seen, a key's live change) is designed off
+    the render thread: wait for the eye source, then one more frame installs it."""
+    assert app.eye_source.wait(120)
+    app.render()
+
+
 def halves(m: Mirror) -> dict[str, np.ndarray]:
     screen = m.read_screen().astype(int)
     assert screen.shape == (EYE_H, 2 * EYE_W, 3)
@@ -764,10 +772,10 @@ def test_releases_and_repeats_do_nothing_and_escape_quits(mirror):
 
 
 def test_a_refused_edit_keeps_the_prescription_and_says_why(mirror, monkeypatch):
-    def refuse(**changes):
+    def refuse(eye, offset):
         raise ValidationError("right.sphere_D", -20.25, "-20 to 20 D")
 
-    monkeypatch.setattr(mirror.correctors["right"], "adjust", refuse)
+    monkeypatch.setattr(mirror.eye_source, "adjust", refuse)
     before = mirror.current_rx("right")
     press(mirror, "s")
     mirror.render()
@@ -781,8 +789,11 @@ def test_live_sphere_edit_rebuilds_only_that_eye(mirror, mirror_image):
     before = halves(mirror)
     press(mirror, "S", MOD_SHIFT)  # right eye (the default), +0.25 D
     mirror.render()
+    assert "right eye: designing -2.75" in mirror.status
+    settle(mirror)
     after = halves(mirror)
     assert mirror.current_rx("right").sphere_D == pytest.approx(-2.75)
+    assert "right eye now" in mirror.status
     assert mirror.correctors["right"].eye_rx.sphere_D == pytest.approx(-2.75)
     assert (after["left"] == before["left"]).all()
     assert np.abs(after["right"] - before["right"]).max() > 2
@@ -790,6 +801,7 @@ def test_live_sphere_edit_rebuilds_only_that_eye(mirror, mirror_image):
     assert "-2.75" in "\n".join(mirror.panel_lines())
     press(mirror, "s")  # back
     mirror.render()
+    settle(mirror)
     assert mirror.current_rx("right").sphere_D == pytest.approx(-3.0)
     assert np.abs(halves(mirror)["right"] - before["right"]).max() <= 1
 
@@ -806,6 +818,7 @@ def test_prescription_file_changes_show_up_and_bad_files_are_refused(mirror, mir
     time.sleep(0.3)  # the correctors look at the file at most every 0.25 s
     mirror.rx_path.write_text(json.dumps(doc))
     mirror.render()
+    settle(mirror)
     assert mirror.current_rx("right").sphere_D == -2.0 and mirror.current_rx("left").sphere_D == -2.5
     assert "reloaded" in mirror.status and "right\t-2.00 / -1.50 x 20" in "\n".join(mirror.panel_lines())
     got = halves(mirror)
@@ -814,12 +827,14 @@ def test_prescription_file_changes_show_up_and_bad_files_are_refused(mirror, mir
     time.sleep(0.3)
     mirror.rx_path.write_text('{"schema": "vrcorrect.prescription/1", "right": {"sphere_D": -99}}')
     mirror.render()
+    settle(mirror)
     assert "not reloaded" in mirror.status
     assert mirror.current_rx("right").sphere_D == -2.0
     assert (halves(mirror)["right"] == got["right"]).all()
     time.sleep(0.3)
     mirror.rx_path.write_text(SAMPLE_RX)
     mirror.render()
+    settle(mirror)
     assert mirror.current_rx("right").sphere_D == -3.0
     assert np.abs(halves(mirror)["right"] - before["right"]).max() <= 1
 
@@ -948,11 +963,45 @@ def test_an_edit_during_start_up_is_one_state_for_both_eyes_and_the_panel(x_disp
         assert right.eye_rx.sphere_D == -3.0                       # built from the first read,
         assert m.correctors["left"].eye_rx.sphere_D == -2.5        # both eyes,
         assert "-3.00" in "\n".join(m.panel_lines())               # and shown so
-        for c in m.correctors.values():
-            c.POLL_INTERVAL_S = 0.0
+        monkeypatch.setattr(eye_source_module, "POLL_INTERVAL_S", 0.0)
         m.render()
+        settle(m)
         assert right.eye_rx.sphere_D == sphere_after
         right_line = next(line for line in m.panel_lines() if line.startswith("right"))
         assert f"{sphere_after:+.2f}" in right_line, right_line     # the panel says what is corrected
         assert status_words in m.status, m.status
         assert m.correctors["left"].eye_rx.sphere_D == -2.5
+
+
+def test_an_edit_never_stalls_the_render_thread(mirror, mirror_image, monkeypatch):
+    """With the eye's design held on the worker (as a slow kernel build would be), frames go on
+    with the current correction, unchanged; once let go, the next frame installs the new eye."""
+    import threading
+
+    entered, release = threading.Event(), threading.Event()
+    real = eye_source_module.build_eye_model
+
+    def held(eye, display, options):
+        entered.set()
+        assert release.wait(120)
+        return real(eye, display, options)
+
+    monkeypatch.setattr(eye_source_module, "build_eye_model", held)
+    mirror.render()
+    before = halves(mirror)
+    try:
+        press(mirror, "S", MOD_SHIFT)                     # right eye +0.25 D: designed on the worker
+        mirror.render()
+        assert entered.wait(60)
+        for _ in range(5):                                # the render thread is not held
+            mirror.render()
+            assert mirror.current_rx("right").sphere_D == pytest.approx(-3.0)
+            assert np.abs(halves(mirror)["right"] - before["right"]).max() <= 1
+    finally:
+        release.set()
+    settle(mirror)
+    assert mirror.current_rx("right").sphere_D == pytest.approx(-2.75)
+    press(mirror, "s")
+    mirror.render()
+    settle(mirror)
+    assert mirror.current_rx("right").sphere_D == pytest.approx(-3.0)

@@ -264,12 +264,16 @@ def test_prescription_edit_is_picked_up_and_invalid_file_keeps_the_last_good(ove
     time.sleep(0.3)
     o.rx_path.write_text(SAMPLE_RX.replace('"sphere_D": -3.0', '"sphere_D": -2.0'))
     o.render()
+    assert o.eye_source.wait(120)
+    o.render()
     assert o.corrector.eye_rx.sphere_D == pytest.approx(-2.0)
     assert "reloaded" in o.status and "-2.00" in o.status
     changed = o.read_screen().astype(int)
     assert np.abs(changed - before).max() > 2
     time.sleep(0.3)
     o.rx_path.write_text("{ not json")
+    o.render()
+    assert o.eye_source.wait(120)
     o.render()
     assert o.corrector.eye_rx.sphere_D == pytest.approx(-2.0)
     assert "not reloaded" in o.status and any("not reloaded" in m for m in o.messages)
@@ -280,6 +284,8 @@ def test_prescription_edit_is_picked_up_and_invalid_file_keeps_the_last_good(ove
     o.config = o.config.__class__(**{**o.config.__dict__, "show_messages": False})
     time.sleep(0.3)
     o.rx_path.write_text(SAMPLE_RX)
+    o.render()
+    assert o.eye_source.wait(120)
     o.render()
     assert o.corrector.eye_rx.sphere_D == pytest.approx(-3.0)
     assert np.abs(o.read_screen().astype(int) - before).max() <= 1

@@ -64,7 +64,7 @@ from .strategies.base import float_texture, groups_2d
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
-    from .learned import LearnedEye, LearnedModel
+    from .learned import LearnedModel
 
 __all__ = ["CorrectorOptions", "EyeModel", "Corrector", "RxSnapshot", "BACKENDS", "build_eye_model", "file_stamp"]
 
@@ -266,6 +266,12 @@ class Corrector:
 
     def _with_offset(self, base: EyeRx) -> EyeRx:
         return with_offset(base, self._offset)
+
+    def check_eye(self, eye: EyeRx) -> None:
+        """Refuse (``ValidationError``) an eye this corrector cannot correct: outside the learned
+        model's range with that backend; any eye otherwise."""
+        if self._learned is not None:
+            self._learned.check(eye, self.display)
 
     def install(self, model: EyeModel, prescription: Prescription | None = None) -> None:
         """Correct with ``model`` from the next frame on (GL work only: what the CPU designs is in

@@ -150,6 +150,9 @@ class Gpu:
         self.ledger = ledger
         self.stage = ""
         self.profile: Callable[[str], None] | None = None
+        self.dry_run = False
+        """Bind and count every pass but run none (``vrcorrect bench cost --dry-run``: a frame's
+        count in seconds on a software renderer; what the frame computes is then meaningless)."""
 
     def begin(self, stage: str) -> None:
         """The passes that follow belong to ``stage``; the stage before it is over."""
@@ -207,8 +210,9 @@ class Gpu:
         for key, value in (uniforms or {}).items():
             if key in program:
                 program[key] = value
-        program.run(*groups)
-        self.ctx.memory_barrier()
+        if not self.dry_run:
+            program.run(*groups)
+            self.ctx.memory_barrier()
         self._count(name, tuple(int(g) for g in groups), nread, nwritten, round_trip, "compute")
 
     def draw(self, name: str, vao: "moderngl.VertexArray", program: "moderngl.Program",
@@ -231,7 +235,8 @@ class Gpu:
                 program[key] = value
         framebuffer.use()
         framebuffer.viewport = viewport
-        vao.render(mode=self.ctx.TRIANGLES, vertices=3)
+        if not self.dry_run:
+            vao.render(mode=self.ctx.TRIANGLES, vertices=3)
         attachments = framebuffer.color_attachments
         per_pixel = texel_bytes(attachments[0]) if attachments and hasattr(attachments[0], "dtype") else 4
         self._count(name, (), nread, viewport[2] * viewport[3] * per_pixel, False, "draw")

@@ -16,10 +16,15 @@ Keys are handled by a pure state machine, :func:`next_state` on a frozen
 :class:`~vrcorrect.runtime.window.Iterations`); :meth:`Mirror.key_callback` is the GLFW key
 callback that feeds it. :data:`KEY_MAP` lists the keys.
 
-With ``--filter fista`` the correction is projected-gradient iterations spread over frames, and
-``[`` / ``]`` halve / double the iterations per frame live (the speed-accuracy knob, 1 to 64);
-the panel shows it with each eye's objective as a fraction of uncorrected, read back a frame
-late so the panel never waits for the GPU (:func:`~vrcorrect.runtime.window.knob_text`).
+With an iterative method (``--filter admm``, the default, or ``fista``) the correction is
+iterations spread over frames, and ``[`` / ``]`` halve / double the iterations per frame live (the
+speed-accuracy knob, 1 to 64); the panel shows it with each eye's objective as a fraction of
+uncorrected, read back a frame late so the panel never waits for the GPU
+(:func:`~vrcorrect.runtime.window.knob_text`).
+
+A prescription edit (the file, or the keys' live changes) is designed off the render thread
+(:class:`~vrcorrect.runtime.eye_source.EyeSource`): the frames go on with the current correction
+until the new one is ready, then it is installed between two frames.
 
 GPU objects are made when the mirror opens (the correctors make theirs on the first frame of
 a size); rendering frames allocates none. Text is drawn from a glyph atlas
@@ -349,12 +354,7 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
     def _build(self) -> None:
         cfg, ctx = self.config, self.ctx
         self.source = open_source(ctx, self.spec, *cfg.eye_size, folder_interval_s=cfg.folder_interval_s)
-        for eye in EYES:
-            self.say(f"building the {eye} eye's correction ({self._rx_text(eye)} on {self.display.name})...")
-            t0 = time.perf_counter()
-            self.correctors[eye] = Corrector(ctx, self._rx, self.display, eye, cfg.backend,
-                                             **dict(cfg.corrector_options))
-            self.say(f"  built in {time.perf_counter() - t0:.1f} s")
+        self._start_eyes(ctx, EYES, cfg.backend, cfg.corrector_options)
         start_motion(self.source, self.correctors.values(), cfg.reprojection)
         atlas = build_font_atlas(cfg.font_px)
         self.overlay = TextOverlay(ctx, atlas)
@@ -393,23 +393,25 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
         return screenshot
 
     def _adjust(self, a: Adjust) -> None:
+        """Have the eye redesigned with the key's change, off the render thread (the frames go on
+        with the current correction until the new one is installed by :meth:`_poll`)."""
         eye = a.eye
-        self.say(f"{eye} eye: rebuilding the correction ...")
-        t0 = time.perf_counter()
         try:
-            self.correctors[eye].adjust(sphere_D=a.sphere_D, cylinder_D=a.cylinder_D, axis_deg=a.axis_deg)
+            e = self._adjust_eye(eye, a.sphere_D, a.cylinder_D, a.axis_deg)
         except VrcorrectError as exc:
             self.set_status(f"{eye} eye unchanged: {' '.join(str(exc).split())}")
             return
-        self.set_status(f"{eye} eye now {self._rx_text(eye)} (rebuilt in {time.perf_counter() - t0:.1f} s)")
+        self.set_status(f"{eye} eye: designing {e.sphere_D:+.2f} / {e.cylinder_D:+.2f} x {e.axis_deg:.0f} ...")
 
     def _poll(self) -> None:
-        for eye in EYES:
-            corrector = self.correctors[eye]
-            if corrector.poll():     # what the corrector now corrects for, from its own read of the file
-                self.set_status(f"{self.rx_path.name} reloaded: {eye} eye {self._rx_text(eye)}")
-            elif corrector.status and corrector.status != self.status:
-                self.set_status(corrector.status)
+        updates, messages = self._poll_eyes()
+        for u in updates:            # what each corrector now corrects for
+            if u.reason == "reload":
+                self.set_status(f"{self.rx_path.name} reloaded: {u.eye} eye {self._rx_text(u.eye)}")
+            else:
+                self.set_status(f"{u.eye} eye now {self._rx_text(u.eye)} (designed in {u.seconds:.1f} s)")
+        for message in messages:
+            self.set_status(message)
 
     # ------------------------------------------------------------ frames
 

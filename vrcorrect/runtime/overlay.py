@@ -18,12 +18,13 @@ defaults to another monitor (:func:`full_screen_region`); with one monitor, full
 ``screen`` cannot go together. A window manager may move the window: a warning says so.
 
 Keys (:data:`KEY_MAP`, printed at start, shown with ``h``) go through a pure state machine,
-:func:`next_state` on a frozen :class:`OverlayState`, as in the mirror; with ``--filter fista``,
-``[`` / ``]`` halve / double the iterations per frame live, and the report line gives them with the
-objective as a fraction of uncorrected (read a frame late: no wait for the GPU). The prescription
-file is polled every frame (:meth:`Corrector.poll <vrcorrect.runtime.corrector.Corrector.poll>`):
-an edit takes effect live, an invalid file keeps the last good prescription and says why (on
-stdout and in the window). Frames per second and milliseconds per stage are printed once per
+:func:`next_state` on a frozen :class:`OverlayState`, as in the mirror; with an iterative
+method (``--filter admm``, the default, or ``fista``), ``[`` / ``]`` halve / double the iterations
+per frame live, and the report line gives them with the objective as a fraction of uncorrected
+(read a frame late: no wait for the GPU). The prescription file is watched
+(:class:`~vrcorrect.runtime.eye_source.EyeSource`): an edit is designed off the render thread and
+takes effect when ready, an invalid file keeps the last good prescription and says why (on stdout
+and in the window). Frames per second and milliseconds per stage are printed once per
 second and on exit. The window shell is :mod:`vrcorrect.runtime.window`.
 
 Layer 5: numpy, Pillow, moderngl, glfw, mss; never torch.
@@ -311,7 +312,6 @@ class Overlay(KeyedWindowApp[OverlayState, OverlayAction]):
         self.reports: list[str] = []
         self.region: Rect | None = None
         self.source: PictureSource | None = None
-        self.corrector: Corrector | None = None
         self.text: TextOverlay | None = None
         self._times: StageTimes | None = None
         self._sums: dict[str, list[float]] = {}
@@ -365,11 +365,8 @@ class Overlay(KeyedWindowApp[OverlayState, OverlayAction]):
             self.source = ScreenSource(ctx, w, h, self.region)
         else:
             self.source = open_picture_source(ctx, self.spec, w, h, folder_interval_s=cfg.folder_interval_s)
-        self.say(f"building the {cfg.eye} eye's correction for {self.display.name} ({self.source.label}, {w}x{h})...")
-        t0 = time.perf_counter()
-        self.corrector = Corrector(ctx, self._rx, self.display, cfg.eye, cfg.backend,
-                                   **dict(cfg.corrector_options))
-        self.say(f"  built in {time.perf_counter() - t0:.1f} s")
+        self.say(f"{self.source.label}, {w}x{h}")
+        self._start_eyes(ctx, (cfg.eye,), cfg.backend, cfg.corrector_options)
         start_motion(self.source, [self.corrector], cfg.reprojection)
         atlas = build_font_atlas(cfg.font_px)
         self.text = TextOverlay(ctx, atlas)
@@ -381,14 +378,23 @@ class Overlay(KeyedWindowApp[OverlayState, OverlayAction]):
     def _next_state(self, key: int, mods: int) -> tuple[OverlayState, tuple[OverlayAction, ...]]:
         return next_state(self.state, key, mods)
 
+    @property
+    def corrector(self) -> Corrector | None:
+        """The one eye's corrector (``None`` before it is built and after :meth:`close`)."""
+        return self.correctors.get(self.config.eye)
+
+    @corrector.setter
+    def corrector(self, value: Corrector) -> None:
+        self.correctors[self.config.eye] = value
+
     def _poll(self) -> None:
-        c = self.corrector
-        if c.poll():
-            rx = c.eye_rx
+        updates, messages = self._poll_eyes()
+        if updates:
+            rx = self.corrector.eye_rx
             self.set_status(f"{self.rx_path.name} reloaded: {self.config.eye} eye {rx.sphere_D:+.2f} / "
                             f"{rx.cylinder_D:+.2f} x {rx.axis_deg:.0f}", hold_s=3.0)
-        elif c.status:
-            self.set_status(c.status, hold_s=math.inf)
+        elif messages:
+            self.set_status(messages[-1], hold_s=math.inf)
         else:
             self._expire_status()
 
@@ -476,5 +482,6 @@ class Overlay(KeyedWindowApp[OverlayState, OverlayAction]):
                 if obj is not None:
                     obj.release()
             release(self.ctx)
-        self.corrector = self.text = self.source = self._times = None
+        self.correctors.clear()
+        self.text = self.source = self._times = None
         self._close_window()

@@ -33,16 +33,16 @@ import numpy as np
 from ..plumbing.errors import GLUnavailableError, InputError, ValidationError, VrcorrectError
 from ..plumbing.imageio import write_png
 from ..specs.display import get_display
-from ..specs.prescription import bundled_sample_path
-from .corrector import RxSnapshot
+from ..specs.prescription import EyeRx, bundled_sample_path
+from .corrector import Corrector, RxSnapshot
 from .eye_model import ITERATIONS_RANGE, ITERATIVE_FILTERS
+from .eye_source import EyeSource, EyeUpdate
 from .gl import read_framebuffer, timer_query_ms
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
     from ..specs.display import DisplayProfile
-    from .corrector import Corrector, RxSnapshot
 
 __all__ = [
     "REALTIME_EXTRA", "XrUnavailableError", "import_optional", "require_moderngl", "require_glfw", "require_xr",
@@ -386,6 +386,41 @@ class WindowApp:
         self._session: GlfwSession | None = None
         self.window: Any = None                           # a GLFW window handle
         self.ctx: moderngl.Context | None = None
+        self.correctors: dict[str, Corrector] = {}
+        self.eye_source: EyeSource | None = None
+
+    def _start_eyes(self, ctx: "moderngl.Context", eyes: Sequence[str], backend: str,
+                    options: Mapping[str, Any]) -> None:
+        """Each eye's :class:`~vrcorrect.runtime.corrector.Corrector`, designed now (the start: the
+        window says "building"), from the one read of the prescription; then the
+        :class:`~vrcorrect.runtime.eye_source.EyeSource` that watches the file and designs later
+        changes off the render thread (:meth:`_poll_eyes`)."""
+        for eye in eyes:
+            self.say(f"building the {eye} eye's correction ({_eye_words(self._rx.prescription.eye(eye))} on "
+                     f"{self.display.name})...")
+            t0 = time.perf_counter()
+            self.correctors[eye] = Corrector(ctx, self._rx, self.display, eye, backend, **dict(options))
+            self.say(f"  built in {time.perf_counter() - t0:.1f} s")
+        first = self.correctors[eyes[0]]
+        self.eye_source = EyeSource(self._rx, self.display, first.options, eyes=tuple(eyes), check=first.check_eye)
+
+    def _poll_eyes(self) -> tuple[list[EyeUpdate], list[str]]:
+        """Install the eyes the :class:`~vrcorrect.runtime.eye_source.EyeSource` has designed since
+        the last frame (GL work only) and return them with its messages; never waits."""
+        if self.eye_source is None:
+            return [], []
+        updates, messages = self.eye_source.poll()
+        for u in updates:
+            corrector = self.correctors[u.eye]
+            corrector.install(u.model, u.prescription)
+            corrector.set_offset(u.offset)
+        return updates, messages
+
+    def _adjust_eye(self, eye: str, sphere_D: float = 0.0, cylinder_D: float = 0.0, axis_deg: float = 0.0) -> EyeRx:
+        """Have ``eye`` redesigned with these live changes on top of its current ones, off the render
+        thread; returns the eye it will be (``ValidationError`` at once when out of range)."""
+        ds, dc, da = self.correctors[eye].live_offset
+        return self.eye_source.adjust(eye, (ds + sphere_D, dc + cylinder_D, da + axis_deg))
 
     def say(self, text: str) -> None:
         """A progress or status line for the user (to ``echo``)."""
@@ -407,7 +442,8 @@ class WindowApp:
 
     def _read_inputs(self, rx: str | Path | None, display: str | Path) -> None:
         """Read the prescription once (``None``: the bundled sample; a bad file fails here, before
-        any window; later edits come through each corrector's poll) and the sRGB display."""
+        any window; later edits come through the eye source, :meth:`_poll_eyes`) and the sRGB
+        display."""
         # lazy: the prescription module loads its schema, not needed to build the CLI's parser
 
         self.rx_path = Path(rx) if rx is not None else bundled_sample_path()
@@ -443,7 +479,11 @@ class WindowApp:
         """GLFW key callback (none by default)."""
 
     def _close_window(self) -> None:
-        """Close the window and terminate GLFW (release GL objects first)."""
+        """Stop the eye source's worker, close the window and terminate GLFW (release GL objects
+        first)."""
+        if self.eye_source is not None:
+            self.eye_source.close()
+            self.eye_source = None
         if self._session is not None:
             self._session.close()
         self._session = self.window = self.ctx = None
@@ -570,3 +610,7 @@ class KeyedWindowApp(WindowApp, Generic[StateT, ActionT]):
         """Seconds of source time for the frame about to be rendered: ``time_step_s`` per frame, or the clock."""
         step = self.config.time_step_s
         return self.frame * step if step is not None else time.perf_counter() - self._t0
+
+
+def _eye_words(e: EyeRx) -> str:
+    return f"{e.sphere_D:+.2f} / {e.cylinder_D:+.2f} x {e.axis_deg:.0f}"

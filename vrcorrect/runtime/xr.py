@@ -434,7 +434,6 @@ class XrApp(WindowApp):
         self._last_poll = 0.0
         self._first_display_time: int | None = None
         self._rendered_pending = False
-        self._status: dict[str, str] = {}
         self._last_views: dict[str, np.ndarray] = {}    # each eye's view matrix at its last frame
         try:
             self._create_instance()
@@ -573,12 +572,7 @@ class XrApp(WindowApp):
             self.source = ScreenSource(ctx, w, h, self.region or screen_bounds())
         else:
             self.source = open_source(ctx, self.spec, w, h, folder_interval_s=cfg.folder_interval_s)
-        for eye in EYES:
-            self.say(f"building the {eye} eye's correction ({self.display.name}) ...")
-            t0 = time.perf_counter()
-            self.correctors[eye] = Corrector(ctx, self._rx, self.display, eye, cfg.backend,
-                                             **dict(cfg.corrector_options))
-            self.say(f"  built in {time.perf_counter() - t0:.1f} s")
+        self._start_eyes(ctx, EYES, cfg.backend, cfg.corrector_options)
         if not isinstance(self.source, DemoScene):     # a head-locked picture source
             start_motion(self.source, self.correctors.values(), cfg.reprojection)
         if self.format == GL_RGBA8:
@@ -793,16 +787,15 @@ class XrApp(WindowApp):
         self._sampler.clear(0)
 
     def _poll_files(self) -> None:
+        updates, messages = self._poll_eyes()             # installs what the worker designed; never waits
+        for u in updates:
+            self.say(f"{self.rx_path.name} reloaded: {u.eye} eye rebuilt")
+        for message in messages:
+            self.say(message)                              # e.g. an invalid edit: the last good Rx is kept
         now = time.monotonic()
         if now - self._last_poll < 1.0:
             return
         self._last_poll = now
-        for eye, corrector in self.correctors.items():
-            if corrector.poll():
-                self.say(f"{self.rx_path.name} reloaded: {eye} eye rebuilt")
-            elif corrector.status and corrector.status != self._status.get(eye):
-                self.say(f"{eye} eye: {corrector.status}")  # e.g. an invalid edit: the last good Rx is kept
-            self._status[eye] = corrector.status
         knob = self.knob_text()
         if knob and self.config.mirror and self.window is not None:
             self.glfw.set_window_title(self.window, f"{self._title}   {knob}")

@@ -16,7 +16,8 @@ fields on the grid: ``w`` (the argument of the data step) and ``q`` (that of the
 with ``A = F(a)``, ``G = (K^H K + n I)^-1``, ``n = ||K||^2`` (the kernel's spectral norm squared,
 at DC), ``prox(w) = keep w + (1 - keep) T`` inside the image (``keep = rho n / (2 + rho n)``) and
 ``w`` outside, ``proj(q) = clip(q, 0, 1)`` inside and 0 outside.  That is ``fast``'s iteration
-exactly (same ``rho``, over-relaxation and steps), one FFT round trip of six real channels each.
+exactly (the same split, over-relaxation and steps; ``rho`` :data:`ADMM_RHO`, tuned for frames), one
+FFT round trip of six real channels each.
 
 * **Cold start** (the first frame, a cut, a new prescription): ``w = T`` on the whole grid (the
   target retina, ``K_ref t``, spilling into the surround), ``q = t`` inside and 0 outside: the
@@ -62,7 +63,12 @@ __all__ = ["PRECISIONS", "ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "guard_weig
            "hermitian_inverse", "AdmmFrames", "AdmmFrame"]
 
 PRECISIONS = ("half", "single")
-ADMM_RHO = 0.1                  # fast's rho (relative to ||K||^2)
+ADMM_RHO = 0.2
+"""The penalty, relative to ``||K||^2``: twice ``fast``'s 0.1.  Warm-started ADMM at two iterations a
+frame keeps more of ``fast``'s gain on content that changes by more than a shift (the demo scene's
+head turn, 256 px, quest2: 77 % of the objective gain at 0.2 against 73 % at 0.1, 75 % at 0.5),
+with still views, pans and cuts unchanged to 1 %: a sweep of 0.1 to 1 with the over-relaxation at
+1.6 and 1.8 (``docs/benchmarks.md``, real-time section)."""
 ADMM_RELAXATION = 1.8           # fast's over-relaxation
 MIN_GRID = 16
 

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from ...plumbing.errors import InputError, ValidationError
-from ...plumbing.fileio import write_text_atomic
+from ...plumbing.fileio import check_writable, write_text_atomic
 from ...runtime.model_path import DEFAULT_MODEL
 
 
@@ -97,6 +97,18 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from .xr import run_xr_bench
 
         print(run_xr_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
+    elif args.what == "cost":
+        from .cost import parse_size, run_cost_bench
+
+        size = parse_size(args.size)
+        if args.json:
+            if Path(args.json).suffix.lower() != ".json":
+                raise ValidationError("--json", args.json, "a path ending in .json")
+            check_writable(Path(args.json), force=args.force)          # before minutes of work
+        report = run_cost_bench(size, args.display, args.rx, out=Path(args.out), write=not args.no_write,
+                                json_out=Path(args.json) if args.json else None, dry_run=args.dry_run,
+                                force=args.force)
+        print(report["markdown"])
     elif args.what == "realtime":
         from .realtime import run_realtime_bench
 
@@ -114,13 +126,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                 plot=Path(args.out).with_name("learned_heldout.png"),
                                 tradeoff=Path(args.out).with_name("learned_tradeoff.png"))["markdown"])
     else:
-        raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, xr or learned")
+        raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, cost, xr or learned")
     return 0
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md")
-    p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "xr", "learned"),
+    p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "cost", "xr", "learned"),
                    help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
     p.add_argument("--resolutions", nargs="+", metavar="R",
@@ -131,4 +143,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--card", metavar="CARD.md", help="learned: also write the model card there")
     p.add_argument("--eyes", type=int, default=6, help="learned: held-out eyes (default 6)")
     p.add_argument("--quick", action="store_true", help="realtime: fewer frames and sizes (a smoke run)")
+    p.add_argument("--size", default="1832x1920", metavar="WxH",
+                   help="cost: each eye's image size (default 1832x1920, a Quest 2 eye)")
+    p.add_argument("--json", metavar="OUT.json", help="cost: also write the figures as JSON there")
+    p.add_argument("--display", default="quest2", help="cost: display preset or profile (default quest2)")
+    p.add_argument("--rx", metavar="RX.json", help="cost: prescription (default: the bundled sample)")
+    p.add_argument("--dry-run", action="store_true",
+                   help="cost: count the passes without running them (seconds instead of minutes on a software "
+                        "renderer; no times)")
+    p.add_argument("--force", action="store_true", help="cost: overwrite --json's file")
     p.set_defaults(func=cmd_bench)

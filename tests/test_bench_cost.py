@@ -1,0 +1,65 @@
+"""``vrcorrect bench cost``: a frame's cost counted from its dispatches, the issue's target held at a
+Quest 2 eye's size, and the command's output and errors."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from vrcorrect.apps.bench.cost import TARGET_BYTES, eye_frame_cost, parse_size
+from vrcorrect.plumbing.errors import ValidationError
+from vrcorrect.specs.display import get_display
+from vrcorrect.specs.prescription import bundled_sample_path, load_prescription
+
+
+def test_the_default_frame_of_a_quest2_eye_moves_at_most_2_gb(gl):
+    """Counted (not run: the count does not depend on the pixels) for both eyes of the sample
+    prescription at 1832 x 1920: the default's changing-content frame is within the target, in
+    k + 2 round trips, and a real run at a small size counts the same passes as a dry run."""
+    rx = load_prescription(bundled_sample_path())
+    display = get_display("quest2")
+    for eye in ("left", "right"):
+        cost = eye_frame_cost(gl, rx, display, eye, (1832, 1920), {}, warmup=1, dry_run=True)
+        assert cost.changing.bytes <= TARGET_BYTES, (eye, cost.changing.bytes)
+        assert cost.changing.fft_round_trips == cost.describe["iterations_per_frame"] + 2
+    dry = eye_frame_cost(gl, rx, display, "right", (64, 48), {}, warmup=1, dry_run=True)
+    real = eye_frame_cost(gl, rx, display, "right", (64, 48), {}, warmup=1)
+    assert [(r.name, r.bytes) for r in dry.changing.records] == [(r.name, r.bytes) for r in real.changing.records]
+    assert real.frame_ms is not None and dry.frame_ms is None
+
+
+def test_fista_costs_more_than_the_default_by_its_round_trips(gl):
+    rx = load_prescription(bundled_sample_path())
+    display = get_display("quest2")
+    admm = eye_frame_cost(gl, rx, display, "right", (256, 256), {}, warmup=1, dry_run=True)
+    fista = eye_frame_cost(gl, rx, display, "right", (256, 256), {"filter": "fista"}, warmup=1, dry_run=True)
+    assert fista.changing.fft_round_trips == 2 * 4 + 3 and admm.changing.fft_round_trips == 2 + 2
+    assert fista.changing.bytes > 4 * admm.changing.bytes
+
+
+def test_bench_cost_command_prints_writes_and_refuses_bad_input(tmp_path, capsys):
+    from vrcorrect.apps.cli import main
+
+    out, js = tmp_path / "bench.md", tmp_path / "cost.json"
+    assert main(["bench", "cost", "--size", "64x48", "--dry-run", "--out", str(out), "--json", str(js)]) == 0
+    printed = capsys.readouterr().out
+    assert "GB per eye frame" in printed and "projection" in printed and "admm (default)" in printed
+    report = json.loads(js.read_text())
+    assert report["size"] == [64, 48] and report["dry_run"] is True
+    assert {"dispatches", "fft_round_trips", "bytes_per_eye_frame"} <= set(report["default"])
+    assert set(report["methods"][0]["projected_ms"]) == {"RTX 3060", "RTX 4090", "H100 SXM"}
+    assert "<!-- bench:cost -->" in out.read_text()
+    assert main(["bench", "cost", "--size", "64x48", "--dry-run", "--out", str(out), "--json", str(js)]) == 2
+    assert "--force" in capsys.readouterr().err                       # the JSON is not overwritten
+    for args, words in ((["--size", "64"], "--size"), (["--size", "8x8"], "--size"),
+                        (["--json", str(tmp_path / "x.txt")], "--json")):
+        assert main(["bench", "cost", "--dry-run", "--no-write", *args]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("vrcorrect: error:") and words in err and err.count("\n") == 1, err
+
+
+def test_parse_size():
+    assert parse_size("1832x1920") == (1832, 1920)
+    with pytest.raises(ValidationError, match="WxH"):
+        parse_size("4097x16")

@@ -1,0 +1,239 @@
+"""``vrcorrect bench cost``: what one real-time frame costs a GPU, counted from the passes that run it.
+
+Each eye of the prescription gets a :class:`~vrcorrect.runtime.corrector.Corrector` at the stated
+size; after warm-up frames, a :class:`~vrcorrect.runtime.dispatch.CostLedger` is attached and one
+more frame runs.  Every pass goes through :class:`~vrcorrect.runtime.dispatch.Gpu`, which binds what
+the pass names and counts its bytes (each texel of a bound resource read or written once), so the
+figures are the code's, not a formula written beside it.
+
+* **The budget case**: content that changes every frame (a new picture each frame, the warm start
+  carried over): the most a frame costs.
+* **A converged still view**: the same picture frame after frame.
+* **Projections**: milliseconds per eye at the published peak memory bandwidth of three GPUs
+  (:data:`~vrcorrect.runtime.dispatch.BANDWIDTHS`): a frame of these bandwidth-bound passes cannot
+  be faster than that; real code reaches some fraction of the peak.  They are projections, not
+  measurements: this machine has no GPU.
+* **Measured here**: the frame's wall time on the software renderer (llvmpipe, CPU cores): a
+  measurement of this machine, not of a GPU.
+
+The default method is compared with the others the real-time path offers (ADMM in single
+precision, FISTA, the one-pass FFT inverse) in one run.  ``dry_run`` counts without running the
+passes (seconds instead of minutes on a software renderer; no wall times then).  Layer 6.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+from ...plumbing.errors import ValidationError
+from ...plumbing.fileio import write_text_atomic
+from ...runtime.corrector import Corrector, CorrectorOptions
+from ...runtime.dispatch import BANDWIDTHS, CostLedger, project_ms
+from ...runtime.gl import headless_context, release, render_target, upload_texture, write_texture
+from ...specs.display import get_display
+from ...specs.prescription import Prescription, bundled_sample_path, load_prescription
+from . import machine_description, markdown_table, write_section
+
+__all__ = ["METHODS", "FRAME_BUDGET_MS", "TARGET_BYTES", "MethodCost", "parse_size", "eye_frame_cost",
+           "run_cost_bench"]
+
+HEADSET_SIZE = (1832, 1920)                   # one Quest 2 eye, width x height
+FRAME_BUDGET_MS = 1e3 / 90                    # both eyes of a 90 Hz frame
+TARGET_BYTES = 2.0e9                          # the issue's target per eye and frame
+METHODS: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("admm (default)", {}),
+    ("admm, single precision", {"filter": "admm", "precision": "single"}),
+    ("fista, k = 4", {"filter": "fista"}),
+    ("fft, per-frame blend", {"filter": "fft"}),
+)
+"""The methods compared, by label and Corrector options (the first is the default)."""
+
+
+def parse_size(text: str, field: str = "--size") -> tuple[int, int]:
+    """``WxH`` -> ``(W, H)``, each 16 to 4096 px."""
+    try:
+        w, h = (int(v) for v in str(text).lower().split("x"))
+    except ValueError:
+        w = h = 0
+    if not (16 <= w <= 4096 and 16 <= h <= 4096):
+        raise ValidationError(field, text, "WxH with each side 16 to 4096 pixels, e.g. 1832x1920")
+    return w, h
+
+
+@dataclass
+class MethodCost:
+    """One method's frame, one eye: the ledger of the changing-content frame and the still one."""
+
+    label: str
+    eye: str
+    options: dict[str, Any]
+    changing: CostLedger
+    still: CostLedger
+    frame_ms: float | None                  # wall time of the changing frame here (None: dry run)
+    describe: dict[str, Any]
+
+    def row(self) -> dict[str, Any]:
+        c = self.changing
+        return {"method": self.label, "eye": self.eye, "dispatches": c.dispatches, "fft_round_trips": c.fft_round_trips,
+                "bytes_per_eye_frame": c.bytes, "still_view_bytes": self.still.bytes,
+                "projected_ms": {gpu: project_ms(c.bytes, bw) for gpu, (bw, _) in BANDWIDTHS.items()},
+                "measured_ms_here": self.frame_ms, "stages": c.by_stage(), "strategy": self.describe.get("strategy"),
+                "iterations_per_frame": self.describe.get("iterations_per_frame")}
+
+
+def eye_frame_cost(ctx: Any, rx: Prescription, display: Any, eye: str, size: tuple[int, int],
+                   options: dict[str, Any], warmup: int = 2, dry_run: bool = False, seed: int = 0,
+                   label: str = "") -> MethodCost:
+    """One eye's frame costs: ``warmup`` frames of changing content, then one counted frame of new
+    content (the budget case), then ``warmup`` frames of that picture held still and one counted
+    still frame."""
+    rng = np.random.default_rng(seed)
+    W, H = size
+    corrector = Corrector(ctx, rx, display, eye, **options)
+    corrector.gpu.dry_run = dry_run
+    src = upload_texture(ctx, rng.integers(0, 256, (H, W, 3), dtype=np.uint8))
+    tex, fbo = render_target(ctx, width=W, height=H)
+    try:
+        def frame(new_content: bool) -> float:
+            if new_content:
+                write_texture(src, rng.integers(0, 256, (H, W, 3), dtype=np.uint8))
+            t0 = time.perf_counter()
+            corrector.apply(src, fbo)
+            ctx.finish()
+            return 1e3 * (time.perf_counter() - t0)
+
+        for _ in range(warmup):
+            frame(True)
+        corrector.ledger = changing = CostLedger()
+        ms = frame(True)
+        corrector.ledger = None
+        for _ in range(warmup):
+            frame(False)
+        corrector.ledger = still = CostLedger()
+        frame(False)
+        return MethodCost(label, eye, options, changing, still, None if dry_run else ms, corrector.describe())
+    finally:
+        corrector.release()
+        release(fbo, tex, src)
+
+
+def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "quest2", rx_path: str | None = None,
+                   out: Path = Path("docs/benchmarks.md"), json_out: Path | None = None, write: bool = True,
+                   dry_run: bool = False, methods: Sequence[tuple[str, dict[str, Any]]] = METHODS,
+                   force: bool = False) -> dict[str, Any]:
+    """Count one frame per eye for each method (module docstring); returns the report (a dict with
+    ``markdown``), writes the ``cost`` section of ``out`` and, with ``json_out``, the JSON."""
+    display = get_display(display_name)
+    rx = load_prescription(rx_path or bundled_sample_path())
+    ctx = headless_context(require=430)
+    results: list[MethodCost] = []
+    try:
+        renderer = ctx.info.get("GL_RENDERER", "?")
+        with tqdm(total=2 * len(methods), desc="bench cost", unit="eye", leave=False) as bar:
+            for label, options in methods:
+                for eye in ("left", "right"):
+                    results.append(eye_frame_cost(ctx, rx, display, eye, size, options, dry_run=dry_run,
+                                                  label=label))
+                    bar.update()
+    finally:
+        ctx.release()
+    default = [r for r in results if r.label == methods[0][0]]
+    report = {
+        "size": list(size), "display": display.name, "prescription": str(rx_path or bundled_sample_path()),
+        "machine": machine_description(), "renderer": renderer, "dry_run": dry_run,
+        "default_options": {k: v for k, v in CorrectorOptions().__dict__.items()
+                            if k in ("filter", "iterations_per_frame", "precision")},
+        "bandwidths_GBps": {gpu: bw / 1e9 for gpu, (bw, _) in BANDWIDTHS.items()},
+        "frame_budget_ms_both_eyes": FRAME_BUDGET_MS, "target_bytes_per_eye_frame": TARGET_BYTES,
+        "default": {"dispatches": max(r.changing.dispatches for r in default),
+                    "fft_round_trips": max(r.changing.fft_round_trips for r in default),
+                    "bytes_per_eye_frame": max(r.changing.bytes for r in default),
+                    "still_view_bytes_per_eye_frame": max(r.still.bytes for r in default)},
+        "methods": [r.row() for r in results],
+    }
+    report["markdown"] = _markdown(report, results, size, display.name, renderer, dry_run)
+    if json_out is not None:
+        write_text_atomic(json_out, json.dumps({k: v for k, v in report.items() if k != "markdown"}, indent=2) + "\n",
+                          force=force)
+    if write:
+        write_section(out, "cost", report["markdown"])
+    return report
+
+
+def _still_sentence(d: dict[str, Any]) -> str:
+    still, changing = d["still_view_bytes_per_eye_frame"], d["bytes_per_eye_frame"]
+    if still >= changing:
+        return "A converged still view costs what a changing frame costs: the iterations run every frame."
+    return (f"A converged still view costs {_gb(still)} GB, {changing / still:.0f}x less: the iterations stop once "
+            "the view is still and converged.")
+
+
+def _gb(n: int) -> str:
+    return f"{n / 1e9:.2f}"
+
+
+def _markdown(report: dict, results: list[MethodCost], size: tuple[int, int], display: str, renderer: str,
+              dry_run: bool) -> str:
+    W, H = size
+    gpus = list(BANDWIDTHS)
+    by_label: dict[str, list[MethodCost]] = {}
+    for r in results:
+        by_label.setdefault(r.label, []).append(r)
+    rows = []
+    for label, rs in by_label.items():
+        worst = max(rs, key=lambda r: r.changing.bytes)
+        b = worst.changing.bytes
+        ms_here = [r.frame_ms for r in rs if r.frame_ms is not None]
+        rows.append([label, worst.changing.dispatches, worst.changing.fft_round_trips, _gb(b),
+                     _gb(max(r.still.bytes for r in rs)),
+                     *(f"{project_ms(b, BANDWIDTHS[g][0]):.2f}" for g in gpus),
+                     f"{statistics.median(ms_here) / 1e3:.1f}" if ms_here else "-"])
+    table = markdown_table(["method", "dispatches", "FFT round trips", "GB per eye frame, changing content",
+                            "GB per eye frame, still view", *(f"projected ms per eye, {g}" for g in gpus),
+                            "measured s per eye here (llvmpipe)"], rows)
+    default = by_label[next(iter(by_label))]
+    stages = max(default, key=lambda r: r.changing.bytes).changing
+    passes = markdown_table(["stage", "pass", "MB read", "MB written", "FFT round trip"],
+                            [[p.stage, p.name, f"{p.bytes_read / 1e6:.1f}", f"{p.bytes_written / 1e6:.1f}",
+                              "yes" if p.round_trip else ""] for p in stages.records])
+    d = report["default"]
+    both = {g: 2 * project_ms(d["bytes_per_eye_frame"], BANDWIDTHS[g][0]) for g in gpus}
+    fista = by_label.get("fista, k = 4")
+    ratio = (max(r.changing.bytes for r in fista) / d["bytes_per_eye_frame"]) if fista else None
+    fits = [g for g in gpus if both[g] <= FRAME_BUDGET_MS]
+    fits_75 = [g for g in gpus if both[g] / 0.75 <= FRAME_BUDGET_MS]
+    sources = "; ".join(f"{g}: {what}" for g, (_, what) in BANDWIDTHS.items())
+    return (
+        f"## Real-time frame cost, counted from the dispatches: {W}x{H} per eye\n\n"
+        f"Machine: {report['machine']}; OpenGL renderer: {renderer}. Display `{display}`, the bundled sample "
+        "prescription (both eyes; the larger eye's figures). Each pass of a frame goes through "
+        "`runtime.dispatch.Gpu`, which binds the resources the pass names and counts each texel of them read or "
+        "written once at its stored size (caches not modelled); the table sums those records "
+        "(`vrcorrect bench cost`)." + (" **Dry run: counted, not run; no times.**" if dry_run else "") + "\n\n"
+        "The budget case is content that changes every frame (a new picture each frame, the warm start carried "
+        "over); the still view is the same picture frame after frame. Projected milliseconds are the bytes at the "
+        "GPU's published peak memory bandwidth: a lower bound for these bandwidth-bound passes, **a projection, "
+        f"not a measurement** (this machine has no GPU); {sources}. The last column is this machine's software "
+        "renderer, a CPU.\n\n"
+        + table + "\n\n"
+        f"**The default** ({report['default_options']['filter']}, {report['default_options']['iterations_per_frame']} "
+        f"iterations a frame, {report['default_options']['precision']} precision): {d['dispatches']} dispatches, "
+        f"{d['fft_round_trips']} FFT round trips and {_gb(d['bytes_per_eye_frame'])} GB per eye per frame on "
+        f"changing content (target: at most {TARGET_BYTES / 1e9:.1f} GB), "
+        + (f"{ratio:.1f}x fewer bytes than FISTA's k = 4 frame; " if ratio else "")
+        + "both eyes projected at "
+        + ", ".join(f"{both[g]:.1f} ms on {g}" for g in gpus)
+        + f" against the {FRAME_BUDGET_MS:.1f} ms of a 90 Hz frame: "
+        + (f"inside the budget on {', '.join(fits)} at peak bandwidth" if fits else "outside it on all three")
+        + (f"; at 75 % of the peak, as well-tuned bandwidth-bound code reaches, on {', '.join(fits_75)}"
+           if fits_75 != fits else "") + ". " + _still_sentence(d) + "\n\n"
+        "The default's passes, changing content, one eye:\n\n" + passes + "\n"
+    )

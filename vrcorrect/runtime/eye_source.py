@@ -1,0 +1,236 @@
+"""The prescription watched once for every eye, and each eye's model built off the render thread.
+
+An application that corrects eyes live (the mirror, the overlay, ``vrcorrect xr``, the OpenXR
+layer) makes one :class:`EyeSource`.  Designing an eye (the kernel: PSFs over wavelengths, seconds
+of CPU) never runs on the render thread after start:
+
+* :meth:`EyeSource.poll` (once a frame; cheap) looks at the file's stamp at most every
+  :data:`POLL_INTERVAL_S` and, when it changed, has the worker read, validate and design every eye;
+  it returns the :class:`EyeUpdate`\\ s that are ready, which the application hands to its
+  correctors (:meth:`~vrcorrect.runtime.corrector.Corrector.install`: GL work only).  Meanwhile the
+  old correction runs.  An unreadable or invalid file keeps the last good prescription and says why
+  in one message.
+* :meth:`EyeSource.adjust` designs one eye with live changes (the mirror's keys) the same way; the
+  changed eye is checked against the prescription's ranges at once (a refusal is immediate, the
+  design is not).
+* :meth:`EyeSource.build` designs an eye on the caller's thread: for the start, before the first
+  frame (an application shows "building" then, not a frozen picture).
+
+One worker thread, jobs in order; a newer edit of the file supersedes a queued one.  Layer 5:
+numpy; never torch.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from ..plumbing.errors import VrcorrectError
+from ..specs.display import DisplayProfile
+from ..specs.prescription import EyeRx, Prescription, load_prescription
+from .corrector import RxSnapshot, RxSource, file_stamp, load_rx, with_offset
+from .eye_model import CorrectorOptions, EyeModel, build_eye_model
+
+__all__ = ["POLL_INTERVAL_S", "EyeUpdate", "EyeSource"]
+
+log = logging.getLogger(__name__)
+
+POLL_INTERVAL_S = 0.25
+"""The prescription file's stamp is looked at no more often than this."""
+
+Offset = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class EyeUpdate:
+    """A newly designed eye: its model, the prescription it came from, the live changes on top of
+    the file's (``offset``: sphere, cylinder, axis) and how long the design took."""
+
+    eye: str
+    model: EyeModel
+    prescription: Prescription
+    offset: Offset
+    seconds: float
+    reason: str                       # "reload" (the file changed) or "adjust" (live changes)
+
+
+class EyeSource:
+    """One prescription (a file watched for edits, or a fixed one) and its eyes' models.
+
+    Parameters
+    ----------
+    rx
+        Prescription JSON path, :class:`~vrcorrect.specs.prescription.Prescription` or
+        :class:`~vrcorrect.runtime.corrector.RxSnapshot` (read once; watched from then on).
+    display, options
+        What every eye is designed for.
+    eyes
+        The eyes the application corrects (a reload designs these).
+    check
+        Called with each eye before it is designed (e.g. a learned model's range); raising a
+        :class:`~vrcorrect.plumbing.errors.VrcorrectError` refuses it.
+    """
+
+    def __init__(self, rx: RxSource, display: DisplayProfile, options: CorrectorOptions = CorrectorOptions(),
+                 eyes: tuple[str, ...] = ("left", "right"), check: Callable[[EyeRx], object] | None = None):
+        snapshot = load_rx(rx)
+        self.snapshot: RxSnapshot = snapshot
+        self.eyes = tuple(eyes)
+        self.display, self.options, self.check = display, options, check
+        self.offsets: dict[str, Offset] = {}         # each eye's live changes, as last asked for
+        self._stamp = snapshot.stamp
+        self._last_poll = time.monotonic()
+        self._jobs: queue.Queue[tuple[str, object] | None] = queue.Queue()
+        self._done: queue.Queue[EyeUpdate | str] = queue.Queue()
+        self._pending = 0
+        self._lock = threading.Lock()
+        self._idle = threading.Condition(self._lock)
+        self._file_generation = 0
+        self._worker = threading.Thread(target=self._run, name="vrcorrect-eye-source", daemon=True)
+        self._worker.start()
+
+    @property
+    def prescription(self) -> Prescription:
+        """The last good prescription."""
+        return self.snapshot.prescription
+
+    @property
+    def path(self) -> Path | None:
+        return self.snapshot.path
+
+    def eye_rx(self, eye: str, offset: Offset | None = None) -> EyeRx:
+        """``eye`` of the last good prescription with its live changes (or ``offset``)."""
+        return with_offset(self.prescription.eye(eye), self.offsets.get(eye, (0.0, 0.0, 0.0)) if offset is None
+                           else offset)
+
+    # ------------------------------------------------------------------ on the caller's thread
+
+    def build(self, eye: str) -> EyeModel:
+        """Design ``eye`` now, on this thread (the start)."""
+        e = self.eye_rx(eye)
+        if self.check is not None:
+            self.check(e)
+        return build_eye_model(e, self.display, self.options)
+
+    def adjust(self, eye: str, offset: Offset) -> EyeRx:
+        """Design ``eye`` with the live changes ``offset`` (sphere, cylinder, axis, on top of the
+        file's) on the worker; returns the eye it will be.  Out of range: ``ValidationError`` now,
+        nothing queued."""
+        e = self.eye_rx(eye, offset)
+        if self.check is not None:
+            self.check(e)
+        offset = tuple(float(v) for v in offset)
+        self.offsets[eye] = offset                  # a reload from now on keeps it
+        self._queue(("adjust", (eye, offset)))
+        return e
+
+    def poll(self, now: float | None = None) -> tuple[list[EyeUpdate], list[str]]:
+        """What is ready: designed eyes and messages (a refused edit).  Also starts a reload when
+        the file's stamp changed (looked at no more often than :data:`POLL_INTERVAL_S`).  Never
+        waits."""
+        now = time.monotonic() if now is None else now
+        path = self.snapshot.path
+        if path is not None and now - self._last_poll >= POLL_INTERVAL_S:
+            self._last_poll = now
+            stamp = file_stamp(path)
+            if stamp != self._stamp:
+                self._stamp = stamp
+                with self._lock:
+                    self._file_generation += 1
+                    generation = self._file_generation
+                self._queue(("file", generation))
+        updates: list[EyeUpdate] = []
+        messages: list[str] = []
+        while True:
+            try:
+                item = self._done.get_nowait()
+            except queue.Empty:
+                break
+            if isinstance(item, str):
+                messages.append(item)
+            else:
+                if item.reason == "reload":
+                    self.snapshot = RxSnapshot(item.prescription, self.snapshot.path, self.snapshot.stamp)
+                updates.append(item)
+        return updates, messages
+
+    @property
+    def busy(self) -> bool:
+        """A design is queued or running."""
+        with self._lock:
+            return self._pending > 0
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Block until nothing is queued or running (tests, and callers that may wait); False on
+        timeout."""
+        with self._idle:
+            return self._idle.wait_for(lambda: self._pending == 0, timeout)
+
+    def close(self) -> None:
+        self._jobs.put(None)
+        self._worker.join(timeout=5.0)
+
+    # ------------------------------------------------------------------ the worker
+
+    def _queue(self, job: tuple[str, object]) -> None:
+        with self._lock:
+            self._pending += 1
+        self._jobs.put(job)
+
+    def _finish(self) -> None:
+        with self._idle:
+            self._pending -= 1
+            self._idle.notify_all()
+
+    def _run(self) -> None:
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            try:
+                kind, arg = job
+                if kind == "file":
+                    self._reload(int(arg))                    # type: ignore[arg-type]
+                else:
+                    eye, offset = arg                         # type: ignore[misc]
+                    self._adjust(eye, offset)
+            except Exception as exc:                          # the worker must outlive any one job
+                self._done.put(f"eye design failed: {type(exc).__name__}: {exc}")
+                log.exception("eye source job failed")
+            finally:
+                self._finish()
+
+    def _reload(self, generation: int) -> None:
+        with self._lock:
+            if generation != self._file_generation:         # a newer edit is queued: it will be read
+                return
+        path = self.snapshot.path
+        try:
+            rx = load_prescription(path)
+            updates = [self._design(eye, self.offsets.get(eye, (0.0, 0.0, 0.0)), rx, "reload") for eye in self.eyes]
+        except VrcorrectError as exc:                        # every eye or none: one state for all
+            message = f"{path}: not reloaded, keeping the last good prescription: {exc}"
+            log.warning(message)
+            self._done.put(message)
+            return
+        for u in updates:
+            self._done.put(u)
+
+    def _adjust(self, eye: str, offset: Offset) -> None:
+        try:
+            self._done.put(self._design(eye, offset, self.prescription, "adjust"))
+        except VrcorrectError as exc:
+            self._done.put(f"{eye} eye unchanged: {' '.join(str(exc).split())}")
+
+    def _design(self, eye: str, offset: Offset, rx: Prescription, reason: str) -> EyeUpdate:
+        t0 = time.perf_counter()
+        e = with_offset(rx.eye(eye), offset)
+        if self.check is not None:
+            self.check(e)
+        model = build_eye_model(e, self.display, self.options)
+        return EyeUpdate(eye, model, rx, offset, time.perf_counter() - t0, reason)
