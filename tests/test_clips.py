@@ -99,7 +99,7 @@ def _one_line_error(code: int, capsys, *words: str) -> str:
 
 
 def test_folder_frames_are_in_natural_order(tmp_path):
-    names = ["frame10.png", "frame2.png", "frame1.png", "Frame3.png", "frame0100.png", "notes.txt"]
+    names = ["frame10.png", "frame2.png", "frame1.png", "Frame3.png", "frame0100.png", "notes.txt", "._frame1.png"]
     for i, name in enumerate(names):
         (tmp_path / name).write_bytes(b"")
     assert [p.name for p in C.clip_folder_files(tmp_path)] == \
@@ -415,6 +415,7 @@ BAD_CLIPS = [
     ("output named .png", ["simulate", "{d}/clip", "-o", "{d}/out.png"], ("--output", "folder")),
     ("output folder taken", ["correct", "{d}/clip", "-o", "{d}/taken"], ("taken", "--force")),
     ("output parent missing", ["render", "{d}/clip", "-o", "{d}/no/out"], ("does not exist",)),
+    ("output is the input", ["simulate", "{d}/taken", "-o", "{d}/taken", "--force"], ("--output", "input")),
 ]
 
 

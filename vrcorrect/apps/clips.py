@@ -131,6 +131,9 @@ def plan_frames(clip: Clip, args: argparse.Namespace, default_fps: float | None)
 def output_folder(args: argparse.Namespace, plan: ClipPlan) -> FrameFolder:
     """The checked output folder of ``-o`` for ``plan`` (before any work): not a ``.png`` path."""
     out = Path(args.output)
+    if out.exists() and out.resolve() == Path(args.input).resolve():
+        raise ValidationError("--output", str(out), "a folder other than the input clip's (its frames are read "
+                              "while the output is written)")
     if out.suffix.lower() == ".png":
         raise ValidationError("--output", str(out), f"a folder for the clip's {plan.count} frames (the input is a "
                               f"{plan.clip.kind}), e.g. {out.with_suffix('')}/")

@@ -79,12 +79,13 @@ def natural_key(name: str) -> tuple:
 
 
 def clip_folder_files(folder: str | os.PathLike[str]) -> tuple[Path, ...]:
-    """The image files (by suffix, :data:`~vrcorrect.plumbing.images.IMAGE_SUFFIXES`) directly in
-    ``folder``, sorted naturally (:func:`natural_key`); an :class:`InputError` when there are none."""
+    """The image files (by suffix, :data:`~vrcorrect.plumbing.images.IMAGE_SUFFIXES`; not hidden ones,
+    such as macOS's ``._name.png``) directly in ``folder``, sorted naturally (:func:`natural_key`); an
+    :class:`InputError` when there are none."""
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder")
-    files = image_files(folder)
+    files = tuple(p for p in image_files(folder) if not p.name.startswith("."))   # hidden files are not frames
     if not files:
         raise InputError(f"{folder}: no images in the folder (a directory of frames holds image files: "
                          f"{' '.join(IMAGE_SUFFIXES)})")
