@@ -806,6 +806,61 @@ def test_live_sphere_edit_rebuilds_only_that_eye(mirror, mirror_image):
     assert np.abs(halves(mirror)["right"] - before["right"]).max() <= 1
 
 
+def test_an_edit_never_stalls_the_render_thread(mirror, mirror_image, monkeypatch):
+    """With the eye's design held on the worker (as a slow kernel build would be), frames go on
+    with the current correction, unchanged; once let go, the next frame installs the new eye."""
+    import threading
+
+    entered, release = threading.Event(), threading.Event()
+    real = eye_source_module.build_eye_model
+
+    def held(eye, display, options):
+        entered.set()
+        assert release.wait(120)
+        return real(eye, display, options)
+
+    monkeypatch.setattr(eye_source_module, "build_eye_model", held)
+    mirror.render()
+    before = halves(mirror)
+    try:
+        press(mirror, "S", MOD_SHIFT)                     # right eye +0.25 D: designed on the worker
+        mirror.render()
+        assert entered.wait(60)
+        for _ in range(5):                                # the render thread is not held
+            mirror.render()
+            assert mirror.current_rx("right").sphere_D == pytest.approx(-3.0)
+            assert np.abs(halves(mirror)["right"] - before["right"]).max() <= 1
+    finally:
+        release.set()
+    settle(mirror)
+    assert mirror.current_rx("right").sphere_D == pytest.approx(-2.75)
+    press(mirror, "s")
+    mirror.render()
+    settle(mirror)
+    assert mirror.current_rx("right").sphere_D == pytest.approx(-3.0)
+
+
+def test_slow_frames_step_the_scene_clock_and_the_panel_says_so(mirror, monkeypatch):
+    """Frames 2 s apart (a software renderer) advance the scene by one 90 Hz frame each, not by 2 s,
+    so the warm start meets a scene that moved as it would in a headset; frames 10 ms apart follow
+    the clock."""
+    import dataclasses
+
+    from vrcorrect.runtime import mirror as M
+
+    clock = iter([100.0, 102.0, 104.0, 104.010, 104.020])
+    monkeypatch.setattr(M.time, "perf_counter", lambda: next(clock))
+    monkeypatch.setattr(mirror, "config", dataclasses.replace(mirror.config, time_step_s=None))
+    monkeypatch.setattr(mirror, "_scene_wall", None)
+    monkeypatch.setattr(mirror, "_scene_s", 0.0)
+    times = [mirror.scene_time() for _ in range(3)]
+    assert times == pytest.approx([0.0, 1 / 90, 2 / 90]) and mirror.stepped
+    mirror.state = dataclasses.replace(mirror.state, show_panel=True)
+    assert any(line.startswith("slow frames: the scene steps 11.1 ms a frame") for line in mirror.panel_lines())
+    assert mirror.scene_time() == pytest.approx(2 / 90 + 0.010) and not mirror.stepped
+    assert not any(line.startswith("slow frames") for line in mirror.panel_lines())
+
+
 def test_prescription_file_changes_show_up_and_bad_files_are_refused(mirror, mirror_image):
     import json
     import time
@@ -972,36 +1027,3 @@ def test_an_edit_during_start_up_is_one_state_for_both_eyes_and_the_panel(x_disp
         assert status_words in m.status, m.status
         assert m.correctors["left"].eye_rx.sphere_D == -2.5
 
-
-def test_an_edit_never_stalls_the_render_thread(mirror, mirror_image, monkeypatch):
-    """With the eye's design held on the worker (as a slow kernel build would be), frames go on
-    with the current correction, unchanged; once let go, the next frame installs the new eye."""
-    import threading
-
-    entered, release = threading.Event(), threading.Event()
-    real = eye_source_module.build_eye_model
-
-    def held(eye, display, options):
-        entered.set()
-        assert release.wait(120)
-        return real(eye, display, options)
-
-    monkeypatch.setattr(eye_source_module, "build_eye_model", held)
-    mirror.render()
-    before = halves(mirror)
-    try:
-        press(mirror, "S", MOD_SHIFT)                     # right eye +0.25 D: designed on the worker
-        mirror.render()
-        assert entered.wait(60)
-        for _ in range(5):                                # the render thread is not held
-            mirror.render()
-            assert mirror.current_rx("right").sphere_D == pytest.approx(-3.0)
-            assert np.abs(halves(mirror)["right"] - before["right"]).max() <= 1
-    finally:
-        release.set()
-    settle(mirror)
-    assert mirror.current_rx("right").sphere_D == pytest.approx(-2.75)
-    press(mirror, "s")
-    mirror.render()
-    settle(mirror)
-    assert mirror.current_rx("right").sphere_D == pytest.approx(-3.0)

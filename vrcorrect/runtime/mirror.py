@@ -279,6 +279,14 @@ class MirrorConfig:
             raise ValidationError("platform", self.platform, "None, 'x11' or 'wayland'")
 
 
+SLOW_FRAME_S = 0.05
+"""Frames further apart than this (under 20 a second: a software renderer) step the scene's clock
+by :data:`SLOW_FRAME_STEP_S` instead of the wall clock: with frames seconds apart the demo scene
+would jump between them, and a warm start from the previous frame (the iterative methods) would
+start from a picture unlike the new one (ghosts of the cube's previous pose)."""
+SLOW_FRAME_STEP_S = 1 / 90
+"""The scene's step per frame when frames are slow: one frame of a 90 Hz headset."""
+
 STAGES = ("scene", "correct left", "correct right", "simulate left", "simulate right", "overlay", "present")
 """Timed stages of a frame. ``present`` (swapping buffers, which waits for the display when
 vsync is on) is CPU time only; the others have GPU time (timer queries) and CPU time."""
@@ -338,6 +346,9 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
         self._times: StageTimes | None = None
         self._frame_ms: float | None = None
         self._last_frame_end: float | None = None
+        self._scene_s = 0.0                               # the scene's clock (wall time, or stepped)
+        self._scene_wall: float | None = None
+        self.stepped = False                              # the last frame stepped the clock (slow frames)
         try:
             w, h = config.eye_size
             session = self._open_window(2 * w, h, config.title, platform=config.platform, visible=config.visible,
@@ -435,6 +446,9 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
         frame = self._frame_ms
         if frame is not None:
             lines.append(f"frame {frame:.1f} ms ({1e3 / frame:.0f} fps)" if frame > 0 else "frame -")
+        if self.stepped:
+            lines.append(f"slow frames: the scene steps {1e3 * SLOW_FRAME_STEP_S:.1f} ms a frame (as at 90 Hz), "
+                         "not the clock, so the warm start follows it")
         if self.status:
             lines.append(self.status[:120])
         lines.append("h: keys")
@@ -450,7 +464,7 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
         for c in self.correctors.values():
             c.enabled = state.correction
         with self._times.stage("scene"):
-            textures = dict(zip(EYES, self.source.render(self.frame_time())))
+            textures = dict(zip(EYES, self.source.render(self.scene_time())))
             motion = take_motion(self.source, self.correctors.values())
         screen = ctx.screen
         viewports = eye_viewports(*self.framebuffer_size)
@@ -474,6 +488,20 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
                 self.overlay.draw(np.concatenate(quads), screen, self.framebuffer_size)
         check_gl_errors(ctx, f"mirror frame {self.frame}")
         return screenshot
+
+    def scene_time(self) -> float:
+        """Seconds of scene time for the frame about to be rendered: ``time_step_s`` per frame when
+        set; otherwise the wall clock, except that frames further apart than :data:`SLOW_FRAME_S`
+        advance it by :data:`SLOW_FRAME_STEP_S` (:attr:`stepped` says so, and the panel)."""
+        if self.config.time_step_s is not None:
+            return self.frame_time()
+        now = time.perf_counter()
+        if self._scene_wall is not None:
+            dt = now - self._scene_wall
+            self.stepped = dt > SLOW_FRAME_S
+            self._scene_s += SLOW_FRAME_STEP_S if self.stepped else dt
+        self._scene_wall = now
+        return self._scene_s
 
     def _after_frame(self) -> None:
         """Smooth the frame time the panel shows (from one frame's end to the next's)."""

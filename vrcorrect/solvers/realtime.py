@@ -1,6 +1,8 @@
 """The real-time iterations frame by frame, on the CPU: the twins of the GPU strategies
-(:mod:`vrcorrect.runtime.strategies`), used by ``vrcorrect bench realtime``, ``bench cost`` and the
-tests that hold the GPU to them.
+(:mod:`vrcorrect.runtime.strategies`), used by ``vrcorrect bench realtime`` and the tests that hold
+the GPU to them: :class:`AdmmFrames` (the default) and :class:`FistaFrames`, one frame interface
+(``frame(target, iterations, shift=(dx, dy), cold=...)`` -> :class:`AdmmFrame`; motion in image
+pixels, x to the right, y down, as ``Corrector.apply``'s ``motion_px``).
 
 **ADMM over frames** (:class:`AdmmFrames`, the GPU's default).  ``fast``'s boundary-aware split
 (:mod:`vrcorrect.solvers.admm`): on a periodic grid holding the image and a black surround, the
@@ -60,7 +62,7 @@ from ..plumbing.errors import ValidationError
 from .wiener import centred_kernel, spectral_norm_squared
 
 __all__ = ["PRECISIONS", "ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "guard_weight", "kernel_half_spectrum",
-           "hermitian_inverse", "AdmmFrames", "AdmmFrame"]
+           "hermitian_inverse", "AdmmFrames", "AdmmFrame", "FistaFrames", "frames_twin"]
 
 PRECISIONS = ("half", "single")
 ADMM_RHO = 0.2
@@ -311,3 +313,82 @@ class AdmmFrames:
         return AdmmFrame(shown=np.ascontiguousarray(np.moveaxis(shown, 0, 2)),
                          objective=(s_rr + 2 * beta * s_rk + beta * beta * s_kk) / n, beta=beta,
                          solution=np.ascontiguousarray(np.moveaxis(z, 0, 2)), uncorrected=s_rr / n)
+
+
+class FistaFrames:
+    """Projected gradient (FISTA) over frames for one eye and image size: the twin of the GPU's
+    ``method="fista"`` (:mod:`vrcorrect.runtime.strategies.fista`), with the same frame interface
+    as :class:`AdmmFrames`.
+
+    Each frame: the warm start (cold: ``x = y = t``; warm: ``x = clip(x + t - t_prev)``,
+    ``y = y + t - t_prev``, FISTA's momentum kept; with the content's motion ``(dx, dy)`` both first
+    reprojected, exposed pixels from ``t``), ``iterations`` steps of
+    :func:`~vrcorrect.solvers.wiener.projected_gradient` continued from that state, then the guard
+    (the best blend of ``x`` with ``t``).  float32 throughout, as the GPU (32-bit storage)."""
+
+    def __init__(self, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int]):
+        from .wiener import gradient_plan
+
+        H, W = (int(v) for v in shape)
+        self.shape = (H, W)
+        self.kernel, self.reference = kernel, reference
+        self.plan = gradient_plan(kernel, (H, W))
+        size = max(kernel.size, reference.size if reference is not None else 1)
+        self.grid = admm_grid(W, H, size)
+        self.Kf = kernel_half_spectrum(kernel.kernel, self.grid)
+        self.Rf = None if reference is None else kernel_half_spectrum(reference.kernel, self.grid)
+        self.A = kernel.matrix
+        self.state = None
+        self.t_prev: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self.state = self.t_prev = None
+
+    def _blur(self, x: np.ndarray, spectrum: np.ndarray) -> np.ndarray:
+        H, W = self.shape
+        X = scipy.fft.rfft2(x.astype(np.float64), s=self.grid, axes=(-2, -1), workers=-1)
+        out = np.einsum("ijyx,jyx->iyx", spectrum, X)
+        return scipy.fft.irfft2(out, s=self.grid, axes=(-2, -1), workers=-1)[:, :H, :W]
+
+    def frame(self, target: np.ndarray, iterations: int, shift: tuple[int, int] | None = None,
+              cold: bool = False) -> AdmmFrame:
+        from . import make_problem
+        from .wiener import FistaState, projected_gradient
+
+        H, W = self.shape
+        t = np.ascontiguousarray(np.moveaxis(np.asarray(target, np.float32), 2, 0))
+        if t.shape != (3, H, W):
+            raise ValidationError("target", f"shape {np.shape(target)}", f"({H}, {W}, 3)")
+        if cold:
+            self.reset()
+        start = None
+        if self.state is not None:
+            x, y, t_prev = self.state.x, self.state.y, self.t_prev
+            if shift is not None and tuple(shift) != (0, 0):
+                x, y, t_prev = (AdmmFrames._reproject(a, shift, t) for a in (x, y, t_prev))
+            change = t - t_prev
+            start = FistaState(x=np.clip(x + change, 0.0, 1.0), y=y + change, momentum=self.state.momentum)
+        problem = make_problem(np.moveaxis(t, 0, 2), self.kernel, self.reference)
+        x, self.state = projected_gradient(problem, iterations, self.plan, state=start, return_state=True)
+        self.t_prev = t
+        z = np.ascontiguousarray(np.moveaxis(x, 2, 0))
+        T = (np.einsum("ij,jyx->iyx", self.A, t) if self.Rf is None else self._blur(t, self.Rf))
+        r0 = self._blur(t, self.Kf) - T
+        kd = self._blur(z, self.Kf) - T - r0
+        s_rk, s_kk, s_rr = float(np.vdot(r0, kd)), float(np.vdot(kd, kd)), float(np.vdot(r0, r0))
+        beta = guard_weight(s_rk, s_kk, s_rr)
+        n = float(r0.size)
+        shown = t + np.float32(beta) * (z - t)
+        return AdmmFrame(shown=np.ascontiguousarray(np.moveaxis(shown, 0, 2)),
+                         objective=(s_rr + 2 * beta * s_rk + beta * beta * s_kk) / n, beta=beta,
+                         solution=np.ascontiguousarray(x), uncorrected=s_rr / n)
+
+
+def frames_twin(method: str, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int],
+                precision: str = "half") -> "AdmmFrames | FistaFrames":
+    """The CPU twin of the GPU's ``method`` (``"admm"`` or ``"fista"``) for one eye and image size."""
+    if method == "admm":
+        return AdmmFrames(kernel, reference, shape, precision=precision)
+    if method == "fista":
+        return FistaFrames(kernel, reference, shape)
+    raise ValidationError("method", method, "'admm' or 'fista' (the methods that iterate over frames)")
