@@ -118,6 +118,7 @@ def test_each_kind_is_told_apart_and_decoded(inputs, frames, tmp_path):
     assert [p.name for p in folder.files][:3] == ["shot1.png", "shot2.png", "shot3.png"]
     decoded = list(folder.frames())
     assert all(np.array_equal(np.round(a * 255).astype(np.uint8), b) for a, b in zip(decoded, frames))
+    assert all(np.array_equal(a, b) for a, b in zip(C.read_clip(inputs["folder"]).frames_u8(), frames))
 
     gif = C.open_clip(inputs["gif"])
     assert (gif.count, gif.size) == (N, (W, H)) and gif.durations_s == pytest.approx([0.04] * N)

@@ -44,7 +44,7 @@ from .images import IMAGE_SUFFIXES, image_files
 __all__ = [
     "ANIMATED_SUFFIXES", "VIDEO_SUFFIXES", "FFMPEG_HINT", "MAX_CLIP_FRAMES", "CLIP_KINDS",
     "natural_key", "clip_folder_files", "is_animated", "AnimatedImage", "VideoReader", "clip_kind", "Clip",
-    "open_clip", "frame_starts", "index_at", "resample_indices", "frame_name", "FrameFolder",
+    "open_clip", "read_clip", "frame_starts", "index_at", "resample_indices", "frame_name", "FrameFolder",
 ]
 
 ANIMATED_SUFFIXES = (".gif", ".png", ".webp")
@@ -321,6 +321,17 @@ class Clip:
     def frames(self) -> Iterator[np.ndarray]:
         """The frames in order, each float32 ``(H, W, 3)`` sRGB code values in [0, 1] (a 16-bit
         PNG in a folder keeps its precision), decoded one at a time."""
+        for frame in self._decoded():
+            yield frame.astype(np.float32) / 255.0 if frame.dtype == np.uint8 else frame
+
+    def frames_u8(self) -> list[np.ndarray]:
+        """All frames as uint8 ``(H, W, 3)`` sRGB codes (16-bit frames rounded), in memory: for short
+        clips (``count * W * H * 3`` bytes)."""
+        return [frame if frame.dtype == np.uint8 else np.round(frame * 255.0).astype(np.uint8)
+                for frame in self._decoded()]
+
+    def _decoded(self) -> Iterator[np.ndarray]:
+        """Each frame as decoded: uint8 from an animation or a video, float32 codes from a folder's files."""
         if self.kind == "folder":
             for path in self.files:
                 image = read_image(path)
@@ -331,14 +342,14 @@ class Clip:
         elif self.kind == "animation":
             with AnimatedImage(self.path, self.count) as animation:
                 for i in range(self.count):
-                    yield animation.frame(i).astype(np.float32) / 255.0
+                    yield animation.frame(i)
         else:
             with VideoReader(self.path) as video:
                 for i in range(self.count):
                     frame = video.read()
                     if frame is None:
                         raise InputError(f"{self.path}: the video ended after {i} of its {self.count} frames")
-                    yield frame.astype(np.float32) / 255.0
+                    yield frame
 
 
 def _limit_error(path: Path, count: int, max_frames: int) -> InputError:
@@ -433,6 +444,10 @@ def open_clip(path: str | os.PathLike[str], max_frames: int = MAX_CLIP_FRAMES) -
         return _open_video(p, max_frames)
     raise InputError(f"{p}: not a clip (a folder of frames, an animated GIF/PNG/WebP or a video: "
                      f"{' '.join(s.lstrip('.') for s in VIDEO_SUFFIXES)})")
+
+
+read_clip = open_clip
+"""The name code that reads a whole short clip uses (``read_clip(path).frames_u8()``)."""
 
 
 # --------------------------------------------------------------------------
