@@ -17,17 +17,7 @@ from ..plumbing.fileio import check_readable, check_writable, text_writer, write
 from ..plumbing.imageio import png_writer, read_image
 from ..runtime.model_path import DEFAULT_MODEL
 from ..specs.display import decode, encode, get_display
-from .clips import (
-    CLIP_HELP,
-    ClipPlan,
-    add_clip_options,
-    add_input_output,
-    frames_bar,
-    input_clip,
-    output_folder,
-    plan_frames,
-    planned_frames,
-)
+from . import clips
 from .common import (
     add_model_options,
     build_eye_kernel,
@@ -40,9 +30,9 @@ from .common import (
 
 
 def cmd_correct(args: argparse.Namespace) -> int:
-    clip = input_clip(args)                         # a clip is checked before any heavy import
+    clip = clips.input_clip(args)                         # a clip is checked before any heavy import
     if clip is not None:
-        return _correct_clip(args, plan_frames(clip, args, None))
+        return _correct_clip(args, clips.plan_frames(clip, args, None))
     out = Path(args.output)
     if out.suffix.lower() != ".png":
         raise ValidationError("--output", str(out), "a path ending in .png")
@@ -161,9 +151,9 @@ VIDEO_JOD_MAX_PIXELS = 12_000_000
 VIDEO_JOD_DEFAULT_FPS = 90.0
 
 
-def _correct_clip(args: argparse.Namespace, plan: ClipPlan) -> int:
+def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     """Each frame of a clip solved on its own (the offline ceiling), into a folder of frames."""
-    folder = output_folder(args, plan)              # checked before any work
+    folder = clips.output_folder(args, plan)        # checked before any work
     _check_options(args)
     from ..physics.kernel import build_reference_kernel  # on use: start-up time (apps/__init__)
     from ..solvers import make_problem, objective, solve
@@ -187,8 +177,8 @@ def _correct_clip(args: argparse.Namespace, plan: ClipPlan) -> int:
     per_frame: list[dict] = []
     last_source, result, entry = -1, None, None
     bits = 16 if args.sixteen_bit else 8
-    with folder, frames_bar(f"correct ({args.method})", plan.count) as bar:
-        for index, (source, frame) in enumerate(planned_frames(plan)):
+    with folder, clips.frames_bar(f"correct ({args.method})", plan.count) as bar:
+        for index, (source, frame) in enumerate(clips.planned_frames(plan)):
             if source != last_source:               # a repeated source frame has the same correction
                 problem = make_problem(decode(display, frame), kernel, reference, contrast=args.contrast)
                 if options is None:
@@ -220,7 +210,7 @@ def _correct_clip(args: argparse.Namespace, plan: ClipPlan) -> int:
     return 0
 
 
-def _clip_report(args, plan: ClipPlan, rx_path, display, result, reference, kernel, per_frame: list[dict],
+def _clip_report(args, plan: clips.ClipPlan, rx_path, display, result, reference, kernel, per_frame: list[dict],
                  seen: dict[str, list] | None, kernel_s: float) -> dict:
     """The report of a clip: each frame's objective (and uncorrected), a summary, and ColorVideoVDP
     in video mode of what the eye sees, corrected and uncorrected, against the target."""
@@ -274,11 +264,11 @@ def _learned_model(args: argparse.Namespace):
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("correct", help="pre-correct an image for an eye (the displayed image); a clip frame by frame",
                        description="Pre-correct an image for an eye: the displayed image whose retinal image best "
-                                   "matches the target. " + CLIP_HELP + " Each frame of a clip is solved on its own "
-                                   "with --method (the offline ceiling of the real-time path), each source frame "
+                                   "matches the target. " + clips.CLIP_HELP + " Each frame of a clip is solved on its "
+                                   "own with --method (the offline ceiling of the real-time path), each source frame "
                                    "once unless --fps asks for another rate; --report then holds each frame's "
                                    "objective, a summary, and ColorVideoVDP in video mode of what the eye sees.")
-    add_input_output(p, "image file (sRGB code values)")
+    clips.add_input_output(p, "image file (sRGB code values)")
     add_model_options(p)
     p.add_argument("--method", choices=("conventional", "paper", "fast", "wiener", "learned"), default="fast",
                    help="correction method (default fast)")
@@ -291,8 +281,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="target: what the eye sees with glasses (default) or the paper's blur-free A t")
     p.add_argument("--report", metavar="REPORT.json", help="write metrics, timings and settings")
     p.add_argument("--16bit", dest="sixteen_bit", action="store_true", help="write a 16-bit PNG")
-    add_clip_options(p, fps_help="a clip: resample it in time to F frames per second (source frames repeated or "
-                                 "dropped by presentation time; default: each source frame once)")
+    clips.add_clip_options(p, fps_help="a clip: resample it in time to F frames per second (source frames "
+                                       "repeated or dropped by presentation time; default: each source frame once)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs (a clip's: replace its folder of "
                                                         "frames)")
     p.set_defaults(func=cmd_correct)

@@ -17,17 +17,7 @@ from ..plumbing.fileio import check_readable, check_writable
 from ..plumbing.imageio import read_image, write_png
 from ..runtime.model_path import model_for_backend
 from ..specs.prescription import bundled_sample_path, load_prescription
-from .clips import (
-    CLIP_HELP,
-    ClipPlan,
-    add_clip_options,
-    add_input_output,
-    frames_bar,
-    input_clip,
-    output_folder,
-    plan_frames,
-    planned_frames,
-)
+from . import clips
 from .common import add_model_options, kernel_options, print_notes
 from ..runtime.eye_model import ITERATIVE_FILTERS
 from .realtime_options import add_filter_options, add_reprojection_option, filter_options, parse_frames
@@ -38,9 +28,9 @@ DEFAULT_FPS = 90.0
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    clip = input_clip(args, still_options=("frames",))  # before the heavy imports: a bad clip is told at once
+    clip = clips.input_clip(args, still_options=("frames",))  # before the heavy imports: a bad clip is told at once
     if clip is not None:
-        return _render_clip(args, plan_frames(clip, args, DEFAULT_FPS))
+        return _render_clip(args, clips.plan_frames(clip, args, DEFAULT_FPS))
     from ..runtime.render import MAX_FRAMES, SETTLED_FRAMES, render_frame  # on use: start-up time (apps/__init__)
 
     out = Path(args.output)
@@ -90,18 +80,18 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
-def _render_clip(args: argparse.Namespace, plan: ClipPlan) -> int:
+def _render_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     """A clip through one Corrector, every frame to the output folder."""
     from ..runtime.render import render_clip  # on use: start-up time (apps/__init__)
 
     options = {"kernel_options": kernel_options(args), **filter_options(args)}
-    folder = output_folder(args, plan)                  # checked before any work
+    folder = clips.output_folder(args, plan)        # checked before any work
     model = model_for_backend(args.backend, args.model)
     if model:
         options["model"] = model
     rx = load_prescription(args.rx or str(bundled_sample_path()))
     print_notes(plan.clip.notes)
-    with folder, frames_bar("render", plan.count) as bar:
+    with folder, clips.frames_bar("render", plan.count) as bar:
         def emit(index: int, out) -> None:
             folder.write(index, out / 255.0, bits=8)
 
@@ -109,7 +99,7 @@ def _render_clip(args: argparse.Namespace, plan: ClipPlan) -> int:
             bar.n = done
             bar.refresh()
 
-        info = render_clip(planned_frames(plan), rx, args.display, args.eye, args.backend, view=args.view,
+        info = render_clip(clips.planned_frames(plan), rx, args.display, args.eye, args.backend, view=args.view,
                            reprojection=not args.no_reprojection, emit=emit, progress=progress, **options)
         folder.commit()
     _print_clip_summary(args, plan, info)
@@ -126,7 +116,7 @@ def _median(values) -> float | None:
     return float(np.median(kept)) if kept else None
 
 
-def _print_clip_summary(args: argparse.Namespace, plan: ClipPlan, info: dict) -> None:
+def _print_clip_summary(args: argparse.Namespace, plan: clips.ClipPlan, info: dict) -> None:
     _print_eye(args, info)
     print(f"  {plan.text}")
     iterative = args.backend == "glsl" and info["filter"] in ITERATIVE_FILTERS and args.view != "seen-uncorrected"
@@ -159,12 +149,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("render", help="frames through the real-time GL pipeline (headless EGL), the last written; "
                                       "a clip: every frame, to a folder",
                        description="Run an image, or a clip, through the real-time GL pipeline on a headless EGL "
-                                   "context. " + CLIP_HELP + " A clip is played at the headset's rate (--fps, "
+                                   "context. " + clips.CLIP_HELP + " A clip is played at the headset's rate (--fps, "
                                    "default 90): source frames are repeated or dropped by their presentation time "
                                    "(a video's frame rate, an animation's frame durations, a folder's --clip-fps); one "
                                    "corrector carries its warm start from frame to frame, moved by the picture's "
                                    "estimated motion and restarted cold on a scene cut, as in a headset.")
-    add_input_output(p, "image (PNG/JPEG, sRGB)")
+    clips.add_input_output(p, "image (PNG/JPEG, sRGB)")
     add_model_options(p)
     p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl", help="correction backend (default glsl)")
     p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx")
@@ -177,7 +167,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--view", choices=("corrected", "seen-corrected", "seen-uncorrected"), default="corrected",
                    help="the displayed image (default) or what the eye sees of it")
     add_reprojection_option(p)
-    add_clip_options(p, fps_help=f"a clip: the headset's frame rate it is played at (default {DEFAULT_FPS:g}); the "
-                                 "output has one frame per displayed frame")
+    clips.add_clip_options(p, fps_help=f"a clip: the headset's frame rate it is played at (default "
+                                       f"{DEFAULT_FPS:g}); the output has one frame per displayed frame")
     p.add_argument("--force", action="store_true", help="overwrite the output (a clip's: replace its folder of frames)")
     p.set_defaults(func=cmd_render)

@@ -11,24 +11,14 @@ from ..plumbing.errors import ValidationError
 from ..plumbing.fileio import check_readable, check_writable
 from ..plumbing.imageio import read_image, write_png
 from ..specs.display import decode, encode, get_display
-from .clips import (
-    CLIP_HELP,
-    ClipPlan,
-    add_clip_options,
-    add_input_output,
-    frames_bar,
-    input_clip,
-    output_folder,
-    plan_frames,
-    planned_frames,
-)
+from . import clips
 from .common import add_model_options, build_eye_kernel, load_eye, print_notes
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    clip = input_clip(args)                         # a clip is checked before any heavy import
+    clip = clips.input_clip(args)                         # a clip is checked before any heavy import
     if clip is not None:
-        return _simulate_clip(args, plan_frames(clip, args, None))
+        return _simulate_clip(args, clips.plan_frames(clip, args, None))
     check_readable(args.input)                      # before the heavy imports: a typo is told at once
     from ..vision.forward import what_the_eye_sees  # on use: start-up time (apps/__init__)
 
@@ -62,9 +52,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _simulate_clip(args: argparse.Namespace, plan: ClipPlan) -> int:
+def _simulate_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     """What the eye sees of each frame of a clip, into a folder of frames."""
-    folder = output_folder(args, plan)              # checked before any work
+    folder = clips.output_folder(args, plan)        # checked before any work
     from ..vision.forward import what_the_eye_sees  # on use: start-up time (apps/__init__)
 
     rx_path, eye = load_eye(args)
@@ -72,8 +62,8 @@ def _simulate_clip(args: argparse.Namespace, plan: ClipPlan) -> int:
     print_notes(plan.clip.notes)
     kernel = build_eye_kernel(args, eye, display)
     last_source, seen, info = -1, None, None
-    with folder, frames_bar("simulate", plan.count) as bar:
-        for index, (source, frame) in enumerate(planned_frames(plan)):
+    with folder, clips.frames_bar("simulate", plan.count) as bar:
+        for index, (source, frame) in enumerate(clips.planned_frames(plan)):
             if source != last_source:               # a repeated source frame is seen the same
                 seen, info = what_the_eye_sees(decode(display, frame), kernel, method=args.method)
                 last_source = source
@@ -92,15 +82,15 @@ def _simulate_clip(args: argparse.Namespace, plan: ClipPlan) -> int:
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="what an eye sees of an image on a display; of each frame of a clip",
-                       description="What an eye sees of an image on a display. " + CLIP_HELP + " Each source frame "
-                                   "of a clip is simulated once unless --fps asks for another rate.")
-    add_input_output(p, "image file (PNG, JPEG, ...; sRGB code values)")
+                       description="What an eye sees of an image on a display. " + clips.CLIP_HELP + " Each source "
+                                   "frame of a clip is simulated once unless --fps asks for another rate.")
+    clips.add_input_output(p, "image file (PNG, JPEG, ...; sRGB code values)")
     add_model_options(p)
     p.add_argument("--method", choices=("auto", "fft", "direct"), default="auto", help="convolution path")
     p.add_argument("--explain", action="store_true", help="print every modelling decision")
     p.add_argument("--16bit", dest="sixteen_bit", action="store_true", help="write a 16-bit PNG")
-    add_clip_options(p, fps_help="a clip: resample it in time to F frames per second (source frames repeated or "
-                                 "dropped by presentation time; default: each source frame once)")
+    clips.add_clip_options(p, fps_help="a clip: resample it in time to F frames per second (source frames "
+                                       "repeated or dropped by presentation time; default: each source frame once)")
     p.add_argument("--force", action="store_true", help="overwrite OUT if it exists (a clip's: replace its folder "
                                                         "of frames)")
     p.set_defaults(func=cmd_simulate)

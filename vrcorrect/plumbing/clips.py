@@ -120,7 +120,20 @@ def _check_pixels(path: Path, width: int, height: int) -> None:
 # --------------------------------------------------------------------------
 
 
-class AnimatedImage:
+class _Closing:
+    """``with``: :meth:`close` at the end of the block."""
+
+    def close(self) -> None:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+class AnimatedImage(_Closing):
     """An animated GIF, PNG (APNG) or WebP opened with Pillow: :attr:`count` frames (the first
     ``max_frames`` of :attr:`total_frames`), their durations in seconds (:attr:`durations_s`; none
     given: 0.1 s, shorter than 0.01 s: 0.01 s), :attr:`size` ``(W, H)``; :meth:`frame` decodes one as
@@ -164,12 +177,6 @@ class AnimatedImage:
             self._image.close()
             self._image = None
 
-    def __enter__(self) -> "AnimatedImage":
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
 
 def _imageio_ffmpeg(path: Path) -> ModuleType:
     try:
@@ -185,7 +192,7 @@ def _ffmpeg_message(exc: BaseException) -> str:
     return (lines[-1] if lines else type(exc).__name__)[:200]
 
 
-class VideoReader:
+class VideoReader(_Closing):
     """A video file decoded in order by ffmpeg (``imageio_ffmpeg.read_frames``): :attr:`size`
     ``(W, H)``, :attr:`frames_per_s` (the container's rate, ``None`` when it gives none),
     :meth:`read` the next frame as uint8 ``(H, W, 3)`` or ``None`` at the end, :meth:`close` stops
@@ -233,12 +240,6 @@ class VideoReader:
         if self._frames is not None:
             self._frames.close()             # imageio-ffmpeg stops its ffmpeg process
             self._frames = None
-
-    def __enter__(self) -> "VideoReader":
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
 
 
 def count_video_frames(path: Path) -> int:
