@@ -12,6 +12,7 @@
 //   COLUMNS      MODE_GUARD: K z and K t
 //   ROWS_GUARD   r0 = K t - T, kd = K z - K t: each image row's sums <r0, kd>, <kd, kd>, <r0, r0>
 //   GUARD_FINAL  the rows' sums -> beta = clip(-<r0, kd> / <kd, kd>, 0, 1) (the guard's weight)
+//   PLAN         early stop: zero work groups for every pass above when the view is still and converged
 //   BLEND        x = t + beta (proj(q) - t) into an image (previews; the frame's own present is
 //                admm_present.glsl)
 // The grid (NX x NY, powers of two) holds the image at the origin (GL texel coordinates, rows bottom
@@ -279,18 +280,23 @@ void main() {
 #endif
 
 // ------------------------------------------------------------------ ROWS_START
+// The state is read from u_w_src, u_q_src and the last T from u_T_prev (a shifted warm start: other
+// textures than those written, since a texel moved from elsewhere must not be read after it is
+// written), or, u_in_place, from u_w, u_q, u_T themselves (an unshifted one: each texel read then
+// written by one invocation).
 #if defined ROWS_START
 uniform sampler2D u_t;                          // this frame's target
-uniform sampler2D u_t_prev;                     // the previous frame's target, T
+uniform sampler2D u_t_prev;                     // the previous frame's target
 uniform sampler2D u_T_prev;
 uniform bool u_cold;
+uniform bool u_in_place;
 uniform ivec2 u_shift;                          // the content's motion since the last frame (GL texels)
 uniform mat3 u_matrix;                          // IDEAL: T = A t
-layout(IMG_FMT, binding = 1) writeonly uniform image2D u_T;
+layout(IMG_FMT, binding = 1) uniform image2D u_T;
 layout(IMG_FMT, binding = 2) readonly uniform image2D u_w_src;
 layout(IMG_FMT, binding = 3) readonly uniform image2D u_q_src;
-layout(IMG_FMT, binding = 4) writeonly uniform image2D u_w;
-layout(IMG_FMT, binding = 5) writeonly uniform image2D u_q;
+layout(IMG_FMT, binding = 4) uniform image2D u_w;
+layout(IMG_FMT, binding = 5) uniform image2D u_q;
 void main() {
     int y = int(gl_WorkGroupID.x);
     vec3 T[PER];
@@ -313,15 +319,24 @@ void main() {
         bool in_image = inside(p);
         vec3 Tp = T[m];
         vec3 t = vec3(0.0);
+        vec3 T_last = vec3(0.0);
         if (in_image) {
             Tp = stored(Tp);
-            imageStore(u_T, p, vec4(Tp, 1.0));
             t = texelFetch(u_t, p, 0).rgb;
+            if (u_in_place && !u_cold) T_last = imageLoad(u_T, p).rgb;
+            imageStore(u_T, p, vec4(Tp, 1.0));
         }
         vec3 w, q;
         if (u_cold) {
             w = Tp;
             q = t;
+        } else if (u_in_place) {
+            w = imageLoad(u_w, p).rgb;
+            q = imageLoad(u_q, p).rgb;
+            if (in_image) {
+                w += Tp - T_last;
+                q += t - texelFetch(u_t_prev, p, 0).rgb;
+            }
         } else if (!in_image) {
             w = imageLoad(u_w_src, p).rgb;
             q = imageLoad(u_q_src, p).rgb;
@@ -418,10 +433,14 @@ void main() {
 #endif
 
 // ------------------------------------------------------------------ GUARD_FINAL
+// Also keeps the guarded objective of this frame and the last (u_history, for PLAN), cleared by
+// u_reset (a cold start).
 #if defined GUARD_FINAL
 layout(local_size_x = 256) in;
 layout(std430, binding = 3) writeonly buffer Guard { float u_beta; float u_sums[3]; };
 layout(std430, binding = 4) readonly buffer Partials { vec4 u_partials[]; };
+layout(std430, binding = 6) buffer History { float u_history[2]; };
+uniform bool u_reset;
 shared vec4 sums[256];
 void main() {
     uint i = gl_LocalInvocationIndex;
@@ -437,8 +456,37 @@ void main() {
         u_sums[0] = sums[0].x;
         u_sums[1] = sums[0].y;
         u_sums[2] = sums[0].z;
-        u_beta = sums[0].y > 1e-10 * sums[0].z ? clamp(-sums[0].x / sums[0].y, 0.0, 1.0) : 0.0;
+        float beta = sums[0].y > 1e-10 * sums[0].z ? clamp(-sums[0].x / sums[0].y, 0.0, 1.0) : 0.0;
+        u_beta = beta;
+        u_history[1] = u_reset ? -1.0 : u_history[0];
+        u_history[0] = sums[0].z + 2.0 * beta * sums[0].x + beta * beta * sums[0].y;
     }
+}
+#endif
+
+// ------------------------------------------------------------------ PLAN
+// Early stop: this frame's passes run (their work groups, u_groups) unless the target is unchanged
+// since the last frame (u_changed, set by the decode's comparison) and the last two frames'
+// objectives agree to u_tolerance (converged); then every pass gets zero work groups (dispatched
+// indirectly from u_args). Clears u_changed for the next frame.
+#if defined PLAN
+layout(local_size_x = 1) in;
+layout(std430, binding = 5) buffer Change { uint u_changed; };
+layout(std430, binding = 6) readonly buffer History { float u_history[2]; };
+layout(std430, binding = 7) writeonly buffer Args { uint u_args[]; };
+uniform int u_passes;
+uniform int u_groups[MAX_PASSES];
+uniform float u_tolerance;
+void main() {
+    float last = u_history[0], before = u_history[1];
+    bool converged = before >= 0.0 && abs(last - before) <= u_tolerance * max(before, 1e-30);
+    bool skip = u_changed == 0u && converged;
+    for (int k = 0; k < u_passes; ++k) {
+        u_args[3 * k] = skip ? 0u : uint(u_groups[k]);
+        u_args[3 * k + 1] = 1u;
+        u_args[3 * k + 2] = 1u;
+    }
+    u_changed = 0u;
 }
 #endif
 

@@ -9,7 +9,7 @@
 // All indices are GL texel coordinates (row 0 at the bottom; the caller flips the vertical taps).
 // Defines: LAYERS (number of 4-component layers), RADIUS (R), BORDER_ZERO (else mirrored repeat),
 // SOURCE_SRGB (PASS_DECODE: the source holds sRGB code values), LINEAR_HALF (PASS_DECODE: LINEAR_FMT
-// is 16-bit).
+// is 16-bit), COMPARE (PASS_DECODE: set u_changed when any pixel differs from u_previous's).
 #ifndef VRCORRECT_FILTER_BANK_GLSL
 #define VRCORRECT_FILTER_BANK_GLSL
 
@@ -23,19 +23,37 @@ layout(local_size_x = 16, local_size_y = 16) in;
 #endif
 uniform sampler2D u_source;
 layout(LINEAR_FMT, binding = 0) writeonly uniform image2D u_linear;
+#if defined COMPARE
+uniform sampler2D u_previous;                    // the last frame's decoded target
+layout(std430, binding = 5) buffer Change { uint u_changed; };
+shared uint group_changed;
+#endif
 void main() {
     ivec2 p = ivec2(gl_GlobalInvocationID.xy);
     ivec2 size = imageSize(u_linear);
-    if (p.x >= size.x || p.y >= size.y) return;
-    vec4 c = texelFetch(u_source, p, 0);
+    bool inside = p.x < size.x && p.y < size.y;
+#if defined COMPARE
+    if (gl_LocalInvocationIndex == 0u) group_changed = 0u;
+    barrier();
+#endif
+    if (inside) {
+        vec4 c = texelFetch(u_source, p, 0);
 #if defined SOURCE_SRGB
-    c.rgb = srgb_to_linear(c.rgb);
+        c.rgb = srgb_to_linear(c.rgb);
 #endif
 #if defined LINEAR_HALF
-    // rounded to nearest before the store (a driver's own conversion may truncate: llvmpipe's does)
-    c.rgb = vec3(unpackHalf2x16(packHalf2x16(c.rg)), unpackHalf2x16(packHalf2x16(vec2(c.b, 0.0))).x);
+        // rounded to nearest before the store (a driver's own conversion may truncate: llvmpipe's does)
+        c.rgb = vec3(unpackHalf2x16(packHalf2x16(c.rg)), unpackHalf2x16(packHalf2x16(vec2(c.b, 0.0))).x);
 #endif
-    imageStore(u_linear, p, vec4(c.rgb, 1.0));
+        imageStore(u_linear, p, vec4(c.rgb, 1.0));
+#if defined COMPARE
+        if (any(notEqual(c.rgb, texelFetch(u_previous, p, 0).rgb))) atomicOr(group_changed, 1u);
+#endif
+    }
+#if defined COMPARE
+    barrier();
+    if (gl_LocalInvocationIndex == 0u && group_changed != 0u) atomicOr(u_changed, 1u);
+#endif
 }
 #endif
 

@@ -45,11 +45,12 @@ def linear(image_u8: np.ndarray) -> np.ndarray:
 class Run:
     """A GPU corrector and its CPU twin fed the same frames."""
 
-    def __init__(self, ctx, precision="single", k=2, display="quest2", reference="glasses", eye=EYE):
+    def __init__(self, ctx, precision="single", k=2, display="quest2", reference="glasses", eye=EYE,
+                 early_stop=False):
         self.ctx = ctx
         rx = Prescription(right=eye, left=eye)
         self.c = Corrector(ctx, rx, display, "right", filter="admm", precision=precision, iterations_per_frame=k,
-                           reference=reference)
+                           reference=reference, early_stop=early_stop)
         d = get_display(display)
         self.twin = AdmmFrames(build_kernel(eye, d), build_reference_kernel(eye, d) if reference == "glasses" else None,
                                (H, W), precision=precision)
@@ -312,20 +313,21 @@ def test_a_round_trip_is_counted_pass_by_pass_as_a_hand_count(gl):
 
 
 def test_an_admm_frame_is_counted_as_its_passes(gl, clip):
-    """One default frame (k = 2, half precision, the glasses target) at 56 x 40: 1 decode, 2 target,
-    1 start, 2 k iteration, 3 guard passes and the present; k + 2 round trips; the bytes of the
-    spectra passes by hand (HX x NY complex half floats per layer)."""
-    r = Run(gl, "half", 2)
+    """One default frame (k = 2, half precision, the glasses target, the early stop) at 56 x 40 on
+    new content: 1 decode (comparing with the last target), the plan, 2 target, 1 start,
+    2 k iteration, 3 guard passes and the present; k + 2 round trips; the bytes of the spectra
+    passes by hand (HX x NY complex half floats per layer)."""
+    r = Run(gl, "half", 2, early_stop=True)
     try:
         r.frame(clip[0])
         r.c.ledger = ledger = CostLedger()
         r.frame(clip[1])
         names = [rec.name for rec in ledger.records]
-        assert names == ["decode", "rows: target t", "columns: T = K_ref t", "rows: T, warm start, reflections",
-                         "columns: ADMM solve", "rows: update, reflections", "columns: ADMM solve",
-                         "rows: update, guard input", "columns: K z, K t", "rows: guard sums", "guard weight",
-                         "blend and encode"]
-        assert ledger.fft_round_trips == 4 and ledger.dispatches == 12
+        assert names == ["decode", "plan (early stop)", "rows: target t", "columns: T = K_ref t",
+                         "rows: T, warm start, reflections", "columns: ADMM solve", "rows: update, reflections",
+                         "columns: ADMM solve", "rows: update, guard input", "columns: K z, K t", "rows: guard sums",
+                         "guard weight", "blend and encode"]
+        assert ledger.fft_round_trips == 4 and ledger.dispatches == 13
         ny, nx = admm_grid(W, H, max(r.c.model.kernel.size, r.c.model.reference.size))
         hx = nx // 2 + 1
         layer = hx * ny * 4                                   # one complex half-float layer
@@ -340,6 +342,8 @@ def test_an_admm_frame_is_counted_as_its_passes(gl, clip):
         state = nx * ny * 8                                   # w or q, rgba16f on the grid
         update = next(rec for rec in ledger.records if rec.name == "rows: update, reflections")
         assert update.bytes_read == twiddle + W * H * 8 + 6 * layer + 2 * state     # T, spectra, w, q
+        decode = ledger.records[0]                            # the source (RGB8) and the last target in, t out
+        assert (decode.bytes_read, decode.bytes_written) == (W * H * 3 + W * H * 8 + 16, W * H * 8 + 16)
         assert update.bytes_written == 6 * layer + 2 * state
         assert ledger.bytes == sum(rec.bytes for rec in ledger.records)
         assert resource_bytes(r.c.strategy._sized[(W, H)].spec) == 6 * layer
@@ -347,18 +351,44 @@ def test_an_admm_frame_is_counted_as_its_passes(gl, clip):
         r.release()
 
 
-def test_counting_refuses_nothing_and_a_cold_frame_reads_no_previous_state(gl, clip):
-    """The first (cold) frame does not read the last frame's state; a warm one does."""
+def test_a_cold_frame_reads_no_previous_state_and_a_shifted_one_reads_the_other_textures(gl, clip):
+    """The first (cold) frame does not read the last frame's state; a shifted warm start reads it
+    from the other texture of each pair (w, q; the last t and T)."""
     r = Run(gl, "half", 2)
     try:
         r.c.ledger = ledger = CostLedger()
         r.frame(clip[0])
         cold = next(rec for rec in ledger.records if rec.name.startswith("rows: T, warm"))
         ledger.clear()
-        r.frame(clip[1])
-        warm = next(rec for rec in ledger.records if rec.name.startswith("rows: T, warm"))
+        r.frame(clip[1], (-3, -2))
+        shifted = next(rec for rec in ledger.records if rec.name.startswith("rows: T, warm"))
         ny, nx = r.c.strategy._sized[(W, H)].grid
-        assert warm.bytes_read - cold.bytes_read == 2 * nx * ny * 8 + 2 * W * H * 8   # w, q; t_prev, T_prev
+        assert shifted.bytes_read - cold.bytes_read == 2 * nx * ny * 8 + 2 * W * H * 8   # w, q; t_prev, T_prev
+    finally:
+        r.release()
+
+
+def test_a_still_converged_view_stops_and_a_change_restarts(gl, photo, clip):
+    """The early stop: on a still view the GPU gives every pass no work once two frames' objectives
+    agree to 1e-3 (the counted frame is then the decode, the plan and the present); the frames it
+    shows stay the same; a changed target restarts the iterations at once."""
+    r = Run(gl, "half", 2, early_stop=True)
+    try:
+        counts, outputs = [], []
+        for _ in range(40):
+            r.c.ledger = ledger = CostLedger()
+            r.frame(photo)
+            counts.append((ledger.bytes, sum(rec.kind == "skipped" for rec in ledger.records)))
+            outputs.append(G.read_framebuffer(r.fbo))
+        first_skip = next((i for i, (_, skipped) in enumerate(counts) if skipped), None)
+        assert first_skip is not None and first_skip >= 3, counts
+        assert all(skipped == 10 for _, skipped in counts[first_skip:])
+        assert counts[first_skip][0] < counts[first_skip - 1][0] / 10
+        assert all(np.array_equal(o, outputs[first_skip - 1]) for o in outputs[first_skip:])
+        r.c.ledger = ledger = CostLedger()
+        r.frame(clip[3])
+        assert not any(rec.kind == "skipped" for rec in ledger.records)
+        assert not np.array_equal(G.read_framebuffer(r.fbo), outputs[-1])
     finally:
         r.release()
 

@@ -57,9 +57,8 @@ from .eye_model import (  # noqa: F401  (re-exported)
 from .fft import fft_grid
 from .gl import check_gl_errors, release
 from .onnx_backend import OnnxModel
-from .shaders import compile_compute
-from .strategies import Encoder, Preview, Strategy, make_strategy
-from .strategies.base import float_texture, groups_2d
+from .strategies import Decoder, Encoder, Preview, Strategy, make_strategy
+from .strategies.base import float_texture
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
@@ -192,7 +191,7 @@ class Corrector:
         self.gpu = Gpu(ctx)
         self._offset = (0.0, 0.0, 0.0)                      # live sphere, cylinder, axis changes
         self._iterations = self.options.iterations_per_frame
-        self._decode: dict[tuple[bool, str], "moderngl.ComputeShader"] = {}
+        self.decoder = Decoder(self.gpu)
         self.encoder = Encoder(self.gpu)
         self._seen: dict[tuple[int, int], "moderngl.Texture"] = {}
         self._onnx: OnnxModel | None = None
@@ -287,7 +286,7 @@ class Corrector:
         old = (self.strategy, self.preview)
         options = self.options if self._iterations == self.options.iterations_per_frame else \
             replace(self.options, iterations_per_frame=self._iterations)
-        self.strategy = make_strategy(self.gpu, model, options, self.encoder, slot)
+        self.strategy = make_strategy(self.gpu, model, options, self.encoder, self.decoder, slot)
         self.preview = Preview(self.gpu, model)
         self.model = model
         if prescription is not None:
@@ -356,18 +355,7 @@ class Corrector:
 
     def _decode_source(self, src: "moderngl.Texture") -> "moderngl.Texture":
         self.gpu.begin("decode")
-        size = tuple(src.size)
-        linear = self.strategy.decode_target(size)
-        key = (src.dtype == "f1", linear.dtype)
-        program = self._decode.get(key)
-        if program is None:                         # one per source kind and target format, made once
-            program = self._decode[key] = compile_compute(
-                self.ctx, "correction.glsl", defines={"PASS_DECODE": None, "LAYERS": 1, "RADIUS": 0,
-                                                      **({"LINEAR_FMT": "rgba16f", "LINEAR_HALF": None}
-                                                         if linear.dtype == "f2" else {}),
-                                                      **({"SOURCE_SRGB": None} if key[0] else {})})
-        self.gpu.run("decode", program, groups_2d(size), sample={"u_source": src}, write={0: linear})
-        return linear
+        return self.strategy.decode(src, self._motion_gl)
 
     def _correct(self, linear: "moderngl.Texture") -> "moderngl.Texture":
         self.gpu.begin("correct")
@@ -471,7 +459,7 @@ class Corrector:
         return info
 
     def release(self) -> None:
-        release(self.strategy, self.preview, self.encoder, *self._decode.values(), *self._seen.values())
+        release(self.strategy, self.preview, self.encoder, self.decoder, *self._seen.values())
         self._seen.clear()
         if self._onnx is not None:
             self._onnx.release()

@@ -69,7 +69,7 @@ class PassRecord:
     bytes_read: int
     bytes_written: int
     round_trip: bool = False
-    kind: str = "compute"                                # compute, draw or transfer
+    kind: str = "compute"                                # compute, draw, transfer or skipped
 
     @property
     def bytes(self) -> int:
@@ -87,8 +87,9 @@ class CostLedger:
 
     @property
     def dispatches(self) -> int:
-        """Compute dispatches and draws (the GPU work items; transfers are not dispatches)."""
-        return sum(r.kind != "transfer" for r in self.records)
+        """Compute dispatches and draws that did work (not transfers, nor indirect dispatches the
+        GPU gave no work groups)."""
+        return sum(r.kind in ("compute", "draw") for r in self.records)
 
     @property
     def fft_round_trips(self) -> int:
@@ -111,7 +112,7 @@ class CostLedger:
         out: dict[str, dict[str, int]] = {}
         for r in self.records:
             s = out.setdefault(r.stage, {"dispatches": 0, "round_trips": 0, "bytes": 0})
-            s["dispatches"] += r.kind != "transfer"
+            s["dispatches"] += r.kind in ("compute", "draw")
             s["round_trips"] += r.round_trip
             s["bytes"] += r.bytes
         return out
@@ -153,6 +154,9 @@ class Gpu:
         self.dry_run = False
         """Bind and count every pass but run none (``vrcorrect bench cost --dry-run``: a frame's
         count in seconds on a software renderer; what the frame computes is then meaningless)."""
+        self.dry_run_idle = False
+        """With :attr:`dry_run`: count indirect dispatches as given no work groups (what the early
+        stop's plan decides on a still, converged view)."""
 
     def begin(self, stage: str) -> None:
         """The passes that follow belong to ``stage``; the stage before it is over."""
@@ -178,7 +182,8 @@ class Gpu:
             uniforms: Mapping[str, Any] | None = None,
             rows: Mapping[str | int, Part] | None = None,
             written: Mapping[int, Part] | None = None,
-            round_trip: bool = False) -> None:
+            round_trip: bool = False,
+            indirect: tuple["moderngl.Buffer", int] | None = None) -> None:
         """Bind and run one compute pass, then a memory barrier.
 
         ``sample``: uniform name -> texture (sampled, read; texture units 0, 1, ... in order);
@@ -188,7 +193,10 @@ class Gpu:
         sampled texture's uniform name or an image unit -> the part of it the pass touches, rows of
         each layer or ``(rows, layers)`` (default: all; for a ``modify`` binding, the part read);
         ``written``: a ``modify`` binding's unit -> the part written, where it differs from the part
-        read; ``round_trip``: this pass is the spectral product of an FFT round trip."""
+        read; ``round_trip``: this pass is the spectral product of an FFT round trip; ``indirect``:
+        (buffer, byte offset) of the work groups, which a pass on the GPU wrote (``groups`` is then
+        what it writes when the pass runs): with a ledger attached they are read back (a wait for
+        the GPU, so only when counting) and a pass given no work groups is counted as nothing."""
         partial = rows or {}
         nread = nwritten = 0
         for unit, (uniform, texture) in enumerate((sample or {}).items()):
@@ -211,8 +219,17 @@ class Gpu:
             if key in program:
                 program[key] = value
         if not self.dry_run:
-            program.run(*groups)
+            if indirect is not None:
+                program.run_indirect(indirect[0], indirect[1])
+            else:
+                program.run(*groups)
             self.ctx.memory_barrier()
+        if indirect is not None and self.ledger is not None and (not self.dry_run or self.dry_run_idle):
+            args = (0, 1, 1) if self.dry_run else \
+                tuple(int(v) for v in memoryview(indirect[0].read(12, offset=indirect[1])).cast("I"))
+            if 0 in args:                                  # the GPU gave it no work: it did nothing
+                self._count(name + " (skipped)", args, 0, 0, False, "skipped")
+                return
         self._count(name, tuple(int(g) for g in groups), nread, nwritten, round_trip, "compute")
 
     def draw(self, name: str, vao: "moderngl.VertexArray", program: "moderngl.Program",

@@ -110,6 +110,10 @@ class CorrectorOptions:
     precision
         ``filter="admm"``: ``"half"`` (16-bit float storage on the GPU, the default) or ``"single"``
         (32-bit).
+    early_stop
+        ``filter="admm"``: give the passes no work while the view is still (the target unchanged
+        since the last frame) and converged (two frames' objectives agree to 1e-3): the GPU decides
+        each frame, nothing waits for it.
     """
 
     regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
@@ -125,6 +129,7 @@ class CorrectorOptions:
     iterations_per_frame: int | None = None
     backend: str = "glsl"
     precision: str = "half"
+    early_stop: bool = True
 
     def __post_init__(self) -> None:
         if not self.regularisation or not all(isinstance(m, (int, float)) and m > 0 for m in self.regularisation):
@@ -142,6 +147,8 @@ class CorrectorOptions:
             raise ValidationError("blend", self.blend, "'frame' or 'fixed'")
         if self.backend not in BACKENDS:
             raise ValidationError("backend", self.backend, "one of " + ", ".join(BACKENDS))
+        if not isinstance(self.early_stop, bool):
+            raise ValidationError("early_stop", self.early_stop, "True or False")
         if self.precision not in PRECISIONS:
             raise ValidationError("precision", self.precision, "one of " + ", ".join(PRECISIONS))
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from .admm import AdmmStrategy
-from .base import Encoder, FrameBlend, Strategy
+from .base import Decoder, Encoder, FrameBlend, Strategy
 from .fista import FistaStrategy
 from .onepass import FftInverse, SeparableInverse
 from .onnx import OnnxStrategy
@@ -29,7 +29,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from ..eye_model import CorrectorOptions, EyeModel
     from .onnx import Slot
 
-__all__ = ["Strategy", "Encoder", "FrameBlend", "Identity", "Preview", "make_strategy", "STRATEGIES"]
+__all__ = ["Strategy", "Encoder", "Decoder", "FrameBlend", "Identity", "Preview", "make_strategy", "STRATEGIES"]
 
 
 class Identity(Strategy):
@@ -47,11 +47,11 @@ STRATEGIES: dict[str, type[Strategy]] = {"admm": AdmmStrategy, "fista": FistaStr
 """The GLSL backend's strategy for each ``method``."""
 
 
-def make_strategy(gpu: "Gpu", model: "EyeModel", options: "CorrectorOptions", encoder: Encoder,
+def make_strategy(gpu: "Gpu", model: "EyeModel", options: "CorrectorOptions", encoder: Encoder, decoder: Decoder,
                   slot: "Slot | None" = None) -> Strategy:
     """The strategy that corrects ``model``'s eye with ``options`` (``slot``: the ONNX backend's model)."""
     if slot is not None:
-        return OnnxStrategy(gpu, model, options, encoder, slot=slot)
+        return OnnxStrategy(gpu, model, options, encoder, decoder, slot=slot)
     if model.identity:
-        return Identity(gpu, model, options, encoder)
-    return STRATEGIES[options.filter](gpu, model, options, encoder)
+        return Identity(gpu, model, options, encoder, decoder)
+    return STRATEGIES[options.filter](gpu, model, options, encoder, decoder)

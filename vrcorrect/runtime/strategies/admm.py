@@ -49,6 +49,12 @@ __all__ = ["AdmmStrategy", "PER_THREAD"]
 PER_THREAD = 8
 """Values of each channel one thread of a row or column pass keeps (the work group is the line's
 length over this)."""
+EARLY_STOP_TOLERANCE = 1e-3
+"""A still view is converged when two frames' guarded objectives agree to this (relative): the
+passes are then given no work until the target changes (``CorrectorOptions.early_stop``)."""
+KINDS = ("rows_target", "cols_target", "rows_start", "cols_admm", "rows_update", "rows_last", "rows_guard_input",
+         "cols_guard", "rows_guard", "guard_final")
+"""The passes' kinds, each with its work groups in the early stop's indirect arguments."""
 
 
 @dataclass
@@ -65,15 +71,21 @@ class AdmmBuffers:
     reference: "moderngl.TextureArray | None"  # K_ref's (None: the ideal target A t)
     twiddle: "moderngl.Texture"
     partials: "moderngl.Buffer"
+    changed: "moderngl.Buffer"                 # set by the decode's comparison with the last target
+    history: "moderngl.Buffer"                 # the last two frames' guarded objectives
+    args: "moderngl.Buffer"                    # the passes' work groups, written by PLAN
     guard: GuardResult
     out: "moderngl.Texture"                    # the previews' blended frame
     programs: dict[str, "moderngl.ComputeShader"]
     present: "moderngl.Program"
     present_vao: "moderngl.VertexArray"
-    current: int = 0                           # which of each pair holds the state
+    current: int = 0                           # which of the w, q and T pairs holds the state
     warm: bool = False
+    last_t: int = 0                            # which of the t pair holds the last frame's target
     next_t: int = 1                            # the slot this frame's target is decoded into
+    compared: bool = False                     # this frame's decode compared the target with the last
     frames: int = field(default=0)
+    skipped: int = 0                           # frames the GPU was told to skip (early stop) so far
 
     def release(self) -> None:
         for f in fields(self):
@@ -148,11 +160,12 @@ class AdmmStrategy(Strategy):
         def program(pass_: str, **extra: None) -> "moderngl.ComputeShader":
             return compile_compute(ctx, "admm.glsl", defines={**defines, pass_: None, **extra})
 
+        defines["MAX_PASSES"] = len(KINDS)
         programs = {"rows_start": program("ROWS_START"), "cols_admm": program("COLUMNS", MODE_ADMM=None),
                     "rows_update": program("ROWS_UPDATE"), "rows_last": program("ROWS_UPDATE", LAST=None),
                     "rows_guard_input": program("ROWS_UPDATE", LAST=None, NO_UPDATE=None),
                     "cols_guard": program("COLUMNS", MODE_GUARD=None), "rows_guard": program("ROWS_GUARD"),
-                    "guard_final": program("GUARD_FINAL"), "blend": program("BLEND")}
+                    "guard_final": program("GUARD_FINAL"), "blend": program("BLEND"), "plan": program("PLAN")}
         if m.reference is not None:
             programs["rows_target"] = program("ROWS_TARGET")
             programs["cols_target"] = program("COLUMNS", MODE_TARGET=None)
@@ -176,7 +189,9 @@ class AdmmStrategy(Strategy):
             q=[float_texture(ctx, (nx, ny), dtype) for _ in range(2)],
             spec=spec, kernel=spectrum_array(m.kernel.kernel),
             reference=None if m.reference is None else spectrum_array(m.reference.kernel),
-            twiddle=twiddle, partials=ctx.buffer(reserve=16 * H), guard=GuardResult(ctx),
+            twiddle=twiddle, partials=ctx.buffer(reserve=16 * H), changed=ctx.buffer(np.zeros(4, np.uint32).tobytes()),
+            history=ctx.buffer(np.full(4, -1.0, np.float32).tobytes()), args=ctx.buffer(reserve=12 * len(KINDS)),
+            guard=GuardResult(ctx),
             out=float_texture(ctx, size), programs=programs, present=present,
             present_vao=fullscreen_triangle(ctx, present))
 
@@ -184,8 +199,24 @@ class AdmmStrategy(Strategy):
 
     def decode_target(self, size: Size) -> "moderngl.Texture":
         b = self._buffers(size)
-        b.next_t = 1 - b.current
+        b.next_t = 1 - b.last_t
         return b.t[b.next_t]
+
+    def decode(self, src: "moderngl.Texture", motion_gl: tuple[int, int]) -> "moderngl.Texture":
+        """Decode into the slot the last target is not in; on a plain warm frame with the early stop
+        on, compare with the last target (the plan's "changed")."""
+        size = tuple(src.size)
+        target = self.decode_target(size)
+        b = self._sized[size]
+        b.compared = self.options.early_stop and b.warm and tuple(motion_gl) == (0, 0)
+        self.decoder.run(src, target, (b.t[b.last_t], b.changed) if b.compared else None)
+        return target
+
+    def _run(self, b: AdmmBuffers, kind: str, name: str, groups: int, **bindings: Any) -> None:
+        """One pass; on a plain warm frame with the early stop on, its work groups come from the
+        plan (``KINDS``)."""
+        indirect = (b.args, 12 * KINDS.index(kind)) if b.compared else None
+        self.gpu.run(name, b.programs[kind], (groups, 1, 1), indirect=indirect, **bindings)
 
     def correct(self, linear: "moderngl.Texture", motion_gl: tuple[int, int]) -> "moderngl.Texture":
         gpu = self.gpu
@@ -194,62 +225,79 @@ class AdmmStrategy(Strategy):
         W, H = size
         ny, nx = b.grid
         hx = nx // 2 + 1
-        old, new = b.current, 1 - b.current
         if linear is not b.t[b.next_t]:
             raise ValidationError("linear", "a texture not from decode_target", "this strategy's decode target")
-        P = b.programs
-        twiddle = {"u_twiddle": b.twiddle}
         cold = not b.warm
+        shifted = not cold and tuple(motion_gl) != (0, 0)
+        # a shifted start reads the last state from the other textures of each pair; otherwise the
+        # state is updated in place (and a frame the plan skips leaves it as it was)
+        old, new = (b.current, 1 - b.current) if shifted else (b.current, b.current)
+        t_prev = b.t[b.last_t]
+        twiddle = {"u_twiddle": b.twiddle}
+        k = self._iterations
+        if b.compared:
+            gpu.begin("plan")
+            groups = {"rows_target": H, "cols_target": hx, "rows_start": ny, "cols_admm": hx, "rows_update": ny,
+                      "rows_last": ny, "rows_guard_input": H, "cols_guard": hx, "rows_guard": H, "guard_final": 1}
+            gpu.run("plan (early stop)", b.programs["plan"], (1, 1, 1),
+                    buffers={5: (b.changed, "rw"), 6: (b.history, "r"), 7: (b.args, "w")},
+                    uniforms={"u_passes": len(KINDS), "u_groups": tuple(groups[kind] for kind in KINDS),
+                              "u_tolerance": EARLY_STOP_TOLERANCE})
         if b.reference is not None:
             gpu.begin("target")
-            gpu.run("rows: target t", P["rows_target"], (H, 1, 1), sample={**twiddle, "u_t": linear},
-                    write={0: b.spec}, rows={0: (H, 3)})
-            gpu.run("columns: T = K_ref t", P["cols_target"], (hx, 1, 1),
-                    sample={**twiddle, "u_kernel": b.reference}, modify={0: b.spec},
-                    uniforms={"u_rows_in": H, "u_rows_out": ny}, rows={0: (H, 3)}, written={0: (ny, 3)},
-                    round_trip=True)
+            self._run(b, "rows_target", "rows: target t", H, sample={**twiddle, "u_t": linear}, write={0: b.spec},
+                      rows={0: (H, 3)})
+            self._run(b, "cols_target", "columns: T = K_ref t", hx, sample={**twiddle, "u_kernel": b.reference},
+                      modify={0: b.spec}, uniforms={"u_rows_in": H, "u_rows_out": ny}, rows={0: (H, 3)},
+                      written={0: (ny, 3)}, round_trip=True)
         gpu.begin("start")
         sample = {**twiddle, "u_t": linear}
-        if not cold:
-            sample.update(u_t_prev=b.t[old], u_T_prev=b.T[old])
-        images: dict[str, dict[int, Any]] = {"write": {1: b.T[new], 4: b.w[new], 5: b.q[new]}, "read": {},
-                                             "modify": {}}
+        images: dict[str, dict[int, Any]] = {"write": {}, "read": {}, "modify": {}}
         if b.reference is not None:               # reads T's spectra (3 layers), writes the reflections' (6)
             images["modify"][0] = b.spec
         else:
             images["write"][0] = b.spec
-        if not cold:
+        if cold:
+            images["write"].update({1: b.T[new], 4: b.w[new], 5: b.q[new]})
+        elif shifted:
+            sample.update(u_t_prev=t_prev, u_T_prev=b.T[old])
+            images["write"].update({1: b.T[new], 4: b.w[new], 5: b.q[new]})
             images["read"].update({2: b.w[old], 3: b.q[old]})
-        gpu.run("rows: T, warm start, reflections", P["rows_start"], (ny, 1, 1), sample=sample,
-                uniforms={"u_cold": cold, "u_shift": (0, 0) if cold else motion_gl, "u_keep": self.keep,
-                          "u_matrix": tuple(float(v) for v in self.model.kernel.matrix.T.ravel())},
-                rows={0: (ny, 3)}, written={0: (ny, 6)}, **images)
+        else:
+            sample["u_t_prev"] = t_prev
+            images["modify"].update({1: b.T[new], 4: b.w[new], 5: b.q[new]})
+        self._run(b, "rows_start", "rows: T, warm start, reflections", ny, sample=sample,
+                  uniforms={"u_cold": cold, "u_in_place": not shifted, "u_shift": motion_gl if shifted else (0, 0),
+                            "u_keep": self.keep,
+                            "u_matrix": tuple(float(v) for v in self.model.kernel.matrix.T.ravel())},
+                  rows={0: (ny, 3)}, written={0: (ny, 6)}, **images)
         gpu.begin("iterations")
-        k = self._iterations
         for i in range(k):
-            gpu.run("columns: ADMM solve", P["cols_admm"], (hx, 1, 1), sample={**twiddle, "u_kernel": b.kernel},
-                    modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.norm2},
-                    round_trip=True)
+            self._run(b, "cols_admm", "columns: ADMM solve", hx, sample={**twiddle, "u_kernel": b.kernel},
+                      modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.norm2},
+                      round_trip=True)
             last = i == k - 1
             sample = {**twiddle, "u_T": b.T[new]}
             if last:
                 sample["u_t"] = linear
-            gpu.run("rows: update" + (", guard input" if last else ", reflections"),
-                    P["rows_last" if last else "rows_update"], (ny, 1, 1), sample=sample,
-                    modify={0: b.spec, 2: b.w[new], 3: b.q[new]}, uniforms={"u_keep": self.keep, "u_alpha": self.alpha},
-                    written={0: (H, 6)} if last else None)
+            self._run(b, "rows_last" if last else "rows_update",
+                      "rows: update" + (", guard input" if last else ", reflections"), ny, sample=sample,
+                      modify={0: b.spec, 2: b.w[new], 3: b.q[new]}, uniforms={"u_keep": self.keep, "u_alpha": self.alpha},
+                      written={0: (H, 6)} if last else None)
         if k == 0:
-            gpu.run("rows: guard input", P["rows_guard_input"], (H, 1, 1), sample={**twiddle, "u_t": linear},
-                    read={3: b.q[new]}, write={0: b.spec}, rows={0: (H, 6), 3: H})
+            self._run(b, "rows_guard_input", "rows: guard input", H, sample={**twiddle, "u_t": linear},
+                      read={3: b.q[new]}, write={0: b.spec}, rows={0: (H, 6), 3: H})
         gpu.begin("guard")
-        gpu.run("columns: K z, K t", P["cols_guard"], (hx, 1, 1), sample={**twiddle, "u_kernel": b.kernel},
-                modify={0: b.spec}, uniforms={"u_rows_in": H, "u_rows_out": H}, rows={0: (H, 6)},
-                written={0: (H, 6)}, round_trip=True)
-        gpu.run("rows: guard sums", P["rows_guard"], (H, 1, 1), sample={**twiddle, "u_T": b.T[new]},
-                read={0: b.spec}, buffers={4: (b.partials, "w")}, rows={0: (H, 6)})
-        gpu.run("guard weight", P["guard_final"], (1, 1, 1), buffers={3: (b.guard.result, "w"), 4: (b.partials, "r")})
+        self._run(b, "cols_guard", "columns: K z, K t", hx, sample={**twiddle, "u_kernel": b.kernel},
+                  modify={0: b.spec}, uniforms={"u_rows_in": H, "u_rows_out": H}, rows={0: (H, 6)},
+                  written={0: (H, 6)}, round_trip=True)
+        self._run(b, "rows_guard", "rows: guard sums", H, sample={**twiddle, "u_T": b.T[new]}, read={0: b.spec},
+                  buffers={4: (b.partials, "w")}, rows={0: (H, 6)})
+        self._run(b, "guard_final", "guard weight", 1,
+                  buffers={3: (b.guard.result, "w"), 4: (b.partials, "r"), 6: (b.history, "rw")},
+                  uniforms={"u_reset": cold})
         b.guard.keep()
-        b.current, b.warm = new, True
+        b.current, b.last_t, b.warm = new, b.next_t, True
         b.frames += 1
         self._last = b
         return linear
@@ -292,7 +340,7 @@ class AdmmStrategy(Strategy):
     def describe(self) -> dict[str, Any]:
         rt = self._iterations + 1 + (self.model.reference is not None)
         return {"iterations_per_frame": self._iterations, "precision": self.options.precision,
-                "fft_round_trips_per_frame": rt}
+                "fft_round_trips_per_frame": rt, "early_stop": self.options.early_stop}
 
     def release(self) -> None:
         for b in self._sized.values():

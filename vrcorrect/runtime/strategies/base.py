@@ -32,7 +32,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
     from ..eye_model import CorrectorOptions, EyeModel
 
-__all__ = ["Strategy", "Encoder", "FrameBlend", "GuardResult", "float_texture", "GROUP", "groups_2d"]
+__all__ = ["Strategy", "Encoder", "Decoder", "FrameBlend", "GuardResult", "float_texture", "GROUP", "groups_2d"]
 
 GROUP = 16
 """Side of the 16 x 16 work groups of the per-pixel passes."""
@@ -70,6 +70,40 @@ class Encoder:
         release(self.vao, self.program)
 
 
+class Decoder:
+    """The frame's first pass: the source (RGBA8 sRGB code values, or float linear light) into a
+    linear-light texture (rgba32f, or rgba16f rounded to nearest), optionally comparing it with the
+    last frame's to flag a change (``correction.glsl``'s ``PASS_DECODE``).  Programs are made on
+    first use, one per source kind, target format and comparison."""
+
+    def __init__(self, gpu: Gpu):
+        self.gpu = gpu
+        self._programs: dict[tuple[bool, str, bool], "moderngl.ComputeShader"] = {}
+
+    def run(self, src: "moderngl.Texture", target: "moderngl.Texture",
+            compare: tuple["moderngl.Texture", "moderngl.Buffer"] | None = None) -> None:
+        """Decode ``src`` into ``target``; ``compare``: (the last frame's target, a buffer whose first
+        uint becomes nonzero where any pixel differs)."""
+        key = (src.dtype == "f1", target.dtype, compare is not None)
+        program = self._programs.get(key)
+        if program is None:
+            program = self._programs[key] = compile_compute(
+                self.gpu.ctx, "correction.glsl", defines={
+                    "PASS_DECODE": None, "LAYERS": 1, "RADIUS": 0,
+                    **({"LINEAR_FMT": "rgba16f", "LINEAR_HALF": None} if target.dtype == "f2" else {}),
+                    **({"SOURCE_SRGB": None} if key[0] else {}), **({"COMPARE": None} if key[2] else {})})
+        sample = {"u_source": src}
+        buffers = {}
+        if compare is not None:
+            sample["u_previous"] = compare[0]
+            buffers[5] = (compare[1], "rw")
+        self.gpu.run("decode", program, groups_2d(tuple(src.size)), sample=sample, write={0: target}, buffers=buffers)
+
+    def release(self) -> None:
+        release(*self._programs.values())
+        self._programs.clear()
+
+
 class Strategy:
     """One way of correcting an eye's linear image on the GPU (module docstring).
 
@@ -79,8 +113,10 @@ class Strategy:
     name = ""
     iterative = False                   # has a per-frame iteration count (iterations_per_frame)
 
-    def __init__(self, gpu: Gpu, model: "EyeModel", options: "CorrectorOptions", encoder: Encoder):
+    def __init__(self, gpu: Gpu, model: "EyeModel", options: "CorrectorOptions", encoder: Encoder,
+                 decoder: Decoder | None = None):
         self.gpu, self.ctx, self.model, self.options, self.encoder = gpu, gpu.ctx, model, options, encoder
+        self.decoder = decoder if decoder is not None else Decoder(gpu)
         self._inputs: dict[Size, "moderngl.Texture"] = {}
 
     # ------------------------------------------------------------------ frames
@@ -91,6 +127,12 @@ class Strategy:
         if tex is None:
             tex = self._inputs[size] = float_texture(self.ctx, size)
         return tex
+
+    def decode(self, src: "moderngl.Texture", motion_gl: tuple[int, int]) -> "moderngl.Texture":
+        """This frame's source in linear light (:meth:`decode_target`, through the decoder)."""
+        target = self.decode_target(tuple(src.size))
+        self.decoder.run(src, target)
+        return target
 
     def correct(self, linear: "moderngl.Texture", motion_gl: tuple[int, int]) -> "moderngl.Texture":
         """Correct ``linear`` (this frame's target, from :meth:`decode_target`); returns the
