@@ -290,6 +290,8 @@ uniform sampler2D u_t_prev;                     // the previous frame's target
 uniform sampler2D u_T_prev;
 uniform bool u_cold;
 uniform bool u_in_place;
+uniform bool u_start_given;                     // a cold start from u_start (a first guess) instead of t
+uniform sampler2D u_start;
 uniform ivec2 u_shift;                          // the content's motion since the last frame (GL texels)
 uniform mat3 u_matrix;                          // IDEAL: T = A t
 layout(IMG_FMT, binding = 1) uniform image2D u_T;
@@ -329,7 +331,7 @@ void main() {
         vec3 w, q;
         if (u_cold) {
             w = Tp;
-            q = t;
+            q = (u_start_given && in_image) ? clamp(texelFetch(u_start, p, 0).rgb, 0.0, 1.0) : t;
         } else if (u_in_place) {
             w = imageLoad(u_w, p).rgb;
             q = imageLoad(u_q, p).rgb;

@@ -133,7 +133,7 @@ CLI_CASES = [
     ("render k 65", ["render", "{d}/small.png", "-o", "{d}/out.png", "--iterations-per-frame", "65"],
      "--iterations-per-frame"),
     ("render k with fft", ["render", "{d}/small.png", "-o", "{d}/out.png", "--filter", "fft",
-                           "--iterations-per-frame", "4"], "only with --filter fista"),
+                           "--iterations-per-frame", "4"], "only with --filter admm or fista"),
     ("render model without onnx", ["render", "{d}/small.png", "-o", "{d}/out.png", "--model", "{d}/m.onnx"],
      "--backend onnx"),
     ("render output not png", ["render", "{d}/small.png", "-o", "{d}/out.bmp"], ".png"),

@@ -645,9 +645,9 @@ def test_renderer_onnx_backend_runs_the_learned_model_per_eye(gl, tiny_onnx, tmp
             outs[side] = G.read_framebuffer(fbo)
             G.release(fbo, tex, src)
             linear = np.moveaxis(decode("srgb", img.astype(np.float32) / 255), 2, 0)
-            expected = np.round(np.clip(encode("srgb", np.moveaxis(c._onnx.infer(linear), 0, 2)), 0, 1) * 255)
+            expected = np.round(np.clip(encode("srgb", np.moveaxis(c.strategy.slot.infer(linear), 0, 2)), 0, 1) * 255)
             assert np.abs(outs[side].astype(int) - expected.astype(int)).max() <= 1, side
-            assert c._onnx.eye.sphere_D == c.eye_rx.sphere_D
+            assert c.strategy.slot.eye.sphere_D == c.eye_rx.sphere_D
             with pytest.raises(ValidationError, match="wiener or fast"):
                 c.adjust(sphere_D=-3.0)
             assert c.eye_rx.sphere_D == pytest.approx(-1.0 if side == "right" else -0.6)

@@ -398,3 +398,30 @@ def test_bad_options_are_refused(gl):
         Corrector(gl, RX, "quest2", "right", filter="admm", precision="double")
     with pytest.raises(ValidationError, match="iterations_per_frame"):
         Corrector(gl, RX, "quest2", "right", filter="admm", iterations_per_frame=-1)
+
+
+def test_a_given_first_guess_is_the_cold_start(gl, photo):
+    """The cold-start hook (the learned model's slot): starting the first frame from fast's solution
+    instead of the target, one frame is as good as fast (within 2 %) where the target start is far
+    from it; later frames warm-start as usual (the hook is not called again)."""
+    d = get_display("quest2")
+    p = make_problem(linear(photo), build_kernel(EYE, d), build_reference_kernel(EYE, d))
+    fast = solve(p, "fast")
+    none = objective(p.target, p)
+    calls = []
+    r = Run(gl, "single", 2)
+    guess = G.upload_texture(gl, fast.image.astype(np.float32))
+    try:
+        plain = Run(gl, "single", 2)
+        plain.frame(photo)
+        from_target = plain.c.last_objective_fraction((W, H)) * none
+        plain.release()
+        r.c.strategy.cold_start = lambda linear_texture: (calls.append(linear_texture.size), guess)[1]
+        r.frame(photo)
+        from_guess = r.c.last_objective_fraction((W, H)) * none
+        assert from_guess <= 1.02 * fast.objective < from_target
+        r.frame(photo)
+        assert calls == [(W, H)]
+    finally:
+        r.release()
+        G.release(guess)

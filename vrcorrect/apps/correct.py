@@ -1,4 +1,5 @@
-"""``vrcorrect correct``: pre-correct an image for an eye with one of the solvers (or the learned model)."""
+"""``vrcorrect correct``: pre-correct an image for an eye with one of the solvers (or the learned model);
+a clip frame by frame (the ceiling the real-time path is judged against), into a folder of frames."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from ..plumbing.errors import InputError, ValidationError
@@ -15,6 +17,7 @@ from ..plumbing.fileio import check_readable, check_writable, text_writer, write
 from ..plumbing.imageio import png_writer, read_image
 from ..runtime.model_path import DEFAULT_MODEL
 from ..specs.display import decode, encode, get_display
+from . import clips
 from .common import (
     add_model_options,
     build_eye_kernel,
@@ -27,37 +30,20 @@ from .common import (
 
 
 def cmd_correct(args: argparse.Namespace) -> int:
+    clip = clips.input_clip(args)                         # a clip is checked before any heavy import
+    if clip is not None:
+        return _correct_clip(args, clips.plan_frames(clip, args, None))
     out = Path(args.output)
     if out.suffix.lower() != ".png":
         raise ValidationError("--output", str(out), "a path ending in .png")
     check_writable(out, force=args.force)
-    if args.report:
-        if Path(args.report).suffix.lower() != ".json":
-            raise ValidationError("--report", args.report, "a path ending in .json")
-        check_writable(Path(args.report), force=args.force)
-    if args.iterations is not None and not (1 <= args.iterations <= 100000):
-        raise ValidationError("--iterations", args.iterations, "1 to 100000")
-    if not (0.0 < args.contrast <= 1.0):
-        raise ValidationError("--contrast", args.contrast, "a number in (0, 1]")
-    if args.tolerance is not None:
-        if args.method not in ("fast", "conventional"):
-            raise ValidationError("--tolerance", args.tolerance, "only with --method fast or conventional")
-        if not (0.0 <= args.tolerance < 1.0):
-            raise ValidationError("--tolerance", args.tolerance, "a number from 0 to 1")
-    if args.iterations is not None and args.method in ("wiener", "learned"):
-        raise ValidationError("--iterations", args.iterations, f"nothing: {args.method} is one pass")
-    if args.model is not None and args.method != "learned":
-        raise ValidationError("--model", args.model, "only with --method learned")
+    _check_options(args)
     check_readable(args.input)                      # before the heavy imports: a typo is told at once
     from ..physics.kernel import build_reference_kernel  # on use: start-up time (apps/__init__)
     from ..solvers import make_problem, solve
     from ..vision.metrics import evaluate_seen
 
-    learned = _learned_model(args) if args.method == "learned" else None
-    rx_path, eye = load_eye(args)
-    display = get_display(args.display)
-    if learned is not None:                         # the model's range and display, before any work
-        learned.check(eye, display)
+    learned, rx_path, eye, display = _eye_and_model(args)
     notes: list[str] = []
     image = read_image(args.input, notes)
     print_notes(notes)
@@ -68,11 +54,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
     reference = build_reference_kernel(eye, display, kernel_options(args)) if args.reference == "glasses" else None
     t1 = time.perf_counter()
     problem = make_problem(target, kernel, reference, contrast=args.contrast)
-    options: dict = {}
-    if args.iterations is not None:
-        options["iterations" if args.method == "paper" else "max_iterations"] = args.iterations
-    if args.tolerance is not None:
-        options["tolerance"] = args.tolerance
+    options = _solver_options(args, learned, eye, display, kernel, reference)
     bar = None
     if args.method in ("paper", "fast", "conventional"):
         bar = tqdm(desc=f"{args.method}", unit="it", disable=None, leave=False, file=sys.stderr)
@@ -82,10 +64,6 @@ def cmd_correct(args: argparse.Namespace) -> int:
             bar.n = done
             bar.refresh()
     try:
-        if learned is not None:
-            options["model"] = learned.for_eye(eye, display, kernel, reference)   # refused outside its range
-            options["settings"] = {"model": str(learned.path), "providers": list(learned.providers),
-                                   "ranges": learned.ranges.as_dict(), "version": learned.metadata.get("vrcorrect.version")}
         result = solve(problem, args.method, progress=progress, **options)
     finally:
         if bar is not None:
@@ -103,18 +81,169 @@ def cmd_correct(args: argparse.Namespace) -> int:
             "metrics": corrected.__dict__, "metrics_uncorrected": uncorrected.__dict__,
             "settings": result.settings, "kernel_decisions": list(kernel.decisions),
         }
-        report_notes = list(notes)                  # what was said about the input, then the JSON repairs
-        report = finite_json(report, "", report_notes)
-        if report_notes:
-            report["notes"] = report_notes
-        text = json.dumps(report, indent=2, default=float, allow_nan=False) + "\n"
-        outputs.append((Path(args.report), text_writer(text)))
+        outputs.append((Path(args.report), _report_writer(report, notes)))
     # the image and its report appear together or not at all (an interruption leaves neither)
     write_together(outputs, force=args.force)
     print(f"wrote {out}: {result.method} correction for the {args.eye} eye on {display.title} "
           f"(objective {result.objective:.3g}, {result.iterations} iterations, {result.seconds:.2f} s)"
           + (f"; report {args.report}" if args.report else ""))
     return 0
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    """The report path and the solver options, checked before any work."""
+    if args.report:
+        if Path(args.report).suffix.lower() != ".json":
+            raise ValidationError("--report", args.report, "a path ending in .json")
+        check_writable(Path(args.report), force=args.force)
+    if args.iterations is not None and not (1 <= args.iterations <= 100000):
+        raise ValidationError("--iterations", args.iterations, "1 to 100000")
+    if not (0.0 < args.contrast <= 1.0):
+        raise ValidationError("--contrast", args.contrast, "a number in (0, 1]")
+    if args.tolerance is not None:
+        if args.method not in ("fast", "conventional"):
+            raise ValidationError("--tolerance", args.tolerance, "only with --method fast or conventional")
+        if not (0.0 <= args.tolerance < 1.0):
+            raise ValidationError("--tolerance", args.tolerance, "a number from 0 to 1")
+    if args.iterations is not None and args.method in ("wiener", "learned"):
+        raise ValidationError("--iterations", args.iterations, f"nothing: {args.method} is one pass")
+    if args.model is not None and args.method != "learned":
+        raise ValidationError("--model", args.model, "only with --method learned")
+
+
+def _eye_and_model(args: argparse.Namespace):
+    """The learned model (``--method learned``) and its range checked against the eye and display,
+    before any work: ``(learned or None, prescription path, eye, display)``."""
+    learned = _learned_model(args) if args.method == "learned" else None
+    rx_path, eye = load_eye(args)
+    display = get_display(args.display)
+    if learned is not None:                         # the model's range and display, before any work
+        learned.check(eye, display)
+    return learned, rx_path, eye, display
+
+
+def _solver_options(args: argparse.Namespace, learned, eye, display, kernel, reference) -> dict:
+    options: dict = {}
+    if args.iterations is not None:
+        options["iterations" if args.method == "paper" else "max_iterations"] = args.iterations
+    if args.tolerance is not None:
+        options["tolerance"] = args.tolerance
+    if learned is not None:
+        options["model"] = learned.for_eye(eye, display, kernel, reference)   # refused outside its range
+        options["settings"] = {"model": str(learned.path), "providers": list(learned.providers),
+                               "ranges": learned.ranges.as_dict(), "version": learned.metadata.get("vrcorrect.version")}
+    return options
+
+
+def _report_writer(report: dict, notes: list[str]):
+    """The report as strict JSON (non-finite numbers null, each explained in ``notes``)."""
+    report_notes = list(notes)                      # what was said about the input, then the JSON repairs
+    report = finite_json(report, "", report_notes)
+    if report_notes:
+        report["notes"] = report_notes
+    return text_writer(json.dumps(report, indent=2, default=float, allow_nan=False) + "\n")
+
+
+#: A clip's report scores it with ColorVideoVDP in video mode up to this many frame pixels (frames x
+#: width x height: 90 frames of 360x360); the seen frames are kept in memory for it.
+VIDEO_JOD_MAX_PIXELS = 12_000_000
+#: The rate a clip without one is scored at (a headset's).
+VIDEO_JOD_DEFAULT_FPS = 90.0
+
+
+def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
+    """Each frame of a clip solved on its own (the offline ceiling), into a folder of frames."""
+    folder = clips.output_folder(args, plan)        # checked before any work
+    _check_options(args)
+    from ..physics.kernel import build_reference_kernel  # on use: start-up time (apps/__init__)
+    from ..solvers import make_problem, objective, solve
+    from ..vision.forward import lms_to_display, simulate_lms
+
+    learned, rx_path, eye, display = _eye_and_model(args)
+    clip = plan.clip
+    print_notes(clip.notes)
+    check_memory(args.method, clip.size[1], clip.size[0])
+    t0 = time.perf_counter()
+    kernel = build_eye_kernel(args, eye, display)
+    reference = build_reference_kernel(eye, display, kernel_options(args)) if args.reference == "glasses" else None
+    t1 = time.perf_counter()
+    options: dict | None = None
+    scored = bool(args.report) and plan.count * clip.size[0] * clip.size[1] <= VIDEO_JOD_MAX_PIXELS
+    seen: dict[str, list] = {"target": [], "corrected": [], "uncorrected": []}
+
+    def srgb_seen(lms):
+        return encode("srgb", lms_to_display(lms, kernel)).astype(np.float32)
+
+    per_frame: list[dict] = []
+    last_source, result, entry = -1, None, None
+    bits = 16 if args.sixteen_bit else 8
+    with folder, clips.frames_bar(f"correct ({args.method})", plan.count) as bar:
+        for index, (source, frame) in enumerate(clips.planned_frames(plan)):
+            if source != last_source:               # a repeated source frame has the same correction
+                problem = make_problem(decode(display, frame), kernel, reference, contrast=args.contrast)
+                if options is None:
+                    options = _solver_options(args, learned, eye, display, kernel, reference)
+                result = solve(problem, args.method, **options)
+                entry = {"source_frame": source, "objective": result.objective,
+                         "objective_uncorrected": objective(problem.target, problem) if args.report else None,
+                         "iterations": result.iterations, "seconds": result.seconds}
+                if scored:
+                    images = (srgb_seen(problem.target_lms), srgb_seen(simulate_lms(result.image, kernel)[0]),
+                              srgb_seen(simulate_lms(problem.target, kernel)[0]))
+                last_source = source
+            folder.write(index, encode(display, result.image), bits=bits)
+            per_frame.append({"frame": index, "file": folder.name(index), **entry})
+            if scored:
+                for name, image in zip(seen, images):
+                    seen[name].append(image)
+            bar.update(1)
+        others = []
+        if args.report:
+            report = _clip_report(args, plan, rx_path, display, result, reference, kernel, per_frame, seen if scored
+                                  else None, t1 - t0)
+            others.append((Path(args.report), _report_writer(report, list(clip.notes))))
+        folder.commit(others)                       # the frames and the report appear together or not at all
+    objectives = [f["objective"] for f in per_frame]
+    print(f"wrote {args.output}: {plan.count} frames, {args.method} correction for the {args.eye} eye on "
+          f"{display.title} ({plan.text}; median objective {float(np.median(objectives)):.3g}, "
+          f"{sum(f['seconds'] for f in per_frame):.2f} s solving)" + (f"; report {args.report}" if args.report else ""))
+    return 0
+
+
+def _clip_report(args, plan: clips.ClipPlan, rx_path, display, result, reference, kernel, per_frame: list[dict],
+                 seen: dict[str, list] | None, kernel_s: float) -> dict:
+    """The report of a clip: each frame's objective (and uncorrected), a summary, and ColorVideoVDP
+    in video mode of what the eye sees, corrected and uncorrected, against the target."""
+    objectives = np.array([f["objective"] for f in per_frame], dtype=np.float64)
+    uncorrected = np.array([f["objective_uncorrected"] for f in per_frame], dtype=np.float64)
+    fraction = objectives / np.where(uncorrected > 0, uncorrected, np.nan)
+    fps = plan.frames_per_s or VIDEO_JOD_DEFAULT_FPS
+    metrics: dict = {"video_jod": None, "video_jod_uncorrected": None, "frames_per_s": fps}
+    if seen is not None:
+        from ..vision.metrics import video_jod  # on use: torch and ColorVideoVDP
+
+        metrics["video_jod"] = video_jod(seen["target"], seen["corrected"], display, fps)
+        metrics["video_jod_uncorrected"] = video_jod(seen["target"], seen["uncorrected"], display, fps)
+    else:
+        metrics["why_not_scored"] = (f"the clip has more than {VIDEO_JOD_MAX_PIXELS} frame pixels; score parts of it "
+                                     "with vrcorrect.vision.metrics.video_jod")
+    return {
+        "input": str(args.input), "output": str(args.output), "prescription": str(rx_path), "eye": args.eye,
+        "display": display.name, "method": result.method, "reference": "glasses" if reference is not None else "ideal",
+        "contrast": args.contrast,
+        "clip": {"kind": plan.clip.kind, "source_frames": plan.clip.count, "frames": plan.count,
+                 "size": list(plan.clip.size), "frames_per_s": plan.frames_per_s, "plan": plan.text},
+        "seconds": {"kernel": kernel_s, "solve": float(sum(f["seconds"] for f in per_frame))},
+        "summary": {"objective_median": float(np.median(objectives)), "objective_mean": float(objectives.mean()),
+                    "objective_max": float(objectives.max()),
+                    "objective_uncorrected_median": float(np.median(uncorrected)),
+                    "objective_fraction_median": float(np.nanmedian(fraction)) if np.isfinite(fraction).any()
+                    else None,
+                    "iterations_median": float(np.median([f["iterations"] for f in per_frame]))},
+        "metrics": metrics,
+        "frames": per_frame,
+        "settings": result.settings, "kernel_decisions": list(kernel.decisions),
+    }
 
 
 def _learned_model(args: argparse.Namespace):
@@ -133,9 +262,13 @@ def _learned_model(args: argparse.Namespace):
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("correct", help="pre-correct an image for an eye (the displayed image)")
-    p.add_argument("input", metavar="IN", help="image file (sRGB code values)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.png")
+    p = sub.add_parser("correct", help="pre-correct an image for an eye (the displayed image); a clip frame by frame",
+                       description="Pre-correct an image for an eye: the displayed image whose retinal image best "
+                                   "matches the target. " + clips.CLIP_HELP + " Each frame of a clip is solved on its "
+                                   "own with --method (the offline ceiling of the real-time path), each source frame "
+                                   "once unless --fps asks for another rate; --report then holds each frame's "
+                                   "objective, a summary, and ColorVideoVDP in video mode of what the eye sees.")
+    clips.add_input_output(p, "image file (sRGB code values)")
     add_model_options(p)
     p.add_argument("--method", choices=("conventional", "paper", "fast", "wiener", "learned"), default="fast",
                    help="correction method (default fast)")
@@ -148,5 +281,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="target: what the eye sees with glasses (default) or the paper's blur-free A t")
     p.add_argument("--report", metavar="REPORT.json", help="write metrics, timings and settings")
     p.add_argument("--16bit", dest="sixteen_bit", action="store_true", help="write a 16-bit PNG")
-    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    clips.add_clip_options(p, fps_help="a clip: resample it in time to F frames per second (source frames "
+                                       "repeated or dropped by presentation time; default: each source frame once)")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs (a clip's: replace its folder of "
+                                                        "frames)")
     p.set_defaults(func=cmd_correct)

@@ -1,5 +1,7 @@
 """``vrcorrect render``: frames of an image through the real-time GL pipeline (headless EGL), the
-last one written: what the headset would show, or what the eye sees of it."""
+last one written: what the headset would show, or what the eye sees of it.  A clip (a folder of
+frames, an animated image, a video) is played through it at the headset's rate (``--fps``), the
+warm start carried from frame to frame, and every frame written to a folder."""
 
 from __future__ import annotations
 
@@ -7,6 +9,7 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from ..plumbing.errors import ValidationError
@@ -14,14 +17,20 @@ from ..plumbing.fileio import check_readable, check_writable
 from ..plumbing.imageio import read_image, write_png
 from ..runtime.model_path import model_for_backend
 from ..specs.prescription import bundled_sample_path, load_prescription
+from . import clips
 from .common import add_model_options, kernel_options, print_notes
 from ..runtime.eye_model import ITERATIVE_FILTERS
-from .realtime_options import add_filter_options, filter_options, parse_frames
+from .realtime_options import add_filter_options, add_reprojection_option, filter_options, parse_frames
 
 METHOD_TITLES = {"admm": "ADMM", "fista": "projected gradient (FISTA)"}
+#: The headset rate a clip is played at unless ``--fps`` says otherwise.
+DEFAULT_FPS = 90.0
 
 
 def cmd_render(args: argparse.Namespace) -> int:
+    clip = clips.input_clip(args, still_options=("frames",))  # before the heavy imports: a bad clip is told at once
+    if clip is not None:
+        return _render_clip(args, clips.plan_frames(clip, args, DEFAULT_FPS))
     from ..runtime.render import MAX_FRAMES, SETTLED_FRAMES, render_frame  # on use: start-up time (apps/__init__)
 
     out = Path(args.output)
@@ -51,8 +60,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         result, info = render_frame(image, rx, args.display, args.eye, args.backend, view=args.view,
                                     frames=frames, progress=progress, **options)
     write_png(out, result / 255.0, bits=8, force=args.force)
-    print(f"{info['renderer']}: {args.eye} eye, sphere {info['sphere_D']:+.2f} D, cylinder {info['cylinder_D']:+.2f} D, "
-          f"axis {info['axis_deg']:g} deg on {info['display']}; backend {info['backend']}")
+    _print_eye(args, info)
     fraction = info.get("objective_fraction")
     if args.backend == "glsl" and info["filter"] in ITERATIVE_FILTERS:
         print(f"  {METHOD_TITLES[info['filter']]}, {info.get('iterations_per_frame', '-')} iteration(s) per frame, "
@@ -72,19 +80,94 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _render_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
+    """A clip through one Corrector, every frame to the output folder."""
+    from ..runtime.render import render_clip  # on use: start-up time (apps/__init__)
+
+    options = {"kernel_options": kernel_options(args), **filter_options(args)}
+    folder = clips.output_folder(args, plan)        # checked before any work
+    model = model_for_backend(args.backend, args.model)
+    if model:
+        options["model"] = model
+    rx = load_prescription(args.rx or str(bundled_sample_path()))
+    print_notes(plan.clip.notes)
+    with folder, clips.frames_bar("render", plan.count) as bar:
+        def emit(index: int, out) -> None:
+            folder.write(index, out / 255.0, bits=8)
+
+        def progress(done: int) -> None:
+            bar.n = done
+            bar.refresh()
+
+        info = render_clip(clips.planned_frames(plan), rx, args.display, args.eye, args.backend, view=args.view,
+                           reprojection=not args.no_reprojection, emit=emit, progress=progress, **options)
+        folder.commit()
+    _print_clip_summary(args, plan, info)
+    return 0
+
+
+def _print_eye(args: argparse.Namespace, info: dict) -> None:
+    print(f"{info['renderer']}: {args.eye} eye, sphere {info['sphere_D']:+.2f} D, cylinder {info['cylinder_D']:+.2f} "
+          f"D, axis {info['axis_deg']:g} deg on {info['display']}; backend {info['backend']}")
+
+
+def _median(values) -> float | None:
+    kept = [v for v in values if v is not None]
+    return float(np.median(kept)) if kept else None
+
+
+def _print_clip_summary(args: argparse.Namespace, plan: clips.ClipPlan, info: dict) -> None:
+    _print_eye(args, info)
+    print(f"  {plan.text}")
+    iterative = args.backend == "glsl" and info["filter"] in ITERATIVE_FILTERS and args.view != "seen-uncorrected"
+    if iterative:
+        title = METHOD_TITLES[info["filter"]]
+        if info["motion_tracked"]:
+            cuts = info["cuts"]
+            shown = ", ".join(str(c) for c in cuts[:10]) + (" ..." if len(cuts) > 10 else "")
+            where = f": at frame {shown}" if cuts else ""
+            carry = (f"warm start carried across frames, moved by the estimated motion; {len(cuts)} cut(s) detected"
+                     f"{where} (cold start)")
+        else:
+            carry = "warm start carried across frames as it was (--no-reprojection: no motion, no cut detection)"
+        print(f"  {title}, {info.get('iterations_per_frame', '-')} iteration(s) per frame; {carry}")
+    elif args.view == "seen-uncorrected":
+        print("  what the eye sees of each frame without correction")
+    fraction = _median(info["objective_fractions"])
+    if fraction is not None:
+        print(f"  median objective {fraction:.3f} of uncorrected (the GPU's own, read one frame late)")
+    ms = _median(info["frame_ms"])
+    renderer = str(info["renderer"])
+    soft = any(name in renderer.lower() for name in ("llvmpipe", "softpipe", "swrast"))
+    print(f"  median {ms:.1f} ms per frame (upload, correction and read-back)"
+          + (f" on {renderer.split(' (')[0]}, Mesa's software renderer on the CPU: a GPU is far faster" if soft else "")
+          + f"; build {info['build_s']:.2f} s")
+    print(f"wrote {args.output} ({info['frames']} frames, {info['view']})")
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("render", help="frames through the real-time GL pipeline (headless EGL), the last written")
-    p.add_argument("input", help="image (PNG/JPEG, sRGB)")
-    p.add_argument("-o", "--output", required=True, help="output PNG")
+    p = sub.add_parser("render", help="frames through the real-time GL pipeline (headless EGL), the last written; "
+                                      "a clip: every frame, to a folder",
+                       description="Run an image, or a clip, through the real-time GL pipeline on a headless EGL "
+                                   "context. " + clips.CLIP_HELP + " A clip is played at the headset's rate (--fps, "
+                                   "default 90): source frames are repeated or dropped by their presentation time "
+                                   "(a video's frame rate, an animation's frame durations, a folder's --clip-fps); one "
+                                   "corrector carries its warm start from frame to frame, moved by the picture's "
+                                   "estimated motion and restarted cold on a scene cut, as in a headset.")
+    clips.add_input_output(p, "image (PNG/JPEG, sRGB)")
     add_model_options(p)
     p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl", help="correction backend (default glsl)")
     p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx")
     add_filter_options(p)
     p.add_argument("--frames", metavar="N",
-                   help="run N frames of the input as a still video and write the last; with --filter admm or fista each "
-                        "frame continues the last one's iterations (default: 10 with admm and fista, a still view settled "
-                        "after a tenth of a second at 90 Hz; 1 with the one-pass filters and the onnx backend)")
+                   help="a still image: run N frames of it as a still video and write the last; with --filter admm or "
+                        "fista each frame continues the last one's iterations (default: 10 with admm and fista, a "
+                        "still view settled after a tenth of a second at 90 Hz; 1 with the one-pass filters and the "
+                        "onnx backend)")
     p.add_argument("--view", choices=("corrected", "seen-corrected", "seen-uncorrected"), default="corrected",
                    help="the displayed image (default) or what the eye sees of it")
-    p.add_argument("--force", action="store_true", help="overwrite the output")
+    add_reprojection_option(p)
+    clips.add_clip_options(p, fps_help=f"a clip: the headset's frame rate it is played at (default "
+                                       f"{DEFAULT_FPS:g}); the output has one frame per displayed frame")
+    p.add_argument("--force", action="store_true", help="overwrite the output (a clip's: replace its folder of frames)")
     p.set_defaults(func=cmd_render)

@@ -1,4 +1,5 @@
-"""``vrcorrect simulate``: what an eye sees of an image on a display."""
+"""``vrcorrect simulate``: what an eye sees of an image on a display; of each frame of a clip, into a
+folder of frames."""
 
 from __future__ import annotations
 
@@ -10,10 +11,14 @@ from ..plumbing.errors import ValidationError
 from ..plumbing.fileio import check_readable, check_writable
 from ..plumbing.imageio import read_image, write_png
 from ..specs.display import decode, encode, get_display
+from . import clips
 from .common import add_model_options, build_eye_kernel, load_eye, print_notes
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    clip = clips.input_clip(args)                         # a clip is checked before any heavy import
+    if clip is not None:
+        return _simulate_clip(args, clips.plan_frames(clip, args, None))
     check_readable(args.input)                      # before the heavy imports: a typo is told at once
     from ..vision.forward import what_the_eye_sees  # on use: start-up time (apps/__init__)
 
@@ -47,13 +52,45 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _simulate_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
+    """What the eye sees of each frame of a clip, into a folder of frames."""
+    folder = clips.output_folder(args, plan)        # checked before any work
+    from ..vision.forward import what_the_eye_sees  # on use: start-up time (apps/__init__)
+
+    rx_path, eye = load_eye(args)
+    display = get_display(args.display)
+    print_notes(plan.clip.notes)
+    kernel = build_eye_kernel(args, eye, display)
+    last_source, seen, info = -1, None, None
+    with folder, clips.frames_bar("simulate", plan.count) as bar:
+        for index, (source, frame) in enumerate(clips.planned_frames(plan)):
+            if source != last_source:               # a repeated source frame is seen the same
+                seen, info = what_the_eye_sees(decode(display, frame), kernel, method=args.method)
+                last_source = source
+            folder.write(index, encode(display, seen), bits=16 if args.sixteen_bit else 8)
+            bar.update(1)
+        folder.commit()
+    if args.explain:
+        print(f"prescription {rx_path} ({args.eye} eye): sphere {eye.sphere_D:+.2f} D, cylinder "
+              f"{eye.cylinder_D:+.2f} D, axis {eye.axis_deg:g} deg, pupil {eye.pupil_diameter_mm:g} mm")
+        for line in kernel.decisions:
+            print(f"  - {line}")
+        print(f"  - forward model: {info.path} path, {info.convolutions} convolution(s) of the last frame")
+    print(f"wrote {args.output}: {plan.count} frames, what the {args.eye} eye sees on {display.title} ({plan.text})")
+    return 0
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("simulate", help="what an eye sees of an image on a display")
-    p.add_argument("input", metavar="IN", help="image file (PNG, JPEG, ...; sRGB code values)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.png")
+    p = sub.add_parser("simulate", help="what an eye sees of an image on a display; of each frame of a clip",
+                       description="What an eye sees of an image on a display. " + clips.CLIP_HELP + " Each source "
+                                   "frame of a clip is simulated once unless --fps asks for another rate.")
+    clips.add_input_output(p, "image file (PNG, JPEG, ...; sRGB code values)")
     add_model_options(p)
     p.add_argument("--method", choices=("auto", "fft", "direct"), default="auto", help="convolution path")
     p.add_argument("--explain", action="store_true", help="print every modelling decision")
     p.add_argument("--16bit", dest="sixteen_bit", action="store_true", help="write a 16-bit PNG")
-    p.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
+    clips.add_clip_options(p, fps_help="a clip: resample it in time to F frames per second (source frames "
+                                       "repeated or dropped by presentation time; default: each source frame once)")
+    p.add_argument("--force", action="store_true", help="overwrite OUT if it exists (a clip's: replace its folder "
+                                                        "of frames)")
     p.set_defaults(func=cmd_simulate)

@@ -51,6 +51,7 @@ from .eye_model import (  # noqa: F401  (re-exported)
     MAX_ITERATIONS_PER_FRAME,
     CorrectorOptions,
     EyeModel,
+    as_options,
     build_eye_model,
     check_iterations,
 )
@@ -160,14 +161,15 @@ class Corrector:
         e.g. on a worker thread): the first build uploads it instead of designing it here, so
         construction does only the GL work.  Its ``eye`` must be this prescription's eye for
         ``eye`` (``ValidationError`` otherwise).
-    **options
-        Fields of :class:`CorrectorOptions`.
+    options, **fields
+        The :class:`CorrectorOptions`, made or as their fields (not both).
     """
 
     POLL_INTERVAL_S = 0.25
 
     def __init__(self, ctx: "moderngl.Context", rx: RxSource, display: str | os.PathLike[str] | DisplayProfile,
-                 eye: str, backend: str = "glsl", *, eye_model: EyeModel | None = None, **options: Any):
+                 eye: str, backend: str = "glsl", *, eye_model: EyeModel | None = None,
+                 options: CorrectorOptions | None = None, **fields: Any):
         if backend not in BACKENDS:
             raise ValidationError("backend", backend, "one of " + ", ".join(BACKENDS))
         if eye not in ("right", "left"):
@@ -175,7 +177,9 @@ class Corrector:
         if ctx.version_code < 430:
             raise ValidationError("ctx", f"OpenGL {ctx.version_code}", "a context with OpenGL 4.3 or newer")
         self.ctx, self.eye_name, self.backend = ctx, eye, backend
-        self.options = CorrectorOptions(backend=backend, **options)
+        if options is not None and fields:
+            raise ValidationError("options", ", ".join(fields), "CorrectorOptions or its fields, not both")
+        self.options = as_options(backend, options if options is not None else fields)
         self.display = display if isinstance(display, DisplayProfile) else get_display(display)
         if self.display.transfer != "srgb":
             raise ValidationError("display transfer", f"{self.display.transfer} ({self.display.name})",

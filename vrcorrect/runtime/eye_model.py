@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
@@ -39,7 +39,7 @@ from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from ..physics.kernel import EyeKernel, KernelOptions
 
-__all__ = ["BACKENDS", "FILTERS", "ITERATIVE_FILTERS", "DEFAULT_ITERATIONS", "ITERATIONS_RANGE",
+__all__ = ["as_options", "BACKENDS", "FILTERS", "ITERATIVE_FILTERS", "DEFAULT_ITERATIONS", "ITERATIONS_RANGE",
            "MAX_ITERATIONS_PER_FRAME", "PRECISIONS", "CorrectorOptions", "EyeModel", "build_eye_model", "check_iterations"]
 
 BACKENDS = ("glsl", "onnx")
@@ -55,6 +55,16 @@ ITERATIONS_RANGE = (1, 64)
 MAX_ITERATIONS_PER_FRAME = 256
 """The knob's range in the API (0 keeps the start; the guard still applies)."""
 PRECISIONS = ("half", "single")
+
+
+def as_options(backend: str, value: "CorrectorOptions | Mapping[str, Any] | None") -> "CorrectorOptions":
+    """``value`` as :class:`CorrectorOptions` for ``backend`` (a mapping of its fields, checked now,
+    or options already made, which must be for that backend)."""
+    if isinstance(value, CorrectorOptions):
+        if value.backend != backend:
+            raise ValidationError("corrector_options.backend", value.backend, f"the application's backend, {backend}")
+        return value
+    return CorrectorOptions(backend=backend, **dict(value or {}))
 
 
 def check_iterations(value: object) -> int:

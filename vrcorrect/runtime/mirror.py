@@ -46,6 +46,7 @@ import numpy as np
 
 from ..plumbing.errors import ValidationError, VrcorrectError
 from .corrector import Corrector
+from .eye_model import CorrectorOptions, as_options
 from .gl import check_gl_errors, format_ms, release
 from .scene import open_source
 from .sources import EYES, EyeSource, parse_source, start_motion, take_motion
@@ -256,7 +257,7 @@ class MirrorConfig:
     frames: int | None = None
     screenshot_dir: str | Path = "."
     backend: str = "glsl"
-    corrector_options: Mapping[str, Any] = field(default_factory=dict)
+    corrector_options: CorrectorOptions | Mapping[str, Any] = field(default_factory=dict)
     visible: bool = True
     vsync: bool = True
     platform: str | None = None
@@ -268,6 +269,7 @@ class MirrorConfig:
     reprojection: bool = True
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "corrector_options", as_options(self.backend, self.corrector_options))
         w, h = self.eye_size
         if not all(isinstance(v, int) and 1 <= v <= 8192 for v in (w, h)):
             raise ValidationError("eye_size", self.eye_size, "(width, height) in pixels, each 1 to 8192")
@@ -365,7 +367,7 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
     def _build(self) -> None:
         cfg, ctx = self.config, self.ctx
         self.source = open_source(ctx, self.spec, *cfg.eye_size, folder_interval_s=cfg.folder_interval_s)
-        self._start_eyes(ctx, EYES, cfg.backend, cfg.corrector_options)
+        self._start_eyes(ctx, EYES, cfg.corrector_options)
         start_motion(self.source, self.correctors.values(), cfg.reprojection)
         atlas = build_font_atlas(cfg.font_px)
         self.overlay = TextOverlay(ctx, atlas)

@@ -42,6 +42,7 @@ import numpy as np
 
 from ..plumbing.errors import ValidationError
 from .corrector import Corrector
+from .eye_model import CorrectorOptions, as_options
 from .gl import Rect, check_gl_errors, format_ms, release
 from .sources import (
     PictureSource,
@@ -243,7 +244,7 @@ class OverlayConfig:
     frames: int | None = None
     screenshot_dir: str | Path = "."
     backend: str = "glsl"
-    corrector_options: Mapping[str, Any] = field(default_factory=dict)
+    corrector_options: CorrectorOptions | Mapping[str, Any] = field(default_factory=dict)
     reprojection: bool = True               # fista: reproject the warm start by the pictures' motion
     visible: bool = True
     vsync: bool = True
@@ -256,6 +257,7 @@ class OverlayConfig:
     title: str = "vrcorrect overlay"
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "corrector_options", as_options(self.backend, self.corrector_options))
         if self.eye not in ("right", "left"):
             raise ValidationError("--eye", self.eye, "right or left")
         if self.backend not in ("glsl", "onnx"):
@@ -366,7 +368,7 @@ class Overlay(KeyedWindowApp[OverlayState, OverlayAction]):
         else:
             self.source = open_picture_source(ctx, self.spec, w, h, folder_interval_s=cfg.folder_interval_s)
         self.say(f"{self.source.label}, {w}x{h}")
-        self._start_eyes(ctx, (cfg.eye,), cfg.backend, cfg.corrector_options)
+        self._start_eyes(ctx, (cfg.eye,), cfg.corrector_options)
         start_motion(self.source, [self.corrector], cfg.reprojection)
         atlas = build_font_atlas(cfg.font_px)
         self.text = TextOverlay(ctx, atlas)

@@ -24,21 +24,30 @@ through ``mss`` when installed (both in the ``realtime`` extra).
 
 from __future__ import annotations
 
-import bisect
 import math
 import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING, Any, Callable, Hashable, Iterable, Iterator, Protocol, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Hashable, Iterable, Protocol, Sequence
 
 import numpy as np
-from PIL import Image
 
+from ..plumbing.clips import (
+    ANIMATED_SUFFIXES,
+    FFMPEG_HINT,
+    VIDEO_SUFFIXES,
+    AnimatedImage,
+    VideoReader,
+    clip_folder_files,
+    frame_starts,
+    index_at,
+    is_animated,
+)
 from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.imageio import read_image
-from ..plumbing.images import IMAGE_SUFFIXES, image_files
+from ..plumbing.images import IMAGE_SUFFIXES
 from .gl import Rect, draw_fullscreen, fullscreen_triangle, release, render_target, upload_texture, write_texture
 from .motion import MotionTracker
 from .shaders import compile_program
@@ -60,16 +69,8 @@ __all__ = [
 EYES = ("left", "right")
 """The eyes, in the order the mirror shows them (left eye on the left)."""
 
-ANIMATED_SUFFIXES = (".gif", ".png", ".webp")
-"""Image files that are played as a video when they hold more than one frame."""
-
-VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov", ".mkv", ".webm", ".avi", ".mpg", ".mpeg", ".ogv", ".wmv", ".flv")
-"""Video files, decoded by the ffmpeg that ``imageio-ffmpeg`` ships (the ``realtime`` extra)."""
-
 MAX_EYE_SIZE = 8192
 """Largest eye width or height accepted by :func:`parse_size` (pixels)."""
-
-FFMPEG_HINT = "pip install imageio-ffmpeg (part of the realtime extra: pip install -e '.[realtime]')"
 
 
 # --------------------------------------------------------------------------
@@ -167,14 +168,9 @@ def parse_source(text: str, field: str = "--source") -> SourceSpec:
 
 
 def folder_images(folder: str | Path) -> tuple[Path, ...]:
-    """The image files (by suffix, see :data:`IMAGE_SUFFIXES`) directly in ``folder``, sorted by name."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise InputError(f"{folder}: not a folder")
-    files = image_files(folder)
-    if not files:
-        raise InputError(f"{folder}: no images in the folder (looked for {' '.join(IMAGE_SUFFIXES)})")
-    return files
+    """The image files (by suffix, see :data:`IMAGE_SUFFIXES`) directly in ``folder``, sorted
+    naturally (``frame2`` before ``frame10``), as the command-line tools read a folder clip."""
+    return clip_folder_files(folder)
 
 
 def fit_rect(src_width: int, src_height: int, dst_width: int, dst_height: int) -> Rect:
@@ -208,12 +204,9 @@ def frame_index(t_s: float, frames_per_s: float, count: int) -> int:
 
 def frame_at(t_s: float, durations_s: Sequence[float]) -> int:
     """Index of the frame shown at ``t_s`` in a looping sequence with these frame durations."""
-    if len(durations_s) == 0 or any(not (math.isfinite(d) and d > 0) for d in durations_s):
-        raise ValidationError("durations_s", durations_s, "one or more finite durations > 0 (seconds)")
-    starts = np.concatenate([[0.0], np.cumsum(durations_s)])
-    total = float(starts[-1])
-    t = math.fmod(max(float(t_s), 0.0) + 1e-9, total) if math.isfinite(t_s) else 0.0  # 1e-9: 0.1 + 0.2 is 0.3
-    return min(bisect.bisect_right(starts.tolist(), t) - 1, len(durations_s) - 1)
+    starts = frame_starts(durations_s)
+    t = math.fmod(max(float(t_s), 0.0) + 1e-9, starts[-1]) if math.isfinite(t_s) else 0.0  # 1e-9: 0.1 + 0.2 is 0.3
+    return index_at(starts, t)
 
 
 
@@ -428,47 +421,29 @@ class FolderSource(PictureSource):
 
 
 class AnimatedImageSource(PictureSource):
-    """An animated GIF, PNG (APNG) or WebP, played at its own frame durations, looping."""
+    """An animated GIF, PNG (APNG) or WebP, played at its own frame durations, looping (decoded by
+    :class:`~vrcorrect.plumbing.clips.AnimatedImage`)."""
 
     MAX_FRAMES = 10000
 
     def __init__(self, ctx: "moderngl.Context", width: int, height: int, path: str | Path):
         self.path = Path(path)
-        self._image: Image.Image | None = None
+        self._image: AnimatedImage | None = None
         super().__init__(ctx, width, height)
 
     def _open(self) -> None:
-        try:
-            self._image = Image.open(self.path)
-            count = min(int(getattr(self._image, "n_frames", 1)), self.MAX_FRAMES)
-            durations = []
-            for i in range(count):
-                self._image.seek(i)
-                durations.append(max(float(self._image.info.get("duration") or 100.0), 10.0) / 1000.0)
-        except (OSError, ValueError, EOFError) as exc:
-            raise InputError(f"{self.path}: cannot read the animation ({exc})") from None
-        self.durations_s = tuple(durations)
-        self.label = f"animation {self.path.name} ({count} frames)"
+        self._image = AnimatedImage(self.path, self.MAX_FRAMES)
+        self.durations_s = self._image.durations_s
+        self.label = f"animation {self.path.name} ({self._image.count} frames)"
 
     @staticmethod
     def is_animated(path: str | Path) -> bool:
         """True if the image file holds more than one frame."""
-        try:
-            with Image.open(path) as im:
-                return int(getattr(im, "n_frames", 1)) > 1
-        except (OSError, ValueError):
-            return False
-
-    def _frame(self, i: int) -> np.ndarray:
-        try:
-            self._image.seek(i)
-            return np.asarray(self._image.convert("RGB"), dtype=np.uint8)
-        except (OSError, ValueError, EOFError) as exc:
-            raise InputError(f"{self.path}: cannot read frame {i} ({exc})") from None
+        return is_animated(path)
 
     def _update(self, t_s: float) -> None:
         i = frame_at(t_s, self.durations_s)
-        self._show(i, lambda: self._frame(i))
+        self._show(i, lambda: self._image.frame(i))
         self.index = i
 
     def release(self) -> None:
@@ -479,7 +454,8 @@ class AnimatedImageSource(PictureSource):
 
 
 class VideoSource(PictureSource):
-    """A video file decoded by ffmpeg (``imageio-ffmpeg``), played in real time, looping.
+    """A video file decoded by ffmpeg (:class:`~vrcorrect.plumbing.clips.VideoReader`), played in
+    real time, looping.
 
     Frames are read in order from ffmpeg's pipe; when rendering falls behind, frames in
     between are read and skipped, so the video keeps to the clock.
@@ -488,51 +464,32 @@ class VideoSource(PictureSource):
     def __init__(self, ctx: "moderngl.Context", width: int, height: int, path: str | Path):
         self.path = Path(path)
         self.label = f"video {self.path.name}"
-        self._frames: Iterator[bytes] | None = None
+        self._reader: VideoReader | None = None
         self._passes = -1
         super().__init__(ctx, width, height)
 
     def _open(self) -> None:
         """Start (again) reading the video from its first frame."""
-        imageio_ffmpeg = import_optional("imageio_ffmpeg", package="imageio-ffmpeg", error=InputError,
-                                         needed_by=f"{self.path}: a video file")
         self._close()
-        try:
-            frames = imageio_ffmpeg.read_frames(str(self.path))
-            meta = next(frames)
-        except (OSError, RuntimeError, StopIteration) as exc:
-            raise InputError(f"{self.path}: ffmpeg cannot read the video ({str(exc).strip().splitlines()[-1:]})") \
-                from None
-        self._frames = frames
+        self._reader = VideoReader(self.path)
         self._passes += 1
-        self.frame_size = tuple(int(v) for v in meta["size"])
-        fps = float(meta.get("fps") or 0.0)
-        self.frames_per_s = fps if math.isfinite(fps) and fps > 0 else 25.0
+        self.frame_size = self._reader.size
+        self.frames_per_s = self._reader.frames_per_s or 25.0
         self._pass_start_s: float | None = None
         self._read = -1          # index (in this pass) of the last frame read
         self._last: np.ndarray | None = None
 
     def _close(self) -> None:
-        if self._frames is not None:
-            self._frames.close()  # imageio-ffmpeg stops its ffmpeg process
-        self._frames = None
-
-    def _next(self) -> np.ndarray | None:
-        try:
-            data = next(self._frames)
-        except StopIteration:
-            return None
-        except (OSError, RuntimeError) as exc:
-            raise InputError(f"{self.path}: ffmpeg failed while decoding ({exc})") from None
-        w, h = self.frame_size
-        return np.frombuffer(data, np.uint8).reshape(h, w, 3)
+        if self._reader is not None:
+            self._reader.close()
+        self._reader = None
 
     def _update(self, t_s: float) -> None:
         if self._pass_start_s is None:
             self._pass_start_s = t_s
         target = int(math.floor((t_s - self._pass_start_s) * self.frames_per_s + 1e-9))
         while self._read < target:
-            frame = self._next()
+            frame = self._reader.read()
             if frame is None:  # end of the video: start again from its first frame
                 if self._read < 0:
                     raise InputError(f"{self.path}: the video has no frames")

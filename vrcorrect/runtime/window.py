@@ -35,7 +35,7 @@ from ..plumbing.imageio import write_png
 from ..specs.display import get_display
 from ..specs.prescription import EyeRx, bundled_sample_path
 from .corrector import Corrector, RxSnapshot
-from .eye_model import ITERATIONS_RANGE, ITERATIVE_FILTERS
+from .eye_model import ITERATIONS_RANGE, ITERATIVE_FILTERS, CorrectorOptions
 from .eye_source import EyeSource, EyeUpdate
 from .gl import read_framebuffer, timer_query_ms
 
@@ -389,8 +389,7 @@ class WindowApp:
         self.correctors: dict[str, Corrector] = {}
         self.eye_source: EyeSource | None = None
 
-    def _start_eyes(self, ctx: "moderngl.Context", eyes: Sequence[str], backend: str,
-                    options: Mapping[str, Any]) -> None:
+    def _start_eyes(self, ctx: "moderngl.Context", eyes: Sequence[str], options: CorrectorOptions) -> None:
         """Each eye's :class:`~vrcorrect.runtime.corrector.Corrector`, designed now (the start: the
         window says "building"), from the one read of the prescription; then the
         :class:`~vrcorrect.runtime.eye_source.EyeSource` that watches the file and designs later
@@ -399,7 +398,7 @@ class WindowApp:
             self.say(f"building the {eye} eye's correction ({_eye_words(self._rx.prescription.eye(eye))} on "
                      f"{self.display.name})...")
             t0 = time.perf_counter()
-            self.correctors[eye] = Corrector(ctx, self._rx, self.display, eye, backend, **dict(options))
+            self.correctors[eye] = Corrector(ctx, self._rx, self.display, eye, options.backend, options=options)
             self.say(f"  built in {time.perf_counter() - t0:.1f} s")
         first = self.correctors[eyes[0]]
         self.eye_source = EyeSource(self._rx, self.display, first.options, eyes=tuple(eyes), check=first.check_eye)

@@ -56,6 +56,7 @@ import numpy as np
 
 from ..plumbing.errors import ValidationError, VrcorrectError
 from .corrector import Corrector
+from .eye_model import CorrectorOptions, as_options
 from .gl import check_gl_errors, fullscreen_triangle, release
 from .motion import view_shift
 from .scene import DemoScene, open_source
@@ -300,13 +301,14 @@ class XrConfig:
     mirror_height: int = 480
     validation: bool = False
     backend: str = "glsl"
-    corrector_options: Mapping[str, Any] = field(default_factory=dict)
+    corrector_options: CorrectorOptions | Mapping[str, Any] = field(default_factory=dict)
     time_step_s: float | None = None
     folder_interval_s: float = 3.0
     application_name: str = "vrcorrect"
     reprojection: bool = True
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "corrector_options", as_options(self.backend, self.corrector_options))
         if self.frames is not None and not (isinstance(self.frames, int) and 1 <= self.frames <= 10_000_000):
             raise ValidationError("frames", self.frames, "None or a whole number of frames from 1 to 10000000")
         if not (isinstance(self.mirror_height, int) and 16 <= self.mirror_height <= 4096):
@@ -572,7 +574,7 @@ class XrApp(WindowApp):
             self.source = ScreenSource(ctx, w, h, self.region or screen_bounds())
         else:
             self.source = open_source(ctx, self.spec, w, h, folder_interval_s=cfg.folder_interval_s)
-        self._start_eyes(ctx, EYES, cfg.backend, cfg.corrector_options)
+        self._start_eyes(ctx, EYES, cfg.corrector_options)
         if not isinstance(self.source, DemoScene):     # a head-locked picture source
             start_motion(self.source, self.correctors.values(), cfg.reprojection)
         if self.format == GL_RGBA8:

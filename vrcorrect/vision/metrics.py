@@ -487,7 +487,8 @@ def video_jod(reference_frames: Any, test_frames: Any, display: DisplayProfile, 
         When ColorVideoVDP or torch is not installed.
     """
     if not isinstance(display, DisplayProfile):
-        raise ValidationError("display", type(display).__name__, "a DisplayProfile (vrcorrect.specs.display.get_display)")
+        raise ValidationError("display", type(display).__name__,
+                              "a DisplayProfile (vrcorrect.specs.display.get_display)")
     if isinstance(fps, bool) or not isinstance(fps, (int, float, np.integer, np.floating)) \
             or not (math.isfinite(float(fps)) and 0.0 < float(fps) <= VIDEO_JOD_MAX_FPS):
         raise ValidationError("fps", fps, f"a frame rate in (0, {VIDEO_JOD_MAX_FPS:g}] frames per second")

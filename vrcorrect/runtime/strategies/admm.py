@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -115,6 +115,10 @@ class AdmmStrategy(Strategy):
         self._iterations = self.options.iterations_per_frame
         self._sized: dict[Size, AdmmBuffers] = {}
         self._last: AdmmBuffers | None = None
+        self.cold_start: Callable[["moderngl.Texture"], "moderngl.Texture"] | None = None
+        """A first guess for a cold frame (the first of a size, a cut, a new prescription): called
+        with the decoded target, returns a texture of the same size, linear light in [0, 1], that
+        the iterations start from instead of the target (the learned model's single pass)."""
 
     @property
     def iterations_per_frame(self) -> int:
@@ -257,6 +261,11 @@ class AdmmStrategy(Strategy):
             images["modify"][0] = b.spec
         else:
             images["write"][0] = b.spec
+        start_given = cold and self.cold_start is not None
+        if start_given:
+            gpu.begin("cold start")
+            sample["u_start"] = self.cold_start(linear)
+            gpu.begin("start")
         if cold:
             images["write"].update({1: b.T[new], 4: b.w[new], 5: b.q[new]})
         elif shifted:
@@ -267,7 +276,8 @@ class AdmmStrategy(Strategy):
             sample["u_t_prev"] = t_prev
             images["modify"].update({1: b.T[new], 4: b.w[new], 5: b.q[new]})
         self._run(b, "rows_start", "rows: T, warm start, reflections", ny, sample=sample,
-                  uniforms={"u_cold": cold, "u_in_place": not shifted, "u_shift": motion_gl if shifted else (0, 0),
+                  uniforms={"u_cold": cold, "u_in_place": not shifted, "u_start_given": start_given,
+                            "u_shift": motion_gl if shifted else (0, 0),
                             "u_keep": self.keep,
                             "u_matrix": tuple(float(v) for v in self.model.kernel.matrix.T.ravel())},
                   rows={0: (ny, 3)}, written={0: (ny, 6)}, **images)
