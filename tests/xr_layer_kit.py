@@ -150,7 +150,10 @@ def env(kit: Kit, out: Path, *, app: str = "gl", explicit: bool = True, validati
                    XR_RUNTIME_JSON=str(kit.runtime), XRTEST_OUT_DIR=str(out),
                    XRTEST_VIEW_SIZE=f"{VIEW[0]}x{VIEW[1]}", APP_LOADER=str(loader()),
                    APP_IMAGE_LEFT=str(kit.raw[app, "left"]), APP_IMAGE_RIGHT=str(kit.raw[app, "right"]),
-                   APP_OUT_DIR=str(out), VRCORRECT_LAYER_LOG=str(out / "layer.log"))
+                   APP_OUT_DIR=str(out), VRCORRECT_LAYER_LOG=str(out / "layer.log"),
+                   # one Mesa shader cache for the session's runs (a user's machine has one too): the layer's
+                   # first corrected frame compiles its shaders once, not in every run
+                   MESA_SHADER_CACHE_DIR=str(kit.folder / "mesa_shader_cache"))
     layers, paths = [], []
     if explicit:
         layers.append(LAYER)
