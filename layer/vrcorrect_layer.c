@@ -594,9 +594,29 @@ static void release_engine_gl(void) {
     PyGILState_Release(g);
 }
 
+/* OpenGL: the engine lets go of what it made for a swapchain's textures (framebuffers), whose names
+ * the runtime may give to new textures; GL objects are deleted only on the session's context. */
+static void forget_gl_textures(Chain *c) {
+    if (!L.engine || c->out == XR_NULL_HANDLE) return;
+    int current = gl.GetCurrentContext && gl.GetCurrentContext() == L.context;
+    PyGILState_STATE g = PyGILState_Ensure();
+    PyObject *names = PyList_New(0);
+    for (uint32_t i = 0; names && i < c->app_count + c->out_count; i++) {
+        PyObject *n = PyLong_FromUnsignedLong(i < c->app_count ? c->app_tex[i] : c->out_tex[i - c->app_count]);
+        if (n) PyList_Append(names, n);
+        Py_XDECREF(n);
+    }
+    PyObject *res = names ? engine_call("forget_textures", "(Oi)", names, current) : NULL;
+    Py_XDECREF(res);
+    Py_XDECREF(names);
+    PyErr_Clear();
+    PyGILState_Release(g);
+}
+
 static void forget_chain(Chain *c) {
     int id = (int)(c - L.chains);
     if (L.api == API_VULKAN) vk_chain_stop(c, id);
+    if (L.api == API_GL) forget_gl_textures(c);
     if (c->out != XR_NULL_HANDLE) L.DestroySwapchain(c->out);
     memset(c, 0, sizeof *c);
 }

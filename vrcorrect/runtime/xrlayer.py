@@ -581,6 +581,20 @@ class Engine:
             self.log.reason(f"view {view_index}: {_one_line(exc)}")
             return False
 
+    def forget_textures(self, names: list[int], current: bool = True) -> None:
+        """OpenGL: a swapchain is going away: let go of the wrappers and framebuffers made for its
+        textures ``names`` (the runtime may reuse the names); the framebuffers are deleted only with
+        the session's context ``current``, else just forgotten."""
+        try:
+            for name in names:
+                for key in [k for k in self._external if k[0] == name]:
+                    del self._external[key]           # an external texture: nothing to delete
+                fb = self._framebuffers.pop(name, None)
+                if fb is not None and current:
+                    release(fb)
+        except Exception as exc:  # noqa: BLE001
+            self.log.reason(f"forgetting a swapchain's textures: {_one_line(exc)}")
+
     def import_images(self, chain: int, vk_format: int, width: int, height: int, input_fd: int, input_size: int,
                       result_fd: int, result_size: int) -> bool:
         """Vulkan: import a swapchain's two shared images (their memory as file descriptors, which the
