@@ -46,6 +46,8 @@
 #include <openxr/openxr.h>
 #include <openxr/openxr_platform.h>
 
+#include "../xr_app_common.h"
+
 static PFN_xrGetInstanceProcAddr gipa;
 static XrInstance instance;
 
@@ -63,16 +65,6 @@ static int64_t format_named(const char *name, size_t n) {
     for (size_t i = 0; i < sizeof names / sizeof names[0]; i++)
         if (strlen(names[i].name) == n && strncmp(names[i].name, name, n) == 0) return names[i].format;
     return 0;
-}
-
-static unsigned char *read_raw(const char *path, size_t size) {
-    if (!path) return NULL;
-    FILE *f = fopen(path, "rb");
-    if (!f) return NULL;
-    unsigned char *data = malloc(size);
-    if (data && fread(data, 1, size, f) != size) { free(data); data = NULL; }
-    fclose(f);
-    return data;
 }
 
 int main(void) {
@@ -225,24 +217,7 @@ int main(void) {
     const char *out_dir = getenv("APP_OUT_DIR");
     unsigned char *readback = malloc(bytes * (size_t)(sbs ? 2 : 1));
     while (!done) {
-        XrEventDataBuffer ev = {XR_TYPE_EVENT_DATA_BUFFER};
-        while (xrPollEvent(instance, &ev) == XR_SUCCESS) {
-            if (ev.type == XR_TYPE_EVENT_DATA_SESSION_STATE_CHANGED) {
-                XrSessionState state = ((XrEventDataSessionStateChanged *)&ev)->state;
-                printf("state %d\n", (int)state);
-                if (state == XR_SESSION_STATE_READY) {
-                    XrSessionBeginInfo bi = {XR_TYPE_SESSION_BEGIN_INFO, NULL, XR_VIEW_CONFIGURATION_TYPE_PRIMARY_STEREO};
-                    CHECK(xrBeginSession(session, &bi));
-                    running = 1;
-                } else if (state == XR_SESSION_STATE_STOPPING) {
-                    CHECK(xrEndSession(session));
-                    running = 0;
-                } else if (state == XR_SESSION_STATE_EXITING || state == XR_SESSION_STATE_LOSS_PENDING) {
-                    done = 1;
-                }
-            }
-            ev = (XrEventDataBuffer){XR_TYPE_EVENT_DATA_BUFFER};
-        }
+        CHECK(follow_session(instance, session, xrPollEvent, xrBeginSession, xrEndSession, &running, &done));
         if (done || !running) continue;
         XrFrameState fs = {XR_TYPE_FRAME_STATE};
         CHECK(xrWaitFrame(session, NULL, &fs));

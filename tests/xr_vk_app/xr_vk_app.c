@@ -46,6 +46,8 @@
 #include <openxr/openxr.h>
 #include <openxr/openxr_platform.h>
 
+#include "../xr_app_common.h"
+
 static PFN_xrGetInstanceProcAddr gipa;
 static XrInstance instance;
 
@@ -113,16 +115,6 @@ static void convert(const unsigned char *rgba, int w, int h, const Format *f, fl
             memcpy(out + 4 * i, p, 4);
         }
     }
-}
-
-static unsigned char *read_raw(const char *path, size_t size) {
-    if (!path) return NULL;
-    FILE *f = fopen(path, "rb");
-    if (!f) return NULL;
-    unsigned char *data = malloc(size);
-    if (data && fread(data, 1, size, f) != size) { free(data); data = NULL; }
-    fclose(f);
-    return data;
 }
 
 /* ---------------------------------------------------------------- Vulkan helpers */
@@ -375,24 +367,7 @@ int main(void) {
     /* ---------------------------------------------------------------- the frame loop */
     int running = 0, frames = 0, exit_requested = 0, done = 0;
     while (!done) {
-        XrEventDataBuffer ev = {XR_TYPE_EVENT_DATA_BUFFER};
-        while (xrPollEvent(instance, &ev) == XR_SUCCESS) {
-            if (ev.type == XR_TYPE_EVENT_DATA_SESSION_STATE_CHANGED) {
-                XrSessionState state = ((XrEventDataSessionStateChanged *)&ev)->state;
-                printf("state %d\n", (int)state);
-                if (state == XR_SESSION_STATE_READY) {
-                    XrSessionBeginInfo bi = {XR_TYPE_SESSION_BEGIN_INFO, NULL, XR_VIEW_CONFIGURATION_TYPE_PRIMARY_STEREO};
-                    CHECK(xrBeginSession(session, &bi));
-                    running = 1;
-                } else if (state == XR_SESSION_STATE_STOPPING) {
-                    CHECK(xrEndSession(session));
-                    running = 0;
-                } else if (state == XR_SESSION_STATE_EXITING || state == XR_SESSION_STATE_LOSS_PENDING) {
-                    done = 1;
-                }
-            }
-            ev = (XrEventDataBuffer){XR_TYPE_EVENT_DATA_BUFFER};
-        }
+        CHECK(follow_session(instance, session, xrPollEvent, xrBeginSession, xrEndSession, &running, &done));
         if (done || !running) continue;
         XrFrameState fs = {XR_TYPE_FRAME_STATE};
         CHECK(xrWaitFrame(session, NULL, &fs));
