@@ -18,6 +18,16 @@ def package_data(name: str) -> Path:
     return Path(__file__).resolve().parents[1] / "data" / name
 
 
+def file_stamp(path: str | os.PathLike[str]) -> tuple[int, int] | None:
+    """A file's modification time (ns) and size, or ``None`` when it cannot be read: what a watcher
+    compares to notice an edit (the real-time correctors, the eye source, the OpenXR layer)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return (st.st_mtime_ns, st.st_size)
+
+
 def check_writable(path: Path, *, force: bool) -> Path:
     """Fail early, before any work, if ``path`` may not be written."""
     path = Path(path)

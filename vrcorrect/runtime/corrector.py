@@ -42,6 +42,7 @@ from typing import TYPE_CHECKING, Any, Union
 import numpy as np
 
 from ..plumbing.errors import ValidationError, VrcorrectError
+from ..plumbing.fileio import file_stamp
 from ..specs.display import DisplayProfile, get_display
 from ..specs.prescription import EyeRx, Prescription, load_prescription
 from .dispatch import CostLedger, Gpu
@@ -69,16 +70,6 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 __all__ = ["CorrectorOptions", "EyeModel", "Corrector", "RxSnapshot", "BACKENDS", "build_eye_model", "file_stamp"]
 
 log = logging.getLogger(__name__)
-
-
-def file_stamp(path: Path) -> tuple[int, int] | None:
-    """A file's modification time (ns) and size, or ``None`` when it cannot be read: what a watcher
-    compares to notice an edit."""
-    try:
-        st = path.stat()
-    except OSError:
-        return None
-    return (st.st_mtime_ns, st.st_size)
 
 
 @dataclass(frozen=True, eq=False)

@@ -77,6 +77,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterator, Mapping
 
 from ..plumbing.errors import InputError, ValidationError
+from ..plumbing.fileio import file_stamp
 from .gl import fullscreen_triangle, headless_context, release
 from .shaders import compile_program
 
@@ -279,14 +280,6 @@ def _off(env: Mapping[str, str]) -> str | None:
     return None
 
 
-def _stamp(path: Path) -> tuple[int, int] | None:
-    try:
-        st = path.stat()
-    except OSError:
-        return None
-    return (st.st_mtime_ns, st.st_size)
-
-
 def choose_display(name: str | None, view_size: tuple[int, int]) -> tuple[DisplayProfile, str]:
     """The display profile and why it was chosen: the user's, else the preset whose per-eye
     resolution equals the runtime's recommended view size, else ``quest2``."""
@@ -445,7 +438,7 @@ class Engine:
                                  f"or {RX_ENV}")
             return self._build_error
         self._finish_build()
-        stamp = _stamp(config.rx)
+        stamp = file_stamp(config.rx)
         if self._job is None and stamp != self._rx_stamp and stamp != self._rx_failed_stamp:
             self._start_build(config)      # the same bad file is not rebuilt; a change during a build waits
         return None if self.correctors else self._build_error
@@ -879,7 +872,7 @@ class _Build:
 
     def __init__(self, config: LayerConfig, reload: bool):
         self.config, self.reload = config, reload
-        self.stamp = _stamp(config.rx) if config.rx is not None else None
+        self.stamp = file_stamp(config.rx) if config.rx is not None else None
         self.thread: threading.Thread | None = None
         self.snapshot: RxSnapshot | None = None
         self.display: DisplayProfile | None = None
