@@ -1,7 +1,7 @@
-"""The layering of DESIGN.md, read from the folder structure: every module of ``vrcorrect``
-lives in a layer folder whose ``__init__`` docstring opens with "Layer N"; a module imports only
-from its own folder or from lower layers, and nothing on the model or real-time path imports
-torch."""
+"""The layering of docs/architecture.md ('Layers'), read from the folder structure: every module
+of ``vrcorrect`` lives in a layer folder whose ``__init__`` docstring opens with "Layer N"; a module
+imports only from its own folder or from lower layers, and nothing on the model or real-time path
+imports torch."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import pytest
 PKG = Path(__file__).resolve().parents[1] / "vrcorrect"
 DATA_FOLDERS = {"data", "shaders", "__pycache__"}   # package data, not code
 # The one same-layer import across folders: learning uses fast's corrections as targets and
-# wiener's pre-correction as an input channel (DESIGN.md, layer 4).
+# wiener's pre-correction as an input channel (docs/architecture.md, 'Layers': layer 4).
 ALLOWED_SIBLINGS = {("learn", "solvers")}
 
 

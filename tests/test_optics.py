@@ -2,7 +2,7 @@
 
 Every expected value here comes from optics, not from running the code:
 Zernike orthonormality, the Airy pattern, geometric blur discs, the
-optometric sign conventions of DESIGN.md.
+optometric sign conventions of docs/architecture.md ('Physics conventions').
 """
 
 from __future__ import annotations
@@ -82,7 +82,7 @@ def test_zernike_known_forms():
 def test_power_vector_zernike_round_trip(M, J0, J45, r):
     pv = PowerVector(M, J0, J45)
     c = power_vector_to_zernike_um(pv, r)
-    # DESIGN.md formulas, typed here from the spec
+    # docs/architecture.md's formulas ('Physics conventions'), typed here from the spec
     assert c[(2, 0)] == pytest.approx(-M * r * r / (4 * math.sqrt(3)), abs=1e-12)
     assert c[(2, 2)] == pytest.approx(-J0 * r * r / (2 * math.sqrt(6)), abs=1e-12)
     assert c[(2, -2)] == pytest.approx(-J45 * r * r / (2 * math.sqrt(6)), abs=1e-12)

@@ -3,7 +3,7 @@
 The package is a stack of layers, one folder each (lowest first). A module imports only from
 its own folder or from lower layers (``learn`` may use ``solvers`` beside it), and nothing on
 the real-time path imports torch; ``tests/test_layers.py`` reads the layers from these folders'
-docstrings and enforces both (DESIGN.md, "Layers").
+docstrings and enforces both (docs/architecture.md, 'Layers').
 
 0. ``plumbing``: errors, safe file output, image I/O, image sets, test charts
 1. ``specs``: the eye's prescription and the display's profile, validated data

@@ -5,7 +5,7 @@ pixel-sampled point-spread function.
 refraction state, the options and the pixel sampling, and :func:`psf_pixels` chooses between them
 per wavelength; split apart, the two models would import each other.)
 
-Conventions (see DESIGN.md):
+Conventions (see docs/architecture.md, 'Physics conventions'):
 
 * Zernike polynomials follow OSA/ANSI Z80.28: single index ``j = (n(n+2)+m)/2``,
   each term normalised to unit RMS over the unit disc, ``Z_n^m = N R_n^|m|(rho)

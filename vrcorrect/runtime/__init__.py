@@ -2,9 +2,9 @@
 windows and the OpenXR session). A library, not an application: the commands that run it are in
 :mod:`vrcorrect.apps`.
 
-Modules here may import layers 0-4 but never torch (DESIGN.md: the render loop needs numpy,
-moderngl, glfw, onnxruntime, pyopenxr), and never :mod:`vrcorrect.solvers.iterative`;
-``tests/test_layers.py`` enforces both.
+Modules here may import layers 0-4 but never torch (docs/architecture.md, 'Layers': the render
+loop needs numpy, moderngl, glfw, onnxruntime, pyopenxr), and never
+:mod:`vrcorrect.solvers.iterative`; ``tests/test_layers.py`` enforces both.
 
 The correction
   * ``corrector`` - :class:`Corrector`, the one owner of an eye's state: prescription (read once,

@@ -3,8 +3,8 @@
 Everything here but :func:`compile_program` and :func:`compile_compute` is plain text
 processing, testable without OpenGL.
 
-File conventions (DESIGN.md, "Shaders")
----------------------------------------
+File conventions (docs/architecture.md, 'Shaders')
+--------------------------------------------------
 * One file per program in the repository's top-level ``shaders/`` folder (see
   :func:`shaders_dir` for how it is found, installed or not). Its first line is
   ``#version`` (``#version 330 core``; compute shaders need ``#version 430``).

@@ -4,9 +4,9 @@ A still image, a folder of images (each shown in turn), an animated image (GIF, 
 video file, or a region of the X11 screen. Every source renders, per frame, one RGBA8 texture
 per eye at the eye size, holding sRGB code values in OpenGL's orientation (what
 :class:`~vrcorrect.runtime.corrector.Corrector` takes); both eyes see the same picture, fitted
-into the eye size, aspect kept, centred on black (DESIGN.md: outside the image the panel is
-black), resampled on the GPU in linear light; a picture of exactly the eye size is shown texel
-for texel.
+into the eye size, aspect kept, centred on black (docs/architecture.md, 'Physics conventions':
+outside the image the panel is black), resampled on the GPU in linear light; a picture of exactly
+the eye size is shown texel for texel.
 
 What the sources share is in :class:`PictureSource`: opening (the subclass's :meth:`_open`) and
 showing the first picture, or releasing everything when either fails; decoding each new picture

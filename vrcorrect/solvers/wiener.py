@@ -10,15 +10,15 @@ the target, ``argmin_x ||K x - T t||^2 + mu ||x - t||^2``,
 (3 x 3: primaries out x primaries in), maps the target RGB image to the displayed
 one.  ``F(0) = I`` (both kernels sum to the colour matrix ``A``), so a flat field
 comes back unchanged; the toward-zero inverse ``(K^H K + mu I)^-1 K^H T`` would
-shrink it along ``A``'s weak directions and tint it (DESIGN.md).  :func:`correction_filters`
-designs ``F`` once per eye as a bank of 3 x 3 spatial filters, truncated to the
-smallest square holding all but ``tolerance`` of their absolute sum; the same
-taps run on the CPU (here, by FFT) and on the GPU (the runtime's separable
-low-rank passes), with mirrored image borders in both.  :func:`wiener` then
-clips ``v = F t`` to [0, 1] and blends it with the target by the weight that
-minimises the true objective (closed form).  ``mu`` (relative to the largest
-eigenvalue of ``K^H K``) is chosen from a few values; the blend weight 0 is no
-correction, so the result is never worse than no correction.  Contrast
+shrink it along ``A``'s weak directions and tint it (docs/architecture.md,
+'Physics conventions').  :func:`correction_filters` designs ``F`` once per eye as a
+bank of 3 x 3 spatial filters, truncated to the smallest square holding all but
+``tolerance`` of their absolute sum; the same taps run on the CPU (here, by FFT) and
+on the GPU (the runtime's separable low-rank passes), with mirrored image borders in
+both.  :func:`wiener` then clips ``v = F t`` to [0, 1] and blends it with the
+target by the weight that minimises the true objective (closed form).  ``mu``
+(relative to the largest eigenvalue of ``K^H K``) is chosen from a few values; the
+blend weight 0 is no correction, so the result is never worse than no correction.  Contrast
 compression of the target is the separate ``contrast`` option of every method.
 """
 

@@ -14,7 +14,7 @@ version and one object per eye::
       "left": {...}
     }
 
-Conventions (see ``DESIGN.md``):
+Conventions (see ``docs/architecture.md``, 'Physics conventions'):
 
 - sphere S and cylinder C in dioptres (D), cylinder axis α in degrees, 0-180,
   TABO / ISO 8429 notation. Minus- and plus-cylinder forms describe the same
