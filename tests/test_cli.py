@@ -8,6 +8,7 @@ real console script to prove what a user's shell sees.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import io
 import json
@@ -290,6 +291,33 @@ def test_usage_errors_exit_2(tmp_path, capsys, monkeypatch, argv):
     assert "Traceback" not in err
     assert "usage: vrcorrect" in err
     assert listing(tmp_path) == set()
+
+
+# ---------------------------------------------------------------- --help (issue 26's newcomer stumbles)
+
+def _parsers() -> list[tuple[str, argparse.ArgumentParser]]:
+    """Every parser a user can ask for --help: ``vrcorrect``, each command, each nested action."""
+    found = []
+
+    def walk(name: str, parser: argparse.ArgumentParser) -> None:
+        found.append((name, parser))
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub_name, sub in action.choices.items():
+                    walk(f"{name} {sub_name}", sub)
+
+    walk("vrcorrect", cli.build_parser())
+    return found
+
+
+def _commands() -> list[str]:
+    return [name.split()[1] for name, _ in _parsers() if len(name.split()) == 2]
+
+
+def test_no_help_shows_a_doubled_percent_sign():
+    """``%%`` is argparse's escape in an option's help; a description is printed as written."""
+    for name, parser in _parsers():
+        assert "%%" not in parser.format_help(), name
 
 
 # ---------------------------------------------------------------- psf
