@@ -451,9 +451,9 @@ def test_rx_validate_reports_every_problem(tmp_path, capsys):
     path = tmp_path / "three.json"
     path.write_text(json.dumps(doc))
     rc, out, err = run(capsys, "rx", "validate", path)
-    assert rc == 1
-    assert "Traceback" not in err
-    assert "3 problems" in err
+    # like every command's bad input: exit 2, one "vrcorrect: error:" line naming the file, then the list
+    assert rc == cli.EXIT_USAGE
+    assert_clean_failure(rc, out, err, tmp_path, {"three.json"}, contains=("three.json", "3 problems"), lines=4)
     problems = [line for line in err.splitlines() if line.startswith("  - ")]
     assert len(problems) == 3
     fields = {"right.sphere_D": "35", "left.axis_deg": "270", "left.pupil_diameter_mm": "four"}
