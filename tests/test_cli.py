@@ -283,7 +283,9 @@ def test_console_script_unknown_command(tmp_path):
 # ---------------------------------------------------------------- argparse usage errors
 
 @pytest.mark.parametrize("argv", [["frobnicate"], [], ["simulate", "in.png"], ["rx"], ["psf", "--bogus"],
-                                  ["simulate", "in.png", "-o", "o.png", "--eye", "middle"]])
+                                  ["simulate", "in.png", "-o", "o.png", "--eye", "middle"],
+                                  ["overlay", "--source", "screen", "--eye", "both"],
+                                  ["overlay", "--source", "screen", "--backend", "vulkan"]])
 def test_usage_errors_exit_2(tmp_path, capsys, monkeypatch, argv):
     monkeypatch.chdir(tmp_path)
     rc, out, err = run(capsys, *argv)
@@ -318,6 +320,14 @@ def test_no_help_shows_a_doubled_percent_sign():
     """``%%`` is argparse's escape in an option's help; a description is printed as written."""
     for name, parser in _parsers():
         assert "%%" not in parser.format_help(), name
+
+
+def test_choices_read_one_way_in_every_help():
+    """A fixed set of values is shown as argparse shows choices, ``{right,left}``, never ``right|left``
+    (``demo|IMAGE|VIDEO|DIR``, a keyword or a kind of path, is not a set of choices)."""
+    alternatives = re.compile(r"(?<![\w|])[a-z][a-z0-9-]*(?:\|[a-z][a-z0-9-]*)+(?![\w|])")
+    for name, parser in _parsers():
+        assert not alternatives.findall(parser.format_help()), name
 
 
 # ---------------------------------------------------------------- psf

@@ -36,13 +36,13 @@ def add_parser(subparsers: "argparse._SubParsersAction[argparse.ArgumentParser]"
                    help="with screen: the rectangle to grab (default: another monitor full-screen; with --window, "
                         "the screen's top-left, the window's size, the window placed beside it)")
     add_rx_option(p)
-    p.add_argument("--eye", default="right", metavar="right|left",
+    p.add_argument("--eye", choices=("right", "left"), default="right",
                    help="whose prescription (a monitor is seen by both eyes; default right)")
     p.add_argument("--display", metavar="PRESET",
                    help="display preset or profile .json (default: desktop for screen, quest2 otherwise)")
     p.add_argument("--window", metavar="WxH", help="a window of this size instead of full-screen")
     p.add_argument("--frames", metavar="N", help="render N frames and exit (tests, CI)")
-    p.add_argument("--backend", default="glsl", metavar="glsl|onnx", help="correction backend (default glsl)")
+    p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl", help="correction backend (default glsl)")
     p.add_argument("--model", metavar="M.onnx", help="ONNX model for --backend onnx")
     add_filter_options(p)
     add_reprojection_option(p)
