@@ -330,6 +330,17 @@ def test_choices_read_one_way_in_every_help():
         assert not alternatives.findall(parser.format_help()), name
 
 
+@pytest.mark.parametrize("command", _commands())
+def test_every_command_help_has_a_description(command, capsys):
+    """``vrcorrect COMMAND --help``: the usage, then a paragraph saying what the command does, then the
+    arguments."""
+    rc, out, err = run(capsys, command, "--help")
+    assert rc == 0, err
+    paragraphs = [p for p in out.split("\n\n") if p.strip()]
+    assert paragraphs[0].startswith("usage: vrcorrect " + command)
+    assert not paragraphs[1].startswith(("positional arguments:", "options:")), out
+
+
 # ---------------------------------------------------------------- psf
 
 def test_psf_monochromatic_from_edited_template(tmp_path, capsys):

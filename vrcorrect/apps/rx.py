@@ -37,7 +37,9 @@ def cmd_rx_validate(args: argparse.Namespace) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("rx", help="prescription files")
+    p = sub.add_parser("rx", help="prescription files",
+                       description="Write a commented prescription template to fill in (new), or check a "
+                                   "prescription file and report every problem in it at once (validate).")
     rsub = p.add_subparsers(dest="rx_command", metavar="ACTION")
     rsub.required = True
     q = rsub.add_parser("new", help="write a commented prescription template")

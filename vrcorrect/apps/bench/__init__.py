@@ -135,7 +135,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md")
+    p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md",
+                       description="Measure one thing (kernel builds, solvers, render, realtime, cost, xr, layer "
+                                   "or learned), print its table, and write it into its own section of the "
+                                   "benchmarks file (--out), naming the machine it ran on.")
     p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "cost", "xr", "layer", "learned"),
                    help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
