@@ -341,6 +341,14 @@ def test_every_command_help_has_a_description(command, capsys):
     assert not paragraphs[1].startswith(("positional arguments:", "options:")), out
 
 
+def test_overlay_summary_says_it_shows_full_screen_or_in_a_window(capsys):
+    rc, out, err = run(capsys, "--help")
+    assert rc == 0, err
+    text = " ".join(out.split())
+    summary = re.search(r" overlay (.*?) xr ", text)
+    assert summary and "full-screen" in summary.group(1) and "window" in summary.group(1), text
+
+
 # ---------------------------------------------------------------- psf
 
 def test_psf_monochromatic_from_edited_template(tmp_path, capsys):

@@ -24,7 +24,8 @@ __all__ = ["add_parser", "cmd_overlay"]
 def add_parser(subparsers: "argparse._SubParsersAction[argparse.ArgumentParser]") -> argparse.ArgumentParser:
     """Add the ``overlay`` sub-command to an argparse ``subparsers`` object."""
     p = subparsers.add_parser(
-        "overlay", help="correct frames from a video, images or the screen and show them full-screen",
+        "overlay", help="correct frames from a video, images or the screen and show them full-screen or in a "
+                        "window",
         description=("Show frames from an external source (a video, a folder of images, an image, or a\n"
                      "region of the X11 screen) corrected for one eye, full-screen on the primary monitor\n"
                      "or in a window. Needs a display (X11) and OpenGL 4.3."),
