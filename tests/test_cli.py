@@ -626,3 +626,41 @@ def test_bench_kernel_writes_markdown_table(tmp_path, capsys):
     assert "Median of 1 runs" in text
     assert "| display | px/deg | median s |" in out  # also printed
     assert listing(tmp_path) == {"bench.md"}
+
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def kernel_bench_calls(monkeypatch):
+    """``bench kernel`` without the benchmark: the (out, write) it would have been given."""
+    calls = []
+
+    def fake(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), write: bool = True) -> str:
+        calls.append((Path(out), write))
+        return "| display | px/deg | median s |"
+
+    monkeypatch.setattr("vrcorrect.apps.bench.kernel.run_kernel_bench", fake)
+    return calls
+
+
+def test_bench_outside_the_repository_needs_out(tmp_path, capsys, monkeypatch, kernel_bench_calls):
+    """Issue 26: the default --out, docs/benchmarks.md, was taken relative to wherever bench ran."""
+    (tmp_path / "docs").mkdir()                                  # a user's own docs folder
+    monkeypatch.chdir(tmp_path)
+    rc, out, err = run(capsys, "bench", "kernel")
+    assert_clean_failure(rc, out, err, tmp_path, {"docs"}, contains=("--out",))
+    assert listing(tmp_path / "docs") == set() and kernel_bench_calls == []    # refused before any work
+    rc, out, err = run(capsys, "bench", "kernel", "--out", "docs/mine.md")
+    assert rc == 0, err
+    assert kernel_bench_calls == [(Path("docs/mine.md"), True)]                 # as given, as before
+    rc, out, err = run(capsys, "bench", "kernel", "--no-write")
+    assert rc == 0, err
+    assert kernel_bench_calls[-1][1] is False and listing(tmp_path / "docs") == set()
+
+
+def test_bench_inside_the_repository_updates_its_benchmarks_file(capsys, monkeypatch, kernel_bench_calls):
+    monkeypatch.chdir(REPO / "tests")                            # any folder of the checkout
+    rc, _, err = run(capsys, "bench", "kernel")
+    assert rc == 0, err
+    assert kernel_bench_calls == [(REPO / "docs" / "benchmarks.md", True)]
