@@ -269,8 +269,16 @@ def test_bad_arguments(tmp_path):
 def test_parser_defaults():
     args = _parser().parse_args(["evaluate"])
     assert args.out == "evaluation" and args.size == 256 and args.display == "desktop"
-    assert args.methods == ["conventional", "paper", "fast"] and args.images is None and not args.force
+    assert args.methods == ["paper", "fast"] and args.images is None and not args.force
     assert args.func is ev.cmd_evaluate
+
+
+def test_a_bare_evaluate_leaves_out_the_slow_conventional_method_unless_asked():
+    """Issue 26: a bare ``vrcorrect evaluate`` ran conventional's L-BFGS for some 40 minutes unasked."""
+    assert "conventional" not in _parser().parse_args(["evaluate"]).methods
+    assert "conventional" not in ev.DEFAULT_METHODS
+    asked = _parser().parse_args(["evaluate", "--methods", "conventional", "paper", "fast"])
+    assert asked.methods == ["conventional", "paper", "fast"]          # as given, as before
 
 
 def test_command_prints_outputs_and_summary(tmp_path, capsys):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 
 import numpy as np
 import pytest
@@ -147,6 +148,20 @@ def test_decisions_are_explained(quest2):
     for phrase in ("viewing distance", "residual refraction", "depth of focus", "wavelength step",
                    "holds 99.50%", "pupil sampling"):
         assert phrase in text
+
+
+def test_explain_counts_the_kernels_psfs_in_every_line(quest2):
+    """Issue 26: the step line counted the kernel's PSFs ("20 PSFs"), the PSF-model line every PSF
+    computed while the step was chosen, coarser steps' nodes included ("21 of 21")."""
+    geometric = KernelOptions(optics=OpticsOptions(psf_model="geometric"))    # quick, and the line has a count
+    k = build_kernel(eye(-3.0, -1.5, 20.0), quest2, geometric)
+    text = "\n".join(k.decisions)
+    n = len(k.node_wavelengths_nm)
+    assert k.info["psfs_computed"] > n                 # the adaptive step computed nodes the kernel skips
+    assert int(re.search(r"\((\d+) PSFs over", text).group(1)) == n, text
+    model = re.search(r"\((\d+) of (\d+) PSFs", text)
+    assert model and int(model.group(1)) == int(model.group(2)) == n, text   # every one of them geometric
+    assert str(k.info["psfs_computed"]) in text        # the work done is still told, as such
 
 
 def test_headset_distance_shifts_the_residual(quest2):

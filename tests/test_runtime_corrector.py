@@ -326,6 +326,26 @@ def test_render_command_writes_each_view(tmp_path, images, capsys):
     assert not np.array_equal(outs["seen-corrected"], outs["seen-uncorrected"])
 
 
+@pytest.mark.parametrize("method", ["admm", "fista", "fft"])
+def test_render_command_states_each_setting_once(method, tmp_path, images, capsys):
+    """Issue 26: the settings line and the eye model's note said the same settings twice."""
+    from PIL import Image
+
+    from vrcorrect.apps.cli import main
+
+    src = tmp_path / "in.png"
+    Image.fromarray(images[0][1]).save(src)
+    assert main(["render", str(src), "-o", str(tmp_path / "out.png"), "--filter", method, "--frames", "1"]) == 0
+    printed = capsys.readouterr().out
+    if method == "fft":
+        assert printed.count("regulariser") == 1 and printed.count("blend") == 1, printed
+        assert "chosen by wiener" in printed                        # how they were chosen is still said
+    else:
+        assert printed.count("iteration(s) per frame") == 1, printed
+    if method == "admm":
+        assert "half precision" in printed
+
+
 def test_render_command_errors_are_one_line(tmp_path, images, capsys):
     from PIL import Image
 

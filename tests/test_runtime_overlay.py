@@ -383,7 +383,6 @@ def test_region_outside_the_screen_is_refused(x_display):
     (["--source", "screen", "--region", "0,0,0,5"], "--region"),
     (["--source", "demo"], "--source"),
     (["--source", "screen", "--window", "0x4"], "--window"),
-    (["--source", "screen", "--eye", "both"], "--eye"),
     (["--source", "screen", "--frames", "0"], "--frames"),
     (["--source", "screen", "--model", "m.onnx"], "only with --backend onnx"),
     (["--source", "screen", "--backend", "onnx", "--model", "/no/such/m.onnx"], "an existing ONNX model file"),

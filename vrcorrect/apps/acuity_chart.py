@@ -349,7 +349,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "acuity", help="which line of an eye chart the eye reads, uncorrected and with each correction",
         description=("Simulate reading a logMAR chart of Sloan letters (Watson & Ahumada 2008: the eye's optics, "
-                     "internal noise, an ideal observer; a line is read at 60%% correct), uncorrected and with "
+                     "internal noise, an ideal observer; a line is read at 60% correct), uncorrected and with "
                      "each correction method, and print the acuity in logMAR and Snellen."))
     add_model_options(p)
     p.add_argument("--methods", nargs="+", default=["fast"], metavar="METHOD",

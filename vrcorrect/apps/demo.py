@@ -109,7 +109,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="the bundled default: what the sample eyes see of the sample image")
+    p = sub.add_parser("demo", help="the bundled default: what the sample eyes see of the sample image",
+                       description="Write four pictures to --out: what each eye of the bundled sample "
+                                   "prescription sees of the bundled sample image, the two side by side, and a "
+                                   "sweep of the blur growing with dioptres and turning with the cylinder axis.")
     p.add_argument("--out", default="out", help="output folder (default ./out)")
     p.add_argument("--display", default="quest2", metavar="PRESET")
     p.add_argument("--force", action="store_true", help="overwrite earlier demo outputs")

@@ -57,7 +57,10 @@ def _displays_fit(args: argparse.Namespace) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("displays", help="list display presets, or fit measured spectra")
+    p = sub.add_parser("displays", help="list display presets, or fit measured spectra",
+                       description="List the display presets (pixels per degree, viewing distance, transfer, "
+                                   "photometry; -v: where each number comes from), or fit smooth primaries "
+                                   "to a measured wavelength_nm,r,g,b CSV and report the error (--fit).")
     p.add_argument("-v", "--verbose", action="store_true", help="show each preset's sources")
     p.add_argument("--fit", metavar="SPECTRA.csv", help="fit a measured wavelength_nm,r,g,b CSV and report the error")
     p.add_argument("--plot", metavar="FIT.png", help="with --fit: draw the fit")

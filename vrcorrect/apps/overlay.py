@@ -24,7 +24,8 @@ __all__ = ["add_parser", "cmd_overlay"]
 def add_parser(subparsers: "argparse._SubParsersAction[argparse.ArgumentParser]") -> argparse.ArgumentParser:
     """Add the ``overlay`` sub-command to an argparse ``subparsers`` object."""
     p = subparsers.add_parser(
-        "overlay", help="correct frames from a video, images or the screen and show them full-screen",
+        "overlay", help="correct frames from a video, images or the screen and show them full-screen or in a "
+                        "window",
         description=("Show frames from an external source (a video, a folder of images, an image, or a\n"
                      "region of the X11 screen) corrected for one eye, full-screen on the primary monitor\n"
                      "or in a window. Needs a display (X11) and OpenGL 4.3."),
@@ -36,13 +37,13 @@ def add_parser(subparsers: "argparse._SubParsersAction[argparse.ArgumentParser]"
                    help="with screen: the rectangle to grab (default: another monitor full-screen; with --window, "
                         "the screen's top-left, the window's size, the window placed beside it)")
     add_rx_option(p)
-    p.add_argument("--eye", default="right", metavar="right|left",
+    p.add_argument("--eye", choices=("right", "left"), default="right",
                    help="whose prescription (a monitor is seen by both eyes; default right)")
     p.add_argument("--display", metavar="PRESET",
                    help="display preset or profile .json (default: desktop for screen, quest2 otherwise)")
     p.add_argument("--window", metavar="WxH", help="a window of this size instead of full-screen")
     p.add_argument("--frames", metavar="N", help="render N frames and exit (tests, CI)")
-    p.add_argument("--backend", default="glsl", metavar="glsl|onnx", help="correction backend (default glsl)")
+    p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl", help="correction backend (default glsl)")
     p.add_argument("--model", metavar="M.onnx", help="ONNX model for --backend onnx")
     add_filter_options(p)
     add_reprojection_option(p)

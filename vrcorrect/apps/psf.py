@@ -67,7 +67,10 @@ def cmd_psf(args: argparse.Namespace) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("psf", help="write an eye's PSF (one wavelength) or full LMS kernel as .npy + .json")
+    p = sub.add_parser("psf", help="write an eye's PSF (one wavelength) or full LMS kernel as .npy + .json",
+                       description="Write one eye's point-spread function at one wavelength (--wavelength-nm), "
+                                   "or its whole colour kernel K[cone, primary, y, x] on the display, to OUT.npy "
+                                   "with a JSON sidecar that describes it (and a plot with --png).")
     add_model_options(p)
     p.add_argument("--wavelength-nm", type=float, help="monochromatic PSF at this wavelength (default: full kernel)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.npy")

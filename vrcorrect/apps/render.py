@@ -62,16 +62,24 @@ def cmd_render(args: argparse.Namespace) -> int:
     write_png(out, result / 255.0, bits=8, force=args.force)
     _print_eye(args, info)
     fraction = info.get("objective_fraction")
+    # With the GLSL backend and a correction that is not the identity, the eye model's last note describes
+    # the settings it designed (the method and its iterations, or the regulariser and blend and how they
+    # were chosen; runtime.eye_model.build_eye_model): the line below states them, once, with what only
+    # that note said; other notes (an identity correction and why, the ONNX model) are printed as they are.
+    designed = args.backend == "glsl" and not info["identity"]
+    chosen = " (chosen by wiener on the sample image)" if designed else ""
     if args.backend == "glsl" and info["filter"] in ITERATIVE_FILTERS:
+        storage = f", {info['precision']} precision storage" if info.get("precision") else ""
         print(f"  {METHOD_TITLES[info['filter']]}, {info.get('iterations_per_frame', '-')} iteration(s) per frame, "
               f"{frames} frame(s) warm-started, {info.get('fft_round_trips_per_frame', '-')} FFT round trips a frame"
-              + (f"; last frame's objective {fraction:.3f} of uncorrected" if fraction is not None else ""))
+              + storage + (f"; last frame's objective {fraction:.3f} of uncorrected" if fraction is not None else ""))
     elif args.backend == "glsl" and "ranks" in info:
         print(f"  separable filters {info['filter_size']} px, ranks {info['ranks']} ({info['taps_per_pixel']} "
-              f"taps/pixel), regulariser {info['mu_rel']:g}, blend {info['beta']:.3f}")
+              f"taps/pixel), regulariser {info['mu_rel']:g}, blend {info['beta']:.3f}{chosen}")
     elif args.backend == "glsl":
-        print(f"  FFT filter, margin {info['margin']} px, regulariser {info['mu_rel']:g}, blend {info['beta']:.3f}")
-    for note in info["notes"]:
+        print(f"  FFT filter, margin {info['margin']} px, regulariser {info['mu_rel']:g}, blend {info['beta']:.3f}"
+              + chosen)
+    for note in info["notes"][:-1] if designed else info["notes"]:
         print(f"  - {note}")
     per = f", {1e3 * info['frame_s'] / frames:.1f} ms per frame" if frames > 1 else ""
     print(f"  build {info['build_s']:.2f} s, {frames} frame(s) {1e3 * info['frame_s']:.1f} ms{per} "

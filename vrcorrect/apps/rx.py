@@ -1,11 +1,14 @@
-"""``vrcorrect rx new|validate``: prescription files."""
+"""``vrcorrect rx new|validate``: prescription files.
+
+``validate`` prints ``PATH: valid`` and both eyes, or (exit status 2, like any bad input) every
+problem at once under a ``vrcorrect: error: PATH: N problems:`` line."""
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
+from ..plumbing.errors import ValidationErrors
 from ..specs.prescription import load_prescription, validate_file, write_template
 
 
@@ -19,10 +22,9 @@ def cmd_rx_new(args: argparse.Namespace) -> int:
 def cmd_rx_validate(args: argparse.Namespace) -> int:
     problems = validate_file(Path(args.path))
     if problems:
-        print(f"{args.path}: {len(problems)} problem{'s' if len(problems) != 1 else ''}:", file=sys.stderr)
-        for p in problems:
-            print(f"  - {p}", file=sys.stderr)
-        return 1
+        # bad input, reported as every command reports it (cli.main: "vrcorrect: error: ...", exit 2):
+        # the file and the number of problems, then one "  - field = value ..." line per problem
+        raise ValidationErrors(problems, source=str(args.path))
 
     rx = load_prescription(Path(args.path))
     print(f"{args.path}: valid")
@@ -35,7 +37,9 @@ def cmd_rx_validate(args: argparse.Namespace) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("rx", help="prescription files")
+    p = sub.add_parser("rx", help="prescription files",
+                       description="Write a commented prescription template to fill in (new), or check a "
+                                   "prescription file and report every problem in it at once (validate).")
     rsub = p.add_subparsers(dest="rx_command", metavar="ACTION")
     rsub.required = True
     q = rsub.add_parser("new", help="write a commented prescription template")

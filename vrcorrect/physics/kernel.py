@@ -264,9 +264,17 @@ def build_kernel(eye: EyeRx, display: DisplayProfile, options: KernelOptions | N
                 break
         previous = K
     assert K is not None and nodes is not None and chosen is not None
+    # The kernel's PSFs: the chosen step's nodes.  Choosing the step may have computed more (a coarser
+    # step's node that this step skips, such as 790 nm beyond a 10 nm step's 780 nm); every count and
+    # range below is of the kernel's, and the step line says how many were computed in all.
+    used = [psfs[float(lam)] for lam in nodes]
+    grid = np.arange(nodes[0], nodes[-1] + 0.5, chosen)
+    skipped = [float(lam) for lam in grid if not np.isclose(nodes, lam).any()]
     decisions.append(
-        f"wavelength step {chosen} nm ({len(nodes)} PSFs over {nodes[0]:.0f}-{nodes[-1]:.0f} nm); tolerance "
-        f"{options.wavelength_tolerance:.4f} of full scale; " + "; ".join(trail))
+        f"wavelength step {chosen} nm ({len(nodes)} PSFs over {nodes[0]:.0f}-{nodes[-1]:.0f} nm"
+        + (f", none at {_runs_text(skipped, chosen)}: no spectral weight there" if skipped else "")
+        + (f"; {len(psfs)} PSFs computed while choosing the step" if len(psfs) > len(nodes) else "")
+        + f"); tolerance {options.wavelength_tolerance:.4f} of full scale; " + "; ".join(trail))
 
     full = K.shape[-1]
     size = energy_size(K.sum(axis=1), options.energy_fraction)
@@ -278,7 +286,7 @@ def build_kernel(eye: EyeRx, display: DisplayProfile, options: KernelOptions | N
         f"kernel {size}x{size} px holds {options.energy_fraction * 100:.2f}% of every cone's energy "
         f"(computed field {full}x{full} px at {ppd:.1f} ppd); crop renormalised so sums equal A")
 
-    all_samp = [p.sampling for p in psfs.values()]
+    all_samp = [p.sampling for p in used]
     samp = [s for s in all_samp if s.model != "geometric"]
     geo = sorted((s for s in all_samp if s.model == "geometric"), key=lambda s: s.wavelength_nm)
     if samp:
@@ -302,14 +310,25 @@ def build_kernel(eye: EyeRx, display: DisplayProfile, options: KernelOptions | N
             f"or less (Airy disc diameter / half-energy blur diameter)")
     info.update(identity=False, kernel_size=size, computed_field_px=full, wavelength_step_nm=chosen,
                 nodes_nm=[float(x) for x in nodes], wavelength_error_estimate=estimate,
-                psfs_computed=len(psfs), max_fft_grid=max((s.grid for s in all_samp), default=0),
-                psf_models={lam: s.model for lam, s in zip(psfs, all_samp)},
+                psfs_computed=len(psfs), max_fft_grid=max((p.sampling.grid for p in psfs.values()), default=0),
+                psf_models={float(lam): s.model for lam, s in zip(nodes, all_samp)},
                 geometric_wavelengths_nm=[s.wavelength_nm for s in geo],
                 geometric_error_estimate=max((s.model_error_estimate for s in geo), default=None))
     return EyeKernel(kernel=K, matrix=A, pixels_per_degree=ppd, identity=False, wavelength_step_nm=chosen,
                      node_wavelengths_nm=tuple(float(x) for x in nodes), state=state,
                      reference_wavelength_nm=opt.reference_wavelength_nm,
                      decisions=tuple(decisions), info=info)
+
+
+def _runs_text(wavelengths: list[float], step: float) -> str:
+    """Sorted wavelengths as runs of ``step`` (for example ``"740-760 nm"`` or ``"750 nm"``)."""
+    runs: list[list[float]] = []
+    for lam in wavelengths:
+        if runs and math.isclose(lam - runs[-1][-1], step):
+            runs[-1].append(lam)
+        else:
+            runs.append([lam])
+    return ", ".join(f"{r[0]:.0f} nm" if len(r) == 1 else f"{r[0]:.0f}-{r[-1]:.0f} nm" for r in runs)
 
 
 def _wavelength_runs(samplings: list, model: str) -> str:

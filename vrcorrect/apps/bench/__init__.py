@@ -1,5 +1,10 @@
 """Benchmarks (not tests): each prints a table and writes it into its own
-section of ``docs/benchmarks.md``, naming the machine it ran on."""
+section of ``docs/benchmarks.md``, naming the machine it ran on.
+
+The command's ``--out`` defaults to the repository's ``docs/benchmarks.md`` only when it runs
+inside the checkout this package is imported from (:func:`default_out`); anywhere else (an
+installed package, another folder) it must be named, so a run never writes a stray
+``docs/benchmarks.md`` relative to wherever it was started."""
 
 from __future__ import annotations
 
@@ -74,7 +79,36 @@ def write_section(path: Path, name: str, body: str) -> None:
 
 # ---------------------------------------------------------------- the command
 
+#: The benchmarks file inside the repository (``--out``'s default there).
+BENCHMARKS_FILE = Path("docs") / "benchmarks.md"
+
+
+def checkout_root() -> Path | None:
+    """The repository checkout this package is imported from, or None (an installed package)."""
+    root = Path(__file__).resolve().parents[3]              # vrcorrect/apps/bench/__init__.py
+    if (root / "pyproject.toml").is_file() and (root / "vrcorrect").is_dir() and (root / "docs").is_dir():
+        return root
+    return None
+
+
+def default_out(cwd: Path | None = None) -> Path:
+    """``--out``'s default: the checkout's ``docs/benchmarks.md`` when run inside that checkout (any
+    folder of it); anywhere else an :class:`InputError` asking for ``--out``."""
+    root = checkout_root()
+    here = (Path.cwd() if cwd is None else Path(cwd)).resolve()
+    if root is not None and (here == root or root in here.parents):
+        return root / BENCHMARKS_FILE
+    where = f"the vrcorrect repository at {root}" if root is not None else "a vrcorrect repository checkout"
+    raise InputError(f"--out: no default outside {where} (the default is its tracked {BENCHMARKS_FILE}); "
+                     "pass --out FILE.md, or --no-write to print only")
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
+    # --out before any work: the repository's file only inside the repository, else named by the user
+    if args.out is None:
+        args.out = str(BENCHMARKS_FILE if args.no_write else default_out())    # --no-write: names only
+    if not args.no_write:
+        check_writable(Path(args.out), force=True)                             # the section is replaced
     # each bench is imported only when it runs: it brings its own stack (GL, onnxruntime, torch, the metrics)
     if args.what == "kernel":
         from .kernel import run_kernel_bench
@@ -135,13 +169,18 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md")
+    p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md",
+                       description="Measure one thing (kernel builds, solvers, render, realtime, cost, xr, layer "
+                                   "or learned), print its table, and write it into its own section of the "
+                                   "benchmarks file (--out), naming the machine it ran on.")
     p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "cost", "xr", "layer", "learned"),
                    help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
     p.add_argument("--resolutions", nargs="+", metavar="R",
                    help="solvers: image sizes to sweep (256 512 1024 1832x1920; default all)")
-    p.add_argument("--out", default="docs/benchmarks.md", help="benchmarks file to update")
+    p.add_argument("--out", metavar="FILE.md",
+                   help="benchmarks file to update (default: the repository's docs/benchmarks.md, when run inside "
+                        "the vrcorrect checkout; required anywhere else unless --no-write)")
     p.add_argument("--no-write", action="store_true", help="print only")
     p.add_argument("--model", metavar="MODEL.onnx", help="learned: the model (default models/default.onnx)")
     p.add_argument("--card", metavar="CARD.md", help="learned: also write the model card there")
