@@ -478,7 +478,7 @@ def _card(model, summary, speed, bench_md: str) -> str:
         f"# Model card: `{Path(model.path).name}`",
         "",
         "The learned correction of vrcorrect: one conditioned U-Net for every eye in its range "
-        "(see README, *The learned correction*).",
+        "(see docs/learned.md).",
         "",
         "## What it is",
         f"- inputs: `image` and `precorrected` ({_precorrection_text(meta)}), float32 (N, 3, H, W) linear "
