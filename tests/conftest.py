@@ -58,14 +58,20 @@ def x_display() -> Iterator[str]:
             yield display
     finally:
         os.close(read_fd)
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop_process(proc)
         log.close()
+
+
+def stop_process(proc: subprocess.Popen, timeout_s: float = 10.0) -> None:
+    """End a server the tests started (Xvfb, Xorg): SIGTERM, then SIGKILL if it has not gone after
+    ``timeout_s``."""
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 def _read_display_number(fd: int, proc: subprocess.Popen) -> int | None:

@@ -396,7 +396,7 @@ XORG_DUMMY_CONF = ROOT / "tests" / "xr_runtime" / "xorg-dummy.conf"
 def xorg_display(tmp_path_factory) -> Iterator[str]:
     """A private Xorg server with the dummy driver (Debian xserver-xorg-core, xserver-xorg-video-dummy;
     tools/setup.sh installs them); ``-displayfd`` picks a free display number.  Stopped at the end."""
-    from conftest import _read_display_number
+    from conftest import _read_display_number, stop_process
 
     xorg = shutil.which("Xorg")
     if xorg is None:
@@ -419,10 +419,4 @@ def xorg_display(tmp_path_factory) -> Iterator[str]:
         yield f":{number}"
     finally:
         os.close(read_fd)
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop_process(proc)
