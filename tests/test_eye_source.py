@@ -43,6 +43,27 @@ def drain(source: EyeSource):
     return first[0] + second[0], first[1] + second[1]
 
 
+class Held:
+    """``build_eye_model`` replaced by one that records each design (sphere, thread) and, from the
+    ``hold_from``-th design on, signals ``entered`` and waits for ``release``."""
+
+    def __init__(self, monkeypatch, hold_from: int = 1):
+        self.entered, self.release = threading.Event(), threading.Event()
+        self.designed: list[float] = []
+        self.threads: list[str] = []
+        real = ES.build_eye_model
+
+        def held(eye, display, options):
+            self.designed.append(eye.sphere_D)
+            self.threads.append(threading.current_thread().name)
+            if len(self.designed) >= hold_from:
+                self.entered.set()
+                assert self.release.wait(60)
+            return real(eye, display, options)
+
+        monkeypatch.setattr(ES, "build_eye_model", held)
+
+
 def test_an_edit_is_designed_for_every_eye_and_a_bad_one_keeps_the_last_good(rx):
     source = EyeSource(rx, get_display("quest2"), OPTIONS)
     try:
@@ -91,57 +112,137 @@ def test_a_live_change_is_refused_at_once_or_designed_on_the_worker(rx):
 def test_designs_run_off_the_callers_thread_and_polling_never_waits(rx, monkeypatch):
     """While the worker is held inside a design, poll returns at once, nothing installed; once let
     go, the design arrives."""
-    entered, release = threading.Event(), threading.Event()
-    real = ES.build_eye_model
-    callers = []
-
-    def held(eye, display, options):
-        callers.append(threading.current_thread().name)
-        entered.set()
-        assert release.wait(60)
-        return real(eye, display, options)
-
-    monkeypatch.setattr(ES, "build_eye_model", held)
+    held = Held(monkeypatch)
     source = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",))
     try:
         source.adjust("right", (0.25, 0.0, 0.0))
-        assert entered.wait(60)
+        assert held.entered.wait(60)
         for _ in range(20):
             assert source.poll() == ([], []) and source.busy
-        release.set()
+        held.release.set()
         assert source.wait(60)
         updates, _ = source.poll()
         assert [u.model.eye.sphere_D for u in updates] == [-1.75]
-        assert callers == ["vrcorrect-eye-source"]
+        assert held.threads == ["vrcorrect-eye-source"]
     finally:
-        release.set()
+        held.release.set()
         source.close()
 
 
 def test_only_the_newest_of_queued_edits_is_designed(rx, monkeypatch):
-    entered, release = threading.Event(), threading.Event()
-    real = ES.build_eye_model
-    designed = []
-
-    def held(eye, display, options):
-        entered.set()
-        assert release.wait(60)
-        designed.append(eye.sphere_D)
-        return real(eye, display, options)
-
-    monkeypatch.setattr(ES, "build_eye_model", held)
+    held = Held(monkeypatch)
     source = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",))
     try:
         source.adjust("right", (0.25, 0.0, 0.0))             # holds the worker
-        assert entered.wait(60)
+        assert held.entered.wait(60)
         for sphere in (-3.0, -4.0, -5.0):
             doc = json.loads(json.dumps(RX))
             doc["right"]["sphere_D"] = sphere
             edit(rx, doc)
             source.poll()
-        release.set()
+        held.release.set()
         assert source.wait(120)
-        assert designed == [-1.75, -4.75]                    # the live change, then only the last edit
+        assert held.designed == [-1.75, -4.75]               # the live change, then only the last edit
     finally:
-        release.set()
+        held.release.set()
+        source.close()
+
+
+def test_design_all_designs_every_eye_on_the_worker_and_hands_them_over_together(rx, monkeypatch):
+    """The start without waiting: the display (a function: loading one takes seconds) is chosen and
+    every eye designed on the worker; poll hands over no eye until all are designed, then all at once."""
+    held = Held(monkeypatch, hold_from=2)                   # the first eye designed, the second held
+    display_threads = []
+
+    def display():
+        display_threads.append(threading.current_thread().name)
+        return get_display("quest2")
+
+    source = EyeSource(rx, display, OPTIONS)
+    try:
+        assert display_threads == [] and source.reloads_started == 0
+        source.design_all()
+        assert held.entered.wait(60)
+        assert source.poll() == ([], []) and source.busy     # one eye ready: not handed over alone
+        held.release.set()
+        assert source.wait(120)
+        updates, messages = source.poll()
+        assert messages == [] and [u.eye for u in updates] == ["left", "right"]
+        assert all(u.reason == "start" and u.offset == (0.0, 0.0, 0.0) for u in updates)
+        assert [u.model.eye for u in updates] == [source.prescription.left, source.prescription.right]
+        assert held.threads == ["vrcorrect-eye-source"] * 2
+        assert display_threads == ["vrcorrect-eye-source"]  # once, on the worker
+        assert source.display.name == "quest2" and len(display_threads) == 1
+    finally:
+        held.release.set()
+        source.close()
+
+
+def test_a_refused_start_is_one_message_and_no_eye_and_the_display_is_asked_again(rx):
+    """Every eye or none: one eye refused by ``check`` refuses the start; a display that could not
+    be loaded is asked for again by the next design."""
+    def check(e):
+        if e.sphere_D > 0:                                  # the left eye
+            raise VrcorrectError("too strong")
+
+    source = EyeSource(rx, get_display("quest2"), OPTIONS, check=check)
+    try:
+        source.design_all()
+        assert source.wait(120)
+        updates, messages = source.poll()
+        assert updates == [] and len(messages) == 1 and "not designed" in messages[0] and "too strong" in messages[0]
+    finally:
+        source.close()
+
+    attempts = []
+
+    def display():
+        attempts.append(1)
+        if len(attempts) == 1:
+            raise VrcorrectError("no such display")
+        return get_display("quest2")
+
+    source = EyeSource(rx, display, OPTIONS, eyes=("right",))
+    try:
+        source.design_all()
+        updates, messages = drain(source)
+        assert updates == [] and len(messages) == 1 and "no such display" in messages[0]
+        source.design_all()
+        updates, messages = drain(source)
+        assert messages == [] and [u.eye for u in updates] == ["right"] and len(attempts) == 2
+    finally:
+        source.close()
+
+
+def test_reloads_started_counts_the_changes_poll_saw(rx):
+    source = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",))
+    try:
+        source.poll()
+        assert source.reloads_started == 0
+        edit(rx, "{ not json")
+        source.poll()
+        assert source.reloads_started == 1
+        source.poll()                                       # the same file: no new reload
+        assert source.reloads_started == 1
+        assert source.wait(120)
+    finally:
+        source.close()
+
+
+def test_close_drops_the_queued_designs(rx, monkeypatch):
+    """``close(wait=False)`` returns with a design running; it finishes unused and what was queued
+    behind it is never designed."""
+    held = Held(monkeypatch)
+    source = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",))
+    try:
+        source.adjust("right", (0.25, 0.0, 0.0))
+        assert held.entered.wait(60)
+        source.adjust("right", (0.5, 0.0, 0.0))             # queued behind the running one
+        source.close(wait=False)
+        assert source.busy                                  # still inside the first design
+        held.release.set()
+        assert source.wait(60)
+        assert held.designed == [-1.75]                     # the queued one was dropped
+    finally:
+        held.release.set()
         source.close()

@@ -15,8 +15,14 @@ of CPU) never runs on the render thread after start:
   design is not).
 * :meth:`EyeSource.build` designs an eye on the caller's thread: for the start, before the first
   frame (an application shows "building" then, not a frozen picture).
+* :meth:`EyeSource.design_all` designs every eye on the worker instead: a start that must not wait
+  (the OpenXR layer passes the application's frames through meanwhile).  The models come from
+  :meth:`~EyeSource.poll` (reason ``"start"``), all eyes in the same call, or a refusal comes as
+  one message.  The display may be given as a function that returns it, called on first use: on
+  the worker for this start (loading a display profile imports colour-science: seconds).
 
-One worker thread, jobs in order; a newer edit of the file supersedes a queued one.  Layer 5:
+One worker thread, jobs in order; a newer edit of the file supersedes a queued one.  The eyes of
+one reload (or start) arrive in the same :meth:`~EyeSource.poll`, every eye or none.  Layer 5:
 numpy; never torch.
 """
 
@@ -56,7 +62,7 @@ class EyeUpdate:
     prescription: Prescription
     offset: Offset
     seconds: float
-    reason: str                       # "reload" (the file changed) or "adjust" (live changes)
+    reason: str                       # "reload" (the file changed), "adjust" (live changes), "start" (design_all)
 
 
 class EyeSource:
@@ -68,7 +74,9 @@ class EyeSource:
         Prescription JSON path, :class:`~vrcorrect.specs.prescription.Prescription` or
         :class:`~vrcorrect.runtime.corrector.RxSnapshot` (read once; watched from then on).
     display, options
-        What every eye is designed for.
+        What every eye is designed for; ``display`` may be a function that returns the profile,
+        called once on first use (on the worker for :meth:`design_all`; a failure there refuses
+        that start and is tried again on the next use).
     eyes
         The eyes the application corrects (a reload designs these).
     check
@@ -76,23 +84,41 @@ class EyeSource:
         :class:`~vrcorrect.plumbing.errors.VrcorrectError` refuses it.
     """
 
-    def __init__(self, rx: RxSource, display: DisplayProfile, options: CorrectorOptions = CorrectorOptions(),
-                 eyes: tuple[str, ...] = ("left", "right"), check: Callable[[EyeRx], object] | None = None):
+    def __init__(self, rx: RxSource, display: DisplayProfile | Callable[[], DisplayProfile],
+                 options: CorrectorOptions = CorrectorOptions(), eyes: tuple[str, ...] = ("left", "right"),
+                 check: Callable[[EyeRx], object] | None = None):
         snapshot = load_rx(rx)
         self.snapshot: RxSnapshot = snapshot
         self.eyes = tuple(eyes)
-        self.display, self.options, self.check = display, options, check
+        self._display = display
+        self._display_lock = threading.Lock()
+        self.options, self.check = options, check
         self.offsets: dict[str, Offset] = {}         # each eye's live changes, as last asked for
         self._stamp = snapshot.stamp
         self._last_poll = time.monotonic()
         self._jobs: queue.Queue[tuple[str, object] | None] = queue.Queue()
-        self._done: queue.Queue[EyeUpdate | str] = queue.Queue()
+        self._done: queue.Queue[list[EyeUpdate] | str] = queue.Queue()     # a job's eyes together, or a message
         self._pending = 0
+        self._closed = False
         self._lock = threading.Lock()
         self._idle = threading.Condition(self._lock)
         self._file_generation = 0
         self._worker = threading.Thread(target=self._run, name="vrcorrect-eye-source", daemon=True)
         self._worker.start()
+
+    @property
+    def display(self) -> DisplayProfile:
+        """What every eye is designed for (a function given for it is called now if it was not yet)."""
+        with self._display_lock:
+            if not isinstance(self._display, DisplayProfile):
+                self._display = self._display()
+            return self._display
+
+    @property
+    def reloads_started(self) -> int:
+        """How many changes of the file :meth:`poll` has seen (each starts a reload)."""
+        with self._lock:
+            return self._file_generation
 
     @property
     def prescription(self) -> Prescription:
@@ -116,6 +142,13 @@ class EyeSource:
         if self.check is not None:
             self.check(e)
         return build_eye_model(e, self.display, self.options)
+
+    def design_all(self) -> None:
+        """Design every eye of the last good prescription (with its live changes) on the worker:
+        the start, without waiting.  :meth:`poll` then returns all the eyes at once (reason
+        ``"start"``) or, when the design is refused (the display, ``check`` or the design itself),
+        one message and no eye."""
+        self._queue(("start", None))
 
     def adjust(self, eye: str, offset: Offset) -> EyeRx:
         """Design ``eye`` with the live changes ``offset`` (sphere, cylinder, axis, on top of the
@@ -153,10 +186,11 @@ class EyeSource:
                 break
             if isinstance(item, str):
                 messages.append(item)
-            else:
-                if item.reason == "reload":
-                    self.snapshot = RxSnapshot(item.prescription, self.snapshot.path, self.snapshot.stamp)
-                updates.append(item)
+                continue
+            for update in item:
+                if update.reason == "reload":
+                    self.snapshot = RxSnapshot(update.prescription, self.snapshot.path, self.snapshot.stamp)
+                updates.append(update)
         return updates, messages
 
     @property
@@ -171,9 +205,13 @@ class EyeSource:
         with self._idle:
             return self._idle.wait_for(lambda: self._pending == 0, timeout)
 
-    def close(self) -> None:
+    def close(self, wait: bool = True) -> None:
+        """Stop the worker: designs still queued are dropped; with ``wait``, wait (at most 5 s) for
+        the one running, else return at once (it finishes in the background, unused)."""
+        self._closed = True
         self._jobs.put(None)
-        self._worker.join(timeout=5.0)
+        if wait:
+            self._worker.join(timeout=5.0)
 
     # ------------------------------------------------------------------ the worker
 
@@ -194,8 +232,12 @@ class EyeSource:
                 return
             try:
                 kind, arg = job
-                if kind == "file":
+                if self._closed:
+                    pass                                      # dropped: nobody will take it
+                elif kind == "file":
                     self._reload(int(arg))                    # type: ignore[arg-type]
+                elif kind == "start":
+                    self._start()
                 else:
                     eye, offset = arg                         # type: ignore[misc]
                     self._adjust(eye, offset)
@@ -210,20 +252,28 @@ class EyeSource:
             if generation != self._file_generation:         # a newer edit is queued: it will be read
                 return
         path = self.snapshot.path
+        self._design_every(lambda: load_prescription(path), "reload",
+                           f"{path}: not reloaded, keeping the last good prescription")
+
+    def _start(self) -> None:
+        self._design_every(lambda: self.prescription, "start", "the eye models were not designed")
+
+    def _design_every(self, read: Callable[[], Prescription], reason: str, refused: str) -> None:
+        """Design every eye of the prescription ``read`` gives and hand them over together; or
+        none, and one message (``refused``, then why): one state for all the eyes."""
         try:
-            rx = load_prescription(path)
-            updates = [self._design(eye, self.offsets.get(eye, (0.0, 0.0, 0.0)), rx, "reload") for eye in self.eyes]
-        except VrcorrectError as exc:                        # every eye or none: one state for all
-            message = f"{path}: not reloaded, keeping the last good prescription: {exc}"
+            rx = read()
+            updates = [self._design(eye, self.offsets.get(eye, (0.0, 0.0, 0.0)), rx, reason) for eye in self.eyes]
+        except VrcorrectError as exc:
+            message = f"{refused}: {exc}"
             log.warning(message)
             self._done.put(message)
             return
-        for u in updates:
-            self._done.put(u)
+        self._done.put(updates)
 
     def _adjust(self, eye: str, offset: Offset) -> None:
         try:
-            self._done.put(self._design(eye, offset, self.prescription, "adjust"))
+            self._done.put([self._design(eye, offset, self.prescription, "adjust")])
         except VrcorrectError as exc:
             self._done.put(f"{eye} eye unchanged: {' '.join(str(exc).split())}")
 

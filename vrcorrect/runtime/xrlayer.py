@@ -44,13 +44,19 @@ output image.  32-bit formats are imported as ``GL_R32UI`` and (un)packed in the
 Vulkan image's first row is its top row: the passes flip the rect into GL's orientation and back.
 
 The eye models (:func:`~vrcorrect.runtime.eye_model.build_eye_model`: PSFs, kernels, filter design;
-seconds of CPU) are built on a background thread, never in ``xrEndFrame``: frames pass through
-meanwhile (one log line, "building the eye models ..."), and on the first frame after the build
-the two Correctors are made on the application's thread from the prebuilt models (GL resources
-only).  Hot reload works the same way: the engine watches the prescription file's stamp, keeps
-correcting with the current Correctors while the new models build, then swaps them; an invalid new
-file keeps the last good prescription (one log line).  One build at a time: a change during a
-build starts another after it.  (The shim releases the GIL between its calls, so the worker runs.)
+seconds of CPU) come from an :class:`~vrcorrect.runtime.eye_source.EyeSource`, the one the mirror,
+the overlay and ``vrcorrect xr`` use, never from ``xrEndFrame``: the engine reads the prescription
+(a small file) and asks for both eyes (:meth:`~vrcorrect.runtime.eye_source.EyeSource.design_all`);
+the source's worker chooses the display and designs them while frames pass through (one log line,
+"building the eye models ..."), and on the first frame after the design the two Correctors are made
+on the application's thread from the models (GL resources only).  Hot reload is the source's too:
+it watches the prescription file's stamp, the engine keeps correcting with the current Correctors
+while the new models design, then installs them
+(:meth:`~vrcorrect.runtime.corrector.Corrector.install`, GL work only); an invalid new file keeps
+the last good prescription (one log line).  An invalid first prescription passes the frames
+through with its reason until the file changes; a new configuration gets a new source.  Designs
+run one at a time; of edits made meanwhile only the newest is designed.  (The shim releases the
+GIL between its calls, so the worker runs.)
 
 Configuration (:class:`LayerConfig`): ``$XDG_CONFIG_HOME/vrcorrect/layer.json`` (or the file named by
 ``VRCORRECT_LAYER_CONFIG``) with ``rx`` (prescription path), ``display`` (preset or profile path;
@@ -70,7 +76,6 @@ import ctypes
 import json
 import os
 import sys
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -85,8 +90,8 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
     from ..specs.display import DisplayProfile
-    from .corrector import Corrector, RxSnapshot
-    from .eye_model import EyeModel
+    from .corrector import Corrector
+    from .eye_source import EyeSource, EyeUpdate
 
 __all__ = ["LAYER_NAME", "DISABLE_ENV", "OFF_ENV", "LayerConfig", "Engine", "SwapchainFormat", "GL_FORMATS",
            "VK_FORMATS", "config_path", "log_path", "off_file", "eye_of_view", "read_config"]
@@ -381,9 +386,10 @@ class Engine:
         self.display: DisplayProfile | None = None
         self.rx_path: Path | None = None
         self._rx_failed_stamp: Any = _NEVER          # the stamp of the prescription file that failed to build
-        self._rx_stamp: Any = _NEVER                 # the stamp of the file the correctors were built from
         self._build_error: str | None = None
-        self._job: _Build | None = None              # the eye models being built on the worker thread
+        self._source: EyeSource | None = None        # watches the prescription, designs the eye models
+        self._display_why: list[str] = []            # why the source's display was chosen (set on its worker)
+        self._t0 = 0.0                               # when the source's first designs were asked for
         self._last_check = -1.0
         self._off_reason: str | None = None
         self._config: LayerConfig | None = None
@@ -410,100 +416,142 @@ class Engine:
     # ------------------------------------------------------------ configuration and prescription
 
     def _check(self) -> str | None:
-        """Re-read the off switch, the configuration and the prescription file's stamp (at most
-        every 0.25 s), start a build when the file changed, install a finished one (every frame);
-        returns the reason to pass through, or None (also while the first models build: no
-        correctors yet, nothing to log)."""
+        """Re-read the off switch and the configuration (at most every 0.25 s; a new configuration
+        gets a new eye source), take what the eye source has ready (every frame); returns the
+        reason to pass through, or None (also while the first models build: no correctors yet,
+        nothing to log)."""
         now = time.monotonic()
-        if now - self._last_check < _CHECK_INTERVAL_S and self._last_check >= 0:
-            self._finish_build()
-            return self._off_reason or self._config_error or self._build_error
-        self._last_check = now
-        self._off_reason = _off(self.env)
-        if self._off_reason:
-            return self._off_reason
+        if now - self._last_check >= _CHECK_INTERVAL_S or self._last_check < 0:
+            self._last_check = now
+            self._off_reason = _off(self.env)
+            if self._off_reason:
+                return self._off_reason
+            self._configure()
+        self._take_models()
+        return self._off_reason or self._config_error or (None if self.correctors else self._build_error)
+
+    def _configure(self) -> None:
+        """Read the configuration: a changed one starts from scratch (the old eye source closed, the
+        Correctors released); open an eye source when there is none and the prescription file is
+        not the one that failed (the same bad file is not rebuilt)."""
         try:
             config = read_config(self.env)
             self._config_error = None
         except (InputError, ValidationError) as exc:
             self._config_error = f"layer configuration: {exc}"
-            return self._config_error
+            return
         if config != self._config:
             self._config = config
+            self._close_source()
             self._release_correctors()
-            self._rx_failed_stamp = self._rx_stamp = _NEVER
+            self._rx_failed_stamp = _NEVER
             self._build_error = None
         if config.rx is None:
             self._build_error = (f"no prescription: set rx in {config_path(self.env)} (vrcorrect layer install --rx) "
                                  f"or {RX_ENV}")
-            return self._build_error
-        self._finish_build()
-        stamp = file_stamp(config.rx)
-        if self._job is None and stamp != self._rx_stamp and stamp != self._rx_failed_stamp:
-            self._start_build(config)      # the same bad file is not rebuilt; a change during a build waits
-        return None if self.correctors else self._build_error
-
-    def _start_build(self, config: LayerConfig) -> None:
-        """Build both eyes' models on a daemon thread (CPU: numpy, scipy)."""
-        reload = bool(self.correctors)
-        job = _Build(config, reload)
-        if not reload:
-            self._build_error = None
-        self.log.line(f"building the eye models for {config.rx}" + (" (changed; correcting with the current "
-                                                                    "ones meanwhile)" if reload else "") + " ...")
-        job.thread = threading.Thread(target=job.run, args=(self.view_size,), daemon=True,
-                                      name="vrcorrect-layer-build")
-        self._job = job
-        job.thread.start()
-
-    def _finish_build(self) -> None:
-        """On the application's thread: when the worker is done, make the Correctors from its
-        models (GL resources only) and swap them in, or record why not."""
-        job = self._job
-        if job is None or job.thread is None or job.thread.is_alive():
             return
-        self._job = None
-        config = job.config
-        if config != self._config:
-            return                                   # built for an earlier configuration: a new build follows
-        reload = bool(self.correctors)
-        correctors: dict[str, Corrector] = {}
-        error = job.error
-        if error is None:
-            from .corrector import Corrector
+        if self._source is None and file_stamp(config.rx) != self._rx_failed_stamp:
+            self._open_source(config)
 
-            try:
-                for eye in ("left", "right"):
-                    correctors[eye] = Corrector(self._gl(), job.snapshot, job.display, eye,
-                                                eye_model=job.models[eye], **dict(config.options))
-            except Exception as exc:  # noqa: BLE001  (every failure is a pass-through with its reason)
-                error = exc
-                for c in correctors.values():
-                    try:
-                        c.release()
-                    except Exception:  # noqa: BLE001
-                        pass
-                correctors = {}
-        stamp = job.snapshot.stamp if job.snapshot is not None else job.stamp
-        if error is not None:
-            self._rx_failed_stamp = stamp
-            if reload:                               # an invalid edit keeps the last good prescription
-                self.log.line(f"{config.rx}: not reloaded, keeping the last good prescription: {_one_line(error)}")
-            else:
-                self._build_error = f"prescription {config.rx}: {_one_line(error)}"
-            return
-        self._release_correctors()
-        self.correctors, self.display, self.rx_path = correctors, job.display, config.rx
-        self._rx_stamp = stamp
-        self._rx_failed_stamp = _NEVER
+    def _open_source(self, config: LayerConfig) -> None:
+        """An :class:`~vrcorrect.runtime.eye_source.EyeSource` for ``config``: the prescription read
+        here (a small file), the display chosen and both eyes designed on its worker, with the
+        options a :class:`~vrcorrect.runtime.corrector.Corrector` makes of the same configuration
+        (so the correction is the one it would design itself); frames pass through meanwhile."""
+        self.log.line(f"building the eye models for {config.rx} ...")
         self._build_error = None
-        seconds = time.perf_counter() - job.t0
-        if reload:
-            self.log.line(f"{config.rx}: reloaded (built in {seconds:.1f} s)")
-        else:
-            assert job.display is not None
-            self.log.line(f"correcting with {config.rx} on display {job.display.name} ({job.why}); built in "
-                          f"{seconds:.1f} s")
+        stamp = file_stamp(config.rx)
+        try:
+            from .eye_model import CorrectorOptions
+            from .eye_source import EyeSource
+
+            options = dict(config.options)
+            backend = options.pop("backend", "glsl")    # Corrector(backend=...) then CorrectorOptions(backend=...)
+            why: list[str] = []
+
+            def display() -> DisplayProfile:            # on the worker: loading a profile takes seconds
+                profile, reason = choose_display(config.display, self.view_size)
+                why.append(reason)
+                return profile
+
+            self._t0 = time.perf_counter()
+            source = EyeSource(config.rx, display, CorrectorOptions(backend=backend, **options))
+        except Exception as exc:  # noqa: BLE001  (every failure is a pass-through with its reason)
+            self._failed(stamp, exc)
+            return
+        self._source, self._display_why = source, why
+        source.design_all()
+
+    def _take_models(self) -> None:
+        """On the application's thread, every frame: what the eye source has ready.  The first
+        models become the Correctors (GL resources only); later ones are installed into them;
+        the source's messages are logged (an invalid edit keeps the last good prescription)."""
+        source, config = self._source, self._config
+        if source is None or config is None:
+            return
+        seen = source.reloads_started
+        updates, messages = source.poll()
+        if source.reloads_started != seen:
+            self.log.line(f"building the eye models for {config.rx} (changed" +
+                          ("; correcting with the current ones meanwhile)" if self.correctors else ")") + " ...")
+        if not self.correctors:
+            start = [u for u in updates if u.reason == "start"]
+            if not start:
+                if messages:                         # the first thing the worker says: its start was refused
+                    self._failed(source.snapshot.stamp, _one_line_text(messages[0]))
+                return
+            if not self._make_correctors(source, config, start):
+                return
+        reloads = {u.eye: u for u in updates if u.reason == "reload"}     # the newest of each eye
+        if reloads:
+            try:
+                for u in reloads.values():
+                    self.correctors[u.eye].install(u.model, u.prescription)
+                self.log.line(f"{config.rx}: reloaded (built in {sum(u.seconds for u in reloads.values()):.1f} s)")
+            except Exception as exc:  # noqa: BLE001
+                self.log.line(f"{config.rx}: not reloaded: {_one_line(exc)}")
+        for message in messages:
+            self.log.line(_one_line_text(message))
+
+    def _make_correctors(self, source: "EyeSource", config: LayerConfig, start: "list[EyeUpdate]") -> bool:
+        """The two Correctors from the source's first models (on the application's thread: GL)."""
+        from .corrector import Corrector
+
+        correctors: dict[str, Corrector] = {}
+        try:
+            for u in start:
+                correctors[u.eye] = Corrector(self._gl(), u.prescription, source.display, u.eye, eye_model=u.model,
+                                              **dict(config.options))
+        except Exception as exc:  # noqa: BLE001  (every failure is a pass-through with its reason)
+            for c in correctors.values():
+                try:
+                    c.release()
+                except Exception:  # noqa: BLE001
+                    pass
+            self._failed(source.snapshot.stamp, exc)
+            return False
+        self.correctors, self.display, self.rx_path = correctors, source.display, config.rx
+        self._rx_failed_stamp = _NEVER
+        why = self._display_why[0] if self._display_why else ""
+        self.log.line(f"correcting with {config.rx} on display {source.display.name} ({why}); built in "
+                      f"{time.perf_counter() - self._t0:.1f} s")
+        source.check = correctors[source.eyes[0]].check_eye      # later designs refused as the Correctors would
+        return True
+
+    def _failed(self, stamp: Any, error: BaseException | str) -> None:
+        """The first models could not be made: pass through with the reason until the prescription
+        file or the configuration changes."""
+        self._close_source()
+        self._rx_failed_stamp = stamp
+        assert self._config is not None
+        text = _one_line(error) if isinstance(error, BaseException) else error
+        self._build_error = f"prescription {self._config.rx}: {text}"
+
+    def _close_source(self) -> None:
+        """Let the eye source go without waiting for a design it may be running (it ends unused)."""
+        if self._source is not None:
+            self._source.close(wait=False)
+            self._source = None
 
     def _gl(self) -> "moderngl.Context":
         """The engine's moderngl context: attached to the application's current one (OpenGL), or a
@@ -816,8 +864,9 @@ class Engine:
         return ring[slot]
 
     def release_gl(self, current: bool = True) -> None:
-        """Release every GL object (the session is going away); with ``current`` False (the
-        session's context is not current) the objects are only forgotten, no GL call is made."""
+        """Release every GL object (the session is going away) and let the eye source go (a later
+        frame starts from the configuration again); with ``current`` False (the session's context
+        is not current) the objects are only forgotten, no GL call is made."""
         if current and self.ctx is not None:
             for chain in list(self._chains):
                 self.release_images(chain)
@@ -846,8 +895,10 @@ class Engine:
         self._memory = None
         self.ctx = None
         self._config = None
+        self._close_source()
 
     def close(self) -> None:
+        self._close_source()
         self.log.line(f"closed after {self.frames} corrected frames")
 
 
@@ -863,44 +914,10 @@ def _set_uniforms(program: "moderngl.Program", values: Mapping[str, Any]) -> Non
             program[name] = value
 
 
-class _Build:
-    """One build of both eyes' models, run on a worker thread: the prescription file read once
-    (:class:`~vrcorrect.runtime.corrector.RxSnapshot`), the display chosen, and
-    :func:`~vrcorrect.runtime.eye_model.build_eye_model` per eye with the options a
-    :class:`~vrcorrect.runtime.corrector.Corrector` computes from the same configuration (so its
-    correction is the same as one that designs its own).  No GL; never raises (``error``)."""
-
-    def __init__(self, config: LayerConfig, reload: bool):
-        self.config, self.reload = config, reload
-        self.stamp = file_stamp(config.rx) if config.rx is not None else None
-        self.thread: threading.Thread | None = None
-        self.snapshot: RxSnapshot | None = None
-        self.display: DisplayProfile | None = None
-        self.why = ""
-        self.models: dict[str, EyeModel] = {}
-        self.error: BaseException | None = None
-        self.t0 = time.perf_counter()
-
-    def run(self, view_size: tuple[int, int]) -> None:
-        try:
-            from .corrector import RxSnapshot
-            from .eye_model import CorrectorOptions, build_eye_model
-
-            options = dict(self.config.options)
-            backend = options.pop("backend", "glsl")    # Corrector(backend=...) then CorrectorOptions(backend=...)
-            opts = CorrectorOptions(backend=backend, **options)
-            self.snapshot = RxSnapshot.read(self.config.rx)
-            self.display, self.why = choose_display(self.config.display, view_size)
-            for eye in ("left", "right"):
-                rx = self.snapshot.prescription.eye(eye)
-                # the eye as the Corrector designs it (its live offset is zero: the axis wraps into [0, 180))
-                rx = rx.with_changes(sphere_D=rx.sphere_D + 0.0, cylinder_D=rx.cylinder_D + 0.0,
-                                     axis_deg=(rx.axis_deg + 0.0) % 180.0)
-                self.models[eye] = build_eye_model(rx, self.display, opts)
-        except BaseException as exc:  # noqa: BLE001  (reported on the application's thread)
-            self.error = exc
-
-
 def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
+    text = _one_line_text(str(exc))
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _one_line_text(text: str) -> str:
+    return " ".join(text.split())
