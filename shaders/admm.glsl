@@ -4,8 +4,12 @@
 // mathematics). One frame, per eye:
 //   ROWS_TARGET  decoded target t (image rows) -> its row spectra, 3 channels      [glasses target only]
 //   COLUMNS      MODE_TARGET: column FFTs, T = K_ref t per frequency, inverse column FFTs
+//   POOL         a cold frame's coarse level: the target's 2x2 block means (the last row or column
+//                repeated where the size is odd), for the half-resolution ADMM that starts the frame
 //   ROWS_START   T per grid row (inverse row FFTs; IDEAL: A t), stored inside the image; the warm
-//                (or cold) start of the state w, q; the reflections a1, a2 -> row spectra, 6 channels
+//                (or cold) start of the state w, q (a warm start reprojected by the motion outside
+//                the edge band, a cold one upsampled from the coarse level where there is one);
+//                the reflections a1, a2 -> row spectra, 6 channels
 //   COLUMNS      MODE_ADMM: U = G (K^H A1 + n A2), KU = K U, G = (K^H K + n I)^-1 computed here
 //   ROWS_UPDATE  u, Ku by inverse row FFTs; w += alpha (Ku - prox(w)), q += alpha (u - proj(q));
 //                then the next a1, a2 (or, LAST, z = proj(q) and t for the guard) -> row spectra
@@ -279,11 +283,36 @@ void main() {
 }
 #endif
 
+// ------------------------------------------------------------------ POOL
+// Coarse texel c (GL orientation, rows bottom first) holds the mean of fine texels 2c - o and
+// 2c - o + 1 on each axis, clamped to the image, with o = 0 across and 2 ceil(H / 2) - H up: the
+// blocks the CPU twin pools from the image's top-left corner (solvers.realtime.pool_half), seen
+// from the bottom-left.
+#if defined POOL
+layout(local_size_x = 16, local_size_y = 16) in;
+uniform sampler2D u_t;                          // the decoded target, IMG_W x IMG_H
+layout(IMG_FMT, binding = 1) writeonly uniform image2D u_coarse_t;
+void main() {
+    ivec2 c = ivec2(gl_GlobalInvocationID.xy);
+    ivec2 n = (ivec2(IMG_W, IMG_H) + 1) / 2;
+    if (any(greaterThanEqual(c, n))) return;
+    ivec2 o = ivec2(0, 2 * n.y - IMG_H);
+    ivec2 p0 = clamp(2 * c - o, ivec2(0), ivec2(IMG_W - 1, IMG_H - 1));
+    ivec2 p1 = clamp(2 * c - o + 1, ivec2(0), ivec2(IMG_W - 1, IMG_H - 1));
+    vec3 sum = texelFetch(u_t, p0, 0).rgb + texelFetch(u_t, ivec2(p1.x, p0.y), 0).rgb
+             + texelFetch(u_t, ivec2(p0.x, p1.y), 0).rgb + texelFetch(u_t, p1, 0).rgb;
+    imageStore(u_coarse_t, c, vec4(stored(0.25 * sum), 1.0));
+}
+#endif
+
 // ------------------------------------------------------------------ ROWS_START
 // The state is read from u_w_src, u_q_src and the last T from u_T_prev (a shifted warm start: other
 // textures than those written, since a texel moved from elsewhere must not be read after it is
 // written), or, u_in_place, from u_w, u_q, u_T themselves (an unshifted one: each texel read then
-// written by one invocation).
+// written by one invocation). A shifted start leaves the edge band (u_band: the pixels next to the
+// two edges across each axis the motion has) where it is: the edge's own correction belongs to the
+// window. A cold start with u_coarse reads the coarse level's w, q from u_w_src, u_q_src and
+// upsamples them (solvers.realtime.upsample_double, seen from the bottom-left).
 #if defined ROWS_START
 uniform sampler2D u_t;                          // this frame's target
 uniform sampler2D u_t_prev;                     // the previous frame's target
@@ -293,12 +322,48 @@ uniform bool u_in_place;
 uniform bool u_start_given;                     // a cold start from u_start (a first guess) instead of t
 uniform sampler2D u_start;
 uniform ivec2 u_shift;                          // the content's motion since the last frame (GL texels)
+uniform ivec2 u_band;                           // the edge band's width on each axis (0: none)
+uniform bool u_coarse;                          // a cold start from the coarse level
+uniform ivec2 u_coarse_size;                    // the coarse level's image, ceil(IMG_W / 2) x ceil(IMG_H / 2)
 uniform mat3 u_matrix;                          // IDEAL: T = A t
 layout(IMG_FMT, binding = 1) uniform image2D u_T;
 layout(IMG_FMT, binding = 2) readonly uniform image2D u_w_src;
 layout(IMG_FMT, binding = 3) readonly uniform image2D u_q_src;
 layout(IMG_FMT, binding = 4) uniform image2D u_w;
 layout(IMG_FMT, binding = 5) uniform image2D u_q;
+
+bool in_band(ivec2 p) {
+    return (u_band.x > 0 && (p.x < u_band.x || p.x >= IMG_W - u_band.x))
+        || (u_band.y > 0 && (p.y < u_band.y || p.y >= IMG_H - u_band.y));
+}
+
+// One axis of the upsampling: the two coarse texels and the weight of the second.
+void upsample_axis(int p, int o, int n, out int i0, out int i1, out float f) {
+    float c = clamp((float(p) + 0.5 + float(o)) * 0.5 - 0.5, 0.0, float(n - 1));
+    i0 = int(floor(c));
+    i1 = min(i0 + 1, n - 1);
+    f = c - float(i0);
+}
+
+vec3 upsampled(ivec2 p, bool of_q) {
+    ivec2 o = ivec2(0, 2 * u_coarse_size.y - IMG_H);     // rows counted from the bottom (POOL)
+    int x0, x1, y0, y1;
+    float fx, fy;
+    upsample_axis(p.x, o.x, u_coarse_size.x, x0, x1, fx);
+    upsample_axis(p.y, o.y, u_coarse_size.y, y0, y1, fy);
+    vec3 a, b, c, d;
+    if (of_q) {
+        a = imageLoad(u_q_src, ivec2(x0, y0)).rgb; b = imageLoad(u_q_src, ivec2(x0, y1)).rgb;
+        c = imageLoad(u_q_src, ivec2(x1, y0)).rgb; d = imageLoad(u_q_src, ivec2(x1, y1)).rgb;
+    } else {
+        a = imageLoad(u_w_src, ivec2(x0, y0)).rgb; b = imageLoad(u_w_src, ivec2(x0, y1)).rgb;
+        c = imageLoad(u_w_src, ivec2(x1, y0)).rgb; d = imageLoad(u_w_src, ivec2(x1, y1)).rgb;
+    }
+    vec3 left = a * (1.0 - fy) + b * fy;                // rows first, as the twin
+    vec3 right = c * (1.0 - fy) + d * fy;
+    return left * (1.0 - fx) + right * fx;
+}
+
 void main() {
     int y = int(gl_WorkGroupID.x);
     vec3 T[PER];
@@ -332,6 +397,10 @@ void main() {
         if (u_cold) {
             w = Tp;
             q = (u_start_given && in_image) ? clamp(texelFetch(u_start, p, 0).rgb, 0.0, 1.0) : t;
+            if (u_coarse && in_image) {
+                w = upsampled(p, false);
+                q = upsampled(p, true);
+            }
         } else if (u_in_place) {
             w = imageLoad(u_w, p).rgb;
             q = imageLoad(u_q, p).rgb;
@@ -343,7 +412,7 @@ void main() {
             w = imageLoad(u_w_src, p).rgb;
             q = imageLoad(u_q_src, p).rgb;
         } else {
-            ivec2 s = p - u_shift;
+            ivec2 s = in_band(p) ? p : p - u_shift;
             if (inside(s)) {
                 w = imageLoad(u_w_src, s).rgb + (Tp - texelFetch(u_T_prev, s, 0).rgb);
                 q = imageLoad(u_q_src, s).rgb + (t - texelFetch(u_t_prev, s, 0).rgb);

@@ -23,6 +23,11 @@ def test_the_default_frame_of_a_quest2_eye_moves_at_most_2_gb(gl):
         cost = eye_frame_cost(gl, rx, display, eye, (1832, 1920), {}, warmup=1, dry_run=True)
         assert cost.changing.bytes <= TARGET_BYTES, (eye, cost.changing.bytes)
         assert cost.changing.fft_round_trips == cost.describe["iterations_per_frame"] + 2
+        # the cold frame: the same passes plus the coarse level's (15 iterations at a quarter of the
+        # pixels, plus its target), so between one and two and a half changing frames
+        coarse = [r for r in cost.cold.records if r.stage == "cold start"]
+        assert sum(r.round_trip for r in coarse) == cost.describe["cold_iterations"] + 1
+        assert cost.changing.bytes < cost.cold.bytes < 2.5 * cost.changing.bytes, (eye, cost.cold.bytes)
     dry = eye_frame_cost(gl, rx, display, "right", (64, 48), {}, warmup=1, dry_run=True)
     real = eye_frame_cost(gl, rx, display, "right", (64, 48), {}, warmup=1)
     assert [(r.name, r.bytes) for r in dry.changing.records] == [(r.name, r.bytes) for r in real.changing.records]

@@ -8,7 +8,14 @@ import argparse
 from typing import Any
 
 from ..plumbing.errors import ValidationError
-from ..runtime.eye_model import DEFAULT_ITERATIONS, FILTERS, ITERATIONS_RANGE, ITERATIVE_FILTERS
+from ..runtime.eye_model import (
+    DEFAULT_COLD_ITERATIONS,
+    DEFAULT_ITERATIONS,
+    FILTERS,
+    ITERATIONS_RANGE,
+    ITERATIVE_FILTERS,
+    MAX_ITERATIONS_PER_FRAME,
+)
 from ..runtime.model_path import model_for_backend
 
 __all__ = ["FILTER_CHOICES", "parse_frames", "parse_whole_number", "parse_iterations_per_frame", "add_rx_option",
@@ -47,7 +54,8 @@ def add_rx_option(p: argparse.ArgumentParser) -> None:
 
 
 def add_filter_options(p: argparse.ArgumentParser) -> None:
-    """``--filter`` and ``--iterations-per-frame`` (``render``, ``mirror``, ``overlay``, ``xr``)."""
+    """``--filter``, ``--iterations-per-frame`` and ``--cold-iterations`` (``render``, ``mirror``,
+    ``overlay``, ``xr``)."""
     low, high = ITERATIONS_RANGE
     p.add_argument("--filter", choices=FILTER_CHOICES, default=FILTER_CHOICES[0],
                    help="GLSL method: admm (default; fast's ADMM iterations on the true objective, warm-started from "
@@ -60,6 +68,11 @@ def add_filter_options(p: argparse.ArgumentParser) -> None:
                    help=f"with --filter {_ITERATIVE}: iterations per frame, {low} to {high} (default "
                         + ", ".join(f"{k} for {m}" for m, k in DEFAULT_ITERATIONS.items())
                         + "; the speed-accuracy knob)")
+    p.add_argument("--cold-iterations", metavar="N",
+                   help=f"with --filter admm: ADMM iterations at half resolution that start a shot's first frame (the "
+                        f"first, after a cut, after a prescription change), 0 to {MAX_ITERATIONS_PER_FRAME} (default "
+                        f"{DEFAULT_COLD_ITERATIONS}, fast's own coarse-to-fine start; 0: from the target, cheaper "
+                        "but a shot then starts blurred)")
 
 
 def add_reprojection_option(p: argparse.ArgumentParser) -> None:
@@ -80,6 +93,11 @@ def filter_options(args: argparse.Namespace) -> dict[str, Any]:
         if args.filter not in ITERATIVE_FILTERS:
             raise ValidationError("--iterations-per-frame", args.iterations_per_frame, f"only with --filter {_ITERATIVE}")
         options["iterations_per_frame"] = k
+    if getattr(args, "cold_iterations", None) is not None:
+        if args.filter != "admm":
+            raise ValidationError("--cold-iterations", args.cold_iterations, "only with --filter admm")
+        options["cold_iterations"] = parse_whole_number(args.cold_iterations, "--cold-iterations", 0,
+                                                        MAX_ITERATIONS_PER_FRAME, "iterations")
     return options
 
 

@@ -40,7 +40,8 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from ..physics.kernel import EyeKernel, KernelOptions
 
 __all__ = ["as_options", "BACKENDS", "FILTERS", "ITERATIVE_FILTERS", "DEFAULT_ITERATIONS", "ITERATIONS_RANGE",
-           "MAX_ITERATIONS_PER_FRAME", "PRECISIONS", "CorrectorOptions", "EyeModel", "build_eye_model", "check_iterations"]
+           "MAX_ITERATIONS_PER_FRAME", "PRECISIONS", "DEFAULT_COLD_ITERATIONS", "CorrectorOptions", "EyeModel",
+           "build_eye_model", "check_iterations"]
 
 BACKENDS = ("glsl", "onnx")
 FILTERS = ("admm", "fista", "fft", "separable")
@@ -55,6 +56,10 @@ ITERATIONS_RANGE = (1, 64)
 MAX_ITERATIONS_PER_FRAME = 256
 """The knob's range in the API (0 keeps the start; the guard still applies)."""
 PRECISIONS = ("half", "single")
+DEFAULT_COLD_ITERATIONS = 15
+"""Half-resolution iterations that start a cold frame of ``filter="admm"``: ``fast``'s own
+coarse-level count (:data:`vrcorrect.solvers.admm.COARSE_ITERATIONS`; a test holds the two equal,
+this module imports no solver at start-up)."""
 
 
 def as_options(backend: str, value: "CorrectorOptions | Mapping[str, Any] | None") -> "CorrectorOptions":
@@ -67,11 +72,11 @@ def as_options(backend: str, value: "CorrectorOptions | Mapping[str, Any] | None
     return CorrectorOptions(backend=backend, **dict(value or {}))
 
 
-def check_iterations(value: object) -> int:
-    """``iterations_per_frame``: a whole number from 0 to :data:`MAX_ITERATIONS_PER_FRAME`."""
+def check_iterations(value: object, field: str = "iterations_per_frame") -> int:
+    """``iterations_per_frame`` (or ``field``): a whole number from 0 to :data:`MAX_ITERATIONS_PER_FRAME`."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or \
             not 0 <= value <= MAX_ITERATIONS_PER_FRAME:
-        raise ValidationError("iterations_per_frame", value, f"a whole number from 0 to {MAX_ITERATIONS_PER_FRAME}")
+        raise ValidationError(field, value, f"a whole number from 0 to {MAX_ITERATIONS_PER_FRAME}")
     return int(value)
 
 
@@ -124,6 +129,11 @@ class CorrectorOptions:
         ``filter="admm"``: give the passes no work while the view is still (the target unchanged
         since the last frame) and converged (two frames' objectives agree to 1e-3): the GPU decides
         each frame, nothing waits for it.
+    cold_iterations
+        ``filter="admm"``: half-resolution ADMM iterations that start a cold frame (the first of a
+        size, a cut, a new prescription), ``fast``'s coarse-to-fine start, where the image is at
+        least 64 px on its short side and the kernel at least 9 px; 0: a cold frame starts from the
+        target.  From 0 to :data:`MAX_ITERATIONS_PER_FRAME`.
     """
 
     regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
@@ -140,6 +150,7 @@ class CorrectorOptions:
     backend: str = "glsl"
     precision: str = "half"
     early_stop: bool = True
+    cold_iterations: int = DEFAULT_COLD_ITERATIONS
 
     def __post_init__(self) -> None:
         if not self.regularisation or not all(isinstance(m, (int, float)) and m > 0 for m in self.regularisation):
@@ -161,6 +172,7 @@ class CorrectorOptions:
             raise ValidationError("early_stop", self.early_stop, "True or False")
         if self.precision not in PRECISIONS:
             raise ValidationError("precision", self.precision, "one of " + ", ".join(PRECISIONS))
+        check_iterations(self.cold_iterations, "cold_iterations")
 
     @property
     def per_frame_blend(self) -> bool:

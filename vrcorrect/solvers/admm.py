@@ -41,10 +41,19 @@ import scipy.fft
 from . import Problem
 from .wiener import centred_kernel, gram, inv3, mirror_fill, padded_shape, spectral_norm_squared
 
-__all__ = ["fast", "coarse_kernel"]
+__all__ = ["fast", "coarse_kernel", "coarse_level_pays", "COARSE_ITERATIONS"]
 
 #: Full-resolution iterations in a row without a new best objective after which ``fast`` stops.
 PATIENCE = 5
+#: ADMM iterations on the coarsest level of ``fast``'s coarse-to-fine start (and of the real-time
+#: path's cold frames, :class:`vrcorrect.solvers.realtime.AdmmFrames`).
+COARSE_ITERATIONS = 15
+
+
+def coarse_level_pays(height: int, width: int, kernel_size: int) -> bool:
+    """Whether a half-resolution level is worth solving first: the image at least 64 px on its short
+    side and the kernel at least 9 px (a smaller kernel's blur is solved as fast at full size)."""
+    return min(height, width) >= 64 and kernel_size >= 9
 
 
 def _rfft2(a: np.ndarray) -> np.ndarray:
@@ -206,7 +215,7 @@ def _coarse_to_fine(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, l
                     ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None, list[str]]:
     """Starting point at this resolution, primal and dual (see the module docstring)."""
     H, W = t_lms.shape[1:]
-    if levels > 0 and min(H, W) >= 64 and kernel.shape[-1] >= 9:
+    if levels > 0 and coarse_level_pays(H, W, kernel.shape[-1]):
         Kc = coarse_kernel(kernel)
         zc, dc, notes = _coarse_to_fine(Kc, _pool2(target), _pool2(t_lms), levels - 1, coarse_iterations,
                                         level_iterations, rho, relaxation, balance, warm_start)
@@ -258,7 +267,7 @@ def _ridge_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, mu_r
 
 
 def fast(problem: Problem, tolerance: float = 1e-2, max_iterations: int = 200, rho: float = 0.1,
-         relaxation: float = 1.8, balance: float = 1.0, levels: int = 1, coarse_iterations: int = 15,
+         relaxation: float = 1.8, balance: float = 1.0, levels: int = 1, coarse_iterations: int = COARSE_ITERATIONS,
          level_iterations: int = 3, warm_start: bool = True,
          progress: Callable[[int, int], None] | None = None) -> tuple[np.ndarray, int, dict, list[float]]:
     """ADMM for the LMS objective in the box (see the module docstring); returns (image, iterations,

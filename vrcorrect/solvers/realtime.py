@@ -23,13 +23,24 @@ FFT round trip of six real channels each.
 
 * **Cold start** (the first frame, a cut, a new prescription): ``w = T`` on the whole grid (the
   target retina, ``K_ref t``, spilling into the surround), ``q = t`` inside and 0 outside: the
-  target as the image with the retina it should make, zero duals.  No transform beyond ``T``'s.
+  target as the image with the retina it should make, zero duals.  Where a half-resolution level
+  pays (:func:`~vrcorrect.solvers.admm.coarse_level_pays`) the image's part of both comes instead
+  from ``cold_iterations`` ADMM iterations at half resolution, ``fast``'s own coarse-to-fine start
+  (:data:`~vrcorrect.solvers.admm.COARSE_ITERATIONS` by default): the same iteration on the 2x2
+  block means of the target (:func:`pool_half`) with the kernels those blocks see
+  (:func:`~vrcorrect.solvers.admm.coarse_kernel`), cold-started, then its ``w`` and ``q``
+  upsampled (:func:`upsample_double`); a coarse iteration moves a quarter of the bytes of a full
+  one.  A shot's first frame then starts where ``fast``'s full-resolution iterations start.
 * **Warm start**: the previous frame's ``w`` and ``q`` moved by the change of target inside the
   image, ``q += t - t_prev`` and ``w += T - T_prev`` (the surround, where neither the data term
   nor the box looks at the target, is kept as it is); with the content's whole-pixel motion ``d``
-  the image's part of both is first reprojected (``x(p) <- x(p - d)``, pixels the motion exposes
-  starting cold), the surround staying where it is (it belongs to the window, not to the
-  content).  On a still view N frames of k iterations are N k iterations of ``fast``'s ADMM.
+  the image's part of both is first reprojected (``x(p) <- x(p - d)``), the surround staying where
+  it is (it belongs to the window, not to the content).  So does a band along the image's edges
+  across the motion (:func:`edge_band`: the kernel's radius plus the motion's length on that
+  axis): near the black surround the solution carries the edge's own correction (the light the
+  surround does not send), which belongs to the window too; moved with the content it would be
+  carried inward, wrong there, and the pixels the motion exposes (all in the band) would have
+  none.  On a still view N frames of k iterations are N k iterations of ``fast``'s ADMM.
 * **Guard**: after the iterations, ``z = proj(q)`` and the target ``t`` are transformed once more
   (``K z`` and ``K t``, one round trip) and the frame shown is ``t + beta (z - t)`` with the
   ``beta`` in [0, 1] that minimises the objective (:func:`guard_weight`): no frame is worse than
@@ -52,17 +63,19 @@ Layer 4: numpy and scipy.fft; no torch.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.fft
 
 from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
+from .admm import COARSE_ITERATIONS, coarse_kernel, coarse_level_pays
 from .wiener import centred_kernel, spectral_norm_squared
 
 __all__ = ["PRECISIONS", "ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "guard_weight", "kernel_half_spectrum",
-           "hermitian_inverse", "AdmmFrames", "AdmmFrame", "FistaFrames", "frames_twin"]
+           "hermitian_inverse", "edge_band", "pool_half", "upsample_double", "coarse_eye_kernel", "AdmmFrames",
+           "AdmmFrame", "FistaFrames", "frames_twin"]
 
 PRECISIONS = ("half", "single")
 ADMM_RHO = 0.2
@@ -90,6 +103,62 @@ def guard_weight(s_rk: float, s_kk: float, s_rr: float = 0.0) -> float:
     ``r0`` (``s_kk <= 1e-10 s_rr``, ``s_rr = <r0, r0>``: the correction is the target itself, to
     rounding)."""
     return 0.0 if not s_kk > 1e-10 * s_rr else min(max(-s_rk / s_kk, 0.0), 1.0)
+
+
+def edge_band(shape: tuple[int, int], shift: tuple[int, int], radius: int) -> np.ndarray:
+    """The ``(H, W)`` mask of the pixels whose warm start stays with the window when the content
+    moves by ``shift = (dx, dy)``: on each axis the motion has, the ``radius + |d|`` pixels next to
+    each of the two edges across it (module docstring); none for no motion."""
+    H, W = shape
+    dx, dy = (int(v) for v in shift)
+    band = np.zeros((H, W), bool)
+    if dx:
+        m = radius + abs(dx)
+        x = np.arange(W)
+        band |= ((x < m) | (x >= W - m))[None, :]
+    if dy:
+        m = radius + abs(dy)
+        y = np.arange(H)
+        band |= ((y < m) | (y >= H - m))[:, None]
+    return band
+
+
+def pool_half(a: np.ndarray) -> np.ndarray:
+    """2x2 block means of a ``(C, H, W)`` array, ``(C, ceil(H/2), ceil(W/2))``: block ``(j, i)``
+    holds pixels ``2j, 2j + 1`` and ``2i, 2i + 1``, the last row or column repeated where ``H`` or
+    ``W`` is odd; float32."""
+    _, H, W = a.shape
+    y0 = np.arange(0, H, 2)
+    x0 = np.arange(0, W, 2)
+    y1, x1 = np.minimum(y0 + 1, H - 1), np.minimum(x0 + 1, W - 1)
+    a = np.asarray(a, np.float32)
+    return ((a[:, y0][:, :, x0] + a[:, y0][:, :, x1] + a[:, y1][:, :, x0] + a[:, y1][:, :, x1])
+            * np.float32(0.25)).astype(np.float32)
+
+
+def upsample_double(a: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Bilinear upsampling of a ``(C, h, w)`` array of :func:`pool_half`'s blocks to ``(C, H, W)``:
+    pixel ``y`` sits at block coordinate ``(y + 1/2) / 2 - 1/2`` (weights 3/4 and 1/4), clamped to
+    the blocks (edges repeated); float32."""
+    H, W = shape
+
+    def axis(n_out: int, n_in: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        c = np.clip((np.arange(n_out) + 0.5) / 2 - 0.5, 0, n_in - 1)
+        i0 = np.floor(c).astype(int)
+        return i0, np.minimum(i0 + 1, n_in - 1), (c - i0).astype(np.float32)
+
+    a = np.asarray(a, np.float32)
+    y0, y1, fy = axis(H, a.shape[1])
+    x0, x1, fx = axis(W, a.shape[2])
+    rows = a[:, y0] * (1 - fy)[None, :, None] + a[:, y1] * fy[None, :, None]
+    return (rows[:, :, x0] * (1 - fx) + rows[:, :, x1] * fx).astype(np.float32)
+
+
+def coarse_eye_kernel(kernel: EyeKernel) -> EyeKernel:
+    """``kernel`` as an image of half the resolution sees it (:func:`~vrcorrect.solvers.admm.coarse_kernel`:
+    2x2 pixel blocks; the sums, hence the colour matrix, unchanged)."""
+    k = coarse_kernel(kernel.kernel)
+    return replace(kernel, kernel=k, matrix=k.sum(axis=(2, 3)), pixels_per_degree=kernel.pixels_per_degree / 2)
 
 
 def kernel_half_spectrum(kernel: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
@@ -167,15 +236,30 @@ class AdmmFrames:
         ``"half"`` or ``"single"`` storage (module docstring).
     rho, relaxation
         ADMM's penalty (relative to ``||K||^2``) and over-relaxation (``fast``'s).
+    cold_iterations
+        Half-resolution iterations that start a cold frame, where that level pays (module
+        docstring); 0: a cold frame starts from the target.
+    edge_band
+        Leave the edge band in place when the content moves (module docstring; the GPU always
+        does: ``False`` is the earlier warm start, kept for the benchmark's comparison).
     """
 
     def __init__(self, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int],
-                 precision: str = "half", rho: float = ADMM_RHO, relaxation: float = ADMM_RELAXATION):
+                 precision: str = "half", rho: float = ADMM_RHO, relaxation: float = ADMM_RELAXATION,
+                 cold_iterations: int = COARSE_ITERATIONS, edge_band: bool = True):
         if precision not in PRECISIONS:
             raise ValidationError("precision", precision, "one of " + ", ".join(PRECISIONS))
         H, W = (int(v) for v in shape)
         self.shape = (H, W)
         self.half = precision == "half"
+        self.radius = kernel.size // 2
+        self.edge_band = edge_band
+        self.cold_iterations = int(cold_iterations)
+        self.coarse: AdmmFrames | None = None
+        if self.cold_iterations > 0 and coarse_level_pays(H, W, kernel.size):
+            self.coarse = AdmmFrames(coarse_eye_kernel(kernel), None if reference is None else
+                                     coarse_eye_kernel(reference), ((H + 1) // 2, (W + 1) // 2), precision, rho,
+                                     relaxation, cold_iterations=0)
         size = max(kernel.size, reference.size if reference is not None else 1)
         self.grid = P = admm_grid(W, H, size)
         self.n2 = n2 = spectral_norm_squared(kernel.kernel)
@@ -241,12 +325,17 @@ class AdmmFrames:
         H, W = self.shape
         if self.w is None:
             self.w, self.q = T.copy(), self._on_grid(t)
+            if self.coarse is not None:
+                wc, qc = self.coarse.cold_state(pool_half(t), self.cold_iterations)
+                self.w[:, :H, :W] = upsample_double(wc, (H, W))
+                self.q[:, :H, :W] = upsample_double(qc, (H, W))
         else:
             w, q = self.w.copy(), self.q.copy()
             t_prev, T_prev = self.t_prev, self.T_prev
             if shift is not None and tuple(shift) != (0, 0):
+                band = edge_band((H, W), shift, self.radius) if self.edge_band else None
                 w[:, :H, :W], q[:, :H, :W], t_prev, T_prev = (
-                    self._reproject(a, shift, cold) for a, cold in
+                    self._reproject(a, shift, cold, band) for a, cold in
                     ((w[:, :H, :W], T[:, :H, :W]), (q[:, :H, :W], t), (t_prev, t), (T_prev, T[:, :H, :W])))
             w[:, :H, :W] += T[:, :H, :W] - T_prev
             q[:, :H, :W] += t - t_prev
@@ -254,9 +343,25 @@ class AdmmFrames:
         self.w, self.q = _store(self.w, self.half), _store(self.q, self.half)
         self.t_prev, self.T_prev = t, T[:, :H, :W].copy()
 
+    def cold_state(self, target_chw: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+        """The image's part of ``w`` and ``q`` after ``iterations`` iterations from a cold start on
+        the ``(3, H, W)`` target (stored as the GPU stores it); the state is left cold-started
+        afterwards (the next frame starts cold again)."""
+        H, W = self.shape
+        t, T, _ = self._targets(target_chw)
+        self.reset()
+        self.start(t, T)
+        for _ in range(iterations):
+            self.iterate(T)
+        out = self.w[:, :H, :W].copy(), self.q[:, :H, :W].copy()
+        self.reset()
+        return out
+
     @staticmethod
-    def _reproject(a: np.ndarray, shift: tuple[int, int], cold: np.ndarray) -> np.ndarray:
-        """``(3, H, W)`` ``a`` moved by ``shift = (dx, dy)``; pixels the motion exposes from ``cold``."""
+    def _reproject(a: np.ndarray, shift: tuple[int, int], cold: np.ndarray, band: np.ndarray | None = None
+                   ) -> np.ndarray:
+        """``(3, H, W)`` ``a`` moved by ``shift = (dx, dy)``; pixels the motion exposes from ``cold``;
+        pixels in ``band`` (an ``(H, W)`` mask, :func:`edge_band`) not moved."""
         dx, dy = (int(v) for v in shift)
         _, H, W = a.shape
         out = cold.copy()
@@ -264,6 +369,8 @@ class AdmmFrames:
             ys, yd = (slice(0, H - dy), slice(dy, H)) if dy >= 0 else (slice(-dy, H), slice(0, H + dy))
             xs, xd = (slice(0, W - dx), slice(dx, W)) if dx >= 0 else (slice(-dx, W), slice(0, W + dx))
             out[:, yd, xd] = a[:, ys, xs]
+        if band is not None:
+            out[:, band] = a[:, band]
         return out
 
     def iterate(self, T: np.ndarray) -> None:
@@ -285,19 +392,27 @@ class AdmmFrames:
         from the warm start (``cold``: from the target; ``shift``: the content's motion ``(dx,
         dy)``), then the guard."""
         H, W = self.shape
-        t = _store(np.ascontiguousarray(np.moveaxis(np.asarray(target, np.float32), 2, 0)), self.half)
-        if t.shape != (3, H, W):
+        t_chw = np.ascontiguousarray(np.moveaxis(np.asarray(target, np.float32), 2, 0))
+        if t_chw.shape != (3, H, W):
             raise ValidationError("target", f"shape {np.shape(target)}", f"({H}, {W}, 3)")
         if cold:
             self.reset()
-        T = self.target(t)
-        T_inside = _store(T[:, :H, :W], self.half)
-        T = T.copy()
-        T[:, :H, :W] = T_inside                      # the GPU keeps T inside the image as stored
+        t, T, T_inside = self._targets(t_chw)
         self.start(t, T, shift)
         for _ in range(iterations):
             self.iterate(T)
         return self.guard(t, T_inside)
+
+    def _targets(self, target_chw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The target ``t`` as stored, ``T`` on the grid (inside the image as stored, as the GPU keeps
+        it) and ``T``'s inside part."""
+        H, W = self.shape
+        t = _store(target_chw, self.half)
+        T = self.target(t)
+        T_inside = _store(T[:, :H, :W], self.half)
+        T = T.copy()
+        T[:, :H, :W] = T_inside
+        return t, T, T_inside
 
     def guard(self, t: np.ndarray, T_inside: np.ndarray) -> AdmmFrame:
         H, W = self.shape
@@ -385,10 +500,13 @@ class FistaFrames:
 
 
 def frames_twin(method: str, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int],
-                precision: str = "half") -> "AdmmFrames | FistaFrames":
-    """The CPU twin of the GPU's ``method`` (``"admm"`` or ``"fista"``) for one eye and image size."""
+                precision: str = "half", cold_iterations: int = COARSE_ITERATIONS,
+                edge_band: bool = True) -> "AdmmFrames | FistaFrames":
+    """The CPU twin of the GPU's ``method`` (``"admm"`` or ``"fista"``) for one eye and image size
+    (``cold_iterations``, ``edge_band``: ADMM's, see :class:`AdmmFrames`)."""
     if method == "admm":
-        return AdmmFrames(kernel, reference, shape, precision=precision)
+        return AdmmFrames(kernel, reference, shape, precision=precision, cold_iterations=cold_iterations,
+                          edge_band=edge_band)
     if method == "fista":
         return FistaFrames(kernel, reference, shape)
     raise ValidationError("method", method, "'admm' or 'fista' (the methods that iterate over frames)")

@@ -24,6 +24,12 @@ The state (``w``, ``q`` on the grid), the decoded target and ``T`` are double-bu
 reads the last frame's and writes the other (a reprojected warm start reads other texels than it
 writes), so nothing is copied and nothing is allocated after the first frame of a size.
 
+A cold frame (the first of a size, a cut, a new prescription) starts, where a half-resolution level
+pays, from ``cold_iterations`` ADMM iterations at half resolution: a second, unguarded
+:class:`AdmmStrategy` for the kernels 2x2 pixel blocks see (:attr:`AdmmStrategy.coarse`), fed the
+target's block means (``POOL``), whose ``w`` and ``q`` the start pass upsamples.  A reprojected warm
+start leaves the edge band where it is (:func:`vrcorrect.solvers.realtime.edge_band`).
+
 Layer 5: numpy, moderngl; never torch.
 """
 
@@ -102,7 +108,7 @@ class AdmmStrategy(Strategy):
     name = "admm"
     iterative = True
 
-    def __init__(self, *args: Any, **kwargs: Any):
+    def __init__(self, *args: Any, coarse_level: bool = False, **kwargs: Any):
         super().__init__(*args, **kwargs)
         from ...solvers.realtime import ADMM_RELAXATION, ADMM_RHO  # start-up time: scipy with the first eye
         from ...solvers.wiener import spectral_norm_squared  # the same
@@ -115,6 +121,11 @@ class AdmmStrategy(Strategy):
         self._iterations = self.options.iterations_per_frame
         self._sized: dict[Size, AdmmBuffers] = {}
         self._last: AdmmBuffers | None = None
+        self.coarse_level = coarse_level
+        """This is the coarse level of a cold start: no guard (its state is all that is used), and its
+        passes count in its caller's stage."""
+        self.coarse: AdmmStrategy | None = None
+        """The cold frames' half-resolution level, made on the first cold frame that uses it."""
         self.cold_start: Callable[["moderngl.Texture"], "moderngl.Texture"] | None = None
         """A first guess for a cold frame (the first of a size, a cut, a new prescription): called
         with the decoded target, returns a texture of the same size, linear light in [0, 1], that
@@ -166,6 +177,7 @@ class AdmmStrategy(Strategy):
 
         defines["MAX_PASSES"] = len(KINDS)
         programs = {"rows_start": program("ROWS_START"), "cols_admm": program("COLUMNS", MODE_ADMM=None),
+                    "pool": program("POOL"),
                     "rows_update": program("ROWS_UPDATE"), "rows_last": program("ROWS_UPDATE", LAST=None),
                     "rows_guard_input": program("ROWS_UPDATE", LAST=None, NO_UPDATE=None),
                     "cols_guard": program("COLUMNS", MODE_GUARD=None), "rows_guard": program("ROWS_GUARD"),
@@ -216,6 +228,40 @@ class AdmmStrategy(Strategy):
         self.decoder.run(src, target, (b.t[b.last_t], b.changed) if b.compared else None)
         return target
 
+    def _uses_coarse(self, size: Size) -> bool:
+        from ...solvers.admm import coarse_level_pays  # start-up time (as above)
+
+        return self.options.cold_iterations > 0 and coarse_level_pays(size[1], size[0], self.model.kernel.size)
+
+    def _coarse_start(self, linear: "moderngl.Texture") -> AdmmBuffers:
+        """A cold frame's coarse level: the target's block means into the coarse strategy, its
+        ``cold_iterations`` iterations from a cold start; returns its buffers (``w``, ``q`` current)."""
+        from dataclasses import replace
+
+        from ...solvers.realtime import coarse_eye_kernel  # start-up time (as above)
+
+        if self.coarse is None:
+            m = self.model
+            model = replace(m, kernel=coarse_eye_kernel(m.kernel),
+                            reference=None if m.reference is None else coarse_eye_kernel(m.reference))
+            options = replace(self.options, iterations_per_frame=self.options.cold_iterations, early_stop=False,
+                              cold_iterations=0)
+            self.coarse = AdmmStrategy(self.gpu, model, options, self.encoder, self.decoder, coarse_level=True)
+        W, H = linear.size
+        size = ((W + 1) // 2, (H + 1) // 2)
+        c = self.coarse
+        target = c.decode_target(size)
+        b = self._sized[(W, H)]
+        self.gpu.run("pool: coarse target", b.programs["pool"], groups_2d(size), sample={"u_t": linear},
+                     write={1: target})
+        c.reset()
+        c.correct(target, (0, 0))
+        return c._sized[size]
+
+    def _begin(self, stage: str) -> None:
+        if not self.coarse_level:
+            self.gpu.begin(stage)
+
     def _run(self, b: AdmmBuffers, kind: str, name: str, groups: int, **bindings: Any) -> None:
         """One pass; on a plain warm frame with the early stop on, its work groups come from the
         plan (``KINDS``)."""
@@ -240,7 +286,7 @@ class AdmmStrategy(Strategy):
         twiddle = {"u_twiddle": b.twiddle}
         k = self._iterations
         if b.compared:
-            gpu.begin("plan")
+            self._begin("plan")
             groups = {"rows_target": H, "cols_target": hx, "rows_start": ny, "cols_admm": hx, "rows_update": ny,
                       "rows_last": ny, "rows_guard_input": H, "cols_guard": hx, "rows_guard": H, "guard_final": 1}
             gpu.run("plan (early stop)", b.programs["plan"], (1, 1, 1),
@@ -248,13 +294,13 @@ class AdmmStrategy(Strategy):
                     uniforms={"u_passes": len(KINDS), "u_groups": tuple(groups[kind] for kind in KINDS),
                               "u_tolerance": EARLY_STOP_TOLERANCE})
         if b.reference is not None:
-            gpu.begin("target")
+            self._begin("target")
             self._run(b, "rows_target", "rows: target t", H, sample={**twiddle, "u_t": linear}, write={0: b.spec},
                       rows={0: (H, 3)})
             self._run(b, "cols_target", "columns: T = K_ref t", hx, sample={**twiddle, "u_kernel": b.reference},
                       modify={0: b.spec}, uniforms={"u_rows_in": H, "u_rows_out": ny}, rows={0: (H, 3)},
                       written={0: (ny, 3)}, round_trip=True)
-        gpu.begin("start")
+        self._begin("start")
         sample = {**twiddle, "u_t": linear}
         images: dict[str, dict[int, Any]] = {"write": {}, "read": {}, "modify": {}}
         if b.reference is not None:               # reads T's spectra (3 layers), writes the reflections' (6)
@@ -262,10 +308,18 @@ class AdmmStrategy(Strategy):
         else:
             images["write"][0] = b.spec
         start_given = cold and self.cold_start is not None
+        coarse = cold and not start_given and self._uses_coarse(size)
+        coarse_size = (0, 0)
         if start_given:
-            gpu.begin("cold start")
+            self._begin("cold start")
             sample["u_start"] = self.cold_start(linear)
-            gpu.begin("start")
+            self._begin("start")
+        elif coarse:
+            self._begin("cold start")
+            cb = self._coarse_start(linear)
+            images["read"].update({2: cb.w[cb.current], 3: cb.q[cb.current]})
+            coarse_size = ((W + 1) // 2, (H + 1) // 2)
+            self._begin("start")
         if cold:
             images["write"].update({1: b.T[new], 4: b.w[new], 5: b.q[new]})
         elif shifted:
@@ -278,10 +332,22 @@ class AdmmStrategy(Strategy):
         self._run(b, "rows_start", "rows: T, warm start, reflections", ny, sample=sample,
                   uniforms={"u_cold": cold, "u_in_place": not shifted, "u_start_given": start_given,
                             "u_shift": motion_gl if shifted else (0, 0),
+                            "u_band": self._band(motion_gl) if shifted else (0, 0),
+                            "u_coarse": coarse, "u_coarse_size": coarse_size,
                             "u_keep": self.keep,
                             "u_matrix": tuple(float(v) for v in self.model.kernel.matrix.T.ravel())},
                   rows={0: (ny, 3)}, written={0: (ny, 6)}, **images)
-        gpu.begin("iterations")
+        self._begin("iterations")
+        if self.coarse_level:                     # the state is the result: every iteration a plain update
+            for _ in range(k):
+                self._run(b, "cols_admm", "columns: ADMM solve", hx, sample={**twiddle, "u_kernel": b.kernel},
+                          modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.norm2},
+                          round_trip=True)
+                self._run(b, "rows_update", "rows: update, reflections", ny, sample={**twiddle, "u_T": b.T[new]},
+                          modify={0: b.spec, 2: b.w[new], 3: b.q[new]},
+                          uniforms={"u_keep": self.keep, "u_alpha": self.alpha})
+            b.current, b.last_t, b.warm = new, b.next_t, True
+            return linear
         for i in range(k):
             self._run(b, "cols_admm", "columns: ADMM solve", hx, sample={**twiddle, "u_kernel": b.kernel},
                       modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.norm2},
@@ -297,7 +363,7 @@ class AdmmStrategy(Strategy):
         if k == 0:
             self._run(b, "rows_guard_input", "rows: guard input", H, sample={**twiddle, "u_t": linear},
                       read={3: b.q[new]}, write={0: b.spec}, rows={0: (H, 6), 3: H})
-        gpu.begin("guard")
+        self._begin("guard")
         self._run(b, "cols_guard", "columns: K z, K t", hx, sample={**twiddle, "u_kernel": b.kernel},
                   modify={0: b.spec}, uniforms={"u_rows_in": H, "u_rows_out": H}, rows={0: (H, 6)},
                   written={0: (H, 6)}, round_trip=True)
@@ -311,6 +377,11 @@ class AdmmStrategy(Strategy):
         b.frames += 1
         self._last = b
         return linear
+
+    def _band(self, motion_gl: tuple[int, int]) -> tuple[int, int]:
+        """The edge band's width on each axis for a motion (:func:`~vrcorrect.solvers.realtime.edge_band`)."""
+        r = self.model.kernel.size // 2
+        return tuple(r + abs(int(d)) if d else 0 for d in motion_gl)
 
     def present(self, shown: "moderngl.Texture", dst: "moderngl.Framebuffer",
                 viewport: tuple[int, int, int, int] | None) -> None:
@@ -350,13 +421,17 @@ class AdmmStrategy(Strategy):
     def describe(self) -> dict[str, Any]:
         rt = self._iterations + 1 + (self.model.reference is not None)
         return {"iterations_per_frame": self._iterations, "precision": self.options.precision,
-                "fft_round_trips_per_frame": rt, "early_stop": self.options.early_stop}
+                "fft_round_trips_per_frame": rt, "early_stop": self.options.early_stop,
+                "cold_iterations": self.options.cold_iterations}
 
     def release(self) -> None:
         for b in self._sized.values():
             b.release()
         self._sized.clear()
         self._last = None
+        if self.coarse is not None:           # its buffers only: the encoder and decoder are shared
+            self.coarse.release()
+            self.coarse = None
         super().release()
 
 
