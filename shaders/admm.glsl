@@ -311,8 +311,9 @@ void main() {
 // written), or, u_in_place, from u_w, u_q, u_T themselves (an unshifted one: each texel read then
 // written by one invocation). A shifted start leaves the edge band (u_band: the pixels next to the
 // two edges across each axis the motion has) where it is: the edge's own correction belongs to the
-// window. A cold start with u_coarse reads the coarse level's w, q from u_w_src, u_q_src and
-// upsamples them (solvers.realtime.upsample_double, seen from the bottom-left).
+// window. A cold start with u_coarse reads the coarse level's w, q from u_w_src, u_q_src and its T
+// and t from u_T_prev, u_t_prev, and adds what the coarse iterations added to their start (w - T,
+// q - t), upsampled (solvers.realtime.upsample_double, seen from the bottom-left), to its own.
 #if defined ROWS_START
 uniform sampler2D u_t;                          // this frame's target
 uniform sampler2D u_t_prev;                     // the previous frame's target
@@ -345,20 +346,20 @@ void upsample_axis(int p, int o, int n, out int i0, out int i1, out float f) {
     f = c - float(i0);
 }
 
+// What the coarse iterations added to their cold start at coarse texel c: q - t, or w - T.
+vec3 coarse_added(ivec2 c, bool of_q) {
+    return of_q ? imageLoad(u_q_src, c).rgb - texelFetch(u_t_prev, c, 0).rgb
+                : imageLoad(u_w_src, c).rgb - texelFetch(u_T_prev, c, 0).rgb;
+}
+
 vec3 upsampled(ivec2 p, bool of_q) {
     ivec2 o = ivec2(0, 2 * u_coarse_size.y - IMG_H);     // rows counted from the bottom (POOL)
     int x0, x1, y0, y1;
     float fx, fy;
     upsample_axis(p.x, o.x, u_coarse_size.x, x0, x1, fx);
     upsample_axis(p.y, o.y, u_coarse_size.y, y0, y1, fy);
-    vec3 a, b, c, d;
-    if (of_q) {
-        a = imageLoad(u_q_src, ivec2(x0, y0)).rgb; b = imageLoad(u_q_src, ivec2(x0, y1)).rgb;
-        c = imageLoad(u_q_src, ivec2(x1, y0)).rgb; d = imageLoad(u_q_src, ivec2(x1, y1)).rgb;
-    } else {
-        a = imageLoad(u_w_src, ivec2(x0, y0)).rgb; b = imageLoad(u_w_src, ivec2(x0, y1)).rgb;
-        c = imageLoad(u_w_src, ivec2(x1, y0)).rgb; d = imageLoad(u_w_src, ivec2(x1, y1)).rgb;
-    }
+    vec3 a = coarse_added(ivec2(x0, y0), of_q), b = coarse_added(ivec2(x0, y1), of_q);
+    vec3 c = coarse_added(ivec2(x1, y0), of_q), d = coarse_added(ivec2(x1, y1), of_q);
     vec3 left = a * (1.0 - fy) + b * fy;                // rows first, as the twin
     vec3 right = c * (1.0 - fy) + d * fy;
     return left * (1.0 - fx) + right * fx;
@@ -398,8 +399,8 @@ void main() {
             w = Tp;
             q = (u_start_given && in_image) ? clamp(texelFetch(u_start, p, 0).rgb, 0.0, 1.0) : t;
             if (u_coarse && in_image) {
-                w = upsampled(p, false);
-                q = upsampled(p, true);
+                w += upsampled(p, false);
+                q += upsampled(p, true);
             }
         } else if (u_in_place) {
             w = imageLoad(u_w, p).rgb;

@@ -24,13 +24,15 @@ FFT round trip of six real channels each.
 * **Cold start** (the first frame, a cut, a new prescription): ``w = T`` on the whole grid (the
   target retina, ``K_ref t``, spilling into the surround), ``q = t`` inside and 0 outside: the
   target as the image with the retina it should make, zero duals.  Where a half-resolution level
-  pays (:func:`~vrcorrect.solvers.admm.coarse_level_pays`) the image's part of both comes instead
-  from ``cold_iterations`` ADMM iterations at half resolution, ``fast``'s own coarse-to-fine start
+  pays (:func:`~vrcorrect.solvers.admm.coarse_level_pays`) ``cold_iterations`` ADMM iterations at
+  half resolution come first, ``fast``'s coarse-to-fine start
   (:data:`~vrcorrect.solvers.admm.COARSE_ITERATIONS` by default): the same iteration on the 2x2
   block means of the target (:func:`pool_half`) with the kernels those blocks see
-  (:func:`~vrcorrect.solvers.admm.coarse_kernel`), cold-started, then its ``w`` and ``q``
-  upsampled (:func:`upsample_double`); a coarse iteration moves a quarter of the bytes of a full
-  one.  A shot's first frame then starts where ``fast``'s full-resolution iterations start.
+  (:func:`~vrcorrect.solvers.admm.coarse_kernel`), cold-started; what they add to their own cold
+  start (``w - T``, ``q - t``) is upsampled (:func:`upsample_double`) and added to this one's, so
+  the target's finest detail, which the blocks cannot hold, stays in the start (upsampling the
+  coarse state itself would blur it away: worse than the target alone for a mild blur).  A coarse
+  iteration moves a quarter of the bytes of a full one.
 * **Warm start**: the previous frame's ``w`` and ``q`` moved by the change of target inside the
   image, ``q += t - t_prev`` and ``w += T - T_prev`` (the surround, where neither the data term
   nor the box looks at the target, is kept as it is); with the content's whole-pixel motion ``d``
@@ -326,9 +328,9 @@ class AdmmFrames:
         if self.w is None:
             self.w, self.q = T.copy(), self._on_grid(t)
             if self.coarse is not None:
-                wc, qc = self.coarse.cold_state(pool_half(t), self.cold_iterations)
-                self.w[:, :H, :W] = upsample_double(wc, (H, W))
-                self.q[:, :H, :W] = upsample_double(qc, (H, W))
+                dw, dq = self.coarse.cold_correction(pool_half(t), self.cold_iterations)
+                self.w[:, :H, :W] += upsample_double(dw, (H, W))
+                self.q[:, :H, :W] += upsample_double(dq, (H, W))
         else:
             w, q = self.w.copy(), self.q.copy()
             t_prev, T_prev = self.t_prev, self.T_prev
@@ -343,17 +345,17 @@ class AdmmFrames:
         self.w, self.q = _store(self.w, self.half), _store(self.q, self.half)
         self.t_prev, self.T_prev = t, T[:, :H, :W].copy()
 
-    def cold_state(self, target_chw: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
-        """The image's part of ``w`` and ``q`` after ``iterations`` iterations from a cold start on
-        the ``(3, H, W)`` target (stored as the GPU stores it); the state is left cold-started
-        afterwards (the next frame starts cold again)."""
+    def cold_correction(self, target_chw: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+        """What ``iterations`` iterations from a cold start on the ``(3, H, W)`` target (stored as the
+        GPU stores it) add to the start inside the image: ``w - T`` and ``q - t``.  The state is left
+        cold (the next frame starts cold again)."""
         H, W = self.shape
-        t, T, _ = self._targets(target_chw)
+        t, T, T_inside = self._targets(target_chw)
         self.reset()
         self.start(t, T)
         for _ in range(iterations):
             self.iterate(T)
-        out = self.w[:, :H, :W].copy(), self.q[:, :H, :W].copy()
+        out = self.w[:, :H, :W] - T_inside, self.q[:, :H, :W] - t
         self.reset()
         return out
 

@@ -27,8 +27,9 @@ writes), so nothing is copied and nothing is allocated after the first frame of 
 A cold frame (the first of a size, a cut, a new prescription) starts, where a half-resolution level
 pays, from ``cold_iterations`` ADMM iterations at half resolution: a second, unguarded
 :class:`AdmmStrategy` for the kernels 2x2 pixel blocks see (:attr:`AdmmStrategy.coarse`), fed the
-target's block means (``POOL``), whose ``w`` and ``q`` the start pass upsamples.  A reprojected warm
-start leaves the edge band where it is (:func:`vrcorrect.solvers.realtime.edge_band`).
+target's block means (``POOL``); what its iterations added to their own cold start the start pass
+upsamples and adds to this one's.  A reprojected warm start leaves the edge band where it is
+(:func:`vrcorrect.solvers.realtime.edge_band`).
 
 Layer 5: numpy, moderngl; never torch.
 """
@@ -318,6 +319,7 @@ class AdmmStrategy(Strategy):
             self._begin("cold start")
             cb = self._coarse_start(linear)
             images["read"].update({2: cb.w[cb.current], 3: cb.q[cb.current]})
+            sample.update(u_t_prev=cb.t[cb.last_t], u_T_prev=cb.T[cb.current])
             coarse_size = ((W + 1) // 2, (H + 1) // 2)
             self._begin("start")
         if cold:
