@@ -122,6 +122,27 @@ def test_simulate_writes_png_of_same_size(colour_run):
     assert sorted(listing(dst.parent)) == ["in.png", "out.png"]
 
 
+def test_simulate_convolution_chooses_the_path_and_its_old_name_still_works(colour_run, tmp_path, capsys):
+    """``--convolution`` (``--method`` before: it read like correct's solver choice) picks the blur's
+    path, which --explain names; the FFT and direct paths agree to a code value; the old flag still
+    works but is no longer offered in --help."""
+    src = colour_run[3]
+    seen = {}
+    for path in ("fft", "direct"):
+        dst = tmp_path / f"{path}.png"
+        rc, out, err = run_quiet("simulate", src, "-o", dst, "--convolution", path, "--explain")
+        assert rc == 0, err
+        assert f"forward model: {path} path" in out
+        seen[path] = np.asarray(Image.open(dst), dtype=int)
+    assert np.abs(seen["fft"] - seen["direct"]).max() <= 1
+    rc, out, err = run_quiet("simulate", src, "-o", tmp_path / "old.png", "--method", "direct", "--explain")
+    assert rc == 0 and "forward model: direct path" in out
+    with pytest.raises(SystemExit):
+        cli.main(["simulate", "--help"])
+    text = capsys.readouterr().out
+    assert "--convolution {auto,fft,direct}" in text and "--method" not in text
+
+
 def test_simulate_explain_prints_the_decisions(colour_run):
     rc, out, _, _, _ = colour_run
     assert rc == 0

@@ -61,8 +61,11 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "installing Python packages into .venv (first run takes a few minutes) ..."
   .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip 2>&1 | grep -v "^WARNING: Location" || true
   # torch==2.13.0 (CPU build) is pinned in the 'solve' extra: pip takes it from this machine's disk.
-  .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[solve,metrics,test,realtime,ray]" 2>&1 \
-    | grep -v -e "^WARNING: Location" -e "BuildBackendWarning" || true
+  # setuptools warns at every editable install that a folder named like the package may shadow it
+  # (a generic banner: this checkout's vrcorrect/ is the package itself); silenced by its message
+  PYTHONWARNINGS="ignore:Editable installation" \
+    .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[solve,metrics,test,realtime,ray]" 2>&1 \
+    | grep -v -e "^WARNING: Location" || true
   .venv/bin/python -c "import vrcorrect, numpy, scipy, colour, PIL, torch, pytest, hypothesis, moderngl, glfw, onnxruntime, onnx, imageio_ffmpeg, mss, xr, ray" \
     || { echo "installation failed" >&2; exit 1; }
   # ColorVideoVDP (the primary perceptual score) must import beside the CPU build of torch.

@@ -86,7 +86,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "frame of a clip is simulated once unless --fps asks for another rate.")
     clips.add_input_output(p, "image file (PNG, JPEG, ...; sRGB code values)")
     add_model_options(p)
-    p.add_argument("--method", choices=("auto", "fft", "direct"), default="auto", help="convolution path")
+    p.add_argument("--convolution", dest="method", choices=("auto", "fft", "direct"), default="auto",
+                   help="how the blur is computed: by FFT, directly, or the faster of the two for the kernel (auto, "
+                        "the default); the result is the same to float precision")
+    # the flag's earlier name (before 0.2: it read like correct's --method, which picks the solver)
+    p.add_argument("--method", dest="method", choices=("auto", "fft", "direct"), help=argparse.SUPPRESS)
     p.add_argument("--explain", action="store_true", help="print every modelling decision")
     p.add_argument("--16bit", dest="sixteen_bit", action="store_true", help="write a 16-bit PNG")
     clips.add_clip_options(p, fps_help="a clip: resample it in time to F frames per second (source frames "
