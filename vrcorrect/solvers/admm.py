@@ -12,9 +12,10 @@ the kernel's spectral norm squared (at DC, since K >= 0), ``v`` per pixel, ``z``
 clipping; over-relaxed.
 
 Warm start, coarse to fine: a closed-form start on the coarsest of ``levels``
-halvings (the regularised inverse of the cone target, clipped and blended with the
-target as ``wiener`` does: :func:`_ridge_start`) (2x2 blocks, with the kernel those blocks see:
-:func:`coarse_kernel`), ADMM there, then on each finer level, upsampling the image
+halvings (2x2 blocks, with the kernel those blocks see: :func:`coarse_kernel`), the
+ridge inverse of the cone target (regularised toward zero, unlike ``wiener``'s), clipped
+and blended with the target by the weight that minimises the objective
+(:func:`_ridge_start`); ADMM there, then on each finer level, upsampling the image
 and ADMM's scaled duals both (with zero duals the finer level first loses ground;
 with the coarse duals its first iteration is already below what the paper's 100
 Adam steps reach on the evaluation images).
@@ -239,11 +240,17 @@ def _coarse_to_fine(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, l
 
 
 def _ridge_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, mu_rel: float = 0.03) -> np.ndarray:
-    """Closed-form start, as ``wiener`` builds it: the regularised inverse
-    ``(K^H K + mu I)^-1 K^H t`` of the cone target (``mu`` relative to ``||K||^2``) on a periodic
-    grid holding ``t`` mirror-filled around the image (one kernel width each side), clipped to
-    the box, then blended with the RGB target by the weight in [0, 1] that minimises the
-    objective (closed form), so the start is never worse than the target itself; float32."""
+    """Closed-form start: the ridge inverse of the cone target, regularised toward zero,
+    ``d = clip((K^H K + mu I)^-1 K^H t_lms) - t`` (``mu`` relative to ``||K||^2``), on a periodic
+    grid holding ``t_lms`` mirror-filled around the image (one kernel width each side), then the
+    blend ``t + beta d`` with the weight ``beta`` in [0, 1] that minimises the objective (closed
+    form, the blend ``wiener`` and the real-time guard use), so the start is never worse than the
+    target itself; float32.
+
+    Not ``wiener``'s inverse: that one is regularised toward the target (``F(0) = I``, a flat field
+    kept), this one toward zero, which shrinks a flat field along the colour matrix's weak
+    directions (docs/architecture.md, 'Regularise toward the target'); here it is only a starting
+    point, which the blend keeps no worse than the target and ADMM's iterations then improve."""
     _, H, W = t_lms.shape
     m = kernel.shape[-1]
     Q = (scipy.fft.next_fast_len(H + 2 * m, real=True), scipy.fft.next_fast_len(W + 2 * m, real=True))

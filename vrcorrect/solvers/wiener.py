@@ -353,8 +353,8 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
     [0, 1]); ``beta = 0`` is no correction, so the result is never worse than no correction.
     A fixed ``beta`` (the real-time path's, chosen once per eye) skips that choice.
     ``design=False`` skips the filter design and applies the untruncated inverse on a
-    mirror-filled FFT grid (cheaper for one image; ``fast`` warm-starts with it; the real-time
-    FFT path computes it on the GPU: ``grid`` and ``margin`` give its grid, see
+    mirror-filled FFT grid (cheaper for one image; the real-time FFT path computes it on the GPU:
+    ``grid`` and ``margin`` give its grid, see
     :func:`_exact_inverse_image`).  ``design=None`` (the default) models only what the image
     needs: it designs (and caches) the filters when their first design grid, 8 kernel widths, is
     no larger than the image's own padded grid, and otherwise applies the untruncated inverse on
