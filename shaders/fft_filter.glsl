@@ -167,7 +167,7 @@ void main() {
 // per-frame blend, blend.glsl, takes it from there); COMBINE_CLIP: clip(v); COMBINE_RESIDUAL:
 // v - u_other (K y - T); COMBINE_FISTA: v is the gradient K^H (K y - T) at u_y: one projected-
 // gradient step x' = clip(y - u_step v, 0, 1), then y' = x' + u_weight (x' - x), both in place
-// (vrcorrect.solvers.wiener.projected_gradient); else v as it is.
+// (vrcorrect.solvers.fista.projected_gradient); else v as it is.
 layout(rg32f, binding = 0) readonly uniform image2DArray u_filtered;
 uniform sampler2D u_linear_in;
 #if defined COMBINE_FISTA

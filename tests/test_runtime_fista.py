@@ -1,5 +1,5 @@
 """The GPU projected-gradient (FISTA) correction on a real headless GL context (Mesa llvmpipe in CI)
-against its CPU twin, ``vrcorrect.solvers.wiener.projected_gradient``: one iteration, k iterations,
+against its CPU twin, ``vrcorrect.solvers.fista.projected_gradient``: one iteration, k iterations,
 the warm start from frame to frame and its cold starts, the guard, flat fields on every GPU method,
 and the GPU timers' guard against a saturated query."""
 
@@ -19,7 +19,7 @@ from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector
 from vrcorrect.runtime.render import render_frame
 from vrcorrect.solvers import make_problem, objective, solve
-from vrcorrect.solvers.wiener import projected_gradient
+from vrcorrect.solvers.fista import projected_gradient
 
 SIZE = 64
 # The issue's case: a desktop monitor at its default distance, -2.00/-1.00x120, 4 mm pupil.

@@ -21,7 +21,7 @@ from vrcorrect.runtime.motion import CUT_CONFIDENCE, MotionTracker, estimate_shi
 from vrcorrect.runtime.scene import open_source
 from vrcorrect.runtime.sources import FolderSource, SourceSpec, start_motion, take_motion
 from vrcorrect.solvers import make_problem, objective, solve
-from vrcorrect.solvers.wiener import FistaState, projected_gradient
+from vrcorrect.solvers.fista import FistaState, projected_gradient
 
 SIZE, PAN, FRAMES, K = 96, 2, 10, 4
 EYE = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=120.0, pupil_diameter_mm=4.0)

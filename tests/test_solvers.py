@@ -283,7 +283,7 @@ def test_projected_gradient_steps_descend_and_stay_in_the_box(desktop, myope_ker
     """The learned model's pre-correction: more steps, lower objective; one step already below no
     correction; values in [0, 1]; zero steps, or a zero prescription, return the target."""
     from vrcorrect.solvers import objective
-    from vrcorrect.solvers.wiener import projected_gradient
+    from vrcorrect.solvers.fista import projected_gradient
 
     p = make_problem(photo("astronaut", 64), myope_kernel)
     values = [objective(projected_gradient(p, n), p) for n in (0, 1, 3, 10)]
@@ -299,7 +299,7 @@ def test_projected_gradient_steps_descend_and_stay_in_the_box(desktop, myope_ker
 
 def test_projected_gradient_plan_is_reused_and_checked(myope_kernel):
     """A renderer's kept plan gives the same image as a fresh one; a plan for another size is refused."""
-    from vrcorrect.solvers.wiener import gradient_plan, projected_gradient
+    from vrcorrect.solvers.fista import gradient_plan, projected_gradient
 
     p = make_problem(photo("astronaut", 48), myope_kernel)
     plan = gradient_plan(myope_kernel, (48, 48))

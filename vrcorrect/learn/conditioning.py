@@ -9,7 +9,7 @@ must not import torch, directly or through :mod:`vrcorrect.learn.model`.
   the pupil (mm), each scaled to about [-1, 1] by the training ranges.
 * :func:`precorrect` - the model's extra input channels: by default (``steps > 0``) a few
   accelerated projected-gradient steps on the true objective from the image
-  (:func:`vrcorrect.solvers.wiener.projected_gradient`); with ``steps = 0`` the eye's
+  (:func:`vrcorrect.solvers.fista.projected_gradient`); with ``steps = 0`` the eye's
   regularised inverse ``(K^H K + mu I)^-1 K^H K_ref`` applied to the image (mirrored borders)
   and clipped to [0, 1] (the ``wiener`` method's filters, without the blend).  The inverse
   alone is a poor start for strong eyes: on the default data set's eyes its best blend
@@ -28,7 +28,8 @@ import numpy as np
 from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
 from ..solvers import make_problem
-from ..solvers.wiener import apply_filters, correction_filters, gradient_plan, gradient_step, projected_gradient
+from ..solvers.fista import gradient_plan, gradient_step, projected_gradient
+from ..solvers.wiener import apply_filters, correction_filters
 from ..specs.prescription import EyeRx
 
 #: Regulariser of the pre-correction channels, relative to ``||K||^2`` (one of ``wiener``'s candidates).
@@ -136,7 +137,7 @@ def model_inputs(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKern
                  mu_rel: float = PRECORRECTION_MU_REL, steps: int = 0, gradient: bool = False,
                  plan=None) -> tuple[np.ndarray, np.ndarray | None]:
     """``(precorrected, gradient_step)`` for a model: :func:`precorrect`'s channels and, when the
-    model takes them (``gradient``), :func:`vrcorrect.solvers.wiener.gradient_step` at them
+    model takes them (``gradient``), :func:`vrcorrect.solvers.fista.gradient_step` at them
     (``None`` otherwise).  Both float32 ``(H, W, 3)``; the problem is built once.
     """
     if not gradient:
@@ -166,10 +167,10 @@ def precorrect(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel
     mu_rel
         Regulariser relative to ``||K||^2`` (``steps = 0`` only).
     steps
-        Accelerated projected-gradient steps (:func:`vrcorrect.solvers.wiener.projected_gradient`;
+        Accelerated projected-gradient steps (:func:`vrcorrect.solvers.fista.projected_gradient`;
         its objective is the glasses-on target of ``reference_kernel``, or ``A t``).
     plan
-        :func:`vrcorrect.solvers.wiener.gradient_plan` of ``kernel`` for this image size
+        :func:`vrcorrect.solvers.fista.gradient_plan` of ``kernel`` for this image size
         (``steps > 0`` only; None: built here).  A renderer keeps one per eye and frame size.
 
     Returns

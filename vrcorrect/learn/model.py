@@ -81,7 +81,7 @@ class UNetConfig:
         What the network's output is added to: ``"precorrected"`` (default) or ``"image"``.
     gradient_input
         Also feed the network the projected-gradient step at the pre-correction (3 more
-        channels, :func:`vrcorrect.solvers.wiener.gradient_step`): where the eye's objective
+        channels, :func:`vrcorrect.solvers.fista.gradient_step`): where the eye's objective
         still pulls, which the network can turn into a better step than ``1 / ||K||^2``.
     """
 

@@ -177,7 +177,7 @@ def objective_per_sample(x: torch.Tensor, kernel: torch.Tensor, target_lms: torc
 
 def gradient_step(x: torch.Tensor, kernel: torch.Tensor, target_lms: torch.Tensor) -> torch.Tensor:
     """``K^H (K x - t) / ||K||^2`` per sample (the model's optional gradient input), by autograd of
-    the objective: the same quantity :func:`vrcorrect.solvers.wiener.gradient_step` computes in numpy."""
+    the objective: the same quantity :func:`vrcorrect.solvers.fista.gradient_step` computes in numpy."""
     with torch.enable_grad():
         xg = x.detach().requires_grad_(True)
         d = retina(xg, kernel) - target_lms

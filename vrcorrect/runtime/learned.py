@@ -38,7 +38,7 @@ import numpy as np
 from ..learn.conditioning import SamplingRanges, check_eye, eye_features, model_inputs
 from ..physics.kernel import EyeKernel, build_kernel, build_reference_kernel
 from ..plumbing.errors import InputError, ValidationError
-from ..solvers.wiener import GradientPlan, gradient_plan
+from ..solvers.fista import GradientPlan, gradient_plan
 from ..specs.display import DisplayProfile
 from ..specs.prescription import EyeRx
 from .model_path import DEFAULT_MODEL, model_for_backend  # noqa: F401  (re-exported)

@@ -29,7 +29,8 @@ iterations on average and ends below ``paper``'s objective in 23 cases, at most 
 it in the others; 3e-3: 32 of 35, at most 0.25 % above, 10 iterations; 1e-3: 33 of 35, 14.
 
 float32 images, complex64 spectra, scipy's FFT (several times faster than torch's on
-this kind of CPU); numpy only, so ``fast`` runs wherever numpy does.
+this kind of CPU), the per-frequency algebra and the blur of :mod:`vrcorrect.solvers.spectral`;
+numpy only, so ``fast`` runs wherever numpy does.
 """
 
 from __future__ import annotations
@@ -37,10 +38,10 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
-import scipy.fft
 
 from . import Problem
-from .wiener import centred_kernel, gram, inv3, mirror_fill, padded_shape, spectral_norm_squared
+from .spectral import (Blur, apply3, conj_transpose, hermitian_inverse, irfft_grid, kernel_spectrum, margin_shape,
+                       mirror_fill, padded_shape, rfft_grid, spectral_norm_squared)
 
 __all__ = ["fast", "coarse_kernel", "coarse_level_pays", "COARSE_ITERATIONS"]
 
@@ -55,25 +56,6 @@ def coarse_level_pays(height: int, width: int, kernel_size: int) -> bool:
     """Whether a half-resolution level is worth solving first: the image at least 64 px on its short
     side and the kernel at least 9 px (a smaller kernel's blur is solved as fast at full size)."""
     return min(height, width) >= 64 and kernel_size >= 9
-
-
-def _rfft2(a: np.ndarray) -> np.ndarray:
-    return scipy.fft.rfft2(a, axes=(-2, -1), workers=-1)
-
-
-def _irfft2(a: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    return scipy.fft.irfft2(a, s=shape, axes=(-2, -1), workers=-1)
-
-
-def _matvec(M: np.ndarray, x: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> np.ndarray:
-    """Per-frequency ``out[i] = sum_j M[i, j] x[j]`` for ``M`` (3, 3, ...) and ``x`` (3, ...), into
-    preallocated ``out`` (not aliasing ``x``) with one scratch plane ``tmp``."""
-    for i in range(3):
-        np.multiply(M[i, 0], x[0], out=out[i])
-        for j in (1, 2):
-            np.multiply(M[i, j], x[j], out=tmp)
-            out[i] += tmp
-    return out
 
 
 def _admm(kernel: np.ndarray, t_lms: np.ndarray, z0: np.ndarray, rho: float, relaxation: float,
@@ -92,14 +74,11 @@ def _admm(kernel: np.ndarray, t_lms: np.ndarray, z0: np.ndarray, rho: float, rel
     """
     H, W = t_lms.shape[1:]
     P = padded_shape(H, W, kernel.shape[-1])
-    Kf = _rfft2(centred_kernel(kernel.astype(np.float32), P)).astype(np.complex64)  # (cones, primaries, P0, F1)
+    K = Blur(kernel_spectrum(kernel, P, np.float32), P, (H, W))           # complex64 (cones, primaries, P0, F1)
+    Kf = K.spectrum
     norm2 = spectral_norm_squared(kernel) * balance           # box split weighed against the retina split
-    M = gram(Kf)                                                           # planes, cofactor algebra:
-    for c in range(3):                                                     # far faster than batched
-        M[c, c] += norm2                                                   # np.linalg on 3x3 blocks
-    G = inv3(M)                                                            # (K^H K + n I)^-1
-    Kh = np.ascontiguousarray(np.conj(np.swapaxes(Kf, 0, 1)))              # (primaries, cones, P0, F1)
-    del M
+    G = hermitian_inverse(Kf, norm2)                                       # (K^H K + n I)^-1
+    Kh = np.ascontiguousarray(conj_transpose(Kf))                          # (primaries, cones, P0, F1)
     spec = Kf.shape[2:]
     R = np.empty((3,) + spec, np.complex64)                               # spectral buffers
     U = np.empty_like(R)
@@ -108,7 +87,7 @@ def _admm(kernel: np.ndarray, t_lms: np.ndarray, z0: np.ndarray, rho: float, rel
     a = np.empty((3,) + P, np.float32)                                    # spatial buffers
     z = np.zeros((3,) + P, np.float32)
     z[:, :H, :W] = z0
-    v = _irfft2(_matvec(Kf, _rfft2(z), KU, ctmp), P).astype(np.float32)
+    v = K.apply(z, KU, ctmp, crop=False).astype(np.float32)
     d1 = np.zeros_like(v)
     d2 = np.zeros_like(z)
     if duals is not None:
@@ -125,15 +104,15 @@ def _admm(kernel: np.ndarray, t_lms: np.ndarray, z0: np.ndarray, rho: float, rel
     best_z = np.empty((3, H, W), np.float32) if track else None
     for it in range(1, max_iterations + 1):
         np.subtract(v, d1, out=a)
-        _matvec(Kh, _rfft2(a), R, ctmp)                                    # R = K^H F(v - d1) + n F(z - d2)
+        apply3(Kh, rfft_grid(a, P), R, ctmp)                               # R = K^H F(v - d1) + n F(z - d2)
         np.subtract(z, d2, out=a)
-        Fb = _rfft2(a)
+        Fb = rfft_grid(a, P)
         Fb *= np.float32(norm2)
         R += Fb
-        _matvec(G, R, U, ctmp)                                             # U = (K^H K + n I)^-1 R
-        _matvec(Kf, U, KU, ctmp)
-        u = _irfft2(U, P)
-        Ku = _irfft2(KU, P)
+        apply3(G, R, U, ctmp)                                              # U = (K^H K + n I)^-1 R
+        apply3(Kf, U, KU, ctmp)
+        u = irfft_grid(U, P)
+        Ku = irfft_grid(KU, P)
         if relaxation != 1.0:                                              # over-relaxation (Eckstein & Bertsekas)
             Ku *= alpha
             Ku += np.multiply(v, beta, out=a)
@@ -155,7 +134,7 @@ def _admm(kernel: np.ndarray, t_lms: np.ndarray, z0: np.ndarray, rho: float, rel
         if progress is not None:
             progress(it, max_iterations)
         if track:                                                          # the objective at z
-            r = _irfft2(_matvec(Kf, _rfft2(z), KU, ctmp), P)[:, :H, :W] - t_lms
+            r = K.apply(z, KU, ctmp) - t_lms
             value = float(np.vdot(r, r)) / n
             history.append(value)
             if value < best:
@@ -253,21 +232,12 @@ def _ridge_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, mu_r
     point, which the blend keeps no worse than the target and ADMM's iterations then improve."""
     _, H, W = t_lms.shape
     m = kernel.shape[-1]
-    Q = (scipy.fft.next_fast_len(H + 2 * m, real=True), scipy.fft.next_fast_len(W + 2 * m, real=True))
-    Kf = _rfft2(centred_kernel(kernel.astype(np.float32), Q)).astype(np.complex64)
-    M = gram(Kf)
-    mu = mu_rel * spectral_norm_squared(kernel)
-    for c in range(3):
-        M[c, c] += mu
-    G = inv3(M)
-    tmp = np.empty(Kf.shape[2:], np.complex64)
-    R = _matvec(np.conj(np.swapaxes(Kf, 0, 1)), _rfft2(mirror_fill(t_lms, Q, m)), np.empty_like(Kf[0]), tmp)
-    d = np.clip(_irfft2(_matvec(G, R, np.empty_like(R), tmp), Q)[:, m:m + H, m:m + W], 0.0, 1.0) - target
-
-    def blur(x: np.ndarray) -> np.ndarray:                    # K x with a black surround (Q > H + m)
-        return _irfft2(_matvec(Kf, scipy.fft.rfft2(x, s=Q, axes=(-2, -1), workers=-1), R, tmp), Q)[:, :H, :W]
-
-    r0, Kd = blur(target) - t_lms, blur(d)
+    Q = margin_shape(H, W, m)
+    K = Blur(kernel_spectrum(kernel, Q, np.float32), Q, (H, W))          # black surround (Q > H + m)
+    G = hermitian_inverse(K.spectrum, mu_rel * spectral_norm_squared(kernel))
+    R = apply3(conj_transpose(K.spectrum), rfft_grid(mirror_fill(t_lms, Q, m), Q))
+    d = np.clip(irfft_grid(apply3(G, R), Q)[:, m:m + H, m:m + W], 0.0, 1.0) - target
+    r0, Kd = K.apply(target) - t_lms, K.apply(d)
     denom = float(np.vdot(Kd, Kd))
     beta = min(max(-float(np.vdot(r0, Kd)) / denom, 0.0), 1.0) if denom > 0 else 0.0
     return (target + np.float32(beta) * d).astype(np.float32)

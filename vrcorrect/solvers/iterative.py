@@ -26,11 +26,13 @@ import torch
 
 from ..physics.perception import OPPONENT_MATRIX
 from . import Problem, scale_contrast
-from .wiener import padded_shape
+from .spectral import padded_shape
 
 
 class FftOperator:
-    """``y_k = sum_c K[k, c] * x_c`` (linear convolution, zero outside, same size) and its adjoint."""
+    """``y_k = sum_c K[k, c] * x_c`` (linear convolution, zero outside, same size) and its adjoint:
+    :class:`vrcorrect.solvers.spectral.Blur` in torch, for autograd (the kernel zero-padded at the
+    grid's corner and the result cropped at its radius, rather than centred)."""
 
     def __init__(self, kernel: np.ndarray, height: int, width: int, dtype=torch.float32, device="cpu"):
         s = kernel.shape[-1]

@@ -59,6 +59,10 @@ Grid: powers of two (the GPU's radix-2 FFT), at least the image plus the kernel 
 direction, the image at the origin (:func:`admm_grid`); spectra are real-to-complex (half the
 columns), as the GPU keeps them.
 
+The per-frequency 3x3 algebra, the kernels' spectra and the FISTA twin's blur are
+:mod:`vrcorrect.solvers.spectral`'s; the ADMM twin's transforms are its own (they round where the
+GPU stores).
+
 Layer 4: numpy and scipy.fft; no torch.
 """
 
@@ -73,11 +77,12 @@ import scipy.fft
 from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
 from .admm import COARSE_ITERATIONS, coarse_kernel, coarse_level_pays
-from .wiener import centred_kernel, spectral_norm_squared
+from .fista import FistaState, gradient_plan, projected_gradient
+from . import make_problem
+from .spectral import Blur, apply3, conj_transpose, hermitian_inverse, kernel_spectrum, spectral_norm_squared
 
-__all__ = ["PRECISIONS", "ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "guard_weight", "kernel_half_spectrum",
-           "hermitian_inverse", "edge_band", "pool_half", "upsample_double", "coarse_eye_kernel", "AdmmFrames",
-           "AdmmFrame", "FistaFrames", "frames_twin"]
+__all__ = ["PRECISIONS", "ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "guard_weight", "edge_band", "pool_half", "upsample_double",
+           "coarse_eye_kernel", "AdmmFrames", "AdmmFrame", "FistaFrames", "frames_twin"]
 
 PRECISIONS = ("half", "single")
 ADMM_RHO = 0.2
@@ -163,12 +168,6 @@ def coarse_eye_kernel(kernel: EyeKernel) -> EyeKernel:
     return replace(kernel, kernel=k, matrix=k.sum(axis=(2, 3)), pixels_per_degree=kernel.pixels_per_degree / 2)
 
 
-def kernel_half_spectrum(kernel: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
-    """The real-to-complex spectrum ``(3, 3, NY, NX/2 + 1)`` of a ``(3, 3, s, s)`` kernel centred on
-    the origin of ``grid``, in float64 (complex128)."""
-    return scipy.fft.rfft2(centred_kernel(np.asarray(kernel, np.float64), grid), axes=(2, 3), workers=-1)
-
-
 def _store(a: np.ndarray, half: bool) -> np.ndarray:
     """What a texture holds of ``a``: float16 rounding (``half``) or float32."""
     return a.astype(np.float16).astype(np.float32) if half else a.astype(np.float32, copy=False)
@@ -178,35 +177,6 @@ def _store_complex(a: np.ndarray, half: bool) -> np.ndarray:
     if not half:
         return a.astype(np.complex64, copy=False)
     return (_store(a.real, True) + 1j * _store(a.imag, True)).astype(np.complex64)
-
-
-def _mv(M: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Per-frequency ``out[i] = sum_j M[i, j] x[j]`` (complex64)."""
-    out = np.empty((3,) + x.shape[1:], np.complex64)
-    for i in range(3):
-        out[i] = M[i, 0] * x[0] + M[i, 1] * x[1] + M[i, 2] * x[2]
-    return out
-
-
-def hermitian_inverse(Kf: np.ndarray, n: float) -> np.ndarray:
-    """``G = (K^H K + n I)^-1`` per frequency for ``K`` stored as ``(3, 3, ...)`` planes, by
-    cofactors of the Hermitian matrix (what the GPU computes in its column pass), complex64."""
-    K = Kf.astype(np.complex128)
-    M = np.empty((3, 3) + K.shape[2:], np.complex128)
-    for i in range(3):
-        for j in range(3):
-            M[i, j] = np.conj(K[0, i]) * K[0, j] + np.conj(K[1, i]) * K[1, j] + np.conj(K[2, i]) * K[2, j]
-        M[i, i] += n
-    a, b, c = M[0, 0], M[0, 1], M[0, 2]
-    d, e, f = M[1, 0], M[1, 1], M[1, 2]
-    g, h, i_ = M[2, 0], M[2, 1], M[2, 2]
-    A_, B_, C_ = e * i_ - f * h, f * g - d * i_, d * h - e * g
-    inv = 1.0 / (a * A_ + b * B_ + c * C_)
-    G = np.empty_like(M)
-    G[0, 0], G[0, 1], G[0, 2] = A_ * inv, (c * h - b * i_) * inv, (b * f - c * e) * inv
-    G[1, 0], G[1, 1], G[1, 2] = B_ * inv, (a * i_ - c * g) * inv, (c * d - a * f) * inv
-    G[2, 0], G[2, 1], G[2, 2] = C_ * inv, (b * g - a * h) * inv, (a * e - b * d) * inv
-    return G.astype(np.complex64)
 
 
 @dataclass(frozen=True)
@@ -268,8 +238,8 @@ class AdmmFrames:
         self.Kf = _store_complex(self._spectrum(kernel.kernel), self.half)
         self.Rf = None if reference is None else _store_complex(self._spectrum(reference.kernel), self.half)
         self.A = kernel.matrix.astype(np.float32)
-        self.G = hermitian_inverse(self.Kf, n2)
-        self.Kh = np.ascontiguousarray(np.conj(np.swapaxes(self.Kf, 0, 1)))
+        self.G = hermitian_inverse(self.Kf.astype(np.complex128), n2).astype(np.complex64)   # as the GPU's column pass
+        self.Kh = np.ascontiguousarray(conj_transpose(self.Kf))
         self.keep = np.float32(rho * n2 / (2.0 + rho * n2))
         self.alpha = np.float32(relaxation)
         self.inside = np.zeros(P, bool)
@@ -280,7 +250,7 @@ class AdmmFrames:
         self.T_prev: np.ndarray | None = None
 
     def _spectrum(self, k: np.ndarray) -> np.ndarray:
-        return kernel_half_spectrum(k, self.grid)
+        return kernel_spectrum(k, self.grid)
 
     # ------------------------------------------------------------------ transforms, as the GPU stores them
 
@@ -303,7 +273,7 @@ class AdmmFrames:
         """``T`` on the grid: ``K_ref t`` (or ``A t``) for a ``(3, H, W)`` target."""
         if self.Rf is None:
             return self._on_grid(np.einsum("ij,jyx->iyx", self.A, t))
-        return self._inverse(_mv(self.Rf, self._forward(self._on_grid(t))))
+        return self._inverse(apply3(self.Rf, self._forward(self._on_grid(t))))
 
     def prox(self, w: np.ndarray, T: np.ndarray) -> np.ndarray:
         out = w.copy()
@@ -381,9 +351,9 @@ class AdmmFrames:
         pw, pq = self.prox(w, T), self.proj(q)
         A1 = self._forward(2 * pw - w)
         A2 = self._forward(2 * pq - q)
-        R = _mv(self.Kh, A1) + np.float32(self.n2) * A2
-        U = _mv(self.G, R)
-        KU = _mv(self.Kf, U)
+        R = apply3(self.Kh, A1) + np.float32(self.n2) * A2
+        U = apply3(self.G, R)
+        KU = apply3(self.Kf, U)
         u, Ku = self._inverse(U), self._inverse(KU)
         self.w = _store(w + self.alpha * (Ku - pw), self.half)
         self.q = _store(q + self.alpha * (u - pq), self.half)
@@ -419,8 +389,8 @@ class AdmmFrames:
     def guard(self, t: np.ndarray, T_inside: np.ndarray) -> AdmmFrame:
         H, W = self.shape
         z = self.proj(self.q)[:, :H, :W]
-        Kz = self._inverse(_mv(self.Kf, self._forward(self._on_grid(z))))[:, :H, :W]
-        Kt = self._inverse(_mv(self.Kf, self._forward(self._on_grid(t))))[:, :H, :W]
+        Kz = self._inverse(apply3(self.Kf, self._forward(self._on_grid(z))))[:, :H, :W]
+        Kt = self._inverse(apply3(self.Kf, self._forward(self._on_grid(t))))[:, :H, :W]
         r0 = (Kt - T_inside).astype(np.float64)
         kd = (Kz - Kt).astype(np.float64)
         s_rk, s_kk, s_rr = float(np.vdot(r0, kd)), float(np.vdot(kd, kd)), float(np.vdot(r0, r0))
@@ -440,20 +410,18 @@ class FistaFrames:
     Each frame: the warm start (cold: ``x = y = t``; warm: ``x = clip(x + t - t_prev)``,
     ``y = y + t - t_prev``, FISTA's momentum kept; with the content's motion ``(dx, dy)`` both first
     reprojected, exposed pixels from ``t``), ``iterations`` steps of
-    :func:`~vrcorrect.solvers.wiener.projected_gradient` continued from that state, then the guard
+    :func:`~vrcorrect.solvers.fista.projected_gradient` continued from that state, then the guard
     (the best blend of ``x`` with ``t``).  float32 throughout, as the GPU (32-bit storage)."""
 
     def __init__(self, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int]):
-        from .wiener import gradient_plan
-
         H, W = (int(v) for v in shape)
         self.shape = (H, W)
         self.kernel, self.reference = kernel, reference
         self.plan = gradient_plan(kernel, (H, W))
         size = max(kernel.size, reference.size if reference is not None else 1)
         self.grid = admm_grid(W, H, size)
-        self.Kf = kernel_half_spectrum(kernel.kernel, self.grid)
-        self.Rf = None if reference is None else kernel_half_spectrum(reference.kernel, self.grid)
+        self.K = Blur(kernel_spectrum(kernel.kernel, self.grid), self.grid, (H, W))       # the guard's, float64
+        self.R = None if reference is None else Blur(kernel_spectrum(reference.kernel, self.grid), self.grid, (H, W))
         self.A = kernel.matrix
         self.state = None
         self.t_prev: np.ndarray | None = None
@@ -461,17 +429,8 @@ class FistaFrames:
     def reset(self) -> None:
         self.state = self.t_prev = None
 
-    def _blur(self, x: np.ndarray, spectrum: np.ndarray) -> np.ndarray:
-        H, W = self.shape
-        X = scipy.fft.rfft2(x.astype(np.float64), s=self.grid, axes=(-2, -1), workers=-1)
-        out = np.einsum("ijyx,jyx->iyx", spectrum, X)
-        return scipy.fft.irfft2(out, s=self.grid, axes=(-2, -1), workers=-1)[:, :H, :W]
-
     def frame(self, target: np.ndarray, iterations: int, shift: tuple[int, int] | None = None,
               cold: bool = False) -> AdmmFrame:
-        from . import make_problem
-        from .wiener import FistaState, projected_gradient
-
         H, W = self.shape
         t = np.ascontiguousarray(np.moveaxis(np.asarray(target, np.float32), 2, 0))
         if t.shape != (3, H, W):
@@ -489,9 +448,10 @@ class FistaFrames:
         x, self.state = projected_gradient(problem, iterations, self.plan, state=start, return_state=True)
         self.t_prev = t
         z = np.ascontiguousarray(np.moveaxis(x, 2, 0))
-        T = (np.einsum("ij,jyx->iyx", self.A, t) if self.Rf is None else self._blur(t, self.Rf))
-        r0 = self._blur(t, self.Kf) - T
-        kd = self._blur(z, self.Kf) - T - r0
+        t64 = t.astype(np.float64)
+        T = np.einsum("ij,jyx->iyx", self.A, t) if self.R is None else self.R.apply(t64)
+        r0 = self.K.apply(t64) - T
+        kd = self.K.apply(z.astype(np.float64)) - T - r0
         s_rk, s_kk, s_rr = float(np.vdot(r0, kd)), float(np.vdot(kd, kd)), float(np.vdot(r0, r0))
         beta = guard_weight(s_rk, s_kk, s_rr)
         n = float(r0.size)

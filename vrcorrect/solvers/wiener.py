@@ -1,4 +1,5 @@
-"""Closed-form correction in one pass (numpy only; the GLSL fallback's mathematics).
+"""The ``wiener`` method: closed-form correction in one pass (numpy only; the mathematics of the
+real-time one-pass filters, ``fft`` and ``separable``).
 
 Per spatial frequency f, with the eye's 3x3 kernel spectrum ``K(f)`` (cones x
 primaries) and the target operator ``T(f)`` (``A``, the target's cone image with
@@ -16,7 +17,8 @@ bank of 3 x 3 spatial filters, truncated to the smallest square holding all but
 ``tolerance`` of their absolute sum; the same taps run on the CPU (here, by FFT) and
 on the GPU (the runtime's separable low-rank passes), with mirrored image borders in
 both.  :func:`wiener` then clips ``v = F t`` to [0, 1] and blends it with the
-target by the weight that minimises the true objective (closed form).  ``mu``
+target by the weight that minimises the true objective (closed form; the blur ``K`` is
+:class:`~vrcorrect.solvers.spectral.Blur`).  ``mu``
 (relative to the largest eigenvalue of ``K^H K``) is chosen from a few values; the
 blend weight 0 is no correction, so the result is never worse than no correction.  Contrast
 compression of the target is the separate ``contrast`` option of every method.
@@ -25,7 +27,6 @@ compression of the target is the separate ``contrast`` option of every method.
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -33,84 +34,14 @@ import numpy as np
 import scipy.fft
 
 from ..physics.kernel import EyeKernel
-from ..plumbing.errors import ValidationError
-from ..vision.forward import check_image
 from . import Problem, scale_contrast
+from .spectral import (Blur, apply3, centred_kernel, irfft_grid, kernel_spectrum, margin_shape, mirror_fill,
+                       padded_shape, rfft_grid, spectral_norm_squared)
 
 DEFAULT_REGULARISATION = (0.03, 0.1, 0.3)
 DESCENT_STEP = 4.0
 MAX_DESIGN_GRID = 2048
 DESIGN_TOLERANCE = 1e-3       # largest discarded absolute sum of the filters of one output primary
-
-
-def padded_shape(height: int, width: int, kernel_size: int) -> tuple[int, int]:
-    """FFT size that holds a linear convolution of the image with the kernel without wrap-around."""
-    return (scipy.fft.next_fast_len(height + kernel_size - 1, real=True),
-            scipy.fft.next_fast_len(width + kernel_size - 1, real=True))
-
-
-def centred_kernel(kernel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """``(..., s, s)`` kernel zero-padded to ``shape`` with its centre wrapped to the origin,
-    so the circular convolution on that grid has no shift."""
-    s = kernel.shape[-1]
-    out = np.zeros(kernel.shape[:-2] + tuple(shape), dtype=kernel.dtype)
-    ys = (np.arange(s) - s // 2) % shape[0]
-    xs = (np.arange(s) - s // 2) % shape[1]
-    out[..., ys[:, None], xs[None, :]] = kernel
-    return out
-
-
-def spectral_norm_squared(kernel: np.ndarray) -> float:
-    """Largest eigenvalue of K^H K over all frequencies (the kernel's spectral norm squared).
-
-    The kernel is non-negative, so ``|K(f)| <= K(0) = A`` entrywise and, by
-    Perron-Frobenius monotonicity, ``||K(f)|| <= ||A||``: the maximum is at DC.
-    """
-    return float(np.linalg.norm(kernel.sum(axis=(-2, -1)), 2) ** 2)
-
-
-def inv3(M):
-    """Inverse of 3x3 matrices stored as planes ``(3, 3, ...)``, by cofactors (numpy or torch)."""
-    a, b, c = M[0, 0], M[0, 1], M[0, 2]
-    d, e, f = M[1, 0], M[1, 1], M[1, 2]
-    g, h, i = M[2, 0], M[2, 1], M[2, 2]
-    A_, B_, C_ = e * i - f * h, f * g - d * i, d * h - e * g
-    inv_det = 1.0 / (a * A_ + b * B_ + c * C_)
-    out = M * 0
-    out[0, 0], out[0, 1], out[0, 2] = A_ * inv_det, (c * h - b * i) * inv_det, (b * f - c * e) * inv_det
-    out[1, 0], out[1, 1], out[1, 2] = B_ * inv_det, (a * i - c * g) * inv_det, (c * d - a * f) * inv_det
-    out[2, 0], out[2, 1], out[2, 2] = C_ * inv_det, (b * g - a * h) * inv_det, (a * e - b * d) * inv_det
-    return out
-
-
-def matmul3(A, B, conj_a: bool = False, transpose_a: bool = False):
-    """Per-frequency product of 3x3 plane stacks: ``out[i, j] = sum_k op(A)[i, k] B[k, j]``
-    with ``op`` an optional conjugate and/or transpose (numpy or torch)."""
-    out = B * 0
-    for i in range(3):
-        for j in range(3):
-            acc = None
-            for k in range(3):
-                a = A[k, i] if transpose_a else A[i, k]
-                if conj_a:
-                    a = a.conj()
-                term = a * B[k, j]
-                acc = term if acc is None else acc + term
-            out[i, j] = acc
-    return out
-
-
-def apply3(M, x):
-    """Per-frequency matrix-vector product ``out[i] = sum_j M[i, j] x[j]`` (numpy or torch)."""
-    out = x * 0
-    for i in range(3):
-        out[i] = M[i, 0] * x[0] + M[i, 1] * x[1] + M[i, 2] * x[2]
-    return out
-
-
-def gram(Kf):
-    """``K^H K`` per frequency for spectra stored as planes ``(cones, primaries, ...)``."""
-    return matmul3(Kf, Kf, conj_a=True, transpose_a=True)
 
 
 @dataclass(frozen=True, eq=False)
@@ -188,25 +119,10 @@ def inverse_spectrum(kernel: EyeKernel, mu_rel: float, shape: tuple[int, int],
                              full=True)
 
 
-def mirror_fill(image_chw: np.ndarray, shape: tuple[int, int], margin: int) -> np.ndarray:
-    """The image on a periodic ``shape`` grid at offset ``(margin, margin)``, the rest of the grid
-    filled by mirrored repeat (edge pixel repeated, period twice the image)."""
-    _, H, W = image_chw.shape
-
-    def mirror(i, n):
-        m = np.mod(i, 2 * n)
-        return np.where(m < n, m, 2 * n - 1 - m)
-
-    ys = mirror(np.arange(shape[0]) - margin, H)
-    xs = mirror(np.arange(shape[1]) - margin, W)
-    return image_chw[:, ys[:, None], xs[None, :]]
-
-
 def _regularised_inverse(kernel: EyeKernel, reference_kernel: EyeKernel | None, mu: float,
                          shape: tuple[int, int]) -> np.ndarray:
     """Spatial ``F`` on a periodic ``shape`` grid, origin-centred, ``(3, 3, *shape)`` float64."""
-    return scipy.fft.irfft2(_inverse_spectrum(kernel, reference_kernel, mu, shape), s=shape, axes=(2, 3),
-                            workers=-1)
+    return irfft_grid(_inverse_spectrum(kernel, reference_kernel, mu, shape), shape)
 
 
 def _exact_inverse_image(image_chw: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel | None,
@@ -216,11 +132,9 @@ def _exact_inverse_image(image_chw: np.ndarray, kernel: EyeKernel, reference_ker
     size).  The real-time FFT path computes exactly this on its power-of-two grid."""
     _, H, W = image_chw.shape
     m = margin if margin is not None else max(kernel.size, reference_kernel.size if reference_kernel is not None else 1)
-    Q = grid if grid is not None else (scipy.fft.next_fast_len(H + 2 * m, real=True),
-                                       scipy.fft.next_fast_len(W + 2 * m, real=True))
-    X = scipy.fft.rfft2(mirror_fill(image_chw.astype(np.float64), Q, m), axes=(1, 2), workers=-1)
-    y = scipy.fft.irfft2(apply3(_inverse_spectrum(kernel, reference_kernel, mu, Q), X), s=Q, axes=(1, 2),
-                         workers=-1)
+    Q = grid if grid is not None else margin_shape(H, W, m)
+    X = rfft_grid(mirror_fill(image_chw.astype(np.float64), Q, m), Q)
+    y = irfft_grid(apply3(_inverse_spectrum(kernel, reference_kernel, mu, Q), X), Q)
     return y[:, m:m + H, m:m + W]
 
 
@@ -279,34 +193,11 @@ def apply_filters(image_chw: np.ndarray, taps: np.ndarray) -> np.ndarray:
     numpy's ``symmetric``, OpenGL's ``MIRRORED_REPEAT``), by FFT; float32 ``(3, H, W)``."""
     _, H, W = image_chw.shape
     r = taps.shape[-1] // 2
-    Q = (scipy.fft.next_fast_len(H + 2 * r, real=True), scipy.fft.next_fast_len(W + 2 * r, real=True))
+    Q = margin_shape(H, W, r)
     x = np.pad(image_chw.astype(np.float32), ((0, 0), (r, r), (r, r)), mode="symmetric")
-    X = scipy.fft.rfft2(x, s=Q, axes=(1, 2), workers=-1)
-    Ff = scipy.fft.rfft2(centred_kernel(taps, Q).astype(np.float32), axes=(2, 3), workers=-1)
-    y = scipy.fft.irfft2(apply3(Ff, X), s=Q, axes=(1, 2), workers=-1)
+    X = rfft_grid(x, Q)
+    y = irfft_grid(apply3(kernel_spectrum(taps, Q, np.float32), X), Q)
     return y[:, r:r + H, r:r + W].astype(np.float32)
-
-
-class _FastObjective:
-    """The objective with the kernel's spectrum computed once (exact linear convolution, zero outside)."""
-
-    def __init__(self, problem: Problem, Kf: np.ndarray, P: tuple[int, int]):
-        self.Kf, self.P = Kf, P
-        self.H, self.W = problem.target.shape[:2]
-        self.t = np.moveaxis(problem.target_lms.astype(np.float64), 2, 0)
-
-    def residual(self, x_chw: np.ndarray, offset: bool = True) -> np.ndarray:
-        """``K x - t`` on the image (or ``K x`` without ``offset``), (3, H, W)."""
-        X = scipy.fft.rfft2(x_chw, s=self.P, axes=(1, 2), workers=-1)
-        y = scipy.fft.irfft2(apply3(self.Kf, X), s=self.P, axes=(1, 2), workers=-1)
-        y = y[:, :self.H, :self.W]
-        return y - self.t if offset else y
-
-    def adjoint(self, r: np.ndarray) -> np.ndarray:
-        """``K^H C^H r``: the residual (3 cones, H, W) back on the image's primaries (3, H, W)."""
-        R = scipy.fft.rfft2(r, s=self.P, axes=(1, 2), workers=-1)
-        y = scipy.fft.irfft2(apply3(np.conj(np.swapaxes(self.Kf, 0, 1)), R), s=self.P, axes=(1, 2), workers=-1)
-        return y[:, :self.H, :self.W]
 
 
 def _best_on_simplex(r0: np.ndarray, dirs: list[np.ndarray]) -> tuple[list[float], float]:
@@ -380,17 +271,17 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
     P = padded_shape(H, W, problem.kernel.size)
     if design is None:
         design = _first_design_grid(problem.kernel, problem.reference_kernel) <= max(P)
-    Kf = scipy.fft.rfft2(centred_kernel(problem.kernel.kernel, P), axes=(2, 3), workers=-1)   # (3, 3, P0, F1)
-    f = _FastObjective(problem, Kf, P)
+    K = Blur.of(problem.kernel.kernel, (H, W), P)                     # exact, black outside the image
+    t_lms = np.moveaxis(problem.target_lms.astype(np.float64), 2, 0)
     t_rgb = np.moveaxis(problem.target.astype(np.float64), 2, 0)
     t_in = np.moveaxis(scale_contrast(problem.target, problem.contrast), 2, 0)
-    r0 = f.residual(t_rgb)
+    r0 = K.apply(t_rgb) - t_lms
     best = (float(np.mean(r0 * r0)), t_rgb, {"chosen": "no correction", "beta": 0.0, "mu_rel": None})
     step_dir = step_K = None
     if descent and beta is None:
         s = DESCENT_STEP / spectral_norm_squared(problem.kernel.kernel)
-        step_dir = np.clip(t_rgb - s * f.adjoint(r0), 0.0, 1.0) - t_rgb
-        step_K = f.residual(step_dir, offset=False)
+        step_dir = np.clip(t_rgb - s * K.adjoint(r0), 0.0, 1.0) - t_rgb
+        step_K = K.apply(step_dir)
     tried = []
     for mu_rel in regularisation:
         if design:
@@ -402,7 +293,7 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
             v = _exact_inverse_image(t_in, problem.kernel, problem.reference_kernel, mu_rel * lam_max, grid, margin)
             size, tail = None, 0.0
         d = np.clip(v, 0.0, 1.0) - t_rgb
-        Kd = f.residual(d, offset=False)
+        Kd = K.apply(d)
         b2 = 0.0
         if beta is not None:
             b = float(beta)
@@ -425,134 +316,3 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
     settings = dict(best[2])
     settings["candidates"] = tried
     return np.clip(np.moveaxis(best[1], 0, 2), 0.0, 1.0).astype(np.float32), settings
-
-
-@dataclass(frozen=True)
-class GradientPlan:
-    """What :func:`projected_gradient` needs of the kernel for one image size, computed once.
-
-    Attributes
-    ----------
-    shape
-        The image's ``(H, W)``.
-    padded
-        The FFT size (linear convolution, black outside the image).
-    spectrum
-        The kernel's spectrum ``(3, 3, Py, Px // 2 + 1)`` complex64 (from float64).
-    step
-        ``1 / ||K||^2`` (the gradient's Lipschitz constant), float32.
-    """
-
-    shape: tuple[int, int]
-    padded: tuple[int, int]
-    spectrum: np.ndarray
-    step: np.float32
-
-
-def gradient_plan(kernel: EyeKernel, shape: tuple[int, int]) -> GradientPlan:
-    """The kernel's spectrum and step for images of ``shape`` (a renderer keeps one per eye and size)."""
-    H, W = (int(v) for v in shape)
-    P = padded_shape(H, W, kernel.size)
-    Kf = scipy.fft.rfft2(centred_kernel(kernel.kernel, P), axes=(2, 3), workers=-1).astype(np.complex64)
-    return GradientPlan((H, W), P, Kf, np.float32(1.0 / spectral_norm_squared(kernel.kernel)))
-
-
-def _image_objective(problem: Problem, plan: GradientPlan | None) -> tuple[_FastObjective, GradientPlan]:
-    """The objective for an image pass (float32 planes, complex64 spectra) from ``plan``, which is
-    built here when ``None`` and must be for the problem's image size otherwise."""
-    H, W = problem.target.shape[:2]
-    if plan is None:
-        plan = gradient_plan(problem.kernel, (H, W))
-    elif plan.shape != (H, W) or plan.spectrum.shape[:2] != (3, 3):
-        raise ValidationError("plan", f"for {plan.shape[0]}x{plan.shape[1]}", f"a plan for {H}x{W} images")
-    f = _FastObjective(problem, plan.spectrum, plan.padded)
-    f.t = f.t.astype(np.float32)
-    return f, plan
-
-
-def gradient_step(problem: Problem, x: np.ndarray, plan: GradientPlan | None = None) -> np.ndarray:
-    """``step * K^H (K x - t)``: the displacement a projected-gradient step from ``x`` would take
-    before clipping (the gradient of ``J/2`` scaled by ``1 / ||K||^2``), float32 ``(H, W, 3)``.
-
-    The learned model's optional fourth input: where the eye's objective still wants ``x`` to go.
-    """
-    f, plan = _image_objective(problem, plan)
-    xc = np.ascontiguousarray(np.moveaxis(x, 2, 0), dtype=np.float32)
-    g = plan.step * f.adjoint(f.residual(xc))
-    return np.ascontiguousarray(np.moveaxis(g, 0, 2), dtype=np.float32)
-
-
-@dataclass(frozen=True, eq=False)
-class FistaState:
-    """Where :func:`projected_gradient` stopped, to continue from there (the GPU keeps the same
-    per eye from frame to frame).
-
-    Attributes
-    ----------
-    x
-        The current iterate, float32 ``(3, H, W)`` in [0, 1] (what is displayed, before the guard).
-    y
-        The extrapolated point the next gradient is taken at, float32 ``(3, H, W)``.
-    momentum
-        FISTA's ``t_k`` (1 at a cold start; the next weight is ``(t_k - 1) / t_{k+1}``).
-    """
-
-    x: np.ndarray
-    y: np.ndarray
-    momentum: float
-
-
-def fista_momentum(momentum: float) -> tuple[float, float]:
-    """FISTA's next ``t_{k+1} = (1 + sqrt(1 + 4 t_k^2)) / 2`` and the extrapolation weight
-    ``(t_k - 1) / t_{k+1}`` (the GPU iteration takes the weight as a uniform)."""
-    nxt = (1.0 + math.sqrt(1.0 + 4.0 * momentum * momentum)) / 2.0
-    return nxt, (momentum - 1.0) / nxt
-
-
-def projected_gradient(problem: Problem, steps: int, plan: GradientPlan | None = None,
-                       start: np.ndarray | None = None, state: FistaState | None = None,
-                       return_state: bool = False):
-    """``steps`` accelerated projected-gradient (FISTA) steps on the true objective from the target.
-
-    The step is ``1 / ||K||^2`` (the gradient's Lipschitz constant), the box is [0, 1], the
-    convolution is exact and linear (black outside the image), as in :func:`vrcorrect.solvers.objective`.
-    Each step costs two 3x3-channel FFT convolutions (``K`` and ``K^H``).  A fixed step
-    count makes it a closed form of known cost: on the learned model's data (quest2, eyes
-    over -6..+6 D sphere, 0..-3 D cylinder, 2-6 mm pupils, 128^2 crops) 1, 3 and 10 steps
-    close about 30 %, 50 % and 80 % of the objective gap between no correction and ``fast``.
-
-    ``plan`` (:func:`gradient_plan` of the problem's kernel and image size) skips the kernel's
-    FFT, a fifth of the cost of three steps; without it the plan is built here.
-
-    ``start`` (``(H, W, 3)`` in [0, 1]) starts from that image instead of the target, with the
-    momentum reset; ``state`` (a :class:`FistaState` returned earlier, for this image size)
-    continues where that run stopped, momentum included, so ``n`` steps then ``m`` more from its
-    state equal ``n + m`` steps (the CPU twin of the GPU's frame-to-frame warm start).  Not both.
-    ``return_state`` returns ``(image, state)``.
-
-    Computed in float32 (complex64 spectra; the kernel's spectrum and norm in float64 first).
-    Returns float32 ``(H, W, 3)`` in [0, 1] (the start itself for ``steps == 0`` or a 1x1 kernel).
-    """
-    if start is not None and state is not None:
-        raise ValidationError("start", "given with state", "a start image or a state to continue, not both")
-    H, W = problem.target.shape[:2]
-    if state is not None:
-        if state.x.shape != (3, H, W) or state.y.shape != (3, H, W):
-            raise ValidationError("state", f"for {state.x.shape[1]}x{state.x.shape[2]}", f"a state for {H}x{W} images")
-        x, y, momentum = state.x, state.y, float(state.momentum)
-    else:
-        first = problem.target if start is None else check_image(start, "start")
-        if first.shape != (H, W, 3):
-            raise ValidationError("start", f"shape {first.shape}", f"the target's shape {(H, W, 3)}")
-        x = y = np.ascontiguousarray(np.moveaxis(first, 2, 0), dtype=np.float32)
-        momentum = 1.0
-    if steps > 0 and problem.kernel.size > 1:
-        f, plan = _image_objective(problem, plan)
-        step = plan.step
-        for _ in range(steps):
-            x_new = np.clip(y - step * f.adjoint(f.residual(y)), 0.0, 1.0)
-            momentum, weight = fista_momentum(momentum)
-            y = x_new + np.float32(weight) * (x_new - x)
-            x = x_new
-    image = np.ascontiguousarray(np.moveaxis(x, 0, 2), dtype=np.float32)
-    return (image, FistaState(x=x, y=y, momentum=momentum)) if return_state else image

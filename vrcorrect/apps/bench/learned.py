@@ -37,7 +37,7 @@ from ...plumbing.images import prepare_image
 from ...runtime.learned import LearnedModel
 from ...runtime.onnx_backend import small_onnx_model
 from ...solvers import make_problem, objective, solve
-from ...solvers.wiener import gradient_plan, projected_gradient
+from ...solvers.fista import gradient_plan, projected_gradient
 from ...specs.display import decode, get_display
 from ...vision.metrics import evaluate_seen
 from ..plots import pyplot, save_figure

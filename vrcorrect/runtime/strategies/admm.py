@@ -112,7 +112,7 @@ class AdmmStrategy(Strategy):
     def __init__(self, *args: Any, coarse_level: bool = False, **kwargs: Any):
         super().__init__(*args, **kwargs)
         from ...solvers.realtime import ADMM_RELAXATION, ADMM_RHO  # start-up time: scipy with the first eye
-        from ...solvers.wiener import spectral_norm_squared  # the same
+        from ...solvers.spectral import spectral_norm_squared  # the same
 
         m = self.model
         self.half = self.options.precision == "half"
@@ -445,8 +445,8 @@ def half_spectrum(kernel: np.ndarray, grid: tuple[int, int], dtype: str) -> np.n
     """The real-to-complex spectrum of a ``(3, 3, s, s)`` kernel in GL orientation (vertically
     flipped) on ``grid``, centred on the origin, as the texture holds it: ``(9, NY, NX/2 + 1, 2)``
     (real, imaginary) in float16 or float32 (``dtype`` ``"f2"``/``"f4"``), from float64."""
-    from ...solvers.realtime import kernel_half_spectrum  # start-up time (as above)
+    from ...solvers.spectral import kernel_spectrum  # start-up time (as above)
 
-    Kf = kernel_half_spectrum(np.ascontiguousarray(kernel[:, :, ::-1, :]), grid)
+    Kf = kernel_spectrum(np.ascontiguousarray(kernel[:, :, ::-1, :]), grid)
     out = np.stack([Kf.real, Kf.imag], axis=-1).reshape(9, grid[0], grid[1] // 2 + 1, 2)
     return out.astype(np.float16 if dtype == "f2" else np.float32)

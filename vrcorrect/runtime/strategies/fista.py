@@ -7,7 +7,7 @@ cropped to the image: :func:`vrcorrect.solvers.objective`), ``T = K_ref t`` (gla
 ``A t`` (ideal).  Each iteration is two FFT round trips, ``r = K y - T`` then ``K^H r`` (the exact
 adjoint: the conjugate transpose of ``K``'s 3x3 spectrum, the same zero fill and crop), then
 ``x' = clip(y - r' / ||K||^2, 0, 1)`` and FISTA's extrapolation ``y' = x' + w (x' - x)``: the GPU
-twin of :func:`vrcorrect.solvers.wiener.projected_gradient` (one GL iteration equals one CPU step
+twin of :func:`vrcorrect.solvers.fista.projected_gradient` (one GL iteration equals one CPU step
 to float precision).  Per image size the solution ``x``, the extrapolated point ``y`` and the
 previous frame's target stay on the GPU, the momentum on the CPU; each frame runs
 ``iterations_per_frame`` iterations from the previous frame's solution moved by the change of the
@@ -74,7 +74,8 @@ class FistaStrategy(Strategy):
 
     def __init__(self, *args: Any, **kwargs: Any):
         super().__init__(*args, **kwargs)
-        from ...solvers.wiener import fista_momentum, spectral_norm_squared  # start-up time: scipy with the first eye
+        from ...solvers.fista import fista_momentum  # start-up time: scipy with the first eye
+        from ...solvers.spectral import spectral_norm_squared  # the same
 
         self._next_momentum = fista_momentum
         self.start = compile_compute(self.ctx, "fista.glsl")

@@ -21,7 +21,7 @@ __all__ = ["kernel_spectra", "simulation_spectrum"]
 def kernel_spectra(model: "EyeModel", grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """``K(f)`` and the target operator ``T(f)`` (``K_ref(f)`` with glasses, else the colour
     matrix ``A`` at every frequency), full complex ``(3, 3, NY, NX)`` spectra on ``grid``."""
-    from ...solvers.wiener import centred_kernel  # start-up time: scipy with the first eye
+    from ...solvers.spectral import centred_kernel  # start-up time: scipy with the first eye
 
     k = model.kernel
     Kf = np.fft.fft2(centred_kernel(k.kernel, grid), axes=(2, 3))
@@ -32,7 +32,7 @@ def kernel_spectra(model: "EyeModel", grid: tuple[int, int]) -> tuple[np.ndarray
 
 def simulation_spectrum(model: "EyeModel", grid: tuple[int, int]) -> np.ndarray:
     """The forward model's bank ``A^-1 K(f)`` (what the eye sees, in display RGB) on ``grid``."""
-    from ...solvers.wiener import centred_kernel  # start-up time (as above)
+    from ...solvers.spectral import centred_kernel  # start-up time (as above)
 
     k = model.kernel
     Kf = np.fft.fft2(centred_kernel(k.kernel, grid), axes=(2, 3))
