@@ -107,8 +107,8 @@ def test_glsl_correction_matches_cpu_wiener(gl, evaluation_corrector, images):
             extra = dict(design=False, grid=grid, margin=margin)
         else:
             extra = {}
-        cpu, _ = wiener(make_problem(target, m.kernel, ref_kernel), regularisation=(m.mu_rel,), beta=m.beta,
-                        **extra)
+        cpu = wiener(make_problem(target, m.kernel, ref_kernel), regularisation=(m.mu_rel,), beta=m.beta,
+                     **extra).image
         diff = np.abs(gpu.astype(int) - to_u8(encode("srgb", cpu)).astype(int))
         worst = max(worst, int(diff.max()))
         assert not np.array_equal(gpu, img), name                  # it did correct
@@ -139,8 +139,8 @@ def test_per_frame_blend_matches_cpu_wiener_and_never_loses(gl, images):
             target = decode("srgb", img.astype(np.float32) / 255)
             gpu = run(gl, c, img)
             p = make_problem(target, m.kernel, m.reference)
-            cpu, settings = wiener(p, regularisation=(m.mu_rel,), design=False, grid=grid, margin=margin,
-                                   descent=False)
+            found = wiener(p, regularisation=(m.mu_rel,), design=False, grid=grid, margin=margin, descent=False)
+            cpu, settings = found.image, found.settings
             assert abs(c.last_blend((SIZE, SIZE)) - settings["beta"]) <= 1e-3, name
             assert np.abs(gpu.astype(int) - to_u8(encode("srgb", cpu)).astype(int)).max() <= 2, name
             shown = decode("srgb", gpu.astype(np.float32) / 255)

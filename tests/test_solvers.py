@@ -271,8 +271,8 @@ def test_apply_filters_is_a_convolution_with_mirrored_borders():
 def test_wiener_with_fixed_settings_uses_them(desktop, myope_kernel):
     target = decode(desktop, photo("coffee", 64))
     p = make_problem(target, myope_kernel)
-    img, settings = __import__("vrcorrect.solvers.wiener", fromlist=["wiener"]).wiener(
-        p, regularisation=(0.1,), beta=0.25)
+    found = __import__("vrcorrect.solvers.wiener", fromlist=["wiener"]).wiener(p, regularisation=(0.1,), beta=0.25)
+    img, settings = found.image, found.settings
     assert settings["mu_rel"] == 0.1 and settings["beta"] == 0.25
     auto = solve(p, "wiener", regularisation=(0.1,))
     assert auto.settings["beta"] != 0.25
@@ -320,12 +320,14 @@ def test_wiener_designs_filters_only_where_the_image_is_large_beside_the_eye(des
     small = make_problem(decode("srgb", photo("astronaut", 32)), myope_kernel)
     assert _first_design_grid(myope_kernel, None) > 32 + 2 * myope_kernel.size
     correction_filters.cache_clear()
-    x, settings = wiener(small)
+    found = wiener(small)
+    x, settings = found.image, found.settings
     assert settings["filter_size"] is None and correction_filters.cache_info().misses == 0
     assert objective(x, small) < objective(small.target, small)
-    designed, designed_settings = wiener(small, design=True)
+    found = wiener(small, design=True)
+    designed, designed_settings = found.image, found.settings
     assert designed_settings["filter_size"] is not None
     assert abs(objective(x, small) - objective(designed, small)) <= 0.05 * objective(designed, small)
     side = _first_design_grid(myope_kernel, None)
     large = make_problem(decode("srgb", photo("astronaut", side)), myope_kernel)
-    assert wiener(large)[1]["filter_size"] is not None
+    assert wiener(large).settings["filter_size"] is not None

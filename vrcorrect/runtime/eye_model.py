@@ -270,8 +270,8 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
                      "frame's best weight")
         return model()
     problem = make_problem(_sample_target(options.choice_size), kernel, reference)
-    _, settings = wiener(problem, regularisation=options.regularisation, beta=options.beta,
-                         tolerance=options.design_tolerance, design=separable, descent=False)
+    settings = wiener(problem, regularisation=options.regularisation, beta=options.beta,
+                      tolerance=options.design_tolerance, design=separable, descent=False).settings
     mu = settings.get("mu_rel") or options.regularisation[0]
     beta = float(settings["beta"]) if settings.get("mu_rel") is not None else 0.0
     notes.append(f"regulariser {mu:g} and blend {beta:.3f} chosen by wiener on the sample image")

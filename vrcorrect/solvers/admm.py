@@ -39,7 +39,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import Problem
+from .problem import Correction, Problem
 from .spectral import (Blur, apply3, conj_transpose, hermitian_inverse, irfft_grid, kernel_spectrum, margin_shape,
                        mirror_fill, padded_shape, rfft_grid, spectral_norm_squared)
 
@@ -246,11 +246,11 @@ def _ridge_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, mu_r
 def fast(problem: Problem, tolerance: float = 1e-2, max_iterations: int = 200, rho: float = 0.1,
          relaxation: float = 1.8, balance: float = 1.0, levels: int = 1, coarse_iterations: int = COARSE_ITERATIONS,
          level_iterations: int = 3, warm_start: bool = True,
-         progress: Callable[[int, int], None] | None = None) -> tuple[np.ndarray, int, dict, list[float]]:
-    """ADMM for the LMS objective in the box (see the module docstring); returns (image, iterations,
-    settings, history).  Stops when an iteration lowers the best objective by less than
-    ``tolerance`` (relative), after :data:`PATIENCE` iterations without a new best, or after
-    ``max_iterations`` on the full-resolution level; returns the best iterate."""
+         progress: Callable[[int, int], None] | None = None) -> Correction:
+    """ADMM for the LMS objective in the box (see the module docstring).  Stops when an iteration
+    lowers the best objective by less than ``tolerance`` (relative), after :data:`PATIENCE`
+    iterations without a new best, or after ``max_iterations`` on the full-resolution level;
+    returns the best iterate."""
     K = problem.kernel.kernel
     t = np.ascontiguousarray(np.moveaxis(problem.target_lms, 2, 0), dtype=np.float32)
     target = np.ascontiguousarray(np.moveaxis(problem.target, 2, 0), dtype=np.float32)
@@ -261,4 +261,4 @@ def fast(problem: Problem, tolerance: float = 1e-2, max_iterations: int = 200, r
     settings = {"solver": "ADMM (boundary-aware split), over-relaxed", "rho": rho, "relaxation": relaxation,
                 "spectral_norm_squared": norm2, "tolerance": tolerance,
                 "warm_start": ", then ".join(notes)}
-    return np.moveaxis(z, 0, 2).astype(np.float32), iterations, settings, history
+    return Correction(np.moveaxis(z, 0, 2).astype(np.float32), iterations, settings, history)

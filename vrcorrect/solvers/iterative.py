@@ -1,6 +1,9 @@
 """Iterative correction methods that need autograd (torch, CPU or GPU; float32 images).
 
-(``fast``, the ADMM solver, is numpy only: :mod:`vrcorrect.solvers.admm`.)
+The one module of the package that imports torch; :data:`vrcorrect.solvers.METHODS` names these
+methods without importing it (:class:`vrcorrect.solvers.methods.TorchMethod`), and nothing on the
+real-time path may import this module.  (``fast``, the ADMM solver, is numpy only:
+:mod:`vrcorrect.solvers.admm`.)
 
 * ``paper``: ChromaCorrect as published - Adam on the displayed image,
   initialised at the target, clamped to [0, 1] after each step, loss = MSE of
@@ -25,7 +28,7 @@ import numpy as np
 import torch
 
 from ..physics.perception import OPPONENT_MATRIX
-from . import Problem, scale_contrast
+from .problem import Correction, Problem, scale_contrast
 from .spectral import padded_shape
 
 
@@ -66,8 +69,7 @@ def _hwc(x: torch.Tensor) -> np.ndarray:
 
 
 def paper(problem: Problem, iterations: int = 100, learning_rate: float = 0.01, opponent: bool = False,
-          seed: int = 0, progress: Callable[[int, int], None] | None = None
-          ) -> tuple[np.ndarray, int, dict, list[float]]:
+          seed: int = 0, progress: Callable[[int, int], None] | None = None) -> Correction:
     """ChromaCorrect's published optimisation: Adam from the target, clamped, LMS (or opponent) MSE."""
     torch.manual_seed(seed)
     H, W = problem.target.shape[:2]
@@ -97,12 +99,12 @@ def paper(problem: Problem, iterations: int = 100, learning_rate: float = 0.01, 
     iterations = len(history)
     settings = {"optimizer": "Adam", "learning_rate": learning_rate, "iterations": iterations,
                 "loss": "opponent MSE" if opponent else "LMS MSE", "seed": seed}
-    return _hwc(x), iterations, settings, history
+    return Correction(_hwc(x), iterations, settings, history)
 
 
 def conventional(problem: Problem, max_iterations: int = 300, tolerance: float = 1e-7,
                  theta: float = 1e-6, tau: float = 2e-5, barrier: float = 65.0,
-                 progress: Callable[[int, int], None] | None = None) -> tuple[np.ndarray, int, dict, list[float]]:
+                 progress: Callable[[int, int], None] | None = None) -> Correction:
     """Montalto et al. (2015) constrained TV deconvolution per RGB primary (no cone model)."""
     H, W = problem.target.shape[:2]
 
@@ -150,4 +152,4 @@ def conventional(problem: Problem, max_iterations: int = 300, tolerance: float =
     iters = opt.state[opt._params[0]].get("n_iter", len(history) * 20)
     settings = {"solver": "L-BFGS (strong Wolfe)", "theta": theta, "tau": tau, "Lambda": barrier,
                 "psf": "per primary, luminance (L+M) weighted", "tolerance": tolerance}
-    return _hwc(x), int(iters), settings, history
+    return Correction(_hwc(x), int(iters), settings, history)

@@ -78,7 +78,7 @@ from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
 from .admm import COARSE_ITERATIONS, coarse_kernel, coarse_level_pays
 from .fista import FistaState, gradient_plan, projected_gradient
-from . import make_problem
+from .problem import make_problem
 from .spectral import Blur, apply3, conj_transpose, hermitian_inverse, kernel_spectrum, spectral_norm_squared
 
 __all__ = ["PRECISIONS", "ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "guard_weight", "edge_band", "pool_half", "upsample_double",

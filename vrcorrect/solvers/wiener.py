@@ -28,13 +28,13 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import scipy.fft
 
 from ..physics.kernel import EyeKernel
-from . import Problem, scale_contrast
+from .problem import Correction, Problem, scale_contrast
 from .spectral import (Blur, apply3, centred_kernel, irfft_grid, kernel_spectrum, margin_shape, mirror_fill,
                        padded_shape, rfft_grid, spectral_norm_squared)
 
@@ -233,8 +233,10 @@ def _best_on_simplex(r0: np.ndarray, dirs: list[np.ndarray]) -> tuple[list[float
 def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARISATION,
            beta: float | None = None, tolerance: float = DESIGN_TOLERANCE,
            design: bool | None = None, grid: tuple[int, int] | None = None,
-           margin: int | None = None, descent: bool = True) -> tuple[np.ndarray, dict]:
-    """Best blend of the target and the clipped regularised inverse; returns (image, settings).
+           margin: int | None = None, descent: bool = True,
+           progress: Callable[[int, int], None] | None = None) -> Correction:
+    """Best blend of the target and the clipped regularised inverse (one pass: ``progress`` is not
+    called); the :class:`~vrcorrect.solvers.Correction` holds the image and the settings chosen.
 
     For each ``mu_rel`` in ``regularisation``: ``v = F t'`` (the inverse regularised toward the
     target, ``F(0) = I``: flat areas are kept as they are; :func:`correction_filters`,
@@ -265,7 +267,7 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
     H, W = problem.target.shape[:2]
     if problem.kernel.size == 1:
         x = np.clip(problem.target_lms @ np.linalg.inv(problem.kernel.matrix).T, 0, 1).astype(np.float32)
-        return x, {"chosen": "colour matrix (identity kernel)", "beta": 1.0, "mu_rel": 0.0}
+        return Correction(x, settings={"chosen": "colour matrix (identity kernel)", "beta": 1.0, "mu_rel": 0.0})
     if beta is not None and not 0.0 <= beta <= 1.0:
         raise ValueError(f"beta must be in [0, 1], got {beta!r}")
     P = padded_shape(H, W, problem.kernel.size)
@@ -315,4 +317,4 @@ def wiener(problem: Problem, regularisation: Sequence[float] = DEFAULT_REGULARIS
                              "descent_weight": b2, "mu_rel": mu_rel, "filter_size": size, "filter_tail": tail})
     settings = dict(best[2])
     settings["candidates"] = tried
-    return np.clip(np.moveaxis(best[1], 0, 2), 0.0, 1.0).astype(np.float32), settings
+    return Correction(np.clip(np.moveaxis(best[1], 0, 2), 0.0, 1.0).astype(np.float32), settings=settings)

@@ -1,0 +1,122 @@
+"""What every correction method is asked and what it answers: the :class:`Problem`, the objective
+and the results.
+
+All methods share one problem statement (:class:`Problem`): a linear RGB target, the eye's kernel,
+and the target's cone image; and one objective, the mean squared error between the simulated
+retinal cone image of the displayed image and the target cone image (:func:`objective`).  A method
+returns a :class:`Correction`; :func:`vrcorrect.solvers.solve` times it, clips its image and
+judges it into a :class:`SolveResult`.
+
+Layer 4: numpy only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..physics.kernel import EyeKernel
+from ..plumbing.errors import ValidationError
+from ..vision.forward import check_image, simulate_lms
+
+__all__ = ["Problem", "Correction", "SolveResult", "scale_contrast", "make_problem", "objective"]
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """What a correction method is asked to solve.
+
+    Attributes
+    ----------
+    target
+        ``(H, W, 3)`` linear display RGB in [0, 1] (float32): the image the user wants to see.
+    kernel
+        The eye's kernel.
+    target_lms
+        ``(H, W, 3)`` cone image the retina should receive.
+    contrast
+        Contrast scale applied to the target before its cone image was taken (1 = none).
+    reference
+        ``"glasses"`` (the same eye with its sphere and cylinder corrected: its own chromatic
+        aberration and diffraction remain) or ``"ideal"`` (the paper's ``A t``, no blur at all).
+    """
+
+    target: np.ndarray
+    kernel: EyeKernel
+    target_lms: np.ndarray
+    contrast: float = 1.0
+    reference: str = "ideal"
+    reference_kernel: EyeKernel | None = None
+
+
+def scale_contrast(image: np.ndarray, contrast: float) -> np.ndarray:
+    """Compress contrast about the image's mean (mean-preserving): ``m + c (t - m)``."""
+    if not (0.0 < contrast <= 1.0):
+        raise ValidationError("contrast", contrast, "a number in (0, 1]")
+    if contrast == 1.0:
+        return image
+    m = image.mean(axis=(0, 1), keepdims=True)
+    return (m + contrast * (image - m)).astype(image.dtype)
+
+
+def make_problem(target: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel | None = None,
+                 contrast: float = 1.0) -> Problem:
+    """Build a :class:`Problem`; ``reference_kernel`` is the eye with glasses on (None: ideal ``A t``)."""
+    t = check_image(target, "target").astype(np.float32)
+    ts = scale_contrast(t, contrast)
+    if reference_kernel is None:
+        tl = (ts @ kernel.matrix.T.astype(np.float32)).astype(np.float32)
+        ref = "ideal"
+    else:
+        tl, _ = simulate_lms(ts, reference_kernel)
+        ref = "glasses"
+    return Problem(target=t, kernel=kernel, target_lms=tl, contrast=contrast, reference=ref,
+                   reference_kernel=reference_kernel)
+
+
+def objective(displayed: np.ndarray, problem: Problem) -> float:
+    """Mean squared error between the retinal cone image of ``displayed`` and the target's (float64)."""
+    shown = check_image(displayed, "displayed").astype(np.float32)
+    if shown.shape != problem.target.shape:
+        raise ValidationError("displayed.shape", shown.shape, f"the problem's shape {problem.target.shape}")
+    lms, _ = simulate_lms(shown, problem.kernel, "fft" if problem.kernel.size > 1 else "auto")
+    d = lms.astype(np.float64) - problem.target_lms.astype(np.float64)
+    return float(np.mean(d * d))
+
+
+@dataclass
+class Correction:
+    """What a correction method returns (the one shape of every entry of
+    :data:`vrcorrect.solvers.METHODS`): the displayed image, before :func:`vrcorrect.solvers.solve`
+    clips it to [0, 1], and how it was found.
+
+    Attributes
+    ----------
+    image
+        ``(H, W, 3)`` linear display RGB.
+    iterations
+        Iterations taken (0 for a closed form).
+    settings
+        What the method chose and was given, for reports.
+    history
+        The objective (or the method's own loss) after each iteration.
+    """
+
+    image: np.ndarray
+    iterations: int = 0
+    settings: dict = field(default_factory=dict)
+    history: list[float] = field(default_factory=list)
+
+
+@dataclass
+class SolveResult:
+    """A displayable image and how it was found."""
+
+    image: np.ndarray                 # (H, W, 3) float32 linear RGB in [0, 1]
+    method: str
+    seconds: float
+    iterations: int
+    objective: float
+    settings: dict = field(default_factory=dict)
+    history: list[float] = field(default_factory=list)
