@@ -505,8 +505,9 @@ void main() {
 #endif
 
 // ------------------------------------------------------------------ GUARD_FINAL
-// Also keeps the guarded objective of this frame and the last (u_history, for PLAN), cleared by
-// u_reset (a cold start).
+// The guard's weight as vrcorrect.solvers.guard_weight(<r0, Kd>, <Kd, Kd>, <r0, r0>) computes it on
+// the CPU. Also keeps the guarded objective of this frame and the last (u_history, for PLAN),
+// cleared by u_reset (a cold start).
 #if defined GUARD_FINAL
 layout(local_size_x = 256) in;
 layout(std430, binding = 3) writeonly buffer Guard { float u_beta; float u_sums[3]; };

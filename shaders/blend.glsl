@@ -1,9 +1,11 @@
 #version 430 core
-// The per-frame blend weight of the wiener correction, on the GPU (vrcorrect.solvers.wiener):
-// beta = clamp(-<r0, Kd> / <Kd, Kd>, 0, 1), r0 = K t - T t (the uncorrected retinal residual),
-// Kd = K (clip(F t) - t), sums over the image and the three cones: the weight that minimises the
-// true objective, so the result is never worse than no correction. The third sum, <r0, r0>, gives
-// the blended frame's objective as a fraction of the uncorrected one (read back by the CPU).
+// The per-frame blend weight of the wiener correction, on the GPU (vrcorrect.solvers.wiener), as
+// vrcorrect.solvers.guard_weight(<r0, Kd>, <Kd, Kd>) computes it on the CPU:
+// beta = clamp(-<r0, Kd> / <Kd, Kd>, 0, 1) (0 where <Kd, Kd> = 0), r0 = K t - T t (the uncorrected
+// retinal residual), Kd = K (clip(F t) - t), sums over the image and the three cones: the weight
+// that minimises the true objective, so the result is never worse than no correction. The third
+// sum, <r0, r0>, gives the blended frame's objective as a fraction of the uncorrected one (read
+// back by the CPU).
 // SOLUTION (the projected-gradient guard): u_kd holds the residual K x - T of a solution x and
 // u_delta holds x itself, so Kd = (K x - T) - r0 and d = x - t. Passes (define one):
 //   PARTIAL  per 16x16 workgroup: the three sums -> u_partials[group]

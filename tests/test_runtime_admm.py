@@ -16,7 +16,8 @@ from vrcorrect.runtime.corrector import Corrector
 from vrcorrect.runtime.dispatch import CostLedger, resource_bytes
 from vrcorrect.solvers import make_problem, objective, solve
 from vrcorrect.solvers.admm import _admm
-from vrcorrect.solvers.realtime import AdmmFrames, admm_grid, guard_weight
+from vrcorrect.solvers import guard_weight
+from vrcorrect.solvers.realtime import AdmmFrames, admm_grid
 from vrcorrect.specs.display import decode, encode, get_display
 from vrcorrect.specs.prescription import EyeRx, Prescription
 

@@ -2,8 +2,9 @@
 
 One module per concept:
 
-* :mod:`~vrcorrect.solvers.problem`: the :class:`Problem`, the objective, what a method returns
-  (:class:`Correction`) and what :func:`solve` returns (:class:`SolveResult`);
+* :mod:`~vrcorrect.solvers.problem`: the :class:`Problem`, the objective, the guard's closed-form
+  blend weight (:func:`guard_weight`), what a method returns (:class:`Correction`) and what
+  :func:`solve` returns (:class:`SolveResult`);
 * :mod:`~vrcorrect.solvers.spectral`: the per-frequency 3x3 algebra and the blur ``K x`` with its
   adjoint (:class:`~vrcorrect.solvers.spectral.Blur`), shared by every numpy method and the CPU twins;
 * :mod:`~vrcorrect.solvers.wiener` (the one-pass regularised inverse and its filter design),
@@ -21,7 +22,7 @@ One module per concept:
 from __future__ import annotations
 
 from .methods import LEARNED, METHODS, PEAK_MEMORY, BoundModel, peak_memory_bytes, solve
-from .problem import Correction, Problem, SolveResult, make_problem, objective, scale_contrast
+from .problem import Correction, Problem, SolveResult, guard_weight, make_problem, objective, scale_contrast
 
-__all__ = ["Problem", "Correction", "SolveResult", "make_problem", "objective", "scale_contrast",
+__all__ = ["Problem", "Correction", "SolveResult", "make_problem", "objective", "scale_contrast", "guard_weight",
            "METHODS", "LEARNED", "BoundModel", "solve", "PEAK_MEMORY", "peak_memory_bytes"]

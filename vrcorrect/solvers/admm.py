@@ -39,7 +39,7 @@ from typing import Callable
 
 import numpy as np
 
-from .problem import Correction, Problem
+from .problem import Correction, Problem, guard_weight
 from .spectral import (Blur, apply3, conj_transpose, hermitian_inverse, irfft_grid, kernel_spectrum, margin_shape,
                        mirror_fill, padded_shape, rfft_grid, spectral_norm_squared)
 
@@ -223,8 +223,8 @@ def _ridge_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, mu_r
     ``d = clip((K^H K + mu I)^-1 K^H t_lms) - t`` (``mu`` relative to ``||K||^2``), on a periodic
     grid holding ``t_lms`` mirror-filled around the image (one kernel width each side), then the
     blend ``t + beta d`` with the weight ``beta`` in [0, 1] that minimises the objective (closed
-    form, the blend ``wiener`` and the real-time guard use), so the start is never worse than the
-    target itself; float32.
+    form, :func:`~vrcorrect.solvers.guard_weight`, the blend ``wiener`` and the real-time guard
+    use), so the start is never worse than the target itself; float32.
 
     Not ``wiener``'s inverse: that one is regularised toward the target (``F(0) = I``, a flat field
     kept), this one toward zero, which shrinks a flat field along the colour matrix's weak
@@ -238,8 +238,7 @@ def _ridge_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, mu_r
     R = apply3(conj_transpose(K.spectrum), rfft_grid(mirror_fill(t_lms, Q, m), Q))
     d = np.clip(irfft_grid(apply3(G, R), Q)[:, m:m + H, m:m + W], 0.0, 1.0) - target
     r0, Kd = K.apply(target) - t_lms, K.apply(d)
-    denom = float(np.vdot(Kd, Kd))
-    beta = min(max(-float(np.vdot(r0, Kd)) / denom, 0.0), 1.0) if denom > 0 else 0.0
+    beta = guard_weight(float(np.vdot(r0, Kd)), float(np.vdot(Kd, Kd)))
     return (target + np.float32(beta) * d).astype(np.float32)
 
 

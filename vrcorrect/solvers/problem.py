@@ -1,5 +1,5 @@
-"""What every correction method is asked and what it answers: the :class:`Problem`, the objective
-and the results.
+"""What every correction method is asked and what it answers: the :class:`Problem`, the objective,
+the closed-form weight of the best blend with the target, and the results.
 
 All methods share one problem statement (:class:`Problem`): a linear RGB target, the eye's kernel,
 and the target's cone image; and one objective, the mean squared error between the simulated
@@ -20,7 +20,7 @@ from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
 from ..vision.forward import check_image, simulate_lms
 
-__all__ = ["Problem", "Correction", "SolveResult", "scale_contrast", "make_problem", "objective"]
+__all__ = ["Problem", "Correction", "SolveResult", "scale_contrast", "make_problem", "objective", "guard_weight"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -83,6 +83,20 @@ def objective(displayed: np.ndarray, problem: Problem) -> float:
     lms, _ = simulate_lms(shown, problem.kernel, "fft" if problem.kernel.size > 1 else "auto")
     d = lms.astype(np.float64) - problem.target_lms.astype(np.float64)
     return float(np.mean(d * d))
+
+
+def guard_weight(s_rk: float, s_kk: float, s_rr: float = 0.0) -> float:
+    """The blend weight in [0, 1] minimising ``|r0 + beta Kd|^2`` from ``s_rk = <r0, Kd>`` and
+    ``s_kk = <Kd, Kd>``: ``clip(-s_rk / s_kk, 0, 1)``; 0 when ``Kd`` is 0 or negligible beside
+    ``r0`` (``s_kk <= 1e-10 s_rr``, ``s_rr = <r0, r0>``: the correction is the target itself, to
+    rounding; with the default ``s_rr = 0``, only when ``s_kk <= 0``).
+
+    With ``r0 = K t - T`` (the uncorrected residual) and ``Kd = K (x - t)``, ``t + beta (x - t)`` is
+    the best blend of the target and a correction ``x``, never worse than the target: the guard of
+    the real-time frames (:mod:`vrcorrect.solvers.realtime`; on the GPU ``shaders/admm.glsl``'s
+    ``GUARD_FINAL`` and ``shaders/blend.glsl``), ``wiener``'s blend and ``fast``'s closed-form start.
+    """
+    return 0.0 if not s_kk > 1e-10 * s_rr else min(max(-s_rk / s_kk, 0.0), 1.0)
 
 
 @dataclass

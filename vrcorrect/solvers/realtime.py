@@ -45,8 +45,8 @@ FFT round trip of six real channels each.
   none.  On a still view N frames of k iterations are N k iterations of ``fast``'s ADMM.
 * **Guard**: after the iterations, ``z = proj(q)`` and the target ``t`` are transformed once more
   (``K z`` and ``K t``, one round trip) and the frame shown is ``t + beta (z - t)`` with the
-  ``beta`` in [0, 1] that minimises the objective (:func:`guard_weight`): no frame is worse than
-  uncorrected.
+  ``beta`` in [0, 1] that minimises the objective (:func:`~vrcorrect.solvers.guard_weight`): no
+  frame is worse than uncorrected.
 
 Per frame: ``k + 2`` FFT round trips (the target ``T = K_ref t``, ``k`` iterations, the guard).
 
@@ -78,10 +78,10 @@ from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
 from .admm import COARSE_ITERATIONS, coarse_kernel, coarse_level_pays
 from .fista import FistaState, gradient_plan, projected_gradient
-from .problem import make_problem
+from .problem import guard_weight, make_problem
 from .spectral import Blur, apply3, conj_transpose, hermitian_inverse, kernel_spectrum, spectral_norm_squared
 
-__all__ = ["PRECISIONS", "ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "guard_weight", "edge_band", "pool_half", "upsample_double",
+__all__ = ["PRECISIONS", "ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "edge_band", "pool_half", "upsample_double",
            "coarse_eye_kernel", "AdmmFrames", "AdmmFrame", "FistaFrames", "frames_twin"]
 
 PRECISIONS = ("half", "single")
@@ -102,14 +102,6 @@ def admm_grid(width: int, height: int, kernel_size: int) -> tuple[int, int]:
         return max(MIN_GRID, 1 << math.ceil(math.log2(n + kernel_size - 1)))
 
     return side(height), side(width)
-
-
-def guard_weight(s_rk: float, s_kk: float, s_rr: float = 0.0) -> float:
-    """The blend weight in [0, 1] minimising ``|r0 + beta Kd|^2`` from ``s_rk = <r0, Kd>`` and
-    ``s_kk = <Kd, Kd>``: ``clip(-s_rk / s_kk, 0, 1)``; 0 when ``Kd`` is 0 or negligible beside
-    ``r0`` (``s_kk <= 1e-10 s_rr``, ``s_rr = <r0, r0>``: the correction is the target itself, to
-    rounding)."""
-    return 0.0 if not s_kk > 1e-10 * s_rr else min(max(-s_rk / s_kk, 0.0), 1.0)
 
 
 def edge_band(shape: tuple[int, int], shift: tuple[int, int], radius: int) -> np.ndarray:
@@ -363,10 +355,7 @@ class AdmmFrames:
         """One frame: ``target`` ``(H, W, 3)`` linear RGB in [0, 1]; ``iterations`` ADMM iterations
         from the warm start (``cold``: from the target; ``shift``: the content's motion ``(dx,
         dy)``), then the guard."""
-        H, W = self.shape
-        t_chw = np.ascontiguousarray(np.moveaxis(np.asarray(target, np.float32), 2, 0))
-        if t_chw.shape != (3, H, W):
-            raise ValidationError("target", f"shape {np.shape(target)}", f"({H}, {W}, 3)")
+        t_chw = _frame_target(target, self.shape)
         if cold:
             self.reset()
         t, T, T_inside = self._targets(t_chw)
@@ -391,15 +380,29 @@ class AdmmFrames:
         z = self.proj(self.q)[:, :H, :W]
         Kz = self._inverse(apply3(self.Kf, self._forward(self._on_grid(z))))[:, :H, :W]
         Kt = self._inverse(apply3(self.Kf, self._forward(self._on_grid(t))))[:, :H, :W]
-        r0 = (Kt - T_inside).astype(np.float64)
-        kd = (Kz - Kt).astype(np.float64)
-        s_rk, s_kk, s_rr = float(np.vdot(r0, kd)), float(np.vdot(kd, kd)), float(np.vdot(r0, r0))
-        beta = guard_weight(s_rk, s_kk, s_rr)
-        n = float(r0.size)
-        shown = t + np.float32(beta) * (z - t)
-        return AdmmFrame(shown=np.ascontiguousarray(np.moveaxis(shown, 0, 2)),
-                         objective=(s_rr + 2 * beta * s_rk + beta * beta * s_kk) / n, beta=beta,
-                         solution=np.ascontiguousarray(np.moveaxis(z, 0, 2)), uncorrected=s_rr / n)
+        return _guarded(t, z, (Kt - T_inside).astype(np.float64), (Kz - Kt).astype(np.float64))
+
+
+def _frame_target(target: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """A frame's ``(H, W, 3)`` target as ``(3, H, W)`` float32 planes, refused at another size."""
+    H, W = shape
+    t = np.ascontiguousarray(np.moveaxis(np.asarray(target, np.float32), 2, 0))
+    if t.shape != (3, H, W):
+        raise ValidationError("target", f"shape {np.shape(target)}", f"({H}, {W}, 3)")
+    return t
+
+
+def _guarded(t: np.ndarray, z: np.ndarray, r0: np.ndarray, kd: np.ndarray) -> AdmmFrame:
+    """The guard of both twins (module docstring): the frame ``t + beta (z - t)`` for a ``(3, H, W)``
+    target ``t`` and solution ``z``, with :func:`~vrcorrect.solvers.guard_weight`'s weight from the
+    uncorrected residual ``r0 = K t - T`` and the change ``kd = K (z - t)`` (float64)."""
+    s_rk, s_kk, s_rr = float(np.vdot(r0, kd)), float(np.vdot(kd, kd)), float(np.vdot(r0, r0))
+    beta = guard_weight(s_rk, s_kk, s_rr)
+    n = float(r0.size)
+    shown = t + np.float32(beta) * (z - t)
+    return AdmmFrame(shown=np.ascontiguousarray(np.moveaxis(shown, 0, 2)),
+                     objective=(s_rr + 2 * beta * s_rk + beta * beta * s_kk) / n, beta=beta,
+                     solution=np.ascontiguousarray(np.moveaxis(z, 0, 2)), uncorrected=s_rr / n)
 
 
 class FistaFrames:
@@ -431,10 +434,7 @@ class FistaFrames:
 
     def frame(self, target: np.ndarray, iterations: int, shift: tuple[int, int] | None = None,
               cold: bool = False) -> AdmmFrame:
-        H, W = self.shape
-        t = np.ascontiguousarray(np.moveaxis(np.asarray(target, np.float32), 2, 0))
-        if t.shape != (3, H, W):
-            raise ValidationError("target", f"shape {np.shape(target)}", f"({H}, {W}, 3)")
+        t = _frame_target(target, self.shape)
         if cold:
             self.reset()
         start = None
@@ -451,14 +451,7 @@ class FistaFrames:
         t64 = t.astype(np.float64)
         T = np.einsum("ij,jyx->iyx", self.A, t) if self.R is None else self.R.apply(t64)
         r0 = self.K.apply(t64) - T
-        kd = self.K.apply(z.astype(np.float64)) - T - r0
-        s_rk, s_kk, s_rr = float(np.vdot(r0, kd)), float(np.vdot(kd, kd)), float(np.vdot(r0, r0))
-        beta = guard_weight(s_rk, s_kk, s_rr)
-        n = float(r0.size)
-        shown = t + np.float32(beta) * (z - t)
-        return AdmmFrame(shown=np.ascontiguousarray(np.moveaxis(shown, 0, 2)),
-                         objective=(s_rr + 2 * beta * s_rk + beta * beta * s_kk) / n, beta=beta,
-                         solution=np.ascontiguousarray(x), uncorrected=s_rr / n)
+        return _guarded(t, z, r0, self.K.apply(z.astype(np.float64)) - T - r0)
 
 
 def frames_twin(method: str, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int],

@@ -17,7 +17,8 @@ bank of 3 x 3 spatial filters, truncated to the smallest square holding all but
 ``tolerance`` of their absolute sum; the same taps run on the CPU (here, by FFT) and
 on the GPU (the runtime's separable low-rank passes), with mirrored image borders in
 both.  :func:`wiener` then clips ``v = F t`` to [0, 1] and blends it with the
-target by the weight that minimises the true objective (closed form; the blur ``K`` is
+target by the weight that minimises the true objective (closed form,
+:func:`~vrcorrect.solvers.guard_weight`; the blur ``K`` is
 :class:`~vrcorrect.solvers.spectral.Blur`).  ``mu``
 (relative to the largest eigenvalue of ``K^H K``) is chosen from a few values; the
 blend weight 0 is no correction, so the result is never worse than no correction.  Contrast
@@ -34,7 +35,7 @@ import numpy as np
 import scipy.fft
 
 from ..physics.kernel import EyeKernel
-from .problem import Correction, Problem, scale_contrast
+from .problem import Correction, Problem, guard_weight, scale_contrast
 from .spectral import (Blur, apply3, centred_kernel, irfft_grid, kernel_spectrum, margin_shape, mirror_fill,
                        padded_shape, rfft_grid, spectral_norm_squared)
 
@@ -203,7 +204,8 @@ def apply_filters(image_chw: np.ndarray, taps: np.ndarray) -> np.ndarray:
 def _best_on_simplex(r0: np.ndarray, dirs: list[np.ndarray]) -> tuple[list[float], float]:
     """Minimise ``||r0 + sum_i b_i a_i||^2`` over ``b_i >= 0``, ``sum b_i <= 1`` for one or two
     directions ``a_i`` (closed form: the convex quadratic's minimum is the interior stationary
-    point or lies on an edge, each a clipped 1-D solve); returns (weights, objective sum)."""
+    point or lies on an edge, each a clipped 1-D solve, :func:`~vrcorrect.solvers.guard_weight`);
+    returns (weights, objective sum)."""
     c = np.array([float(np.sum(r0 * a)) for a in dirs])
     A = np.array([[float(np.sum(a * b)) for b in dirs] for a in dirs])
     base = float(np.sum(r0 * r0))
@@ -213,9 +215,7 @@ def _best_on_simplex(r0: np.ndarray, dirs: list[np.ndarray]) -> tuple[list[float
 
     def line(p: np.ndarray, q: np.ndarray) -> np.ndarray:           # best point on segment p..q
         d = q - p
-        curv = float(d @ A @ d)
-        s = 0.0 if curv <= 0 else float(np.clip(-(c @ d + p @ A @ d) / curv, 0.0, 1.0))
-        return p + s * d
+        return p + guard_weight(float(c @ d + p @ A @ d), float(d @ A @ d)) * d
 
     n = len(dirs)
     vertices = [np.zeros(n)] + [np.eye(n)[i] for i in range(n)]
