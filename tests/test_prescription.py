@@ -12,7 +12,6 @@ from hypothesis import strategies as st
 
 from vrcorrect.plumbing.errors import InputError, Problem, ValidationError, ValidationErrors
 from vrcorrect.specs.prescription import (
-    EYES,
     MISSING,
     SCHEMA,
     EyeRx,
@@ -28,6 +27,7 @@ from vrcorrect.specs.prescription import (
     validate_file,
     write_template,
 )
+from vrcorrect.specs.vocabulary import Eye
 
 
 def valid_doc() -> dict:
@@ -682,7 +682,7 @@ def test_bundled_sample_loads():
     rx = load_prescription(path)
     assert (rx.right.sphere_D, rx.right.cylinder_D, rx.right.axis_deg) == (-3.0, -1.5, 20.0)
     assert (rx.left.sphere_D, rx.left.cylinder_D, rx.left.axis_deg) == (-2.5, -0.75, 160.0)
-    for name in EYES:
+    for name in Eye:
         e = rx.eye(name)
         assert e.pupil_diameter_mm == 4.0
         assert e.accommodation_D == 0.0

@@ -26,14 +26,15 @@ from vrcorrect.runtime.mirror import (
 )
 from vrcorrect.runtime.scene import DemoScene, SceneConfig, cube_mesh, open_source, perspective, scene_transforms
 from vrcorrect.runtime.sources import (
-    EYES, AnimatedImageSource, FolderSource, SourceSpec, StillSource, VideoSource, fit_rect, frame_at, frame_index,
+    AnimatedImageSource, FolderSource, SourceSpec, StillSource, VideoSource, fit_rect, frame_at, frame_index,
     parse_size, parse_source,
 )
 from vrcorrect.runtime.text import build_font_atlas, layout_text, panel_instances, text_width
 from vrcorrect.runtime.window import (
-    ITERATIONS_RANGE, KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET, MOD_ALT, MOD_CONTROL, MOD_SHIFT, MOD_SUPER,
+    KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET, MOD_ALT, MOD_CONTROL, MOD_SHIFT, MOD_SUPER,
     Iterations, Screenshot, key_map_text, next_iterations,
 )
+from vrcorrect.specs.vocabulary import ITERATIONS_PER_FRAME, VIEW_ORDER
 
 REPO = Path(__file__).resolve().parents[1]
 GLFW_PRESS, GLFW_RELEASE, GLFW_REPEAT = 1, 0, 2
@@ -87,7 +88,7 @@ def test_view_cycles_through_the_three_views():
     ("y", 0, (0, -0.25, 0)), ("y", MOD_SHIFT, (0, 0.25, 0)),
     ("a", 0, (0, 0, -5.0)), ("a", MOD_SHIFT, (0, 0, 5.0)),
 ])
-@pytest.mark.parametrize("eye", EYES)
+@pytest.mark.parametrize("eye", VIEW_ORDER)
 def test_live_edits_go_to_the_chosen_eye(ch, mods, change, eye):
     s = MirrorState(edit_eye=eye)
     t, actions = next_state(s, key(ch), mods)
@@ -108,7 +109,7 @@ def test_brackets_halve_and_double_the_iterations_within_1_to_64():
     assert next_state(s, KEY_LEFT_BRACKET) == (s, (Iterations(up=False),))
     assert next_state(s, KEY_RIGHT_BRACKET) == (s, (Iterations(up=True),))
     assert next_state(s, KEY_RIGHT_BRACKET, MOD_CONTROL) == (s, ())
-    assert ITERATIONS_RANGE == (1, 64)
+    assert ITERATIONS_PER_FRAME == (1, 64)
     assert [next_iterations(k, True) for k in (1, 3, 4, 32, 40, 64, 200)] == [2, 6, 8, 64, 64, 64, 64]
     assert [next_iterations(k, False) for k in (1, 2, 3, 8, 64, 200)] == [1, 1, 1, 4, 32, 64]
     assert parse_iterations_per_frame(None) is None and parse_iterations_per_frame("8") == 8
@@ -155,7 +156,7 @@ def test_any_key_sequence_keeps_the_state_valid(presses):
     for k, mods in presses:
         before = s
         s, actions = next_state(s, k, mods)
-        assert s.view in VIEWS and s.edit_eye in EYES
+        assert s.view in VIEWS and s.edit_eye in VIEW_ORDER
         for a in actions:
             assert isinstance(a, (Adjust, Screenshot, Iterations))
             if isinstance(a, Adjust):
@@ -285,7 +286,7 @@ def test_cube_faces_point_outwards():
 
 def test_eyes_see_the_scene_from_points_an_ipd_apart():
     config = SceneConfig(ipd_m=0.064)
-    left, right = (scene_transforms(1.0, eye, 1.0, config) for eye in EYES)
+    left, right = (scene_transforms(1.0, eye, 1.0, config) for eye in VIEW_ORDER)
     assert np.allclose(left["cube"], right["cube"])
     view_l = np.linalg.inv(perspective(config.fov_y_deg, 1.0, 0.05, 60.0)) @ left["view_projection"]
     view_r = np.linalg.inv(perspective(config.fov_y_deg, 1.0, 0.05, 60.0)) @ right["view_projection"]
@@ -587,7 +588,7 @@ def test_halves_hold_each_eyes_corrected_image(mirror, mirror_image):
     _, image = mirror_image
     mirror.render()
     got = halves(mirror)
-    for eye in EYES:
+    for eye in VIEW_ORDER:
         want = reference(mirror, eye, image)
         assert np.abs(got[eye] - want).max() <= 1, eye
         assert np.abs(got[eye] - image).mean() > 2.0, f"{eye}: the correction changes the image"
@@ -617,14 +618,14 @@ def test_view_switch_shows_what_each_eye_sees(mirror, mirror_image):
         assert mirror.state.view == view
         mirror.render()
         pictures[view] = got = halves(mirror)
-        for eye in EYES:
+        for eye in VIEW_ORDER:
             assert np.abs(got[eye] - reference(mirror, eye, image, view)).max() <= 1, (view, eye)
             assert np.abs(got[eye] - displayed[eye]).mean() > 2.0, (view, eye)
-    for eye in EYES:
+    for eye in VIEW_ORDER:
         assert np.abs(pictures["seen_corrected"][eye] - pictures["seen_uncorrected"][eye]).mean() > 1.0
     press(mirror, "c")  # correction off: the eye sees the uncorrected image in both seen views
     mirror.render()
-    for eye in EYES:
+    for eye in VIEW_ORDER:
         assert np.abs(halves(mirror)[eye] - pictures["seen_uncorrected"][eye]).max() <= 1
     press(mirror, "c")
     press(mirror, "v")
@@ -693,7 +694,7 @@ def fista_mirror(mirror):
 
     own = dict(mirror.correctors)
     mirror.correctors = {eye: Corrector(mirror.ctx, mirror.rx_path, mirror.display, eye, filter="fista",
-                                        iterations_per_frame=4) for eye in EYES}
+                                        iterations_per_frame=4) for eye in VIEW_ORDER}
     try:
         yield mirror
     finally:

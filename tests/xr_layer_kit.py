@@ -25,12 +25,14 @@ from typing import Callable, Iterator
 import numpy as np
 import pytest
 
+from vrcorrect.specs.vocabulary import VIEW_ORDER
+
 ROOT = Path(__file__).resolve().parents[1]
 RUNTIME_SCRIPT = ROOT / "tools" / "xr_test_runtime.sh"
 GL_APP_SOURCE = ROOT / "tests" / "xr_gl_app" / "xr_gl_app.c"
 VK_APP_SOURCE = ROOT / "tests" / "xr_vk_app" / "xr_vk_app.c"
 VIEW = (96, 64)
-EYES = ("left", "right")
+EYES = VIEW_ORDER                    # view i is EYES[i] (PRIMARY_STEREO)
 LAYER = "XR_APILAYER_VRCORRECT_correction"
 VALIDATION = "XR_APILAYER_LUNARG_core_validation"
 VULKAN_VALIDATION = "VK_LAYER_KHRONOS_validation"

@@ -31,6 +31,7 @@ from ..plumbing.errors import ValidationError
 from ..plumbing.fileio import check_writable, text_writer, write_together
 from ..plumbing.imageio import png_writer
 from ..specs.display import encode, get_display
+from ..specs.vocabulary import Method, names
 from .common import add_model_options, kernel_options, load_eye
 
 if TYPE_CHECKING:  # annotations only: importing these at run time would slow the command line's start
@@ -42,7 +43,7 @@ if TYPE_CHECKING:  # annotations only: importing these at run time would slow th
 __all__ = ["METHODS", "AcuityResult", "measure_acuity", "acuity_panel", "add_parser", "cmd_acuity"]
 
 #: Correction methods the command accepts (``none``, uncorrected, is always read).
-METHODS: tuple[str, ...] = ("fast", "wiener", "paper", "conventional")
+METHODS: tuple[str, ...] = names((Method.FAST, Method.WIENER, Method.PAPER, Method.CONVENTIONAL))
 
 _READ_RGB = (0, 150, 70)        # the last line read
 _BELOW_RGB = (205, 205, 205)    # lines the display's pixels cannot draw

@@ -19,6 +19,7 @@ from tqdm import tqdm
 
 from ..plumbing.errors import ValidationError
 from ..specs.prescription import bundled_sample_path, load_prescription
+from ..specs.vocabulary import Eye, names
 
 if TYPE_CHECKING:
     from ..physics.kernel import EyeKernel, KernelOptions
@@ -75,7 +76,7 @@ def build_eye_kernel(args: argparse.Namespace, eye: EyeRx, display: DisplayProfi
 
 def add_model_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rx", metavar="RX.json", help="prescription file (default: the bundled sample)")
-    p.add_argument("--eye", choices=("right", "left"), default="right", help="which eye (default right)")
+    p.add_argument("--eye", choices=names(Eye), default=Eye.RIGHT.value, help="which eye (default right)")
     p.add_argument("--display", default="quest2", metavar="PRESET",
                    help="display preset or profile .json (default quest2; list: vrcorrect displays)")
     g = p.add_argument_group("model")

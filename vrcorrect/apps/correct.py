@@ -17,6 +17,7 @@ from ..plumbing.fileio import check_readable, check_writable, text_writer, write
 from ..plumbing.imageio import png_writer, read_image
 from ..runtime.model_path import DEFAULT_MODEL
 from ..specs.display import decode, encode, get_display
+from ..specs.vocabulary import Method, names
 from . import clips
 from .common import (
     add_model_options,
@@ -56,7 +57,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
     problem = make_problem(target, kernel, reference, contrast=args.contrast)
     options = _solver_options(args, learned, eye, display, kernel, reference)
     bar = None
-    if args.method in ("paper", "fast", "conventional"):
+    if args.method in (Method.PAPER, Method.FAST, Method.CONVENTIONAL):
         bar = tqdm(desc=f"{args.method}", unit="it", disable=None, leave=False, file=sys.stderr)
     def progress(done: int, total: int) -> None:
         if bar is not None:
@@ -101,20 +102,20 @@ def _check_options(args: argparse.Namespace) -> None:
     if not (0.0 < args.contrast <= 1.0):
         raise ValidationError("--contrast", args.contrast, "a number in (0, 1]")
     if args.tolerance is not None:
-        if args.method not in ("fast", "conventional"):
+        if args.method not in (Method.FAST, Method.CONVENTIONAL):
             raise ValidationError("--tolerance", args.tolerance, "only with --method fast or conventional")
         if not (0.0 <= args.tolerance < 1.0):
             raise ValidationError("--tolerance", args.tolerance, "a number from 0 to 1")
-    if args.iterations is not None and args.method in ("wiener", "learned"):
+    if args.iterations is not None and args.method in (Method.WIENER, Method.LEARNED):
         raise ValidationError("--iterations", args.iterations, f"nothing: {args.method} is one pass")
-    if args.model is not None and args.method != "learned":
+    if args.model is not None and args.method != Method.LEARNED:
         raise ValidationError("--model", args.model, "only with --method learned")
 
 
 def _eye_and_model(args: argparse.Namespace):
     """The learned model (``--method learned``) and its range checked against the eye and display,
     before any work: ``(learned or None, prescription path, eye, display)``."""
-    learned = _learned_model(args) if args.method == "learned" else None
+    learned = _learned_model(args) if args.method == Method.LEARNED else None
     rx_path, eye = load_eye(args)
     display = get_display(args.display)
     if learned is not None:                         # the model's range and display, before any work
@@ -125,7 +126,7 @@ def _eye_and_model(args: argparse.Namespace):
 def _solver_options(args: argparse.Namespace, learned, eye, display, kernel, reference) -> dict:
     options: dict = {}
     if args.iterations is not None:
-        options["iterations" if args.method == "paper" else "max_iterations"] = args.iterations
+        options["iterations" if args.method == Method.PAPER else "max_iterations"] = args.iterations
     if args.tolerance is not None:
         options["tolerance"] = args.tolerance
     if learned is not None:
@@ -270,7 +271,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "objective, a summary, and ColorVideoVDP in video mode of what the eye sees.")
     clips.add_input_output(p, "image file (sRGB code values)")
     add_model_options(p)
-    p.add_argument("--method", choices=("conventional", "paper", "fast", "wiener", "learned"), default="fast",
+    p.add_argument("--method", choices=names((Method.CONVENTIONAL, Method.PAPER, Method.FAST, Method.WIENER,
+                                               Method.LEARNED)), default=Method.FAST.value,
                    help="correction method (default fast)")
     p.add_argument("--model", metavar="MODEL.onnx",
                    help="learned: the exported model (default: models/default.onnx when shipped)")

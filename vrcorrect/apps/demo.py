@@ -19,6 +19,7 @@ from ..plumbing.fileio import check_writable
 from ..plumbing.imageio import read_image, write_png
 from ..specs.display import decode, encode, get_display
 from ..specs.prescription import EyeRx, bundled_sample_path, load_prescription
+from ..specs.vocabulary import Eye
 
 
 def _label(img: np.ndarray, text: str) -> np.ndarray:
@@ -65,7 +66,7 @@ def run_demo(out: Path, display_name: str = "quest2", force: bool = False) -> It
     image = read_image(sample_image_path())
     linear = decode(display, image)
     seen = {}
-    for eye_name in ("right", "left"):
+    for eye_name in Eye:
         eye = rx.eye(eye_name)
         kernel = build_kernel(eye, display)
         view, _ = what_the_eye_sees(linear, kernel)
@@ -73,10 +74,10 @@ def run_demo(out: Path, display_name: str = "quest2", force: bool = False) -> It
         write_png(out / f"{eye_name}_eye_sees.png", seen[eye_name], force=force)
         yield (f"wrote {out / (eye_name + '_eye_sees.png')}: {eye_name} eye {eye.sphere_D:+.2f} / "
                f"{eye.cylinder_D:+.2f} x {eye.axis_deg:g} on {display.title} ({kernel.size} px kernel)")
-    r, l = rx.eye("right"), rx.eye("left")
+    r, l = rx.eye(Eye.RIGHT), rx.eye(Eye.LEFT)
     panel = _row([_label(image, "displayed image"),
-                  _label(seen["right"], f"right eye {r.sphere_D:+.2f}/{r.cylinder_D:+.2f}x{r.axis_deg:g}"),
-                  _label(seen["left"], f"left eye {l.sphere_D:+.2f}/{l.cylinder_D:+.2f}x{l.axis_deg:g}")])
+                  _label(seen[Eye.RIGHT], f"right eye {r.sphere_D:+.2f}/{r.cylinder_D:+.2f}x{r.axis_deg:g}"),
+                  _label(seen[Eye.LEFT], f"left eye {l.sphere_D:+.2f}/{l.cylinder_D:+.2f}x{l.axis_deg:g}")])
     write_png(out / "demo_panel.png", panel, force=force)
     yield f"wrote {out / 'demo_panel.png'}: displayed image | right eye sees | left eye sees"
 

@@ -71,6 +71,7 @@ from ..plumbing.fileio import check_writable, text_writer, write_together
 from ..plumbing.images import bundled_images, check_size, folder_images, prepare_image, safe_name
 from ..specs.display import DisplayProfile, decode, get_display
 from ..specs.prescription import EyeRx
+from ..specs.vocabulary import Method, names
 from .acuity_chart import measure_acuity
 from .bench import machine_description, markdown_table
 
@@ -112,7 +113,7 @@ PRESCRIPTIONS: tuple[EvalPrescription, ...] = (
 PUPIL_DIAMETER_MM = 4.0
 #: Methods run by default (``none``, the uncorrected image, is always scored as well).  ``conventional``
 #: runs only when asked for: its L-BFGS is by far the slowest (41 of a 47-minute run at 512x512 on 2 cores).
-DEFAULT_METHODS: tuple[str, ...] = ("paper", "fast")
+DEFAULT_METHODS: tuple[str, ...] = names((Method.PAPER, Method.FAST))
 #: Columns of ``results.csv``.
 CSV_COLUMNS: tuple[str, ...] = ("image", "prescription", "method", "jod", "flip", "ssim", "psnr", "objective",
                                 "flip_lms", "ssim_lms", "psnr_lms", "seconds", "iterations")
@@ -475,7 +476,7 @@ def _markdown(rows, summary, verdicts, display, size, images, methods, seconds_t
 def _check_methods(methods: Iterable[str]) -> tuple[str, ...]:
     from ..solvers import METHODS  # on use: start-up time (apps/__init__)
 
-    allowed = tuple(m for m in METHODS if m != "none")
+    allowed = names(m for m in METHODS if m != Method.NONE)
     if isinstance(methods, str):
         methods = (methods,)
     out: list[str] = []
@@ -699,7 +700,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--size", type=int, default=256, metavar="N",
                    help="centre-crop and resize each image to N x N pixels (default 256)")
     p.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), metavar="METHOD",
-                   choices=("conventional", "paper", "fast", "wiener"),
+                   choices=names((Method.CONVENTIONAL, Method.PAPER, Method.FAST, Method.WIENER)),
                    help="methods to compare, some of conventional paper fast wiener (default: paper fast); the "
                         "uncorrected image is always scored. "
                         "conventional (Montalto et al. 2015) runs only when named, e.g. --methods conventional "

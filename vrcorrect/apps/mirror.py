@@ -11,6 +11,7 @@ from ..runtime.mirror import KEY_MAP, Mirror, MirrorConfig
 from ..runtime.sources import parse_size, parse_source
 from ..runtime.window import key_map_text, knob_text
 from .realtime_options import (
+    add_backend_option,
     add_filter_options,
     add_reprojection_option,
     add_rx_option,
@@ -39,8 +40,7 @@ def add_parser(subparsers: "argparse._SubParsersAction[argparse.ArgumentParser]"
                    help="each eye's size in pixels (default 640x640; the window is twice as wide)")
     p.add_argument("--frames", metavar="N", help="render N frames and exit (tests, CI)")
     p.add_argument("--screenshot-dir", default=".", metavar="DIR", help="where p writes screenshots (default .)")
-    p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl",
-                   help="correction backend: glsl (default) or onnx (a learned model per eye)")
+    add_backend_option(p, help="correction backend: glsl (default) or onnx (a learned model per eye)")
     p.add_argument("--model", metavar="MODEL.onnx",
                    help="ONNX model for --backend onnx (default: models/default.onnx)")
     add_filter_options(p)

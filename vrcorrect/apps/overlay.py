@@ -10,7 +10,9 @@ import time
 from ..runtime.overlay import KEY_MAP, Overlay, OverlayConfig
 from ..runtime.sources import parse_region, parse_size
 from ..runtime.window import key_map_text
+from ..specs.vocabulary import Eye, names
 from .realtime_options import (
+    add_backend_option,
     add_filter_options,
     add_reprojection_option,
     add_rx_option,
@@ -37,13 +39,13 @@ def add_parser(subparsers: "argparse._SubParsersAction[argparse.ArgumentParser]"
                    help="with screen: the rectangle to grab (default: another monitor full-screen; with --window, "
                         "the screen's top-left, the window's size, the window placed beside it)")
     add_rx_option(p)
-    p.add_argument("--eye", choices=("right", "left"), default="right",
+    p.add_argument("--eye", choices=names(Eye), default=Eye.RIGHT.value,
                    help="whose prescription (a monitor is seen by both eyes; default right)")
     p.add_argument("--display", metavar="PRESET",
                    help="display preset or profile .json (default: desktop for screen, quest2 otherwise)")
     p.add_argument("--window", metavar="WxH", help="a window of this size instead of full-screen")
     p.add_argument("--frames", metavar="N", help="render N frames and exit (tests, CI)")
-    p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl", help="correction backend (default glsl)")
+    add_backend_option(p)
     p.add_argument("--model", metavar="M.onnx", help="ONNX model for --backend onnx")
     add_filter_options(p)
     add_reprojection_option(p)

@@ -8,21 +8,15 @@ import argparse
 from typing import Any
 
 from ..plumbing.errors import ValidationError
-from ..runtime.eye_model import (
-    DEFAULT_COLD_ITERATIONS,
-    DEFAULT_ITERATIONS,
-    FILTERS,
-    ITERATIONS_RANGE,
-    ITERATIVE_FILTERS,
-    MAX_ITERATIONS_PER_FRAME,
-)
+from ..runtime.eye_model import DEFAULT_COLD_ITERATIONS, DEFAULT_ITERATIONS
 from ..runtime.model_path import model_for_backend
+from ..specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, MAX_ITERATIONS_PER_FRAME, Backend, Filter, names
 
-__all__ = ["FILTER_CHOICES", "parse_frames", "parse_whole_number", "parse_iterations_per_frame", "add_rx_option",
-           "add_filter_options", "add_reprojection_option", "filter_options", "corrector_options"]
+__all__ = ["FILTER_CHOICES", "parse_frames", "parse_whole_number", "parse_iterations_per_frame", "add_backend_option",
+           "add_rx_option", "add_filter_options", "add_reprojection_option", "filter_options", "corrector_options"]
 
-FILTER_CHOICES = FILTERS
-_ITERATIVE = " or ".join(ITERATIVE_FILTERS)
+FILTER_CHOICES = names(Filter)
+_ITERATIVE = " or ".join(names(ITERATIVE_FILTERS))
 
 
 def parse_whole_number(text: str | int | None, field: str, low: int, high: int, what: str) -> int:
@@ -43,8 +37,14 @@ def parse_frames(text: str | None, field: str = "--frames", most: int = 10_000_0
 
 def parse_iterations_per_frame(text: str | int | None, field: str = "--iterations-per-frame") -> int | None:
     """Check ``--iterations-per-frame``: ``None`` (the default) or a whole number in
-    :data:`~vrcorrect.runtime.eye_model.ITERATIONS_RANGE`."""
-    return None if text is None else parse_whole_number(text, field, *ITERATIONS_RANGE, "iterations")
+    :data:`~vrcorrect.specs.vocabulary.ITERATIONS_PER_FRAME`."""
+    return None if text is None else parse_whole_number(text, field, *ITERATIONS_PER_FRAME, "iterations")
+
+
+def add_backend_option(p: argparse.ArgumentParser, help: str = "correction backend (default glsl)") -> None:
+    """``--backend`` (``render``, ``mirror``, ``overlay``, ``xr``): a
+    :class:`~vrcorrect.specs.vocabulary.Backend`, ``glsl`` by default."""
+    p.add_argument("--backend", choices=names(Backend), default=Backend.GLSL.value, help=help)
 
 
 def add_rx_option(p: argparse.ArgumentParser) -> None:
@@ -56,7 +56,7 @@ def add_rx_option(p: argparse.ArgumentParser) -> None:
 def add_filter_options(p: argparse.ArgumentParser) -> None:
     """``--filter``, ``--iterations-per-frame`` and ``--cold-iterations`` (``render``, ``mirror``,
     ``overlay``, ``xr``)."""
-    low, high = ITERATIONS_RANGE
+    low, high = ITERATIONS_PER_FRAME
     p.add_argument("--filter", choices=FILTER_CHOICES, default=FILTER_CHOICES[0],
                    help="GLSL method: admm (default; fast's ADMM iterations on the true objective, warm-started from "
                         "frame to frame with their duals, converging to the optimum over frames), fista "
@@ -94,7 +94,7 @@ def filter_options(args: argparse.Namespace) -> dict[str, Any]:
             raise ValidationError("--iterations-per-frame", args.iterations_per_frame, f"only with --filter {_ITERATIVE}")
         options["iterations_per_frame"] = k
     if getattr(args, "cold_iterations", None) is not None:
-        if args.filter != "admm":
+        if args.filter != Filter.ADMM:
             raise ValidationError("--cold-iterations", args.cold_iterations, "only with --filter admm")
         options["cold_iterations"] = parse_whole_number(args.cold_iterations, "--cold-iterations", 0,
                                                         MAX_ITERATIONS_PER_FRAME, "iterations")

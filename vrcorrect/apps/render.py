@@ -17,12 +17,18 @@ from ..plumbing.fileio import check_readable, check_writable
 from ..plumbing.imageio import read_image, write_png
 from ..runtime.model_path import model_for_backend
 from ..specs.prescription import bundled_sample_path, load_prescription
+from ..specs.vocabulary import ITERATIVE_FILTERS, Backend, Filter
 from . import clips
 from .common import add_model_options, kernel_options, print_notes
-from ..runtime.eye_model import ITERATIVE_FILTERS
-from .realtime_options import add_filter_options, add_reprojection_option, filter_options, parse_frames
+from .realtime_options import (
+    add_backend_option,
+    add_filter_options,
+    add_reprojection_option,
+    filter_options,
+    parse_frames,
+)
 
-METHOD_TITLES = {"admm": "ADMM", "fista": "projected gradient (FISTA)"}
+METHOD_TITLES = {Filter.ADMM: "ADMM", Filter.FISTA: "projected gradient (FISTA)"}
 #: The headset rate a clip is played at unless ``--fps`` says otherwise.
 DEFAULT_FPS = 90.0
 
@@ -39,7 +45,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     options = {"kernel_options": kernel_options(args), **filter_options(args)}
     frames = parse_frames(args.frames, "--frames", MAX_FRAMES)
     if frames is None:
-        frames = SETTLED_FRAMES if args.backend == "glsl" and options["filter"] in ITERATIVE_FILTERS else 1
+        frames = SETTLED_FRAMES if args.backend == Backend.GLSL and options["filter"] in ITERATIVE_FILTERS else 1
     check_readable(args.input)
     check_writable(out, force=args.force)
     model = model_for_backend(args.backend, args.model)
@@ -66,17 +72,17 @@ def cmd_render(args: argparse.Namespace) -> int:
     # the settings it designed (the method and its iterations, or the regulariser and blend and how they
     # were chosen; runtime.eye_model.build_eye_model): the line below states them, once, with what only
     # that note said; other notes (an identity correction and why, the ONNX model) are printed as they are.
-    designed = args.backend == "glsl" and not info["identity"]
+    designed = args.backend == Backend.GLSL and not info["identity"]
     chosen = " (chosen by wiener on the sample image)" if designed else ""
-    if args.backend == "glsl" and info["filter"] in ITERATIVE_FILTERS:
+    if args.backend == Backend.GLSL and info["filter"] in ITERATIVE_FILTERS:
         storage = f", {info['precision']} precision storage" if info.get("precision") else ""
         print(f"  {METHOD_TITLES[info['filter']]}, {info.get('iterations_per_frame', '-')} iteration(s) per frame, "
               f"{frames} frame(s) warm-started, {info.get('fft_round_trips_per_frame', '-')} FFT round trips a frame"
               + storage + (f"; last frame's objective {fraction:.3f} of uncorrected" if fraction is not None else ""))
-    elif args.backend == "glsl" and "ranks" in info:
+    elif args.backend == Backend.GLSL and "ranks" in info:
         print(f"  separable filters {info['filter_size']} px, ranks {info['ranks']} ({info['taps_per_pixel']} "
               f"taps/pixel), regulariser {info['mu_rel']:g}, blend {info['beta']:.3f}{chosen}")
-    elif args.backend == "glsl":
+    elif args.backend == Backend.GLSL:
         print(f"  FFT filter, margin {info['margin']} px, regulariser {info['mu_rel']:g}, blend {info['beta']:.3f}"
               + chosen)
     for note in info["notes"][:-1] if designed else info["notes"]:
@@ -127,7 +133,7 @@ def _median(values) -> float | None:
 def _print_clip_summary(args: argparse.Namespace, plan: clips.ClipPlan, info: dict) -> None:
     _print_eye(args, info)
     print(f"  {plan.text}")
-    iterative = args.backend == "glsl" and info["filter"] in ITERATIVE_FILTERS and args.view != "seen-uncorrected"
+    iterative = args.backend == Backend.GLSL and info["filter"] in ITERATIVE_FILTERS and args.view != "seen-uncorrected"
     if iterative:
         title = METHOD_TITLES[info["filter"]]
         if info["motion_tracked"]:
@@ -164,7 +170,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "estimated motion and restarted cold on a scene cut, as in a headset.")
     clips.add_input_output(p, "image (PNG/JPEG, sRGB)")
     add_model_options(p)
-    p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl", help="correction backend (default glsl)")
+    add_backend_option(p)
     p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx")
     add_filter_options(p)
     p.add_argument("--frames", metavar="N",

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from ..plumbing.errors import ValidationErrors
 from ..specs.prescription import load_prescription, validate_file, write_template
+from ..specs.vocabulary import Eye
 
 
 def cmd_rx_new(args: argparse.Namespace) -> int:
@@ -28,7 +29,7 @@ def cmd_rx_validate(args: argparse.Namespace) -> int:
 
     rx = load_prescription(Path(args.path))
     print(f"{args.path}: valid")
-    for name in ("right", "left"):
+    for name in Eye:
         e = rx.eye(name)
         pv = e.power_vector()
         print(f"  {name:5s} {e.sphere_D:+.2f} / {e.cylinder_D:+.2f} x {e.axis_deg:g}, pupil {e.pupil_diameter_mm:g} mm"

@@ -14,6 +14,7 @@ from ..runtime.sources import parse_source
 from ..runtime.window import XrUnavailableError
 from ..runtime.xr import EXIT_NO_RUNTIME, EXIT_SESSION_LOST, XrApp, XrConfig
 from .realtime_options import (
+    add_backend_option,
     add_filter_options,
     add_reprojection_option,
     add_rx_option,
@@ -47,7 +48,7 @@ def add_parser(subparsers: "argparse._SubParsersAction[argparse.ArgumentParser]"
     p.add_argument("--mirror-height", default="480", metavar="PX", help="the mirror window's height (default 480)")
     p.add_argument("--validation", action="store_true",
                    help="insert Khronos' core validation layer (bundled with pyopenxr; messages on stdout)")
-    p.add_argument("--backend", choices=("glsl", "onnx"), default="glsl", help="correction backend (default glsl)")
+    add_backend_option(p)
     p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx")
     add_filter_options(p)
     add_reprojection_option(p)

@@ -45,11 +45,9 @@ from ..plumbing.errors import ValidationError, VrcorrectError
 from ..plumbing.fileio import file_stamp
 from ..specs.display import DisplayProfile, get_display
 from ..specs.prescription import EyeRx, Prescription, load_prescription
+from ..specs.vocabulary import Backend, Eye, either, names, one_of
 from .dispatch import CostLedger, Gpu
 from .eye_model import (  # noqa: F401  (re-exported)
-    BACKENDS,
-    FILTERS,
-    MAX_ITERATIONS_PER_FRAME,
     CorrectorOptions,
     EyeModel,
     as_options,
@@ -67,7 +65,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
     from .learned import LearnedModel
 
-__all__ = ["CorrectorOptions", "EyeModel", "Corrector", "RxSnapshot", "BACKENDS", "build_eye_model", "file_stamp"]
+__all__ = ["CorrectorOptions", "EyeModel", "Corrector", "RxSnapshot", "build_eye_model", "file_stamp"]
 
 log = logging.getLogger(__name__)
 
@@ -159,12 +157,12 @@ class Corrector:
     POLL_INTERVAL_S = 0.25
 
     def __init__(self, ctx: "moderngl.Context", rx: RxSource, display: str | os.PathLike[str] | DisplayProfile,
-                 eye: str, backend: str = "glsl", *, eye_model: EyeModel | None = None,
+                 eye: str, backend: str = Backend.GLSL, *, eye_model: EyeModel | None = None,
                  options: CorrectorOptions | None = None, **fields: Any):
-        if backend not in BACKENDS:
-            raise ValidationError("backend", backend, "one of " + ", ".join(BACKENDS))
-        if eye not in ("right", "left"):
-            raise ValidationError("eye", eye, "'right' or 'left'")
+        if backend not in names(Backend):
+            raise ValidationError("backend", backend, one_of(Backend))
+        if eye not in names(Eye):
+            raise ValidationError("eye", eye, either(Eye))
         if ctx.version_code < 430:
             raise ValidationError("ctx", f"OpenGL {ctx.version_code}", "a context with OpenGL 4.3 or newer")
         self.ctx, self.eye_name, self.backend = ctx, eye, backend
@@ -191,7 +189,7 @@ class Corrector:
         self._seen: dict[tuple[int, int], "moderngl.Texture"] = {}
         self._onnx: OnnxModel | None = None
         self._learned: LearnedModel | None = None
-        if backend == "onnx":
+        if backend == Backend.ONNX:
             from .learned import LearnedModel, is_learned_model  # start-up time: loads the optics and solvers
 
             if not self.options.model:

@@ -34,28 +34,21 @@ from ..plumbing.fileio import package_data
 from ..plumbing.imageio import read_image
 from ..specs.display import DisplayProfile, decode
 from ..specs.prescription import EyeRx
+from ..specs.vocabulary import MAX_ITERATIONS_PER_FRAME, Backend, Filter, Precision, names, one_of
 from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from ..physics.kernel import EyeKernel, KernelOptions
 
-__all__ = ["as_options", "BACKENDS", "FILTERS", "ITERATIVE_FILTERS", "DEFAULT_ITERATIONS", "ITERATIONS_RANGE",
-           "MAX_ITERATIONS_PER_FRAME", "PRECISIONS", "DEFAULT_COLD_ITERATIONS", "CorrectorOptions", "EyeModel",
+__all__ = ["as_options", "DEFAULT_ITERATIONS", "DEFAULT_COLD_ITERATIONS", "CorrectorOptions", "EyeModel",
            "build_eye_model", "check_iterations"]
 
-BACKENDS = ("glsl", "onnx")
-FILTERS = ("admm", "fista", "fft", "separable")
-"""The GLSL backend's methods (``filter=``), the default first."""
-ITERATIVE_FILTERS = ("admm", "fista")
-"""The methods that iterate over frames; ``iterations_per_frame`` is their knob."""
-DEFAULT_ITERATIONS = {"admm": 2, "fista": 4}
+# The names (backends, filters, precisions) and the iterations' ranges are the vocabulary's
+# (vrcorrect.specs.vocabulary): Backend, Filter, ITERATIVE_FILTERS, Precision, ITERATIONS_PER_FRAME,
+# MAX_ITERATIONS_PER_FRAME.
+DEFAULT_ITERATIONS = {Filter.ADMM: 2, Filter.FISTA: 4}
 """Iterations per frame by default: the fewest that keep 90 % of per-frame ``fast``'s gain on moving
 clips and reach within 5 % of ``fast`` in 10 frames of a still view (``vrcorrect bench realtime``)."""
-ITERATIONS_RANGE = (1, 64)
-"""The knob's range on the command line and the keys of the windows."""
-MAX_ITERATIONS_PER_FRAME = 256
-"""The knob's range in the API (0 keeps the start; the guard still applies)."""
-PRECISIONS = ("half", "single")
 DEFAULT_COLD_ITERATIONS = 15
 """Half-resolution iterations that start a cold frame of ``filter="admm"``: ``fast``'s own
 coarse-level count (:data:`vrcorrect.solvers.admm.COARSE_ITERATIONS`; a test holds the two equal,
@@ -73,7 +66,8 @@ def as_options(backend: str, value: "CorrectorOptions | Mapping[str, Any] | None
 
 
 def check_iterations(value: object, field: str = "iterations_per_frame") -> int:
-    """``iterations_per_frame`` (or ``field``): a whole number from 0 to :data:`MAX_ITERATIONS_PER_FRAME`."""
+    """``iterations_per_frame`` (or ``field``): a whole number from 0 to
+    :data:`~vrcorrect.specs.vocabulary.MAX_ITERATIONS_PER_FRAME`."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or \
             not 0 <= value <= MAX_ITERATIONS_PER_FRAME:
         raise ValidationError(field, value, f"a whole number from 0 to {MAX_ITERATIONS_PER_FRAME}")
@@ -133,7 +127,7 @@ class CorrectorOptions:
         ``filter="admm"``: half-resolution ADMM iterations that start a cold frame (the first of a
         size, a cut, a new prescription), ``fast``'s coarse-to-fine start, where the image is at
         least 64 px on its short side and the kernel at least 9 px; 0: a cold frame starts from the
-        target.  From 0 to :data:`MAX_ITERATIONS_PER_FRAME`.
+        target.  From 0 to :data:`~vrcorrect.specs.vocabulary.MAX_ITERATIONS_PER_FRAME`.
     """
 
     regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
@@ -144,11 +138,11 @@ class CorrectorOptions:
     choice_size: int = 128
     model: str | None = None
     kernel_options: KernelOptions | None = None
-    filter: str = "admm"
+    filter: str = Filter.ADMM
     blend: str = "frame"
     iterations_per_frame: int | None = None
-    backend: str = "glsl"
-    precision: str = "half"
+    backend: str = Backend.GLSL
+    precision: str = Precision.HALF
     early_stop: bool = True
     cold_iterations: int = DEFAULT_COLD_ITERATIONS
 
@@ -159,25 +153,25 @@ class CorrectorOptions:
             raise ValidationError("beta", self.beta, "a number in [0, 1] or None")
         if self.reference not in ("glasses", "ideal"):
             raise ValidationError("reference", self.reference, "'glasses' or 'ideal'")
-        if self.filter not in FILTERS:
-            raise ValidationError("filter", self.filter, "one of " + ", ".join(FILTERS))
+        if self.filter not in names(Filter):
+            raise ValidationError("filter", self.filter, one_of(Filter))
         if self.iterations_per_frame is None:
             object.__setattr__(self, "iterations_per_frame", DEFAULT_ITERATIONS.get(self.filter, 0))
         check_iterations(self.iterations_per_frame)
         if self.blend not in ("frame", "fixed"):
             raise ValidationError("blend", self.blend, "'frame' or 'fixed'")
-        if self.backend not in BACKENDS:
-            raise ValidationError("backend", self.backend, "one of " + ", ".join(BACKENDS))
+        if self.backend not in names(Backend):
+            raise ValidationError("backend", self.backend, one_of(Backend))
         if not isinstance(self.early_stop, bool):
             raise ValidationError("early_stop", self.early_stop, "True or False")
-        if self.precision not in PRECISIONS:
-            raise ValidationError("precision", self.precision, "one of " + ", ".join(PRECISIONS))
+        if self.precision not in names(Precision):
+            raise ValidationError("precision", self.precision, one_of(Precision))
         check_iterations(self.cold_iterations, "cold_iterations")
 
     @property
     def per_frame_blend(self) -> bool:
         """The FFT strategy's blend weight is computed for every frame, on the GPU."""
-        return self.blend == "frame" and self.beta is None and self.filter == "fft"
+        return self.blend == "frame" and self.beta is None and self.filter == Filter.FFT
 
 
 @dataclass(frozen=True, eq=False)
@@ -231,8 +225,8 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
     from ..solvers.wiener import correction_filters, wiener
 
     t0 = time.perf_counter()
-    separable = options.filter == "separable"
-    designs = options.backend == "glsl"             # the ONNX backend corrects with its model
+    separable = options.filter == Filter.SEPARABLE
+    designs = options.backend == Backend.GLSL            # the ONNX backend corrects with its model
     kopts = options.kernel_options or KernelOptions()
     kernel = build_kernel(eye_rx, display, kopts)
     notes: list[str] = []
@@ -260,11 +254,11 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
     if not designs:
         notes.append("the ONNX model corrects (no regulariser, blend or filters designed)")
         return model()
-    if options.filter == "fista":
+    if options.filter == Filter.FISTA:
         notes.append(f"projected gradient (FISTA), {options.iterations_per_frame} iteration(s) per frame, "
                      "warm-started from frame to frame, blended with the target by the frame's best weight")
         return model()
-    if options.filter == "admm":
+    if options.filter == Filter.ADMM:
         notes.append(f"ADMM, {options.iterations_per_frame} iteration(s) per frame, warm-started from frame to "
                      f"frame with its duals, {options.precision} precision storage, blended with the target by the "
                      "frame's best weight")

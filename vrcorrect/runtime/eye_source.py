@@ -39,6 +39,7 @@ from typing import Callable
 from ..plumbing.errors import VrcorrectError
 from ..specs.display import DisplayProfile
 from ..specs.prescription import EyeRx, Prescription, load_prescription
+from ..specs.vocabulary import VIEW_ORDER
 from .corrector import RxSnapshot, RxSource, file_stamp, load_rx, with_offset
 from .eye_model import CorrectorOptions, EyeModel, build_eye_model
 
@@ -85,7 +86,7 @@ class EyeSource:
     """
 
     def __init__(self, rx: RxSource, display: DisplayProfile | Callable[[], DisplayProfile],
-                 options: CorrectorOptions = CorrectorOptions(), eyes: tuple[str, ...] = ("left", "right"),
+                 options: CorrectorOptions = CorrectorOptions(), eyes: tuple[str, ...] = VIEW_ORDER,
                  check: Callable[[EyeRx], object] | None = None):
         snapshot = load_rx(rx)
         self.snapshot: RxSnapshot = snapshot

@@ -45,11 +45,12 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping
 import numpy as np
 
 from ..plumbing.errors import ValidationError, VrcorrectError
+from ..specs.vocabulary import VIEW_ORDER, Backend, Eye, either, names
 from .corrector import Corrector
 from .eye_model import CorrectorOptions, as_options
 from .gl import check_gl_errors, format_ms, release
 from .scene import open_source
-from .sources import EYES, EyeSource, parse_source, start_motion, take_motion
+from .sources import EyeSource, parse_source, start_motion, take_motion
 from .text import TextOverlay, build_font_atlas, key_map_panel, panel_instances, text_width
 from .window import (
     ITERATION_KEYS,
@@ -129,7 +130,7 @@ class MirrorState:
 
     correction: bool = True
     view: str = "displayed"
-    edit_eye: str = "right"
+    edit_eye: str = Eye.RIGHT
     show_keys: bool = False
     show_panel: bool = True
     running: bool = True
@@ -137,8 +138,8 @@ class MirrorState:
     def __post_init__(self) -> None:
         if self.view not in VIEWS:
             raise ValidationError("view", self.view, "one of " + ", ".join(VIEWS))
-        if self.edit_eye not in EYES:
-            raise ValidationError("edit_eye", self.edit_eye, "'left' or 'right'")
+        if self.edit_eye not in names(VIEW_ORDER):
+            raise ValidationError("edit_eye", self.edit_eye, either(VIEW_ORDER))
 
 
 @dataclass(frozen=True)
@@ -174,7 +175,7 @@ def next_state(state: MirrorState, key: int, mods: int = 0) -> tuple[MirrorState
     if letter == "v":
         return replace(state, view=VIEWS[(VIEWS.index(state.view) + 1) % len(VIEWS)]), ()
     if letter == "e":
-        return replace(state, edit_eye="left" if state.edit_eye == "right" else "right"), ()
+        return replace(state, edit_eye=Eye.LEFT if state.edit_eye == Eye.RIGHT else Eye.RIGHT), ()
     if letter == "h":
         return replace(state, show_keys=not state.show_keys), ()
     if letter == "i":
@@ -199,7 +200,7 @@ def eye_viewports(width: int, height: int) -> dict[str, tuple[int, int, int, int
     if width < 2 or height < 1:
         raise ValidationError("window size", (width, height), "at least 2 x 1 pixels")
     half = width // 2
-    return {"left": (0, 0, half, height), "right": (half, 0, width - half, height)}
+    return {Eye.LEFT: (0, 0, half, height), Eye.RIGHT: (half, 0, width - half, height)}
 
 
 def _format_eye(rx: "EyeRx", offset: tuple[float, float, float]) -> str:
@@ -256,7 +257,7 @@ class MirrorConfig:
     eye_size: tuple[int, int] = (640, 640)
     frames: int | None = None
     screenshot_dir: str | Path = "."
-    backend: str = "glsl"
+    backend: str = Backend.GLSL
     corrector_options: CorrectorOptions | Mapping[str, Any] = field(default_factory=dict)
     visible: bool = True
     vsync: bool = True
@@ -367,12 +368,12 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
     def _build(self) -> None:
         cfg, ctx = self.config, self.ctx
         self.source = open_source(ctx, self.spec, *cfg.eye_size, folder_interval_s=cfg.folder_interval_s)
-        self._start_eyes(ctx, EYES, cfg.corrector_options)
+        self._start_eyes(ctx, VIEW_ORDER, cfg.corrector_options)
         start_motion(self.source, self.correctors.values(), cfg.reprojection)
         atlas = build_font_atlas(cfg.font_px)
         self.overlay = TextOverlay(ctx, atlas)
         gap = cfg.font_px
-        first = max(text_width(atlas, name) for name in STAGES + EYES) + gap
+        first = max(text_width(atlas, name) for name in STAGES + names(VIEW_ORDER)) + gap
         number = text_width(atlas, "00000.00") + gap
         self._tab_stops = (first, first + number)
         self._times = StageTimes(ctx, STAGES)
@@ -435,7 +436,7 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
         lines = [f"vrcorrect mirror  {self.display.name}  {w}x{h} per eye  {self.source.label}",
                  f"view: {VIEW_TITLES[s.view]}   correction {'ON' if s.correction else 'OFF'}   "
                  f"edits: {s.edit_eye} eye"]
-        for eye in EYES:
+        for eye in VIEW_ORDER:
             lines.append(f"{eye}\t{self._rx_text(eye)}")
         knob = knob_text(self.correctors, self.config.eye_size, s.correction and s.view != "seen_uncorrected")
         if knob:
@@ -466,11 +467,11 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
         for c in self.correctors.values():
             c.enabled = state.correction
         with self._times.stage("scene"):
-            textures = dict(zip(EYES, self.source.render(self.scene_time())))
+            textures = dict(zip(VIEW_ORDER, self.source.render(self.scene_time())))
             motion = take_motion(self.source, self.correctors.values())
         screen = ctx.screen
         viewports = eye_viewports(*self.framebuffer_size)
-        for eye in EYES:
+        for eye in VIEW_ORDER:
             c, texture, viewport = self.correctors[eye], textures[eye], viewports[eye]
             if state.view == "displayed":
                 with self._times.stage(f"correct {eye}"):
@@ -484,7 +485,7 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
             if state.show_panel:
                 quads.append(panel_instances(atlas, self.panel_lines(), 8, 8, tab_stops=self._tab_stops)[0])
             if state.show_keys:
-                x = viewports["right"][0] + 8 if state.show_panel else 8
+                x = viewports[Eye.RIGHT][0] + 8 if state.show_panel else 8
                 quads.append(key_map_panel(atlas, KEY_MAP, x, 8, self.config.font_px))
             if quads:
                 self.overlay.draw(np.concatenate(quads), screen, self.framebuffer_size)

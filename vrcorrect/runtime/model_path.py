@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..plumbing.errors import ValidationError
+from ..specs.vocabulary import Backend
 
 #: The shipped default model (its card beside it: ``default.md``).
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "default.onnx"
@@ -18,7 +19,7 @@ def model_for_backend(backend: str, model: str | Path | None) -> str | None:
     """The ``--model`` of a command with ``--backend``: the path for ``onnx`` (default: the shipped
     model, :data:`DEFAULT_MODEL`), ``None`` for ``glsl``; ``--model`` without ``onnx``, or naming no
     file, is refused before anything slow starts."""
-    if backend != "onnx":
+    if backend != Backend.ONNX:
         if model:
             raise ValidationError("--model", str(model), "only with --backend onnx")
         return None

@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..plumbing.errors import ValidationError
+from ..specs.vocabulary import Backend, Eye, either, names
 from .corrector import Corrector
 from .eye_model import CorrectorOptions, as_options
 from .gl import Rect, check_gl_errors, format_ms, release
@@ -238,12 +239,12 @@ class OverlayConfig:
     source: str
     region: Rect | None = None
     rx: str | Path | None = None
-    eye: str = "right"
+    eye: str = Eye.RIGHT
     display: str | None = None
     window: tuple[int, int] | None = None
     frames: int | None = None
     screenshot_dir: str | Path = "."
-    backend: str = "glsl"
+    backend: str = Backend.GLSL
     corrector_options: CorrectorOptions | Mapping[str, Any] = field(default_factory=dict)
     reprojection: bool = True               # fista: reproject the warm start by the pictures' motion
     visible: bool = True
@@ -258,10 +259,10 @@ class OverlayConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "corrector_options", as_options(self.backend, self.corrector_options))
-        if self.eye not in ("right", "left"):
-            raise ValidationError("--eye", self.eye, "right or left")
-        if self.backend not in ("glsl", "onnx"):
-            raise ValidationError("--backend", self.backend, "glsl or onnx")
+        if self.eye not in names(Eye):
+            raise ValidationError("--eye", self.eye, either(Eye, quote=False))
+        if self.backend not in names(Backend):
+            raise ValidationError("--backend", self.backend, either(Backend, quote=False))
         if self.region is not None and self.source != SCREEN:
             raise ValidationError("--region", f"{self.region.x},{self.region.y},{self.region.width},"
                                   f"{self.region.height}", f"only with --source {SCREEN}")

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..plumbing.errors import ValidationError
 from ..specs.display import DisplayProfile
+from ..specs.vocabulary import Backend, Eye
 from ..vision.forward import check_image
 from .corrector import Corrector, RxSource
 from .gl import (
@@ -59,7 +60,7 @@ def check_frames(frames: object, field: str = "frames") -> int:
 
 
 def render_frame(image: np.ndarray, rx: RxSource, display: str | os.PathLike[str] | DisplayProfile,
-                 eye: str = "right", backend: str = "glsl", view: str = "corrected",
+                 eye: str = Eye.RIGHT, backend: str = Backend.GLSL, view: str = "corrected",
                  ctx: "moderngl.Context | None" = None, frames: int = 1,
                  progress: Callable[[int, int], None] | None = None,
                  **options: Any) -> tuple[np.ndarray, dict[str, Any]]:
@@ -136,7 +137,7 @@ def _codes(image: np.ndarray, field: str) -> np.ndarray:
 
 
 def render_clip(frames: Iterable[tuple[Hashable, np.ndarray]], rx: RxSource,
-                display: str | os.PathLike[str] | DisplayProfile, eye: str = "right", backend: str = "glsl",
+                display: str | os.PathLike[str] | DisplayProfile, eye: str = Eye.RIGHT, backend: str = Backend.GLSL,
                 view: str = "corrected", ctx: "moderngl.Context | None" = None, *, reprojection: bool = True,
                 emit: Callable[[int, np.ndarray], None] | None = None,
                 progress: Callable[[int], None] | None = None, **options: Any) -> dict[str, Any]:

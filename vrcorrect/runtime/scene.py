@@ -29,9 +29,10 @@ from PIL import Image, ImageDraw
 
 from ..plumbing.charts import colour_bars, siemens_star, text_chart
 from ..plumbing.errors import ValidationError
+from ..specs.vocabulary import VIEW_ORDER, Eye, either, names
 from .gl import check_gl_errors, release, upload_texture
 from .shaders import compile_program
-from .sources import EYES, EyeSource, EyeTarget, SourceSpec, open_picture_source
+from .sources import EyeSource, EyeTarget, SourceSpec, open_picture_source
 from .text import default_font
 from .window import require_moderngl
 
@@ -201,9 +202,9 @@ _LIGHT = np.array([0.45, 0.8, 0.55]) / np.linalg.norm([0.45, 0.8, 0.55])
 
 def eye_position(eye: str, config: SceneConfig = SceneConfig()) -> np.ndarray:
     """Where ``eye`` looks from (m): half the IPD left or right of the origin."""
-    if eye not in EYES:
-        raise ValidationError("eye", eye, "'left' or 'right'")
-    return np.array([(-0.5 if eye == "left" else 0.5) * config.ipd_m, 0.0, 0.0])
+    if eye not in names(VIEW_ORDER):
+        raise ValidationError("eye", eye, either(VIEW_ORDER))
+    return np.array([(-0.5 if eye == Eye.LEFT else 0.5) * config.ipd_m, 0.0, 0.0])
 
 
 def scene_transforms(t_s: float, eye: str, aspect: float, config: SceneConfig = SceneConfig()) -> dict[str, np.ndarray]:
@@ -324,7 +325,7 @@ class DemoScene:
             p["u_fog_colour"].value = tuple(float(v) for v in srgb_to_linear(np.array(_SKY_CODES)))
             p["u_fog_per_m"].value = 0.025
             p["u_texture"].value = 0
-            self._targets = {eye: EyeTarget(ctx, *self.size, self.samples, depth=True) for eye in EYES}
+            self._targets = {eye: EyeTarget(ctx, *self.size, self.samples, depth=True) for eye in VIEW_ORDER}
             check_gl_errors(ctx, "DemoScene build")
         except BaseException:
             self.release()
@@ -346,7 +347,7 @@ class DemoScene:
         width, height = self.size
         ctx.enable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         try:
-            for eye in EYES:
+            for eye in VIEW_ORDER:
                 target = self._targets[eye]
                 fb = target.draw_framebuffer
                 fb.use()
@@ -369,7 +370,7 @@ class DemoScene:
                 target.resolve()
         finally:
             ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-        return self._targets["left"].texture, self._targets["right"].texture
+        return tuple(self._targets[eye].texture for eye in VIEW_ORDER)
 
     def release(self) -> None:
         for target in getattr(self, "_targets", {}).values():

@@ -59,15 +59,12 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from .corrector import Corrector
 
 __all__ = [
-    "EYES", "IMAGE_SUFFIXES", "ANIMATED_SUFFIXES", "VIDEO_SUFFIXES", "MAX_EYE_SIZE",
+    "IMAGE_SUFFIXES", "ANIMATED_SUFFIXES", "VIDEO_SUFFIXES", "MAX_EYE_SIZE",
     "SourceSpec", "parse_size", "parse_source", "parse_region", "fit_rect", "frame_index", "frame_at",
     "folder_images", "EyeSource", "EyeTarget", "FittedImage", "PictureSource", "StillSource", "FolderSource",
     "AnimatedImageSource", "VideoSource", "ScreenGrabber", "screen_bounds", "ScreenSource", "open_picture_source",
     "start_motion", "take_motion",
 ]
-
-EYES = ("left", "right")
-"""The eyes, in the order the mirror shows them (left eye on the left)."""
 
 MAX_EYE_SIZE = 8192
 """Largest eye width or height accepted by :func:`parse_size` (pixels)."""

@@ -34,8 +34,9 @@ from ..plumbing.errors import GLUnavailableError, InputError, ValidationError, V
 from ..plumbing.imageio import write_png
 from ..specs.display import get_display
 from ..specs.prescription import EyeRx, bundled_sample_path
+from ..specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, Backend, names
 from .corrector import Corrector, RxSnapshot
-from .eye_model import ITERATIONS_RANGE, ITERATIVE_FILTERS, CorrectorOptions
+from .eye_model import CorrectorOptions
 from .eye_source import EyeSource, EyeUpdate
 from .gl import read_framebuffer, timer_query_ms
 
@@ -48,7 +49,7 @@ __all__ = [
     "REALTIME_EXTRA", "XrUnavailableError", "import_optional", "require_moderngl", "require_glfw", "require_xr",
     "srgb_display", "GlfwSession", "StageTimes", "write_screenshot",
     "GLFW_PRESS", "KEY_ESCAPE", "KEY_LEFT_BRACKET", "KEY_RIGHT_BRACKET", "MOD_SHIFT", "MOD_CONTROL", "MOD_ALT",
-    "MOD_SUPER", "key_letter", "key_map_text", "Screenshot", "Iterations", "ITERATIONS_RANGE", "ITERATION_KEYS",
+    "MOD_SUPER", "key_letter", "key_map_text", "Screenshot", "Iterations", "ITERATION_KEYS",
     "iteration_key", "next_iterations", "runs_iterations", "change_iterations", "knob_text", "WindowApp", "KeyState",
     "FrameConfig", "KeyedWindowApp",
 ]
@@ -282,8 +283,8 @@ KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET = 91, 93      # GLFW_KEY_LEFT_BRACKET, GLFW_
 MOD_SHIFT, MOD_CONTROL, MOD_ALT, MOD_SUPER = 0x1, 0x2, 0x4, 0x8
 
 ITERATION_KEYS: tuple[tuple[str, str], ...] = (
-    ("[ / ]", f"iterations per frame /2, x2 ({ITERATIONS_RANGE[0]}-{ITERATIONS_RANGE[1]}; "
-              f"--filter {' or '.join(ITERATIVE_FILTERS)})"),
+    ("[ / ]", f"iterations per frame /2, x2 ({ITERATIONS_PER_FRAME.low}-{ITERATIONS_PER_FRAME.high}; "
+              f"--filter {' or '.join(names(ITERATIVE_FILTERS))})"),
 )
 """The knob's keys, in the mirror's, the overlay's and the headset mirror's key maps."""
 
@@ -317,15 +318,16 @@ def iteration_key(key: int) -> Iterations | None:
 
 
 def next_iterations(k: int, up: bool) -> int:
-    """``k`` doubled (``up``) or halved, within :data:`ITERATIONS_RANGE`."""
-    low, high = ITERATIONS_RANGE
+    """``k`` doubled (``up``) or halved, within
+    :data:`~vrcorrect.specs.vocabulary.ITERATIONS_PER_FRAME`."""
+    low, high = ITERATIONS_PER_FRAME
     return min(high, max(low, 2 * k if up else k // 2))
 
 
 def runs_iterations(corrector: "Corrector") -> bool:
     """True if ``corrector`` runs iterations spread over frames (GLSL, ``filter`` ``"admm"`` or
     ``"fista"``)."""
-    return corrector.backend == "glsl" and corrector.options.filter in ITERATIVE_FILTERS
+    return corrector.backend == Backend.GLSL and corrector.options.filter in ITERATIVE_FILTERS
 
 
 def change_iterations(correctors: Iterable["Corrector"], up: bool) -> str:
@@ -334,7 +336,7 @@ def change_iterations(correctors: Iterable["Corrector"], up: bool) -> str:
     returns the status message."""
     iterating = [c for c in correctors if runs_iterations(c)]
     if not iterating:
-        return f"iterations per frame: only with --filter {' or '.join(ITERATIVE_FILTERS)}"
+        return f"iterations per frame: only with --filter {' or '.join(names(ITERATIVE_FILTERS))}"
     k = next_iterations(iterating[0].iterations_per_frame, up)
     for c in iterating:
         c.iterations_per_frame = k

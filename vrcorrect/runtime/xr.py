@@ -55,13 +55,14 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..plumbing.errors import ValidationError, VrcorrectError
+from ..specs.vocabulary import VIEW_ORDER, Backend, either, names
 from .corrector import Corrector
 from .eye_model import CorrectorOptions, as_options
 from .gl import check_gl_errors, fullscreen_triangle, release
 from .motion import view_shift
 from .scene import DemoScene, open_source
 from .shaders import compile_program
-from .sources import EYES, EyeSource, ScreenSource, parse_region, parse_source, screen_bounds, start_motion, take_motion
+from .sources import EyeSource, ScreenSource, parse_region, parse_source, screen_bounds, start_motion, take_motion
 from .window import (
     GLFW_PRESS,
     MOD_ALT,
@@ -300,7 +301,7 @@ class XrConfig:
     mirror: bool = False
     mirror_height: int = 480
     validation: bool = False
-    backend: str = "glsl"
+    backend: str = Backend.GLSL
     corrector_options: CorrectorOptions | Mapping[str, Any] = field(default_factory=dict)
     time_step_s: float | None = None
     folder_interval_s: float = 3.0
@@ -315,8 +316,8 @@ class XrConfig:
             raise ValidationError("mirror_height", self.mirror_height, "a whole number of pixels from 16 to 4096")
         if self.time_step_s is not None and not (math.isfinite(self.time_step_s) and self.time_step_s >= 0):
             raise ValidationError("time_step_s", self.time_step_s, "None or a number of seconds >= 0")
-        if self.backend not in ("glsl", "onnx"):
-            raise ValidationError("backend", self.backend, "'glsl' or 'onnx'")
+        if self.backend not in names(Backend):
+            raise ValidationError("backend", self.backend, either(Backend))
         if self.region is not None and self.source != "screen":
             raise ValidationError("--region", self.region, "only with --source screen")
 
@@ -553,7 +554,7 @@ class XrApp(WindowApp):
         self.format = choose_swapchain_format(formats)
         self.summary.swapchain_format = _FORMAT_NAMES[self.format]
         w, h = self.eye_size
-        for eye in EYES:  # view 0 is the left eye in PRIMARY_STEREO
+        for eye in VIEW_ORDER:  # view 0 is the left eye in PRIMARY_STEREO
             handle = self._call("xrCreateSwapchain", xr.create_swapchain, self.session, xr.SwapchainCreateInfo(
                 usage_flags=xr.SwapchainUsageFlags.COLOR_ATTACHMENT_BIT | xr.SwapchainUsageFlags.SAMPLED_BIT,
                 format=self.format, sample_count=1, width=w, height=h, face_count=1, array_size=1, mip_count=1))
@@ -574,7 +575,7 @@ class XrApp(WindowApp):
             self.source = ScreenSource(ctx, w, h, self.region or screen_bounds())
         else:
             self.source = open_source(ctx, self.spec, w, h, folder_interval_s=cfg.folder_interval_s)
-        self._start_eyes(ctx, EYES, cfg.corrector_options)
+        self._start_eyes(ctx, VIEW_ORDER, cfg.corrector_options)
         if not isinstance(self.source, DemoScene):     # a head-locked picture source
             start_motion(self.source, self.correctors.values(), cfg.reprojection)
         if self.format == GL_RGBA8:
@@ -684,7 +685,7 @@ class XrApp(WindowApp):
             with times.stage("scene"):
                 if isinstance(self.source, DemoScene):  # the demo scene: from each tracked eye
                     eye_views = {}
-                    for eye, v in zip(EYES, views):
+                    for eye, v in zip(VIEW_ORDER, views):
                         o, p = v.pose.orientation, v.pose.position
                         vm = view_matrix((o.x, o.y, o.z, o.w), (p.x, p.y, p.z))
                         proj = projection_from_fov(v.fov.angle_left, v.fov.angle_right, v.fov.angle_up,
@@ -695,7 +696,7 @@ class XrApp(WindowApp):
                 else:
                     textures = self.source.render(t_s)
                     motion = take_motion(self.source, self.correctors.values())
-                    motions = {eye: motion for eye in EYES}
+                    motions = {eye: motion for eye in VIEW_ORDER}
             w, h = self.eye_size
             indices = []
             with times.stage("acquire"):

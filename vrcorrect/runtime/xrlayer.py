@@ -83,6 +83,7 @@ from typing import TYPE_CHECKING, Any, Iterator, Mapping
 
 from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.fileio import file_stamp
+from ..specs.vocabulary import VIEW_ORDER, Backend
 from .gl import fullscreen_triangle, headless_context, release
 from .shaders import compile_program
 
@@ -187,11 +188,10 @@ def log_path(env: Mapping[str, str] | None = None) -> Path:
 
 
 def eye_of_view(view: int) -> str:
-    """``"left"`` for view 0, ``"right"`` for view 1 (``PRIMARY_STEREO``); other views are refused."""
-    if view == 0:
-        return "left"
-    if view == 1:
-        return "right"
+    """``"left"`` for view 0, ``"right"`` for view 1 (``PRIMARY_STEREO``,
+    :data:`~vrcorrect.specs.vocabulary.VIEW_ORDER`); other views are refused."""
+    if view in (0, 1):
+        return VIEW_ORDER[int(view)]
     raise ValidationError("view", view, "0 (left eye) or 1 (right eye): stereo projection views only")
 
 
@@ -466,7 +466,7 @@ class Engine:
             from .eye_source import EyeSource
 
             options = dict(config.options)
-            backend = options.pop("backend", "glsl")    # Corrector(backend=...) then CorrectorOptions(backend=...)
+            backend = options.pop("backend", Backend.GLSL)  # Corrector(backend=...) then CorrectorOptions(backend=...)
             why: list[str] = []
 
             def display() -> DisplayProfile:            # on the worker: loading a profile takes seconds

@@ -25,15 +25,17 @@ from typing import Callable, Mapping, Protocol
 import numpy as np
 
 from ..plumbing.errors import ValidationError
+from ..specs.vocabulary import Method, names
 from .admm import fast
 from .problem import Correction, Problem, SolveResult, objective
 from .wiener import wiener
 
-__all__ = ["Method", "TorchMethod", "METHODS", "LEARNED", "BoundModel", "none", "learned", "solve", "PEAK_MEMORY",
-           "peak_memory_bytes"]
+__all__ = ["MethodFunction", "TorchMethod", "METHODS", "LEARNED", "BoundModel", "none", "learned", "solve",
+           "PEAK_MEMORY", "peak_memory_bytes"]
 
-Method = Callable[..., Correction]
-"""``method(problem, progress=None, **options) -> Correction``."""
+MethodFunction = Callable[..., Correction]
+"""``method(problem, progress=None, **options) -> Correction`` (its name: a
+:class:`~vrcorrect.specs.vocabulary.Method`)."""
 
 
 def none(problem: Problem, progress: Callable[[int, int], None] | None = None, **options) -> Correction:
@@ -47,9 +49,9 @@ class TorchMethod:
     clock starts: torch takes seconds to import) or called."""
 
     def __init__(self, name: str):
-        self.name = name
+        self.name = str(name)
 
-    def load(self) -> Method:
+    def load(self) -> MethodFunction:
         """The method itself (imports torch the first time)."""
         from . import iterative  # torch: only when a torch method runs, never on the real-time path
 
@@ -63,15 +65,15 @@ class TorchMethod:
         return f"TorchMethod({self.name!r})"
 
 
-METHODS: Mapping[str, Method] = MappingProxyType({
-    "none": none,
-    "wiener": wiener,
-    "fast": fast,
-    "paper": TorchMethod("paper"),
-    "conventional": TorchMethod("conventional"),
+METHODS: Mapping[str, MethodFunction] = MappingProxyType({
+    Method.NONE: none,
+    Method.WIENER: wiener,
+    Method.FAST: fast,
+    Method.PAPER: TorchMethod(Method.PAPER),
+    Method.CONVENTIONAL: TorchMethod(Method.CONVENTIONAL),
 })
 """The numerical methods: each needs only the problem (and its own options)."""
-LEARNED = "learned"
+LEARNED = Method.LEARNED
 """The learned method: one pass of an exported model bound to the eye (``solve(..., model=...)``)."""
 
 
@@ -95,7 +97,7 @@ def learned(problem: Problem, progress: Callable[[int, int], None] | None = None
     return Correction(np.ascontiguousarray(np.moveaxis(chw, 0, 2)), settings=dict(settings or {}))
 
 
-def solve(problem: Problem, method: str = "fast", progress: Callable[[int, int], None] | None = None,
+def solve(problem: Problem, method: str = Method.FAST, progress: Callable[[int, int], None] | None = None,
           **options) -> SolveResult:
     """Run one correction method on ``problem``: the image clipped to [0, 1] (float32), the seconds
     the method took, its objective.
@@ -107,11 +109,11 @@ def solve(problem: Problem, method: str = "fast", progress: Callable[[int, int],
     ``learned``: ``model`` (a :class:`BoundModel`, required) and ``settings`` (recorded as given).
     """
     if method == LEARNED:
-        fn: Method = learned
+        fn: MethodFunction = learned
     elif method in METHODS:
         fn = METHODS[method]
     else:
-        raise ValidationError("method", method, "one of " + ", ".join((*METHODS, LEARNED)))
+        raise ValidationError("method", method, "one of " + ", ".join(names((*METHODS, LEARNED))))
     if isinstance(fn, TorchMethod):
         fn = fn.load()                      # imports torch: outside the timed region
     t0 = time.perf_counter()
@@ -129,12 +131,12 @@ def solve(problem: Problem, method: str = "fast", progress: Callable[[int, int],
 # pixel (the solver's float32 planes and complex64 spectra on the padded grid).  Used to refuse,
 # before any work, an image that cannot fit; ``none`` is wiener's less the solve (an assumption).
 PEAK_MEMORY = {                    # method: (fixed bytes, bytes per pixel)
-    "none": (0.3e9, 120.0),
-    "wiener": (0.3e9, 420.0),
-    "fast": (0.3e9, 330.0),
-    "learned": (0.4e9, 420.0),
-    "paper": (0.45e9, 430.0),
-    "conventional": (0.55e9, 650.0),
+    Method.NONE: (0.3e9, 120.0),
+    Method.WIENER: (0.3e9, 420.0),
+    Method.FAST: (0.3e9, 330.0),
+    Method.LEARNED: (0.4e9, 420.0),
+    Method.PAPER: (0.45e9, 430.0),
+    Method.CONVENTIONAL: (0.55e9, 650.0),
 }
 
 
@@ -142,6 +144,6 @@ def peak_memory_bytes(method: str, height: int, width: int) -> float:
     """Estimated peak memory of correcting an ``height x width`` image with ``method`` (see
     :data:`PEAK_MEMORY`; a kernel much larger than the sample's adds to the fixed part)."""
     if method not in PEAK_MEMORY:
-        raise ValidationError("method", method, "one of " + ", ".join(PEAK_MEMORY))
+        raise ValidationError("method", method, "one of " + ", ".join(names(PEAK_MEMORY)))
     fixed, per_pixel = PEAK_MEMORY[method]
     return fixed + per_pixel * height * width

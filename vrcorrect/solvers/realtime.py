@@ -76,15 +76,15 @@ import scipy.fft
 
 from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
+from ..specs.vocabulary import ITERATIVE_FILTERS, Filter, Precision, either, names, one_of
 from .admm import COARSE_ITERATIONS, coarse_kernel, coarse_level_pays
 from .fista import FistaState, gradient_plan, projected_gradient
 from .problem import guard_weight, make_problem
 from .spectral import Blur, apply3, conj_transpose, hermitian_inverse, kernel_spectrum, spectral_norm_squared
 
-__all__ = ["PRECISIONS", "ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "edge_band", "pool_half", "upsample_double",
+__all__ = ["ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "edge_band", "pool_half", "upsample_double",
            "coarse_eye_kernel", "AdmmFrames", "AdmmFrame", "FistaFrames", "frames_twin"]
 
-PRECISIONS = ("half", "single")
 ADMM_RHO = 0.2
 """The penalty, relative to ``||K||^2``: twice ``fast``'s 0.1.  Warm-started ADMM at two iterations a
 frame keeps more of ``fast``'s gain on content that changes by more than a shift (the demo scene's
@@ -209,13 +209,13 @@ class AdmmFrames:
     """
 
     def __init__(self, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int],
-                 precision: str = "half", rho: float = ADMM_RHO, relaxation: float = ADMM_RELAXATION,
+                 precision: str = Precision.HALF, rho: float = ADMM_RHO, relaxation: float = ADMM_RELAXATION,
                  cold_iterations: int = COARSE_ITERATIONS, edge_band: bool = True):
-        if precision not in PRECISIONS:
-            raise ValidationError("precision", precision, "one of " + ", ".join(PRECISIONS))
+        if precision not in names(Precision):
+            raise ValidationError("precision", precision, one_of(Precision))
         H, W = (int(v) for v in shape)
         self.shape = (H, W)
-        self.half = precision == "half"
+        self.half = precision == Precision.HALF
         self.radius = kernel.size // 2
         self.edge_band = edge_band
         self.cold_iterations = int(cold_iterations)
@@ -455,13 +455,13 @@ class FistaFrames:
 
 
 def frames_twin(method: str, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int],
-                precision: str = "half", cold_iterations: int = COARSE_ITERATIONS,
+                precision: str = Precision.HALF, cold_iterations: int = COARSE_ITERATIONS,
                 edge_band: bool = True) -> "AdmmFrames | FistaFrames":
     """The CPU twin of the GPU's ``method`` (``"admm"`` or ``"fista"``) for one eye and image size
     (``cold_iterations``, ``edge_band``: ADMM's, see :class:`AdmmFrames`)."""
-    if method == "admm":
+    if method == Filter.ADMM:
         return AdmmFrames(kernel, reference, shape, precision=precision, cold_iterations=cold_iterations,
                           edge_band=edge_band)
-    if method == "fista":
+    if method == Filter.FISTA:
         return FistaFrames(kernel, reference, shape)
-    raise ValidationError("method", method, "'admm' or 'fista' (the methods that iterate over frames)")
+    raise ValidationError("method", method, either(ITERATIVE_FILTERS) + " (the methods that iterate over frames)")

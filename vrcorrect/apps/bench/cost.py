@@ -45,6 +45,7 @@ from ...runtime.dispatch import BANDWIDTHS, CostLedger, project_ms
 from ...runtime.gl import headless_context, release, render_target, upload_texture, write_texture
 from ...specs.display import get_display
 from ...specs.prescription import Prescription, bundled_sample_path, load_prescription
+from ...specs.vocabulary import VIEW_ORDER
 from . import machine_description, markdown_table, write_section
 
 __all__ = ["METHODS", "FRAME_BUDGET_MS", "TARGET_BYTES", "MethodCost", "parse_size", "eye_frame_cost",
@@ -147,7 +148,7 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
         renderer = ctx.info.get("GL_RENDERER", "?")
         with tqdm(total=2 * len(methods), desc="bench cost", unit="eye", leave=False) as bar:
             for label, options in methods:
-                for eye in ("left", "right"):
+                for eye in VIEW_ORDER:
                     results.append(eye_frame_cost(ctx, rx, display, eye, size, options, dry_run=dry_run,
                                                   label=label))
                     bar.update()

@@ -31,6 +31,7 @@ from ...runtime.corrector import Corrector
 from ...runtime.gl import headless_context, release, render_target, upload_texture
 from ...runtime.onnx_backend import write_one_minus_x_model
 from ...specs.prescription import bundled_sample_path, load_prescription
+from ...specs.vocabulary import VIEW_ORDER, Backend
 from . import machine_description, markdown_table, write_section
 
 EYE_SIZE = (1832, 1920)                          # width, height of one Quest 2 eye
@@ -81,7 +82,7 @@ def run_render_bench(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), w
              ("GLSL correction, FFT one pass, per-frame blend", "apply", dict(filter="fft"), size, True),
              ("GLSL correction, FFT one pass, fixed blend", "apply", dict(filter="fft", blend="fixed"), size, True),
              ("simulation (forward model, FFT)", "simulate", dict(), size, True),
-             ("ONNX slot, trivial graph", "apply", dict(backend="onnx", model=str(model)), size, True),
+             ("ONNX slot, trivial graph", "apply", dict(backend=Backend.ONNX, model=str(model)), size, True),
              (f"GLSL correction, separable, {SEPARABLE_SIZE[0]}x{SEPARABLE_SIZE[1]}", "apply",
               dict(filter="separable"), SEPARABLE_SIZE, True)]
     base_ms = None
@@ -90,7 +91,7 @@ def run_render_bench(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), w
             src = upload_texture(ctx, _frame_image(w, h))
             targets = [render_target(ctx, width=w, height=h) for _ in range(2)]
             t0 = time.perf_counter()
-            correctors = [Corrector(ctx, rx, "quest2", eye, **options) for eye in ("left", "right")]
+            correctors = [Corrector(ctx, rx, "quest2", eye, **options) for eye in VIEW_ORDER]
             build_s = time.perf_counter() - t0
             for c in correctors:
                 c.enabled = enabled
@@ -104,7 +105,7 @@ def run_render_bench(repeats: int = 5, out: Path = Path("docs/benchmarks.md"), w
             info = correctors[1].describe()
             if "ranks" in info:
                 what = f"width {info['filter_size']}, ranks {info['ranks']}, {info['taps_per_pixel']} taps/px"
-            elif options.get("backend") == "onnx":
+            elif options.get("backend") == Backend.ONNX:
                 what = "read back, onnxruntime (CPU), upload"
             elif how == "simulate":
                 grid = correctors[1].fft_grid_for((w, h))[0]

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ...plumbing.images import prepare_image
+from ...specs.vocabulary import VIEW_ORDER, Eye
 
 __all__ = ["SEQUENCES", "HELD_OUT", "Clip", "photo", "suite", "held_out", "text_page", "save_clip"]
 
@@ -113,13 +114,13 @@ def head_turn(ctx: Any, size: int, frames: int, deg_per_frame: float = TURN_DEG,
 
     config = SceneConfig()
     projection = perspective(config.fov_y_deg, 1.0, 0.05, 60.0)
-    camera = eye_position("right", config)
+    camera = eye_position(Eye.RIGHT, config)
     scene = DemoScene(ctx, size, size, config)
     images = []
     try:
         for f in range(frames):
             view = np.linalg.inv(translation(*camera) @ rotation_y(math.radians(deg_per_frame * f)))
-            texture = scene.render(f * frame_s, views={eye: (projection @ view, camera) for eye in ("left", "right")})[1]
+            texture = scene.render(f * frame_s, views={eye: (projection @ view, camera) for eye in VIEW_ORDER})[1]
             images.append(np.ascontiguousarray(download_texture(texture)[..., :3]))
     finally:
         scene.release()

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from ...specs.vocabulary import Filter
 from .admm import AdmmStrategy
 from .base import Decoder, Encoder, FrameBlend, Strategy
 from .fista import FistaStrategy
@@ -42,8 +43,8 @@ class Identity(Strategy):
         return linear
 
 
-STRATEGIES: dict[str, type[Strategy]] = {"admm": AdmmStrategy, "fista": FistaStrategy, "fft": FftInverse,
-                                         "separable": SeparableInverse}
+STRATEGIES: dict[str, type[Strategy]] = {Filter.ADMM: AdmmStrategy, Filter.FISTA: FistaStrategy,
+                                         Filter.FFT: FftInverse, Filter.SEPARABLE: SeparableInverse}
 """The GLSL backend's strategy for each ``method``."""
 
 

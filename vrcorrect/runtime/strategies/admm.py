@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from ...plumbing.errors import ValidationError
+from ...specs.vocabulary import Filter, Precision
 from ..eye_model import check_iterations
 from ..gl import fullscreen_triangle, release
 from ..shaders import compile_compute, compile_program
@@ -106,7 +107,7 @@ class AdmmBuffers:
 
 
 class AdmmStrategy(Strategy):
-    name = "admm"
+    name = Filter.ADMM
     iterative = True
 
     def __init__(self, *args: Any, coarse_level: bool = False, **kwargs: Any):
@@ -115,7 +116,7 @@ class AdmmStrategy(Strategy):
         from ...solvers.spectral import spectral_norm_squared  # the same
 
         m = self.model
-        self.half = self.options.precision == "half"
+        self.half = self.options.precision == Precision.HALF
         self.norm2 = spectral_norm_squared(m.kernel.kernel)
         self.keep = float(np.float32(ADMM_RHO * self.norm2 / (2.0 + ADMM_RHO * self.norm2)))
         self.alpha = float(np.float32(ADMM_RELAXATION))

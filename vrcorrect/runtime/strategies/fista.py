@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ...specs.vocabulary import Filter
 from ..eye_model import check_iterations
 from ..fft import FftBankGL, fft_grid
 from ..gl import download_texture, release
@@ -69,7 +70,7 @@ class FistaBuffers:
 
 
 class FistaStrategy(Strategy):
-    name = "fista"
+    name = Filter.FISTA
     iterative = True
 
     def __init__(self, *args: Any, **kwargs: Any):

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ...specs.vocabulary import Filter
 from ..dispatch import Gpu
 from ..fft import FftBankGL, fft_grid
 from ..filters import SeparableBank
@@ -59,7 +60,7 @@ class FftBuffers:
 
 
 class FftInverse(Strategy):
-    name = "fft"
+    name = Filter.FFT
 
     def __init__(self, *args: Any, **kwargs: Any):
         super().__init__(*args, **kwargs)
@@ -171,7 +172,7 @@ class SeparableBankGL:
 
 
 class SeparableInverse(Strategy):
-    name = "separable"
+    name = Filter.SEPARABLE
 
     def __init__(self, *args: Any, **kwargs: Any):
         super().__init__(*args, **kwargs)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Union
 
+from ...specs.vocabulary import Backend
 from ..dispatch import resource_bytes
 from ..gl import release
 from ..onnx_backend import OnnxModel
@@ -26,7 +27,7 @@ Slot = Union[OnnxModel, "LearnedEye"]
 
 
 class OnnxStrategy(Strategy):
-    name = "onnx"
+    name = Backend.ONNX
 
     def __init__(self, *args: Any, slot: Slot, **kwargs: Any):
         super().__init__(*args, **kwargs)

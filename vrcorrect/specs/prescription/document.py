@@ -11,11 +11,11 @@ from typing import Any, Mapping
 
 from ...plumbing.errors import Problem, ValidationErrors
 from ..validation import check_number, unknown_key_problem
+from ..vocabulary import Eye, names
 from .model import (
     COEFFICIENT,
     COEFFS_ALLOWED,
     EYE_FIELDS,
-    EYES,
     HO_PUPIL,
     SCHEMA,
     EyeRx,
@@ -52,7 +52,7 @@ MISSING: Any = _Missing()
 
 _EYE_KEYS = tuple(EYE_FIELDS) + ("higher_order",)
 _HO_KEYS = ("pupil_diameter_mm", "coefficients_um")
-_TOP_KEYS = ("schema", "notes") + EYES
+_TOP_KEYS = ("schema", "notes") + names(Eye)
 
 _EYE_ALLOWED = (
     "an object with sphere_D, cylinder_D, axis_deg, pupil_diameter_mm "
@@ -148,7 +148,7 @@ def problems_in(doc: object) -> list[Problem]:
         problems.append(Problem("schema", schema, f"the string {SCHEMA!r}"))
     if "notes" in doc and not isinstance(doc["notes"], str):
         problems.append(Problem("notes", doc["notes"], "a string (free text)"))
-    for name in EYES:
+    for name in names(Eye):
         _eye_doc_problems(doc.get(name, MISSING), name, problems)
     for key in doc:
         if key not in _TOP_KEYS:

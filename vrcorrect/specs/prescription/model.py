@@ -17,11 +17,11 @@ import numpy as np
 
 from ...plumbing.errors import Problem, ValidationError, ValidationErrors
 from ..validation import Range, check_number, unknown_key_problem
+from ..vocabulary import Eye, either, names
 
-__all__ = ["SCHEMA", "EYES", "J_MIN", "J_MAX", "PowerVector", "HigherOrder", "EyeRx", "Prescription"]
+__all__ = ["SCHEMA", "J_MIN", "J_MAX", "PowerVector", "HigherOrder", "EyeRx", "Prescription"]
 
 SCHEMA = "vrcorrect.prescription/1"
-EYES = ("right", "left")
 
 #: Range of the OSA/ANSI single index accepted for higher-order terms
 #: (j = 6 is Z(3,-3); j = 65 is Z(10,10)).
@@ -385,7 +385,7 @@ class Prescription:
 
     def __post_init__(self) -> None:
         problems: list[Problem] = []
-        for name in EYES:
+        for name in names(Eye):
             if not isinstance(getattr(self, name), EyeRx):
                 problems.append(Problem(name, getattr(self, name), "an EyeRx"))
         if not isinstance(self.notes, str):
@@ -401,6 +401,6 @@ class Prescription:
         ValidationError
             For any other name.
         """
-        if name not in EYES:
-            raise ValidationError("eye", name, "'right' or 'left'")
+        if name not in names(Eye):
+            raise ValidationError("eye", name, either(Eye))
         return getattr(self, name)
