@@ -515,24 +515,18 @@ layout(std430, binding = 4) readonly buffer Partials { vec4 u_partials[]; };
 layout(std430, binding = 6) buffer History { float u_history[2]; };
 uniform bool u_reset;
 shared vec4 sums[256];
+#include "guard.glsl"
 void main() {
     uint i = gl_LocalInvocationIndex;
-    vec4 s = vec4(0.0);
-    for (int k = int(i); k < IMG_H; k += 256) s += u_partials[k];
-    sums[i] = s;
-    barrier();
-    for (uint stride = 128u; stride > 0u; stride >>= 1u) {
-        if (i < stride) sums[i] += sums[i + stride];
-        barrier();
-    }
+    vec4 total = guard_sum_partials(i, IMG_H);
     if (i == 0u) {
-        u_sums[0] = sums[0].x;
-        u_sums[1] = sums[0].y;
-        u_sums[2] = sums[0].z;
-        float beta = sums[0].y > 1e-10 * sums[0].z ? clamp(-sums[0].x / sums[0].y, 0.0, 1.0) : 0.0;
+        u_sums[0] = total.x;
+        u_sums[1] = total.y;
+        u_sums[2] = total.z;
+        float beta = total.y > 1e-10 * total.z ? clamp(-total.x / total.y, 0.0, 1.0) : 0.0;
         u_beta = beta;
         u_history[1] = u_reset ? -1.0 : u_history[0];
-        u_history[0] = sums[0].z + 2.0 * beta * sums[0].x + beta * beta * sums[0].y;
+        u_history[0] = total.z + 2.0 * beta * total.x + beta * beta * total.y;
     }
 }
 #endif

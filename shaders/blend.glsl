@@ -47,21 +47,15 @@ void main() {
 layout(local_size_x = 256) in;
 uniform int u_count;
 shared vec4 sums[256];
+#include "guard.glsl"
 void main() {
     uint i = gl_LocalInvocationIndex;
-    vec4 s = vec4(0.0);
-    for (int k = int(i); k < u_count; k += 256) s += u_partials[k];
-    sums[i] = s;
-    barrier();
-    for (uint stride = 128u; stride > 0u; stride >>= 1u) {
-        if (i < stride) sums[i] += sums[i + stride];
-        barrier();
-    }
+    vec4 total = guard_sum_partials(i, u_count);
     if (i == 0u) {
-        blend_sums[0] = sums[0].x;
-        blend_sums[1] = sums[0].y;
-        blend_sums[2] = sums[0].z;
-        blend_beta = sums[0].y > 0.0 ? clamp(-sums[0].x / sums[0].y, 0.0, 1.0) : 0.0;
+        blend_sums[0] = total.x;
+        blend_sums[1] = total.y;
+        blend_sums[2] = total.z;
+        blend_beta = total.y > 0.0 ? clamp(-total.x / total.y, 0.0, 1.0) : 0.0;
     }
 }
 #endif
