@@ -21,7 +21,7 @@ from vrcorrect.vision import acuity as A
 from vrcorrect.specs.display import get_display
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.physics.kernel import KernelOptions, build_kernel
-from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.physics.options import OpticsOptions
 from vrcorrect.specs.prescription import EyeRx
 
 AT_INFINITY = KernelOptions(optics=OpticsOptions(viewing_distance_m=math.inf))

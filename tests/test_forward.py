@@ -13,7 +13,7 @@ from vrcorrect.specs.display import decode, encode, get_display
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.vision.forward import _convolve_direct, lms_to_display, simulate_lms, what_the_eye_sees
 from vrcorrect.physics.kernel import KernelOptions, build_kernel
-from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.physics.options import OpticsOptions
 from vrcorrect.specs.prescription import EyeRx
 
 # Per-dtype tolerances for comparing two computations of the same quantity.

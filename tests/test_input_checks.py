@@ -14,7 +14,7 @@ import pytest
 from vrcorrect.specs.display import get_display
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.physics.kernel import KernelOptions, build_kernel
-from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.physics.options import OpticsOptions
 from vrcorrect.specs.prescription import EyeRx
 
 GOOD = np.full((8, 8, 3), 0.5)

@@ -11,7 +11,9 @@ import pytest
 
 from vrcorrect.specs.display import get_display
 from vrcorrect.physics.kernel import KernelOptions, _kernel_norm, build_kernel, hat_weights, monochromatic_psf
-from vrcorrect.physics.optics import OpticsOptions, crop_center
+from vrcorrect.physics.kernel_report import explain
+from vrcorrect.physics.options import OpticsOptions
+from vrcorrect.physics.sampling import crop_center
 from vrcorrect.physics.perception import (OPPONENT_MATRIX, from_opponent, normalised_weights,
                                   rgb_to_lms_matrix, to_opponent)
 from vrcorrect.specs.prescription import EyeRx
@@ -118,7 +120,7 @@ def test_identity_path_for_an_eye_in_focus():
     k = build_kernel(eye(0.0, pupil=2.0), low, INF)
     assert k.identity and k.size == 1
     np.testing.assert_allclose(k.kernel[:, :, 0, 0], k.matrix)
-    assert any("identity path" in d for d in k.decisions)
+    assert any("identity path" in d for d in explain(k.report))
     # the same eye with a real refractive error is not in focus
     k2 = build_kernel(eye(-2.0, pupil=2.0), low, INF)
     assert not k2.identity and k2.size > 1
@@ -144,7 +146,7 @@ def test_lca_off_removes_colour_dependent_blur(quest2):
 
 def test_decisions_are_explained(quest2):
     k = build_kernel(eye(-3.0), quest2)
-    text = "\n".join(k.decisions)
+    text = "\n".join(explain(k.report))
     for phrase in ("viewing distance", "residual refraction", "depth of focus", "wavelength step",
                    "holds 99.50%", "pupil sampling"):
         assert phrase in text
@@ -155,13 +157,13 @@ def test_explain_counts_the_kernels_psfs_in_every_line(quest2):
     computed while the step was chosen, coarser steps' nodes included ("21 of 21")."""
     geometric = KernelOptions(optics=OpticsOptions(psf_model="geometric"))    # quick, and the line has a count
     k = build_kernel(eye(-3.0, -1.5, 20.0), quest2, geometric)
-    text = "\n".join(k.decisions)
+    text = "\n".join(explain(k.report))
     n = len(k.node_wavelengths_nm)
-    assert k.info["psfs_computed"] > n                 # the adaptive step computed nodes the kernel skips
+    assert k.report.wavelength.psfs_computed > n                 # the adaptive step computed nodes the kernel skips
     assert int(re.search(r"\((\d+) PSFs over", text).group(1)) == n, text
     model = re.search(r"\((\d+) of (\d+) PSFs", text)
     assert model and int(model.group(1)) == int(model.group(2)) == n, text   # every one of them geometric
-    assert str(k.info["psfs_computed"]) in text        # the work done is still told, as such
+    assert str(k.report.wavelength.psfs_computed) in text        # the work done is still told, as such
 
 
 def test_headset_distance_shifts_the_residual(quest2):

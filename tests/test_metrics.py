@@ -14,7 +14,7 @@ from vrcorrect.specs.display import decode, get_display
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.physics.kernel import KernelOptions, build_kernel
 from vrcorrect.vision.metrics import ImageMetrics, evaluate_seen, flip, jod, lms_objective, psnr, ssim
-from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.physics.options import OpticsOptions
 from vrcorrect.specs.prescription import EyeRx
 
 AT_INFINITY = KernelOptions(optics=OpticsOptions(viewing_distance_m=math.inf))

@@ -14,10 +14,13 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from vrcorrect.plumbing.errors import ModelLimitError, ValidationError
-from vrcorrect.physics.optics import (OpticsOptions, chromatic_refraction_D, crop_center, depth_of_focus_D,
-                              energy_size, lca_defocus_D, osa_index, osa_nm, power_vector_to_zernike_um,
-                              psf_pixels, refractive_state, wavefront_from_zernike_um, wavefront_um,
-                              zernike, zernike_um_to_power_vector)
+from vrcorrect.physics.options import OpticsOptions
+from vrcorrect.physics.psf import psf_pixels
+from vrcorrect.physics.refraction import (chromatic_refraction_D, depth_of_focus_D, lca_defocus_D, meridian_power_D,
+                                          refractive_state, wavefront_um)
+from vrcorrect.physics.sampling import crop_center, energy_size
+from vrcorrect.physics.zernike import (osa_index, osa_nm, power_vector_to_zernike_um, wavefront_from_zernike_um,
+                                       zernike, zernike_um_to_power_vector)
 from vrcorrect.specs.prescription import EyeRx, PowerVector
 
 
@@ -109,8 +112,6 @@ def test_rx_zernike_wavefront_equals_direct_wavefront(s, c, a, pupil):
 
 def test_meridian_of_cylinder_power_follows_axis():
     """Minus cylinder: no power error along the axis, full cylinder at 90 deg to it."""
-    from vrcorrect.physics.optics import meridian_power_D
-
     for axis in (0.0, 30.0, 90.0, 135.0):
         pv = eye(-1.0, -2.0, axis).power_vector()
         assert meridian_power_D(pv, axis) == pytest.approx(-1.0, abs=1e-12)

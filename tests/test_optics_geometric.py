@@ -19,8 +19,12 @@ import pytest
 from vrcorrect.specs.display import get_display, preset_names
 from vrcorrect.plumbing.errors import ModelLimitError, ValidationError
 from vrcorrect.physics.kernel import KernelOptions, build_kernel
-from vrcorrect.physics.optics import (OpticsOptions, geometric_psf_pixels, pixel_angle_rad, psf_pixels,
-                              refractive_state)
+from vrcorrect.physics.kernel_report import explain
+from vrcorrect.physics.geometric_psf import geometric_psf_pixels
+from vrcorrect.physics.options import OpticsOptions
+from vrcorrect.physics.psf import psf_pixels
+from vrcorrect.physics.refraction import refractive_state
+from vrcorrect.physics.sampling import pixel_angle_rad
 from vrcorrect.specs.prescription import EyeRx, HigherOrder
 
 
@@ -195,8 +199,8 @@ def test_every_accepted_prescription_is_modelled_on_every_display_preset(display
         # each cone's response to white is 1 (display white -> L = M = S = 1) and sums equal A
         np.testing.assert_allclose(k.kernel.sum(axis=(1, 2, 3)), 1.0, atol=1e-9)
         np.testing.assert_allclose(k.kernel.sum(axis=(2, 3)), k.matrix, atol=1e-12)
-        text = "\n".join(k.decisions)
-        geometric = k.info["geometric_wavelengths_nm"]
+        text = "\n".join(explain(k.report))
+        geometric = k.report.geometric_wavelengths_nm
         if pupil == 9.0:
             assert geometric, text
         if geometric:
@@ -209,9 +213,9 @@ def test_every_accepted_prescription_is_modelled_on_every_display_preset(display
         k = build_kernel(eye(*REPORTED), display, options)
         assert np.isfinite(k.kernel).all() and k.kernel.min() >= 0.0
         np.testing.assert_allclose(k.kernel.sum(axis=(1, 2, 3)), 1.0, atol=1e-9)
-        assert k.info["geometric_wavelengths_nm"] == [390.0]
-        text = "\n".join(k.decisions)
-        n = len(k.info["psf_models"])
+        assert k.report.geometric_wavelengths_nm == [390.0]
+        text = "\n".join(explain(k.report))
+        n = len(k.report.psfs)
         assert f"PSF model: geometric optics at 390 nm (1 of {n} PSFs" in text
         assert f"(wave optics at 470-{max(k.node_wavelengths_nm):.0f} nm)" in text
 

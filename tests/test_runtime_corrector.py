@@ -19,7 +19,7 @@ from vrcorrect.apps.evaluate import PRESCRIPTIONS, prescription_eye
 from vrcorrect.plumbing.images import bundled_images
 from vrcorrect.vision.forward import what_the_eye_sees
 from vrcorrect.physics.kernel import KernelOptions, build_reference_kernel
-from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.physics.options import OpticsOptions
 from vrcorrect.specs.prescription import Prescription
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector

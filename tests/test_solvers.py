@@ -15,7 +15,7 @@ from skimage import data, transform
 from vrcorrect.specs.display import decode, encode, get_display
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.physics.kernel import KernelOptions, build_kernel, build_reference_kernel
-from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.physics.options import OpticsOptions
 from vrcorrect.specs.prescription import EyeRx
 from vrcorrect.solvers import make_problem, solve
 
@@ -209,7 +209,7 @@ import json, math, resource, sys
 import numpy as np
 from vrcorrect.specs.display import get_display
 from vrcorrect.physics.kernel import KernelOptions, build_kernel
-from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.physics.options import OpticsOptions
 from vrcorrect.specs.prescription import EyeRx
 from vrcorrect.solvers import make_problem, solve
 k = build_kernel(EyeRx(sphere_D=-1.5, cylinder_D=0.0, axis_deg=0.0, pupil_diameter_mm=4.0), get_display("quest2"),

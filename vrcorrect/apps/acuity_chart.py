@@ -32,7 +32,7 @@ from ..plumbing.fileio import check_writable, text_writer, write_together
 from ..plumbing.imageio import png_writer
 from ..specs.display import encode, get_display
 from ..specs.vocabulary import Method, names
-from .common import add_model_options, kernel_options, load_eye
+from .common import add_model_options, kernel_decisions, kernel_options, load_eye
 
 if TYPE_CHECKING:  # annotations only: importing these at run time would slow the command line's start
     from ..physics.kernel import EyeKernel, KernelOptions
@@ -111,11 +111,11 @@ class AcuityResult:
                     "pupil_diameter_mm": self.eye.pupil_diameter_mm, "accommodation_D": self.eye.accommodation_D},
             "display": {"name": d.name, "title": d.title, "pixels_per_degree": d.pixels_per_degree,
                         "distance_m": _metres(d.distance_m)},
-            "viewing_distance_m": _metres(self.kernel.info["distance_m"]),
+            "viewing_distance_m": _metres(self.kernel.report.viewing.distance_m),
             "noise_contrast_arcmin": obs.noise_contrast_arcmin,
             "observer": {"trials_per_letter": obs.trials_per_letter, "criterion": obs.criterion, "seed": obs.seed},
             "seconds": {_label(k): v for k, v in self.seconds.items()},
-            "kernel_decisions": list(self.kernel.decisions),
+            "kernel_decisions": kernel_decisions(self.kernel),
         })
         return out
 
@@ -410,7 +410,7 @@ def cmd_acuity(args: argparse.Namespace) -> int:
     report["prescription"] = str(rx_path)
     report["eye"]["which"] = args.eye
     out = sys.stderr if args.json == "-" else sys.stdout
-    distance = result.kernel.info["distance_m"]
+    distance = result.kernel.report.viewing.distance_m
     where = "optical infinity" if math.isinf(distance) else f"{distance:.2f} m"
     print(f"{args.eye} eye {eye.sphere_D:+.2f} / {eye.cylinder_D:+.2f} x {eye.axis_deg:g}, pupil "
           f"{eye.pupil_diameter_mm:g} mm, on {display.title} ({display.pixels_per_degree:.1f} ppd, seen at {where})",

@@ -45,7 +45,7 @@ def load_eye(args: argparse.Namespace) -> tuple[Path, EyeRx]:
 
 def kernel_options(args: argparse.Namespace) -> KernelOptions:
     from ..physics.kernel import KernelOptions  # noqa: F811  (the run-time class; the one above is for hints)
-    from ..physics.optics import OpticsOptions
+    from ..physics.options import OpticsOptions
 
     distance = None
     if getattr(args, "distance_m", None) is not None:
@@ -72,6 +72,14 @@ def build_eye_kernel(args: argparse.Namespace, eye: EyeRx, display: DisplayProfi
         return build_kernel(eye, display, kernel_options(args), progress=bar)
     finally:
         bar.close()
+
+
+def kernel_decisions(kernel: EyeKernel) -> list[str]:
+    """The decisions that shaped ``kernel``, in words (``--explain``, the reports' ``kernel_decisions``,
+    ``psf``'s sidecar)."""
+    from ..physics.kernel_report import explain  # on use: start-up time (apps/__init__)
+
+    return explain(kernel.report)
 
 
 def add_model_options(p: argparse.ArgumentParser) -> None:

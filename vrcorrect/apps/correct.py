@@ -24,6 +24,7 @@ from .common import (
     build_eye_kernel,
     check_memory,
     finite_json,
+    kernel_decisions,
     kernel_options,
     load_eye,
     print_notes,
@@ -80,7 +81,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
             "seconds": {"kernel": t1 - t0, "solve": result.seconds},
             "objective": result.objective, "objective_uncorrected": uncorrected.objective,
             "metrics": corrected.__dict__, "metrics_uncorrected": uncorrected.__dict__,
-            "settings": result.settings, "kernel_decisions": list(kernel.decisions),
+            "settings": result.settings, "kernel_decisions": kernel_decisions(kernel),
         }
         outputs.append((Path(args.report), _report_writer(report, notes)))
     # the image and its report appear together or not at all (an interruption leaves neither)
@@ -243,7 +244,7 @@ def _clip_report(args, plan: clips.ClipPlan, rx_path, display, result, reference
                     "iterations_median": float(np.median([f["iterations"] for f in per_frame]))},
         "metrics": metrics,
         "frames": per_frame,
-        "settings": result.settings, "kernel_decisions": list(kernel.decisions),
+        "settings": result.settings, "kernel_decisions": kernel_decisions(kernel),
     }
 
 

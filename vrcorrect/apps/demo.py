@@ -51,7 +51,7 @@ def run_demo(out: Path, display_name: str = "quest2", force: bool = False) -> It
     """Write the demo pictures into ``out``; yields one line per file."""
     # the physics is imported here, not above: every vrcorrect run imports this module to build its parser
     from ..physics.kernel import KernelOptions, build_kernel
-    from ..physics.optics import OpticsOptions
+    from ..physics.options import OpticsOptions
     from ..vision.forward import what_the_eye_sees
 
     out = Path(out)

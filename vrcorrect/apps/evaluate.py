@@ -577,7 +577,7 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
         An output exists (without ``force``) or cannot be written.
     """
     from ..physics.kernel import KernelOptions, build_kernel  # on use: start-up time (apps/__init__)
-    from ..physics.optics import OpticsOptions
+    from ..physics.options import OpticsOptions
     from ..solvers import make_problem, solve
     from ..vision.metrics import evaluate_seen
 

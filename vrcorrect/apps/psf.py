@@ -11,7 +11,7 @@ import numpy as np
 from ..plumbing.errors import ValidationError
 from ..plumbing.fileio import check_writable, text_writer, write_together
 from ..specs.display import get_display
-from .common import add_model_options, build_eye_kernel, kernel_options, load_eye
+from .common import add_model_options, build_eye_kernel, kernel_decisions, kernel_options, load_eye
 from .plots import plot_psf
 
 
@@ -52,7 +52,7 @@ def cmd_psf(args: argparse.Namespace) -> int:
                     "y (rows, down the display)", "x (columns, to the right)"],
                     kernel_size=kernel.size, wavelengths_nm=list(kernel.node_wavelengths_nm),
                     wavelength_step_nm=kernel.wavelength_step_nm, identity=kernel.identity,
-                    rgb_to_lms=kernel.matrix.tolist(), decisions=list(kernel.decisions))
+                    rgb_to_lms=kernel.matrix.tolist(), decisions=kernel_decisions(kernel))
     def save_array(tmp: Path) -> None:
         with tmp.open("wb") as f:
             np.save(f, array)

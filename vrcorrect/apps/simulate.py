@@ -12,7 +12,7 @@ from ..plumbing.fileio import check_readable, check_writable
 from ..plumbing.imageio import read_image, write_png
 from ..specs.display import decode, encode, get_display
 from . import clips
-from .common import add_model_options, build_eye_kernel, load_eye, print_notes
+from .common import add_model_options, build_eye_kernel, kernel_decisions, load_eye, print_notes
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -42,7 +42,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
               f"{eye.cylinder_D:+.2f} D, axis {eye.axis_deg:g} deg, pupil {eye.pupil_diameter_mm:g} mm")
         print(f"display {display.name} ({display.title}): {display.pixels_per_degree:.1f} pixels per degree, "
               f"transfer {display.transfer}")
-        for line in kernel.decisions:
+        for line in kernel_decisions(kernel):
             print(f"  - {line}")
         shortcut = "grey image: exact achromatic shortcut" if info.achromatic else "colour image"
         print(f"  - forward model: {info.path} path, {shortcut}, {info.convolutions} convolution(s) of "
@@ -73,7 +73,7 @@ def _simulate_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     if args.explain:
         print(f"prescription {rx_path} ({args.eye} eye): sphere {eye.sphere_D:+.2f} D, cylinder "
               f"{eye.cylinder_D:+.2f} D, axis {eye.axis_deg:g} deg, pupil {eye.pupil_diameter_mm:g} mm")
-        for line in kernel.decisions:
+        for line in kernel_decisions(kernel):
             print(f"  - {line}")
         print(f"  - forward model: {info.path} path, {info.convolutions} convolution(s) of the last frame")
     print(f"wrote {args.output}: {plan.count} frames, what the {args.eye} eye sees on {display.title} ({plan.text})")

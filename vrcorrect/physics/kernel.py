@@ -6,7 +6,9 @@ spatial sum of ``K[k, c]`` equals the RGB->LMS matrix ``A[k, c]``
 linear RGB image ``x`` is ``r_k = sum_c K[k, c] * x_c`` (true convolution).
 
 What the kernel models follows what the eye and display need, and every
-decision is recorded in :attr:`EyeKernel.decisions`:
+decision is recorded in :attr:`EyeKernel.report`
+(:class:`~vrcorrect.physics.kernel_report.KernelReport`;
+:func:`~vrcorrect.physics.kernel_report.explain` puts it in words):
 
 * **Identity path.**  When the residual refractive error over the spectrally
   significant band (including chromatic aberration) is inside the eye's depth
@@ -39,21 +41,15 @@ import numpy as np
 from ..plumbing.errors import ValidationError
 from ..specs.display import DisplayProfile
 from ..specs.prescription import EyeRx
-from .optics import (
-    ARCMIN_RAD,
-    OpticsOptions,
-    PixelPsf,
-    RefractiveState,
-    crop_center,
-    depth_of_focus_D,
-    diffraction_blur_rad,
-    energy_size,
-    max_meridian_power_D,
-    pixel_angle_rad,
-    psf_pixels,
-    refractive_state,
-)
+from .kernel_report import (PSF_GRID_FITS, PSF_GRID_TOO_LARGE, PSF_OPTION, PSF_PHASE_UNRESOLVED, STEP_FINEST,
+                            STEP_FORCED, STEP_WITHIN_TOLERANCE, FocusCheck, KernelReport, NodePsf, StepTrial, Viewing,
+                            WavelengthStep)
+from .options import OpticsOptions
 from .perception import INTEGRATION_GRID_NM, normalised_weights
+from .psf import psf_pixels
+from .refraction import ARCMIN_RAD, RefractiveState, depth_of_focus_D, max_meridian_power_D, refractive_state
+from .sampling import PixelPsf, PsfSampling, crop_center, energy_size, pixel_angle_rad
+from .wave_psf import diffraction_blur_rad
 
 STEPS_NM = (80, 40, 20, 10, 5, 1)
 NODE_ORIGIN_NM = 390.0
@@ -96,7 +92,8 @@ class KernelOptions:
 
 @dataclass(frozen=True, eq=False)
 class EyeKernel:
-    """A built kernel and the decisions that shaped it."""
+    """A built kernel and the decisions that shaped it (``report``; in words:
+    :func:`~vrcorrect.physics.kernel_report.explain`)."""
 
     kernel: np.ndarray                 # (3 cones, 3 primaries, s, s) float64
     matrix: np.ndarray                 # (3, 3) RGB -> LMS, = kernel.sum((2, 3))
@@ -106,8 +103,7 @@ class EyeKernel:
     node_wavelengths_nm: tuple[float, ...]
     reference_wavelength_nm: float
     state: RefractiveState
-    decisions: tuple[str, ...]
-    info: dict
+    report: KernelReport
 
     @property
     def size(self) -> int:
@@ -181,22 +177,8 @@ def build_kernel(eye: EyeRx, display: DisplayProfile, options: KernelOptions | N
     state = refractive_state(eye, distance)
     weights = normalised_weights(display.primaries)
     A = weights.sum(axis=2)
-    decisions: list[str] = []
-    info: dict = {"pixels_per_degree": ppd, "distance_m": distance,
-                  "reference_wavelength_nm": opt.reference_wavelength_nm,
-                  "chromatic_aberration": opt.chromatic_aberration,
-                  "energy_fraction": options.energy_fraction,
-                  "wavelength_tolerance": options.wavelength_tolerance}
-
-    dist_txt = "infinity" if math.isinf(distance) else f"{distance:.2f} m"
-    decisions.append(
-        f"viewing distance {dist_txt} -> vergence {state.vergence_D:.2f} D; accommodation used "
-        f"{state.accommodation_used_D:.2f} of {eye.accommodation_D:.2f} D")
-    r = state.residual
-    decisions.append(
-        f"residual refraction at {opt.reference_wavelength_nm:.0f} nm: M {r.M_D:+.2f} D, J0 {r.J0_D:+.2f} D, "
-        f"J45 {r.J45_D:+.2f} D (worst meridian {max_meridian_power_D(r):.2f} D); chromatic aberration "
-        f"{'on (Thibos 1992)' if opt.chromatic_aberration else 'off'}")
+    viewing = Viewing(distance_m=distance, vergence_D=state.vergence_D,
+                      accommodation_used_D=state.accommodation_used_D, accommodation_D=eye.accommodation_D)
 
     band = significant_band_nm(weights)
     worst = max(max_meridian_power_D(state.at_wavelength(lam, opt))
@@ -206,22 +188,23 @@ def build_kernel(eye: EyeRx, display: DisplayProfile, options: KernelOptions | N
     diffraction = diffraction_blur_rad(band[1], eye.pupil_diameter_mm)
     has_ho = eye.higher_order is not None and bool(eye.higher_order.coefficients_um)
     in_focus = worst <= dof and diffraction <= blur_limit and not has_ho
-    info.update(band_nm=list(band), depth_of_focus_D=dof, worst_meridian_D=worst)
-    decisions.append(
-        f"depth of focus +-{dof:.3f} D ({math.degrees(blur_limit) * 60:.2f} arcmin blur limit, "
-        f"{eye.pupil_diameter_mm:g} mm pupil); worst meridian over {band[0]:.0f}-{band[1]:.0f} nm is "
-        f"{worst:.3f} D, diffraction blur {math.degrees(diffraction) * 60:.2f} arcmin"
-        + (", higher-order terms present" if has_ho else ""))
+    focus = FocusCheck(reference_wavelength_nm=opt.reference_wavelength_nm, residual=state.residual,
+                       residual_worst_meridian_D=max_meridian_power_D(state.residual),
+                       chromatic_aberration=opt.chromatic_aberration, band_nm=band, worst_meridian_D=worst,
+                       depth_of_focus_D=dof, blur_limit_rad=blur_limit, pupil_diameter_mm=eye.pupil_diameter_mm,
+                       diffraction_blur_rad=diffraction, higher_order=has_ho, in_focus=in_focus)
+
+    def report(**kw) -> KernelReport:
+        return KernelReport(pixels_per_degree=ppd, viewing=viewing, focus=focus, identity_path=options.identity_path,
+                            energy_fraction=options.energy_fraction, psf_model=opt.psf_model, max_grid=opt.max_grid,
+                            **kw)
 
     if in_focus and options.identity_path:
-        decisions.append("identity path: the eye is in focus at this display; no convolution (kernel 1x1 = A)")
-        info.update(identity=True, kernel_size=1, wavelength_step_nm=None, nodes_nm=[])
         return EyeKernel(kernel=A[:, :, None, None].copy(), matrix=A, pixels_per_degree=ppd, identity=True,
                          wavelength_step_nm=None, node_wavelengths_nm=(), state=state,
                          reference_wavelength_nm=opt.reference_wavelength_nm,
-                         decisions=tuple(decisions), info=info)
-    decisions.append("convolution needed: the eye is out of focus at this display"
-                     if not in_focus else "identity path disabled by option")
+                         report=report(identity=True, energy_held=1.0, kernel_size_px=1, computed_field_px=None,
+                                       wavelength=None, psfs=()))
 
     psfs: dict[float, PixelPsf] = {}
 
@@ -241,111 +224,63 @@ def build_kernel(eye: EyeRx, display: DisplayProfile, options: KernelOptions | N
 
     steps = (options.wavelength_step_nm,) if options.wavelength_step_nm else STEPS_NM
     chosen: int | None = None
+    reason = STEP_WITHIN_TOLERANCE
     previous: np.ndarray | None = None
-    trail: list[str] = []
+    trials: list[StepTrial] = []
     K = nodes = None
-    estimate = None
     for step in steps:
         K, nodes = kernel_for(step)
         if options.wavelength_step_nm:
-            chosen = step
-            trail.append(f"{step} nm forced by option")
+            chosen, reason = step, STEP_FORCED
             break
         if step == 1:
-            chosen = 1
-            trail.append("1 nm is the reference itself")
+            chosen, reason = 1, STEP_FINEST
             break
         if previous is not None:
             size = max(previous.shape[-1], K.shape[-1])
             estimate = _kernel_norm(crop_center(previous, size) - crop_center(K, size)) / 3.0
-            trail.append(f"{step} nm: estimated error {estimate:.4f}")
+            trials.append(StepTrial(step, estimate))
             if estimate <= options.wavelength_tolerance:
                 chosen = step
                 break
         previous = K
     assert K is not None and nodes is not None and chosen is not None
     # The kernel's PSFs: the chosen step's nodes.  Choosing the step may have computed more (a coarser
-    # step's node that this step skips, such as 790 nm beyond a 10 nm step's 780 nm); every count and
-    # range below is of the kernel's, and the step line says how many were computed in all.
-    used = [psfs[float(lam)] for lam in nodes]
+    # step's node that this step skips, such as 790 nm beyond a 10 nm step's 780 nm); the report's nodes
+    # are the kernel's, and it says how many were computed in all.
     grid = np.arange(nodes[0], nodes[-1] + 0.5, chosen)
     skipped = [float(lam) for lam in grid if not np.isclose(nodes, lam).any()]
-    decisions.append(
-        f"wavelength step {chosen} nm ({len(nodes)} PSFs over {nodes[0]:.0f}-{nodes[-1]:.0f} nm"
-        + (f", none at {_runs_text(skipped, chosen)}: no spectral weight there" if skipped else "")
-        + (f"; {len(psfs)} PSFs computed while choosing the step" if len(psfs) > len(nodes) else "")
-        + f"); tolerance {options.wavelength_tolerance:.4f} of full scale; " + "; ".join(trail))
+    wavelength = WavelengthStep(step_nm=chosen, reason=reason, tolerance=options.wavelength_tolerance,
+                                trials=tuple(trials), nodes_nm=tuple(float(x) for x in nodes),
+                                left_out_nm=tuple(skipped), psfs_computed=len(psfs),
+                                max_fft_grid=max((p.sampling.grid for p in psfs.values()), default=0))
 
     full = K.shape[-1]
-    size = energy_size(K.sum(axis=1), options.energy_fraction)
+    cones = K.sum(axis=1)
+    size = energy_size(cones, options.energy_fraction)
+    held = float((crop_center(cones, size).sum(axis=(1, 2)) / cones.sum(axis=(1, 2))).min())
     K = crop_center(K, size).copy()
     sums = K.sum(axis=(2, 3))
     scale = np.where(sums > 0, A / np.where(sums > 0, sums, 1.0), 0.0)
     K *= scale[:, :, None, None]
-    decisions.append(
-        f"kernel {size}x{size} px holds {options.energy_fraction * 100:.2f}% of every cone's energy "
-        f"(computed field {full}x{full} px at {ppd:.1f} ppd); crop renormalised so sums equal A")
 
-    all_samp = [p.sampling for p in used]
-    samp = [s for s in all_samp if s.model != "geometric"]
-    geo = sorted((s for s in all_samp if s.model == "geometric"), key=lambda s: s.wavelength_nm)
-    if samp:
-        decisions.append(
-            "pupil sampling: FFT grid {}-{}, {:.0f}-{:.0f} samples across the pupil, {}-{} fine samples per "
-            "pixel, worst phase step {:.2f} rad (< pi/2), {} refinement(s)".format(
-                min(s.grid for s in samp), max(s.grid for s in samp),
-                min(s.pupil_samples for s in samp), max(s.pupil_samples for s in samp),
-                min(s.oversample for s in samp), max(s.oversample for s in samp),
-                max(s.max_phase_step_rad for s in samp), sum(s.refinements for s in samp))
-            + (f" (wave optics at {_wavelength_runs(all_samp, 'wave')})" if geo else ""))
-    if geo:
-        needed = max(s.wave_grid_needed for s in geo)
-        worst = max(s.model_error_estimate for s in geo)
-        why = (f"a wave-optics pupil grid would need up to {needed}x{needed} (limit {opt.max_grid})"
-               if needed else f"psf_model option {opt.psf_model!r}")
-        decisions.append(
-            f"PSF model: geometric optics at {_wavelength_runs(all_samp, 'geometric')} ({len(geo)} of "
-            f"{len(all_samp)} PSFs; {why}): the pupil's ray-optics blur integrated over pixels, convolved with its "
-            f"Airy pattern; estimated relative error of the geometric model {worst * 100:.2f}% "
-            f"or less (Airy disc diameter / half-energy blur diameter)")
-    info.update(identity=False, kernel_size=size, computed_field_px=full, wavelength_step_nm=chosen,
-                nodes_nm=[float(x) for x in nodes], wavelength_error_estimate=estimate,
-                psfs_computed=len(psfs), max_fft_grid=max((p.sampling.grid for p in psfs.values()), default=0),
-                psf_models={float(lam): s.model for lam, s in zip(nodes, all_samp)},
-                geometric_wavelengths_nm=[s.wavelength_nm for s in geo],
-                geometric_error_estimate=max((s.model_error_estimate for s in geo), default=None))
+    used = [psfs[float(lam)].sampling for lam in nodes]
+    node_psfs = tuple(NodePsf(s.wavelength_nm, s.model, _model_reason(s, opt.max_grid), s) for s in used)
     return EyeKernel(kernel=K, matrix=A, pixels_per_degree=ppd, identity=False, wavelength_step_nm=chosen,
                      node_wavelengths_nm=tuple(float(x) for x in nodes), state=state,
                      reference_wavelength_nm=opt.reference_wavelength_nm,
-                     decisions=tuple(decisions), info=info)
+                     report=report(identity=False, energy_held=held, kernel_size_px=size, computed_field_px=full,
+                                   wavelength=wavelength, psfs=node_psfs))
 
 
-def _runs_text(wavelengths: list[float], step: float) -> str:
-    """Sorted wavelengths as runs of ``step`` (for example ``"740-760 nm"`` or ``"750 nm"``)."""
-    runs: list[list[float]] = []
-    for lam in wavelengths:
-        if runs and math.isclose(lam - runs[-1][-1], step):
-            runs[-1].append(lam)
-        else:
-            runs.append([lam])
-    return ", ".join(f"{r[0]:.0f} nm" if len(r) == 1 else f"{r[0]:.0f}-{r[-1]:.0f} nm" for r in runs)
-
-
-def _wavelength_runs(samplings: list, model: str) -> str:
-    """Wavelengths whose PSF used ``model``, as runs over the sorted computed wavelengths
-    (for example ``"390-470 nm, 750 nm"``)."""
-    ordered = sorted(samplings, key=lambda s: s.wavelength_nm)
-    runs: list[list[float]] = []
-    previous = False
-    for s in ordered:
-        hit = (s.model == "geometric") == (model == "geometric")
-        if hit:
-            if previous:
-                runs[-1].append(s.wavelength_nm)
-            else:
-                runs.append([s.wavelength_nm])
-        previous = hit
-    return ", ".join(f"{r[0]:.0f} nm" if len(r) == 1 else f"{r[0]:.0f}-{r[-1]:.0f} nm" for r in runs)
+def _model_reason(sampling: PsfSampling, max_grid: int) -> str:
+    """Why a PSF has its model (:data:`~vrcorrect.physics.kernel_report.PSF_GRID_FITS` and so on), from
+    what its sampling recorded (:func:`vrcorrect.physics.psf.psf_pixels` chose)."""
+    if sampling.model != "geometric":
+        return PSF_GRID_FITS
+    if sampling.wave_grid_needed == 0:
+        return PSF_OPTION
+    return PSF_GRID_TOO_LARGE if sampling.wave_grid_needed > max_grid else PSF_PHASE_UNRESOLVED
 
 
 def monochromatic_psf(eye: EyeRx, display: DisplayProfile, wavelength_nm: float,

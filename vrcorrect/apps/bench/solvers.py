@@ -29,7 +29,7 @@ import numpy as np
 from skimage import data, transform
 from vrcorrect.specs.display import decode, get_display
 from vrcorrect.physics.kernel import KernelOptions, build_kernel
-from vrcorrect.physics.optics import OpticsOptions
+from vrcorrect.physics.options import OpticsOptions
 from vrcorrect.specs.prescription import EyeRx
 from vrcorrect.solvers import make_problem, objective, solve
 case = json.loads(sys.argv[1])
