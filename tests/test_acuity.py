@@ -1,4 +1,4 @@
-"""Simulated chart acuity (vrcorrect.vision.acuity, vrcorrect.apps.acuity_chart): by property, never by snapshot.
+"""Simulated chart acuity (vrcorrect.vision.acuity, vrcorrect.studies.acuity_chart): by property, never by snapshot.
 
 The calibration (an emmetrope reads logMAR 0), the published defocus relation (Blendowske 2015),
 lines the display cannot draw, a correction that does not make reading worse, the command's JSON
@@ -222,7 +222,7 @@ def test_sharp_template_observer_is_reported_and_never_beats_the_ideal_one(fast_
 
 def test_one_observer_for_an_eye_that_needs_no_glasses(medium):
     """With no refractive error the glasses change nothing: both observers read the same."""
-    from vrcorrect.apps.acuity_chart import measure_acuity
+    from vrcorrect.studies.acuity_chart import measure_acuity
 
     r = measure_acuity(eye(0.0), medium, (), AT_INFINITY, top_logmar=0.3, bottom_logmar=0.0,
                        observer=A.Observer(trials_per_letter=100))

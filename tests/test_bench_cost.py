@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from vrcorrect.apps.bench.cost import TARGET_BYTES, eye_frame_cost, parse_size
+from vrcorrect.studies.bench.cost import TARGET_BYTES, eye_frame_cost, parse_size
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.specs.display import get_display
 from vrcorrect.specs.prescription import bundled_sample_path, load_prescription

@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vrcorrect.apps.bench.realtime import (
+from vrcorrect.studies.bench.realtime import (
     Run, floor_and_ceiling, frames_to_within, make_case, run_clip, run_realtime_bench, score_clip, still_convergence,
 )
-from vrcorrect.apps.bench.sequences import SEQUENCES, Clip, held_out, suite
+from vrcorrect.studies.bench.sequences import SEQUENCES, Clip, held_out, suite
 from vrcorrect.solvers.realtime import frames_twin
 
 SIZE, FRAMES = 48, 8
@@ -49,7 +49,7 @@ def test_a_cut_starts_cold_and_the_guard_never_loses(case, clips):
     run = run_clip(case, cut, "admm", 2, keep_shown=False)
     assert all(o <= n * (1 + 1e-6) for o, n in zip(run.objective, none.objective))
     fresh = frames_twin("admm", case.kernel, case.reference, (SIZE, SIZE))
-    from vrcorrect.apps.bench.realtime import linear
+    from vrcorrect.studies.bench.realtime import linear
 
     first_after = fresh.frame(linear(cut.frames[cut.cut_at]), 2)
     assert run.objective[cut.cut_at] == pytest.approx(first_after.objective, rel=1e-6)   # cold, like a fresh start

@@ -24,8 +24,8 @@ import pytest
 from PIL import Image
 
 from vrcorrect.apps import cli
-from vrcorrect.apps.bench import machine_description
-from vrcorrect.apps.bench.kernel import HEADSETS
+from vrcorrect.studies.bench import machine_description
+from vrcorrect.studies.bench.kernel import HEADSETS
 from vrcorrect.specs.display import get_display, preset_names
 from vrcorrect.specs.prescription import template_text
 
@@ -661,7 +661,7 @@ def kernel_bench_calls(monkeypatch):
         calls.append((Path(out), write))
         return "| display | px/deg | median s |"
 
-    monkeypatch.setattr("vrcorrect.apps.bench.kernel.run_kernel_bench", fake)
+    monkeypatch.setattr("vrcorrect.studies.bench.kernel.run_kernel_bench", fake)
     return calls
 
 

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from vrcorrect.apps import evaluate as ev
+from vrcorrect.apps import evaluate as ev_cmd
+from vrcorrect.studies import evaluation as ev
 from vrcorrect.plumbing import images
 from vrcorrect.plumbing.errors import InputError, ValidationError
 
@@ -25,7 +26,7 @@ METHODS = ("paper", "fast")
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="vrcorrect")
     sub = ap.add_subparsers(dest="command")
-    ev.add_parser(sub)
+    ev_cmd.add_parser(sub)
     return ap
 
 
@@ -153,7 +154,7 @@ def test_csv_parses_and_is_finite(run):
 def test_markdown_has_machine_tables_and_verdicts(run):
     out, result = run
     text = (out / "results.md").read_text()
-    from vrcorrect.apps.bench import machine_description
+    from vrcorrect.studies.bench import machine_description
 
     assert machine_description() in text
     assert result["summary_markdown"] in text
@@ -270,7 +271,7 @@ def test_parser_defaults():
     args = _parser().parse_args(["evaluate"])
     assert args.out == "evaluation" and args.size == 256 and args.display == "desktop"
     assert args.methods == ["paper", "fast"] and args.images is None and not args.force
-    assert args.func is ev.cmd_evaluate
+    assert args.func is ev_cmd.cmd_evaluate
 
 
 def test_a_bare_evaluate_leaves_out_the_slow_conventional_method_unless_asked():

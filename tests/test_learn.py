@@ -438,7 +438,7 @@ def test_fine_tuning_starts_from_another_runs_weights_and_says_so(perturbed_chec
     export_onnx(tmp_path / "tuned" / "checkpoint.pt", tmp_path / "tuned.onnx")
     meta = {p.key: p.value for p in onnx.load(tmp_path / "tuned.onnx").metadata_props}
     assert json.loads(meta["vrcorrect.train"])["init"]["step"] == 3
-    from vrcorrect.apps.bench.learned import _training_lines
+    from vrcorrect.studies.bench.learned import _training_lines
 
     assert _training_lines(json.loads(meta["vrcorrect.train"]))[0].startswith(
         "- fine-tuned (`vrcorrect train --init`) from a run of 3 steps")
@@ -673,7 +673,7 @@ def test_crops_per_eye_share_the_eye_and_nothing_else():
 def test_bench_learned_scores_a_model_on_held_out_data(tiny_onnx, tmp_path):
     """The benchmark's accounting (not its timings): per case the gap share is computed from the
     objectives it reports, the held-out eyes lie in the model's ranges, and the card is written."""
-    from vrcorrect.apps.bench.learned import held_out_eyes, run_learned_bench
+    from vrcorrect.studies.bench.learned import held_out_eyes, run_learned_bench
     from vrcorrect.learn.conditioning import check_eye
 
     out, card, plot = tmp_path / "bench.md", tmp_path / "models" / "card.md", tmp_path / "learned.png"
@@ -719,7 +719,7 @@ def test_bench_learned_scores_a_model_on_held_out_data(tiny_onnx, tmp_path):
 
 
 def test_bench_speed_words_never_round_a_slower_model_up_to_1x():
-    from vrcorrect.apps.bench.learned import _times
+    from vrcorrect.studies.bench.learned import _times
 
     assert _times(0.997).endswith("slower") and not _times(0.997).startswith("1x")
     assert _times(2.44) == "2.4x faster" and _times(123.4) == "123x faster"

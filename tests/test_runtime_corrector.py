@@ -15,7 +15,7 @@ from conftest import count_gl_objects
 
 from vrcorrect.specs.display import decode, encode, get_display
 from vrcorrect.plumbing.errors import ValidationError, ValidationErrors
-from vrcorrect.apps.evaluate import PRESCRIPTIONS, prescription_eye
+from vrcorrect.studies.evaluation import PRESCRIPTIONS, prescription_eye
 from vrcorrect.plumbing.images import bundled_images
 from vrcorrect.vision.forward import what_the_eye_sees
 from vrcorrect.physics.kernel import KernelOptions, build_reference_kernel

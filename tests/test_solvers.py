@@ -57,7 +57,7 @@ def test_wiener_never_worse_than_no_correction(desktop, myope_kernel, name):
 def test_wiener_strictly_better_than_no_correction_on_every_evaluation_image(desktop, rx_key):
     """The issue's guarantee for the closed form, on the evaluation set (photographs and the
     binary charts where the clipped inverse alone gets blend weight 0) for the five problems."""
-    from vrcorrect.apps.evaluate import PRESCRIPTIONS, prescription_eye
+    from vrcorrect.studies.evaluation import PRESCRIPTIONS, prescription_eye
     from vrcorrect.plumbing.images import bundled_images
 
     rx = next(r for r in PRESCRIPTIONS if r.key == rx_key)
@@ -100,7 +100,7 @@ def test_fast_is_not_stopped_by_a_rise_and_returns_its_best_iterate(desktop):
     """Over-relaxed ADMM is not monotone: on this evaluation case (rocket, hyperopic
     astigmatism, 512x512) the objective rises at the third iteration.  ``fast`` must go on past
     the rise (stopping there left it 7 % above ``paper``) and return its best iterate."""
-    from vrcorrect.apps.evaluate import PRESCRIPTIONS, prescription_eye
+    from vrcorrect.studies.evaluation import PRESCRIPTIONS, prescription_eye
     from vrcorrect.plumbing.images import bundled_images
 
     rx = {r.key: r for r in PRESCRIPTIONS}["hyperopic_astig"]

@@ -137,7 +137,7 @@ def test_the_applications_images_and_structures_are_untouched_and_the_life_cycle
     assert any("correcting with" in line and str(kit.rx) in line for line in log), log
     assert len([line for line in log if "building the eye models" in line]) == 1, log
     timing = [line for line in log if "per eye" in line]
-    from vrcorrect.apps.bench.layer import _LINE                 # what `vrcorrect bench layer` reads from it
+    from vrcorrect.studies.bench.layer import _LINE                 # what `vrcorrect bench layer` reads from it
     assert timing and all((m := _LINE.search(line)) and m.group(7) is None for line in timing), log
     assert not any("pass-through" in line for line in log), log
 

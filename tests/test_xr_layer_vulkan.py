@@ -113,7 +113,7 @@ def test_the_life_cycle_completes_and_the_log_names_the_vulkan_costs(corrected_r
     timing = [line for line in layer if "per eye" in line]
     assert timing and all("Vulkan copy in and wait" in line and "glFinish" in line and "copy out" in line
                           for line in timing), layer
-    from vrcorrect.apps.bench.layer import _LINE                 # what `vrcorrect bench layer` reads from it
+    from vrcorrect.studies.bench.layer import _LINE                 # what `vrcorrect bench layer` reads from it
     assert all((m := _LINE.search(line)) and m.group(7) is not None for line in timing), timing
     assert not any("pass-through" in line for line in layer), layer
 

@@ -11,7 +11,8 @@ docstrings and enforces both (docs/architecture.md, 'Layers').
 3. ``vision``: the forward model (what the eye sees), metrics, simulated acuity
 4. ``solvers`` (numpy first, torch only for autograd) and ``learn`` (U-Net, data set, training)
 5. ``runtime``: the real-time library (Corrector, GLSL and ONNX backends, window, sources, OpenXR)
-6. ``apps``: every entry point (the CLI, one module per command, the benches)
+6. ``studies``: the evaluation, simulated acuity with corrections, the benchmarks and their plots
+7. ``apps``: every entry point (the CLI, one module per command: parse, call, print)
 """
 
 __version__ = "0.1.0"

@@ -18,7 +18,7 @@ import threading
 from typing import Any, Iterator, Sequence
 
 from ..plumbing.errors import VrcorrectError
-from . import acuity_chart, bench, correct, demo, displays, evaluate, layer, learning, mirror, overlay, psf, render, rx
+from . import acuity, bench, correct, demo, displays, evaluate, layer, learning, mirror, overlay, psf, render, rx
 from . import simulate, xr
 
 EXIT_USAGE = 2
@@ -31,7 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
         "wavelength, cone responses)."))
     sub = ap.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for command in (simulate, correct, evaluate, acuity_chart, learning, psf, rx, displays, demo, render, mirror,
+    for command in (simulate, correct, evaluate, acuity, learning, psf, rx, displays, demo, render, mirror,
                     overlay, xr, layer):
         command.add_parser(sub)
     bench.add_parser(sub)

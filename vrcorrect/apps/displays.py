@@ -9,7 +9,7 @@ from pathlib import Path
 from ..plumbing.errors import ValidationError
 from ..plumbing.fileio import check_writable
 from ..specs.display import fit_spectra, get_display, preset_names, read_spectra_csv
-from .bench import markdown_table
+from ..studies.bench import markdown_table
 
 
 def cmd_displays(args: argparse.Namespace) -> int:
@@ -49,7 +49,7 @@ def _displays_fit(args: argparse.Namespace) -> int:
         print(f"  {label:6s} smooth non-negative fit: rms error {rms * 100:.2f}% of peak, max {mx * 100:.2f}%")
     if args.plot:
         from ..plumbing.fileio import write_with  # on use: start-up time (apps/__init__)
-        from .plots import plot_spectra_fit  # on use: start-up time (apps/__init__)
+        from ..studies.plots import plot_spectra_fit  # on use: start-up time (apps/__init__)
 
         write_with(Path(args.plot), lambda tmp: plot_spectra_fit(measured, fit, tmp), force=args.force)
         print(f"wrote {args.plot}")

@@ -12,7 +12,7 @@ from ..plumbing.errors import ValidationError
 from ..plumbing.fileio import check_writable, text_writer, write_together
 from ..specs.display import get_display
 from .common import add_model_options, build_eye_kernel, kernel_decisions, kernel_options, load_eye
-from .plots import plot_psf
+from ..studies.plots import plot_psf
 
 
 def cmd_psf(args: argparse.Namespace) -> int:

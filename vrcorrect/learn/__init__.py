@@ -11,7 +11,7 @@
   :mod:`vrcorrect.runtime.learned` runs the exported model without torch.
 
 The commands ``vrcorrect dataset`` and ``vrcorrect train`` are in :mod:`vrcorrect.apps.learning`
-(layer 6: it loads the bundled images through :mod:`vrcorrect.apps.evaluate`).
+(layer 7).
 
 Importing this package imports neither torch nor the submodules.
 """

@@ -22,7 +22,8 @@ What is shown and where
     3D demo scene; ``text`` - font atlas and text layout.
   * ``window`` - the window shell the apps share (optional imports, GLFW, sRGB check, stage
     times, screenshots); ``mirror``, ``overlay``, ``xr`` - the desktop mirror, the screen overlay
-    and the OpenXR headset loop; ``xrlayer`` - the OpenXR API layer's engine.
+    and the OpenXR headset loop; ``xrlayer`` - the OpenXR API layer's engine, ``layer_build`` - its
+    C shim compiled and its loader manifest.
 
 Importing this package imports neither moderngl nor glfw; the submodules that need them do.
 """

@@ -791,7 +791,7 @@ def simulated_acuity(eye: EyeRx, display: DisplayProfile, options: KernelOptions
                      chart_seed: int = 0) -> AcuityScore:
     """Uncorrected chart acuity of ``eye`` on ``display`` (builds the eye's kernel with ``options``).
 
-    See :func:`score_acuity`; corrections need the solvers (``vrcorrect.apps.acuity_chart.measure_acuity``).
+    See :func:`score_acuity`; corrections need the solvers (``vrcorrect.studies.acuity_chart.measure_acuity``).
     """
     kernel = build_kernel(eye, display, options)
     chart = build_chart(display, kernel.size, top_logmar, bottom_logmar, chart_seed)

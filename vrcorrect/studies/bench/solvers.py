@@ -19,6 +19,7 @@ from statistics import median
 from tqdm import tqdm
 
 from ..plots import pyplot, save_figure
+from ...specs.vocabulary import Method
 from . import machine_description, markdown_table, write_section
 
 RESOLUTIONS = {"256": (256, 256), "512": (512, 512), "1024": (1024, 1024), "1832x1920": (1920, 1832)}
@@ -116,7 +117,7 @@ def run_solver_bench(out: Path = Path("docs/benchmarks.md"), plot: Path = Path("
                         "energy_fraction": 0.995, "wavelength_step_nm": None})
             best[key] = ref["objective"]
         big = case["shape"][0] * case["shape"][1] > 600_000
-        runs = [_run(case) for _ in range(1 if case["method"] == "none" or big else repeats)]
+        runs = [_run(case) for _ in range(1 if case["method"] == Method.NONE or big else repeats)]
         res = runs[-1]
         secs = median(r["seconds"] for r in runs)
         gap = (res["objective"] - best[key]) / best[key]

@@ -1,38 +1,31 @@
-"""``vrcorrect acuity``: which line of an eye chart this eye reads, uncorrected and corrected.
+"""Which line of an eye chart this eye reads, uncorrected and corrected (``vrcorrect acuity``, whose
+command is :mod:`vrcorrect.apps.acuity`, and the evaluation's acuity column).
 
 The chart, the observer and the acuity rule are :mod:`vrcorrect.vision.acuity` (Watson & Ahumada 2008,
-calibrated there).  This module adds the corrections (layer 4, the solvers) and the command
-(layer 6): every drawable chart line's scoring image (the five chart letters and the observer's
+calibrated there).  This study adds the corrections (layer 4, the solvers), the table and the
+panel: every drawable chart line's scoring image (the five chart letters and the observer's
 ten templates) is corrected as a whole by each method - ``make_problem(target, kernel,
 reference_kernel)`` with the project's default target, what the same eye sees with its glasses
 on - then seen through the eye and read.  ``none`` (the chart displayed as it is) is always read,
 as "uncorrected".
 
-Argument parsing only at import (no torch); ``paper`` and ``conventional`` import torch when they
-run.
+Nothing heavy at import (no torch; the physics and solvers on use); ``paper`` and
+``conventional`` import torch when they run.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
-import sys
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
-from tqdm import tqdm
 
 from ..plumbing.errors import ValidationError
-from ..plumbing.fileio import check_writable, text_writer, write_together
-from ..plumbing.imageio import png_writer
-from ..specs.display import encode, get_display
+from ..specs.display import encode
 from ..specs.vocabulary import Method, names
-from .common import add_model_options, kernel_decisions, kernel_options, load_eye
 
 if TYPE_CHECKING:  # annotations only: importing these at run time would slow the command line's start
     from ..physics.kernel import EyeKernel, KernelOptions
@@ -40,7 +33,8 @@ if TYPE_CHECKING:  # annotations only: importing these at run time would slow th
     from ..specs.prescription import EyeRx
     from ..vision.acuity import AcuityScore, Chart, Observer
 
-__all__ = ["METHODS", "AcuityResult", "measure_acuity", "acuity_panel", "add_parser", "cmd_acuity"]
+__all__ = ["METHODS", "AcuityResult", "measure_acuity", "check_methods", "method_label", "summary_line",
+           "line_table", "acuity_panel"]
 
 #: Correction methods the command accepts (``none``, uncorrected, is always read).
 METHODS: tuple[str, ...] = names((Method.FAST, Method.WIENER, Method.PAPER, Method.CONVENTIONAL))
@@ -94,18 +88,20 @@ class AcuityResult:
 
     def as_dict(self) -> dict:
         """JSON-ready: ``uncorrected_logmar``, ``<method>_logmar``, and per method the lines read."""
+        from ..physics.kernel_report import explain  # on use: start-up time
+
         out: dict = {"uncorrected_logmar": self.scores["none"].logmar}
         for m in self.scores:
-            if m != "none":
+            if m != Method.NONE:
                 out[f"{m}_logmar"] = self.scores[m].logmar
         out["glasses_logmar"] = self.glasses.logmar
         for m, sc in self.sharp_scores.items():
-            out[f"{_label(m)}_logmar_sharp_templates"] = sc.logmar
+            out[f"{method_label(m)}_logmar_sharp_templates"] = sc.logmar
         obs = self.scores["none"].observer
         d = self.display
         out.update({
-            "methods": {_label(m): s.as_dict() for m, s in self.scores.items()},
-            "methods_sharp_templates": {_label(m): s.as_dict() for m, s in self.sharp_scores.items()},
+            "methods": {method_label(m): s.as_dict() for m, s in self.scores.items()},
+            "methods_sharp_templates": {method_label(m): s.as_dict() for m, s in self.sharp_scores.items()},
             "glasses": self.glasses.as_dict(),
             "eye": {"sphere_D": self.eye.sphere_D, "cylinder_D": self.eye.cylinder_D, "axis_deg": self.eye.axis_deg,
                     "pupil_diameter_mm": self.eye.pupil_diameter_mm, "accommodation_D": self.eye.accommodation_D},
@@ -114,8 +110,8 @@ class AcuityResult:
             "viewing_distance_m": _metres(self.kernel.report.viewing.distance_m),
             "noise_contrast_arcmin": obs.noise_contrast_arcmin,
             "observer": {"trials_per_letter": obs.trials_per_letter, "criterion": obs.criterion, "seed": obs.seed},
-            "seconds": {_label(k): v for k, v in self.seconds.items()},
-            "kernel_decisions": kernel_decisions(self.kernel),
+            "seconds": {method_label(k): v for k, v in self.seconds.items()},
+            "kernel_decisions": explain(self.kernel.report),
         })
         return out
 
@@ -158,7 +154,7 @@ def measure_acuity(eye: EyeRx, display: DisplayProfile, methods: Sequence[str] =
     from ..solvers import make_problem, solve
     from ..vision.acuity import Observer, build_chart, score_acuity
 
-    chosen = _check_methods(methods)
+    chosen = check_methods(methods)
     if not (isinstance(contrast, (int, float)) and 0.0 < contrast <= 1.0):
         raise ValidationError("contrast", contrast, "a number in (0, 1]")
     observer = observer or Observer()
@@ -174,11 +170,11 @@ def measure_acuity(eye: EyeRx, display: DisplayProfile, methods: Sequence[str] =
     if progress is not None:
         progress(done, total)
     scores, displayed = {}, {}
-    for method in ("none",) + chosen:
+    for method in (Method.NONE.value,) + chosen:
         t1 = time.perf_counter()
         shown = []
         for target in chart.targets:
-            if target is None or method == "none":
+            if target is None or method == Method.NONE:
                 shown.append(target)
             else:
                 shown.append(solve(make_problem(target, kernel, reference, contrast=contrast), method).image)
@@ -197,12 +193,12 @@ def measure_acuity(eye: EyeRx, display: DisplayProfile, methods: Sequence[str] =
                         displayed=displayed, seconds=seconds, kernel=kernel, sharp_scores=sharp)
 
 
-def _check_methods(methods: Sequence[str]) -> tuple[str, ...]:
+def check_methods(methods: Sequence[str]) -> tuple[str, ...]:
     if isinstance(methods, str):
         methods = (methods,)
     chosen: list[str] = []
     for m in methods:
-        if m == "none" or m in chosen:
+        if m == Method.NONE or m in chosen:
             continue
         if m not in METHODS:
             raise ValidationError("methods", m, "some of " + ", ".join(METHODS))
@@ -215,8 +211,8 @@ def _check_methods(methods: Sequence[str]) -> tuple[str, ...]:
 # --------------------------------------------------------------------------
 
 
-def _label(method: str) -> str:
-    return "uncorrected" if method == "none" else method
+def method_label(method: str) -> str:
+    return "uncorrected" if method == Method.NONE else method
 
 
 def _reading_text(score) -> str:
@@ -228,7 +224,7 @@ def _reading_text(score) -> str:
 
 def _columns(result: AcuityResult) -> list[tuple[str, AcuityScore]]:
     """(label, score): uncorrected, each method, then the eye with its glasses (the target)."""
-    return [(_label(m), s) for m, s in result.scores.items()] + [("with glasses", result.glasses)]
+    return [(method_label(m), s) for m, s in result.scores.items()] + [("with glasses", result.glasses)]
 
 
 def _sharp_columns(result: AcuityResult) -> list[AcuityScore]:
@@ -240,7 +236,7 @@ def summary_line(result: AcuityResult, observer: str = "ideal") -> str:
     """``uncorrected 0.50 (20/63) -> fast 0.30 (20/40), wiener 0.40 (20/50); with glasses ...``."""
     scores = result.scores if observer == "ideal" else result.sharp_scores
     head = f"uncorrected {_reading_text(scores['none'])}"
-    rest = [f"{m} {_reading_text(s)}" for m, s in scores.items() if m != "none"]
+    rest = [f"{m} {_reading_text(s)}" for m, s in scores.items() if m != Method.NONE]
     return (head + (" -> " + ", ".join(rest) if rest else "")
             + f"; with glasses {_reading_text(result.glasses)}")
 
@@ -338,103 +334,3 @@ def acuity_panel(result: AcuityResult, title: str | None = None) -> np.ndarray:
                     draw.rectangle([left - 3, y - 2, left + tile.width + 2, y + h + 1], outline=_READ_RGB, width=3)
             y += h + 6
     return np.asarray(im)
-
-
-# --------------------------------------------------------------------------
-# The command
-# --------------------------------------------------------------------------
-
-
-def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Add the ``acuity`` sub-command to an argparse ``subparsers`` object."""
-    p = subparsers.add_parser(
-        "acuity", help="which line of an eye chart the eye reads, uncorrected and with each correction",
-        description=("Simulate reading a logMAR chart of Sloan letters (Watson & Ahumada 2008: the eye's optics, "
-                     "internal noise, an ideal observer; a line is read at 60% correct), uncorrected and with "
-                     "each correction method, and print the acuity in logMAR and Snellen."))
-    add_model_options(p)
-    p.add_argument("--methods", nargs="+", default=["fast"], metavar="METHOD",
-                   help="corrections to read with: some of " + ", ".join(METHODS) + " (default fast); "
-                        "uncorrected is always read")
-    p.add_argument("--json", metavar="OUT.json", nargs="?", const="-",
-                   help="write the readings as JSON to OUT.json, or print them when no file (or '-') is given")
-    p.add_argument("--png", metavar="OUT.png", help="draw the chart as the eye sees it, a column per method")
-    p.add_argument("--trials", type=int, default=400, help="noisy trials per letter (default 400)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the observer's noise (default 0)")
-    p.add_argument("--top-logmar", type=float, default=1.0, help="top line (default 1.0, 20/200)")
-    p.add_argument("--bottom-logmar", type=float, default=-0.3, help="bottom line (default -0.3, 20/10)")
-    p.add_argument("--contrast", type=float, default=1.0,
-                   help="scale the corrections' target contrast (0, 1] (default 1)")
-    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    p.set_defaults(func=cmd_acuity)
-    return p
-
-
-def _check_outputs(args: argparse.Namespace) -> None:
-    if args.json is not None and args.json != "-":
-        if Path(args.json).suffix.lower() != ".json":
-            raise ValidationError("--json", args.json, "a path ending in .json, or '-'")
-        check_writable(Path(args.json), force=args.force)
-    if args.png is not None:
-        if Path(args.png).suffix.lower() != ".png":
-            raise ValidationError("--png", args.png, "a path ending in .png")
-        check_writable(Path(args.png), force=args.force)
-
-
-def cmd_acuity(args: argparse.Namespace) -> int:
-    """``vrcorrect acuity``: read the chart, print the table, write the JSON and the panel."""
-    from ..vision.acuity import Observer, chart_lines  # on use: start-up time (apps/__init__)
-
-    methods = _check_methods(args.methods)
-    _check_outputs(args)
-    if not (0.0 < args.contrast <= 1.0):
-        raise ValidationError("--contrast", args.contrast, "a number in (0, 1]")
-    observer = Observer(trials_per_letter=args.trials, seed=args.seed)
-    options = kernel_options(args)
-    rx_path, eye = load_eye(args)
-    display = get_display(args.display)
-    chart_lines(display, args.top_logmar, args.bottom_logmar)          # bad chart limits: fail before the work
-    bar = tqdm(desc="acuity", unit="step", disable=None, leave=False, file=sys.stderr)
-
-    def progress(done: int, total: int) -> None:
-        bar.total = total
-        bar.n = done
-        bar.refresh()
-
-    try:
-        result = measure_acuity(eye, display, methods, options, observer=observer, top_logmar=args.top_logmar,
-                                bottom_logmar=args.bottom_logmar, contrast=args.contrast, progress=progress)
-    finally:
-        bar.close()
-    report = result.as_dict()
-    report["prescription"] = str(rx_path)
-    report["eye"]["which"] = args.eye
-    out = sys.stderr if args.json == "-" else sys.stdout
-    distance = result.kernel.report.viewing.distance_m
-    where = "optical infinity" if math.isinf(distance) else f"{distance:.2f} m"
-    print(f"{args.eye} eye {eye.sphere_D:+.2f} / {eye.cylinder_D:+.2f} x {eye.axis_deg:g}, pupil "
-          f"{eye.pupil_diameter_mm:g} mm, on {display.title} ({display.pixels_per_degree:.1f} ppd, seen at {where})",
-          file=out)
-    for row in line_table(result):
-        print(row, file=out)
-    timing = ", ".join(f"{_label(k)} {v:.1f} s" for k, v in result.seconds.items())
-    print(f"(* = read: at least {observer.criterion:.0%} correct; - = below the display's pixels; "
-          f"noise {observer.noise_contrast_arcmin:g} contrast x arcmin; {timing})", file=out)
-    print("ideal observer (templates seen through the same eye and correction):", file=out)
-    print("  " + summary_line(result), file=out)
-    print("sharp-template observer (knows the letters as they look with glasses):", file=out)
-    print("  " + summary_line(result, "sharp"), file=out)
-    outputs = []
-    if args.png:
-        title = (f"{args.eye} eye {eye.sphere_D:+.2f} / {eye.cylinder_D:+.2f} x {eye.axis_deg:g} on "
-                 f"{display.title}, seen at {where}")
-        outputs.append((Path(args.png), png_writer(args.png, acuity_panel(result, title).astype(np.float64) / 255.0)))
-    text = json.dumps(report, indent=2) + "\n"
-    if args.json and args.json != "-":
-        outputs.append((Path(args.json), text_writer(text)))
-    write_together(outputs, force=args.force)   # the files: all or nothing
-    for path, _ in outputs:
-        print(f"wrote {path}", file=out)
-    if args.json == "-":
-        sys.stdout.write(text)
-    return 0

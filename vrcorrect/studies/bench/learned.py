@@ -41,6 +41,7 @@ from ...solvers.fista import gradient_plan, projected_gradient
 from ...specs.display import decode, get_display
 from ...vision.metrics import evaluate_seen
 from ..plots import pyplot, save_figure
+from ...specs.vocabulary import Method
 from . import machine_description, markdown_table, median_seconds, write_section
 
 EYE_SEED = 20261123
@@ -150,8 +151,8 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
             target = decode(display, _held_out_image(name, size))
             p = make_problem(target, kernel, reference)
             none = objective(target, p)
-            fast = solve(p, "fast")
-            wien = solve(p, "wiener")
+            fast = solve(p, Method.FAST)
+            wien = solve(p, Method.WIENER)
             target_chw = np.ascontiguousarray(np.moveaxis(target, 2, 0))
             learned = np.ascontiguousarray(np.moveaxis(bound.infer(target_chw), 0, 2))
             obj = objective(learned, p)
@@ -232,8 +233,8 @@ def run_learned_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.
     h0, w0 = speed_sizes[0]                                  # fast at the first size, same image and eye
     img = _held_out_image(images[0], max(h0, w0))[:h0, :w0]
     p = make_problem(decode(display, img), kernel, reference)
-    fast_s = [solve(p, "fast").seconds for _ in range(max(3, repeats // 2))]
-    speed["wiener_ms"] = 1e3 * statistics.median([solve(p, "wiener").seconds for _ in range(max(3, repeats // 2))])
+    fast_s = [solve(p, Method.FAST).seconds for _ in range(max(3, repeats // 2))]
+    speed["wiener_ms"] = 1e3 * statistics.median([solve(p, Method.WIENER).seconds for _ in range(max(3, repeats // 2))])
     plan = gradient_plan(kernel, (h0, w0))
     speed["fista_ms"] = {k: _median_ms(lambda: projected_gradient(p, k, plan), max(3, repeats // 2))
                          for k in fista_steps}

@@ -1,106 +1,19 @@
-"""Benchmarks (not tests): each prints a table and writes it into its own
-section of ``docs/benchmarks.md``, naming the machine it ran on.
+"""``vrcorrect bench WHAT``: run one benchmark of :mod:`vrcorrect.studies.bench`, print its table and
+write it into its own section of the benchmarks file (``--out``; by default the checkout's
+``docs/benchmarks.md``, and only inside the checkout: :func:`~vrcorrect.studies.bench.default_out`).
 
-The command's ``--out`` defaults to the repository's ``docs/benchmarks.md`` only when it runs
-inside the checkout this package is imported from (:func:`default_out`); anywhere else (an
-installed package, another folder) it must be named, so a run never writes a stray
-``docs/benchmarks.md`` relative to wherever it was started."""
+Each bench is imported only when it runs: it brings its own stack (GL, onnxruntime, torch, the
+metrics)."""
 
 from __future__ import annotations
 
 import argparse
-import os
-import platform
-import re
-import statistics
-import time
-from datetime import date
 from pathlib import Path
-from typing import Callable, Sequence
 
-from ...plumbing.errors import InputError, ValidationError
-from ...plumbing.fileio import check_writable, write_text_atomic
-from ...runtime.model_path import DEFAULT_MODEL
-
-
-def machine_description() -> str:
-    """One line naming the machine: CPU model, cores, memory, OS, Python."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    mem = ""
-    try:
-        kb = int(Path("/proc/meminfo").read_text().split()[1])
-        mem = f", {kb / 1024 ** 2:.0f} GiB RAM"
-    except (OSError, ValueError, IndexError):
-        pass
-    return (f"{cpu}, {os.cpu_count()} cores{mem}, {platform.system()} {platform.release()}, "
-            f"Python {platform.python_version()}")
-
-
-def median_seconds(fn: Callable[[], object], repeats: int, warmup: int = 1) -> tuple[float, list[float]]:
-    """Median wall time of ``fn`` over ``repeats`` runs after ``warmup`` runs."""
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), times
-
-
-def markdown_table(header: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
-    return "\n".join(lines)
-
-
-def write_section(path: Path, name: str, body: str) -> None:
-    """Replace (or append) the section ``name`` of the benchmarks file, atomically."""
-    begin, end = f"<!-- bench:{name} -->", f"<!-- /bench:{name} -->"
-    block = f"{begin}\n{body.rstrip()}\n\n_Run on {date.today().isoformat()}._\n{end}"
-    text = path.read_text(encoding="utf-8") if path.exists() else (
-        "# vrcorrect benchmarks\n\nWritten by `vrcorrect bench ...`; each section names the machine it ran on. "
-        "Timings are medians of several runs; these machines are shared and noisy, so compare methods "
-        "as ratios measured in one run.\n")
-    pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
-    if pattern.search(text):
-        text = pattern.sub(lambda _: block, text)
-    else:
-        text = text.rstrip() + "\n\n" + block + "\n"
-    write_text_atomic(path, text, force=True)
-
-
-# ---------------------------------------------------------------- the command
-
-#: The benchmarks file inside the repository (``--out``'s default there).
-BENCHMARKS_FILE = Path("docs") / "benchmarks.md"
-
-
-def checkout_root() -> Path | None:
-    """The repository checkout this package is imported from, or None (an installed package)."""
-    root = Path(__file__).resolve().parents[3]              # vrcorrect/apps/bench/__init__.py
-    if (root / "pyproject.toml").is_file() and (root / "vrcorrect").is_dir() and (root / "docs").is_dir():
-        return root
-    return None
-
-
-def default_out(cwd: Path | None = None) -> Path:
-    """``--out``'s default: the checkout's ``docs/benchmarks.md`` when run inside that checkout (any
-    folder of it); anywhere else an :class:`InputError` asking for ``--out``."""
-    root = checkout_root()
-    here = (Path.cwd() if cwd is None else Path(cwd)).resolve()
-    if root is not None and (here == root or root in here.parents):
-        return root / BENCHMARKS_FILE
-    where = f"the vrcorrect repository at {root}" if root is not None else "a vrcorrect repository checkout"
-    raise InputError(f"--out: no default outside {where} (the default is its tracked {BENCHMARKS_FILE}); "
-                     "pass --out FILE.md, or --no-write to print only")
+from ..plumbing.errors import InputError, ValidationError
+from ..plumbing.fileio import check_writable
+from ..runtime.model_path import DEFAULT_MODEL
+from ..studies.bench import BENCHMARKS_FILE, default_out
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -109,13 +22,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
         args.out = str(BENCHMARKS_FILE if args.no_write else default_out())    # --no-write: names only
     if not args.no_write:
         check_writable(Path(args.out), force=True)                             # the section is replaced
-    # each bench is imported only when it runs: it brings its own stack (GL, onnxruntime, torch, the metrics)
     if args.what == "kernel":
-        from .kernel import run_kernel_bench
+        from ..studies.bench.kernel import run_kernel_bench
 
         print(run_kernel_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     elif args.what == "solvers":
-        from .solvers import RESOLUTIONS, run_solver_bench
+        from ..studies.bench.solvers import RESOLUTIONS, run_solver_bench
 
         res = args.resolutions or list(RESOLUTIONS)
         for r in res:
@@ -124,15 +36,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
         print(run_solver_bench(out=Path(args.out), plot=Path(args.out).with_name("solver_tradeoff.png"),
                                resolutions=res, repeats=args.repeats, write=not args.no_write))
     elif args.what == "render":
-        from .render import run_render_bench
+        from ..studies.bench.render import run_render_bench
 
         print(run_render_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     elif args.what == "xr":
-        from .xr import run_xr_bench
+        from ..studies.bench.xr import run_xr_bench
 
         print(run_xr_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     elif args.what == "cost":
-        from .cost import parse_size, run_cost_bench
+        from ..studies.bench.cost import parse_size, run_cost_bench
 
         size = parse_size(args.size)
         if args.json:
@@ -144,15 +56,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                 force=args.force)
         print(report["markdown"])
     elif args.what == "layer":
-        from .layer import run_layer_bench
+        from ..studies.bench.layer import run_layer_bench
 
         print(run_layer_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     elif args.what == "realtime":
-        from .realtime import run_realtime_bench
+        from ..studies.bench.realtime import run_realtime_bench
 
         print(run_realtime_bench(out=Path(args.out), write=not args.no_write, quick=args.quick))
     elif args.what == "learned":
-        from .learned import run_learned_bench
+        from ..studies.bench.learned import run_learned_bench
 
         path = Path(args.model) if args.model else DEFAULT_MODEL
         if not path.is_file():

@@ -56,6 +56,7 @@ from ...specs.display import decode, encode, get_display
 from ...specs.prescription import EyeRx, Prescription
 from ...vision.forward import lms_to_display, simulate_lms
 from ..plots import pyplot, save_figure
+from ...specs.vocabulary import Method
 from . import machine_description, markdown_table, write_section
 from .sequences import Clip, held_out, photo, save_clip, suite
 
@@ -147,7 +148,7 @@ def floor_and_ceiling(case: Case, clip: Clip, keep_shown: bool = True) -> tuple[
     none, fast = Run(), Run()
     for frame in clip.frames:
         p = case.problem(frame)
-        f = solve(p, "fast")
+        f = solve(p, Method.FAST)
         r = simulate_lms(p.target, case.kernel)[0].astype(np.float64) - p.target_lms
         none.objective.append(float(np.mean(r * r)))
         fast.objective.append(f.objective)
@@ -209,7 +210,7 @@ def still_convergence(case: Case, clip: Clip, frames: int,
     """The still photograph frame after frame: each method's objective relative to ``fast``'s."""
     image = clip.frames[0]
     p = case.problem(image)
-    fast = solve(p, "fast").objective
+    fast = solve(p, Method.FAST).objective
     still = Clip("still", [image] * frames)
     none = floor_and_ceiling(case, Clip("still", [image]), keep_shown=False)[0].objective[0]
     series = {label: [o / fast for o in run_clip(case, still, m, k, [(0, 0)] * (frames - 1), False, o).objective]
@@ -393,9 +394,9 @@ def _markdown(case: Case, size: int, frames: int, still: dict, motion: dict, che
     rows = []
     for name, m in motion.items():
         for label, s in m["scores"].items():
-            if label == "none":
+            if label == Method.NONE:
                 continue
-            rows.append([name, label, _fmt(s["jod"]), _pct(s.get("jod_share")) if label != "fast" else "100 %",
+            rows.append([name, label, _fmt(s["jod"]), _pct(s.get("jod_share")) if label != Method.FAST else "100 %",
                          _pct(s["objective_share"]), _pct(s["first_third_share"]),
                          _fmt(s.get("frames_after_cut"), 0) if "frames_after_cut" in s else ""])
         rows.append([name, "none", _fmt(m["scores"]["none"]["jod"]), "0 %", "0 %", "0 %", ""])
@@ -479,9 +480,9 @@ def _plot_motion(motion: dict, path: Path) -> None:
     for ax, (name, m) in zip(axes, motion.items()):
         fast = np.array(m["runs"]["fast"].objective)
         for label, run in m["runs"].items():
-            if label == "fast":
+            if label == Method.FAST:
                 continue
-            style = ":" if label == "none" else "-"
+            style = ":" if label == Method.NONE else "-"
             ax.plot(np.arange(1, len(fast) + 1), np.array(run.objective) / fast, style, lw=1, label=label)
         if m["clip"].cut_at is not None:
             ax.axvline(m["clip"].cut_at + 1, color="red", lw=0.8)
