@@ -82,7 +82,7 @@ from .fista import FistaState, gradient_plan, projected_gradient
 from .problem import guard_weight, make_problem
 from .spectral import Blur, apply3, conj_transpose, hermitian_inverse, kernel_spectrum, spectral_norm_squared
 
-__all__ = ["ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "edge_band", "pool_half", "upsample_double",
+__all__ = ["ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "edge_band_widths", "edge_band", "pool_half", "upsample_double",
            "coarse_eye_kernel", "AdmmFrames", "AdmmFrame", "FistaFrames", "frames_twin"]
 
 ADMM_RHO = 0.2
@@ -104,21 +104,25 @@ def admm_grid(width: int, height: int, kernel_size: int) -> tuple[int, int]:
     return side(height), side(width)
 
 
+def edge_band_widths(shift: tuple[int, int], radius: int) -> tuple[int, int]:
+    """The edge band's width ``(along x, along y)`` for a motion ``shift = (dx, dy)``: ``radius + |d|``
+    on each axis the content moves along, 0 on an axis it does not (the GPU's ``u_band``)."""
+    return tuple(radius + abs(int(d)) if int(d) else 0 for d in shift)
+
+
 def edge_band(shape: tuple[int, int], shift: tuple[int, int], radius: int) -> np.ndarray:
     """The ``(H, W)`` mask of the pixels whose warm start stays with the window when the content
-    moves by ``shift = (dx, dy)``: on each axis the motion has, the ``radius + |d|`` pixels next to
-    each of the two edges across it (module docstring); none for no motion."""
+    moves by ``shift = (dx, dy)``: on each axis the motion has, the :func:`edge_band_widths` pixels
+    next to each of the two edges across it (module docstring); none for no motion."""
     H, W = shape
-    dx, dy = (int(v) for v in shift)
+    mx, my = edge_band_widths(shift, radius)
     band = np.zeros((H, W), bool)
-    if dx:
-        m = radius + abs(dx)
+    if mx:
         x = np.arange(W)
-        band |= ((x < m) | (x >= W - m))[None, :]
-    if dy:
-        m = radius + abs(dy)
+        band |= ((x < mx) | (x >= W - mx))[None, :]
+    if my:
         y = np.arange(H)
-        band |= ((y < m) | (y >= H - m))[:, None]
+        band |= ((y < my) | (y >= H - my))[:, None]
     return band
 
 

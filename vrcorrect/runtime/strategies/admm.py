@@ -44,10 +44,9 @@ import numpy as np
 
 from ...plumbing.errors import ValidationError
 from ...specs.vocabulary import Filter, Precision
-from ..eye_model import check_iterations
 from ..gl import fullscreen_triangle, release
 from ..shaders import compile_compute, compile_program
-from .base import GuardResult, Size, Strategy, float_texture, groups_2d
+from .base import GuardResult, IterativeStrategy, Size, float_texture, groups_2d
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
@@ -106,9 +105,8 @@ class AdmmBuffers:
                 value.release()
 
 
-class AdmmStrategy(Strategy):
+class AdmmStrategy(IterativeStrategy):
     name = Filter.ADMM
-    iterative = True
 
     def __init__(self, *args: Any, coarse_level: bool = False, **kwargs: Any):
         super().__init__(*args, **kwargs)
@@ -120,7 +118,6 @@ class AdmmStrategy(Strategy):
         self.norm2 = spectral_norm_squared(m.kernel.kernel)
         self.keep = float(np.float32(ADMM_RHO * self.norm2 / (2.0 + ADMM_RHO * self.norm2)))
         self.alpha = float(np.float32(ADMM_RELAXATION))
-        self._iterations = self.options.iterations_per_frame
         self._sized: dict[Size, AdmmBuffers] = {}
         self._last: AdmmBuffers | None = None
         self.coarse_level = coarse_level
@@ -132,14 +129,6 @@ class AdmmStrategy(Strategy):
         """A first guess for a cold frame (the first of a size, a cut, a new prescription): called
         with the decoded target, returns a texture of the same size, linear light in [0, 1], that
         the iterations start from instead of the target (the learned model's single pass)."""
-
-    @property
-    def iterations_per_frame(self) -> int:
-        return self._iterations
-
-    @iterations_per_frame.setter
-    def iterations_per_frame(self, value: int) -> None:
-        self._iterations = check_iterations(value)
 
     def reset(self) -> None:
         for b in self._sized.values():
@@ -382,9 +371,10 @@ class AdmmStrategy(Strategy):
         return linear
 
     def _band(self, motion_gl: tuple[int, int]) -> tuple[int, int]:
-        """The edge band's width on each axis for a motion (:func:`~vrcorrect.solvers.realtime.edge_band`)."""
-        r = self.model.kernel.size // 2
-        return tuple(r + abs(int(d)) if d else 0 for d in motion_gl)
+        """The edge band's width on each axis for a motion (the twin's, :func:`~vrcorrect.solvers.realtime.edge_band`)."""
+        from ...solvers.realtime import edge_band_widths  # start-up time: scipy with the first eye
+
+        return edge_band_widths(motion_gl, self.model.kernel.size // 2)
 
     def present(self, shown: "moderngl.Texture", dst: "moderngl.Framebuffer",
                 viewport: tuple[int, int, int, int] | None) -> None:

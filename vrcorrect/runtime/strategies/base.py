@@ -24,6 +24,7 @@ import numpy as np
 
 from ...plumbing.errors import ValidationError
 from ..dispatch import Gpu
+from ..eye_model import check_iterations
 from ..gl import fullscreen_triangle, release
 from ..shaders import compile_compute, compile_program
 
@@ -181,6 +182,26 @@ class Strategy:
     def release(self) -> None:
         release(*self._inputs.values())
         self._inputs.clear()
+
+
+class IterativeStrategy(Strategy):
+    """A strategy that runs a number of iterations each frame: :attr:`iterations_per_frame`, set
+    from the options and changed live (checked against the one range,
+    :data:`~vrcorrect.specs.vocabulary.MAX_ITERATIONS_PER_FRAME`)."""
+
+    iterative = True
+
+    def __init__(self, *args: Any, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        self._iterations = self.options.iterations_per_frame
+
+    @property
+    def iterations_per_frame(self) -> int:
+        return self._iterations
+
+    @iterations_per_frame.setter
+    def iterations_per_frame(self, value: int) -> None:
+        self._iterations = check_iterations(value)
 
 
 class GuardResult:

@@ -32,11 +32,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ...specs.vocabulary import Filter
-from ..eye_model import check_iterations
 from ..fft import FftBankGL, fft_grid
 from ..gl import download_texture, release
 from ..shaders import compile_compute
-from .base import FrameBlend, Size, Strategy, float_texture, groups_2d
+from .base import FrameBlend, IterativeStrategy, Size, float_texture, groups_2d
 from .spectra import kernel_spectra
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -69,9 +68,8 @@ class FistaBuffers:
             release(getattr(self, f.name))
 
 
-class FistaStrategy(Strategy):
+class FistaStrategy(IterativeStrategy):
     name = Filter.FISTA
-    iterative = True
 
     def __init__(self, *args: Any, **kwargs: Any):
         super().__init__(*args, **kwargs)
@@ -81,18 +79,9 @@ class FistaStrategy(Strategy):
         self._next_momentum = fista_momentum
         self.start = compile_compute(self.ctx, "fista.glsl")
         self.step = float(np.float32(1.0 / spectral_norm_squared(self.model.kernel.kernel)))   # 1 / ||K||^2
-        self._iterations = self.options.iterations_per_frame
         self._sized: dict[Size, FistaBuffers] = {}
         self._warm_size: Size | None = None        # size whose state the next frame continues
         self._momentum = 1.0
-
-    @property
-    def iterations_per_frame(self) -> int:
-        return self._iterations
-
-    @iterations_per_frame.setter
-    def iterations_per_frame(self, value: int) -> None:
-        self._iterations = check_iterations(value)
 
     def reset(self) -> None:
         self._warm_size = None
