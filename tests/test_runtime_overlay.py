@@ -372,6 +372,42 @@ def test_region_outside_the_screen_is_refused(x_display):
         Overlay(config, echo=None)
 
 
+class _FlakyMss:
+    """Stands in for the ``mss`` module: ``MSS()`` refuses ``failures`` times, then connects to the
+    real display (the failure seen once on a loaded machine: "cannot grab the X11 screen ':0'")."""
+
+    def __init__(self, real, failures: int):
+        self.real, self.failures, self.calls = real, failures, 0
+
+    def MSS(self):  # noqa: N802 (mss's name)
+        self.calls += 1
+        if self.calls <= self.failures:
+            raise RuntimeError("Cannot connect to display: connection refused")
+        return self.real.MSS()
+
+
+def test_a_refused_x_connection_is_tried_again(x_display, monkeypatch):
+    import mss
+
+    from vrcorrect.plumbing.errors import InputError
+    from vrcorrect.runtime import sources
+
+    monkeypatch.setattr(sources.ScreenGrabber, "RETRY_DELAYS_S", (0.01, 0.01, 0.01))
+    flaky = _FlakyMss(mss, failures=2)
+    monkeypatch.setattr(sources, "_mss", lambda: flaky)
+    grabber = sources.ScreenGrabber()                  # the third attempt connects
+    try:
+        assert flaky.calls == 3 and grabber.bounds.width > 0
+        assert grabber.grab(Rect(0, 0, 4, 4)).shape == (4, 4, 3)
+    finally:
+        grabber.close()
+    always = _FlakyMss(mss, failures=99)
+    monkeypatch.setattr(sources, "_mss", lambda: always)
+    with pytest.raises(InputError, match=r"cannot grab the X11 screen .*connection refused; 4 attempts"):
+        sources.ScreenGrabber()
+    assert always.calls == 4
+
+
 # --------------------------------------------------------------------------
 # Command line
 # --------------------------------------------------------------------------

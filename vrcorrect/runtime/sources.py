@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -526,15 +527,28 @@ class ScreenGrabber:
     window showing the grab must lie outside the region.
     """
 
+    #: Seconds to wait before each further attempt to open the display. A connection refused once
+    #: by a busy X server (seen under a loaded test machine) is tried again; a display that
+    #: stays unreachable is reported after the last one.
+    RETRY_DELAYS_S: tuple[float, ...] = (0.2, 0.5, 1.0)
+
     def __init__(self) -> None:
         mss = _mss()
         self._mss: Any = None                           # an mss.MSS
-        try:
-            self._mss = mss.MSS()
-            whole = self._mss.monitors[0]
-        except Exception as exc:  # mss raises ScreenShotError and ctypes/XCB errors
+        errors = []
+        for delay in (0.0, *self.RETRY_DELAYS_S):
+            time.sleep(delay)
+            try:
+                self._mss = mss.MSS()
+                whole = self._mss.monitors[0]
+                break
+            except Exception as exc:  # mss raises ScreenShotError and ctypes/XCB errors
+                self.close()
+                errors.append(" ".join(str(exc).split())[:200])
+        else:
+            tries = len(errors)
             raise InputError(f"cannot grab the X11 screen {os.environ.get('DISPLAY')!r} "
-                             f"({' '.join(str(exc).split())[:200]})") from None
+                             f"({errors[-1]}; {tries} attempts over {sum(self.RETRY_DELAYS_S):.1f} s)")
         self.bounds = Rect(0, 0, int(whole["width"]), int(whole["height"]))
         self._origin = (int(whole["left"]), int(whole["top"]))
 
