@@ -1,0 +1,105 @@
+"""The unrolled correction (vrcorrect.learn.unrolled, issue 25): its untrained twin is fast's ADMM,
+iteration for iteration; the box holds at every stage whatever the prior says; errors name the field."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from vrcorrect.learn.unrolled import FAST_RELAXATION, FAST_RHO, UnrolledADMM, UnrolledConfig, kernel_spectra, twin
+from vrcorrect.physics.kernel import build_kernel, build_reference_kernel
+from vrcorrect.plumbing.charts import siemens_star
+from vrcorrect.plumbing.errors import ValidationError
+from vrcorrect.solvers import make_problem
+from vrcorrect.solvers.admm import _admm
+from vrcorrect.specs.display import decode, get_display
+from vrcorrect.specs.prescription import EyeRx
+
+SIZE = (40, 52)
+
+
+@pytest.fixture(scope="module")
+def case():
+    display = get_display("quest2")
+    eye = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=30.0, pupil_diameter_mm=4.0)
+    kernel = build_kernel(eye, display)
+    star = siemens_star(max(SIZE))[:SIZE[0], :SIZE[1]]
+    problem = make_problem(decode(display, star).astype(np.float32), kernel, build_reference_kernel(eye, display))
+    t_lms = np.ascontiguousarray(problem.target_lms.transpose(2, 0, 1), np.float32)
+    z0 = np.ascontiguousarray(problem.target.transpose(2, 0, 1), np.float32)
+    spectrum, norm2 = kernel_spectra([kernel.kernel], SIZE)
+    return kernel, t_lms, z0, spectrum, norm2
+
+
+def _run(model, case, **kw):
+    _, t_lms, z0, spectrum, norm2 = case
+    with torch.no_grad():
+        return model(torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None], spectrum, norm2, **kw)[0].numpy()
+
+
+@pytest.mark.parametrize("stages", [1, 3])
+def test_the_twin_is_fasts_admm_iteration_for_iteration(case, stages):
+    kernel, t_lms, z0, _, _ = case
+    expected = _admm(kernel.kernel, t_lms, z0, FAST_RHO, FAST_RELAXATION, 1.0, stages, 0.0, track=False)[0]
+    got = _run(twin(stages), case)
+    assert got.shape == (3, *SIZE)
+    assert np.abs(got - expected[:, :SIZE[0], :SIZE[1]]).max() < 1e-5
+
+
+def test_the_twins_stages_lower_the_objective_stage_by_stage(case):
+    """From the target with zero duals the first stage moves only the retina split (z stays), then
+    each stage lowers the objective."""
+    kernel, t_lms, z0, spectrum, norm2 = case
+    history: list[torch.Tensor] = []
+    _run(twin(4), case, history=history)
+    from vrcorrect.learn.train import objective_per_sample
+
+    k = torch.from_numpy(kernel.kernel).float()[None]
+    start = objective_per_sample(torch.from_numpy(z0)[None], k, torch.from_numpy(t_lms)[None]).item()
+    values = [objective_per_sample(z, k, torch.from_numpy(t_lms)[None]).item() for z in history]
+    assert len(values) == 4 and values[0] == pytest.approx(start, rel=1e-5)
+    assert all(b < a for a, b in zip(values, values[1:])) and values[-1] < 0.95 * start
+
+
+def test_an_untrained_model_returns_its_twin_exactly(case):
+    model = UnrolledADMM(UnrolledConfig(stages=3, prior_width=8, features=4))
+    features = torch.tensor([[0.3, -0.2, 0.1, 0.5]])
+    assert np.array_equal(_run(model, case, features=features), _run(twin(3), case))
+
+
+def test_the_box_holds_at_every_stage_whatever_the_prior_says(case):
+    model = UnrolledADMM(UnrolledConfig(stages=3, prior_width=8, features=0))
+    with torch.no_grad():
+        model.prior.out.bias.fill_(5.0)                  # a prior pushing far above white
+    history: list[torch.Tensor] = []
+    out = _run(model, case, history=history)
+    assert out.max() <= 1.0 and out.min() >= 0.0
+    assert all(float(z.max()) <= 1.0 and float(z.min()) >= 0.0 for z in history)
+    assert out.mean() > 0.9                             # it did push: the box, not the prior, held it
+
+
+def test_training_reaches_the_stage_settings_and_the_prior(case):
+    kernel, t_lms, z0, spectrum, norm2 = case
+    from vrcorrect.learn.train import objective_per_sample
+
+    model = UnrolledADMM(UnrolledConfig(stages=2, prior_width=4, features=4))
+    z = model(torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None], spectrum, norm2,
+              features=torch.ones(1, 4))
+    loss = objective_per_sample(z, torch.from_numpy(kernel.kernel).float()[None], torch.from_numpy(t_lms)[None]).sum()
+    loss.backward()
+    for name, p in (("stage_base", model.stage_base), ("mlp", model.mlp[-1].weight), ("prior", model.prior.out.weight)):
+        assert p.grad is not None and torch.isfinite(p.grad).all() and p.grad.abs().max() > 0, name
+
+
+@pytest.mark.parametrize("field, value", [("stages", 0), ("stages", 33), ("prior_width", -1), ("features", 2.5)])
+def test_bad_configurations_name_the_field(field, value):
+    with pytest.raises(ValidationError, match=field):
+        UnrolledConfig(**{field: value})
+
+
+def test_a_spectrum_smaller_than_the_image_is_refused(case):
+    _, t_lms, z0, _, _ = case
+    small, norm2 = kernel_spectra([np.ones((3, 3, 3, 3)) / 27], (8, 8))
+    with pytest.raises(ValidationError, match="spectrum"):
+        twin(1)(torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None], small, norm2)
