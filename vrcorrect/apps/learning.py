@@ -13,6 +13,12 @@ from ..plumbing.errors import ValidationError
 from ..plumbing.images import bundled_images, folder_images
 
 
+def _presets() -> tuple[str, ...]:
+    from ..specs.display import preset_names  # light: the presets' names
+
+    return preset_names()
+
+
 def _pair(field: str, values: list[float] | None, default: tuple[float, float]) -> tuple[float, float]:
     if values is None:
         return default
@@ -64,6 +70,49 @@ def cmd_train(args: argparse.Namespace) -> int:
     loss = "" if report.last_loss is None else f"; loss {report.first_loss:.4g} -> {report.last_loss:.4g}"
     print(f"trained steps {report.start_step}..{report.steps} in {report.seconds:.1f} s{loss}; "
           f"checkpoint {Path(report.run_dir) / 'checkpoint.pt'}, log {Path(report.run_dir) / 'log.csv'}")
+    return 0
+
+
+def cmd_train_unrolled(args: argparse.Namespace) -> int:
+    from tqdm import tqdm  # on use: start-up time (apps/__init__)
+
+    from ..learn.dataset import HELD_OUT_IMAGES
+    from ..learn.unrolled_train import UnrolledTrainConfig, build_pool, train_unrolled
+    from ..plumbing.fileio import check_writable
+
+    config = UnrolledTrainConfig(stages=args.stages, prior_width=args.prior_width, displays=tuple(args.displays),
+                                 eyes_per_display=args.eyes_per_display, crop_px=args.crop_px, batch=args.batch_size,
+                                 steps=args.steps, minutes=args.minutes, seed=args.seed)
+    out = Path(args.out)
+    for name in ("unrolled.pt", "log.csv", "report.json"):      # before minutes of kernels
+        check_writable(out / name, force=args.force)
+    images = dict(bundled_images(args.image_px))
+    train_images = [im for n, im in images.items() if n not in HELD_OUT_IMAGES]
+    held_out = [im for n, im in images.items() if n in HELD_OUT_IMAGES]
+    if args.crop_px > args.image_px:
+        raise ValidationError("--crop-px", args.crop_px, f"at most --image-px ({args.image_px})")
+    bar = tqdm(desc="kernels", unit="eye", disable=None, leave=False)
+
+    def kernels(done: int, total: int) -> None:
+        bar.total = total
+        bar.update(done - bar.n)
+
+    pool = build_pool(config, kernels, workers=max(1, os.cpu_count() or 1))
+    bar.close()
+    bar = tqdm(desc="training", unit="step", total=config.steps, disable=None, leave=False)
+
+    def step(n: int, loss: float) -> None:
+        bar.update(1)
+        bar.set_postfix(loss=f"{loss:.3f}")
+
+    report = train_unrolled(out, config, train_images, held_out, pool=pool, progress=step)
+    bar.close()
+    s = report["share_of_fast_gain"]
+    print(f"trained {report['steps']} steps in {report['seconds']:.0f} s ({report['parameters']} parameters); "
+          f"held-out eyes and images ({report['held_out']['cases']} cases, {len(config.displays)} displays): "
+          f"share of fast's objective gain, median (min): learned {s['learned']['median']:.0%} "
+          f"({s['learned']['min']:.0%}), its untrained twin {s['twin']['median']:.0%} ({s['twin']['min']:.0%}); "
+          f"{out / 'unrolled.pt'}, {out / 'log.csv'}, {out / 'report.json'}")
     return 0
 
 
@@ -132,3 +181,25 @@ def add_parser(sub) -> None:
                         "fresh optimiser, step 0)")
     p.add_argument("--force", action="store_true", help="start again although RUN holds a checkpoint")
     p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("unroll", help="train the unrolled ADMM correction on every display (torch; "
+                                              "work in progress)",
+                       description="Build kernels for eyes drawn over the prescription ranges on each display, "
+                                   "then train fast's ADMM unrolled into stages, with a learned prior and "
+                                   "eye-dependent stage settings, on the LMS objective of random crops; report "
+                                   "the share of fast's objective gain it and its untrained twin close on "
+                                   "held-out eyes and images. unrolled.pt, log.csv and report.json in RUN.")
+    p.add_argument("-o", "--out", required=True, metavar="RUN", help="run folder")
+    p.add_argument("--displays", nargs="+", default=list(_presets()), metavar="PRESET",
+                   help="display presets (default: all)")
+    p.add_argument("--eyes-per-display", type=int, default=5, help="training eyes per display (5)")
+    p.add_argument("--stages", type=int, default=4, help="ADMM stages, two FFT round trips each (4)")
+    p.add_argument("--prior-width", type=int, default=16, help="channels of the prior network (16)")
+    p.add_argument("--crop-px", type=int, default=48, help="side of the training crops (48)")
+    p.add_argument("--image-px", type=int, default=128, help="images are centre-cropped and resized to this (128)")
+    p.add_argument("--batch-size", type=int, default=8, help="crops per step (8)")
+    p.add_argument("--steps", type=int, default=2000, help="optimiser steps (2000)")
+    p.add_argument("--minutes", type=float, default=90.0, help="stop training after this long (90)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the eyes, crops and weights (0)")
+    p.add_argument("--force", action="store_true", help="overwrite RUN's earlier files")
+    p.set_defaults(func=cmd_train_unrolled)

@@ -1,0 +1,109 @@
+"""Training the unrolled correction (vrcorrect.learn.unrolled_train): a tiny real run on real kernels,
+its files, its yardstick (fast, solved here) and the config's errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from vrcorrect.learn.train import objective_per_sample
+from vrcorrect.learn.unrolled import twin
+from vrcorrect.learn.unrolled_train import (UnrolledTrainConfig, build_pool, evaluate, fast_objectives, load_unrolled,
+                                            make_batch, run_model, train_unrolled)
+from vrcorrect.plumbing.errors import ValidationError
+from vrcorrect.plumbing.images import bundled_images
+
+CONFIG = UnrolledTrainConfig(displays=("index",), eyes_per_display=2, held_out_eyes_per_display=1, crop_px=24,
+                             steps=30, batch=4, prior_width=4, stages=2, lr=5e-3)
+
+
+@pytest.fixture(scope="module")
+def images():
+    imgs = dict(bundled_images(48))
+    return [imgs["astronaut"], imgs["coffee"]], [imgs["rocket"]]
+
+
+@pytest.fixture(scope="module")
+def pool():
+    return build_pool(CONFIG, workers=1)
+
+
+def test_the_pool_holds_each_display_and_split_with_kernels_and_glasses(pool):
+    assert len(pool["train"]) == 2 and len(pool["held_out"]) == 1
+    train_eyes = {(e.eye.sphere_D, e.eye.cylinder_D) for e in pool["train"]}
+    assert (pool["held_out"][0].eye.sphere_D, pool["held_out"][0].eye.cylinder_D) not in train_eyes
+    for e in pool["train"] + pool["held_out"]:
+        assert e.display == "index" and e.kernel.ndim == 4 and e.kernel.shape[:2] == (3, 3)
+        assert e.reference.shape[-1] <= e.kernel.shape[-1] + 2 and e.features.shape == (5,)
+
+
+def test_the_batch_target_is_what_the_eye_sees_with_glasses(pool, images):
+    """make_batch's target_lms equals solvers.make_problem's (the numpy forward model) to float32."""
+    from vrcorrect.solvers import make_problem
+    from vrcorrect.specs.display import decode, get_display
+
+    entry, crop = pool["train"][0], images[0][0][:24, :24]
+    b = make_batch([entry], [crop])
+    p = make_problem(decode(get_display("index"), crop).astype(np.float32), entry.eye_kernel, entry.reference_kernel)
+    assert np.abs(b["target_lms"][0].numpy().transpose(1, 2, 0) - p.target_lms).max() < 1e-5
+
+
+def test_fasts_yardstick_is_below_no_correction_and_the_twin_between(pool, images):
+    cases = [(pool["held_out"][0], images[1][0][:24, :24])]
+    fast = fast_objectives(cases)[0]
+    b = make_batch(*zip(*cases))
+    none = float(objective_per_sample(b["target"], b["kernel"], b["target_lms"])[0])
+    with torch.no_grad():
+        tw = float(objective_per_sample(run_model(twin(2), b), b["kernel"], b["target_lms"])[0])
+    assert fast < tw < none
+
+
+def test_a_short_run_writes_its_files_and_beats_its_twin_on_what_it_trained(tmp_path, pool, images):
+    report = train_unrolled(tmp_path, CONFIG, images[0], images[1], pool=pool, held_out_cases=3)
+    assert report["steps"] == 30
+    assert {p.name for p in tmp_path.iterdir()} == {"unrolled.pt", "log.csv", "report.json"}
+    rows = list(csv.DictReader((tmp_path / "log.csv").open()))
+    assert len(rows) == 30 and all(np.isfinite(float(r["loss"])) for r in rows)
+    saved = json.loads((tmp_path / "report.json").read_text())
+    assert saved["share_of_fast_gain"]["twin"]["median"] == pytest.approx(report["share_of_fast_gain"]["twin"]["median"])
+    model = load_unrolled(tmp_path / "unrolled.pt")
+    # on training crops the learned stages do better than the same stages untrained
+    rng = np.random.default_rng(5)
+    crops = [images[0][i % 2][y:y + 24, x:x + 24] for i, (y, x) in enumerate(rng.integers(0, 24, (8, 2)))]
+    b = make_batch([pool["train"][i % 2] for i in range(8)], crops)
+    with torch.no_grad():
+        learned = objective_per_sample(run_model(model, b), b["kernel"], b["target_lms"]).mean()
+        untrained = objective_per_sample(run_model(twin(2), b), b["kernel"], b["target_lms"]).mean()
+    assert learned < untrained
+
+
+def test_evaluate_reports_the_twin_as_the_untrained_model(pool, images):
+    from vrcorrect.learn.unrolled import UnrolledADMM, UnrolledConfig
+
+    cases = [(pool["held_out"][0], images[1][0][:24, :24])]
+    model = UnrolledADMM(UnrolledConfig(stages=2, prior_width=4, features=5))
+    result = evaluate(model, cases, fast_objectives(cases))
+    assert result["learned"]["cases"] == result["twin"]["cases"]
+
+
+@pytest.mark.parametrize("field, value", [("stages", 0), ("crop_px", 8), ("minutes", 0), ("lr", 2.0),
+                                          ("displays", ()), ("batch", True)])
+def test_bad_configs_name_the_field(field, value):
+    with pytest.raises(ValidationError, match=field):
+        UnrolledTrainConfig(**{field: value})
+
+
+def test_an_unknown_display_is_refused_by_name():
+    with pytest.raises(ValidationError, match="nosuch"):
+        UnrolledTrainConfig(displays=("nosuch",))
+
+
+def test_a_file_that_is_not_a_checkpoint_is_refused(tmp_path):
+    path = tmp_path / "x.pt"
+    torch.save({"hello": 1}, path)
+    with pytest.raises(ValidationError, match="checkpoint"):
+        load_unrolled(path)

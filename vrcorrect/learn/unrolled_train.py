@@ -1,0 +1,285 @@
+"""Training the unrolled correction (:mod:`vrcorrect.learn.unrolled`) on the physics objective, for
+every display preset and eyes over a prescription range (issue 25, begun; torch).
+
+No paired targets: the loss is the log of the objective of what the eye sees of the model's output
+(the LMS error against the target's cone image with glasses) over that of the uncorrected image,
+averaged over a batch of random crops, each with its own eye and display. ``fast`` is not a
+training target; it is the yardstick of :func:`evaluate`, which reports the share of ``fast``'s
+objective gain over no correction that the learned model and its unlearned twin (the same stages,
+no prior, ``fast``'s settings) close on held-out eyes and held-out images.
+
+The kernels (an eye's cone x primary kernel bank and the same eye with glasses, per display) cost
+seconds each; :func:`build_pool` builds them once, in worker processes, and the training draws
+crops against them.
+
+Not yet here (issue 25): ``vrcorrect train`` options for it, Ray for the pool, the ONNX export
+(torch's exporters refuse the complex spectra: the data step must move to real and imaginary
+planes first) and the runtime's cold start.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import torch
+
+from ..plumbing.errors import ValidationError
+from ..plumbing.fileio import write_text_atomic
+from ..specs.display import decode, get_display, preset_names
+from ..specs.vocabulary import Method
+from .conditioning import SamplingRanges, eye_features
+from .train import objective_per_sample, retina
+from .unrolled import UnrolledADMM, UnrolledConfig, kernel_spectra, twin
+
+__all__ = ["UnrolledTrainConfig", "PoolEntry", "build_pool", "train_unrolled", "evaluate", "features_of"]
+
+#: Features the stage MLP reads: the eye's (M, J0, J45, pupil), scaled, and log(kernel px) / 4.
+N_UNROLLED_FEATURES = 5
+
+
+@dataclass(frozen=True)
+class UnrolledTrainConfig:
+    """What a training run does (everything its result depends on, besides the images)."""
+
+    stages: int = 4
+    prior_width: int = 16
+    displays: tuple[str, ...] = field(default_factory=preset_names)
+    eyes_per_display: int = 5
+    held_out_eyes_per_display: int = 2
+    crop_px: int = 48
+    batch: int = 8
+    steps: int = 2000
+    minutes: float = 90.0
+    lr: float = 2e-3
+    seed: int = 0
+    ranges: SamplingRanges = field(default_factory=SamplingRanges)
+
+    def __post_init__(self) -> None:
+        for name, lo, hi in (("stages", 1, 32), ("prior_width", 1, 256), ("eyes_per_display", 1, 1000),
+                             ("held_out_eyes_per_display", 1, 1000), ("crop_px", 16, 512), ("batch", 1, 1024),
+                             ("steps", 1, 10_000_000), ("seed", 0, 2**32 - 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+                raise ValidationError(name, value, f"an integer from {lo} to {hi}")
+        if not (isinstance(self.minutes, (int, float)) and 0 < self.minutes <= 24 * 60):
+            raise ValidationError("minutes", self.minutes, "a number of minutes in (0, 1440]")
+        if not (isinstance(self.lr, (int, float)) and 0 < self.lr < 1):
+            raise ValidationError("lr", self.lr, "a learning rate in (0, 1)")
+        if not self.displays:
+            raise ValidationError("displays", self.displays, "at least one display preset")
+        for name in self.displays:
+            get_display(name)                                   # an unknown preset: its own clear error
+
+
+@dataclass(frozen=True)
+class PoolEntry:
+    """One eye on one display: its kernel bank, the same eye with glasses, and its features."""
+
+    display: str
+    eye: Any                     # EyeRx
+    eye_kernel: Any              # EyeKernel: the eye on the display
+    reference_kernel: Any        # EyeKernel: the same eye with glasses
+    features: np.ndarray         # (N_UNROLLED_FEATURES,) float32
+
+    @property
+    def kernel(self) -> np.ndarray:
+        """The ``(3, 3, s, s)`` float64 kernel bank."""
+        return self.eye_kernel.kernel
+
+    @property
+    def reference(self) -> np.ndarray:
+        return self.reference_kernel.kernel
+
+
+def features_of(eye: Any, kernel_size: int, ranges: SamplingRanges) -> np.ndarray:
+    """The stage MLP's input for an eye whose kernel is ``kernel_size`` px (:data:`N_UNROLLED_FEATURES`)."""
+    return np.append(eye_features(eye, ranges), math.log(kernel_size) / 4.0).astype(np.float32)
+
+
+def _entry(job: tuple[str, Any, SamplingRanges]) -> PoolEntry:
+    from ..physics.kernel import build_kernel, build_reference_kernel  # in the worker: its own start-up
+
+    name, eye, ranges = job
+    display = get_display(name)
+    k = build_kernel(eye, display)
+    r = build_reference_kernel(eye, display)
+    return PoolEntry(name, eye, k, r, features_of(eye, k.size, ranges))
+
+
+def build_pool(config: UnrolledTrainConfig, progress: Callable[[int, int], None] | None = None,
+               workers: int = 2) -> dict[str, list[PoolEntry]]:
+    """Kernels for ``train`` and ``held_out`` eyes on every display of ``config`` (eyes drawn from
+    ``config.ranges`` with the run's seed; held-out eyes from a stream of their own)."""
+    jobs: dict[str, list[tuple[str, Any, SamplingRanges]]] = {"train": [], "held_out": []}
+    for split, per, offset in (("train", config.eyes_per_display, 0), ("held_out", config.held_out_eyes_per_display, 1)):
+        rng = np.random.default_rng([config.seed, offset])
+        for name in config.displays:
+            jobs[split] += [(name, config.ranges.sample(rng), config.ranges) for _ in range(per)]
+    everything = jobs["train"] + jobs["held_out"]
+    done = 0
+    results: list[PoolEntry] = []
+    with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
+        for entry in pool.map(_entry, everything):
+            results.append(entry)
+            done += 1
+            if progress is not None:
+                progress(done, len(everything))
+    n = len(jobs["train"])
+    return {"train": results[:n], "held_out": results[n:]}
+
+
+def _pad(k: np.ndarray, size: int) -> np.ndarray:
+    p = (size - k.shape[-1]) // 2
+    return np.pad(k, ((0, 0), (0, 0), (p, p), (p, p)))
+
+
+def make_batch(entries: Sequence[PoolEntry], crops: Sequence[np.ndarray]) -> dict[str, torch.Tensor]:
+    """Tensors for one batch: ``target`` (linear RGB), ``target_lms`` (what the eye sees of it with
+    glasses), ``spectrum`` and ``norm2`` (:func:`kernel_spectra`), ``kernel`` (padded to one size)
+    and ``features``. ``crops`` are sRGB-coded ``(h, w, 3)`` crops, one per entry."""
+    shape = crops[0].shape[:2]
+    t = np.stack([decode(get_display(e.display), c).astype(np.float32).transpose(2, 0, 1)
+                  for e, c in zip(entries, crops)])
+    target = torch.from_numpy(t)
+    s = max(e.kernel.shape[-1] for e in entries)
+    r = max(e.reference.shape[-1] for e in entries)
+    kernel = torch.from_numpy(np.stack([_pad(e.kernel, s) for e in entries]).astype(np.float32))
+    reference = torch.from_numpy(np.stack([_pad(e.reference, r) for e in entries]).astype(np.float32))
+    with torch.no_grad():
+        target_lms = retina(target, reference)
+    spectrum, norm2 = kernel_spectra([e.kernel for e in entries], shape)
+    features = torch.from_numpy(np.stack([e.features for e in entries]))
+    return {"target": target, "target_lms": target_lms, "spectrum": spectrum, "norm2": norm2, "kernel": kernel,
+            "features": features}
+
+
+def run_model(model: UnrolledADMM, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    return model(batch["target_lms"], batch["target"], batch["spectrum"], batch["norm2"],
+                 features=batch["features"] if model.mlp is not None else None, target=batch["target"])
+
+
+def _crops(images: Sequence[np.ndarray], rng: np.random.Generator, n: int, size: int) -> list[np.ndarray]:
+    out = []
+    for _ in range(n):
+        im = images[int(rng.integers(len(images)))]
+        y = int(rng.integers(0, im.shape[0] - size + 1))
+        x = int(rng.integers(0, im.shape[1] - size + 1))
+        out.append(np.ascontiguousarray(im[y:y + size, x:x + size]))
+    return out
+
+
+def evaluate(model: UnrolledADMM, cases: Sequence[tuple[PoolEntry, np.ndarray]],
+             fast_objectives: Sequence[float]) -> dict[str, Any]:
+    """The share of ``fast``'s objective gain over no correction each case gets from ``model`` and
+    from its twin (``model.config.stages`` stages): medians, minima and per case."""
+    shares: dict[str, list[float]] = {"learned": [], "twin": []}
+    tw = twin(model.config.stages)
+    with torch.no_grad():
+        for i, (entry, crop) in enumerate(cases):
+            b = make_batch([entry], [crop])
+            none = float(objective_per_sample(b["target"], b["kernel"], b["target_lms"])[0])
+            gain = none - float(fast_objectives[i])
+            for name, m in (("learned", model), ("twin", tw)):
+                obj = float(objective_per_sample(run_model(m, b), b["kernel"], b["target_lms"])[0])
+                shares[name].append((none - obj) / gain if gain > 0 else float("nan"))
+    summary = {name: {"median": float(np.nanmedian(v)), "min": float(np.nanmin(v)), "cases": v}
+               for name, v in shares.items()}
+    return summary
+
+
+def fast_objectives(cases: Sequence[tuple[PoolEntry, np.ndarray]]) -> list[float]:
+    """``fast``'s objective on each case (the yardstick), in the training's own forward model."""
+    from ..solvers import solve
+    from ..solvers.problem import Problem
+
+    out = []
+    for entry, crop in cases:
+        b = make_batch([entry], [crop])
+        problem = Problem(target=b["target"][0].numpy().transpose(1, 2, 0).copy(), kernel=entry.eye_kernel,
+                          target_lms=b["target_lms"][0].numpy().transpose(1, 2, 0).copy(), reference="glasses",
+                          reference_kernel=entry.reference_kernel)
+        shown = solve(problem, Method.FAST).image.astype(np.float32)
+        x = torch.from_numpy(np.ascontiguousarray(shown.transpose(2, 0, 1)))[None]
+        out.append(float(objective_per_sample(x, b["kernel"], b["target_lms"])[0]))
+    return out
+
+
+def train_unrolled(run_dir: str | Path, config: UnrolledTrainConfig, train_images: Sequence[np.ndarray],
+                   held_out_images: Sequence[np.ndarray], pool: dict[str, list[PoolEntry]] | None = None,
+                   progress: Callable[[int, float], None] | None = None, held_out_cases: int = 24) -> dict[str, Any]:
+    """Train an :class:`UnrolledADMM` for ``config.steps`` steps or ``config.minutes``, whichever
+    ends first (cosine learning rate over the steps), evaluate it against its twin on held-out
+    eyes and images, and write ``unrolled.pt``, ``log.csv`` and ``report.json`` in ``run_dir``.
+    Returns the report."""
+    import json
+
+    run = Path(run_dir)
+    run.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(config.seed)
+    rng = np.random.default_rng([config.seed, 2])
+    pool = pool if pool is not None else build_pool(config)
+    held_rng = np.random.default_rng([config.seed, 3])
+    cases = [(pool["held_out"][i % len(pool["held_out"])], c)
+             for i, c in enumerate(_crops(held_out_images, held_rng, held_out_cases, config.crop_px))]
+    fast_obj = fast_objectives(cases)
+    model = UnrolledADMM(UnrolledConfig(stages=config.stages, prior_width=config.prior_width,
+                                        features=N_UNROLLED_FEATURES))
+    optimiser = torch.optim.Adam(model.parameters(), lr=config.lr)
+    schedule = torch.optim.lr_scheduler.LambdaLR(
+        optimiser, lambda s: 0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(s / config.steps, 1.0))))
+    log = io.StringIO()
+    writer = csv.writer(log)
+    writer.writerow(["step", "loss", "lr", "seconds"])
+    t0 = time.perf_counter()
+    step = 0
+    while step < config.steps and time.perf_counter() - t0 < 60.0 * config.minutes:
+        idx = rng.integers(len(pool["train"]), size=config.batch)
+        b = make_batch([pool["train"][i] for i in idx], _crops(train_images, rng, config.batch, config.crop_px))
+        obj = objective_per_sample(run_model(model, b), b["kernel"], b["target_lms"])
+        base = objective_per_sample(b["target"], b["kernel"], b["target_lms"])
+        loss = torch.log(obj / base.clamp_min(1e-12)).mean()
+        optimiser.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+        optimiser.step()
+        schedule.step()
+        step += 1
+        writer.writerow([step, f"{loss.item():.5f}", f"{schedule.get_last_lr()[0]:.3e}",
+                         f"{time.perf_counter() - t0:.1f}"])
+        if progress is not None:
+            progress(step, loss.item())
+    seconds = time.perf_counter() - t0
+    result = evaluate(model, cases, fast_obj)
+    report = {"config": {**{k: v for k, v in config.__dict__.items() if k != "ranges"},
+                         "displays": list(config.displays), "ranges": config.ranges.as_dict()},
+              "steps": step, "seconds": seconds, "parameters": sum(p.numel() for p in model.parameters()),
+              "held_out": {"cases": len(cases), "eyes": len(pool["held_out"]),
+                           "displays": sorted({e.display for e in pool["held_out"]})},
+              "share_of_fast_gain": {k: {"median": v["median"], "min": v["min"]} for k, v in result.items()},
+              "per_case": [{"display": e.display, "learned": result["learned"]["cases"][i],
+                            "twin": result["twin"]["cases"][i]} for i, (e, _) in enumerate(cases)]}
+    torch.save({"format": "vrcorrect-unrolled-checkpoint", "config": model.config.as_dict(),
+                "state_dict": model.state_dict(), "train": report["config"]}, run / "unrolled.pt")
+    write_text_atomic(run / "log.csv", log.getvalue(), force=True)
+    write_text_atomic(run / "report.json", json.dumps(report, indent=2) + "\n", force=True)
+    return report
+
+
+def load_unrolled(path: str | Path) -> UnrolledADMM:
+    """A model saved by :func:`train_unrolled`."""
+    ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    if not isinstance(ckpt, dict) or ckpt.get("format") != "vrcorrect-unrolled-checkpoint":
+        raise ValidationError("checkpoint", str(path), "a file written by train_unrolled (unrolled.pt)")
+    model = UnrolledADMM(UnrolledConfig(**ckpt["config"]))
+    model.load_state_dict(ckpt["state_dict"])
+    return model
+
+
