@@ -107,3 +107,25 @@ def test_a_file_that_is_not_a_checkpoint_is_refused(tmp_path):
     torch.save({"hello": 1}, path)
     with pytest.raises(ValidationError, match="checkpoint"):
         load_unrolled(path)
+
+
+def _cli_error(args, capsys):
+    from vrcorrect.apps.cli import main
+
+    assert main(["unroll", *args]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("vrcorrect: error:")
+    return err
+
+
+def test_the_command_refuses_before_any_work(tmp_path, capsys):
+    (tmp_path / "file").write_text("x")
+    assert "not a folder" in _cli_error(["-o", str(tmp_path / "file")], capsys)
+    assert "no such folder" in _cli_error(["-o", str(tmp_path / "missing" / "run")], capsys)
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "unrolled.pt").write_text("mine")
+    assert "--force" in _cli_error(["-o", str(run)], capsys)
+    assert (run / "unrolled.pt").read_text() == "mine"
+    assert "stages" in _cli_error(["-o", str(run), "--stages", "0", "--force"], capsys)
+    assert "crop" in _cli_error(["-o", str(tmp_path / "new"), "--crop-px", "200"], capsys)

@@ -9,7 +9,7 @@ import argparse
 import os
 from pathlib import Path
 
-from ..plumbing.errors import ValidationError
+from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.images import bundled_images, folder_images
 
 
@@ -84,8 +84,13 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
                                  eyes_per_display=args.eyes_per_display, crop_px=args.crop_px, batch=args.batch_size,
                                  steps=args.steps, minutes=args.minutes, seed=args.seed)
     out = Path(args.out)
-    for name in ("unrolled.pt", "log.csv", "report.json"):      # before minutes of kernels
-        check_writable(out / name, force=args.force)
+    if out.exists() and not out.is_dir():                         # all before minutes of kernels
+        raise InputError(f"{out}: exists and is not a folder (-o names the run folder)")
+    if not out.resolve().parent.is_dir():
+        raise InputError(f"{out.resolve().parent}: no such folder (the run folder's parent must exist)")
+    if out.is_dir():
+        for name in ("unrolled.pt", "log.csv", "report.json"):
+            check_writable(out / name, force=args.force)
     images = dict(bundled_images(args.image_px))
     train_images = [im for n, im in images.items() if n not in HELD_OUT_IMAGES]
     held_out = [im for n, im in images.items() if n in HELD_OUT_IMAGES]
