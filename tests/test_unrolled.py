@@ -28,14 +28,14 @@ def case():
     problem = make_problem(decode(display, star).astype(np.float32), kernel, build_reference_kernel(eye, display))
     t_lms = np.ascontiguousarray(problem.target_lms.transpose(2, 0, 1), np.float32)
     z0 = np.ascontiguousarray(problem.target.transpose(2, 0, 1), np.float32)
-    spectrum, norm2 = kernel_spectra([kernel.kernel], SIZE)
-    return kernel, t_lms, z0, spectrum, norm2
+    spectrum, inverse, norm2 = kernel_spectra([kernel.kernel], SIZE)
+    return kernel, t_lms, z0, (spectrum, inverse), norm2
 
 
 def _run(model, case, **kw):
     _, t_lms, z0, spectrum, norm2 = case
     with torch.no_grad():
-        return model(torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None], spectrum, norm2, **kw)[0].numpy()
+        return model(torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None], *spectrum, norm2, **kw)[0].numpy()
 
 
 @pytest.mark.parametrize("stages", [1, 3])
@@ -84,7 +84,7 @@ def test_training_reaches_the_stage_settings_and_the_prior(case):
     from vrcorrect.learn.train import objective_per_sample
 
     model = UnrolledADMM(UnrolledConfig(stages=2, prior_width=4, features=4))
-    z = model(torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None], spectrum, norm2,
+    z = model(torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None], *spectrum, norm2,
               features=torch.ones(1, 4))
     loss = objective_per_sample(z, torch.from_numpy(kernel.kernel).float()[None], torch.from_numpy(t_lms)[None]).sum()
     loss.backward()
@@ -100,6 +100,8 @@ def test_bad_configurations_name_the_field(field, value):
 
 def test_a_spectrum_smaller_than_the_image_is_refused(case):
     _, t_lms, z0, _, _ = case
-    small, norm2 = kernel_spectra([np.ones((3, 3, 3, 3)) / 27], (8, 8))
+    small, inverse, norm2 = kernel_spectra([np.ones((3, 3, 3, 3)) / 27], (8, 8))
     with pytest.raises(ValidationError, match="spectrum"):
-        twin(1)(torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None], small, norm2)
+        twin(1)(torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None], small, inverse, norm2)
+    with pytest.raises(ValidationError, match="spectrum"):
+        twin(1)(torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None], small[..., 0], inverse[..., 0], norm2)

@@ -10,24 +10,26 @@ FFT step). One model then serves any kernel the forward model can build, on any 
 One stage is one iteration of :func:`vrcorrect.solvers.admm._admm` (the boundary-aware split
 ``v = K u`` for the retina, ``z = u`` for the box; two FFT round trips):
 
-* ``u``: ``(K^H K + n I)^-1 (K^H F(v - d1) + n F(z - d2))`` per frequency, by the 3x3 algebra of
-  :mod:`vrcorrect.solvers.spectral` (``gram`` and ``inv3`` are written for numpy and run here on
-  torch's complex tensors unchanged), with ``n = balance_s ||K||^2``;
+* ``u``: ``(K^H K + n I)^-1 (K^H F(v - d1) + n F(z - d2))`` per frequency with ``n = ||K||^2``, the
+  inverse made once per eye by :func:`vrcorrect.solvers.spectral.hermitian_inverse` (float64) and
+  given to the model as an input, like the spectrum; the 3x3 products in real arithmetic on
+  (real, imaginary) pairs, so that only the FFTs are complex and the graph exports to ONNX;
 * relaxation by ``alpha_s``; ``v`` per pixel inside the image (``rho_s``);
 * ``z``: ``u + d2``, plus the prior's residual (``prior(u + d2, target)``), then the box: clipped
   to [0, 1] inside the image, zero outside, at every stage;
 * the scaled duals.
 
-The stage settings ``(rho_s, alpha_s, balance_s)`` start at ``fast``'s (0.1, 1.8, 1) and a tiny
-MLP adds an eye-dependent correction (its last layer zero at start); the prior's last layer
+The stage settings ``(rho_s, alpha_s)`` start at ``fast``'s (0.1, 1.8) and a tiny MLP adds an eye-dependent correction (its last layer zero at start); the prior's last layer
 is zero at start too. So an untrained model *is* its unlearned twin: ``stages`` iterations of
 ``fast``'s ADMM from the same start, and :func:`twin` (``prior_width=0``) has no prior at all.
 Tests check the twin against the numpy ADMM iteration by iteration.
 
 Inputs are batched channel-first: the target's cone image ``t_lms`` and the start ``z0`` as
-``(N, 3, H, W)`` float32, the kernel bank's spectrum on the padded grid as ``(N, 3, 3, P0, P1 // 2 + 1)``
-complex64 (:func:`kernel_spectra`), ``||K||^2`` per sample ``(N,)`` and the eye's features
-``(N, F)`` (:func:`vrcorrect.learn.conditioning.eye_features`, any fixed length).
+``(N, 3, H, W)`` float32, the kernel bank's spectrum and the data step's inverse on the padded grid
+as ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 pairs (:func:`kernel_spectra`), ``||K||^2`` per sample
+``(N,)`` and the eye's features ``(N, F)`` (any fixed length). (A pilot that also learned the
+split's balance per stage left it within 15 % of 1; it is fixed at ``fast``'s, so one inverse
+serves every stage.)
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ import torch
 from torch import nn
 
 from ..plumbing.errors import ValidationError
-from ..solvers.spectral import gram, inv3, kernel_spectrum, padded_shape, spectral_norm_squared
+from ..solvers.spectral import hermitian_inverse, kernel_spectrum, padded_shape, spectral_norm_squared
 
 __all__ = ["UnrolledConfig", "UnrolledADMM", "twin", "kernel_spectra", "FAST_RHO", "FAST_RELAXATION"]
 
@@ -114,93 +116,92 @@ class UnrolledADMM(nn.Module):
         super().__init__()
         self.config = config
         S = config.stages
-        # per-stage settings in an unconstrained form: log rho, logit(alpha / 2), log balance
-        base = torch.tensor([math.log(FAST_RHO), math.log(FAST_RELAXATION / (2 - FAST_RELAXATION)), 0.0],
+        # per-stage settings in an unconstrained form: log rho, logit(alpha / 2)
+        base = torch.tensor([math.log(FAST_RHO), math.log(FAST_RELAXATION / (2 - FAST_RELAXATION))],
                             dtype=torch.float32)
-        self.stage_base = nn.Parameter(base.repeat(S, 1))                                  # (S, 3)
+        self.stage_base = nn.Parameter(base.repeat(S, 1))                                  # (S, 2)
         if config.features:
             self.mlp = nn.Sequential(nn.Linear(config.features, config.hidden), nn.ReLU(),
-                                     nn.Linear(config.hidden, 3 * S))
+                                     nn.Linear(config.hidden, 2 * S))
             nn.init.zeros_(self.mlp[-1].weight)
             nn.init.zeros_(self.mlp[-1].bias)
         else:
             self.mlp = None
         self.prior = _Prior(config.prior_width) if config.prior_width else None
 
-    def stage_settings(self, features: torch.Tensor | None, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``(rho, alpha, balance)``, each ``(N, S)``: the shared settings plus the eye's correction."""
+    def stage_settings(self, features: torch.Tensor | None, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(rho, alpha)``, each ``(N, S)``: the shared settings plus the eye's correction."""
         raw = self.stage_base.unsqueeze(0).expand(n, -1, -1)
         if self.mlp is not None and features is not None:
-            raw = raw + self.mlp(features).view(n, self.config.stages, 3)
-        rho = torch.exp(raw[..., 0])
-        alpha = 2.0 * torch.sigmoid(raw[..., 1])                # over-relaxation stays in (0, 2)
-        balance = torch.exp(raw[..., 2])
-        return rho, alpha, balance
+            raw = raw + self.mlp(features).view(n, self.config.stages, 2)
+        return torch.exp(raw[..., 0]), 2.0 * torch.sigmoid(raw[..., 1])     # over-relaxation in (0, 2)
 
-    def forward(self, t_lms: torch.Tensor, z0: torch.Tensor, spectrum: torch.Tensor, norm2: torch.Tensor,
-                features: torch.Tensor | None = None, target: torch.Tensor | None = None,
+    def forward(self, t_lms: torch.Tensor, z0: torch.Tensor, spectrum: torch.Tensor, inverse: torch.Tensor,
+                norm2: torch.Tensor, features: torch.Tensor | None = None, target: torch.Tensor | None = None,
                 history: list[torch.Tensor] | None = None) -> torch.Tensor:
         """The displayed image ``(N, 3, H, W)`` in [0, 1] after the stages.
 
-        ``target``: the target image the prior sees (default ``z0``); ``history``, when given,
-        receives each stage's ``z`` (inside the image)."""
+        ``spectrum`` and ``inverse`` (:func:`kernel_spectra`): ``K`` and ``(K^H K + ||K||^2 I)^-1``
+        per frequency, ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 (real and imaginary parts last);
+        ``norm2`` ``(N,)``. ``target``: the image the prior sees (default ``z0``); ``history``, when
+        given, receives each stage's ``z``."""
         N, _, H, W = t_lms.shape
-        P = (spectrum.shape[-2], 2 * (spectrum.shape[-1] - 1))
+        P = (spectrum.shape[-3], 2 * (spectrum.shape[-2] - 1))
+        if spectrum.shape[-1] != 2 or inverse.shape != spectrum.shape:
+            raise ValidationError("spectrum", tuple(spectrum.shape), "(N, 3, 3, P0, P1 // 2 + 1, 2), as the inverse")
         if P[0] < H or P[1] < W:
             raise ValidationError("spectrum", tuple(spectrum.shape), f"a grid of at least {H}x{W}")
-        if spectrum.shape[-1] != P[1] // 2 + 1:
-            raise ValidationError("spectrum", tuple(spectrum.shape), "an rfft2 spectrum (last axis P1 // 2 + 1)")
-        # the 3x3 planes first, as solvers.spectral stores them: (3, 3, N, P0, F1) and (3, N, ...)
-        Kf = spectrum.permute(1, 2, 0, 3, 4)
-        Kh = Kf.conj().transpose(0, 1)
-        KhK = gram(Kf)
-        rho, alpha, balance = self.stage_settings(features, N)
-        inside = torch.zeros((1, N, *P), dtype=t_lms.dtype, device=t_lms.device)
-        inside[..., :H, :W] = 1.0
-        t_grid = torch.zeros((3, N, *P), dtype=t_lms.dtype, device=t_lms.device)
-        t_grid[..., :H, :W] = t_lms.transpose(0, 1)
-        z = torch.zeros_like(t_grid)
-        z[..., :H, :W] = z0.transpose(0, 1)
+        Kh = torch.stack([spectrum[..., 0].transpose(1, 2), -spectrum[..., 1].transpose(1, 2)], dim=-1)
+        rho, alpha = self.stage_settings(features, N)
+        pad = (0, P[1] - W, 0, P[0] - H)
+        inside = nn.functional.pad(torch.ones_like(t_lms[:, :1]), pad)                  # (N, 1, P0, P1)
+        t_grid = nn.functional.pad(t_lms, pad)
+        z = nn.functional.pad(z0, pad)
         target = z0 if target is None else target
-        v = self._apply(Kf, z, P)
+        v = self._irfft(self._mul(spectrum, self._rfft(z, P)), P)
         d1 = torch.zeros_like(v)
         d2 = torch.zeros_like(z)
-        eye3 = torch.eye(3, dtype=Kf.dtype, device=Kf.device).view(3, 3, 1, 1, 1)
+        n = norm2.view(N, 1, 1, 1).to(t_lms.dtype)
         S = self.config.stages
         for s in range(S):
-            n = (balance[:, s] * norm2).to(t_lms.dtype)                                   # (N,)
-            G = inv3(KhK + eye3 * n.view(1, 1, N, 1, 1).to(Kf.dtype))
-            R = self._mul(Kh, torch.fft.rfft2(v - d1, s=P)) + n.view(1, N, 1, 1) * torch.fft.rfft2(z - d2, s=P)
-            U = self._mul(G, R)
-            u = torch.fft.irfft2(U, s=P)
-            Ku = torch.fft.irfft2(self._mul(Kf, U), s=P)
-            a = alpha[:, s].view(1, N, 1, 1)
+            R = self._mul(Kh, self._rfft(v - d1, P)) + n.unsqueeze(-1) * self._rfft(z - d2, P)
+            U = self._mul(inverse, R)
+            u = self._irfft(U, P)
+            Ku = self._irfft(self._mul(spectrum, U), P)
+            a = alpha[:, s].view(N, 1, 1, 1)
             Ku = a * Ku + (1 - a) * v
             u = a * u + (1 - a) * z
-            rho_eff = (rho[:, s] * n).view(1, N, 1, 1)
+            rho_eff = rho[:, s].view(N, 1, 1, 1) * n
             v_new = Ku + d1
-            v_new = torch.where(inside > 0, (rho_eff * v_new + 2.0 * t_grid) / (2.0 + rho_eff), v_new)
+            v_new = inside * (rho_eff * v_new + 2.0 * t_grid) / (2.0 + rho_eff) + (1 - inside) * v_new
             z_new = u + d2
             if self.prior is not None:
                 stage = torch.full((1, 1, 1, 1), (s + 0.5) / S, dtype=t_lms.dtype, device=t_lms.device)
-                inner = z_new[..., :H, :W].transpose(0, 1)
-                z_new = z_new.clone()
-                z_new[..., :H, :W] = z_new[..., :H, :W] + self.prior(inner, target, stage).transpose(0, 1)
+                z_new = z_new + nn.functional.pad(self.prior(z_new[..., :H, :W], target, stage), pad)
             z_new = torch.clamp(z_new, 0.0, 1.0) * inside
             d1 = d1 + Ku - v_new
             d2 = d2 + u - z_new
             v, z = v_new, z_new
             if history is not None:
-                history.append(z[..., :H, :W].transpose(0, 1))
-        return z[..., :H, :W].transpose(0, 1).contiguous()
+                history.append(z[..., :H, :W])
+        return z[..., :H, :W]
+
+    @staticmethod
+    def _rfft(x: torch.Tensor, P: tuple[int, int]) -> torch.Tensor:
+        """``(N, 3, P0, P1)`` real planes -> ``(N, 3, P0, P1 // 2 + 1, 2)`` spectra (real, imaginary)."""
+        return torch.view_as_real(torch.fft.rfft2(x, s=P))
+
+    @staticmethod
+    def _irfft(X: torch.Tensor, P: tuple[int, int]) -> torch.Tensor:
+        return torch.fft.irfft2(torch.view_as_complex(X.contiguous()), s=P)
 
     @staticmethod
     def _mul(M: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        """Per-frequency ``M x``: ``(3, 3, N, ...)`` by ``(3, N, ...)``."""
-        return torch.einsum("ijn...,jn...->in...", M, x)
-
-    def _apply(self, Kf: torch.Tensor, x: torch.Tensor, P: tuple[int, int]) -> torch.Tensor:
-        return torch.fft.irfft2(self._mul(Kf, torch.fft.rfft2(x, s=P)), s=P)
+        """Per-frequency complex ``M x`` on (real, imaginary) pairs: ``M`` ``(N, 3, 3, ..., 2)``, ``x``
+        ``(N, 3, ..., 2)`` -> ``(N, 3, ..., 2)`` (real arithmetic: exportable to ONNX)."""
+        mr, mi = M[..., 0], M[..., 1]
+        xr, xi = x[..., 0].unsqueeze(1), x[..., 1].unsqueeze(1)
+        return torch.stack([(mr * xr - mi * xi).sum(2), (mr * xi + mi * xr).sum(2)], dim=-1)
 
 
 def twin(stages: int) -> UnrolledADMM:
@@ -208,16 +209,29 @@ def twin(stages: int) -> UnrolledADMM:
     return UnrolledADMM(UnrolledConfig(stages=stages, prior_width=0, features=0))
 
 
-def kernel_spectra(kernels: Sequence[np.ndarray], shape: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
-    """The spectra ``(N, 3, 3, P0, P1 // 2 + 1)`` complex64 (computed in float64) of ``(3, 3, s, s)``
-    kernels on one grid for ``shape`` images (:func:`~vrcorrect.solvers.spectral.padded_shape` of
-    the largest kernel), and ``||K||^2`` of each ``(N,)`` float32."""
+def kernel_spectra(kernels: Sequence[np.ndarray], shape: tuple[int, int]
+                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """For ``(3, 3, s, s)`` kernels and ``shape`` images, on one grid (:func:`~vrcorrect.solvers.spectral.padded_shape`
+    of the largest kernel): the spectra ``K`` and the data step's ``(K^H K + ||K||^2 I)^-1``, each
+    ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 (computed in float64; real and imaginary parts last),
+    and ``||K||^2`` ``(N,)`` float32."""
     H, W = shape
     size = max(k.shape[-1] for k in kernels)
     grid = padded_shape(H, W, size)
-    spectra = np.stack([kernel_spectrum(np.asarray(k, np.float64), grid) for k in kernels]).astype(np.complex64)
-    norms = np.array([spectral_norm_squared(np.asarray(k, np.float64)) for k in kernels], np.float32)
-    return torch.from_numpy(spectra), torch.from_numpy(norms)
+    spectra, inverses, norms = [], [], []
+    for k in kernels:
+        k = np.asarray(k, np.float64)
+        Kf = kernel_spectrum(k, grid)
+        n = spectral_norm_squared(k)
+        spectra.append(Kf)
+        inverses.append(hermitian_inverse(Kf, n))
+        norms.append(n)
+
+    def pairs(a: list[np.ndarray]) -> torch.Tensor:
+        c = np.stack(a)
+        return torch.from_numpy(np.stack([c.real, c.imag], axis=-1).astype(np.float32))
+
+    return pairs(spectra), pairs(inverses), torch.tensor(norms, dtype=torch.float32)
 
 
 def describe(model: UnrolledADMM) -> dict[str, Any]:

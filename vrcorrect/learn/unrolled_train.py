@@ -143,7 +143,7 @@ def _pad(k: np.ndarray, size: int) -> np.ndarray:
 
 def make_batch(entries: Sequence[PoolEntry], crops: Sequence[np.ndarray]) -> dict[str, torch.Tensor]:
     """Tensors for one batch: ``target`` (linear RGB), ``target_lms`` (what the eye sees of it with
-    glasses), ``spectrum`` and ``norm2`` (:func:`kernel_spectra`), ``kernel`` (padded to one size)
+    glasses), ``spectrum``, ``inverse`` and ``norm2`` (:func:`kernel_spectra`), ``kernel`` (padded to one size)
     and ``features``. ``crops`` are sRGB-coded ``(h, w, 3)`` crops, one per entry."""
     shape = crops[0].shape[:2]
     t = np.stack([decode(get_display(e.display), c).astype(np.float32).transpose(2, 0, 1)
@@ -155,14 +155,14 @@ def make_batch(entries: Sequence[PoolEntry], crops: Sequence[np.ndarray]) -> dic
     reference = torch.from_numpy(np.stack([_pad(e.reference, r) for e in entries]).astype(np.float32))
     with torch.no_grad():
         target_lms = retina(target, reference)
-    spectrum, norm2 = kernel_spectra([e.kernel for e in entries], shape)
+    spectrum, inverse, norm2 = kernel_spectra([e.kernel for e in entries], shape)
     features = torch.from_numpy(np.stack([e.features for e in entries]))
-    return {"target": target, "target_lms": target_lms, "spectrum": spectrum, "norm2": norm2, "kernel": kernel,
-            "features": features}
+    return {"target": target, "target_lms": target_lms, "spectrum": spectrum, "inverse": inverse, "norm2": norm2,
+            "kernel": kernel, "features": features}
 
 
 def run_model(model: UnrolledADMM, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-    return model(batch["target_lms"], batch["target"], batch["spectrum"], batch["norm2"],
+    return model(batch["target_lms"], batch["target"], batch["spectrum"], batch["inverse"], batch["norm2"],
                  features=batch["features"] if model.mlp is not None else None, target=batch["target"])
 
 
