@@ -64,9 +64,9 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   # setuptools warns at every editable install that a folder named like the package may shadow it
   # (a generic banner: this checkout's vrcorrect/ is the package itself); silenced by its message
   PYTHONWARNINGS="ignore:Editable installation" \
-    .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[solve,metrics,test,realtime,ray]" 2>&1 \
+    .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[solve,learn,metrics,test,realtime,ray]" 2>&1 \
     | grep -v -e "^WARNING: Location" || true
-  .venv/bin/python -c "import vrcorrect, numpy, scipy, colour, PIL, torch, pytest, hypothesis, moderngl, glfw, onnxruntime, onnx, imageio_ffmpeg, mss, xr, ray" \
+  .venv/bin/python -c "import vrcorrect, numpy, scipy, colour, PIL, torch, pytest, hypothesis, moderngl, glfw, onnxruntime, onnx, onnxscript, imageio_ffmpeg, mss, xr, ray" \
     || { echo "installation failed" >&2; exit 1; }
   # ColorVideoVDP (the primary perceptual score) must import beside the CPU build of torch.
   .venv/bin/python -c "from vrcorrect.vision.metrics import _import_cvvdp; _import_cvvdp()" \

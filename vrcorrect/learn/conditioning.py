@@ -185,3 +185,34 @@ def precorrect(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel
     filters = correction_filters(kernel, mu_rel, reference_kernel)
     out = apply_filters(np.moveaxis(image, 2, 0), filters.taps)
     return np.ascontiguousarray(np.clip(np.moveaxis(out, 0, 2), 0.0, 1.0), dtype=np.float32)
+
+
+#: Length of :func:`unrolled_features`.
+N_UNROLLED_FEATURES = 5
+
+
+def unrolled_features(eye: EyeRx, kernel_size: int, ranges: SamplingRanges) -> np.ndarray:
+    """The unrolled model's stage-settings input (:mod:`vrcorrect.learn.unrolled`): the eye's
+    :func:`eye_features` and ``log(kernel px) / 4``, the blur's extent on this display; float32 ``(5,)``."""
+    return np.append(eye_features(eye, ranges), math.log(kernel_size) / 4.0).astype(np.float32)
+
+
+def unrolled_spectra(kernel: np.ndarray, shape: tuple[int, int], grid_kernel_size: int | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, float]:
+    """The unrolled model's data-step inputs for a ``(3, 3, s, s)`` kernel and ``shape`` images, on
+    :func:`~vrcorrect.solvers.spectral.padded_shape`'s grid for a kernel of ``grid_kernel_size`` px
+    (default ``s``): the spectrum ``K`` and ``(K^H K + ||K||^2 I)^-1``, each ``(3, 3, P0, P1 // 2 + 1, 2)``
+    float32 (computed in float64; real and imaginary parts last), and ``||K||^2``."""
+    from ..solvers.spectral import hermitian_inverse, kernel_spectrum, padded_shape, spectral_norm_squared
+
+    k = np.asarray(kernel, np.float64)
+    grid = padded_shape(shape[0], shape[1], grid_kernel_size or k.shape[-1])
+    spectrum = kernel_spectrum(k, grid)
+    n = spectral_norm_squared(k)
+    inverse = hermitian_inverse(spectrum, n)
+
+    def pairs(c: np.ndarray) -> np.ndarray:
+        return np.stack([c.real, c.imag], axis=-1).astype(np.float32)
+
+    return pairs(spectrum), pairs(inverse), n
+

@@ -43,7 +43,7 @@ import torch
 from torch import nn
 
 from ..plumbing.errors import ValidationError
-from ..solvers.spectral import hermitian_inverse, kernel_spectrum, padded_shape, spectral_norm_squared
+from .conditioning import unrolled_spectra
 
 __all__ = ["UnrolledConfig", "UnrolledADMM", "twin", "kernel_spectra", "FAST_RHO", "FAST_RELAXATION"]
 
@@ -211,27 +211,13 @@ def twin(stages: int) -> UnrolledADMM:
 
 def kernel_spectra(kernels: Sequence[np.ndarray], shape: tuple[int, int]
                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """For ``(3, 3, s, s)`` kernels and ``shape`` images, on one grid (:func:`~vrcorrect.solvers.spectral.padded_shape`
-    of the largest kernel): the spectra ``K`` and the data step's ``(K^H K + ||K||^2 I)^-1``, each
-    ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 (computed in float64; real and imaginary parts last),
-    and ``||K||^2`` ``(N,)`` float32."""
-    H, W = shape
+    """:func:`~vrcorrect.learn.conditioning.unrolled_spectra` of each kernel on one grid (that of the
+    largest), batched: ``spectrum`` and ``inverse`` ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 and
+    ``||K||^2`` ``(N,)`` float32."""
     size = max(k.shape[-1] for k in kernels)
-    grid = padded_shape(H, W, size)
-    spectra, inverses, norms = [], [], []
-    for k in kernels:
-        k = np.asarray(k, np.float64)
-        Kf = kernel_spectrum(k, grid)
-        n = spectral_norm_squared(k)
-        spectra.append(Kf)
-        inverses.append(hermitian_inverse(Kf, n))
-        norms.append(n)
-
-    def pairs(a: list[np.ndarray]) -> torch.Tensor:
-        c = np.stack(a)
-        return torch.from_numpy(np.stack([c.real, c.imag], axis=-1).astype(np.float32))
-
-    return pairs(spectra), pairs(inverses), torch.tensor(norms, dtype=torch.float32)
+    made = [unrolled_spectra(k, shape, size) for k in kernels]
+    return (torch.from_numpy(np.stack([m[0] for m in made])), torch.from_numpy(np.stack([m[1] for m in made])),
+            torch.tensor([m[2] for m in made], dtype=torch.float32))
 
 
 def describe(model: UnrolledADMM) -> dict[str, Any]:

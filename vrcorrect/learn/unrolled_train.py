@@ -35,15 +35,11 @@ from ..plumbing.errors import ValidationError
 from ..plumbing.fileio import write_text_atomic
 from ..specs.display import decode, get_display, preset_names
 from ..specs.vocabulary import Method
-from .conditioning import SamplingRanges, eye_features
+from .conditioning import N_UNROLLED_FEATURES, SamplingRanges, unrolled_features
 from .train import objective_per_sample, retina
 from .unrolled import UnrolledADMM, UnrolledConfig, kernel_spectra, twin
 
-__all__ = ["UnrolledTrainConfig", "PoolEntry", "build_pool", "train_unrolled", "evaluate", "features_of"]
-
-#: Features the stage MLP reads: the eye's (M, J0, J45, pupil), scaled, and log(kernel px) / 4.
-N_UNROLLED_FEATURES = 5
-
+__all__ = ["UnrolledTrainConfig", "PoolEntry", "build_pool", "train_unrolled", "evaluate", "load_unrolled"]
 
 @dataclass(frozen=True)
 class UnrolledTrainConfig:
@@ -87,7 +83,7 @@ class PoolEntry:
     eye: Any                     # EyeRx
     eye_kernel: Any              # EyeKernel: the eye on the display
     reference_kernel: Any        # EyeKernel: the same eye with glasses
-    features: np.ndarray         # (N_UNROLLED_FEATURES,) float32
+    features: np.ndarray         # (N_UNROLLED_FEATURES,) float32: conditioning.unrolled_features
 
     @property
     def kernel(self) -> np.ndarray:
@@ -99,11 +95,6 @@ class PoolEntry:
         return self.reference_kernel.kernel
 
 
-def features_of(eye: Any, kernel_size: int, ranges: SamplingRanges) -> np.ndarray:
-    """The stage MLP's input for an eye whose kernel is ``kernel_size`` px (:data:`N_UNROLLED_FEATURES`)."""
-    return np.append(eye_features(eye, ranges), math.log(kernel_size) / 4.0).astype(np.float32)
-
-
 def _entry(job: tuple[str, Any, SamplingRanges]) -> PoolEntry:
     from ..physics.kernel import build_kernel, build_reference_kernel  # in the worker: its own start-up
 
@@ -111,7 +102,7 @@ def _entry(job: tuple[str, Any, SamplingRanges]) -> PoolEntry:
     display = get_display(name)
     k = build_kernel(eye, display)
     r = build_reference_kernel(eye, display)
-    return PoolEntry(name, eye, k, r, features_of(eye, k.size, ranges))
+    return PoolEntry(name, eye, k, r, unrolled_features(eye, k.size, ranges))
 
 
 def build_pool(config: UnrolledTrainConfig, progress: Callable[[int, int], None] | None = None,

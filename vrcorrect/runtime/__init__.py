@@ -11,7 +11,8 @@ The correction
     hot-reloaded), live offsets, the per-size GPU resources and the warm start.
   * ``eye_model`` - what the CPU prepares for an eye (kernel, regulariser, filters) per backend.
   * ``fft``, ``filters`` - the GPU FFT bank and the separable filter bank.
-  * ``learned``, ``onnx_backend``, ``model_path`` - the learned model on onnxruntime.
+  * ``learned``, ``onnx_backend``, ``model_path`` - the learned model on onnxruntime; ``unrolled`` -
+    the unrolled model (issue 25, begun) on onnxruntime.
   * ``motion`` - reprojection of the warm start (head pose, phase correlation).
   * ``render`` - one image through the pipeline, headless (``vrcorrect render``).
 GL and shaders

@@ -1,0 +1,86 @@
+"""The unrolled model exported to ONNX (vrcorrect.learn.unrolled_export) and run by onnxruntime without
+torch (vrcorrect.runtime.unrolled): one file for every size, equal to torch, refusing what it is not."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from vrcorrect.learn.conditioning import unrolled_features
+from vrcorrect.learn.unrolled import kernel_spectra
+from vrcorrect.learn.unrolled_export import TOLERANCE, export_unrolled
+from vrcorrect.learn.unrolled_train import UnrolledTrainConfig, build_pool, load_unrolled, train_unrolled
+from vrcorrect.plumbing.errors import InputError, ValidationError
+from vrcorrect.plumbing.images import bundled_images
+from vrcorrect.runtime.unrolled import UnrolledModel
+from vrcorrect.specs.display import decode, get_display
+from vrcorrect.specs.prescription import EyeRx
+from vrcorrect.vision.forward import simulate_lms
+
+CONFIG = UnrolledTrainConfig(displays=("index",), eyes_per_display=1, held_out_eyes_per_display=1, crop_px=24,
+                             steps=8, batch=2, prior_width=4, stages=2, lr=5e-3)
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    run = tmp_path_factory.mktemp("run")
+    imgs = dict(bundled_images(48))
+    pool = build_pool(CONFIG, workers=1)
+    train_unrolled(run, CONFIG, [imgs["astronaut"]], [imgs["rocket"]], pool=pool, held_out_cases=1)
+    report = export_unrolled(run / "unrolled.pt", run / "unrolled.onnx")
+    return run, report, pool
+
+
+def test_the_export_is_checked_and_carries_its_metadata(exported):
+    run, report, _ = exported
+    assert report.max_abs_error <= TOLERANCE and (run / "unrolled.onnx").stat().st_size == report.bytes
+    model = UnrolledModel(run / "unrolled.onnx")
+    assert model.config["stages"] == 2 and model.displays == ["index"]
+    assert model.metadata["vrcorrect.format"] == "vrcorrect-unrolled-v1"
+
+
+@pytest.mark.parametrize("size", [(33, 47), (64, 40)])
+def test_onnxruntime_equals_torch_on_a_real_eye_at_any_size(exported, size):
+    run, _, pool = exported
+    entry = pool["held_out"][0]
+    H, W = size
+    photo = dict(bundled_images(64))["coffee"][:H, :W]
+    image = decode(get_display("index"), photo).astype(np.float32)
+    got = UnrolledModel(run / "unrolled.onnx").correct(image, entry.eye, entry.eye_kernel, entry.reference_kernel)
+    assert got.shape == (H, W, 3) and got.min() >= 0.0 and got.max() <= 1.0
+    model = load_unrolled(run / "unrolled.pt")
+    t_lms, _ = simulate_lms(image, entry.reference_kernel)
+    spectrum, inverse, norm2 = kernel_spectra([entry.kernel], (H, W))
+    chw = torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1)))[None]
+    eye = entry.eye.minus_cylinder()
+    with torch.no_grad():
+        ref = model(torch.from_numpy(np.ascontiguousarray(t_lms.transpose(2, 0, 1)))[None], chw, spectrum, inverse,
+                    norm2, torch.from_numpy(unrolled_features(eye, entry.eye_kernel.size, CONFIG.ranges))[None],
+                    chw)[0].numpy().transpose(1, 2, 0)
+    assert np.abs(got - ref).max() <= TOLERANCE
+
+
+def test_an_existing_file_is_kept_without_force_and_paths_are_checked(exported):
+    run, _, _ = exported
+    before = (run / "unrolled.onnx").read_bytes()
+    with pytest.raises(InputError):
+        export_unrolled(run / "unrolled.pt", run / "unrolled.onnx")
+    assert (run / "unrolled.onnx").read_bytes() == before
+    with pytest.raises(ValidationError, match="onnx"):
+        export_unrolled(run / "unrolled.pt", run / "model.bin")
+
+
+def test_the_runtime_refuses_other_models_and_eyes_outside_the_range(exported, tmp_path):
+    from vrcorrect.runtime.onnx_backend import write_one_minus_x_model
+
+    other = tmp_path / "other.onnx"
+    write_one_minus_x_model(other)
+    with pytest.raises(ValidationError, match="vrcorrect-unrolled-v1"):
+        UnrolledModel(other)
+    run, _, pool = exported
+    entry = pool["held_out"][0]
+    far = EyeRx(sphere_D=-12.0, cylinder_D=0.0, axis_deg=0.0, pupil_diameter_mm=4.0)
+    with pytest.raises(ValidationError, match="sphere_D"):
+        UnrolledModel(run / "unrolled.onnx").correct(np.zeros((24, 24, 3), np.float32), far, entry.eye_kernel,
+                                                    entry.reference_kernel)

@@ -1,0 +1,120 @@
+"""Export a trained unrolled model (:mod:`vrcorrect.learn.unrolled`) to ONNX for onnxruntime
+(torch, onnx, onnxscript: torch's dynamo exporter, which writes the FFTs as ONNX ``DFT`` ops).
+
+The graph: inputs ``target_lms``, ``z0`` and ``target`` float32 ``(1, 3, H, W)``; ``spectrum`` and
+``inverse`` float32 ``(1, 3, 3, P0, P1 // 2 + 1, 2)``; ``norm2`` ``(1,)``; ``features`` ``(1, 5)``
+(:func:`vrcorrect.learn.conditioning.unrolled_features`). Output ``displayed`` ``(1, 3, H, W)`` in
+[0, 1]. ``H``, ``W``, ``P0`` and ``P1`` are dynamic: one file serves every image size and kernel.
+Metadata (``vrcorrect.*``): the format, the stages, the training ranges and displays, the
+training report's held-out figures.
+
+Every export is checked: onnxruntime's output must equal torch's within :data:`TOLERANCE` on a
+random case of odd size, other than the traced one, or nothing is written.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import __version__
+from ..plumbing.errors import InputError, ValidationError
+from ..plumbing.fileio import check_writable, write_with
+from .conditioning import N_UNROLLED_FEATURES
+from .unrolled import UnrolledADMM, kernel_spectra
+
+FORMAT = "vrcorrect-unrolled-v1"
+OPSET = 18
+TOLERANCE = 1e-4
+INPUTS = ("target_lms", "z0", "spectrum", "inverse", "norm2", "features", "target")
+OUTPUT = "displayed"
+
+
+@dataclass(frozen=True)
+class UnrolledExport:
+    path: Path
+    max_abs_error: float
+    metadata: dict[str, str]
+    bytes: int
+
+
+def _case(H: int, W: int, kernel_size: int, seed: int) -> tuple[torch.Tensor, ...]:
+    rng = np.random.default_rng(seed)
+    k = rng.random((3, 3, kernel_size, kernel_size))
+    k /= 3 * k.sum(axis=(-2, -1), keepdims=True)
+    spectrum, inverse, norm2 = kernel_spectra([k], (H, W))
+    t = torch.from_numpy(rng.random((1, 3, H, W), dtype=np.float32))
+    return (torch.from_numpy(rng.random((1, 3, H, W), dtype=np.float32)), t, spectrum, inverse, norm2,
+            torch.from_numpy(rng.uniform(-1, 1, (1, N_UNROLLED_FEATURES)).astype(np.float32)), t)
+
+
+def onnx_bytes(model: UnrolledADMM) -> bytes:
+    """The model as ONNX (dynamic image and grid sizes; no metadata)."""
+    from torch.export import Dim
+
+    h, w = Dim("H", min=8, max=8192), Dim("W", min=8, max=8192)
+    p0, f1 = Dim("P0", min=8, max=16384), Dim("F1", min=5, max=8193)
+    image, spec = {2: h, 3: w}, {3: p0, 4: f1}
+    shapes = {"t_lms": image, "z0": image, "spectrum": spec, "inverse": spec, "norm2": None, "features": None,
+              "target": image}
+    buf = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(model.eval(), _case(40, 52, 7, 0), buf, dynamo=True, opset_version=OPSET,
+                          dynamic_shapes=shapes, input_names=list(INPUTS), output_names=[OUTPUT], verbose=False)
+    return buf.getvalue()
+
+
+def check_against_torch(model: UnrolledADMM, data: bytes, size: tuple[int, int] = (37, 61), kernel_size: int = 9
+                        ) -> float:
+    """Largest absolute difference between onnxruntime on ``data`` and torch on a random case of
+    ``size`` (not the traced one)."""
+    import onnxruntime as ort  # optional: the learn and realtime extras
+
+    args = _case(*size, kernel_size, seed=1)
+    session = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
+    out = session.run(None, {name: a.numpy() for name, a in zip(INPUTS, args)})[0]
+    with torch.no_grad():
+        ref = model(*args).numpy()
+    return float(np.max(np.abs(out - ref)))
+
+
+def export_unrolled(checkpoint: str | Path, out: str | Path, force: bool = False) -> UnrolledExport:
+    """Export ``checkpoint`` (``unrolled.pt``, with ``report.json`` beside it when there is one) to
+    ``out``, checked against torch; nothing is written when the check fails."""
+    import onnx  # optional: the learn extra
+
+    from .unrolled_train import load_unrolled
+
+    out = Path(out)
+    if out.suffix.lower() != ".onnx":
+        raise ValidationError("output", str(out), "a path ending in .onnx")
+    check_writable(out, force=force)
+    model = load_unrolled(checkpoint)
+    data = onnx_bytes(model)
+    error = check_against_torch(model, data)
+    if not error <= TOLERANCE:
+        raise InputError(f"{checkpoint}: onnxruntime differs from torch by {error:.3g} (> {TOLERANCE:g}); not written")
+    report_path = Path(checkpoint).with_name("report.json")
+    report = json.loads(report_path.read_text()) if report_path.is_file() else {}
+    meta = {"vrcorrect.format": FORMAT, "vrcorrect.version": __version__,
+            "vrcorrect.config": json.dumps(model.config.as_dict()),
+            "vrcorrect.inputs": ",".join(INPUTS), "vrcorrect.opset": str(OPSET),
+            "vrcorrect.ranges": json.dumps(report.get("config", {}).get("ranges")),
+            "vrcorrect.displays": json.dumps(report.get("config", {}).get("displays")),
+            "vrcorrect.train": json.dumps({k: report.get(k) for k in ("steps", "seconds", "share_of_fast_gain",
+                                                                       "held_out")})}
+    proto = onnx.load_from_string(data)
+    for key, value in meta.items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
+    proto.producer_name = "vrcorrect"
+    blob = proto.SerializeToString()
+    write_with(out, lambda tmp: tmp.write_bytes(blob), force=force)
+    return UnrolledExport(path=out, max_abs_error=error, metadata=meta, bytes=len(blob))

@@ -1,0 +1,73 @@
+"""The unrolled correction on onnxruntime (no torch): a model exported by
+:mod:`vrcorrect.learn.unrolled_export` applied to one eye's image (issue 25, begun).
+
+What the model needs besides the image is computed here with numpy, once per eye and size: the
+target's cone image through the eye with glasses (:func:`vrcorrect.vision.forward.simulate_lms`),
+the kernel's spectrum and the data step's inverse
+(:func:`vrcorrect.learn.conditioning.unrolled_spectra`, float64 then float32) and the eye's
+features (:func:`~vrcorrect.learn.conditioning.unrolled_features`). The model starts from the
+target and returns the displayed image, linear RGB in [0, 1].
+
+Not yet wired into the Corrector (its cold start), ``correct --method learned`` or the benches.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..learn.conditioning import SamplingRanges, check_eye, unrolled_features, unrolled_spectra
+from ..physics.kernel import EyeKernel
+from ..plumbing.errors import InputError, ValidationError
+from ..specs.prescription import EyeRx
+from ..vision.forward import simulate_lms
+from .learned import _session
+
+__all__ = ["UNROLLED_FORMAT", "UnrolledModel"]
+
+UNROLLED_FORMAT = "vrcorrect-unrolled-v1"
+INPUTS = ("target_lms", "z0", "spectrum", "inverse", "norm2", "features", "target")
+
+
+class UnrolledModel:
+    """An exported unrolled model and what its metadata says (stages, ranges, displays)."""
+
+    def __init__(self, path: str | Path, providers: tuple[str, ...] | None = None):
+        self.path = Path(path)
+        self.session = _session(self.path, providers)
+        meta = dict(self.session.get_modelmeta().custom_metadata_map)
+        if meta.get("vrcorrect.format") != UNROLLED_FORMAT:
+            raise ValidationError("model", str(self.path), f"an ONNX model exported by vrcorrect.learn.unrolled_export "
+                                  f"(metadata vrcorrect.format = {UNROLLED_FORMAT})")
+        names = tuple(i.name for i in self.session.get_inputs())
+        if names != INPUTS:
+            raise ValidationError("model inputs", list(names), ", ".join(INPUTS))
+        try:
+            self.config: dict[str, Any] = json.loads(meta["vrcorrect.config"])
+            ranges = json.loads(meta.get("vrcorrect.ranges") or "null")
+            self.displays: list[str] | None = json.loads(meta.get("vrcorrect.displays") or "null")
+        except (KeyError, ValueError) as exc:
+            raise InputError(f"{self.path}: incomplete vrcorrect metadata ({exc})") from None
+        self.ranges = SamplingRanges.from_dict(ranges) if ranges else SamplingRanges()
+        self.metadata = meta
+
+    def correct(self, image: np.ndarray, eye: EyeRx, kernel: EyeKernel, reference_kernel: EyeKernel) -> np.ndarray:
+        """The displayed image ``(H, W, 3)`` float32 in [0, 1] for ``image`` (linear display RGB
+        ``(H, W, 3)``) seen by ``eye`` through ``kernel`` (``reference_kernel``: the same eye with
+        glasses, which sets the target). An eye outside the trained ranges is refused."""
+        e = check_eye(eye, self.ranges, f"the model {self.path.name}")
+        img = np.asarray(image, np.float32)
+        if img.ndim != 3 or img.shape[2] != 3:
+            raise ValidationError("image.shape", img.shape, "(height, width, 3)")
+        H, W = img.shape[:2]
+        t_lms, _ = simulate_lms(img, reference_kernel)
+        spectrum, inverse, norm2 = unrolled_spectra(kernel.kernel, (H, W))
+        chw = np.ascontiguousarray(img.transpose(2, 0, 1))[None]
+        feed = {"target_lms": np.ascontiguousarray(t_lms.transpose(2, 0, 1), np.float32)[None], "z0": chw,
+                "spectrum": spectrum[None], "inverse": inverse[None], "norm2": np.array([norm2], np.float32),
+                "features": unrolled_features(e, kernel.size, self.ranges)[None], "target": chw}
+        out = self.session.run(None, feed)[0][0]
+        return np.ascontiguousarray(out.transpose(1, 2, 0), np.float32)
