@@ -84,3 +84,25 @@ def test_the_runtime_refuses_other_models_and_eyes_outside_the_range(exported, t
     with pytest.raises(ValidationError, match="sphere_D"):
         UnrolledModel(run / "unrolled.onnx").correct(np.zeros((24, 24, 3), np.float32), far, entry.eye_kernel,
                                                     entry.reference_kernel)
+
+
+def test_correct_method_learned_takes_an_unrolled_model(exported, tmp_path, capsys):
+    """``vrcorrect correct --method learned --model FILE`` with an unrolled model: on a display it was
+    trained for it writes the corrected image; on another it refuses before any work."""
+    from PIL import Image
+
+    from vrcorrect.apps.cli import main
+
+    run, _, _ = exported
+    src = tmp_path / "in.png"
+    Image.fromarray((dict(bundled_images(32))["coffee"] * 255).astype(np.uint8)).save(src)
+    out = tmp_path / "out.png"
+    assert main(["correct", str(src), "-o", str(out), "--method", "learned", "--model", str(run / "unrolled.onnx"),
+                 "--display", "index"]) == 0
+    shown = np.asarray(Image.open(out))
+    assert shown.shape == (32, 32, 3) and not np.array_equal(shown, np.asarray(Image.open(src)))
+    capsys.readouterr()
+    assert main(["correct", str(src), "-o", str(tmp_path / "no.png"), "--method", "learned", "--model",
+                 str(run / "unrolled.onnx"), "--display", "quest2"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("vrcorrect: error: display") and "index" in err and not (tmp_path / "no.png").exists()

@@ -250,13 +250,15 @@ def _clip_report(args, plan: clips.ClipPlan, rx_path, display, result, reference
 
 def _learned_model(args: argparse.Namespace):
     """The learned model of ``--model`` (default: the shipped one), its reference checked."""
-    from ..runtime.learned import LearnedModel  # on use: start-up time (apps/__init__)
+    from ..runtime.learned import LearnedModel, model_metadata  # on use: start-up time (apps/__init__)
+    from ..runtime.unrolled import UNROLLED_FORMAT, UnrolledModel
 
     path = Path(args.model) if args.model else DEFAULT_MODEL
     if args.model is None and not path.is_file():
         raise InputError(f"no default learned model is installed ({path}); pass --model PATH "
                          "(a model exported by tools/export_onnx.py), or use --method wiener or fast")
-    model = LearnedModel(path)
+    unrolled = model_metadata(path).get("vrcorrect.format") == UNROLLED_FORMAT
+    model = UnrolledModel(path) if unrolled else LearnedModel(path)
     if model.reference != args.reference:
         raise ValidationError("--reference", args.reference, f"{model.reference} (the target {path.name} was "
                               "trained for)")

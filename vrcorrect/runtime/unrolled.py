@@ -8,7 +8,9 @@ the kernel's spectrum and the data step's inverse
 features (:func:`~vrcorrect.learn.conditioning.unrolled_features`). The model starts from the
 target and returns the displayed image, linear RGB in [0, 1].
 
-Not yet wired into the Corrector (its cold start), ``correct --method learned`` or the benches.
+``vrcorrect correct --method learned --model FILE`` takes such a file as well as the older
+learned models (:meth:`UnrolledModel.for_eye` has :class:`~vrcorrect.runtime.learned.LearnedModel`'s
+shape). Not yet wired into the Corrector (its cold start) or the benches.
 """
 
 from __future__ import annotations
@@ -22,11 +24,12 @@ import numpy as np
 from ..learn.conditioning import SamplingRanges, check_eye, unrolled_features, unrolled_spectra
 from ..physics.kernel import EyeKernel
 from ..plumbing.errors import InputError, ValidationError
+from ..specs.display import DisplayProfile
 from ..specs.prescription import EyeRx
 from ..vision.forward import simulate_lms
 from .learned import _session
 
-__all__ = ["UNROLLED_FORMAT", "UnrolledModel"]
+__all__ = ["UNROLLED_FORMAT", "UnrolledModel", "UnrolledEye"]
 
 UNROLLED_FORMAT = "vrcorrect-unrolled-v1"
 INPUTS = ("target_lms", "z0", "spectrum", "inverse", "norm2", "features", "target")
@@ -53,6 +56,24 @@ class UnrolledModel:
             raise InputError(f"{self.path}: incomplete vrcorrect metadata ({exc})") from None
         self.ranges = SamplingRanges.from_dict(ranges) if ranges else SamplingRanges()
         self.metadata = meta
+        self.reference = "glasses"                     # the target it was trained on: the eye with glasses
+        self.providers = self.session.get_providers()
+
+    def check(self, eye: EyeRx, display: DisplayProfile) -> EyeRx:
+        """Refuse, before any kernel is built, an eye outside the trained ranges or a display the
+        model was not trained on; returns the eye as checked."""
+        e = check_eye(eye, self.ranges, f"the model {self.path.name}")
+        if self.displays is not None and display.name not in self.displays:
+            raise ValidationError("display", display.name, f"one of {', '.join(self.displays)} (the displays the model "
+                                  f"{self.path.name} was trained for); for others use --method wiener or fast")
+        return e
+
+    def for_eye(self, eye: EyeRx, display: DisplayProfile, kernel: EyeKernel,
+                reference_kernel: EyeKernel | None) -> "UnrolledEye":
+        """The model bound to one eye (``solve(problem, "learned", model=...)``'s ``BoundModel``)."""
+        if reference_kernel is None:
+            raise ValidationError("reference", "ideal", "glasses (the target the model was trained on)")
+        return UnrolledEye(self, self.check(eye, display), kernel, reference_kernel)
 
     def correct(self, image: np.ndarray, eye: EyeRx, kernel: EyeKernel, reference_kernel: EyeKernel) -> np.ndarray:
         """The displayed image ``(H, W, 3)`` float32 in [0, 1] for ``image`` (linear display RGB
@@ -71,3 +92,17 @@ class UnrolledModel:
                 "features": unrolled_features(e, kernel.size, self.ranges)[None], "target": chw}
         out = self.session.run(None, feed)[0][0]
         return np.ascontiguousarray(out.transpose(1, 2, 0), np.float32)
+
+
+class UnrolledEye:
+    """An :class:`UnrolledModel` bound to one eye and its kernels: :meth:`infer` maps a ``(3, H, W)``
+    linear target to the displayed ``(3, H, W)``."""
+
+    def __init__(self, model: UnrolledModel, eye: EyeRx, kernel: EyeKernel, reference_kernel: EyeKernel):
+        self.model, self.eye, self.kernel, self.reference_kernel = model, eye, kernel, reference_kernel
+
+    def infer(self, image_chw: np.ndarray) -> np.ndarray:
+        out = self.model.correct(np.moveaxis(np.asarray(image_chw, np.float32), 0, 2), self.eye, self.kernel,
+                                 self.reference_kernel)
+        return np.ascontiguousarray(np.moveaxis(out, 2, 0))
+
