@@ -129,3 +129,18 @@ def test_the_command_refuses_before_any_work(tmp_path, capsys):
     assert (run / "unrolled.pt").read_text() == "mine"
     assert "stages" in _cli_error(["-o", str(run), "--stages", "0", "--force"], capsys)
     assert "crop" in _cli_error(["-o", str(tmp_path / "new"), "--crop-px", "200"], capsys)
+
+
+def test_the_command_trains_reports_and_exports(tmp_path, capsys):
+    """A new user's run, tiny: kernels, training, the held-out report and an ONNX file that
+    ``correct --method learned`` can use."""
+    from vrcorrect.apps.cli import main
+    from vrcorrect.runtime.unrolled import UnrolledModel
+
+    run = tmp_path / "run"
+    assert main(["unroll", "-o", str(run), "--displays", "index", "--eyes-per-display", "1", "--steps", "3",
+                 "--crop-px", "24", "--image-px", "48", "--stages", "1", "--prior-width", "4"]) == 0
+    out = capsys.readouterr().out
+    assert "trained 3 steps" in out and "its untrained twin" in out and "unrolled.onnx" in out
+    assert {p.name for p in run.iterdir()} == {"unrolled.pt", "log.csv", "report.json", "unrolled.onnx"}
+    assert UnrolledModel(run / "unrolled.onnx").displays == ["index"]

@@ -77,6 +77,7 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
     from tqdm import tqdm  # on use: start-up time (apps/__init__)
 
     from ..learn.dataset import HELD_OUT_IMAGES
+    from ..learn.unrolled_export import export_unrolled
     from ..learn.unrolled_train import UnrolledTrainConfig, build_pool, train_unrolled
     from ..plumbing.fileio import check_writable
 
@@ -89,7 +90,7 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
     if not out.resolve().parent.is_dir():
         raise InputError(f"{out.resolve().parent}: no such folder (the run folder's parent must exist)")
     if out.is_dir():
-        for name in ("unrolled.pt", "log.csv", "report.json"):
+        for name in ("unrolled.pt", "log.csv", "report.json", "unrolled.onnx"):
             check_writable(out / name, force=args.force)
     images = dict(bundled_images(args.image_px))
     train_images = [im for n, im in images.items() if n not in HELD_OUT_IMAGES]
@@ -112,12 +113,14 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
 
     report = train_unrolled(out, config, train_images, held_out, pool=pool, progress=step)
     bar.close()
+    exported = export_unrolled(out / "unrolled.pt", out / "unrolled.onnx", force=True)
     s = report["share_of_fast_gain"]
     print(f"trained {report['steps']} steps in {report['seconds']:.0f} s ({report['parameters']} parameters); "
           f"held-out eyes and images ({report['held_out']['cases']} cases, {len(config.displays)} displays): "
           f"share of fast's objective gain, median (min): learned {s['learned']['median']:.0%} "
           f"({s['learned']['min']:.0%}), its untrained twin {s['twin']['median']:.0%} ({s['twin']['min']:.0%}); "
-          f"{out / 'unrolled.pt'}, {out / 'log.csv'}, {out / 'report.json'}")
+          f"{out / 'unrolled.pt'}, {out / 'log.csv'}, {out / 'report.json'}; {exported.path} (onnxruntime equals "
+          f"torch to {exported.max_abs_error:.1e}: vrcorrect correct --method learned --model {exported.path})")
     return 0
 
 
@@ -193,7 +196,8 @@ def add_parser(sub) -> None:
                                    "then train fast's ADMM unrolled into stages, with a learned prior and "
                                    "eye-dependent stage settings, on the LMS objective of random crops; report "
                                    "the share of fast's objective gain it and its untrained twin close on "
-                                   "held-out eyes and images. unrolled.pt, log.csv and report.json in RUN.")
+                                   "held-out eyes and images. unrolled.pt, log.csv, report.json and the ONNX "
+                                   "export unrolled.onnx (for vrcorrect correct --method learned --model) in RUN.")
     p.add_argument("-o", "--out", required=True, metavar="RUN", help="run folder")
     p.add_argument("--displays", nargs="+", default=list(_presets()), metavar="PRESET",
                    help="display presets (default: all)")
