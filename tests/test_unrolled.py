@@ -28,7 +28,7 @@ def case():
     problem = make_problem(decode(display, star).astype(np.float32), kernel, build_reference_kernel(eye, display))
     t_lms = np.ascontiguousarray(problem.target_lms.transpose(2, 0, 1), np.float32)
     z0 = np.ascontiguousarray(problem.target.transpose(2, 0, 1), np.float32)
-    spectrum, inverse, norm2 = kernel_spectra([kernel.kernel], SIZE)
+    spectrum, inverse, norm2 = kernel_spectra([kernel.kernel], SIZE, power_of_two=False)   # fast's grid
     return kernel, t_lms, z0, (spectrum, inverse), norm2
 
 

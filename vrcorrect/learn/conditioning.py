@@ -197,16 +197,23 @@ def unrolled_features(eye: EyeRx, kernel_size: int, ranges: SamplingRanges) -> n
     return np.append(eye_features(eye, ranges), math.log(kernel_size) / 4.0).astype(np.float32)
 
 
-def unrolled_spectra(kernel: np.ndarray, shape: tuple[int, int], grid_kernel_size: int | None = None
-                     ) -> tuple[np.ndarray, np.ndarray, float]:
-    """The unrolled model's data-step inputs for a ``(3, 3, s, s)`` kernel and ``shape`` images, on
-    :func:`~vrcorrect.solvers.spectral.padded_shape`'s grid for a kernel of ``grid_kernel_size`` px
-    (default ``s``): the spectrum ``K`` and ``(K^H K + ||K||^2 I)^-1``, each ``(3, 3, P0, P1 // 2 + 1, 2)``
-    float32 (computed in float64; real and imaginary parts last), and ``||K||^2``."""
+def unrolled_spectra(kernel: np.ndarray, shape: tuple[int, int], grid_kernel_size: int | None = None,
+                     power_of_two: bool = True) -> tuple[np.ndarray, np.ndarray, float]:
+    """The unrolled model's data-step inputs for a ``(3, 3, s, s)`` kernel and ``shape`` images: the
+    spectrum ``K`` and ``(K^H K + ||K||^2 I)^-1``, each ``(3, 3, P0, P1 // 2 + 1, 2)`` float32 (computed
+    in float64; real and imaginary parts last), and ``||K||^2``.
+
+    The grid holds the image and the blur of a ``grid_kernel_size`` kernel (default ``s``): with
+    ``power_of_two`` the real-time path's power-of-two grid
+    (:func:`vrcorrect.solvers.realtime.admm_grid`), on which onnxruntime's DFT is a radix-2 FFT
+    (other lengths run a direct DFT, slower and with float32 errors near 1e-4 after four stages);
+    otherwise ``fast``'s (:func:`~vrcorrect.solvers.spectral.padded_shape`)."""
+    from ..solvers.realtime import admm_grid
     from ..solvers.spectral import hermitian_inverse, kernel_spectrum, padded_shape, spectral_norm_squared
 
     k = np.asarray(kernel, np.float64)
-    grid = padded_shape(shape[0], shape[1], grid_kernel_size or k.shape[-1])
+    size = grid_kernel_size or k.shape[-1]
+    grid = admm_grid(shape[1], shape[0], size) if power_of_two else padded_shape(shape[0], shape[1], size)
     spectrum = kernel_spectrum(k, grid)
     n = spectral_norm_squared(k)
     inverse = hermitian_inverse(spectrum, n)
@@ -215,4 +222,3 @@ def unrolled_spectra(kernel: np.ndarray, shape: tuple[int, int], grid_kernel_siz
         return np.stack([c.real, c.imag], axis=-1).astype(np.float32)
 
     return pairs(spectrum), pairs(inverse), n
-

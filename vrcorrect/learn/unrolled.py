@@ -209,13 +209,13 @@ def twin(stages: int) -> UnrolledADMM:
     return UnrolledADMM(UnrolledConfig(stages=stages, prior_width=0, features=0))
 
 
-def kernel_spectra(kernels: Sequence[np.ndarray], shape: tuple[int, int]
+def kernel_spectra(kernels: Sequence[np.ndarray], shape: tuple[int, int], power_of_two: bool = True
                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """:func:`~vrcorrect.learn.conditioning.unrolled_spectra` of each kernel on one grid (that of the
-    largest), batched: ``spectrum`` and ``inverse`` ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 and
-    ``||K||^2`` ``(N,)`` float32."""
+    largest; ``power_of_two``: the real-time path's, else ``fast``'s), batched: ``spectrum`` and
+    ``inverse`` ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 and ``||K||^2`` ``(N,)`` float32."""
     size = max(k.shape[-1] for k in kernels)
-    made = [unrolled_spectra(k, shape, size) for k in kernels]
+    made = [unrolled_spectra(k, shape, size, power_of_two) for k in kernels]
     return (torch.from_numpy(np.stack([m[0] for m in made])), torch.from_numpy(np.stack([m[1] for m in made])),
             torch.tensor([m[2] for m in made], dtype=torch.float32))
 
