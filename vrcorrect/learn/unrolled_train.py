@@ -36,6 +36,7 @@ from ..plumbing.fileio import write_text_atomic
 from ..specs.display import decode, get_display, preset_names
 from ..specs.vocabulary import Method
 from .conditioning import N_UNROLLED_FEATURES, SamplingRanges, unrolled_features
+from .dataset import _pad_kernel
 from .train import objective_per_sample, retina
 from .unrolled import UnrolledADMM, UnrolledConfig, kernel_spectra, twin
 
@@ -127,11 +128,6 @@ def build_pool(config: UnrolledTrainConfig, progress: Callable[[int, int], None]
     return {"train": results[:n], "held_out": results[n:]}
 
 
-def _pad(k: np.ndarray, size: int) -> np.ndarray:
-    p = (size - k.shape[-1]) // 2
-    return np.pad(k, ((0, 0), (0, 0), (p, p), (p, p)))
-
-
 def make_batch(entries: Sequence[PoolEntry], crops: Sequence[np.ndarray]) -> dict[str, torch.Tensor]:
     """Tensors for one batch: ``target`` (linear RGB), ``target_lms`` (what the eye sees of it with
     glasses), ``spectrum``, ``inverse`` and ``norm2`` (:func:`kernel_spectra`), ``kernel`` (padded to one size)
@@ -142,8 +138,8 @@ def make_batch(entries: Sequence[PoolEntry], crops: Sequence[np.ndarray]) -> dic
     target = torch.from_numpy(t)
     s = max(e.kernel.shape[-1] for e in entries)
     r = max(e.reference.shape[-1] for e in entries)
-    kernel = torch.from_numpy(np.stack([_pad(e.kernel, s) for e in entries]).astype(np.float32))
-    reference = torch.from_numpy(np.stack([_pad(e.reference, r) for e in entries]).astype(np.float32))
+    kernel = torch.from_numpy(np.stack([_pad_kernel(e.kernel, s) for e in entries]).astype(np.float32))
+    reference = torch.from_numpy(np.stack([_pad_kernel(e.reference, r) for e in entries]).astype(np.float32))
     with torch.no_grad():
         target_lms = retina(target, reference)
     spectrum, inverse, norm2 = kernel_spectra([e.kernel for e in entries], shape)
