@@ -12,7 +12,7 @@ from vrcorrect.physics.kernel import build_kernel, build_reference_kernel
 from vrcorrect.plumbing.charts import siemens_star
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.solvers import make_problem
-from vrcorrect.solvers.admm import _admm
+from vrcorrect.solvers.admm import _admm, fast_start
 from vrcorrect.specs.display import decode, get_display
 from vrcorrect.specs.prescription import EyeRx
 
@@ -105,3 +105,29 @@ def test_a_spectrum_smaller_than_the_image_is_refused(case):
         twin(1)(torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None], small, inverse, norm2)
     with pytest.raises(ValidationError, match="spectrum"):
         twin(1)(torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None], small[..., 0], inverse[..., 0], norm2)
+
+
+def test_from_fasts_start_the_twin_continues_fasts_admm_with_its_duals():
+    """At 64 px fast's start solves a half-resolution level and hands on its duals: the twin given
+    both (z0, d1, d2) is fast's full-resolution iterations from there, and its stages end nearer
+    fast's objective than the same stages from the target."""
+    from vrcorrect.learn.train import objective_per_sample
+
+    display = get_display("desktop")
+    eye = EyeRx(sphere_D=-3.0, cylinder_D=-1.0, axis_deg=100.0, pupil_diameter_mm=5.0)
+    kernel = build_kernel(eye, display)
+    star = siemens_star(64)
+    problem = make_problem(decode(display, star).astype(np.float32), kernel, build_reference_kernel(eye, display))
+    t_lms = np.ascontiguousarray(problem.target_lms.transpose(2, 0, 1), np.float32)
+    target = np.ascontiguousarray(problem.target.transpose(2, 0, 1), np.float32)
+    z0, d1, d2 = fast_start(kernel.kernel, target, t_lms)
+    assert np.abs(d1).max() > 0 and np.abs(z0 - target).max() > 0.05          # the coarse level ran
+    expected = _admm(kernel.kernel, t_lms, z0, FAST_RHO, FAST_RELAXATION, 1.0, 3, 0.0, duals=(d1, d2), track=False)[0]
+    spectrum, inverse, norm2 = kernel_spectra([kernel.kernel], (64, 64), power_of_two=False)
+    T = lambda a: torch.from_numpy(a)[None]
+    with torch.no_grad():
+        warm = twin(3)(T(t_lms), T(z0), spectrum, inverse, norm2, d1=T(d1), d2=T(d2))
+        cold = twin(3)(T(t_lms), T(target), spectrum, inverse, norm2)
+    assert np.abs(warm[0].numpy() - expected[:, :64, :64]).max() < 1e-5
+    k = torch.from_numpy(kernel.kernel).float()[None]
+    assert objective_per_sample(warm, k, T(t_lms)).item() < 0.95 * objective_per_sample(cold, k, T(t_lms)).item()

@@ -52,6 +52,19 @@ def test_the_batch_target_is_what_the_eye_sees_with_glasses(pool, images):
     assert np.abs(b["target_lms"][0].numpy().transpose(1, 2, 0) - p.target_lms).max() < 1e-5
 
 
+def test_the_batch_starts_where_fast_starts(pool):
+    """make_batch's z0, d1, d2 are solvers.admm.fast_start's for each crop (here 64 px: the coarse level runs)."""
+    from vrcorrect.solvers.admm import fast_start
+
+    imgs = dict(bundled_images(64))
+    crops = [imgs["astronaut"], imgs["coffee"]]
+    b = make_batch(pool["train"], crops)
+    for i, entry in enumerate(pool["train"]):
+        z0, d1, d2 = fast_start(entry.kernel, b["target"][i].numpy(), b["target_lms"][i].numpy())
+        assert np.array_equal(b["z0"][i].numpy(), z0) and np.array_equal(b["d2"][i].numpy(), d2)
+        assert np.array_equal(b["d1"][i].numpy(), d1) and np.abs(d1).max() > 0
+
+
 def test_fasts_yardstick_is_below_no_correction_and_the_twin_between(pool, images):
     cases = [(pool["held_out"][0], images[1][0][:24, :24])]
     fast = fast_objectives(cases)[0]

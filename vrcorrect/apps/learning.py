@@ -202,9 +202,11 @@ def add_parser(sub) -> None:
     p.add_argument("--displays", nargs="+", default=list(_presets()), metavar="PRESET",
                    help="display presets (default: all)")
     p.add_argument("--eyes-per-display", type=int, default=5, help="training eyes per display (5)")
-    p.add_argument("--stages", type=int, default=4, help="ADMM stages, two FFT round trips each (4)")
+    p.add_argument("--stages", type=int, default=8, help="ADMM stages after fast's start, two FFT round trips "
+                                                               "each (8)")
     p.add_argument("--prior-width", type=int, default=16, help="channels of the prior network (16)")
-    p.add_argument("--crop-px", type=int, default=48, help="side of the training crops (48)")
+    p.add_argument("--crop-px", type=int, default=64, help="side of the training crops (64: the least at which "
+                   "fast's start solves a half-resolution level first, as it does on whole images)")
     p.add_argument("--image-px", type=int, default=128, help="images are centre-cropped and resized to this (128)")
     p.add_argument("--batch-size", type=int, default=8, help="crops per step (8)")
     p.add_argument("--steps", type=int, default=2000, help="optimiser steps (2000)")

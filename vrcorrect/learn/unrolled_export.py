@@ -1,7 +1,8 @@
 """Export a trained unrolled model (:mod:`vrcorrect.learn.unrolled`) to ONNX for onnxruntime
 (torch, onnx, onnxscript: torch's dynamo exporter, which writes the FFTs as ONNX ``DFT`` ops).
 
-The graph: inputs ``target_lms``, ``z0`` and ``target`` float32 ``(1, 3, H, W)``; ``spectrum`` and
+The graph: inputs ``target_lms``, ``z0``, ``target`` and the start's duals ``d1``, ``d2``
+(:func:`vrcorrect.solvers.admm.fast_start`) float32 ``(1, 3, H, W)``; ``spectrum`` and
 ``inverse`` float32 ``(1, 3, 3, P0, P1 // 2 + 1, 2)``; ``norm2`` ``(1,)``; ``features`` ``(1, 5)``
 (:func:`vrcorrect.learn.conditioning.unrolled_features`). Output ``displayed`` ``(1, 3, H, W)`` in
 [0, 1]. ``H``, ``W``, ``P0`` and ``P1`` are dynamic: one file serves every image size and kernel.
@@ -29,10 +30,10 @@ from ..plumbing.fileio import check_writable, write_with
 from .conditioning import N_UNROLLED_FEATURES
 from .unrolled import UnrolledADMM, kernel_spectra
 
-FORMAT = "vrcorrect-unrolled-v1"
+FORMAT = "vrcorrect-unrolled-v2"      # v2: starts from fast_start (the duals d1, d2 added)
 OPSET = 18
 TOLERANCE = 1e-4
-INPUTS = ("target_lms", "z0", "spectrum", "inverse", "norm2", "features", "target")
+INPUTS = ("target_lms", "z0", "spectrum", "inverse", "norm2", "features", "target", "d1", "d2")
 OUTPUT = "displayed"
 
 
@@ -50,8 +51,10 @@ def _case(H: int, W: int, kernel_size: int, seed: int) -> tuple[torch.Tensor, ..
     k /= 3 * k.sum(axis=(-2, -1), keepdims=True)
     spectrum, inverse, norm2 = kernel_spectra([k], (H, W))
     t = torch.from_numpy(rng.random((1, 3, H, W), dtype=np.float32))
-    return (torch.from_numpy(rng.random((1, 3, H, W), dtype=np.float32)), t, spectrum, inverse, norm2,
-            torch.from_numpy(rng.uniform(-1, 1, (1, N_UNROLLED_FEATURES)).astype(np.float32)), t)
+    z0 = torch.from_numpy(rng.random((1, 3, H, W), dtype=np.float32))
+    d1, d2 = (torch.from_numpy(rng.normal(0, 0.05, (1, 3, H, W)).astype(np.float32)) for _ in range(2))
+    return (torch.from_numpy(rng.random((1, 3, H, W), dtype=np.float32)), z0, spectrum, inverse, norm2,
+            torch.from_numpy(rng.uniform(-1, 1, (1, N_UNROLLED_FEATURES)).astype(np.float32)), t, d1, d2)
 
 
 def onnx_bytes(model: UnrolledADMM) -> bytes:
@@ -62,7 +65,7 @@ def onnx_bytes(model: UnrolledADMM) -> bytes:
     p0, f1 = Dim("P0", min=8, max=16384), Dim("F1", min=5, max=8193)
     image, spec = {2: h, 3: w}, {3: p0, 4: f1}
     shapes = {"t_lms": image, "z0": image, "spectrum": spec, "inverse": spec, "norm2": None, "features": None,
-              "target": image}
+              "target": image, "d1": image, "d2": image}
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -33,6 +33,7 @@ import torch
 
 from ..plumbing.errors import ValidationError
 from ..plumbing.fileio import write_text_atomic
+from ..solvers.admm import fast_start
 from ..specs.display import decode, get_display, preset_names
 from ..specs.vocabulary import Method
 from .conditioning import N_UNROLLED_FEATURES, SamplingRanges, unrolled_features
@@ -46,12 +47,12 @@ __all__ = ["UnrolledTrainConfig", "PoolEntry", "build_pool", "train_unrolled", "
 class UnrolledTrainConfig:
     """What a training run does (everything its result depends on, besides the images)."""
 
-    stages: int = 4
+    stages: int = 8
     prior_width: int = 16
     displays: tuple[str, ...] = field(default_factory=preset_names)
     eyes_per_display: int = 5
     held_out_eyes_per_display: int = 2
-    crop_px: int = 48
+    crop_px: int = 64
     batch: int = 8
     steps: int = 2000
     minutes: float = 90.0
@@ -130,8 +131,9 @@ def build_pool(config: UnrolledTrainConfig, progress: Callable[[int, int], None]
 
 def make_batch(entries: Sequence[PoolEntry], crops: Sequence[np.ndarray]) -> dict[str, torch.Tensor]:
     """Tensors for one batch: ``target`` (linear RGB), ``target_lms`` (what the eye sees of it with
-    glasses), ``spectrum``, ``inverse`` and ``norm2`` (:func:`kernel_spectra`), ``kernel`` (padded to one size)
-    and ``features``. ``crops`` are sRGB-coded ``(h, w, 3)`` crops, one per entry."""
+    glasses), ``spectrum``, ``inverse`` and ``norm2`` (:func:`kernel_spectra`), ``kernel`` (padded to one size),
+    ``features``, and ``fast``'s start ``z0`` with its duals ``d1``, ``d2``
+    (:func:`~vrcorrect.solvers.admm.fast_start`). ``crops`` are sRGB-coded ``(h, w, 3)`` crops, one per entry."""
     shape = crops[0].shape[:2]
     t = np.stack([decode(get_display(e.display), c).astype(np.float32).transpose(2, 0, 1)
                   for e, c in zip(entries, crops)])
@@ -144,13 +146,17 @@ def make_batch(entries: Sequence[PoolEntry], crops: Sequence[np.ndarray]) -> dic
         target_lms = retina(target, reference)
     spectrum, inverse, norm2 = kernel_spectra([e.kernel for e in entries], shape)
     features = torch.from_numpy(np.stack([e.features for e in entries]))
+    starts = [fast_start(e.kernel, t[i], target_lms[i].numpy()) for i, e in enumerate(entries)]
+    z0, d1, d2 = (torch.from_numpy(np.stack([s[j] for s in starts])) for j in range(3))
     return {"target": target, "target_lms": target_lms, "spectrum": spectrum, "inverse": inverse, "norm2": norm2,
-            "kernel": kernel, "features": features}
+            "kernel": kernel, "features": features, "z0": z0, "d1": d1, "d2": d2}
 
 
 def run_model(model: UnrolledADMM, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-    return model(batch["target_lms"], batch["target"], batch["spectrum"], batch["inverse"], batch["norm2"],
-                 features=batch["features"] if model.mlp is not None else None, target=batch["target"])
+    """``model`` on a batch of :func:`make_batch`, from ``fast``'s start."""
+    return model(batch["target_lms"], batch["z0"], batch["spectrum"], batch["inverse"], batch["norm2"],
+                 features=batch["features"] if model.mlp is not None else None, target=batch["target"],
+                 d1=batch["d1"], d2=batch["d2"])
 
 
 def _crops(images: Sequence[np.ndarray], rng: np.random.Generator, n: int, size: int) -> list[np.ndarray]:

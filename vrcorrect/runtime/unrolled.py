@@ -5,8 +5,9 @@ What the model needs besides the image is computed here with numpy, once per eye
 target's cone image through the eye with glasses (:func:`vrcorrect.vision.forward.simulate_lms`),
 the kernel's spectrum and the data step's inverse
 (:func:`vrcorrect.learn.conditioning.unrolled_spectra`, float64 then float32) and the eye's
-features (:func:`~vrcorrect.learn.conditioning.unrolled_features`). The model starts from the
-target and returns the displayed image, linear RGB in [0, 1].
+features (:func:`~vrcorrect.learn.conditioning.unrolled_features`), and where the stages start:
+``fast``'s own start (:func:`vrcorrect.solvers.admm.fast_start`: a half-resolution level of ADMM
+and its duals, where that level pays). The model returns the displayed image, linear RGB in [0, 1].
 
 ``vrcorrect correct --method learned --model FILE`` takes such a file as well as the older
 learned models (:meth:`UnrolledModel.for_eye` has :class:`~vrcorrect.runtime.learned.LearnedModel`'s
@@ -24,6 +25,7 @@ import numpy as np
 from ..learn.conditioning import SamplingRanges, check_eye, unrolled_features, unrolled_spectra
 from ..physics.kernel import EyeKernel
 from ..plumbing.errors import InputError, ValidationError
+from ..solvers.admm import fast_start
 from ..specs.display import DisplayProfile
 from ..specs.prescription import EyeRx
 from ..vision.forward import simulate_lms
@@ -31,8 +33,8 @@ from .learned import _session
 
 __all__ = ["UNROLLED_FORMAT", "UnrolledModel", "UnrolledEye"]
 
-UNROLLED_FORMAT = "vrcorrect-unrolled-v1"
-INPUTS = ("target_lms", "z0", "spectrum", "inverse", "norm2", "features", "target")
+UNROLLED_FORMAT = "vrcorrect-unrolled-v2"
+INPUTS = ("target_lms", "z0", "spectrum", "inverse", "norm2", "features", "target", "d1", "d2")
 
 
 class UnrolledModel:
@@ -86,10 +88,12 @@ class UnrolledModel:
         H, W = img.shape[:2]
         t_lms, _ = simulate_lms(img, reference_kernel)
         spectrum, inverse, norm2 = unrolled_spectra(kernel.kernel, (H, W))
-        chw = np.ascontiguousarray(img.transpose(2, 0, 1))[None]
-        feed = {"target_lms": np.ascontiguousarray(t_lms.transpose(2, 0, 1), np.float32)[None], "z0": chw,
-                "spectrum": spectrum[None], "inverse": inverse[None], "norm2": np.array([norm2], np.float32),
-                "features": unrolled_features(e, kernel.size, self.ranges)[None], "target": chw}
+        chw = np.ascontiguousarray(img.transpose(2, 0, 1))
+        lms = np.ascontiguousarray(t_lms.transpose(2, 0, 1), np.float32)
+        z0, d1, d2 = fast_start(kernel.kernel, chw, lms)
+        feed = {"target_lms": lms[None], "z0": z0[None], "spectrum": spectrum[None], "inverse": inverse[None],
+                "norm2": np.array([norm2], np.float32), "features": unrolled_features(e, kernel.size, self.ranges)[None],
+                "target": chw[None], "d1": d1[None], "d2": d2[None]}
         out = self.session.run(None, feed)[0][0]
         return np.ascontiguousarray(out.transpose(1, 2, 0), np.float32)
 

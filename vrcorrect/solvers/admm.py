@@ -43,7 +43,7 @@ from .problem import Correction, Problem, guard_weight
 from .spectral import (Blur, apply3, conj_transpose, hermitian_inverse, irfft_grid, kernel_spectrum, margin_shape,
                        mirror_fill, padded_shape, rfft_grid, spectral_norm_squared)
 
-__all__ = ["fast", "coarse_kernel", "coarse_level_pays", "COARSE_ITERATIONS"]
+__all__ = ["fast", "fast_start", "coarse_kernel", "coarse_level_pays", "COARSE_ITERATIONS"]
 
 #: Full-resolution iterations in a row without a new best objective after which ``fast`` stops.
 PATIENCE = 5
@@ -240,6 +240,22 @@ def _ridge_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, mu_r
     r0, Kd = K.apply(target) - t_lms, K.apply(d)
     beta = guard_weight(float(np.vdot(r0, Kd)), float(np.vdot(Kd, Kd)))
     return (target + np.float32(beta) * d).astype(np.float32)
+
+
+def fast_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, levels: int = 1,
+               rho: float = 0.1, relaxation: float = 1.8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where :func:`fast`'s full-resolution iterations start, with its default settings: the
+    primal ``z0`` and the scaled duals ``(d1, d2)`` inside the image, each ``(3, H, W)`` float32
+    for a ``(3, H, W)`` linear ``target`` and its cone image ``t_lms``. The coarse level's solution
+    and duals where that level pays (:func:`coarse_level_pays`), else the closed-form start and zero
+    duals. The unrolled correction (:mod:`vrcorrect.learn.unrolled`) starts its stages here."""
+    z0, duals, _ = _coarse_to_fine(kernel, np.asarray(target, np.float32), np.asarray(t_lms, np.float32), levels,
+                                   COARSE_ITERATIONS, 3, rho, relaxation, 1.0, True)
+    if duals is None:
+        zero = np.zeros_like(z0, dtype=np.float32)
+        duals = (zero, zero.copy())
+    return (np.ascontiguousarray(z0, np.float32), np.ascontiguousarray(duals[0], np.float32),
+            np.ascontiguousarray(duals[1], np.float32))
 
 
 def fast(problem: Problem, tolerance: float = 1e-2, max_iterations: int = 200, rho: float = 0.1,
