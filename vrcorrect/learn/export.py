@@ -23,6 +23,7 @@ import json
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -146,6 +147,21 @@ def check_against_torch(model: torch.nn.Module, data: bytes, seed: int = 0, size
     return float(np.max(np.abs(_run_ort(data, inputs) - ref)))
 
 
+def stamp_and_write(proto: Any, meta: dict[str, str], out: Path, force: bool, doc: str = "") -> bytes:
+    """Add ``meta`` to the ONNX ``proto`` as metadata (and ``doc`` as its doc string), name vrcorrect
+    its producer and write it to ``out`` atomically (:func:`~vrcorrect.plumbing.fileio.write_with`:
+    an existing file only with ``force``); returns the bytes written."""
+    for key, value in meta.items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
+    proto.producer_name = "vrcorrect"
+    if doc:
+        proto.doc_string = doc
+    blob = proto.SerializeToString()
+    write_with(out, lambda tmp: tmp.write_bytes(blob), force=force)
+    return blob
+
+
 def export_onnx(checkpoint: str | Path, out: str | Path, fp16: bool = False, force: bool = False) -> ExportReport:
     """Export ``checkpoint`` to ``out`` (``.onnx``), checked against torch; see the module docstring.
 
@@ -176,18 +192,8 @@ def export_onnx(checkpoint: str | Path, out: str | Path, fp16: bool = False, for
         precision = "fp16-weights"
         err16 = check_against_torch(model, proto.SerializeToString())
     meta = metadata_for(ckpt, precision)
-    for key, value in meta.items():
-        entry = proto.metadata_props.add()
-        entry.key, entry.value = key, value
-    proto.producer_name = "vrcorrect"
-    proto.doc_string = ("vrcorrect learned correction: inputs image, precorrected (N,3,H,W) linear RGB, eye "
-                        "(N,4) features and, for models trained with it, gradient (N,3,H,W); output displayed "
-                        "(N,3,H,W). See vrcorrect.runtime.learned.")
-    blob = proto.SerializeToString()
-
-    def write(tmp: Path) -> None:
-        tmp.write_bytes(blob)
-
-    write_with(out, write, force=force)
+    blob = stamp_and_write(proto, meta, out, force, "vrcorrect learned correction: inputs image, precorrected "
+                           "(N,3,H,W) linear RGB, eye (N,4) features and, for models trained with it, gradient "
+                           "(N,3,H,W); output displayed (N,3,H,W). See vrcorrect.runtime.learned.")
     return ExportReport(path=out, precision=precision, max_abs_error_fp32=err32, max_abs_error_fp16=err16,
                         metadata=meta, bytes=len(blob))

@@ -26,8 +26,9 @@ import torch
 
 from .. import __version__
 from ..plumbing.errors import InputError, ValidationError
-from ..plumbing.fileio import check_writable, write_with
+from ..plumbing.fileio import check_writable
 from .conditioning import N_UNROLLED_FEATURES
+from .export import stamp_and_write
 from .unrolled import UnrolledADMM, kernel_spectra
 
 FORMAT = "vrcorrect-unrolled-v2"      # v2: starts from fast_start (the duals d1, d2 added)
@@ -113,11 +114,6 @@ def export_unrolled(checkpoint: str | Path, out: str | Path, force: bool = False
             "vrcorrect.displays": json.dumps(report.get("config", {}).get("displays")),
             "vrcorrect.train": json.dumps({k: report.get(k) for k in ("steps", "seconds", "share_of_fast_gain",
                                                                        "held_out")})}
-    proto = onnx.load_from_string(data)
-    for key, value in meta.items():
-        entry = proto.metadata_props.add()
-        entry.key, entry.value = key, value
-    proto.producer_name = "vrcorrect"
-    blob = proto.SerializeToString()
-    write_with(out, lambda tmp: tmp.write_bytes(blob), force=force)
+    blob = stamp_and_write(onnx.load_from_string(data), meta, out, force, "vrcorrect unrolled correction: inputs "
+                           + ", ".join(INPUTS) + "; output displayed (1,3,H,W). See vrcorrect.runtime.unrolled.")
     return UnrolledExport(path=out, max_abs_error=error, metadata=meta, bytes=len(blob))

@@ -69,6 +69,18 @@ def _session(path: Path, providers: tuple[str, ...] | None) -> "onnxruntime.Infe
         raise InputError(f"{path}: not a loadable ONNX model ({type(exc).__name__}: {exc})") from None
 
 
+def checked_session(path: Path, providers: tuple[str, ...] | None, fmt: str, made_by: str
+                    ) -> tuple["onnxruntime.InferenceSession", dict[str, str]]:
+    """An onnxruntime session on ``path`` and its ``vrcorrect.*`` metadata, refused unless the
+    metadata says ``vrcorrect.format = fmt`` (``made_by``: what writes that format, for the error)."""
+    session = _session(path, providers)
+    meta = dict(session.get_modelmeta().custom_metadata_map)
+    if meta.get("vrcorrect.format") != fmt:
+        raise ValidationError("model", str(path), f"an ONNX model exported by {made_by} (metadata vrcorrect.format "
+                              f"= {fmt})")
+    return session, meta
+
+
 def model_metadata(path: str | Path) -> dict[str, str]:
     """The ``metadata_props`` of an ONNX file (``InputError`` if it cannot be loaded)."""
     return dict(_session(Path(path), ("CPUExecutionProvider",)).get_modelmeta().custom_metadata_map)
@@ -84,11 +96,7 @@ class LearnedModel:
 
     def __init__(self, path: str | Path, providers: tuple[str, ...] | None = None):
         self.path = Path(path)
-        self.session = _session(self.path, providers)
-        meta = dict(self.session.get_modelmeta().custom_metadata_map)
-        if meta.get("vrcorrect.format") != LEARNED_FORMAT:
-            raise ValidationError("model", str(self.path), f"an ONNX model exported by tools/export_onnx.py "
-                                  f"(metadata vrcorrect.format = {LEARNED_FORMAT})")
+        self.session, meta = checked_session(self.path, providers, LEARNED_FORMAT, "tools/export_onnx.py")
         inputs = {i.name: i for i in self.session.get_inputs()}
         if set(inputs) - {GRADIENT_INPUT} != set(INPUTS) or len(self.session.get_outputs()) != 1:
             raise ValidationError("model inputs", sorted(inputs), "image, precorrected, eye (and optionally "

@@ -29,7 +29,7 @@ from ..solvers.admm import fast_start
 from ..specs.display import DisplayProfile
 from ..specs.prescription import EyeRx
 from ..vision.forward import simulate_lms
-from .learned import _session
+from .learned import checked_session
 
 __all__ = ["UNROLLED_FORMAT", "UnrolledModel", "UnrolledEye"]
 
@@ -42,11 +42,7 @@ class UnrolledModel:
 
     def __init__(self, path: str | Path, providers: tuple[str, ...] | None = None):
         self.path = Path(path)
-        self.session = _session(self.path, providers)
-        meta = dict(self.session.get_modelmeta().custom_metadata_map)
-        if meta.get("vrcorrect.format") != UNROLLED_FORMAT:
-            raise ValidationError("model", str(self.path), f"an ONNX model exported by vrcorrect.learn.unrolled_export "
-                                  f"(metadata vrcorrect.format = {UNROLLED_FORMAT})")
+        self.session, meta = checked_session(self.path, providers, UNROLLED_FORMAT, "vrcorrect.learn.unrolled_export")
         names = tuple(i.name for i in self.session.get_inputs())
         if names != INPUTS:
             raise ValidationError("model inputs", list(names), ", ".join(INPUTS))
