@@ -109,3 +109,57 @@ def test_correct_method_learned_takes_an_unrolled_model(exported, tmp_path, caps
                  str(run / "unrolled.onnx"), "--display", "quest2"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("vrcorrect: error: display") and "index" in err and not (tmp_path / "no.png").exists()
+
+
+# ---------------------------------------------------------------- vrcorrect bench unrolled, on the exported model
+
+def test_bench_unrolled_scores_every_method_and_its_twin_is_the_torch_twin(exported, tmp_path):
+    """One held-out case at 64 px (fast's start runs its coarse level): the bench's twin (numpy ADMM
+    from fast_start) equals learn.unrolled's torch twin from the same start, starting there beats the
+    same stages from the target, fast closes its own gap, and the section is written."""
+    from vrcorrect.learn.unrolled import twin
+    from vrcorrect.learn.train import objective_per_sample
+    from vrcorrect.physics.kernel import build_kernel, build_reference_kernel
+    from vrcorrect.solvers import make_problem
+    from vrcorrect.studies.bench.learned import _held_out_image, held_out_eyes
+    from vrcorrect.studies.bench.unrolled import METHODS, run_unrolled_bench
+
+    run, _, _ = exported
+    out = tmp_path / "bench.md"
+    result = run_unrolled_bench(run / "unrolled.onnx", out=out, eyes=1, size=64, images=("rocket",),
+                                displays=("index",), progress=False)
+    (case,) = result["cases"]
+    for m in METHODS:
+        assert np.isfinite(case[f"objective_{m}"]) and case[f"ms_{m}"] > 0 and 0 <= case[f"flip_{m}"] <= 1
+    assert case["gap_fast"] == pytest.approx(1.0) and case["objective_twin"] < case["objective_admm cold"]
+
+    model = UnrolledModel(run / "unrolled.onnx")
+    display = get_display("index")
+    eye = held_out_eyes(model.ranges, 1)[0]
+    kernel, reference = build_kernel(eye, display), build_reference_kernel(eye, display)
+    target = decode(display, _held_out_image("rocket", 64)).astype(np.float32)
+    p = make_problem(target, kernel, reference)
+    chw = np.ascontiguousarray(target.transpose(2, 0, 1))
+    lms = np.ascontiguousarray(p.target_lms.transpose(2, 0, 1), np.float32)
+    z0, d1, d2 = (torch.from_numpy(a)[None] for a in fast_start(kernel.kernel, chw, lms))
+    spectrum, inverse, norm2 = kernel_spectra([kernel.kernel], (64, 64))
+    with torch.no_grad():
+        z = twin(2)(torch.from_numpy(lms)[None], z0, spectrum, inverse, norm2, d1=d1, d2=d2)
+        obj = objective_per_sample(z, torch.from_numpy(kernel.kernel).float()[None], torch.from_numpy(lms)[None])
+    assert case["objective_twin"] == pytest.approx(float(obj[0]), rel=1e-3)
+
+    text = out.read_text()
+    assert "<!-- bench:unrolled -->" in text and "| twin |" in text and "| admm cold |" in text
+
+
+def test_bench_unrolled_refuses_what_it_cannot_measure(exported, tmp_path, capsys):
+    from vrcorrect.apps.cli import main
+    from vrcorrect.studies.bench.unrolled import run_unrolled_bench
+
+    run, _, _ = exported
+    with pytest.raises(ValidationError, match="displays"):
+        run_unrolled_bench(run / "unrolled.onnx", out=tmp_path / "b.md", displays=("quest2",), progress=False)
+    assert main(["bench", "unrolled", "--out", str(tmp_path / "b.md")]) == 2
+    assert "--model" in capsys.readouterr().err
+    assert main(["bench", "unrolled", "--model", str(tmp_path / "none.onnx"), "--out", str(tmp_path / "b.md")]) == 2
+    assert "no such model" in capsys.readouterr().err and not (tmp_path / "b.md").exists()

@@ -69,23 +69,39 @@ def cmd_bench(args: argparse.Namespace) -> int:
         path = Path(args.model) if args.model else DEFAULT_MODEL
         if not path.is_file():
             raise InputError(f"{path}: no such model; pass --model PATH (a model exported by tools/export_onnx.py)")
+        args.eyes = 6 if args.eyes is None else args.eyes
         if args.eyes < 1:
             raise ValidationError("--eyes", args.eyes, "at least 1")
         print(run_learned_bench(path, out=Path(args.out), card=Path(args.card) if args.card else None,
                                 eyes=args.eyes, repeats=max(args.repeats, 3), write=not args.no_write,
                                 plot=Path(args.out).with_name("learned_heldout.png"),
                                 tradeoff=Path(args.out).with_name("learned_tradeoff.png"))["markdown"])
+    elif args.what == "unrolled":
+        from ..studies.bench.unrolled import run_unrolled_bench
+
+        if not args.model:
+            raise InputError("bench unrolled needs --model FILE: an unrolled model (vrcorrect unroll -o RUN writes "
+                             "RUN/unrolled.onnx)")
+        if not Path(args.model).is_file():
+            raise InputError(f"{args.model}: no such model file")
+        args.eyes = 2 if args.eyes is None else args.eyes
+        if args.eyes < 1:
+            raise ValidationError("--eyes", args.eyes, "at least 1")
+        print(run_unrolled_bench(Path(args.model), out=Path(args.out), eyes=args.eyes, write=not args.no_write)
+              ["markdown"])
     else:
-        raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, cost, xr, layer or learned")
+        raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, cost, xr, layer, learned or "
+                              "unrolled")
     return 0
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md",
-                       description="Measure one thing (kernel builds, solvers, render, realtime, cost, xr, layer "
-                                   "or learned), print its table, and write it into its own section of the "
+                       description="Measure one thing (kernel builds, solvers, render, realtime, cost, xr, layer, "
+                                   "learned or unrolled), print its table, and write it into its own section of the "
                                    "benchmarks file (--out), naming the machine it ran on.")
-    p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "cost", "xr", "layer", "learned"),
+    p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "cost", "xr", "layer", "learned",
+                                    "unrolled"),
                    help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
     p.add_argument("--resolutions", nargs="+", metavar="R",
@@ -94,9 +110,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="benchmarks file to update (default: the repository's docs/benchmarks.md, when run inside "
                         "the vrcorrect checkout; required anywhere else unless --no-write)")
     p.add_argument("--no-write", action="store_true", help="print only")
-    p.add_argument("--model", metavar="MODEL.onnx", help="learned: the model (default models/default.onnx)")
+    p.add_argument("--model", metavar="MODEL.onnx", help="learned: the model (default models/default.onnx); "
+                   "unrolled: the unrolled model (required)")
     p.add_argument("--card", metavar="CARD.md", help="learned: also write the model card there")
-    p.add_argument("--eyes", type=int, default=6, help="learned: held-out eyes (default 6)")
+    p.add_argument("--eyes", type=int, help="learned: held-out eyes (default 6); unrolled: held-out eyes on each "
+                   "display (default 2)")
     p.add_argument("--quick", action="store_true", help="realtime: fewer frames and sizes (a smoke run)")
     p.add_argument("--size", default="1832x1920", metavar="WxH",
                    help="cost: each eye's image size (default 1832x1920, a Quest 2 eye)")

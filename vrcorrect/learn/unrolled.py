@@ -49,13 +49,10 @@ import torch
 from torch import nn
 
 from ..plumbing.errors import ValidationError
+from ..solvers.admm import FAST_RELAXATION, FAST_RHO
 from .conditioning import unrolled_spectra
 
 __all__ = ["UnrolledConfig", "UnrolledADMM", "twin", "kernel_spectra", "FAST_RHO", "FAST_RELAXATION"]
-
-#: ``fast``'s settings (:func:`vrcorrect.solvers.admm.fast`): where every stage starts.
-FAST_RHO = 0.1
-FAST_RELAXATION = 1.8
 
 
 @dataclass(frozen=True)

@@ -43,8 +43,12 @@ from .problem import Correction, Problem, guard_weight
 from .spectral import (Blur, apply3, conj_transpose, hermitian_inverse, irfft_grid, kernel_spectrum, margin_shape,
                        mirror_fill, padded_shape, rfft_grid, spectral_norm_squared)
 
-__all__ = ["fast", "fast_start", "coarse_kernel", "coarse_level_pays", "COARSE_ITERATIONS"]
+__all__ = ["fast", "fast_start", "FAST_RHO", "FAST_RELAXATION", "coarse_kernel", "coarse_level_pays", "COARSE_ITERATIONS"]
 
+#: ``fast``'s penalty (relative to ``||K||^2``) and over-relaxation: its defaults, :func:`fast_start`'s and
+#: the unrolled correction's starting settings (:mod:`vrcorrect.learn.unrolled`).
+FAST_RHO = 0.1
+FAST_RELAXATION = 1.8
 #: Full-resolution iterations in a row without a new best objective after which ``fast`` stops.
 PATIENCE = 5
 #: ADMM iterations on the coarsest level of ``fast``'s coarse-to-fine start (and of the real-time
@@ -243,7 +247,7 @@ def _ridge_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, mu_r
 
 
 def fast_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, levels: int = 1,
-               rho: float = 0.1, relaxation: float = 1.8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               rho: float = FAST_RHO, relaxation: float = FAST_RELAXATION) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where :func:`fast`'s full-resolution iterations start, with its default settings: the
     primal ``z0`` and the scaled duals ``(d1, d2)`` inside the image, each ``(3, H, W)`` float32
     for a ``(3, H, W)`` linear ``target`` and its cone image ``t_lms``. The coarse level's solution
@@ -258,9 +262,9 @@ def fast_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, levels
             np.ascontiguousarray(duals[1], np.float32))
 
 
-def fast(problem: Problem, tolerance: float = 1e-2, max_iterations: int = 200, rho: float = 0.1,
-         relaxation: float = 1.8, balance: float = 1.0, levels: int = 1, coarse_iterations: int = COARSE_ITERATIONS,
-         level_iterations: int = 3, warm_start: bool = True,
+def fast(problem: Problem, tolerance: float = 1e-2, max_iterations: int = 200, rho: float = FAST_RHO,
+         relaxation: float = FAST_RELAXATION, balance: float = 1.0, levels: int = 1,
+         coarse_iterations: int = COARSE_ITERATIONS, level_iterations: int = 3, warm_start: bool = True,
          progress: Callable[[int, int], None] | None = None) -> Correction:
     """ADMM for the LMS objective in the box (see the module docstring).  Stops when an iteration
     lowers the best objective by less than ``tolerance`` (relative), after :data:`PATIENCE`
