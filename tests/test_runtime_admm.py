@@ -443,6 +443,8 @@ def test_a_given_first_guess_is_the_cold_start(gl, photo):
         r.frame(photo)
         from_guess = r.c.last_objective_fraction((W, H)) * none
         assert from_guess <= 1.02 * fast.objective < from_target
+        twin = r.twin.frame(linear(photo), 2, cold=True, first_guess=fast.image)   # the twin's hook, as the GPU's
+        assert np.abs(r.c.solution((W, H)) - twin.solution).max() < 1e-5
         r.frame(photo)
         assert calls == [(W, H)]
     finally:

@@ -287,11 +287,16 @@ class AdmmFrames:
         """The next frame starts cold."""
         self.w = self.q = self.t_prev = self.T_prev = None
 
-    def start(self, t: np.ndarray, T: np.ndarray, shift: tuple[int, int] | None = None) -> None:
+    def start(self, t: np.ndarray, T: np.ndarray, shift: tuple[int, int] | None = None,
+              first_guess: np.ndarray | None = None) -> None:
         """This frame's starting ``w``, ``q`` (module docstring); ``shift``: the content's motion
-        ``(dx, dy)`` in whole pixels (x right, y down); with no state: cold."""
+        ``(dx, dy)`` in whole pixels (x right, y down); with no state: cold, from ``first_guess``
+        (``(3, H, W)``, clipped to [0, 1]: ``q`` starts there, ``w`` at ``T``, no coarse level, as
+        the GPU's cold-start hook) when one is given."""
         H, W = self.shape
-        if self.w is None:
+        if self.w is None and first_guess is not None:
+            self.w, self.q = T.copy(), self._on_grid(np.clip(np.asarray(first_guess, np.float32), 0.0, 1.0))
+        elif self.w is None:
             self.w, self.q = T.copy(), self._on_grid(t)
             if self.coarse is not None:
                 dw, dq = self.coarse.cold_correction(pool_half(t), self.cold_iterations)
@@ -355,15 +360,17 @@ class AdmmFrames:
         self.q = _store(q + self.alpha * (u - pq), self.half)
 
     def frame(self, target: np.ndarray, iterations: int, shift: tuple[int, int] | None = None,
-              cold: bool = False) -> AdmmFrame:
+              cold: bool = False, first_guess: np.ndarray | None = None) -> AdmmFrame:
         """One frame: ``target`` ``(H, W, 3)`` linear RGB in [0, 1]; ``iterations`` ADMM iterations
         from the warm start (``cold``: from the target; ``shift``: the content's motion ``(dx,
-        dy)``), then the guard."""
+        dy)``), then the guard. ``first_guess`` ``(H, W, 3)``: where a cold frame starts instead
+        (the GPU's cold-start hook: the learned model's pass); ignored on a warm frame."""
         t_chw = _frame_target(target, self.shape)
         if cold:
             self.reset()
         t, T, T_inside = self._targets(t_chw)
-        self.start(t, T, shift)
+        guess = None if first_guess is None else _store(_frame_target(first_guess, self.shape), self.half)
+        self.start(t, T, shift, guess)
         for _ in range(iterations):
             self.iterate(T)
         return self.guard(t, T_inside)
