@@ -163,3 +163,66 @@ def test_bench_unrolled_refuses_what_it_cannot_measure(exported, tmp_path, capsy
     assert "--model" in capsys.readouterr().err
     assert main(["bench", "unrolled", "--model", str(tmp_path / "none.onnx"), "--out", str(tmp_path / "b.md")]) == 2
     assert "no such model" in capsys.readouterr().err and not (tmp_path / "b.md").exists()
+
+
+# ---------------------------------------------------------------- the learned pass as the real-time cold start
+
+def test_the_learned_pass_is_the_real_time_cold_start(exported, gl):
+    """Corrector(cold_start_model=...): a cold frame starts from the model's pass (read back, run on
+    onnxruntime, uploaded), and the GPU then equals its CPU twin started from the same guess; a
+    warm frame does not call the model; a display the model was not trained for is refused."""
+    from vrcorrect.runtime import gl as G
+    from vrcorrect.runtime.corrector import Corrector
+    from vrcorrect.solvers.realtime import AdmmFrames
+    from vrcorrect.specs.prescription import Prescription
+
+    run, _, pool = exported
+    entry = pool["held_out"][0]
+    rx = Prescription(right=entry.eye, left=entry.eye)
+    W, H = 56, 40
+    big = np.round(dict(bundled_images(96))["astronaut"] * 255).astype(np.uint8)
+    frames = [np.ascontiguousarray(big[10 + 2 * f:10 + 2 * f + H, 5 + 3 * f:5 + 3 * f + W]) for f in range(2)]
+    lin = [decode("srgb", f.astype(np.float32) / 255).astype(np.float32) for f in frames]
+    model = UnrolledModel(run / "unrolled.onnx")
+    c = Corrector(gl, rx, "index", "right", filter="admm", precision="single", iterations_per_frame=2,
+                  early_stop=False, cold_start_model=str(run / "unrolled.onnx"))
+    twin = AdmmFrames(entry.eye_kernel, entry.reference_kernel, (H, W), precision="single")
+    src = G.upload_texture(gl, frames[0])
+    tex, fbo = G.render_target(gl, width=W, height=H)
+    calls = []
+    slot_run = c.strategy.cold_start
+    c.strategy.cold_start = lambda t: (calls.append(t.size), slot_run(t))[1]
+    try:
+        c.apply(src, fbo)
+        guess = model.correct(lin[0], entry.eye, entry.eye_kernel, entry.reference_kernel)
+        cpu = twin.frame(lin[0], 2, cold=True, first_guess=guess)
+        assert np.abs(c.solution((W, H)) - cpu.solution).max() < 1e-4
+        G.write_texture(src, frames[1])
+        c.apply(src, fbo, motion_px=(-3, -2))
+        cpu = twin.frame(lin[1], 2, shift=(-3, -2))
+        assert np.abs(c.solution((W, H)) - cpu.solution).max() < 1e-4 and calls == [(W, H)]
+    finally:
+        c.release()
+        G.release(fbo, tex, src)
+    with pytest.raises(ValidationError, match="display"):
+        Corrector(gl, rx, "quest2", "right", cold_start_model=str(run / "unrolled.onnx"))
+    with pytest.raises(ValidationError, match="cold_start_model"):
+        Corrector(gl, rx, "index", "right", filter="fista", cold_start_model=str(run / "unrolled.onnx"))
+
+
+def test_render_takes_the_learned_cold_start(exported, tmp_path, capsys):
+    """``vrcorrect render --cold-start MODEL``: the picture rendered through the GPU path with the
+    model's pass as the first frame's start, and the log says so."""
+    from PIL import Image
+
+    from vrcorrect.apps.cli import main
+
+    run, _, _ = exported
+    src = tmp_path / "in.png"
+    Image.fromarray(np.round(dict(bundled_images(48))["coffee"] * 255).astype(np.uint8)).save(src)
+    out = tmp_path / "out.png"
+    assert main(["render", str(src), "-o", str(out), "--display", "index", "--cold-start",
+                 str(run / "unrolled.onnx"), "--frames", "2"]) == 0
+    shown = np.asarray(Image.open(out))
+    assert shown.shape == (48, 48, 3) and not np.array_equal(shown, np.asarray(Image.open(src)))
+    assert "cold start" in capsys.readouterr().out

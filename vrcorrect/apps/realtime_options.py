@@ -73,6 +73,10 @@ def add_filter_options(p: argparse.ArgumentParser) -> None:
                         f"first, after a cut, after a prescription change), 0 to {MAX_ITERATIONS_PER_FRAME} (default "
                         f"{DEFAULT_COLD_ITERATIONS}, fast's own coarse-to-fine start; 0: from the target, cheaper "
                         "but a shot then starts blurred)")
+    p.add_argument("--cold-start", metavar="MODEL.onnx",
+                   help="with --filter admm: start a shot's first frame from this unrolled model's pass (vrcorrect "
+                        "unroll -o RUN writes RUN/unrolled.onnx) instead of the half-resolution level; the frame is "
+                        "read back and corrected on onnxruntime (CPU here: seconds at headset size)")
 
 
 def add_reprojection_option(p: argparse.ArgumentParser) -> None:
@@ -98,6 +102,14 @@ def filter_options(args: argparse.Namespace) -> dict[str, Any]:
             raise ValidationError("--cold-iterations", args.cold_iterations, "only with --filter admm")
         options["cold_iterations"] = parse_whole_number(args.cold_iterations, "--cold-iterations", 0,
                                                         MAX_ITERATIONS_PER_FRAME, "iterations")
+    if getattr(args, "cold_start", None) is not None:
+        if args.filter != Filter.ADMM or getattr(args, "backend", Backend.GLSL) != Backend.GLSL:
+            raise ValidationError("--cold-start", args.cold_start, "only with --filter admm on --backend glsl")
+        from pathlib import Path
+
+        if not Path(args.cold_start).is_file():
+            raise ValidationError("--cold-start", args.cold_start, "an existing unrolled model file (.onnx)")
+        options["cold_start_model"] = str(args.cold_start)
     return options
 
 

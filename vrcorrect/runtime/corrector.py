@@ -64,6 +64,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
     from .learned import LearnedModel
+    from .unrolled import UnrolledModel
 
 __all__ = ["CorrectorOptions", "EyeModel", "Corrector", "RxSnapshot", "build_eye_model", "file_stamp"]
 
@@ -202,9 +203,16 @@ class Corrector:
         self.strategy: Strategy | None = None
         self.preview: Preview | None = None
         self._motion_gl: tuple[int, int] = (0, 0)           # the next frame's reprojection, GL texels
+        self._cold_model: "UnrolledModel | None" = None
+        if self.options.cold_start_model is not None:
+            from .unrolled import UnrolledModel  # start-up time: onnxruntime, only when asked for
+
+            self._cold_model = UnrolledModel(self.options.cold_start_model)
         eye_rx = self._with_offset(self.prescription.eye(eye))
         if self._learned is not None:                       # an eye outside the trained range: refused first
             self._learned.check(eye_rx, self.display)
+        if self._cold_model is not None:
+            self._cold_model.check(eye_rx, self.display)
         self.install(eye_model if eye_model is not None else build_eye_model(eye_rx, self.display, self.options))
         check_gl_errors(ctx, "Corrector build")
 
@@ -264,6 +272,8 @@ class Corrector:
         model's range with that backend; any eye otherwise."""
         if self._learned is not None:
             self._learned.check(eye, self.display)
+        if self._cold_model is not None:
+            self._cold_model.check(eye, self.display)
 
     def install(self, model: EyeModel, prescription: Prescription | None = None) -> None:
         """Correct with ``model`` from the next frame on (GL work only: what the CPU designs is in
@@ -280,6 +290,9 @@ class Corrector:
         options = self.options if self._iterations == self.options.iterations_per_frame else \
             replace(self.options, iterations_per_frame=self._iterations)
         self.strategy = make_strategy(self.gpu, model, options, self.encoder, self.decoder, slot)
+        if self._cold_model is not None and not model.identity and hasattr(self.strategy, "use_first_guess"):
+            self.strategy.use_first_guess(self._cold_model.for_eye(model.eye, self.display, model.kernel,
+                                                                   model.reference))
         self.preview = Preview(self.gpu, model)
         self.model = model
         if prescription is not None:
@@ -297,8 +310,7 @@ class Corrector:
         self._offset = (previous[0] + sphere_D, previous[1] + cylinder_D, previous[2] + axis_deg)
         try:
             eye = self._with_offset(self.prescription.eye(self.eye_name))
-            if self._learned is not None:
-                self._learned.check(eye, self.display)
+            self.check_eye(eye)
             self.install(build_eye_model(eye, self.display, self.options))
         except VrcorrectError:
             self._offset = previous
@@ -329,8 +341,7 @@ class Corrector:
         try:
             rx = load_prescription(self.rx_path)
             eye = self._with_offset(rx.eye(self.eye_name))
-            if self._learned is not None:
-                self._learned.check(eye, self.display)
+            self.check_eye(eye)
             self.install(build_eye_model(eye, self.display, self.options), rx)
         except VrcorrectError as exc:
             self.status = f"{self.rx_path}: not reloaded, keeping the last good prescription: {exc}"

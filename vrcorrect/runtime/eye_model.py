@@ -128,6 +128,11 @@ class CorrectorOptions:
         size, a cut, a new prescription), ``fast``'s coarse-to-fine start, where the image is at
         least 64 px on its short side and the kernel at least 9 px; 0: a cold frame starts from the
         target.  From 0 to :data:`~vrcorrect.specs.vocabulary.MAX_ITERATIONS_PER_FRAME`.
+    cold_start_model
+        ``filter="admm"``: an unrolled model (``vrcorrect unroll``'s ``unrolled.onnx``,
+        :class:`~vrcorrect.runtime.unrolled.UnrolledModel`) whose single pass starts every cold frame
+        instead of the half-resolution level: the frame is read back, corrected on onnxruntime and
+        uploaded (counted as transfers); ``None`` (default): the half-resolution level.
     """
 
     regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
@@ -145,6 +150,7 @@ class CorrectorOptions:
     precision: str = Precision.HALF
     early_stop: bool = True
     cold_iterations: int = DEFAULT_COLD_ITERATIONS
+    cold_start_model: str | None = None
 
     def __post_init__(self) -> None:
         if not self.regularisation or not all(isinstance(m, (int, float)) and m > 0 for m in self.regularisation):
@@ -167,6 +173,15 @@ class CorrectorOptions:
         if self.precision not in names(Precision):
             raise ValidationError("precision", self.precision, one_of(Precision))
         check_iterations(self.cold_iterations, "cold_iterations")
+        if self.cold_start_model is not None:
+            if not isinstance(self.cold_start_model, str) or not self.cold_start_model:
+                raise ValidationError("cold_start_model", self.cold_start_model, "a path to an unrolled ONNX model or None")
+            if self.filter != Filter.ADMM or self.backend != Backend.GLSL:
+                raise ValidationError("cold_start_model", self.cold_start_model,
+                                      "only with filter 'admm' on the glsl backend")
+            if self.reference != "glasses":
+                raise ValidationError("cold_start_model", self.cold_start_model,
+                                      "only with reference 'glasses' (the target the model was trained on)")
 
     @property
     def per_frame_blend(self) -> bool:

@@ -84,13 +84,19 @@ class OnnxModel:
 
 def run_slot(infer: Callable[[np.ndarray], np.ndarray], buffers: dict[tuple[int, int], np.ndarray],
              src_texture: "moderngl.Texture", dst_texture: "moderngl.Texture") -> None:
-    """The slot's frame: read the rgba32f ``src`` back, flip it to image orientation, ``infer``
-    ``(3, H, W) -> (3, H, W)``, flip back and write ``dst``; one buffer per size in ``buffers``."""
+    """The slot's frame: read the rgba32f (or rgba16f: the real-time path's half-precision target)
+    ``src`` back, flip it to image orientation, ``infer`` ``(3, H, W) -> (3, H, W)``, flip back and
+    write the rgba32f ``dst``; one buffer per size in ``buffers``."""
     W, H = src_texture.size
     buf = buffers.get((W, H))
     if buf is None:
         buf = buffers[(W, H)] = np.empty((H, W, 4), np.float32)
-    src_texture.read_into(buf)
+    if src_texture.dtype == "f2":
+        buf[...] = np.frombuffer(src_texture.read(), np.float16).reshape(H, W, 4)
+    elif src_texture.dtype == "f4" and src_texture.components == 4:
+        src_texture.read_into(buf)
+    else:
+        raise ValidationError("texture", f"{src_texture.components} x {src_texture.dtype}", "rgba32f or rgba16f")
     chw = np.ascontiguousarray(buf[::-1, :, :3].transpose(2, 0, 1))            # image orientation
     out = infer(chw)
     buf[..., :3] = out.transpose(1, 2, 0)[::-1]

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -30,6 +30,10 @@ from ..specs.display import DisplayProfile
 from ..specs.prescription import EyeRx
 from ..vision.forward import simulate_lms
 from .learned import checked_session
+from .onnx_backend import run_slot
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    import moderngl
 
 __all__ = ["UNROLLED_FORMAT", "UnrolledModel", "UnrolledEye"]
 
@@ -100,9 +104,18 @@ class UnrolledEye:
 
     def __init__(self, model: UnrolledModel, eye: EyeRx, kernel: EyeKernel, reference_kernel: EyeKernel):
         self.model, self.eye, self.kernel, self.reference_kernel = model, eye, kernel, reference_kernel
+        self._buffers: dict[tuple[int, int], np.ndarray] = {}
 
     def infer(self, image_chw: np.ndarray) -> np.ndarray:
         out = self.model.correct(np.moveaxis(np.asarray(image_chw, np.float32), 0, 2), self.eye, self.kernel,
                                  self.reference_kernel)
         return np.ascontiguousarray(np.moveaxis(out, 2, 0))
+
+    def run(self, src_texture: "moderngl.Texture", dst_texture: "moderngl.Texture") -> None:
+        """The pass on rgba32f textures in GL orientation (:func:`~vrcorrect.runtime.onnx_backend.run_slot`):
+        the real-time path's learned cold start (:meth:`~vrcorrect.runtime.strategies.admm.AdmmStrategy.use_first_guess`)."""
+        run_slot(self.infer, self._buffers, src_texture, dst_texture)
+
+    def release(self) -> None:
+        self._buffers.clear()
 

@@ -44,6 +44,7 @@ import numpy as np
 
 from ...plumbing.errors import ValidationError
 from ...specs.vocabulary import Filter, Precision
+from ..dispatch import resource_bytes
 from ..gl import fullscreen_triangle, release
 from ..shaders import compile_compute, compile_program
 from .base import GuardResult, IterativeStrategy, Size, float_texture, groups_2d
@@ -128,7 +129,26 @@ class AdmmStrategy(IterativeStrategy):
         self.cold_start: Callable[["moderngl.Texture"], "moderngl.Texture"] | None = None
         """A first guess for a cold frame (the first of a size, a cut, a new prescription): called
         with the decoded target, returns a texture of the same size, linear light in [0, 1], that
-        the iterations start from instead of the target (the learned model's single pass)."""
+        the iterations start from instead of the target (the learned model's single pass,
+        :meth:`use_first_guess`)."""
+        self._guesses: dict[Size, "moderngl.Texture"] = {}
+
+    def use_first_guess(self, slot: Any) -> None:
+        """Start every cold frame from ``slot``'s pass (``slot.run(src, dst)`` on rgba32f textures: an
+        :class:`~vrcorrect.runtime.unrolled.UnrolledEye`, the learned cold start) instead of the
+        half-resolution level: :attr:`cold_start` reads the decoded target back, runs the slot and
+        uploads its result into a texture kept per size; both counted as transfers."""
+        def start(linear: "moderngl.Texture") -> "moderngl.Texture":
+            size = tuple(linear.size)
+            out = self._guesses.get(size)
+            if out is None:
+                out = self._guesses[size] = float_texture(self.ctx, size)
+            slot.run(linear, out)
+            self.gpu.transfer("learned cold start: read-back and upload", read=resource_bytes(linear),
+                              written=resource_bytes(out))
+            return out
+
+        self.cold_start = start
 
     def reset(self) -> None:
         for b in self._sized.values():
@@ -425,6 +445,8 @@ class AdmmStrategy(IterativeStrategy):
         if self.coarse is not None:           # its buffers only: the encoder and decoder are shared
             self.coarse.release()
             self.coarse = None
+        release(*self._guesses.values())
+        self._guesses.clear()
         super().release()
 
 
