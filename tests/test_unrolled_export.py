@@ -127,7 +127,7 @@ def test_bench_unrolled_scores_every_method_and_its_twin_is_the_torch_twin(expor
     run, _, _ = exported
     out = tmp_path / "bench.md"
     result = run_unrolled_bench(run / "unrolled.onnx", out=out, eyes=1, size=64, images=("rocket",),
-                                displays=("index",), progress=False)
+                                displays=("index",), progress=False, with_cut=False)
     (case,) = result["cases"]
     for m in METHODS:
         assert np.isfinite(case[f"objective_{m}"]) and case[f"ms_{m}"] > 0 and 0 <= case[f"flip_{m}"] <= 1
@@ -226,3 +226,17 @@ def test_render_takes_the_learned_cold_start(exported, tmp_path, capsys):
     shown = np.asarray(Image.open(out))
     assert shown.shape == (48, 48, 3) and not np.array_equal(shown, np.asarray(Image.open(src)))
     assert "cold start" in capsys.readouterr().out
+
+
+def test_after_a_cut_starts_each_shot_from_the_model(exported):
+    """The motion suite's cut measured both ways on a short held-out cut clip: the learned start is
+    called on the two cold frames (the first and the detected cut) and changes them."""
+    from vrcorrect.studies.bench.unrolled import after_a_cut
+
+    run, _, _ = exported
+    cut = after_a_cut(UnrolledModel(run / "unrolled.onnx"), size=64, frames=12, display_name="index")
+    scores = cut["scores"]
+    assert cut["cold_frames"] == 2 and cut["clip"].cut_at == 6
+    learned, default = scores["learned cold start"], scores["default (half-resolution cold start)"]
+    assert np.isfinite(learned["jod"]) and learned["objective_share"] != default["objective_share"]
+    assert learned["frames_after_cut"] is None or 1 <= learned["frames_after_cut"] <= 6

@@ -41,7 +41,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -125,10 +125,12 @@ def _motions(frames: Sequence[np.ndarray]) -> list[tuple[int, int] | str]:
 
 
 def run_clip(case: Case, clip: Clip, method: str, k: int, motions: Sequence[Any] | None = None,
-             keep_shown: bool = True, options: dict[str, Any] | None = None) -> Run:
+             keep_shown: bool = True, options: dict[str, Any] | None = None,
+             first_guess: Callable[[np.ndarray], np.ndarray] | None = None) -> Run:
     """``method`` (``admm`` or ``fista``) at ``k`` iterations a frame over the clip, frame after frame
     from the warm start the GPU would take (a cold start at a detected cut); ``options``: the twin's
-    (:func:`~vrcorrect.solvers.realtime.frames_twin`)."""
+    (:func:`~vrcorrect.solvers.realtime.frames_twin`); ``first_guess`` (ADMM): maps a cold frame's
+    linear ``(H, W, 3)`` target to where it starts (the GPU's cold-start hook: the learned pass)."""
     motions = _motions(clip.frames) if motions is None else motions
     H, W = clip.frames[0].shape[:2]
     twin = frames_twin(method, case.kernel, case.reference, (H, W), **(options or {}))
@@ -136,7 +138,8 @@ def run_clip(case: Case, clip: Clip, method: str, k: int, motions: Sequence[Any]
     for i, frame in enumerate(clip.frames):
         motion = None if i == 0 else motions[i - 1]
         cut = motion == "cut"
-        result = twin.frame(linear(frame), k, shift=None if (cut or motion is None) else motion, cold=cut)
+        guess = {"first_guess": first_guess(linear(frame))} if first_guess is not None and (i == 0 or cut) else {}
+        result = twin.frame(linear(frame), k, shift=None if (cut or motion is None) else motion, cold=cut, **guess)
         run.objective.append(result.objective)
         if keep_shown:
             run.shown.append(result.shown)
