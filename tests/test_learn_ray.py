@@ -145,3 +145,21 @@ def test_ray_is_imported_lazily():
     code, err = _cli("import sys, vrcorrect.learn.dataset, vrcorrect.apps.learning, vrcorrect.apps.cli; "
                      "sys.exit(1 if 'ray' in sys.modules else 0)")
     assert code == 0, err
+
+
+def test_the_unrolled_models_kernels_on_ray_equal_local_ones(ray_cluster):
+    """vrcorrect unroll --ray: build_pool's eyes as Ray tasks give the same eyes, in the same order,
+    with the same kernels (bit for bit) as local processes."""
+    from vrcorrect.learn.unrolled_train import UnrolledTrainConfig, build_pool
+
+    config = UnrolledTrainConfig(displays=("index",), eyes_per_display=2, held_out_eyes_per_display=1)
+    local = build_pool(config, workers=1)
+    on_ray = build_pool(config, ray_address="local")
+    assert ray_cluster.is_initialized()                  # the caller's Ray is left running
+    for split in ("train", "held_out"):
+        assert len(on_ray[split]) == len(local[split]) > 0
+        for a, b in zip(local[split], on_ray[split]):
+            assert a.eye == b.eye and a.display == b.display
+            np.testing.assert_array_equal(a.kernel, b.kernel)
+            np.testing.assert_array_equal(a.reference, b.reference)
+            np.testing.assert_array_equal(a.features, b.features)

@@ -76,11 +76,12 @@ def cmd_train(args: argparse.Namespace) -> int:
 def cmd_train_unrolled(args: argparse.Namespace) -> int:
     from tqdm import tqdm  # on use: start-up time (apps/__init__)
 
-    from ..learn.dataset import HELD_OUT_IMAGES
+    from ..learn.dataset import HELD_OUT_IMAGES, check_ray
     from ..learn.unrolled_export import export_unrolled
     from ..learn.unrolled_train import UnrolledTrainConfig, build_pool, train_unrolled
     from ..plumbing.fileio import check_writable
 
+    check_ray(args.ray)                                             # Ray installed? before any work
     config = UnrolledTrainConfig(stages=args.stages, prior_width=args.prior_width, displays=tuple(args.displays),
                                  eyes_per_display=args.eyes_per_display, crop_px=args.crop_px, batch=args.batch_size,
                                  steps=args.steps, minutes=args.minutes, seed=args.seed)
@@ -103,7 +104,7 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
         bar.total = total
         bar.update(done - bar.n)
 
-    pool = build_pool(config, kernels, workers=max(1, os.cpu_count() or 1))
+    pool = build_pool(config, kernels, workers=max(1, os.cpu_count() or 1), ray_address=args.ray)
     bar.close()
     bar = tqdm(desc="training", unit="step", total=config.steps, disable=None, leave=False)
 
@@ -204,7 +205,8 @@ def add_parser(sub) -> None:
     p.add_argument("--eyes-per-display", type=int, default=5, help="training eyes per display (5)")
     p.add_argument("--stages", type=int, default=8, help="ADMM stages after fast's start, two FFT round trips "
                                                                "each (8)")
-    p.add_argument("--prior-width", type=int, default=16, help="channels of the prior network (16)")
+    p.add_argument("--prior-width", type=int, default=16,
+                   help="channels of the prior network (16; 0: none, only the eye's stage settings are learned)")
     p.add_argument("--crop-px", type=int, default=64, help="side of the training crops (64: the least at which "
                    "fast's start solves a half-resolution level first, as it does on whole images)")
     p.add_argument("--image-px", type=int, default=128, help="images are centre-cropped and resized to this (128)")
@@ -212,5 +214,9 @@ def add_parser(sub) -> None:
     p.add_argument("--steps", type=int, default=2000, help="optimiser steps (2000)")
     p.add_argument("--minutes", type=float, default=90.0, help="stop training after this long (90)")
     p.add_argument("--seed", type=int, default=0, help="seed of the eyes, crops and weights (0)")
+    p.add_argument("--ray", metavar="ADDRESS",
+                   help="build the eyes' kernels as Ray tasks on the cluster at ADDRESS (auto, HOST:PORT, "
+                        "ray://HOST:10001, or local: a one-node Ray on this machine's CPUs); default: local "
+                        "processes; the extra 'ray'")
     p.add_argument("--force", action="store_true", help="overwrite RUN's earlier files")
     p.set_defaults(func=cmd_train_unrolled)

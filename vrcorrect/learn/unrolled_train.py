@@ -37,7 +37,7 @@ from ..solvers.admm import fast_start
 from ..specs.display import decode, get_display, preset_names
 from ..specs.vocabulary import Method
 from .conditioning import N_UNROLLED_FEATURES, SamplingRanges, unrolled_features
-from .dataset import _pad_kernel
+from .dataset import _pad_kernel, _ray_session, check_ray
 from .train import objective_per_sample, retina
 from .unrolled import UnrolledADMM, UnrolledConfig, kernel_spectra, twin
 
@@ -61,7 +61,7 @@ class UnrolledTrainConfig:
     ranges: SamplingRanges = field(default_factory=SamplingRanges)
 
     def __post_init__(self) -> None:
-        for name, lo, hi in (("stages", 1, 32), ("prior_width", 1, 256), ("eyes_per_display", 1, 1000),
+        for name, lo, hi in (("stages", 1, 32), ("prior_width", 0, 256), ("eyes_per_display", 1, 1000),
                              ("held_out_eyes_per_display", 1, 1000), ("crop_px", 16, 512), ("batch", 1, 1024),
                              ("steps", 1, 10_000_000), ("seed", 0, 2**32 - 1)):
             value = getattr(self, name)
@@ -108,23 +108,35 @@ def _entry(job: tuple[str, Any, SamplingRanges]) -> PoolEntry:
 
 
 def build_pool(config: UnrolledTrainConfig, progress: Callable[[int, int], None] | None = None,
-               workers: int = 2) -> dict[str, list[PoolEntry]]:
+               workers: int = 2, ray_address: str | None = None) -> dict[str, list[PoolEntry]]:
     """Kernels for ``train`` and ``held_out`` eyes on every display of ``config`` (eyes drawn from
-    ``config.ranges`` with the run's seed; held-out eyes from a stream of their own)."""
+    ``config.ranges`` with the run's seed; held-out eyes from a stream of their own), in ``workers``
+    local processes or, with ``ray_address`` (``local``, ``auto``, ``HOST:PORT``, ``ray://...``), one
+    Ray task per eye (:func:`vrcorrect.learn.dataset.check_ray`'s addresses; a process already
+    connected to Ray keeps its connection). The same eyes either way, in the same order."""
     jobs: dict[str, list[tuple[str, Any, SamplingRanges]]] = {"train": [], "held_out": []}
     for split, per, offset in (("train", config.eyes_per_display, 0), ("held_out", config.held_out_eyes_per_display, 1)):
         rng = np.random.default_rng([config.seed, offset])
         for name in config.displays:
             jobs[split] += [(name, config.ranges.sample(rng), config.ranges) for _ in range(per)]
     everything = jobs["train"] + jobs["held_out"]
-    done = 0
     results: list[PoolEntry] = []
-    with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
-        for entry in pool.map(_entry, everything):
-            results.append(entry)
-            done += 1
-            if progress is not None:
-                progress(done, len(everything))
+
+    def record(entry: PoolEntry) -> None:
+        results.append(entry)
+        if progress is not None:
+            progress(len(results), len(everything))
+
+    if ray_address is not None:
+        check_ray(ray_address)
+        with _ray_session(ray_address, max(1, workers)) as ray:
+            task = ray.remote(_entry)
+            for ref in [task.remote(job) for job in everything]:      # in order: the pool's order is the jobs'
+                record(ray.get(ref))
+    else:
+        with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
+            for entry in pool.map(_entry, everything):
+                record(entry)
     n = len(jobs["train"])
     return {"train": results[:n], "held_out": results[n:]}
 
