@@ -239,4 +239,5 @@ def test_after_a_cut_starts_each_shot_from_the_model(exported):
     assert cut["cold_frames"] == 2 and cut["clip"].cut_at == 6
     learned, default = scores["learned cold start"], scores["default (half-resolution cold start)"]
     assert np.isfinite(learned["jod"]) and learned["objective_share"] != default["objective_share"]
+    assert "the twin's 2 stages as the cold start" in scores
     assert learned["frames_after_cut"] is None or 1 <= learned["frames_after_cut"] <= 6

@@ -91,7 +91,11 @@ class Case:
     reference: Any
 
     def problem(self, image_u8: np.ndarray) -> Problem:
-        return make_problem(linear(image_u8), self.kernel, self.reference)
+        return self.problem_linear(linear(image_u8))
+
+    def problem_linear(self, target: np.ndarray) -> Problem:
+        """The problem of a linear ``(H, W, 3)`` target."""
+        return make_problem(target, self.kernel, self.reference)
 
 
 def make_case(display_name: str = DISPLAY, eye: dict[str, float] = EYE) -> Case:

@@ -141,7 +141,8 @@ def after_a_cut(model: UnrolledModel, size: int = 256, frames: int = 90, display
     """The real-time default (ADMM, 2 iterations a frame, its CPU twin as the bench of the real-time
     path runs it) on the held-out cut clip (:func:`~vrcorrect.studies.bench.sequences.held_out`), its
     shots started by the half-resolution level (the default) or by the model's pass (the learned
-    cold start, :meth:`~vrcorrect.runtime.strategies.admm.AdmmStrategy.use_first_guess`), judged as
+    cold start, :meth:`~vrcorrect.runtime.strategies.admm.AdmmStrategy.use_first_guess`) or by its
+    unlearned twin's stages (what the learning adds), judged as
     video against no correction and ``fast`` on every frame (:func:`~vrcorrect.studies.bench.realtime.score_clip`),
     on the real-time bench's eye and display (``display_name``: another)."""
     from . import realtime as R
@@ -159,8 +160,19 @@ def after_a_cut(model: UnrolledModel, size: int = 256, frames: int = 90, display
         passes.append(1e3 * (time.perf_counter() - t0))
         return out
 
+    stages = int(model.config["stages"])
+
+    def twin_guess(target: np.ndarray) -> np.ndarray:
+        t_chw = np.ascontiguousarray(np.moveaxis(target, 2, 0), np.float32)
+        lms = np.ascontiguousarray(np.moveaxis(case.problem_linear(target).target_lms, 2, 0), np.float32)
+        z0, d1, d2 = fast_start(case.kernel.kernel, t_chw, lms)
+        z = _admm(case.kernel.kernel, lms, z0, FAST_RHO, FAST_RELAXATION, 1.0, stages, 0.0, duals=(d1, d2),
+                  track=False)[0]
+        return np.moveaxis(z, 0, 2)
+
     none, fast = R.floor_and_ceiling(case, clip)
     runs = {"none": none, "fast": fast, "default (half-resolution cold start)": R.run_clip(case, clip, "admm", 2),
+            f"the twin's {stages} stages as the cold start": R.run_clip(case, clip, "admm", 2, first_guess=twin_guess),
             "learned cold start": R.run_clip(case, clip, "admm", 2, first_guess=guess)}
     return {"clip": clip, "display": display_name, "eye": eye, "scores": R.score_clip(case, clip, runs),
             "pass_ms": statistics.median(passes) if passes else float("nan"), "cold_frames": len(passes)}
@@ -202,7 +214,8 @@ def _cut_lines(cut: dict[str, Any] | None) -> list[str]:
             f"{cut['display']}, eye {e.sphere_D:+.2f} / {e.cylinder_D:+.2f} x {e.axis_deg:.0f}, "
             f"{e.pupil_diameter_mm:.1f} mm, through the real-time default's CPU twin (ADMM, 2 iterations a frame, "
             "warm start moved by the estimated motion, a cold start at the detected cut): each shot's first frame "
-            "started by the half-resolution level (the default) or by the model's pass, judged as video "
+            "started by the half-resolution level (the default), by the model's unlearned twin (the same stages "
+            "from the same start, numpy) or by the model's pass, judged as video "
             f"(ColorVideoVDP) against no correction and `fast` on every frame. The model's pass took "
             f"{cut['pass_ms']:.0f} ms a cold frame on this CPU (onnxruntime, median of {cut['cold_frames']}).", "",
             markdown_table(["start of each shot", "video JOD", "share of fast's JOD gain", "share of the objective "
