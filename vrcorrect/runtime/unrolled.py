@@ -11,7 +11,9 @@ and its duals, where that level pays). The model returns the displayed image, li
 
 ``vrcorrect correct --method learned --model FILE`` takes such a file as well as the older
 learned models (:meth:`UnrolledModel.for_eye` has :class:`~vrcorrect.runtime.learned.LearnedModel`'s
-shape). Not yet wired into the Corrector (its cold start) or the benches.
+shape). The real-time path uses it as the cold start of its iterations
+(``CorrectorOptions.cold_start_model``, ``--cold-start``: :meth:`UnrolledEye.run` on textures) and
+``vrcorrect bench unrolled`` measures it (:mod:`vrcorrect.studies.bench.unrolled`).
 """
 
 from __future__ import annotations
@@ -46,7 +48,8 @@ class UnrolledModel:
 
     def __init__(self, path: str | Path, providers: tuple[str, ...] | None = None):
         self.path = Path(path)
-        self.session, meta = checked_session(self.path, providers, UNROLLED_FORMAT, "vrcorrect.learn.unrolled_export")
+        self.session, meta = checked_session(self.path, providers, UNROLLED_FORMAT,
+                                             "vrcorrect.learn.unrolled_export")
         names = tuple(i.name for i in self.session.get_inputs())
         if names != INPUTS:
             raise ValidationError("model inputs", list(names), ", ".join(INPUTS))

@@ -255,8 +255,9 @@ def _markdown(model: UnrolledModel, path: Path, stages: int, cases: list[dict[st
                                               f"{s['none']['flip_mean']:.3f}", "0"]]),
         "",
         f"Against the issue's goals: the learned model gains at least {100 * JOD_GOAL:.0f} % of `fast`'s JOD gain "
-        f"on {s['jod_goal_met']} of {len(cases)} cases; halving what the twin leaves open would mean closing "
-        f"{_pct(s['halving_goal'])} of the gap (median), and it closes {_pct(s['learned']['gap_median'])}. "
+        f"on {s['jod_goal_met']} of {len(cases)} cases; halving what the twin leaves open (it closes "
+        f"{100 * s['twin']['gap_median']:.1f} % of the gap, median) would mean closing {100 * s['halving_goal']:.1f} %, "
+        f"and the learned model closes {100 * s['learned']['gap_median']:.1f} %. "
         f"FLIP of what the eye sees is worse with the learned model than with its twin on "
         f"{s['flip_learned_worse_than_twin']} of {len(cases)} cases.",
         "",
