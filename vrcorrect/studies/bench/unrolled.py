@@ -57,6 +57,20 @@ START_ROUND_TRIPS = COARSE_ITERATIONS * 2 / 4
 JOD_GOAL = 0.85
 
 
+def twin_stages(kernel: np.ndarray, t_chw: np.ndarray, lms: np.ndarray, stages: int, from_start: bool = True
+                ) -> np.ndarray:
+    """The unlearned twin's output ``(H, W, 3)``: ``stages`` of ``fast``'s ADMM iterations with its
+    settings, from :func:`~vrcorrect.solvers.admm.fast_start` and its duals (``from_start``) or from
+    the target ``t_chw`` with zero duals; ``lms``: the target's cone image ``(3, H, W)``."""
+    if from_start:
+        z0, d1, d2 = fast_start(kernel, t_chw, lms)
+        duals: tuple[np.ndarray, np.ndarray] | None = (d1, d2)
+    else:
+        z0, duals = t_chw, None
+    z = _admm(kernel, lms, z0, FAST_RHO, FAST_RELAXATION, 1.0, stages, 0.0, duals=duals, track=False)[0]
+    return np.moveaxis(z, 0, 2)
+
+
 def _share(none: float, value: float, best: float) -> float:
     gap = none - best
     return (none - value) / gap if abs(gap) > 1e-12 else float("nan")
@@ -96,24 +110,17 @@ def run_unrolled_bench(model_path: str | Path, out: Path = Path("docs/benchmarks
                     shown[method] = np.clip(np.asarray(fn(), np.float32), 0.0, 1.0)
                     ms[method] = 1e3 * (time.perf_counter() - t0)
 
-                def staged(z0: np.ndarray, duals: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
-                    z = _admm(kernel.kernel, lms, z0, FAST_RHO, FAST_RELAXATION, 1.0, stages, 0.0,
-                              duals=duals, track=False)[0]
-                    return np.moveaxis(z, 0, 2)
-
-                def from_start(kind: str) -> np.ndarray:
-                    z0, d1, d2 = fast_start(kernel.kernel, t_chw, lms)
-                    if kind == "twin":
-                        return staged(z0, (d1, d2))
+                def fista_from_start() -> np.ndarray:
+                    z0 = fast_start(kernel.kernel, t_chw, lms)[0]
                     return projected_gradient(p, stages, plan, start=np.moveaxis(z0, 0, 2))
 
                 t0 = time.perf_counter()
                 fast = solve(p, Method.FAST)
                 ms["fast"], shown["fast"] = 1e3 * (time.perf_counter() - t0), fast.image
                 timed("learned", lambda: model.correct(target, e, kernel, reference))
-                timed("twin", lambda: from_start("twin"))
-                timed("admm cold", lambda: staged(t_chw, None))
-                timed("fista", lambda: from_start("fista"))
+                timed("twin", lambda: twin_stages(kernel.kernel, t_chw, lms, stages))
+                timed("admm cold", lambda: twin_stages(kernel.kernel, t_chw, lms, stages, from_start=False))
+                timed("fista", fista_from_start)
                 none_obj = objective(target, p)
                 base, _ = evaluate_seen(target, target, kernel, display, target_lms=p.target_lms)
                 case: dict[str, Any] = {"display": dname, "image": name, "eye": e, "fast_iterations": fast.iterations,
@@ -165,10 +172,7 @@ def after_a_cut(model: UnrolledModel, size: int = 256, frames: int = 90, display
     def twin_guess(target: np.ndarray) -> np.ndarray:
         t_chw = np.ascontiguousarray(np.moveaxis(target, 2, 0), np.float32)
         lms = np.ascontiguousarray(np.moveaxis(case.problem_linear(target).target_lms, 2, 0), np.float32)
-        z0, d1, d2 = fast_start(case.kernel.kernel, t_chw, lms)
-        z = _admm(case.kernel.kernel, lms, z0, FAST_RHO, FAST_RELAXATION, 1.0, stages, 0.0, duals=(d1, d2),
-                  track=False)[0]
-        return np.moveaxis(z, 0, 2)
+        return twin_stages(case.kernel.kernel, t_chw, lms, stages)
 
     none, fast = R.floor_and_ceiling(case, clip)
     runs = {"none": none, "fast": fast, "default (half-resolution cold start)": R.run_clip(case, clip, "admm", 2),
