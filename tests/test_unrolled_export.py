@@ -64,6 +64,24 @@ def test_onnxruntime_equals_torch_on_a_real_eye_at_any_size(exported, size):
     assert np.abs(got - ref).max() <= TOLERANCE
 
 
+def test_an_eye_bound_to_the_model_keeps_its_spectra_per_size_and_equals_the_unbound_pass(exported):
+    run, _, pool = exported
+    entry = pool["held_out"][0]
+    model = UnrolledModel(run / "unrolled.onnx")
+    bound = model.for_eye(entry.eye, get_display("index"), entry.eye_kernel, entry.reference_kernel)
+    photos = dict(bundled_images(80))
+    for name, (H, W) in (("coffee", (33, 47)), ("rocket", (40, 40)), ("chelsea", (33, 47))):   # back to a size it has seen
+        image = decode(get_display("index"), photos[name][:H, :W]).astype(np.float32)
+        got = bound.infer(np.ascontiguousarray(image.transpose(2, 0, 1)))
+        want = model.correct(image, entry.eye, entry.eye_kernel, entry.reference_kernel).transpose(2, 0, 1)
+        assert got.shape == (3, H, W) and np.array_equal(got, want), name
+    assert sorted(bound._spectra) == [(33, 47), (40, 40)]
+    with pytest.raises(ValidationError, match="image.shape"):
+        bound.infer(np.zeros((4, 8, 8), np.float32))
+    bound.release()
+    assert not bound._spectra
+
+
 def test_an_existing_file_is_kept_without_force_and_paths_are_checked(exported):
     run, _, _ = exported
     before = (run / "unrolled.onnx").read_bytes()

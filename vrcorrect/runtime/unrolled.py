@@ -85,20 +85,31 @@ class UnrolledModel:
         ``(H, W, 3)``) seen by ``eye`` through ``kernel`` (``reference_kernel``: the same eye with
         glasses, which sets the target). An eye outside the trained ranges is refused."""
         e = check_eye(eye, self.ranges, f"the model {self.path.name}")
-        img = np.asarray(image, np.float32)
-        if img.ndim != 3 or img.shape[2] != 3:
-            raise ValidationError("image.shape", img.shape, "(height, width, 3)")
-        H, W = img.shape[:2]
+        img = _checked_image(image)
+        return self._run(img, unrolled_features(e, kernel.size, self.ranges), unrolled_spectra(kernel.kernel, img.shape[:2]),
+                         kernel, reference_kernel)
+
+    def _run(self, img: np.ndarray, features: np.ndarray, spectra: tuple[np.ndarray, np.ndarray, float],
+             kernel: EyeKernel, reference_kernel: EyeKernel) -> np.ndarray:
+        """The pass on a checked ``(H, W, 3)`` image, given the eye's features and the kernel's
+        spectra on its grid (what depends on the eye and the size, not on the picture)."""
         t_lms, _ = simulate_lms(img, reference_kernel)
-        spectrum, inverse, norm2 = unrolled_spectra(kernel.kernel, (H, W))
+        spectrum, inverse, norm2 = spectra
         chw = np.ascontiguousarray(img.transpose(2, 0, 1))
         lms = np.ascontiguousarray(t_lms.transpose(2, 0, 1), np.float32)
         z0, d1, d2 = fast_start(kernel.kernel, chw, lms)
         feed = {"target_lms": lms[None], "z0": z0[None], "spectrum": spectrum[None], "inverse": inverse[None],
-                "norm2": np.array([norm2], np.float32), "features": unrolled_features(e, kernel.size, self.ranges)[None],
+                "norm2": np.array([norm2], np.float32), "features": features[None],
                 "target": chw[None], "d1": d1[None], "d2": d2[None]}
         out = self.session.run(None, feed)[0][0]
         return np.ascontiguousarray(out.transpose(1, 2, 0), np.float32)
+
+
+def _checked_image(image: np.ndarray) -> np.ndarray:
+    img = np.asarray(image, np.float32)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ValidationError("image.shape", img.shape, "(height, width, 3)")
+    return img
 
 
 class UnrolledEye:
@@ -108,10 +119,16 @@ class UnrolledEye:
     def __init__(self, model: UnrolledModel, eye: EyeRx, kernel: EyeKernel, reference_kernel: EyeKernel):
         self.model, self.eye, self.kernel, self.reference_kernel = model, eye, kernel, reference_kernel
         self._buffers: dict[tuple[int, int], np.ndarray] = {}
+        # the eye is checked once (UnrolledModel.for_eye); its features once; the spectra once per size
+        self._features = unrolled_features(eye, kernel.size, model.ranges)
+        self._spectra: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, float]] = {}
 
     def infer(self, image_chw: np.ndarray) -> np.ndarray:
-        out = self.model.correct(np.moveaxis(np.asarray(image_chw, np.float32), 0, 2), self.eye, self.kernel,
-                                 self.reference_kernel)
+        img = _checked_image(np.moveaxis(np.asarray(image_chw, np.float32), 0, 2))
+        size = img.shape[:2]
+        if size not in self._spectra:
+            self._spectra[size] = unrolled_spectra(self.kernel.kernel, size)
+        out = self.model._run(img, self._features, self._spectra[size], self.kernel, self.reference_kernel)
         return np.ascontiguousarray(np.moveaxis(out, 2, 0))
 
     def run(self, src_texture: "moderngl.Texture", dst_texture: "moderngl.Texture") -> None:
@@ -121,4 +138,5 @@ class UnrolledEye:
 
     def release(self) -> None:
         self._buffers.clear()
+        self._spectra.clear()
 
