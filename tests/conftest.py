@@ -98,7 +98,7 @@ def headless_gl():
     """The session's headless OpenGL context (EGL, Mesa llvmpipe in CI); released at the end."""
     from vrcorrect.runtime.gl import headless_context
 
-    ctx = headless_context()
+    ctx = headless_context(require=430)          # compute shaders (a driver gives what is asked)
     yield ctx
     ctx.release()
 

@@ -32,6 +32,23 @@ def test_the_default_frame_of_a_quest2_eye_moves_at_most_2_gb(gl):
     real = eye_frame_cost(gl, rx, display, "right", (64, 48), {}, warmup=1)
     assert [(r.name, r.bytes) for r in dry.changing.records] == [(r.name, r.bytes) for r in real.changing.records]
     assert real.frame_ms is not None and dry.frame_ms is None
+    assert real.cold_ms is not None and dry.cold_ms is None and len(real.frame_times_ms) == 1
+
+
+def test_timed_frames_time_every_pass_of_the_frame(gl):
+    """``--frames``: each pass of the changing frame has a measured time (a glFinish around each),
+    the cold frames are timed after a reset (the coarse level's passes run then), and the count of
+    the changing frame is the same as with one timed frame."""
+    rx = load_prescription(bundled_sample_path())
+    display = get_display("quest2")
+    one = eye_frame_cost(gl, rx, display, "right", (64, 48), {}, warmup=1)
+    three = eye_frame_cost(gl, rx, display, "right", (64, 48), {}, warmup=1, frames=3)
+    assert len(three.frame_times_ms) == 3 and all(t > 0 for t in three.frame_times_ms)
+    assert {r.name for r in three.changing.records} <= set(three.pass_ms)
+    assert all(v > 0 for v in three.pass_ms.values())
+    assert [(r.name, r.bytes) for r in one.changing.records] == [(r.name, r.bytes) for r in three.changing.records]
+    with pytest.raises(ValidationError, match="--frames"):
+        eye_frame_cost(gl, rx, display, "right", (64, 48), {}, frames=0)
 
 
 def test_fista_costs_more_than_the_default_by_its_round_trips(gl):
@@ -58,7 +75,8 @@ def test_bench_cost_command_prints_writes_and_refuses_bad_input(tmp_path, capsys
     assert main(["bench", "cost", "--size", "64x48", "--dry-run", "--out", str(out), "--json", str(js)]) == 2
     assert "--force" in capsys.readouterr().err                       # the JSON is not overwritten
     for args, words in ((["--size", "64"], "--size"), (["--size", "8x8"], "--size"),
-                        (["--json", str(tmp_path / "x.txt")], "--json")):
+                        (["--json", str(tmp_path / "x.txt")], "--json"), (["--frames", "0"], "--frames"),
+                        (["--frames", "1001"], "--frames")):
         assert main(["bench", "cost", "--dry-run", "--no-write", *args]) == 2
         err = capsys.readouterr().err
         assert err.startswith("vrcorrect: error:") and words in err and err.count("\n") == 1, err

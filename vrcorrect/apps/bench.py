@@ -53,7 +53,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
             check_writable(Path(args.json), force=args.force)          # before minutes of work
         report = run_cost_bench(size, args.display, args.rx, out=Path(args.out), write=not args.no_write,
                                 json_out=Path(args.json) if args.json else None, dry_run=args.dry_run,
-                                force=args.force)
+                                force=args.force, frames=args.frames)
         print(report["markdown"])
     elif args.what == "layer":
         from ..studies.bench.layer import run_layer_bench
@@ -124,5 +124,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dry-run", action="store_true",
                    help="cost: count the passes without running them (seconds instead of minutes on a software "
                         "renderer; no times)")
+    p.add_argument("--frames", type=int, default=1, metavar="N",
+                   help="cost: time N changing and N cold frames per eye and method, and report the median "
+                        "(default 1; a GPU measurement wants more, e.g. 50)")
     p.add_argument("--force", action="store_true", help="cost: overwrite --json's file")
     p.set_defaults(func=cmd_bench)

@@ -22,6 +22,8 @@ Layer 5: moderngl objects, no numpy arithmetic; never torch.
 
 from __future__ import annotations
 
+import time
+
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence, Union
 
@@ -157,6 +159,10 @@ class Gpu:
         self.dry_run_idle = False
         """With :attr:`dry_run`: count indirect dispatches as given no work groups (what the early
         stop's plan decides on a still, converged view)."""
+        self.pass_times: dict[str, list[float]] | None = None
+        """When a dict: every pass runs between two ``glFinish`` calls and its wall time in ms is
+        appended under its name (``vrcorrect bench cost --frames``: where a frame's time goes; the
+        waits make the frame itself slower, so never while timing whole frames)."""
 
     def begin(self, stage: str) -> None:
         """The passes that follow belong to ``stage``; the stage before it is over."""
@@ -219,11 +225,18 @@ class Gpu:
             if key in program:
                 program[key] = value
         if not self.dry_run:
+            timed = self.pass_times is not None
+            if timed:
+                self.ctx.finish()
+                t0 = time.perf_counter()
             if indirect is not None:
                 program.run_indirect(indirect[0], indirect[1])
             else:
                 program.run(*groups)
             self.ctx.memory_barrier()
+            if timed:
+                self.ctx.finish()
+                self.pass_times.setdefault(name, []).append(1e3 * (time.perf_counter() - t0))
         if indirect is not None and self.ledger is not None and (not self.dry_run or self.dry_run_idle):
             args = (0, 1, 1) if self.dry_run else \
                 tuple(int(v) for v in memoryview(indirect[0].read(12, offset=indirect[1])).cast("I"))
@@ -253,7 +266,14 @@ class Gpu:
         framebuffer.use()
         framebuffer.viewport = viewport
         if not self.dry_run:
+            timed = self.pass_times is not None
+            if timed:
+                self.ctx.finish()
+                t0 = time.perf_counter()
             vao.render(mode=self.ctx.TRIANGLES, vertices=3)
+            if timed:
+                self.ctx.finish()
+                self.pass_times.setdefault(name, []).append(1e3 * (time.perf_counter() - t0))
         attachments = framebuffer.color_attachments
         per_pixel = texel_bytes(attachments[0]) if attachments and hasattr(attachments[0], "dtype") else 4
         self._count(name, (), nread, viewport[2] * viewport[3] * per_pixel, False, "draw")

@@ -15,11 +15,16 @@ figures are the code's, not a formula written beside it.
   a 64 px photograph, ``tests/test_runtime_admm.py``); counted as the plan leaves it (the decode, the
   plan and the present), without running the frames until then.
 * **Projections**: milliseconds per eye at the published peak memory bandwidth of three GPUs
-  (:data:`~vrcorrect.runtime.dispatch.BANDWIDTHS`): a frame of these bandwidth-bound passes cannot
-  be faster than that; real code reaches some fraction of the peak.  They are projections, not
-  measurements: this machine has no GPU.
-* **Measured here**: the frame's wall time on the software renderer (llvmpipe, CPU cores): a
-  measurement of this machine, not of a GPU.
+  (:data:`~vrcorrect.runtime.dispatch.BANDWIDTHS`): a frame of these passes cannot be faster than
+  that; real code reaches some fraction of the peak (on an H100 the default's passes reached 5-12 %
+  of it, docs/realtime.md).  They are projections, not measurements.
+* **Measured**: the frame's wall time on whatever renderer the context has (``GL_RENDERER`` is
+  reported beside it): the median of ``frames`` changing-content frames and of ``frames`` cold frames
+  (each after :meth:`~vrcorrect.runtime.corrector.Corrector.reset`, as a cut makes it), each from the
+  dispatch of the first pass to ``ctx.finish()``.  On llvmpipe that is a measurement of CPU cores; on
+  a GPU's driver it is a measurement of that GPU, and the bytes over the time give the bandwidth the
+  frame reached.  Each pass is timed too, in ``frames`` further frames with a ``glFinish`` before and
+  after it (:attr:`~vrcorrect.runtime.dispatch.Gpu.pass_times`): where the frame's time goes.
 
 The default method is compared with the others the real-time path offers (ADMM in single
 precision, FISTA, the one-pass FFT inverse) in one run.  ``dry_run`` counts without running the
@@ -84,8 +89,11 @@ class MethodCost:
     changing: CostLedger
     still: CostLedger
     cold: CostLedger
-    frame_ms: float | None                  # wall time of the changing frame here (None: dry run)
+    frame_ms: float | None                  # median wall time of the changing frames (None: dry run)
     describe: dict[str, Any]
+    cold_ms: float | None = None            # median wall time of the cold frames (None: dry run)
+    frame_times_ms: tuple[float, ...] = ()  # every timed changing frame
+    pass_ms: dict[str, float] | None = None  # median wall time of each pass, a glFinish around it
 
     def row(self) -> dict[str, Any]:
         c = self.changing
@@ -93,42 +101,67 @@ class MethodCost:
                 "bytes_per_eye_frame": c.bytes, "still_view_bytes": self.still.bytes,
                 "cold_frame_bytes": self.cold.bytes,
                 "projected_ms": {gpu: project_ms(c.bytes, bw) for gpu, (bw, _) in BANDWIDTHS.items()},
-                "measured_ms_here": self.frame_ms, "stages": c.by_stage(), "strategy": self.describe.get("strategy"),
+                "measured_ms": self.frame_ms, "measured_cold_ms": self.cold_ms,
+                "measured_frames_ms": list(self.frame_times_ms), "measured_pass_ms": self.pass_ms, "stages": c.by_stage(), "strategy": self.describe.get("strategy"),
                 "iterations_per_frame": self.describe.get("iterations_per_frame")}
 
 
 def eye_frame_cost(ctx: Any, rx: Prescription, display: Any, eye: str, size: tuple[int, int],
                    options: dict[str, Any], warmup: int = 2, dry_run: bool = False, seed: int = 0,
-                   label: str = "") -> MethodCost:
-    """One eye's frame costs: ``warmup`` frames of changing content (the first, cold, counted), then one
-    counted frame of new content (the budget case, run unless ``dry_run``), then the same picture once
-    more counted as the early stop's plan leaves a converged still view (module docstring)."""
+                   label: str = "", frames: int = 1) -> MethodCost:
+    """One eye's frame costs: ``warmup`` frames of changing content (the first, cold, counted), then
+    ``frames`` timed frames of new content (the budget case; the first counted), then, unless
+    ``dry_run``, ``frames`` more with each pass timed (a ``glFinish`` around it) and ``frames`` timed
+    cold frames (a reset before each, as a cut), then the same picture
+    once more counted as the early stop's plan leaves a converged still view (module docstring)."""
+    if not 1 <= int(frames) <= 1000:
+        raise ValidationError("--frames", frames, "a whole number of timed frames from 1 to 1000")
     rng = np.random.default_rng(seed)
     W, H = size
     corrector = Corrector(ctx, rx, display, eye, **options)
     corrector.gpu.dry_run = dry_run
     src = upload_texture(ctx, rng.integers(0, 256, (H, W, 3), dtype=np.uint8))
     tex, fbo = render_target(ctx, width=W, height=H)
+    pictures = [rng.integers(0, 256, (H, W, 3), dtype=np.uint8) for _ in range(2)]
     try:
-        def frame(new_content: bool) -> float:
+        def frame(new_content: bool, number: int = 0) -> float:
             if new_content:
-                write_texture(src, rng.integers(0, 256, (H, W, 3), dtype=np.uint8))
+                write_texture(src, pictures[number % 2])
+            ctx.finish()                                    # the upload is not the frame's
             t0 = time.perf_counter()
             corrector.apply(src, fbo)
             ctx.finish()
             return 1e3 * (time.perf_counter() - t0)
 
         corrector.ledger = cold = CostLedger()
-        for _ in range(max(warmup, 1)):
-            frame(True)
+        for i in range(max(warmup, 1)):
+            frame(True, i)
             corrector.ledger = None
         corrector.ledger = changing = CostLedger()
-        ms = frame(True)
-        corrector.ledger = None
+        times = []
+        for i in range(int(frames)):
+            times.append(frame(True, i + 1))
+            corrector.ledger = None
+        pass_times: dict[str, list[float]] = {}
+        cold_times = []
+        if not dry_run:
+            corrector.gpu.pass_times = pass_times              # where the time goes: a wait around each pass
+            for i in range(int(frames)):
+                frame(True, i)
+            corrector.gpu.pass_times = None
+            for i in range(int(frames)):
+                corrector.reset()
+                cold_times.append(frame(True, i))
+            for i in range(max(warmup, 1)):                 # back to a warm frame before the still view
+                frame(True, i + 1)
         corrector.gpu.dry_run = corrector.gpu.dry_run_idle = True      # the frame the plan leaves idle
         corrector.ledger = still = CostLedger()
         frame(False)
-        return MethodCost(label, eye, options, changing, still, cold, None if dry_run else ms, corrector.describe())
+        return MethodCost(label, eye, options, changing, still, cold,
+                          None if dry_run else statistics.median(times), corrector.describe(),
+                          None if dry_run else statistics.median(cold_times),
+                          () if dry_run else tuple(times),
+                          None if dry_run else {k: statistics.median(v) for k, v in pass_times.items()})
     finally:
         corrector.release()
         release(fbo, tex, src)
@@ -137,9 +170,12 @@ def eye_frame_cost(ctx: Any, rx: Prescription, display: Any, eye: str, size: tup
 def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "quest2", rx_path: str | None = None,
                    out: Path = Path("docs/benchmarks.md"), json_out: Path | None = None, write: bool = True,
                    dry_run: bool = False, methods: Sequence[tuple[str, dict[str, Any]]] = METHODS,
-                   force: bool = False) -> dict[str, Any]:
-    """Count one frame per eye for each method (module docstring); returns the report (a dict with
-    ``markdown``), writes the ``cost`` section of ``out`` and, with ``json_out``, the JSON."""
+                   force: bool = False, frames: int = 1) -> dict[str, Any]:
+    """Count one frame per eye for each method and time ``frames`` of each kind (module docstring);
+    returns the report (a dict with ``markdown``), writes the ``cost`` section of ``out`` and, with
+    ``json_out``, the JSON."""
+    if not 1 <= int(frames) <= 1000:
+        raise ValidationError("--frames", frames, "a whole number of timed frames from 1 to 1000")
     display = get_display(display_name)
     rx = load_prescription(rx_path or bundled_sample_path())
     ctx = headless_context(require=430)
@@ -150,7 +186,7 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
             for label, options in methods:
                 for eye in VIEW_ORDER:
                     results.append(eye_frame_cost(ctx, rx, display, eye, size, options, dry_run=dry_run,
-                                                  label=label))
+                                                  label=label, frames=frames))
                     bar.update()
     finally:
         ctx.release()
@@ -158,6 +194,7 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
     report = {
         "size": list(size), "display": display.name, "prescription": str(rx_path or bundled_sample_path()),
         "machine": machine_description(), "renderer": renderer, "dry_run": dry_run,
+        "timed_frames": None if dry_run else int(frames),
         "default_options": {k: v for k, v in CorrectorOptions().__dict__.items()
                             if k in ("filter", "iterations_per_frame", "precision")},
         "bandwidths_GBps": {gpu: bw / 1e9 for gpu, (bw, _) in BANDWIDTHS.items()},
@@ -167,7 +204,9 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
                     "bytes_per_eye_frame": max(r.changing.bytes for r in default),
                     "still_view_bytes_per_eye_frame": max(r.still.bytes for r in default),
                     "cold_frame_bytes_per_eye_frame": max(r.cold.bytes for r in default),
-                    "cold_frame_fft_round_trips": max(r.cold.fft_round_trips for r in default)},
+                    "cold_frame_fft_round_trips": max(r.cold.fft_round_trips for r in default),
+                    "measured_ms_per_eye_frame": _worst_ms(default, "frame_ms"),
+                    "measured_cold_ms_per_eye_frame": _worst_ms(default, "cold_ms")},
         "methods": [r.row() for r in results],
     }
     report["markdown"] = _markdown(report, results, size, display.name, renderer, dry_run)
@@ -197,6 +236,37 @@ def _cold_sentence(d: dict[str, Any], gpus: list[str]) -> str:
             + ", ".join(f"{both[g]:.1f} ms on {g}" for g in gpus) + ".")
 
 
+def _worst_ms(results: Sequence[MethodCost], field: str) -> float | None:
+    """The larger eye's median time (None on a dry run)."""
+    times = [getattr(r, field) for r in results if getattr(r, field) is not None]
+    return max(times) if times else None
+
+
+def _software(renderer: str) -> bool:
+    return any(word in renderer.lower() for word in ("llvmpipe", "softpipe", "swrast", "lavapipe"))
+
+
+def _ms(value: float | None) -> str:
+    return "-" if value is None else (f"{value:.0f}" if value >= 100 else f"{value:.2f}")
+
+
+def _measured_sentence(d: dict[str, Any], renderer: str) -> str:
+    """The measured frame, both eyes, against the 90 Hz budget (empty on a dry run)."""
+    ms, cold = d.get("measured_ms_per_eye_frame"), d.get("measured_cold_ms_per_eye_frame")
+    if ms is None:
+        return ""
+    what = "on this machine's software renderer (CPU cores, not a GPU)" if _software(renderer) else f"on {renderer}"
+    return (f"**Measured {what}**: both eyes of a changing frame take {_ms(2 * ms)} ms "
+            f"({100 * 2 * ms / FRAME_BUDGET_MS:.0f} % of a 90 Hz frame), {_rate(d['bytes_per_eye_frame'], ms)} GB/s "
+            f"reached; both eyes of a shot's first frame {_ms(2 * cold)} ms. ")
+
+
+def _rate(bytes_moved: int, ms: float) -> str:
+    """GB/s: ``bytes_moved`` in ``ms``."""
+    rate = bytes_moved / (ms / 1e3) / 1e9
+    return f"{rate:.0f}" if rate >= 10 else f"{rate:.2g}"
+
+
 def _gb(n: int) -> str:
     return f"{n / 1e9:.2f}"
 
@@ -208,24 +278,38 @@ def _markdown(report: dict, results: list[MethodCost], size: tuple[int, int], di
     by_label: dict[str, list[MethodCost]] = {}
     for r in results:
         by_label.setdefault(r.label, []).append(r)
+    software = _software(renderer)
+    where = f"{renderer}, a CPU" if software else renderer
     rows = []
     for label, rs in by_label.items():
         worst = max(rs, key=lambda r: r.changing.bytes)
         b = worst.changing.bytes
-        ms_here = [r.frame_ms for r in rs if r.frame_ms is not None]
+        ms = _worst_ms(rs, "frame_ms")
         rows.append([label, worst.changing.dispatches, worst.changing.fft_round_trips, _gb(b),
                      _gb(max(r.still.bytes for r in rs)), _gb(max(r.cold.bytes for r in rs)),
                      *(f"{project_ms(b, BANDWIDTHS[g][0]):.2f}" for g in gpus),
-                     f"{statistics.median(ms_here) / 1e3:.1f}" if ms_here else "-"])
+                     _ms(ms), _ms(_worst_ms(rs, "cold_ms")),
+                     "-" if ms is None else _rate(b, ms)])
     table = markdown_table(["method", "dispatches", "FFT round trips", "GB per eye frame, changing content",
                             "GB per eye frame, still view", "GB per eye frame, cold (a shot's first)",
                             *(f"projected ms per eye, {g}" for g in gpus),
-                            "measured s per eye here (llvmpipe)"], rows)
+                            "measured ms per eye, changing", "measured ms per eye, cold",
+                            "GB/s reached, changing"], rows)
     default = by_label[next(iter(by_label))]
     stages = max(default, key=lambda r: r.changing.bytes).changing
-    passes = markdown_table(["stage", "pass", "MB read", "MB written", "FFT round trip"],
-                            [[p.stage, p.name, f"{p.bytes_read / 1e6:.1f}", f"{p.bytes_written / 1e6:.1f}",
-                              "yes" if p.round_trip else ""] for p in stages.records])
+    timed = max(default, key=lambda r: r.changing.bytes).pass_ms
+
+    def measured(p: Any) -> list[str]:
+        ms = (timed or {}).get(p.name)
+        if ms is None:
+            return ["-", "-"]
+        return [_ms(ms), _rate(p.bytes_read + p.bytes_written, ms)]
+
+    passes = markdown_table(["stage", "pass", "work groups", "MB read", "MB written", "FFT round trip",
+                             "measured ms", "GB/s reached"],
+                            [[p.stage, p.name, "x".join(str(g) for g in p.groups) or "draw",
+                              f"{p.bytes_read / 1e6:.1f}", f"{p.bytes_written / 1e6:.1f}",
+                              "yes" if p.round_trip else "", *measured(p)] for p in stages.records])
     d = report["default"]
     both = {g: 2 * project_ms(d["bytes_per_eye_frame"], BANDWIDTHS[g][0]) for g in gpus}
     fista = by_label.get("fista, k = 4")
@@ -243,8 +327,12 @@ def _markdown(report: dict, results: list[MethodCost], size: tuple[int, int], di
         "The budget case is content that changes every frame (a new picture each frame, the warm start carried "
         "over); the still view is the same picture frame after frame. Projected milliseconds are the bytes at the "
         "GPU's published peak memory bandwidth: a lower bound for these bandwidth-bound passes, **a projection, "
-        f"not a measurement** (this machine has no GPU); {sources}. The last column is this machine's software "
-        "renderer, a CPU.\n\n"
+        f"not a measurement**; {sources}. "
+        + ("The measured columns were not run (dry run)." if dry_run else
+           f"The measured columns are wall times on {where}, from the first pass's dispatch to `glFinish`, the "
+           f"median of {report['timed_frames']} frame(s) of each kind (a cold frame after a reset, as a cut), the "
+           "larger eye's; the last column is the changing frame's counted bytes over its measured time"
+           + (" (a CPU's, not a GPU's)." if software else ".")) + "\n\n"
         + table + "\n\n"
         f"**The default** ({report['default_options']['filter']}, {report['default_options']['iterations_per_frame']} "
         f"iterations a frame, {report['default_options']['precision']} precision): {d['dispatches']} dispatches, "
@@ -256,6 +344,9 @@ def _markdown(report: dict, results: list[MethodCost], size: tuple[int, int], di
         + f" against the {FRAME_BUDGET_MS:.1f} ms of a 90 Hz frame: "
         + (f"inside the budget on {', '.join(fits)} at peak bandwidth" if fits else "outside it on all three")
         + (f"; at 75 % of the peak, as well-tuned bandwidth-bound code reaches, on {', '.join(fits_75)}"
-           if fits_75 != fits else "") + ". " + _still_sentence(d) + " " + _cold_sentence(d, gpus) + "\n\n"
-        "The default's passes, changing content, one eye:\n\n" + passes + "\n"
+           if fits_75 != fits else "") + ". " + _measured_sentence(d, renderer) + _still_sentence(d) + " "
+        + _cold_sentence(d, gpus) + "\n\n"
+        "The default's passes, changing content, one eye"
+        + ("" if dry_run else f" (measured: the median of {report['timed_frames']} frame(s) with a `glFinish` before "
+           f"and after each pass, on {where}; the waits add a little to each)") + ":\n\n" + passes + "\n"
     )
