@@ -46,6 +46,7 @@ def test_timed_frames_time_every_pass_of_the_frame(gl):
     assert len(three.frame_times_ms) == 3 and all(t > 0 for t in three.frame_times_ms)
     assert {r.name for r in three.changing.records} <= set(three.pass_ms)
     assert all(v > 0 for v in three.pass_ms.values())
+    assert three.gpu_ms is not None and 0 < three.gpu_ms <= 1.5 * max(three.frame_times_ms)
     assert [(r.name, r.bytes) for r in one.changing.records] == [(r.name, r.bytes) for r in three.changing.records]
     with pytest.raises(ValidationError, match="--frames"):
         eye_frame_cost(gl, rx, display, "right", (64, 48), {}, frames=0)
