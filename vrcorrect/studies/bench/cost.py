@@ -130,9 +130,12 @@ def eye_frame_cost(ctx: Any, rx: Prescription, display: Any, eye: str, size: tup
         query = None if dry_run else ctx.query(time=True)
         gpu_times: list[float] = []
 
-        def frame(new_content: bool, number: int = 0, gpu_time: bool = False) -> float:
-            if new_content:
-                write_texture(src, pictures[number % 2])
+        shown = [0]                                         # frames of new content so far
+
+        def frame(new_content: bool, gpu_time: bool = False) -> float:
+            if new_content:                                 # the two pictures in turn: never the last one
+                shown[0] += 1
+                write_texture(src, pictures[shown[0] % 2])
             ctx.finish()                                    # the upload is not the frame's
             t0 = time.perf_counter()
             if gpu_time and query is not None:
@@ -149,26 +152,26 @@ def eye_frame_cost(ctx: Any, rx: Prescription, display: Any, eye: str, size: tup
             return ms
 
         corrector.ledger = cold = CostLedger()
-        for i in range(max(warmup, 1)):
-            frame(True, i)
+        for _ in range(max(warmup, 1)):
+            frame(True)
             corrector.ledger = None
         corrector.ledger = changing = CostLedger()
         times = []
-        for i in range(int(frames)):
-            times.append(frame(True, i + 1, gpu_time=True))
+        for _ in range(int(frames)):
+            times.append(frame(True, gpu_time=True))
             corrector.ledger = None
         pass_times: dict[str, list[float]] = {}
         cold_times = []
         if not dry_run:
             corrector.gpu.pass_times = pass_times              # where the time goes: a wait around each pass
-            for i in range(int(frames)):
-                frame(True, i)
+            for _ in range(int(frames)):
+                frame(True)
             corrector.gpu.pass_times = None
-            for i in range(int(frames)):
+            for _ in range(int(frames)):
                 corrector.reset()
-                cold_times.append(frame(True, i))
-            for i in range(max(warmup, 1)):                 # back to a warm frame before the still view
-                frame(True, i + 1)
+                cold_times.append(frame(True))
+            for _ in range(max(warmup, 1)):                 # back to a warm frame before the still view
+                frame(True)
         corrector.gpu.dry_run = corrector.gpu.dry_run_idle = True      # the frame the plan leaves idle
         corrector.ledger = still = CostLedger()
         frame(False)
