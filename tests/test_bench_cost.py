@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from vrcorrect.studies.bench.cost import TARGET_BYTES, eye_frame_cost, parse_size
+from vrcorrect.studies.bench.cost import TARGET_BYTES, _measured_sentence, eye_frame_cost, parse_size
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.specs.display import get_display
 from vrcorrect.specs.prescription import bundled_sample_path, load_prescription
@@ -87,3 +87,16 @@ def test_parse_size():
     assert parse_size("1832x1920") == (1832, 1920)
     with pytest.raises(ValidationError, match="WxH"):
         parse_size("4097x16")
+
+
+def test_a_measurement_on_a_projected_gpu_is_set_beside_its_projection():
+    """The H100 measured 2026-11-26 (6.73 ms per eye for 1.79 GB) is 13x its peak-bandwidth
+    projection (0.53 ms); a software renderer and another card get no such comparison."""
+    d = {"measured_ms_per_eye_frame": 6.73, "measured_cold_ms_per_eye_frame": 12.51,
+         "measured_gpu_ms_per_eye_frame": 5.97, "bytes_per_eye_frame": 1_788_414_216}
+    h100 = _measured_sentence(d, "NVIDIA H100 80GB HBM3/PCIe/SSE2")
+    assert "13.46 ms" in h100 and "121 %" in h100 and "13x the 0.53 ms per eye projected for H100 SXM" in h100
+    assert "projected for" not in _measured_sentence(d, "NVIDIA H100 PCIe/PCIe/SSE2")
+    software = _measured_sentence(d, "llvmpipe (LLVM 15.0.6, 256 bits)")
+    assert "not a GPU" in software and "projected for" not in software
+    assert _measured_sentence({**d, "measured_ms_per_eye_frame": None}, "llvmpipe") == ""
