@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,8 +13,8 @@ import torch
 
 from vrcorrect.learn.train import objective_per_sample
 from vrcorrect.learn.unrolled import twin
-from vrcorrect.learn.unrolled_train import (UnrolledTrainConfig, build_pool, evaluate, fast_objectives, load_unrolled,
-                                            make_batch, run_model, train_unrolled)
+from vrcorrect.learn.unrolled_train import (UnrolledTrainConfig, build_fast_bank, build_pool, evaluate, fast_objectives,
+                                            fast_pull, load_unrolled, make_batch, run_model, train_unrolled)
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.plumbing.images import bundled_images
 
@@ -142,6 +143,7 @@ def test_the_command_refuses_before_any_work(tmp_path, capsys):
     assert (run / "unrolled.pt").read_text() == "mine"
     assert "stages" in _cli_error(["-o", str(run), "--stages", "0", "--force"], capsys)
     assert "crop" in _cli_error(["-o", str(tmp_path / "new"), "--crop-px", "200"], capsys)
+    assert "fast_weight" in _cli_error(["-o", str(tmp_path / "new"), "--fast-weight", "-1"], capsys)
 
 
 def test_the_command_trains_reports_and_exports(tmp_path, capsys):
@@ -157,3 +159,42 @@ def test_the_command_trains_reports_and_exports(tmp_path, capsys):
     assert "trained 3 steps" in out and "its untrained twin" in out and "unrolled.onnx" in out
     assert {p.name for p in run.iterdir()} == {"unrolled.pt", "log.csv", "report.json", "unrolled.onnx"}
     assert UnrolledModel(run / "unrolled.onnx").displays == ["index"]
+
+
+def test_the_pull_towards_fast_is_zero_at_fast_and_one_at_the_target():
+    rng = np.random.default_rng(0)
+    target, fast = (torch.from_numpy(rng.random((2, 3, 8, 8), dtype=np.float32)) for _ in range(2))
+    assert torch.allclose(fast_pull(fast, fast, target), torch.zeros(2))
+    assert torch.allclose(fast_pull(target, fast, target), torch.ones(2))
+    assert (fast_pull(0.5 * (fast + target), fast, target) - 0.25).abs().max() < 1e-6
+
+
+def test_a_run_pulled_towards_fast_ends_nearer_fast_on_its_bank(tmp_path, pool, images):
+    """With a pull towards fast's solution, the crops come from a bank solved before training (each
+    solution is fast's: its objective is the yardstick's), and the trained model ends nearer fast on
+    them than the same run without the pull."""
+    pulled = replace(CONFIG, fast_weight=20.0, fast_bank=4)
+    bank = build_fast_bank(pulled, pool, images[0])
+    assert len(bank) == 4 and all(x.shape == (3, 24, 24) for _, _, x in bank)
+    e, crop, x = bank[0]
+    assert fast_objectives([(pool["train"][e], crop)])[0] == pytest.approx(
+        float(objective_per_sample(torch.from_numpy(x)[None], *[make_batch([pool["train"][e]], [crop])[k]
+                                                               for k in ("kernel", "target_lms")])[0]), rel=1e-6)
+    report = train_unrolled(tmp_path / "pulled", pulled, images[0], images[1], pool=pool, held_out_cases=2, bank=bank)
+    assert report["config"]["fast_weight"] == 20.0 and report["config"]["fast_bank"] == 4
+    plain = train_unrolled(tmp_path / "plain", CONFIG, images[0], images[1], pool=pool, held_out_cases=2)
+    assert plain["config"]["fast_weight"] == 0.0
+    b = make_batch([pool["train"][e] for e, _, _ in bank], [c for _, c, _ in bank])
+    fast = torch.from_numpy(np.stack([x for _, _, x in bank]))
+    with torch.no_grad():
+        near = {name: float(fast_pull(run_model(load_unrolled(tmp_path / name / "unrolled.pt"), b), fast,
+                                      b["target"]).mean()) for name in ("pulled", "plain")}
+    assert near["pulled"] < near["plain"], near
+
+
+def test_a_bad_fast_weight_is_refused_by_name():
+    for value in (-1.0, 1001.0, True, "1"):
+        with pytest.raises(ValidationError, match="fast_weight"):
+            UnrolledTrainConfig(fast_weight=value)
+    with pytest.raises(ValidationError, match="fast_bank"):
+        UnrolledTrainConfig(fast_bank=0)

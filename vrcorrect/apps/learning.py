@@ -78,13 +78,14 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
 
     from ..learn.dataset import HELD_OUT_IMAGES, check_ray
     from ..learn.unrolled_export import export_unrolled
-    from ..learn.unrolled_train import UnrolledTrainConfig, build_pool, train_unrolled
+    from ..learn.unrolled_train import UnrolledTrainConfig, build_fast_bank, build_pool, train_unrolled
     from ..plumbing.fileio import check_writable
 
     check_ray(args.ray)                                             # Ray installed? before any work
     config = UnrolledTrainConfig(stages=args.stages, prior_width=args.prior_width, displays=tuple(args.displays),
                                  eyes_per_display=args.eyes_per_display, crop_px=args.crop_px, batch=args.batch_size,
-                                 steps=args.steps, minutes=args.minutes, seed=args.seed)
+                                 steps=args.steps, minutes=args.minutes, seed=args.seed,
+                                 fast_weight=args.fast_weight, fast_bank=args.fast_bank)
     out = Path(args.out)
     if out.exists() and not out.is_dir():                         # all before minutes of kernels
         raise InputError(f"{out}: exists and is not a folder (-o names the run folder)")
@@ -106,13 +107,22 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
 
     pool = build_pool(config, kernels, workers=max(1, os.cpu_count() or 1), ray_address=args.ray)
     bar.close()
+    bank = None
+    if config.fast_weight > 0:
+        bar = tqdm(desc="fast's solutions", unit="crop", total=config.fast_bank, disable=None, leave=False)
+
+        def solved(done: int, total: int) -> None:
+            bar.update(done - bar.n)
+
+        bank = build_fast_bank(config, pool, train_images, workers=max(1, os.cpu_count() or 1), progress=solved)
+        bar.close()
     bar = tqdm(desc="training", unit="step", total=config.steps, disable=None, leave=False)
 
     def step(n: int, loss: float) -> None:
         bar.update(1)
         bar.set_postfix(loss=f"{loss:.3f}")
 
-    report = train_unrolled(out, config, train_images, held_out, pool=pool, progress=step)
+    report = train_unrolled(out, config, train_images, held_out, pool=pool, progress=step, bank=bank)
     bar.close()
     exported = export_unrolled(out / "unrolled.pt", out / "unrolled.onnx", force=True)
     s = report["share_of_fast_gain"]
@@ -214,6 +224,11 @@ def add_parser(sub) -> None:
     p.add_argument("--steps", type=int, default=2000, help="optimiser steps (2000)")
     p.add_argument("--minutes", type=float, default=90.0, help="stop training after this long (90)")
     p.add_argument("--seed", type=int, default=0, help="seed of the eyes, crops and weights (0)")
+    p.add_argument("--fast-weight", type=float, default=0.0, metavar="W",
+                   help="add W times a pull towards fast's solution to the objective's loss (0: none); the crops "
+                        "then come from a bank whose fast solutions are solved before training")
+    p.add_argument("--fast-bank", type=int, default=64, metavar="N",
+                   help="with --fast-weight: training crops in the bank, each with its eye and fast's solution (64)")
     p.add_argument("--ray", metavar="ADDRESS",
                    help="build the eyes' kernels as Ray tasks on the cluster at ADDRESS (auto, HOST:PORT, "
                         "ray://HOST:10001, or local: a one-node Ray on this machine's CPUs); default: local "

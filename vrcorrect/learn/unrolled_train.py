@@ -3,8 +3,11 @@ every display preset and eyes over a prescription range (issue 25, begun; torch)
 
 No paired targets: the loss is the log of the objective of what the eye sees of the model's output
 (the LMS error against the target's cone image with glasses) over that of the uncorrected image,
-averaged over a batch of random crops, each with its own eye and display. ``fast`` is not a
-training target; it is the yardstick of :func:`evaluate`, which reports the share of ``fast``'s
+averaged over a batch of random crops, each with its own eye and display. With ``fast_weight``
+above zero a pull towards ``fast``'s solution is added (the issue allows it; ``fast`` is the
+objective's own optimum, not a judge): the training then draws from a bank of ``fast_bank`` crops
+whose ``fast`` solutions are solved once, before the first step (:func:`fast_pull`). ``fast`` is
+also the yardstick of :func:`evaluate`, which reports the share of ``fast``'s
 objective gain over no correction that the learned model and its unlearned twin (the same stages,
 no prior, ``fast``'s settings) close on held-out eyes and held-out images.
 
@@ -41,7 +44,8 @@ from .dataset import _pad_kernel, _ray_session, check_ray
 from .train import objective_per_sample, retina
 from .unrolled import UnrolledADMM, UnrolledConfig, kernel_spectra, twin
 
-__all__ = ["UnrolledTrainConfig", "PoolEntry", "build_pool", "train_unrolled", "evaluate", "load_unrolled"]
+__all__ = ["UnrolledTrainConfig", "PoolEntry", "build_pool", "train_unrolled", "evaluate", "load_unrolled",
+           "fast_solution", "fast_pull", "build_fast_bank"]
 
 @dataclass(frozen=True)
 class UnrolledTrainConfig:
@@ -59,11 +63,13 @@ class UnrolledTrainConfig:
     lr: float = 2e-3
     seed: int = 0
     ranges: SamplingRanges = field(default_factory=SamplingRanges)
+    fast_weight: float = 0.0
+    fast_bank: int = 64
 
     def __post_init__(self) -> None:
         for name, lo, hi in (("stages", 1, 32), ("prior_width", 0, 256), ("eyes_per_display", 1, 1000),
                              ("held_out_eyes_per_display", 1, 1000), ("crop_px", 16, 512), ("batch", 1, 1024),
-                             ("steps", 1, 10_000_000), ("seed", 0, 2**32 - 1)):
+                             ("steps", 1, 10_000_000), ("seed", 0, 2**32 - 1), ("fast_bank", 1, 100_000)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
                 raise ValidationError(name, value, f"an integer from {lo} to {hi}")
@@ -71,6 +77,9 @@ class UnrolledTrainConfig:
             raise ValidationError("minutes", self.minutes, "a number of minutes in (0, 1440]")
         if not (isinstance(self.lr, (int, float)) and 0 < self.lr < 1):
             raise ValidationError("lr", self.lr, "a learning rate in (0, 1)")
+        if isinstance(self.fast_weight, bool) or not (isinstance(self.fast_weight, (int, float))
+                                                      and 0 <= self.fast_weight <= 1000):
+            raise ValidationError("fast_weight", self.fast_weight, "a weight from 0 (no pull towards fast) to 1000")
         if not self.displays:
             raise ValidationError("displays", self.displays, "at least one display preset")
         for name in self.displays:
@@ -200,30 +209,75 @@ def evaluate(model: UnrolledADMM, cases: Sequence[tuple[PoolEntry, np.ndarray]],
     return summary
 
 
-def fast_objectives(cases: Sequence[tuple[PoolEntry, np.ndarray]]) -> list[float]:
-    """``fast``'s objective on each case (the yardstick), in the training's own forward model."""
+def fast_solution(entry: PoolEntry, crop: np.ndarray) -> np.ndarray:
+    """``fast``'s displayed image for ``crop`` seen by ``entry``'s eye, ``(3, h, w)`` float32 linear RGB,
+    in the training's own forward model."""
     from ..solvers import solve
     from ..solvers.problem import Problem
 
+    b = make_batch([entry], [crop])
+    problem = Problem(target=b["target"][0].numpy().transpose(1, 2, 0).copy(), kernel=entry.eye_kernel,
+                      target_lms=b["target_lms"][0].numpy().transpose(1, 2, 0).copy(), reference="glasses",
+                      reference_kernel=entry.reference_kernel)
+    shown = solve(problem, Method.FAST).image.astype(np.float32)
+    return np.ascontiguousarray(shown.transpose(2, 0, 1))
+
+
+def _fast_job(job: tuple[PoolEntry, np.ndarray]) -> np.ndarray:
+    return fast_solution(*job)
+
+
+def fast_objectives(cases: Sequence[tuple[PoolEntry, np.ndarray]]) -> list[float]:
+    """``fast``'s objective on each case (the yardstick), in the training's own forward model."""
     out = []
     for entry, crop in cases:
         b = make_batch([entry], [crop])
-        problem = Problem(target=b["target"][0].numpy().transpose(1, 2, 0).copy(), kernel=entry.eye_kernel,
-                          target_lms=b["target_lms"][0].numpy().transpose(1, 2, 0).copy(), reference="glasses",
-                          reference_kernel=entry.reference_kernel)
-        shown = solve(problem, Method.FAST).image.astype(np.float32)
-        x = torch.from_numpy(np.ascontiguousarray(shown.transpose(2, 0, 1)))[None]
+        x = torch.from_numpy(fast_solution(entry, crop))[None]
         out.append(float(objective_per_sample(x, b["kernel"], b["target_lms"])[0]))
     return out
 
 
+def fast_pull(shown: torch.Tensor, fast: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Per sample, the mean squared distance of ``shown`` from ``fast``'s solution over that of the
+    target from it (0 at ``fast``, 1 as far from it as showing the target): a scale-free pull."""
+    dims = tuple(range(1, shown.ndim))
+    return ((shown - fast) ** 2).mean(dim=dims) / ((target - fast) ** 2).mean(dim=dims).clamp_min(1e-10)
+
+
+def build_fast_bank(config: UnrolledTrainConfig, pool: dict[str, list[PoolEntry]], images: Sequence[np.ndarray],
+                    workers: int = 1, progress: Callable[[int, int], None] | None = None
+                    ) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """``config.fast_bank`` training crops, each with a training eye and ``fast``'s solution for it:
+    ``(eye index in pool["train"], crop, solution)``, drawn with the run's seed, solved in ``workers``
+    processes."""
+    rng = np.random.default_rng([config.seed, 4])
+    eyes = [int(i) for i in rng.integers(len(pool["train"]), size=config.fast_bank)]
+    crops = _crops(images, rng, config.fast_bank, config.crop_px)
+    jobs = [(pool["train"][i], c) for i, c in zip(eyes, crops)]
+    solutions: list[np.ndarray] = []
+    if workers > 1:
+        with ProcessPoolExecutor(max_workers=workers) as ex:
+            for x in ex.map(_fast_job, jobs):
+                solutions.append(x)
+                if progress is not None:
+                    progress(len(solutions), len(jobs))
+    else:
+        for job in jobs:
+            solutions.append(_fast_job(job))
+            if progress is not None:
+                progress(len(solutions), len(jobs))
+    return list(zip(eyes, crops, solutions))
+
+
 def train_unrolled(run_dir: str | Path, config: UnrolledTrainConfig, train_images: Sequence[np.ndarray],
                    held_out_images: Sequence[np.ndarray], pool: dict[str, list[PoolEntry]] | None = None,
-                   progress: Callable[[int, float], None] | None = None, held_out_cases: int = 24) -> dict[str, Any]:
+                   progress: Callable[[int, float], None] | None = None, held_out_cases: int = 24,
+                   bank: list[tuple[int, np.ndarray, np.ndarray]] | None = None) -> dict[str, Any]:
     """Train an :class:`UnrolledADMM` for ``config.steps`` steps or ``config.minutes``, whichever
     ends first (cosine learning rate over the steps), evaluate it against its twin on held-out
     eyes and images, and write ``unrolled.pt``, ``log.csv`` and ``report.json`` in ``run_dir``.
-    Returns the report."""
+    With ``config.fast_weight`` above zero the crops come from ``bank`` (:func:`build_fast_bank`;
+    built here, in this process, when not given). Returns the report."""
     import json
 
     run = Path(run_dir)
@@ -235,6 +289,8 @@ def train_unrolled(run_dir: str | Path, config: UnrolledTrainConfig, train_image
     cases = [(pool["held_out"][i % len(pool["held_out"])], c)
              for i, c in enumerate(_crops(held_out_images, held_rng, held_out_cases, config.crop_px))]
     fast_obj = fast_objectives(cases)
+    if config.fast_weight > 0 and bank is None:
+        bank = build_fast_bank(config, pool, train_images)
     model = UnrolledADMM(UnrolledConfig(stages=config.stages, prior_width=config.prior_width,
                                         features=N_UNROLLED_FEATURES))
     optimiser = torch.optim.Adam(model.parameters(), lr=config.lr)
@@ -246,11 +302,19 @@ def train_unrolled(run_dir: str | Path, config: UnrolledTrainConfig, train_image
     t0 = time.perf_counter()
     step = 0
     while step < config.steps and time.perf_counter() - t0 < 60.0 * config.minutes:
-        idx = rng.integers(len(pool["train"]), size=config.batch)
-        b = make_batch([pool["train"][i] for i in idx], _crops(train_images, rng, config.batch, config.crop_px))
-        obj = objective_per_sample(run_model(model, b), b["kernel"], b["target_lms"])
+        if config.fast_weight > 0:
+            drawn = [bank[int(i)] for i in rng.integers(len(bank), size=config.batch)]
+            b = make_batch([pool["train"][e] for e, _, _ in drawn], [c for _, c, _ in drawn])
+        else:
+            idx = rng.integers(len(pool["train"]), size=config.batch)
+            b = make_batch([pool["train"][i] for i in idx], _crops(train_images, rng, config.batch, config.crop_px))
+        shown = run_model(model, b)
+        obj = objective_per_sample(shown, b["kernel"], b["target_lms"])
         base = objective_per_sample(b["target"], b["kernel"], b["target_lms"])
         loss = torch.log(obj / base.clamp_min(1e-12)).mean()
+        if config.fast_weight > 0:
+            fast = torch.from_numpy(np.stack([x for _, _, x in drawn]))
+            loss = loss + config.fast_weight * fast_pull(shown, fast, b["target"]).mean()
         optimiser.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
