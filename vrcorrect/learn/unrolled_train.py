@@ -1,7 +1,7 @@
 """Training the unrolled correction (:mod:`vrcorrect.learn.unrolled`) on the physics objective, for
 every display preset and eyes over a prescription range (issue 25, begun; torch).
 
-No paired targets: the loss is the log of the objective of what the eye sees of the model's output
+By default no paired targets: the loss is the log of the objective of what the eye sees of the model's output
 (the LMS error against the target's cone image with glasses) over that of the uncorrected image,
 averaged over a batch of random crops, each with its own eye and display. With ``fast_weight``
 above zero a pull towards ``fast``'s solution is added (the issue allows it; ``fast`` is the
@@ -15,9 +15,9 @@ The kernels (an eye's cone x primary kernel bank and the same eye with glasses, 
 seconds each; :func:`build_pool` builds them once, in worker processes, and the training draws
 crops against them.
 
-Not yet here (issue 25): ``vrcorrect train`` options for it, Ray for the pool, the ONNX export
-(torch's exporters refuse the complex spectra: the data step must move to real and imaginary
-planes first) and the runtime's cold start.
+The command is ``vrcorrect unroll`` (:mod:`vrcorrect.apps.learning`); the kernels can be built as
+Ray tasks (``--ray``); :mod:`vrcorrect.learn.unrolled_export` writes the ONNX model that
+:mod:`vrcorrect.runtime.unrolled` runs.
 """
 
 from __future__ import annotations
