@@ -134,6 +134,8 @@ def _median(values) -> float | None:
 
 
 def _print_clip_summary(args: argparse.Namespace, plan: clips.ClipPlan, info: dict) -> None:
+    from ..runtime.gl import software_renderer  # on use: start-up time (apps/__init__)
+
     _print_eye(args, info)
     print(f"  {plan.text}")
     iterative = args.backend == Backend.GLSL and info["filter"] in ITERATIVE_FILTERS and args.view != "seen-uncorrected"
@@ -155,7 +157,7 @@ def _print_clip_summary(args: argparse.Namespace, plan: clips.ClipPlan, info: di
         print(f"  median objective {fraction:.3f} of uncorrected (the GPU's own, read one frame late)")
     ms = _median(info["frame_ms"])
     renderer = str(info["renderer"])
-    soft = any(name in renderer.lower() for name in ("llvmpipe", "softpipe", "swrast"))
+    soft = software_renderer(renderer)
     print(f"  median {ms:.1f} ms per frame (upload, correction and read-back)"
           + (f" on {renderer.split(' (')[0]}, Mesa's software renderer on the CPU: a GPU is far faster" if soft else "")
           + f"; build {info['build_s']:.2f} s")

@@ -27,6 +27,7 @@ import io
 import math
 import time
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -209,13 +210,13 @@ def evaluate(model: UnrolledADMM, cases: Sequence[tuple[PoolEntry, np.ndarray]],
     return summary
 
 
-def fast_solution(entry: PoolEntry, crop: np.ndarray) -> np.ndarray:
+def fast_solution(entry: PoolEntry, crop: np.ndarray, batch: dict[str, torch.Tensor] | None = None) -> np.ndarray:
     """``fast``'s displayed image for ``crop`` seen by ``entry``'s eye, ``(3, h, w)`` float32 linear RGB,
-    in the training's own forward model."""
+    in the training's own forward model (``batch``: :func:`make_batch` of them, when already made)."""
     from ..solvers import solve
     from ..solvers.problem import Problem
 
-    b = make_batch([entry], [crop])
+    b = batch if batch is not None else make_batch([entry], [crop])
     problem = Problem(target=b["target"][0].numpy().transpose(1, 2, 0).copy(), kernel=entry.eye_kernel,
                       target_lms=b["target_lms"][0].numpy().transpose(1, 2, 0).copy(), reference="glasses",
                       reference_kernel=entry.reference_kernel)
@@ -232,7 +233,7 @@ def fast_objectives(cases: Sequence[tuple[PoolEntry, np.ndarray]]) -> list[float
     out = []
     for entry, crop in cases:
         b = make_batch([entry], [crop])
-        x = torch.from_numpy(fast_solution(entry, crop))[None]
+        x = torch.from_numpy(fast_solution(entry, crop, b))[None]
         out.append(float(objective_per_sample(x, b["kernel"], b["target_lms"])[0]))
     return out
 
@@ -255,15 +256,9 @@ def build_fast_bank(config: UnrolledTrainConfig, pool: dict[str, list[PoolEntry]
     crops = _crops(images, rng, config.fast_bank, config.crop_px)
     jobs = [(pool["train"][i], c) for i, c in zip(eyes, crops)]
     solutions: list[np.ndarray] = []
-    if workers > 1:
-        with ProcessPoolExecutor(max_workers=workers) as ex:
-            for x in ex.map(_fast_job, jobs):
-                solutions.append(x)
-                if progress is not None:
-                    progress(len(solutions), len(jobs))
-    else:
-        for job in jobs:
-            solutions.append(_fast_job(job))
+    with ProcessPoolExecutor(max_workers=workers) if workers > 1 else nullcontext() as ex:
+        for x in (ex.map if ex is not None else map)(_fast_job, jobs):
+            solutions.append(x)
             if progress is not None:
                 progress(len(solutions), len(jobs))
     return list(zip(eyes, crops, solutions))

@@ -174,6 +174,19 @@ class Gpu:
         """The frame's last stage is over."""
         self.begin("")
 
+    def _pass_start(self) -> float | None:
+        """With :attr:`pass_times` set: wait for the GPU and read the clock (else nothing)."""
+        if self.pass_times is None:
+            return None
+        self.ctx.finish()
+        return time.perf_counter()
+
+    def _pass_end(self, name: str, t0: float | None) -> None:
+        """With a clock read by :meth:`_pass_start`: wait for the pass and record its time."""
+        if t0 is not None and self.pass_times is not None:
+            self.ctx.finish()
+            self.pass_times.setdefault(name, []).append(1e3 * (time.perf_counter() - t0))
+
     def _count(self, name: str, groups: tuple[int, ...], read: int, written: int, round_trip: bool,
                kind: str) -> None:
         if self.ledger is not None:
@@ -225,18 +238,13 @@ class Gpu:
             if key in program:
                 program[key] = value
         if not self.dry_run:
-            timed = self.pass_times is not None
-            if timed:
-                self.ctx.finish()
-                t0 = time.perf_counter()
+            t0 = self._pass_start()
             if indirect is not None:
                 program.run_indirect(indirect[0], indirect[1])
             else:
                 program.run(*groups)
             self.ctx.memory_barrier()
-            if timed:
-                self.ctx.finish()
-                self.pass_times.setdefault(name, []).append(1e3 * (time.perf_counter() - t0))
+            self._pass_end(name, t0)
         if indirect is not None and self.ledger is not None and (not self.dry_run or self.dry_run_idle):
             args = (0, 1, 1) if self.dry_run else \
                 tuple(int(v) for v in memoryview(indirect[0].read(12, offset=indirect[1])).cast("I"))
@@ -266,14 +274,9 @@ class Gpu:
         framebuffer.use()
         framebuffer.viewport = viewport
         if not self.dry_run:
-            timed = self.pass_times is not None
-            if timed:
-                self.ctx.finish()
-                t0 = time.perf_counter()
+            t0 = self._pass_start()
             vao.render(mode=self.ctx.TRIANGLES, vertices=3)
-            if timed:
-                self.ctx.finish()
-                self.pass_times.setdefault(name, []).append(1e3 * (time.perf_counter() - t0))
+            self._pass_end(name, t0)
         attachments = framebuffer.color_attachments
         per_pixel = texel_bytes(attachments[0]) if attachments and hasattr(attachments[0], "dtype") else 4
         self._count(name, (), nread, viewport[2] * viewport[3] * per_pixel, False, "draw")

@@ -124,6 +124,15 @@ def timer_query_ms(raw_ns: object) -> float | None:
     return value / 1e6
 
 
+SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast")
+"""Words in ``GL_RENDERER`` that name Mesa's software renderers (the CPU, not a GPU)."""
+
+
+def software_renderer(renderer: str) -> bool:
+    """Whether ``renderer`` (``GL_RENDERER``) is one of Mesa's software renderers."""
+    return any(word in renderer.lower() for word in SOFTWARE_RENDERERS)
+
+
 def format_ms(ms: float | None, missing: str = "-") -> str:
     """``"12.34"`` for a time in milliseconds, ``missing`` for ``None`` (no valid measurement)."""
     return missing if ms is None else f"{ms:.2f}"

@@ -47,8 +47,8 @@ from ...plumbing.errors import ValidationError
 from ...plumbing.fileio import write_text_atomic
 from ...runtime.corrector import Corrector, CorrectorOptions
 from ...runtime.dispatch import BANDWIDTHS, CostLedger, project_ms
-from ...runtime.gl import (headless_context, release, render_target, timer_query_ms, upload_texture,
-                           write_texture)
+from ...runtime.gl import (format_ms, headless_context, release, render_target, software_renderer, timer_query_ms,
+                           upload_texture, write_texture)
 from ...specs.display import get_display
 from ...specs.prescription import Prescription, bundled_sample_path, load_prescription
 from ...specs.vocabulary import VIEW_ORDER
@@ -109,6 +109,11 @@ class MethodCost:
                 "iterations_per_frame": self.describe.get("iterations_per_frame")}
 
 
+def _check_frames(frames: int) -> None:
+    if not 1 <= int(frames) <= 1000:
+        raise ValidationError("--frames", frames, "a whole number of timed frames from 1 to 1000")
+
+
 def eye_frame_cost(ctx: Any, rx: Prescription, display: Any, eye: str, size: tuple[int, int],
                    options: dict[str, Any], warmup: int = 2, dry_run: bool = False, seed: int = 0,
                    label: str = "", frames: int = 1) -> MethodCost:
@@ -117,8 +122,7 @@ def eye_frame_cost(ctx: Any, rx: Prescription, display: Any, eye: str, size: tup
     ``dry_run``, ``frames`` more with each pass timed (a ``glFinish`` around it) and ``frames`` timed
     cold frames (a reset before each, as a cut), then the same picture
     once more counted as the early stop's plan leaves a converged still view (module docstring)."""
-    if not 1 <= int(frames) <= 1000:
-        raise ValidationError("--frames", frames, "a whole number of timed frames from 1 to 1000")
+    _check_frames(frames)
     rng = np.random.default_rng(seed)
     W, H = size
     corrector = Corrector(ctx, rx, display, eye, **options)
@@ -193,8 +197,7 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
     """Count one frame per eye for each method and time ``frames`` of each kind (module docstring);
     returns the report (a dict with ``markdown``), writes the ``cost`` section of ``out`` and, with
     ``json_out``, the JSON."""
-    if not 1 <= int(frames) <= 1000:
-        raise ValidationError("--frames", frames, "a whole number of timed frames from 1 to 1000")
+    _check_frames(frames)
     display = get_display(display_name)
     rx = load_prescription(rx_path or bundled_sample_path())
     ctx = headless_context(require=430)
@@ -262,12 +265,8 @@ def _worst_ms(results: Sequence[MethodCost], field: str) -> float | None:
     return max(times) if times else None
 
 
-def _software(renderer: str) -> bool:
-    return any(word in renderer.lower() for word in ("llvmpipe", "softpipe", "swrast", "lavapipe"))
-
-
 def _ms(value: float | None) -> str:
-    return "-" if value is None else (f"{value:.0f}" if value >= 100 else f"{value:.2f}")
+    return f"{value:.0f}" if value is not None and value >= 100 else format_ms(value)
 
 
 RENDERER_NAMES = {"RTX 3060": ("RTX 3060",), "RTX 4090": ("RTX 4090",), "H100 SXM": ("H100 80GB HBM3", "H100 SXM")}
@@ -280,7 +279,7 @@ def _measured_sentence(d: dict[str, Any], renderer: str) -> str:
     ms, cold = d.get("measured_ms_per_eye_frame"), d.get("measured_cold_ms_per_eye_frame")
     if ms is None:
         return ""
-    what = "on this machine's software renderer (CPU cores, not a GPU)" if _software(renderer) else f"on {renderer}"
+    what = "on this machine's software renderer (CPU cores, not a GPU)" if software_renderer(renderer) else f"on {renderer}"
     gpu = d.get("measured_gpu_ms_per_eye_frame")
     same = next((g for g, names in RENDERER_NAMES.items() if any(n in renderer for n in names)), None)
     projected = project_ms(d["bytes_per_eye_frame"], BANDWIDTHS[same][0]) if same else None
@@ -310,7 +309,7 @@ def _markdown(report: dict, results: list[MethodCost], size: tuple[int, int], di
     by_label: dict[str, list[MethodCost]] = {}
     for r in results:
         by_label.setdefault(r.label, []).append(r)
-    software = _software(renderer)
+    software = software_renderer(renderer)
     where = f"{renderer}, a CPU" if software else renderer
     rows = []
     for label, rs in by_label.items():
@@ -329,8 +328,8 @@ def _markdown(report: dict, results: list[MethodCost], size: tuple[int, int], di
                             "measured ms per eye, cold",
                             "GB/s reached, changing"], rows)
     default = by_label[next(iter(by_label))]
-    stages = max(default, key=lambda r: r.changing.bytes).changing
-    timed = max(default, key=lambda r: r.changing.bytes).pass_ms
+    larger = max(default, key=lambda r: r.changing.bytes)
+    stages, timed = larger.changing, larger.pass_ms
 
     def measured(p: Any) -> list[str]:
         ms = (timed or {}).get(p.name)
