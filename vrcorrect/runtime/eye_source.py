@@ -214,6 +214,12 @@ class EyeSource:
         if wait:
             self._worker.join(timeout=5.0)
 
+    def join(self, timeout: float) -> bool:
+        """After :meth:`close`: wait at most ``timeout`` s for the worker to end (a design it is running
+        finishes first); True when it has ended."""
+        self._worker.join(timeout=timeout)
+        return not self._worker.is_alive()
+
     # ------------------------------------------------------------------ the worker
 
     def _queue(self, job: tuple[str, object]) -> None:

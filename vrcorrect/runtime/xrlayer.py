@@ -111,6 +111,8 @@ _GL_RGBA16F = 0x881A
 _GL_HANDLE_TYPE_OPAQUE_FD_EXT = 0x9586
 _CHECK_INTERVAL_S = 0.25
 _REPORT_INTERVAL_S = 1.0
+CLOSE_WAIT_S = 30.0
+"""How long the instance's end waits for an eye-model build still running (:meth:`Engine.close`)."""
 _QUERY_MAX_MS = 0xFFFFFFFF / 1e6
 _NEVER = object()
 # shaders/layer_copy.glsl's codes
@@ -388,6 +390,7 @@ class Engine:
         self._rx_failed_stamp: Any = _NEVER          # the stamp of the prescription file that failed to build
         self._build_error: str | None = None
         self._source: EyeSource | None = None        # watches the prescription, designs the eye models
+        self._let_go: list[EyeSource] = []           # sources closed without waiting; joined by close()
         self._display_why: list[str] = []            # why the source's display was chosen (set on its worker)
         self._t0 = 0.0                               # when the source's first designs were asked for
         self._last_check = -1.0
@@ -551,6 +554,7 @@ class Engine:
         """Let the eye source go without waiting for a design it may be running (it ends unused)."""
         if self._source is not None:
             self._source.close(wait=False)
+            self._let_go = [s for s in self._let_go if not s.join(0.0)] + [self._source]   # the ones still running
             self._source = None
 
     def _gl(self) -> "moderngl.Context":
@@ -898,7 +902,17 @@ class Engine:
         self._close_source()
 
     def close(self) -> None:
+        """The instance ends (the application is likely to exit next): wait for any design still
+        running on a let-go source, so that no worker is inside numpy while the process exits (a
+        crash at exit otherwise); at most :data:`CLOSE_WAIT_S` s."""
         self._close_source()
+        running = [s for s in self._let_go if not s.join(0.0)]
+        self._let_go = []
+        if running:
+            self.log.line("waiting for the eye models being built to finish before closing")
+            deadline = time.monotonic() + CLOSE_WAIT_S
+            if not all(s.join(max(0.0, deadline - time.monotonic())) for s in running):
+                self.log.line(f"an eye model build still running after {CLOSE_WAIT_S:g} s; closing anyway")
         self.log.line(f"closed after {self.frames} corrected frames")
 
 
