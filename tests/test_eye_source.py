@@ -246,3 +246,67 @@ def test_close_drops_the_queued_designs(rx, monkeypatch):
     finally:
         held.release.set()
         source.close()
+
+
+def test_join_waits_for_the_running_design_and_says_whether_the_worker_ended(rx, monkeypatch):
+    held = Held(monkeypatch)
+    source = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",))
+    try:
+        source.adjust("right", (0.25, 0.0, 0.0))
+        assert held.entered.wait(60)
+        source.close(wait=False)
+        assert source.join(0.0) is False and source.join(0.2) is False    # held inside the design
+        held.release.set()
+        assert source.join(60) is True
+    finally:
+        held.release.set()
+        source.close()
+
+
+def test_the_layers_end_waits_for_a_build_it_let_go(rx, monkeypatch, tmp_path):
+    """The layer lets its source go without waiting when a session ends; the instance's end
+    (``Engine.close``) then waits for the design still running, so no worker outlives it."""
+    from vrcorrect.runtime import xrlayer
+
+    held = Held(monkeypatch)
+    log = tmp_path / "layer.log"
+    engine = xrlayer.Engine(env={xrlayer.LOG_ENV: str(log)})
+    source = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",))
+    engine._source = source
+    try:
+        source.adjust("right", (0.25, 0.0, 0.0))
+        assert held.entered.wait(60)
+        engine._close_source()                              # the session ends: let go, no wait
+        assert engine._source is None and source.busy
+        closing = threading.Thread(target=engine.close)
+        closing.start()
+        closing.join(0.5)
+        assert closing.is_alive()                           # still waiting for the held design
+        held.release.set()
+        closing.join(60)
+        assert not closing.is_alive() and source.join(0.0)
+        text = log.read_text()
+        assert "waiting for the eye models being built to finish" in text and "still running" not in text
+    finally:
+        held.release.set()
+        source.close()
+
+
+def test_the_layers_end_gives_up_waiting_after_its_limit(rx, monkeypatch, tmp_path):
+    from vrcorrect.runtime import xrlayer
+
+    monkeypatch.setattr(xrlayer, "CLOSE_WAIT_S", 0.3)
+    held = Held(monkeypatch)
+    log = tmp_path / "layer.log"
+    engine = xrlayer.Engine(env={xrlayer.LOG_ENV: str(log)})
+    source = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",))
+    engine._source = source
+    try:
+        source.adjust("right", (0.25, 0.0, 0.0))
+        assert held.entered.wait(60)
+        engine.close()                                      # returns while the design is held
+        assert source.busy
+        assert "still running after 0.3 s; closing anyway" in log.read_text()
+    finally:
+        held.release.set()
+        source.close()

@@ -212,7 +212,7 @@ class EyeSource:
         self._closed = True
         self._jobs.put(None)
         if wait:
-            self._worker.join(timeout=5.0)
+            self.join(5.0)
 
     def join(self, timeout: float) -> bool:
         """After :meth:`close`: wait at most ``timeout`` s for the worker to end (a design it is running
