@@ -259,3 +259,14 @@ def test_after_a_cut_starts_each_shot_from_the_model(exported):
     assert np.isfinite(learned["jod"]) and learned["objective_share"] != default["objective_share"]
     assert "the twin's 2 stages as the cold start" in scores
     assert learned["frames_after_cut"] is None or 1 <= learned["frames_after_cut"] <= 6
+
+
+def test_the_halving_goal_is_read_on_the_mean_gap_left_open():
+    """A case past fast leaves nothing open (not a negative amount), so a model worse than its twin
+    on every case can never read as halving it; by hand: (0.10 + 0 + 0.02) / 3 = 0.04."""
+    from vrcorrect.studies.bench.unrolled import mean_gap_left_open
+
+    assert mean_gap_left_open([0.90, 1.05, 0.98]) == pytest.approx(0.04)
+    twin, worse = [1.04, 1.05, 0.92], [1.02, 1.03, 0.90]          # the twin past fast at the median
+    assert mean_gap_left_open(twin) == pytest.approx(0.08 / 3)
+    assert mean_gap_left_open(worse) > mean_gap_left_open(twin) / 2

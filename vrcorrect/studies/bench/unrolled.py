@@ -195,10 +195,18 @@ def _summary(cases: list[dict[str, Any]]) -> dict[str, Any]:
     out["none"] = {"jod_mean": statistics.fmean(c["jod_none"] for c in cases),
                    "flip_mean": statistics.fmean(c["flip_none"] for c in cases)}
     out["jod_goal_met"] = sum(c["jod_share_learned"] >= JOD_GOAL for c in cases)
-    twin_open = 1.0 - out["twin"]["gap_median"]
-    out["halving_goal"] = out["twin"]["gap_median"] + twin_open / 2
+    out["open_mean"] = {m: mean_gap_left_open([c[f"gap_{m}"] for c in cases]) for m in ("learned", "twin")}
+    out["halving_met"] = out["open_mean"]["learned"] <= out["open_mean"]["twin"] / 2
     out["flip_learned_worse_than_twin"] = sum(c["flip_learned"] > c["flip_twin"] for c in cases)
     return out
+
+
+def mean_gap_left_open(gaps: Sequence[float]) -> float:
+    """The mean over cases of the objective gap to ``fast`` left open, ``1 - gap``, where a case that
+    closes more than the whole gap (past ``fast``) counts 0, not less: the measure the issue's
+    halving goal is read on. A median would not do: once the twin's median passes ``fast``, half of
+    what it "leaves open" is a target below the twin itself."""
+    return statistics.fmean(max(0.0, 1.0 - g) for g in gaps)
 
 
 def _pct(v: float) -> str:
@@ -259,9 +267,9 @@ def _markdown(model: UnrolledModel, path: Path, stages: int, cases: list[dict[st
                                               f"{s['none']['flip_mean']:.3f}", "0"]]),
         "",
         f"Against the issue's goals: the learned model gains at least {100 * JOD_GOAL:.0f} % of `fast`'s JOD gain "
-        f"on {s['jod_goal_met']} of {len(cases)} cases; halving what the twin leaves open (it closes "
-        f"{100 * s['twin']['gap_median']:.1f} % of the gap, median) would mean closing {100 * s['halving_goal']:.1f} %, "
-        f"and the learned model closes {100 * s['learned']['gap_median']:.1f} %. "
+        f"on {s['jod_goal_met']} of {len(cases)} cases. The twin leaves {100 * s['open_mean']['twin']:.2f} % of "
+        f"the gap open on average (a case past `fast` counts 0), the learned model "
+        f"{100 * s['open_mean']['learned']:.2f} %: halving it is {'met' if s['halving_met'] else 'not met'}. "
         f"FLIP of what the eye sees is worse with the learned model than with its twin on "
         f"{s['flip_learned_worse_than_twin']} of {len(cases)} cases.",
         "",
