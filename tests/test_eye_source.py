@@ -263,18 +263,30 @@ def test_join_waits_for_the_running_design_and_says_whether_the_worker_ended(rx,
         source.close()
 
 
+class LayerHeldInABuild:
+    """A layer engine (logging to ``log``) whose eye source is held inside a design (``held``)."""
+
+    def __init__(self, rx, monkeypatch, tmp_path):
+        from vrcorrect.runtime import xrlayer
+
+        self.held = Held(monkeypatch)
+        self.log = tmp_path / "layer.log"
+        self.engine = xrlayer.Engine(env={xrlayer.LOG_ENV: str(self.log)})
+        self.source = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",))
+        self.engine._source = self.source
+        self.source.adjust("right", (0.25, 0.0, 0.0))
+
+    def release(self):
+        self.held.release.set()
+        self.source.close()
+
+
 def test_the_layers_end_waits_for_a_build_it_let_go(rx, monkeypatch, tmp_path):
     """The layer lets its source go without waiting when a session ends; the instance's end
     (``Engine.close``) then waits for the design still running, so no worker outlives it."""
-    from vrcorrect.runtime import xrlayer
-
-    held = Held(monkeypatch)
-    log = tmp_path / "layer.log"
-    engine = xrlayer.Engine(env={xrlayer.LOG_ENV: str(log)})
-    source = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",))
-    engine._source = source
+    layer = LayerHeldInABuild(rx, monkeypatch, tmp_path)
+    engine, source, held, log = layer.engine, layer.source, layer.held, layer.log
     try:
-        source.adjust("right", (0.25, 0.0, 0.0))
         assert held.entered.wait(60)
         engine._close_source()                              # the session ends: let go, no wait
         assert engine._source is None and source.busy
@@ -288,25 +300,18 @@ def test_the_layers_end_waits_for_a_build_it_let_go(rx, monkeypatch, tmp_path):
         text = log.read_text()
         assert "waiting for the eye models being built to finish" in text and "still running" not in text
     finally:
-        held.release.set()
-        source.close()
+        layer.release()
 
 
 def test_the_layers_end_gives_up_waiting_after_its_limit(rx, monkeypatch, tmp_path):
     from vrcorrect.runtime import xrlayer
 
     monkeypatch.setattr(xrlayer, "CLOSE_WAIT_S", 0.3)
-    held = Held(monkeypatch)
-    log = tmp_path / "layer.log"
-    engine = xrlayer.Engine(env={xrlayer.LOG_ENV: str(log)})
-    source = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",))
-    engine._source = source
+    layer = LayerHeldInABuild(rx, monkeypatch, tmp_path)
     try:
-        source.adjust("right", (0.25, 0.0, 0.0))
-        assert held.entered.wait(60)
-        engine.close()                                      # returns while the design is held
-        assert source.busy
-        assert "still running after 0.3 s; closing anyway" in log.read_text()
+        assert layer.held.entered.wait(60)
+        layer.engine.close()                                # returns while the design is held
+        assert layer.source.busy
+        assert "still running after 0.3 s; closing anyway" in layer.log.read_text()
     finally:
-        held.release.set()
-        source.close()
+        layer.release()
