@@ -24,13 +24,14 @@
 // Row spectra are real-to-complex: each real channel keeps columns 0..NX/2 (HX = NX/2 + 1) of its
 // row transform, two channels transformed together as a + ib and split; u_spec is an HX x NY x 6
 // array of complex values, written in place by every pass. One work group per row (NX/PER threads)
-// or per spectrum column (NY/PER threads); each thread keeps PER values of each channel in
+// or per spectrum column (NY/PER threads), PER set for each pass (the strategy's VALUES_PER_THREAD,
+// chosen by GPU time); each thread keeps PER values of each channel in
 // registers and the line being transformed is in shared memory; twiddle factors are a table
 // (u_twiddle: cos, sin of 2 pi m / TW_N, m < TW_N / 2) instead of cos/sin in every butterfly.
 // HALF: 16-bit float storage (rg16f, rgba16f; arithmetic in 32 bits, and a value a pass both stores
 // and uses is used as stored); else 32-bit.
-// Defines: NX, NY, LOG2_NX, LOG2_NY, HX, TW_N, PER, WG_X = NX / PER, WG_Y = NY / PER (the work groups
-// of the row and column passes: a literal, as GLSL 4.30's layout asks), IMG_W, IMG_H, HALF, IDEAL,
+// Defines: NX, NY, LOG2_NX, LOG2_NY, HX, TW_N, PER, WG_X = NX / PER, WG_Y = NY / PER (the work group
+// of this program's row or column pass: a literal, as GLSL 4.30's layout asks), IMG_W, IMG_H, HALF, IDEAL,
 // one pass, its mode.
 #if defined COMPUTE_SHADER
 

@@ -14,6 +14,8 @@ from vrcorrect.plumbing.images import bundled_images
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector
 from vrcorrect.runtime.dispatch import CostLedger, resource_bytes
+from vrcorrect.runtime.strategies import admm as A
+from vrcorrect.runtime.strategies.admm import values_per_thread
 from vrcorrect.solvers import make_problem, objective, solve
 from vrcorrect.solvers.admm import _admm
 from vrcorrect.solvers import guard_weight
@@ -476,6 +478,45 @@ def test_a_cold_frame_starts_from_the_coarse_level_and_the_gpu_equals_its_twin(g
     finally:
         r.release()
         plain.release()
+
+
+def test_values_per_thread_keep_a_work_group_within_1024_threads():
+    """A line's work group is its length over the values per thread: raised where it would pass 1024
+    threads (OpenGL's least limit), lowered to the line's length, else as asked."""
+    assert values_per_thread(2048, 4) == 4
+    assert values_per_thread(4096, 2) == 4          # 2048 threads asked: raised to 1024 threads
+    assert values_per_thread(2048, 1) == 2
+    assert values_per_thread(8, 16) == 8            # a line shorter than the values asked
+    passes = set(A.VALUES_PER_THREAD) | set(A.COARSE_VALUES_PER_THREAD)
+    assert passes == {"ROWS_TARGET", "ROWS_START", "ROWS_UPDATE", "ROWS_GUARD", "COLUMNS"}
+
+
+def test_the_work_group_shape_changes_no_value(gl, wide_clip, monkeypatch):
+    """The same frames (a cold one from the coarse level, then the content moving) with every pass's
+    work group at 2 values a thread and at 8 (and the default's mix of 8, 4 and 2): the GPU's
+    solutions in half precision are equal to the last bit; only the threads that hold the values
+    differ."""
+    def frames(per: int | None, precision: str = "half") -> list[np.ndarray]:
+        if per is not None:
+            table = dict.fromkeys(A.VALUES_PER_THREAD, per)
+            monkeypatch.setattr(A, "VALUES_PER_THREAD", table)
+            monkeypatch.setattr(A, "COARSE_VALUES_PER_THREAD", table)
+        r = Run(gl, precision, 2, size=(CW, CH))
+        try:
+            out = []
+            for f, image in enumerate(wide_clip[:3]):
+                G.write_texture(r.src, image)
+                r.c.apply(r.src, r.fbo, motion_px=None if f == 0 else (-3, -2))
+                out.append(r.c.solution((CW, CH)))
+            return out
+        finally:
+            r.release()
+            monkeypatch.undo()
+
+    default = frames(None)
+    for per in (2, 8):
+        for f, (a, b) in enumerate(zip(default, frames(per))):
+            assert np.array_equal(a, b), (per, f, np.abs(a - b).max())
 
 
 def test_a_cold_frames_coarse_level_is_counted_in_its_stage(gl, wide_clip):

@@ -52,11 +52,29 @@ from .base import GuardResult, IterativeStrategy, Size, float_texture, groups_2d
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
-__all__ = ["AdmmStrategy", "PER_THREAD"]
+__all__ = ["AdmmStrategy", "VALUES_PER_THREAD", "values_per_thread"]
 
-PER_THREAD = 8
-"""Values of each channel one thread of a row or column pass keeps (the work group is the line's
-length over this)."""
+VALUES_PER_THREAD = {"ROWS_TARGET": 8, "ROWS_START": 4, "ROWS_UPDATE": 8, "ROWS_GUARD": 8, "COLUMNS": 4}
+"""Values of each channel one thread of a row or column pass keeps, by pass (the work group is the
+line's length over this). Chosen by GPU time on an H100 at 1832x1920 (2026-11-27; each setting's
+frames timed interleaved with the others' after a warm-up, docs/realtime.md): 8 for every pass took
+5.94 ms an eye, these 4.93 ms, the same output to the last bit. The column passes, which each hold
+six channels and a 3x3 solve a thread, gained most (0.93 to 0.70 ms); the start's row pass gained
+0.25 ms at 4; the update passes are slower at 4 (0.88 ms, against 0.61 at 8)."""
+COARSE_VALUES_PER_THREAD = {**VALUES_PER_THREAD, "COLUMNS": 2}
+"""The same for a cold frame's coarse level (a grid half as wide: 1024 at headset size). There the
+columns at 4 made the cold frame 16.5 ms on the H100, at 8 10.6 ms, at 2 10.0 ms (the same day and
+way of timing; why 4 is slow at that length is not known)."""
+MAX_INVOCATIONS = 1024
+"""Threads a work group may have (OpenGL 4.3's least ``GL_MAX_COMPUTE_WORK_GROUP_INVOCATIONS``)."""
+
+
+def values_per_thread(line: int, per: int) -> int:
+    """Values per thread for a line of ``line`` points: ``per``, raised where the work group would
+    exceed ``MAX_INVOCATIONS`` and lowered to the line's length."""
+    return min(max(int(per), -(-line // MAX_INVOCATIONS)), line)
+
+
 EARLY_STOP_TOLERANCE = 1e-3
 """A still view is converged when two frames' guarded objectives agree to this (relative): the
 passes are then given no work until the target changes (``CorrectorOptions.early_stop``)."""
@@ -177,14 +195,18 @@ class AdmmStrategy(IterativeStrategy):
         dtype = "f2" if self.half else "f4"
         tw_n = max(nx, ny)
         defines = {"NX": nx, "NY": ny, "LOG2_NX": int(math.log2(nx)), "LOG2_NY": int(math.log2(ny)), "HX": hx,
-                   "TW_N": tw_n, "PER": PER_THREAD, "WG_X": nx // PER_THREAD, "WG_Y": ny // PER_THREAD, "IMG_W": W, "IMG_H": H}
+                   "TW_N": tw_n, "IMG_W": W, "IMG_H": H}
         if self.half:
             defines["HALF"] = None
         if m.reference is None:
             defines["IDEAL"] = None
 
+        per_pass = COARSE_VALUES_PER_THREAD if self.coarse_level else VALUES_PER_THREAD
+
         def program(pass_: str, **extra: None) -> "moderngl.ComputeShader":
-            return compile_compute(ctx, "admm.glsl", defines={**defines, pass_: None, **extra})
+            per = values_per_thread(ny if pass_ == "COLUMNS" else nx, per_pass.get(pass_, 8))
+            lines = {"PER": per, "WG_X": nx // per, "WG_Y": ny // per}
+            return compile_compute(ctx, "admm.glsl", defines={**defines, **lines, pass_: None, **extra})
 
         defines["MAX_PASSES"] = len(KINDS)
         programs = {"rows_start": program("ROWS_START"), "cols_admm": program("COLUMNS", MODE_ADMM=None),

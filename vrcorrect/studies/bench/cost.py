@@ -19,7 +19,8 @@ figures are the code's, not a formula written beside it.
   that; real code reaches some fraction of the peak (on an H100 the default's passes reached 5-12 %
   of it, docs/realtime.md).  They are projections, not measurements.
 * **Measured**: the frame's wall time on whatever renderer the context has (``GL_RENDERER`` is
-  reported beside it): the median of ``frames`` changing-content frames and of ``frames`` cold frames
+  reported beside it), after ``WARM_UP_S`` seconds of untimed frames so that a GPU's clocks have
+  risen: the median of ``frames`` changing-content frames and of ``frames`` cold frames
   (each after :meth:`~vrcorrect.runtime.corrector.Corrector.reset`, as a cut makes it), each from the
   dispatch of the first pass to ``ctx.finish()``.  On llvmpipe that is a measurement of CPU cores; on
   a GPU's driver it is a measurement of that GPU, and the bytes over the time give the bandwidth the
@@ -60,6 +61,10 @@ __all__ = ["METHODS", "FRAME_BUDGET_MS", "TARGET_BYTES", "MethodCost", "parse_si
 HEADSET_SIZE = (1832, 1920)                   # one Quest 2 eye, width x height
 FRAME_BUDGET_MS = 1e3 / 90                    # both eyes of a 90 Hz frame
 TARGET_BYTES = 2.0e9                          # the issue's target per eye and frame
+WARM_UP_S = 3.0
+"""Seconds of untimed frames before the timed ones (at least ``warmup`` frames): a GPU raises its
+clocks under load, and on an H100 a frame timed in its first second took 1.5-4x as long as one after
+three (frames of 27, 16, 11 then 9 ms where the settled frame takes 6)."""
 METHODS: tuple[tuple[str, dict[str, Any]], ...] = (
     ("admm (default)", {}),
     ("admm, single precision", {"filter": "admm", "precision": "single"}),
@@ -117,7 +122,8 @@ def _check_frames(frames: int) -> None:
 def eye_frame_cost(ctx: Any, rx: Prescription, display: Any, eye: str, size: tuple[int, int],
                    options: dict[str, Any], warmup: int = 2, dry_run: bool = False, seed: int = 0,
                    label: str = "", frames: int = 1) -> MethodCost:
-    """One eye's frame costs: ``warmup`` frames of changing content (the first, cold, counted), then
+    """One eye's frame costs: ``warmup`` frames of changing content (the first, cold, counted; more
+    until ``WARM_UP_S`` seconds have passed, unless ``dry_run``), then
     ``frames`` timed frames of new content (the budget case; the first counted), then, unless
     ``dry_run``, ``frames`` more with each pass timed (a ``glFinish`` around it) and ``frames`` timed
     cold frames (a reset before each, as a cut), then the same picture
@@ -156,9 +162,13 @@ def eye_frame_cost(ctx: Any, rx: Prescription, display: Any, eye: str, size: tup
             return ms
 
         corrector.ledger = cold = CostLedger()
-        for _ in range(max(warmup, 1)):
+        frame(True)
+        corrector.ledger = None
+        warm_until = time.perf_counter() + (0.0 if dry_run else WARM_UP_S)
+        done = 1
+        while done < warmup or time.perf_counter() < warm_until:
             frame(True)
-            corrector.ledger = None
+            done += 1
         corrector.ledger = changing = CostLedger()
         times = []
         for _ in range(int(frames)):
