@@ -12,7 +12,7 @@ from vrcorrect.physics.kernel import build_kernel, build_reference_kernel
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.plumbing.images import bundled_images
 from vrcorrect.runtime import gl as G
-from vrcorrect.runtime.corrector import Corrector
+from vrcorrect.runtime.corrector import Corrector, CorrectorOptions, build_eye_model
 from vrcorrect.runtime.dispatch import CostLedger, resource_bytes
 from vrcorrect.runtime.strategies import admm as A
 from vrcorrect.runtime.strategies.admm import values_per_thread
@@ -252,27 +252,41 @@ def test_flat_fields_come_back_unchanged_away_from_the_border(gl):
         G.release(fbo, tex, src)
 
 
+STRONG = EyeRx(sphere_D=-12.0, cylinder_D=-3.0, axis_deg=45.0, pupil_diameter_mm=6.0)
+STRONG_OPTIONS = CorrectorOptions(filter="admm", precision="half", iterations_per_frame=2, early_stop=False)
+
+
+@pytest.fixture(scope="module")
+def strong_eye_model():
+    """The far end of the accepted range on quest2, built once (its kernels take a minute here)."""
+    return build_eye_model(STRONG, get_display("quest2"), STRONG_OPTIONS)
+
+
 @pytest.mark.parametrize("image", ["black", "white", "noise"])
-def test_extreme_images_and_a_strong_eye_stay_finite_and_in_range(gl, image):
+def test_extreme_images_and_a_strong_eye_stay_finite_and_in_range(gl, image, strong_eye_model):
     """All black, all white and uniform noise, for a -12 D eye with 6 mm pupil and 3 D of cylinder
     (the far end of the accepted range on quest2): finite solutions in [0, 1], a guard weight in
     [0, 1], a frame no worse than uncorrected."""
     rng = np.random.default_rng(1)
     img = {"black": np.zeros((H, W, 3), np.uint8), "white": np.full((H, W, 3), 255, np.uint8),
            "noise": rng.integers(0, 256, (H, W, 3), dtype=np.uint8)}[image]
-    eye = EyeRx(sphere_D=-12.0, cylinder_D=-3.0, axis_deg=45.0, pupil_diameter_mm=6.0)
-    r = Run(gl, eye=eye)
+    assert strong_eye_model.kernel.size > 64            # a kernel larger than the image
+    c = Corrector(gl, Prescription(right=STRONG, left=STRONG), "quest2", "right", eye_model=strong_eye_model,
+                  options=STRONG_OPTIONS)
+    src = G.upload_texture(gl, img)
+    tex, fbo = G.render_target(gl, width=W, height=H)
     try:
         for _ in range(3):
-            r.frame(img)
-        x = r.c.solution((W, H))
+            c.apply(src, fbo)
+        x = c.solution((W, H))
         assert np.all(np.isfinite(x)) and x.min() >= 0 and x.max() <= 1
-        beta = r.c.last_blend((W, H))
+        beta = c.last_blend((W, H))
         assert 0.0 <= beta <= 1.0
-        fraction = r.c.last_objective_fraction((W, H))
+        fraction = c.last_objective_fraction((W, H))
         assert fraction is None or fraction <= 1.0 + 1e-6
     finally:
-        r.release()
+        c.release()
+        G.release(fbo, tex, src)
 
 
 def test_a_frame_allocates_nothing_after_the_first(gl, clip):
