@@ -53,7 +53,20 @@ def cmd_bench(args: argparse.Namespace) -> int:
             check_writable(Path(args.json), force=args.force)          # before minutes of work
         report = run_cost_bench(size, args.display, args.rx, out=Path(args.out), write=not args.no_write,
                                 json_out=Path(args.json) if args.json else None, dry_run=args.dry_run,
-                                force=args.force, frames=args.frames)
+                                force=args.force, frames=1 if args.frames is None else args.frames)
+        print(report["markdown"])
+    elif args.what == "workgroups":
+        from ..studies.bench.cost import parse_size
+        from ..studies.bench.workgroups import run_workgroup_bench
+
+        size = parse_size(args.size)
+        if args.json:
+            if Path(args.json).suffix.lower() != ".json":
+                raise ValidationError("--json", args.json, "a path ending in .json")
+            check_writable(Path(args.json), force=args.force)
+        report = run_workgroup_bench(size, args.display, args.rx, frames=20 if args.frames is None else args.frames,
+                                     out=Path(args.out), write=not args.no_write,
+                                     json_out=Path(args.json) if args.json else None, force=args.force)
         print(report["markdown"])
     elif args.what == "layer":
         from ..studies.bench.layer import run_layer_bench
@@ -90,18 +103,18 @@ def cmd_bench(args: argparse.Namespace) -> int:
         print(run_unrolled_bench(Path(args.model), out=Path(args.out), eyes=args.eyes, write=not args.no_write)
               ["markdown"])
     else:
-        raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, cost, xr, layer, learned or "
-                              "unrolled")
+        raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, cost, workgroups, xr, layer, "
+                              "learned or unrolled")
     return 0
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md",
-                       description="Measure one thing (kernel builds, solvers, render, realtime, cost, xr, layer, "
-                                   "learned or unrolled), print its table, and write it into its own section of the "
+                       description="Measure one thing (kernel builds, solvers, render, realtime, cost, the work-group "
+                                   "shapes of its passes, xr, layer, learned or unrolled), print its table, and write it into its own section of the "
                                    "benchmarks file (--out), naming the machine it ran on.")
-    p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "cost", "xr", "layer", "learned",
-                                    "unrolled"),
+    p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "cost", "workgroups", "xr", "layer",
+                                    "learned", "unrolled"),
                    help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
     p.add_argument("--resolutions", nargs="+", metavar="R",
@@ -117,15 +130,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "display (default 2)")
     p.add_argument("--quick", action="store_true", help="realtime: fewer frames and sizes (a smoke run)")
     p.add_argument("--size", default="1832x1920", metavar="WxH",
-                   help="cost: each eye's image size (default 1832x1920, a Quest 2 eye)")
-    p.add_argument("--json", metavar="OUT.json", help="cost: also write the figures as JSON there")
-    p.add_argument("--display", default="quest2", help="cost: display preset or profile (default quest2)")
-    p.add_argument("--rx", metavar="RX.json", help="cost: prescription (default: the bundled sample)")
+                   help="cost, workgroups: each eye's image size (default 1832x1920, a Quest 2 eye)")
+    p.add_argument("--json", metavar="OUT.json", help="cost, workgroups: also write the figures as JSON there")
+    p.add_argument("--display", default="quest2",
+                   help="cost, workgroups: display preset or profile (default quest2)")
+    p.add_argument("--rx", metavar="RX.json", help="cost, workgroups: prescription (default: the bundled sample)")
     p.add_argument("--dry-run", action="store_true",
                    help="cost: count the passes without running them (seconds instead of minutes on a software "
                         "renderer; no times)")
-    p.add_argument("--frames", type=int, default=1, metavar="N",
+    p.add_argument("--frames", type=int, metavar="N",
                    help="cost: time N changing and N cold frames per eye and method, and report the median "
-                        "(default 1; a GPU measurement wants more, e.g. 50)")
-    p.add_argument("--force", action="store_true", help="cost: overwrite --json's file")
+                        "(default 1; a GPU measurement wants more, e.g. 50); workgroups: N of each per setting, "
+                        "interleaved (default 20)")
+    p.add_argument("--force", action="store_true", help="cost, workgroups: overwrite --json's file")
     p.set_defaults(func=cmd_bench)

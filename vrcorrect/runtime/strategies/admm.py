@@ -52,13 +52,14 @@ from .base import GuardResult, IterativeStrategy, Size, float_texture, groups_2d
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
-__all__ = ["AdmmStrategy", "VALUES_PER_THREAD", "values_per_thread"]
+__all__ = ["AdmmStrategy", "VALUES_PER_THREAD", "COARSE_VALUES_PER_THREAD", "values_per_thread"]
 
 VALUES_PER_THREAD = {"ROWS_TARGET": 8, "ROWS_START": 4, "ROWS_UPDATE": 8, "ROWS_GUARD": 8, "COLUMNS": 4}
 """Values of each channel one thread of a row or column pass keeps, by pass (the work group is the
 line's length over this). Chosen by GPU time on an H100 at 1832x1920 (2026-11-27; each setting's
-frames timed interleaved with the others' after a warm-up, docs/realtime.md): 8 for every pass took
-5.94 ms an eye, these 4.93 ms, the same output to the last bit. The column passes, which each hold
+frames timed interleaved with the others' after a warm-up, docs/realtime.md; ``vrcorrect bench
+workgroups`` reruns the comparison): 8 for every pass took 5.94 ms an eye, these 4.93 ms, the same
+output to the last bit. The column passes, which each hold
 six channels and a 3x3 solve a thread, gained most (0.93 to 0.70 ms); the start's row pass gained
 0.25 ms at 4; the update passes are slower at 4 (0.88 ms, against 0.61 at 8)."""
 COARSE_VALUES_PER_THREAD = {**VALUES_PER_THREAD, "COLUMNS": 2}

@@ -9,6 +9,7 @@ installed package, another folder) it must be named, so a run never writes a str
 
 from __future__ import annotations
 
+import json
 import os
 import platform
 import re
@@ -74,6 +75,18 @@ def write_section(path: Path, name: str, body: str) -> None:
     else:
         text = text.rstrip() + "\n\n" + block + "\n"
     write_text_atomic(path, text, force=True)
+
+
+def publish(report: dict, name: str, out: Path, write: bool, json_out: Path | None, force: bool) -> dict:
+    """Write a bench's ``report`` (a dict with ``markdown``): with ``json_out``, everything but the
+    markdown as JSON there (``force`` to overwrite); with ``write``, the markdown as section ``name``
+    of ``out``. Returns the report."""
+    if json_out is not None:
+        write_text_atomic(json_out, json.dumps({k: v for k, v in report.items() if k != "markdown"}, indent=2) + "\n",
+                          force=force)
+    if write:
+        write_section(out, name, report["markdown"])
+    return report
 
 
 # ---------------------------------------------------------------- where the command writes

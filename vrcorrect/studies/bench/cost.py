@@ -34,7 +34,6 @@ passes (seconds instead of minutes on a software renderer; no wall times then). 
 
 from __future__ import annotations
 
-import json
 import statistics
 import time
 from dataclasses import dataclass
@@ -45,7 +44,6 @@ import numpy as np
 from tqdm import tqdm
 
 from ...plumbing.errors import ValidationError
-from ...plumbing.fileio import write_text_atomic
 from ...runtime.corrector import Corrector, CorrectorOptions
 from ...runtime.dispatch import BANDWIDTHS, CostLedger, project_ms
 from ...runtime.gl import (format_ms, headless_context, release, render_target, software_renderer, timer_query_ms,
@@ -53,7 +51,7 @@ from ...runtime.gl import (format_ms, headless_context, release, render_target, 
 from ...specs.display import get_display
 from ...specs.prescription import Prescription, bundled_sample_path, load_prescription
 from ...specs.vocabulary import VIEW_ORDER
-from . import machine_description, markdown_table, write_section
+from . import machine_description, markdown_table, publish
 
 __all__ = ["METHODS", "FRAME_BUDGET_MS", "TARGET_BYTES", "MethodCost", "parse_size", "eye_frame_cost",
            "run_cost_bench"]
@@ -243,12 +241,7 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
         "methods": [r.row() for r in results],
     }
     report["markdown"] = _markdown(report, results, size, display.name, renderer, dry_run)
-    if json_out is not None:
-        write_text_atomic(json_out, json.dumps({k: v for k, v in report.items() if k != "markdown"}, indent=2) + "\n",
-                          force=force)
-    if write:
-        write_section(out, "cost", report["markdown"])
-    return report
+    return publish(report, "cost", out, write, json_out, force)
 
 
 def _still_sentence(d: dict[str, Any]) -> str:

@@ -1,0 +1,216 @@
+"""``vrcorrect bench workgroups``: the real-time default's frame under several work-group shapes,
+timed on whatever GPU the context has, to choose (or check) each pass's values per thread.
+
+A row or column pass of the ADMM frame runs one work group per line of the spectrum grid; each of
+its threads holds some values of each channel of that line, and the work group is the line's length
+over that number (:data:`~vrcorrect.runtime.strategies.admm.VALUES_PER_THREAD`, per pass, and
+:data:`~vrcorrect.runtime.strategies.admm.COARSE_VALUES_PER_THREAD` for a cold frame's
+half-resolution level). The shape changes no value, only which thread holds it; what it changes is
+how well the GPU is occupied, which no byte count shows.
+
+Each setting below gets its own :class:`~vrcorrect.runtime.corrector.Corrector` on one eye (the
+eye model built once). After :data:`~vrcorrect.studies.bench.cost.WARM_UP_S` seconds of untimed
+frames (a GPU raises its clocks under load), the settings' frames are timed **interleaved**, in
+rounds of :data:`PER_ROUND` (two untimed frames first), the order reversed every other round, so that
+a drift of the clocks falls on every setting alike: changing content (a new picture each frame, the
+budget case) and cold frames (a reset before each, as a cut). Each frame's GPU time comes from a
+``GL_TIME_ELAPSED`` query around it; the medians are reported. Every setting's output after the same
+three frames is compared with the default's, to the last bit of the 8-bit picture.
+
+On llvmpipe the figures measure CPU cores, not a GPU: the command runs there (the tests run it), but
+its choice is for a GPU. Layer 6.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+from ...plumbing.errors import ValidationError
+from ...runtime.corrector import Corrector, CorrectorOptions, build_eye_model
+from ...runtime.gl import (headless_context, read_framebuffer, release, render_target, timer_query_ms,
+                           upload_texture, write_texture)
+from ...runtime.strategies import admm as admm_strategy
+from ...specs.display import get_display
+from ...specs.prescription import bundled_sample_path, load_prescription
+from . import machine_description, markdown_table, publish
+from .cost import HEADSET_SIZE, WARM_UP_S
+
+__all__ = ["PASSES", "SETTINGS", "PER_ROUND", "Setting", "run_workgroup_bench"]
+
+PASSES = ("ROWS_TARGET", "ROWS_START", "ROWS_UPDATE", "ROWS_GUARD", "COLUMNS")
+"""The passes that have a work-group shape, in the order the tables print them."""
+PER_ROUND = 5
+"""Timed frames of one setting in a row before the next setting's."""
+
+
+@dataclass(frozen=True)
+class Setting:
+    """A label and the values per thread of each pass (full resolution, and the coarse level's)."""
+
+    label: str
+    full: Mapping[str, int]
+    coarse: Mapping[str, int]
+
+
+def _every(per: int) -> dict[str, int]:
+    return dict.fromkeys(PASSES, per)
+
+
+def _default() -> Setting:
+    return Setting("the default", dict(admm_strategy.VALUES_PER_THREAD), dict(admm_strategy.COARSE_VALUES_PER_THREAD))
+
+
+SETTINGS: tuple[Setting, ...] = (
+    _default(),
+    Setting("8 everywhere (before 2026-11-27)", _every(8), _every(8)),
+    Setting("4 everywhere", _every(4), _every(4)),
+    Setting("2 everywhere", _every(2), _every(2)),
+    Setting("columns 4, rows 8", {**_every(8), "COLUMNS": 4}, {**_every(8), "COLUMNS": 4}),
+    Setting("the default, coarse columns 8", dict(admm_strategy.VALUES_PER_THREAD),
+            {**admm_strategy.COARSE_VALUES_PER_THREAD, "COLUMNS": 8}),
+)
+"""The settings compared, the default first (the ratios are to it)."""
+
+
+class _Shape:
+    """Sets the strategy's tables for the correctors built inside it, and puts them back."""
+
+    def __init__(self, setting: Setting):
+        self.setting = setting
+
+    def __enter__(self) -> None:
+        self.saved = admm_strategy.VALUES_PER_THREAD, admm_strategy.COARSE_VALUES_PER_THREAD
+        admm_strategy.VALUES_PER_THREAD = dict(self.setting.full)
+        admm_strategy.COARSE_VALUES_PER_THREAD = dict(self.setting.coarse)
+
+    def __exit__(self, *exc: object) -> None:
+        admm_strategy.VALUES_PER_THREAD, admm_strategy.COARSE_VALUES_PER_THREAD = self.saved
+
+
+def _check(frames: int) -> None:
+    if not 1 <= int(frames) <= 1000:
+        raise ValidationError("--frames", frames, "a whole number of timed frames per setting from 1 to 1000")
+
+
+def run_workgroup_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "quest2",
+                        rx_path: str | None = None, frames: int = 20, settings: Sequence[Setting] = SETTINGS,
+                        eye: str = "right", out: Path = Path("docs/benchmarks.md"), write: bool = True,
+                        json_out: Path | None = None, force: bool = False, warm_up_s: float = WARM_UP_S,
+                        progress: bool = True) -> dict[str, Any]:
+    """Time the default frame under each setting (module docstring): ``frames`` changing and
+    ``frames`` cold frames each; returns the report (``rows``, ``markdown``), writes the
+    ``workgroups`` section of ``out`` and, with ``json_out``, the JSON."""
+    _check(frames)
+    display = get_display(display_name)
+    rx = load_prescription(rx_path or bundled_sample_path())
+    W, H = size
+    ctx = headless_context(require=430)
+    renderer = ctx.info.get("GL_RENDERER", "?")
+    model = build_eye_model(rx.eye(eye), display, CorrectorOptions())
+    rng = np.random.default_rng(0)
+    pictures = [rng.integers(0, 256, (H, W, 3), dtype=np.uint8) for _ in range(2)]
+    src = upload_texture(ctx, pictures[0])
+    tex, fbo = render_target(ctx, width=W, height=H)
+    query = ctx.query(time=True)
+    correctors: list[Corrector] = []
+    shown = [0]
+
+    def frame(c: Corrector, cold: bool = False, timed: bool = False) -> float | None:
+        shown[0] += 1
+        write_texture(src, pictures[shown[0] % 2])
+        if cold:
+            c.reset()
+        ctx.finish()
+        if not timed:
+            c.apply(src, fbo)
+            return None
+        with query:
+            c.apply(src, fbo)
+        ctx.finish()
+        return timer_query_ms(query.elapsed)
+
+    try:
+        outputs = []
+        for s in settings:
+            with _Shape(s):
+                c = Corrector(ctx, rx, display, eye, eye_model=model)
+                correctors.append(c)
+                for p in (0, 1, 0):                      # the same three frames for every setting
+                    write_texture(src, pictures[p])
+                    c.apply(src, fbo)
+                outputs.append(read_framebuffer(fbo))
+        until = time.perf_counter() + warm_up_s
+        while time.perf_counter() < until:
+            frame(correctors[0])
+        rounds = -(-int(frames) // PER_ROUND)
+        changing: list[list[float]] = [[] for _ in settings]
+        cold: list[list[float]] = [[] for _ in settings]
+        order = list(range(len(settings)))
+        with tqdm(total=2 * rounds * len(settings), desc="bench workgroups", unit="run", leave=False,
+                  disable=None if progress else True) as bar:
+            for r in range(rounds):
+                for i in (order if r % 2 == 0 else order[::-1]):
+                    n = min(PER_ROUND, int(frames) - r * PER_ROUND)
+                    for kind, times in ((False, changing[i]), (True, cold[i])):
+                        for _ in range(2):
+                            frame(correctors[i], cold=kind)
+                        for _ in range(n):
+                            ms = frame(correctors[i], cold=kind, timed=True)
+                            if ms is not None:                 # None: a saturated query (4.29 s or more)
+                                times.append(ms)
+                        bar.update()
+    finally:
+        for c in correctors:
+            c.release()
+        release(fbo, tex, src)
+        ctx.release()
+    rows = []
+    for s, out_image, ch, co in zip(settings, outputs, changing, cold):
+        rows.append({"setting": s.label, "values_per_thread": dict(s.full), "coarse_values_per_thread": dict(s.coarse),
+                     "changing_gpu_ms": statistics.median(ch) if ch else None,
+                     "cold_gpu_ms": statistics.median(co) if co else None,
+                     "changing_frames_ms": ch, "cold_frames_ms": co,
+                     "same_output_as_default": bool(np.array_equal(out_image, outputs[0]))})
+    report = {"size": [W, H], "display": display.name, "eye": eye, "renderer": renderer,
+              "machine": machine_description(), "frames": int(frames), "warm_up_s": warm_up_s, "rows": rows}
+    report["markdown"] = _markdown(report)
+    return publish(report, "workgroups", out, write, json_out, force)
+
+
+def _ratio(value: float | None, base: float | None) -> str:
+    return "-" if value is None or not base else f"{value / base:.2f}"
+
+
+def _ms(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3f}"
+
+
+def _markdown(report: Mapping[str, Any]) -> str:
+    rows = report["rows"]
+    base = rows[0]
+    W, H = report["size"]
+    table = markdown_table(
+        ("setting", "values a thread: rows target / start / update / guard, columns", "changing frame, ms (GPU)",
+         "× the default", "cold frame, ms (GPU)", "× the default", "same output"),
+        [(r["setting"], _describe(r), _ms(r["changing_gpu_ms"]), _ratio(r["changing_gpu_ms"], base["changing_gpu_ms"]),
+          _ms(r["cold_gpu_ms"]), _ratio(r["cold_gpu_ms"], base["cold_gpu_ms"]),
+          "yes" if r["same_output_as_default"] else "**no**") for r in rows])
+    return (f"## Work-group shapes of the real-time default (`vrcorrect bench workgroups`): {W}x{H}, one eye\n\n"
+            f"Machine: {report['machine']}; OpenGL renderer: {report['renderer']}. Display `{report['display']}`, "
+            f"the {report['eye']} eye of the prescription. Each setting's frames were timed interleaved with the "
+            f"others' after {report['warm_up_s']:g} s of untimed frames, in rounds of {PER_ROUND}, "
+            f"{report['frames']} changing and {report['frames']} cold frames each; medians of each frame's GPU time "
+            "by timer query. Same output: the 8-bit picture after the same three frames equals the default's to "
+            "the last bit. On a software renderer these are CPU figures, not a GPU's.\n\n" + table + "\n")
+
+
+def _describe(row: Mapping[str, Any]) -> str:
+    full, coarse = row["values_per_thread"], row["coarse_values_per_thread"]
+    return " / ".join(str(full[p]) for p in PASSES[:-1]) + f", {full['COLUMNS']} (coarse columns {coarse['COLUMNS']})"
