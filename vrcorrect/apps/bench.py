@@ -111,8 +111,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md",
                        description="Measure one thing (kernel builds, solvers, render, realtime, cost, the work-group "
-                                   "shapes of its passes, xr, layer, learned or unrolled), print its table, and write it into its own section of the "
-                                   "benchmarks file (--out), naming the machine it ran on.")
+                                   "shapes of its passes, xr, layer, learned or unrolled), print its table, and write "
+                                   "it into its own section of the benchmarks file (--out), naming the machine it ran "
+                                   "on.")
     p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "cost", "workgroups", "xr", "layer",
                                     "learned", "unrolled"),
                    help="what to measure")

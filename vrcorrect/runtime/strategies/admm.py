@@ -59,9 +59,9 @@ VALUES_PER_THREAD = {"ROWS_TARGET": 8, "ROWS_START": 4, "ROWS_UPDATE": 8, "ROWS_
 line's length over this). Chosen by GPU time on an H100 at 1832x1920 (2026-11-27; each setting's
 frames timed interleaved with the others' after a warm-up, docs/realtime.md; ``vrcorrect bench
 workgroups`` reruns the comparison): 8 for every pass took 5.94 ms an eye, these 4.93 ms, the same
-output to the last bit. The column passes, which each hold
-six channels and a 3x3 solve a thread, gained most (0.93 to 0.70 ms); the start's row pass gained
-0.25 ms at 4; the update passes are slower at 4 (0.88 ms, against 0.61 at 8)."""
+output to the last bit. The column passes, which each hold six channels and a 3x3 solve a thread,
+gained most (0.93 to 0.70 ms); the start's row pass gained 0.25 ms at 4; the update passes are
+slower at 4 (0.88 ms, against 0.61 at 8)."""
 COARSE_VALUES_PER_THREAD = {**VALUES_PER_THREAD, "COLUMNS": 2}
 """The same for a cold frame's coarse level (a grid half as wide: 1024 at headset size). There the
 columns at 4 made the cold frame 16.5 ms on the H100, at 8 10.6 ms, at 2 10.0 ms (the same day and
