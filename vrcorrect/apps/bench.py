@@ -16,6 +16,17 @@ from ..runtime.model_path import DEFAULT_MODEL
 from ..studies.bench import BENCHMARKS_FILE, default_out
 
 
+def _json_out(args: argparse.Namespace) -> Path | None:
+    """``--json``'s path, checked before minutes of work: a ``.json`` name, not overwriting a file
+    without ``--force``."""
+    if not args.json:
+        return None
+    if Path(args.json).suffix.lower() != ".json":
+        raise ValidationError("--json", args.json, "a path ending in .json")
+    check_writable(Path(args.json), force=args.force)
+    return Path(args.json)
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     # --out before any work: the repository's file only inside the repository, else named by the user
     if args.out is None:
@@ -47,12 +58,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from ..studies.bench.cost import parse_size, run_cost_bench
 
         size = parse_size(args.size)
-        if args.json:
-            if Path(args.json).suffix.lower() != ".json":
-                raise ValidationError("--json", args.json, "a path ending in .json")
-            check_writable(Path(args.json), force=args.force)          # before minutes of work
         report = run_cost_bench(size, args.display, args.rx, out=Path(args.out), write=not args.no_write,
-                                json_out=Path(args.json) if args.json else None, dry_run=args.dry_run,
+                                json_out=_json_out(args), dry_run=args.dry_run,
                                 force=args.force, frames=1 if args.frames is None else args.frames)
         print(report["markdown"])
     elif args.what == "workgroups":
@@ -60,13 +67,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from ..studies.bench.workgroups import run_workgroup_bench
 
         size = parse_size(args.size)
-        if args.json:
-            if Path(args.json).suffix.lower() != ".json":
-                raise ValidationError("--json", args.json, "a path ending in .json")
-            check_writable(Path(args.json), force=args.force)
         report = run_workgroup_bench(size, args.display, args.rx, frames=20 if args.frames is None else args.frames,
-                                     out=Path(args.out), write=not args.no_write,
-                                     json_out=Path(args.json) if args.json else None, force=args.force)
+                                     out=Path(args.out), write=not args.no_write, json_out=_json_out(args),
+                                     force=args.force)
         print(report["markdown"])
     elif args.what == "layer":
         from ..studies.bench.layer import run_layer_bench
