@@ -111,3 +111,34 @@ def test_report_of_an_identical_image_is_valid_json_with_null_and_a_note(tmp_pat
     report = _strict_json(tmp_path / "r.json")
     assert report["metrics"]["psnr"] is None
     assert any(note.startswith("metrics.psnr: null (inf") for note in report["notes"]), report["notes"]
+
+
+def test_a_signal_that_python_wraps_is_still_a_termination(monkeypatch, capsys):
+    """A real SIGTERM delivered while a class is created (as when a library is imported) lands in a
+    descriptor's ``__set_name__``; Python 3.11 re-raises it as a RuntimeError caused by it.  The
+    command still ends as terminated (143, one line), not as an internal error (as one CI run did)."""
+    import argparse
+    import os
+
+    from vrcorrect.apps import cli
+
+    class Descriptor:
+        def __set_name__(self, owner, name):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)  # the handler raises here, at the next bytecode
+
+    def command(args):
+        class Imported:  # noqa: F841 (its creation is the point)
+            field = Descriptor()
+        return 0
+
+    def parser():
+        ap = argparse.ArgumentParser(prog="vrcorrect")
+        ap.set_defaults(func=command)
+        return ap
+
+    monkeypatch.setattr(cli, "build_parser", parser)
+    before = signal.getsignal(signal.SIGTERM)
+    assert cli.main([]) == 128 + signal.SIGTERM
+    assert capsys.readouterr().err.strip().splitlines() == ["vrcorrect: terminated (SIGTERM)"]
+    assert signal.getsignal(signal.SIGTERM) is before

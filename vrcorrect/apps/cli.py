@@ -66,26 +66,46 @@ def _terminate_like_interrupt() -> Iterator[None]:
             signal.signal(getattr(signal, n), handler)
 
 
+def _interruption(exc: BaseException) -> BaseException | None:
+    """The signal or Ctrl-C inside ``exc``'s chain, if any.  Python wraps an exception raised in some
+    places (a descriptor's ``__set_name__`` while a module is imported, for one) in a RuntimeError
+    whose cause is the original: a SIGTERM that lands there is still a SIGTERM."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, (Terminated, KeyboardInterrupt)):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _interrupted(exc: BaseException) -> int:
+    if isinstance(exc, Terminated):
+        name = signal.Signals(exc.signum).name
+        print(f"vrcorrect: terminated ({name})", file=sys.stderr)
+        return 128 + exc.signum
+    print("vrcorrect: interrupted", file=sys.stderr)
+    return 130
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         with _terminate_like_interrupt():
             return int(args.func(args) or 0)
-    except Terminated as exc:
-        name = signal.Signals(exc.signum).name
-        print(f"vrcorrect: terminated ({name})", file=sys.stderr)
-        return 128 + exc.signum
+    except (Terminated, KeyboardInterrupt) as exc:
+        return _interrupted(exc)
     except VrcorrectError as exc:
         print(f"vrcorrect: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print("vrcorrect: interrupted", file=sys.stderr)
-        return 130
     except MemoryError:
         print("vrcorrect: error: out of memory; try a smaller image or pupil", file=sys.stderr)
         return EXIT_INTERNAL
     except Exception as exc:  # never a traceback for a command-line user
+        signalled = _interruption(exc)
+        if signalled is not None:
+            return _interrupted(signalled)
         if os.environ.get("VRCORRECT_DEBUG"):
             raise
         print(f"vrcorrect: internal error: {type(exc).__name__}: {exc} (set VRCORRECT_DEBUG=1 for details)",
