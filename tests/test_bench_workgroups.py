@@ -6,20 +6,18 @@ from __future__ import annotations
 
 import json
 
-from vrcorrect.runtime.strategies import admm as A
+from vrcorrect.runtime.eye_model import WorkGroups
 from vrcorrect.studies.bench.workgroups import PASSES, SETTINGS, Setting, run_workgroup_bench
 
 
 def test_every_shape_is_timed_interleaved_and_gives_the_defaults_output(gl, tmp_path):
     """Two settings (the default and 2 values a thread everywhere), 2 timed frames of each kind: each
     has a positive median GPU time for changing and cold frames, the same 8-bit output as the
-    default, and the section and the JSON say so; the strategy's own tables are put back."""
-    before = dict(A.VALUES_PER_THREAD), dict(A.COARSE_VALUES_PER_THREAD)
-    two = Setting("2 everywhere", dict.fromkeys(PASSES, 2), dict.fromkeys(PASSES, 2))
+    default, and the section and the JSON say so."""
+    two = Setting("2 everywhere", WorkGroups.every(2))
     out, js = tmp_path / "bench.md", tmp_path / "wg.json"
     report = run_workgroup_bench((72, 64), frames=2, settings=(SETTINGS[0], two), out=out, json_out=js,
                                  warm_up_s=0.0, progress=False)
-    assert (dict(A.VALUES_PER_THREAD), dict(A.COARSE_VALUES_PER_THREAD)) == before
     rows = report["rows"]
     assert [r["setting"] for r in rows] == ["the default", "2 everywhere"]
     for r in rows:
@@ -29,7 +27,7 @@ def test_every_shape_is_timed_interleaved_and_gives_the_defaults_output(gl, tmp_
     assert rows[1]["values_per_thread"] == dict.fromkeys(PASSES, 2)
     text = out.read_text()
     assert "<!-- bench:workgroups -->" in text and "| 2 everywhere | 2 / 2 / 2 / 2, 2 (coarse columns 2) |" in text
-    assert json.loads(js.read_text())["rows"][0]["values_per_thread"] == before[0]
+    assert json.loads(js.read_text())["rows"][0]["values_per_thread"] == WorkGroups().table()
 
 
 def test_bench_workgroups_refuses_bad_input(tmp_path, capsys):

@@ -14,7 +14,7 @@ from vrcorrect.plumbing.images import bundled_images
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector, CorrectorOptions, build_eye_model
 from vrcorrect.runtime.dispatch import CostLedger, resource_bytes
-from vrcorrect.runtime.strategies import admm as A
+from vrcorrect.runtime.eye_model import WorkGroups
 from vrcorrect.runtime.strategies.admm import values_per_thread
 from vrcorrect.solvers import make_problem, objective, solve
 from vrcorrect.solvers.admm import _admm
@@ -58,11 +58,12 @@ class Run:
     """A GPU corrector and its CPU twin fed the same frames."""
 
     def __init__(self, ctx, precision="single", k=2, display="quest2", reference="glasses", eye=EYE,
-                 early_stop=False, size=(W, H), cold_iterations=15):
+                 early_stop=False, size=(W, H), cold_iterations=15, work_groups=None):
         self.ctx = ctx
         rx = Prescription(right=eye, left=eye)
+        shape = {} if work_groups is None else {"work_groups": work_groups}
         self.c = Corrector(ctx, rx, display, "right", filter="admm", precision=precision, iterations_per_frame=k,
-                           reference=reference, early_stop=early_stop, cold_iterations=cold_iterations)
+                           reference=reference, early_stop=early_stop, cold_iterations=cold_iterations, **shape)
         d = get_display(display)
         self.twin = AdmmFrames(build_kernel(eye, d), build_reference_kernel(eye, d) if reference == "glasses" else None,
                                size[::-1], precision=precision, cold_iterations=cold_iterations)
@@ -501,35 +502,58 @@ def test_values_per_thread_keep_a_work_group_within_1024_threads():
     assert values_per_thread(4096, 2) == 4          # 2048 threads asked: raised to 1024 threads
     assert values_per_thread(2048, 1) == 2
     assert values_per_thread(8, 16) == 8            # a line shorter than the values asked
-    passes = set(A.VALUES_PER_THREAD) | set(A.COARSE_VALUES_PER_THREAD)
-    assert passes == {"ROWS_TARGET", "ROWS_START", "ROWS_UPDATE", "ROWS_GUARD", "COLUMNS"}
 
 
-def test_the_work_group_shape_changes_no_value(gl, wide_clip, monkeypatch):
+def test_work_groups_are_an_option_checked_by_name_and_value():
+    """The shape is a CorrectorOptions field: every pass named, partial tables filled from the
+    default's, equal shapes hash alike; a wrong pass, a value that is not a power of two from 1 to 64,
+    or a table that is not a mapping is refused naming the field."""
+    default = WorkGroups()
+    assert set(default.table()) == set(default.table(coarse=True)) == {"ROWS_TARGET", "ROWS_START", "ROWS_UPDATE",
+                                                                       "ROWS_GUARD", "COLUMNS"}
+    assert CorrectorOptions().work_groups == default
+    partial = WorkGroups(coarse={"COLUMNS": 8})
+    assert partial.table() == default.table() and partial.table(coarse=True)["COLUMNS"] == 8
+    assert partial.table(coarse=True)["ROWS_START"] == default.table(coarse=True)["ROWS_START"]
+    assert hash(WorkGroups.every(4)) == hash(WorkGroups(dict.fromkeys(default.table(), 4), dict.fromkeys(default.table(), 4)))
+    assert WorkGroups.every(4) != default
+    for bad, field in (({"ROWS": 4}, "work_groups.full pass"), ({"COLUMNS": 3}, "work_groups.full[COLUMNS]"),
+                       ({"COLUMNS": 128}, "work_groups.full[COLUMNS]"), ({"COLUMNS": True}, "work_groups.full[COLUMNS]"),
+                       ({"COLUMNS": 0}, "work_groups.full[COLUMNS]"), ([4], "work_groups.full")):
+        with pytest.raises(ValidationError) as e:
+            WorkGroups(bad)
+        assert e.value.field == field, (bad, e.value.field)
+    assert CorrectorOptions(work_groups={"coarse": {"COLUMNS": 8}}).work_groups == partial
+    with pytest.raises(ValidationError) as e:
+        CorrectorOptions(work_groups={"COLUMNS": 4})
+    assert e.value.field == "work_groups"
+
+
+def test_the_work_group_shape_changes_no_value(gl, wide_clip):
     """The same frames (a cold one from the coarse level, then the content moving) with every pass's
-    work group at 2 values a thread and at 8 (and the default's mix of 8, 4 and 2): the GPU's
-    solutions in half precision are equal to the last bit; only the threads that hold the values
-    differ."""
-    def frames(per: int | None, precision: str = "half") -> list[np.ndarray]:
-        if per is not None:
-            table = dict.fromkeys(A.VALUES_PER_THREAD, per)
-            monkeypatch.setattr(A, "VALUES_PER_THREAD", table)
-            monkeypatch.setattr(A, "COARSE_VALUES_PER_THREAD", table)
-        r = Run(gl, precision, 2, size=(CW, CH))
+    work group at 2 values a thread and at 8 (and the default's mix of 8, 4 and 2), each given as the
+    corrector's ``work_groups`` option: the GPU's solutions in half precision are equal to the last
+    bit; only the threads that hold the values differ."""
+    def frames(shape: WorkGroups | None) -> list[np.ndarray]:
+        r = Run(gl, "half", 2, size=(CW, CH), work_groups=shape)
         try:
             out = []
             for f, image in enumerate(wide_clip[:3]):
                 G.write_texture(r.src, image)
                 r.c.apply(r.src, r.fbo, motion_px=None if f == 0 else (-3, -2))
                 out.append(r.c.solution((CW, CH)))
+            # the shape asked is the one compiled, at both levels (every line here is long enough)
+            asked = shape or WorkGroups()
+            for level, coarse in ((r.c.strategy, False), (r.c.strategy.coarse, True)):
+                (b,) = level._sized.values()
+                assert dict(b.values_per_thread) == asked.table(coarse), (coarse, b.values_per_thread)
             return out
         finally:
             r.release()
-            monkeypatch.undo()
 
     default = frames(None)
     for per in (2, 8):
-        for f, (a, b) in enumerate(zip(default, frames(per))):
+        for f, (a, b) in enumerate(zip(default, frames(WorkGroups.every(per)))):
             assert np.array_equal(a, b), (per, f, np.abs(a - b).max())
 
 

@@ -40,8 +40,9 @@ from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from ..physics.kernel import EyeKernel, KernelOptions
 
-__all__ = ["as_options", "DEFAULT_ITERATIONS", "DEFAULT_COLD_ITERATIONS", "CorrectorOptions", "EyeModel",
-           "build_eye_model", "check_iterations"]
+__all__ = ["as_options", "DEFAULT_ITERATIONS", "DEFAULT_COLD_ITERATIONS", "WORK_GROUP_PASSES", "VALUES_PER_THREAD",
+           "COARSE_VALUES_PER_THREAD", "WorkGroups", "CorrectorOptions", "EyeModel", "build_eye_model",
+           "check_iterations"]
 
 # The names (backends, filters, precisions) and the iterations' ranges are the vocabulary's
 # (vrcorrect.specs.vocabulary): Backend, Filter, ITERATIVE_FILTERS, Precision, ITERATIONS_PER_FRAME,
@@ -53,6 +54,65 @@ DEFAULT_COLD_ITERATIONS = 15
 """Half-resolution iterations that start a cold frame of ``filter="admm"``: ``fast``'s own
 coarse-level count (:data:`vrcorrect.solvers.admm.COARSE_ITERATIONS`; a test holds the two equal,
 this module imports no solver at start-up)."""
+
+
+WORK_GROUP_PASSES = ("ROWS_TARGET", "ROWS_START", "ROWS_UPDATE", "ROWS_GUARD", "COLUMNS")
+"""The ADMM strategy's passes that have a work-group shape (their shader's define)."""
+MAX_VALUES_PER_THREAD = 64
+VALUES_PER_THREAD = {"ROWS_TARGET": 8, "ROWS_START": 4, "ROWS_UPDATE": 8, "ROWS_GUARD": 8, "COLUMNS": 4}
+"""Values of each channel one thread of a row or column pass keeps, by pass (the work group is the
+line's length over this). Chosen by GPU time on an H100 at 1832x1920 (2026-11-27; each setting's
+frames timed interleaved with the others' after a warm-up, docs/realtime.md; ``vrcorrect bench
+workgroups`` reruns the comparison): 8 for every pass took 5.94 ms an eye, these 4.93 ms, the same
+output to the last bit. The column passes, which each hold six channels and a 3x3 solve a thread,
+gained most (0.93 to 0.70 ms); the start's row pass gained 0.25 ms at 4; the update passes are
+slower at 4 (0.88 ms, against 0.61 at 8)."""
+COARSE_VALUES_PER_THREAD = {**VALUES_PER_THREAD, "COLUMNS": 2}
+"""The same for a cold frame's coarse level (a grid half as wide: 1024 at headset size). There the
+columns at 4 made the cold frame 16.5 ms on the H100, at 8 10.6 ms, at 2 10.0 ms (the same day and
+way of timing; why 4 is slow at that length is not known)."""
+
+
+@dataclass(frozen=True)
+class WorkGroups:
+    """The work-group shape of the ADMM strategy's row and column passes: for each pass of
+    :data:`WORK_GROUP_PASSES` the values of each channel one thread keeps (a power of two from 1 to
+    64), at full resolution (``full``) and on a cold frame's half-resolution level (``coarse``).
+    The shape changes which thread holds a value, never the value: it is a GPU's tuning
+    (``vrcorrect bench workgroups`` times settings against each other). Where a line would need
+    more than 1,024 threads or has fewer points than asked, the strategy adjusts it per line. The
+    default is :data:`VALUES_PER_THREAD` and :data:`COARSE_VALUES_PER_THREAD`; a mapping given
+    may name some passes only, the others keep the default's."""
+
+    full: Mapping[str, int] = field(default_factory=lambda: dict(VALUES_PER_THREAD))
+    coarse: Mapping[str, int] = field(default_factory=lambda: dict(COARSE_VALUES_PER_THREAD))
+
+    def __post_init__(self) -> None:
+        for name, given, default in (("full", self.full, VALUES_PER_THREAD),
+                                     ("coarse", self.coarse, COARSE_VALUES_PER_THREAD)):
+            if not isinstance(given, Mapping):
+                raise ValidationError(f"work_groups.{name}", given, "a mapping of pass names to values per thread")
+            for pass_, per in given.items():
+                if pass_ not in WORK_GROUP_PASSES:
+                    raise ValidationError(f"work_groups.{name} pass", pass_, "one of " + ", ".join(WORK_GROUP_PASSES))
+                if isinstance(per, bool) or not isinstance(per, (int, np.integer)) or \
+                        not 1 <= per <= MAX_VALUES_PER_THREAD or per & (per - 1):
+                    raise ValidationError(f"work_groups.{name}[{pass_}]", per,
+                                          f"a power of two from 1 to {MAX_VALUES_PER_THREAD}")
+            object.__setattr__(self, name, {p: int(given.get(p, default[p])) for p in WORK_GROUP_PASSES})
+
+    def __hash__(self) -> int:
+        return hash((tuple(self.full.items()), tuple(self.coarse.items())))
+
+    def table(self, coarse: bool = False) -> dict[str, int]:
+        """Values per thread by pass, at full resolution or on the coarse level (a copy)."""
+        return dict(self.coarse if coarse else self.full)
+
+    @classmethod
+    def every(cls, per: int) -> "WorkGroups":
+        """``per`` values a thread in every pass, at both resolutions."""
+        table = dict.fromkeys(WORK_GROUP_PASSES, per)
+        return cls(table, table)
 
 
 def as_options(backend: str, value: "CorrectorOptions | Mapping[str, Any] | None") -> "CorrectorOptions":
@@ -133,6 +193,10 @@ class CorrectorOptions:
         :class:`~vrcorrect.runtime.unrolled.UnrolledModel`) whose single pass starts every cold frame
         instead of the half-resolution level: the frame is read back, corrected on onnxruntime and
         uploaded (counted as transfers); ``None`` (default): the half-resolution level.
+    work_groups
+        ``filter="admm"``: the row and column passes' work-group shape (:class:`WorkGroups`); it
+        changes the GPU time, never the picture; a mapping ``{"full": {...}, "coarse": {...}}`` is
+        taken as one. Default: the shape chosen on an H100.
     """
 
     regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
@@ -151,6 +215,7 @@ class CorrectorOptions:
     early_stop: bool = True
     cold_iterations: int = DEFAULT_COLD_ITERATIONS
     cold_start_model: str | None = None
+    work_groups: WorkGroups = field(default_factory=WorkGroups)
 
     def __post_init__(self) -> None:
         if not self.regularisation or not all(isinstance(m, (int, float)) and m > 0 for m in self.regularisation):
@@ -173,6 +238,11 @@ class CorrectorOptions:
         if self.precision not in names(Precision):
             raise ValidationError("precision", self.precision, one_of(Precision))
         check_iterations(self.cold_iterations, "cold_iterations")
+        if isinstance(self.work_groups, Mapping) and set(self.work_groups) <= {"full", "coarse"}:
+            object.__setattr__(self, "work_groups", WorkGroups(**self.work_groups))     # as a JSON file gives it
+        if not isinstance(self.work_groups, WorkGroups):
+            raise ValidationError("work_groups", self.work_groups,
+                                  "a WorkGroups, or a mapping with 'full' and/or 'coarse' tables of values per thread")
         if self.cold_start_model is not None:
             if not isinstance(self.cold_start_model, str) or not self.cold_start_model:
                 raise ValidationError("cold_start_model", self.cold_start_model, "a path to an unrolled ONNX model or None")

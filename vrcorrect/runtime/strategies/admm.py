@@ -52,20 +52,8 @@ from .base import GuardResult, IterativeStrategy, Size, float_texture, groups_2d
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
-__all__ = ["AdmmStrategy", "VALUES_PER_THREAD", "COARSE_VALUES_PER_THREAD", "values_per_thread"]
+__all__ = ["AdmmStrategy", "values_per_thread"]
 
-VALUES_PER_THREAD = {"ROWS_TARGET": 8, "ROWS_START": 4, "ROWS_UPDATE": 8, "ROWS_GUARD": 8, "COLUMNS": 4}
-"""Values of each channel one thread of a row or column pass keeps, by pass (the work group is the
-line's length over this). Chosen by GPU time on an H100 at 1832x1920 (2026-11-27; each setting's
-frames timed interleaved with the others' after a warm-up, docs/realtime.md; ``vrcorrect bench
-workgroups`` reruns the comparison): 8 for every pass took 5.94 ms an eye, these 4.93 ms, the same
-output to the last bit. The column passes, which each hold six channels and a 3x3 solve a thread,
-gained most (0.93 to 0.70 ms); the start's row pass gained 0.25 ms at 4; the update passes are
-slower at 4 (0.88 ms, against 0.61 at 8)."""
-COARSE_VALUES_PER_THREAD = {**VALUES_PER_THREAD, "COLUMNS": 2}
-"""The same for a cold frame's coarse level (a grid half as wide: 1024 at headset size). There the
-columns at 4 made the cold frame 16.5 ms on the H100, at 8 10.6 ms, at 2 10.0 ms (the same day and
-way of timing; why 4 is slow at that length is not known)."""
 MAX_INVOCATIONS = 1024
 """Threads a work group may have (OpenGL 4.3's least ``GL_MAX_COMPUTE_WORK_GROUP_INVOCATIONS``)."""
 
@@ -113,6 +101,7 @@ class AdmmBuffers:
     compared: bool = False                     # this frame's decode compared the target with the last
     frames: int = field(default=0)
     skipped: int = 0                           # frames the GPU was told to skip (early stop) so far
+    values_per_thread: tuple[tuple[str, int], ...] = ()   # each pass's, as compiled (work_groups, per line)
 
     def release(self) -> None:
         for f in fields(self):
@@ -202,10 +191,13 @@ class AdmmStrategy(IterativeStrategy):
         if m.reference is None:
             defines["IDEAL"] = None
 
-        per_pass = COARSE_VALUES_PER_THREAD if self.coarse_level else VALUES_PER_THREAD
+        per_pass = self.options.work_groups.table(self.coarse_level)    # shape only, never a value
+        compiled: dict[str, int] = {}
 
         def program(pass_: str, **extra: None) -> "moderngl.ComputeShader":
             per = values_per_thread(ny if pass_ == "COLUMNS" else nx, per_pass.get(pass_, 8))
+            if pass_ in per_pass:
+                compiled[pass_] = per
             lines = {"PER": per, "WG_X": nx // per, "WG_Y": ny // per}
             return compile_compute(ctx, "admm.glsl", defines={**defines, **lines, pass_: None, **extra})
 
@@ -243,7 +235,7 @@ class AdmmStrategy(IterativeStrategy):
             history=ctx.buffer(np.full(4, -1.0, np.float32).tobytes()), args=ctx.buffer(reserve=12 * len(KINDS)),
             guard=GuardResult(ctx),
             out=float_texture(ctx, size), programs=programs, present=present,
-            present_vao=fullscreen_triangle(ctx, present))
+            present_vao=fullscreen_triangle(ctx, present), values_per_thread=tuple(sorted(compiled.items())))
 
     # ------------------------------------------------------------------ frames
 

@@ -54,7 +54,7 @@ from ...specs.vocabulary import VIEW_ORDER
 from . import machine_description, markdown_table, publish
 
 __all__ = ["METHODS", "FRAME_BUDGET_MS", "TARGET_BYTES", "MethodCost", "parse_size", "eye_frame_cost",
-           "run_cost_bench"]
+           "run_cost_bench", "check_frames"]
 
 HEADSET_SIZE = (1832, 1920)                   # one Quest 2 eye, width x height
 FRAME_BUDGET_MS = 1e3 / 90                    # both eyes of a 90 Hz frame
@@ -112,9 +112,10 @@ class MethodCost:
                 "iterations_per_frame": self.describe.get("iterations_per_frame")}
 
 
-def _check_frames(frames: int) -> None:
+def check_frames(frames: int, what: str = "timed frames") -> None:
+    """``--frames``: a whole number of ``what`` from 1 to 1000."""
     if not 1 <= int(frames) <= 1000:
-        raise ValidationError("--frames", frames, "a whole number of timed frames from 1 to 1000")
+        raise ValidationError("--frames", frames, f"a whole number of {what} from 1 to 1000")
 
 
 def eye_frame_cost(ctx: Any, rx: Prescription, display: Any, eye: str, size: tuple[int, int],
@@ -126,7 +127,7 @@ def eye_frame_cost(ctx: Any, rx: Prescription, display: Any, eye: str, size: tup
     ``dry_run``, ``frames`` more with each pass timed (a ``glFinish`` around it) and ``frames`` timed
     cold frames (a reset before each, as a cut), then the same picture
     once more counted as the early stop's plan leaves a converged still view (module docstring)."""
-    _check_frames(frames)
+    check_frames(frames)
     rng = np.random.default_rng(seed)
     W, H = size
     corrector = Corrector(ctx, rx, display, eye, **options)
@@ -205,7 +206,7 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
     """Count one frame per eye for each method and time ``frames`` of each kind (module docstring);
     returns the report (a dict with ``markdown``), writes the ``cost`` section of ``out`` and, with
     ``json_out``, the JSON."""
-    _check_frames(frames)
+    check_frames(frames)
     display = get_display(display_name)
     rx = load_prescription(rx_path or bundled_sample_path())
     ctx = headless_context(require=430)

@@ -3,13 +3,12 @@ timed on whatever GPU the context has, to choose (or check) each pass's values p
 
 A row or column pass of the ADMM frame runs one work group per line of the spectrum grid; each of
 its threads holds some values of each channel of that line, and the work group is the line's length
-over that number (:data:`~vrcorrect.runtime.strategies.admm.VALUES_PER_THREAD`, per pass, and
-:data:`~vrcorrect.runtime.strategies.admm.COARSE_VALUES_PER_THREAD` for a cold frame's
-half-resolution level). The shape changes no value, only which thread holds it; what it changes is
+over that number (:class:`~vrcorrect.runtime.eye_model.WorkGroups`, ``CorrectorOptions.work_groups``:
+per pass, and for a cold frame's half-resolution level). The shape changes no value, only which thread holds it; what it changes is
 how well the GPU is occupied, which no byte count shows.
 
-Each setting below gets its own :class:`~vrcorrect.runtime.corrector.Corrector` on one eye (the
-eye model built once). After :data:`~vrcorrect.studies.bench.cost.WARM_UP_S` seconds of untimed
+Each setting below gets its own :class:`~vrcorrect.runtime.corrector.Corrector` on one eye, with
+that shape as its ``work_groups`` option (the eye model built once). After :data:`~vrcorrect.studies.bench.cost.WARM_UP_S` seconds of untimed
 frames (a GPU raises its clocks under load), the settings' frames are timed **interleaved**, in
 rounds of :data:`PER_ROUND` (two untimed frames first), the order reversed every other round, so that
 a drift of the clocks falls on every setting alike: changing content (a new picture each frame, the
@@ -32,19 +31,18 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from ...plumbing.errors import ValidationError
 from ...runtime.corrector import Corrector, CorrectorOptions, build_eye_model
+from ...runtime.eye_model import WORK_GROUP_PASSES, WorkGroups
 from ...runtime.gl import (headless_context, read_framebuffer, release, render_target, timer_query_ms,
                            upload_texture, write_texture)
-from ...runtime.strategies import admm as admm_strategy
 from ...specs.display import get_display
 from ...specs.prescription import bundled_sample_path, load_prescription
 from . import machine_description, markdown_table, publish
-from .cost import HEADSET_SIZE, WARM_UP_S
+from .cost import HEADSET_SIZE, WARM_UP_S, check_frames
 
 __all__ = ["PASSES", "SETTINGS", "PER_ROUND", "Setting", "run_workgroup_bench"]
 
-PASSES = ("ROWS_TARGET", "ROWS_START", "ROWS_UPDATE", "ROWS_GUARD", "COLUMNS")
+PASSES = WORK_GROUP_PASSES
 """The passes that have a work-group shape, in the order the tables print them."""
 PER_ROUND = 5
 """Timed frames of one setting in a row before the next setting's."""
@@ -52,51 +50,22 @@ PER_ROUND = 5
 
 @dataclass(frozen=True)
 class Setting:
-    """A label and the values per thread of each pass (full resolution, and the coarse level's)."""
+    """A label and a work-group shape."""
 
     label: str
-    full: Mapping[str, int]
-    coarse: Mapping[str, int]
-
-
-def _every(per: int) -> dict[str, int]:
-    return dict.fromkeys(PASSES, per)
-
-
-def _default() -> Setting:
-    return Setting("the default", dict(admm_strategy.VALUES_PER_THREAD), dict(admm_strategy.COARSE_VALUES_PER_THREAD))
+    shape: WorkGroups
 
 
 SETTINGS: tuple[Setting, ...] = (
-    _default(),
-    Setting("8 everywhere (before 2026-11-27)", _every(8), _every(8)),
-    Setting("4 everywhere", _every(4), _every(4)),
-    Setting("2 everywhere", _every(2), _every(2)),
-    Setting("columns 4, rows 8", {**_every(8), "COLUMNS": 4}, {**_every(8), "COLUMNS": 4}),
-    Setting("the default, coarse columns 8", dict(admm_strategy.VALUES_PER_THREAD),
-            {**admm_strategy.COARSE_VALUES_PER_THREAD, "COLUMNS": 8}),
+    Setting("the default", WorkGroups()),
+    Setting("8 everywhere (before 2026-11-27)", WorkGroups.every(8)),
+    Setting("4 everywhere", WorkGroups.every(4)),
+    Setting("2 everywhere", WorkGroups.every(2)),
+    Setting("columns 4, rows 8", WorkGroups({**WorkGroups.every(8).full, "COLUMNS": 4},
+                                            {**WorkGroups.every(8).full, "COLUMNS": 4})),
+    Setting("the default, coarse columns 8", WorkGroups(coarse={"COLUMNS": 8})),
 )
 """The settings compared, the default first (the ratios are to it)."""
-
-
-class _Shape:
-    """Sets the strategy's tables for the correctors built inside it, and puts them back."""
-
-    def __init__(self, setting: Setting):
-        self.setting = setting
-
-    def __enter__(self) -> None:
-        self.saved = admm_strategy.VALUES_PER_THREAD, admm_strategy.COARSE_VALUES_PER_THREAD
-        admm_strategy.VALUES_PER_THREAD = dict(self.setting.full)
-        admm_strategy.COARSE_VALUES_PER_THREAD = dict(self.setting.coarse)
-
-    def __exit__(self, *exc: object) -> None:
-        admm_strategy.VALUES_PER_THREAD, admm_strategy.COARSE_VALUES_PER_THREAD = self.saved
-
-
-def _check(frames: int) -> None:
-    if not 1 <= int(frames) <= 1000:
-        raise ValidationError("--frames", frames, "a whole number of timed frames per setting from 1 to 1000")
 
 
 def run_workgroup_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "quest2",
@@ -107,7 +76,7 @@ def run_workgroup_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str 
     """Time the default frame under each setting (module docstring): ``frames`` changing and
     ``frames`` cold frames each; returns the report (``rows``, ``markdown``), writes the
     ``workgroups`` section of ``out`` and, with ``json_out``, the JSON."""
-    _check(frames)
+    check_frames(frames, "timed frames per setting")
     display = get_display(display_name)
     rx = load_prescription(rx_path or bundled_sample_path())
     W, H = size
@@ -139,13 +108,12 @@ def run_workgroup_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str 
     try:
         outputs = []
         for s in settings:
-            with _Shape(s):
-                c = Corrector(ctx, rx, display, eye, eye_model=model)
-                correctors.append(c)
-                for p in (0, 1, 0):                      # the same three frames for every setting
-                    write_texture(src, pictures[p])
-                    c.apply(src, fbo)
-                outputs.append(read_framebuffer(fbo))
+            c = Corrector(ctx, rx, display, eye, eye_model=model, options=CorrectorOptions(work_groups=s.shape))
+            correctors.append(c)
+            for p in (0, 1, 0):                          # the same three frames for every setting
+                write_texture(src, pictures[p])
+                c.apply(src, fbo)
+            outputs.append(read_framebuffer(fbo))
         until = time.perf_counter() + warm_up_s
         while time.perf_counter() < until:
             frame(correctors[0])
@@ -173,7 +141,7 @@ def run_workgroup_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str 
         ctx.release()
     rows = []
     for s, out_image, ch, co in zip(settings, outputs, changing, cold):
-        rows.append({"setting": s.label, "values_per_thread": dict(s.full), "coarse_values_per_thread": dict(s.coarse),
+        rows.append({"setting": s.label, "values_per_thread": s.shape.table(), "coarse_values_per_thread": s.shape.table(coarse=True),
                      "changing_gpu_ms": statistics.median(ch) if ch else None,
                      "cold_gpu_ms": statistics.median(co) if co else None,
                      "changing_frames_ms": ch, "cold_frames_ms": co,
