@@ -315,3 +315,25 @@ def test_the_layers_end_gives_up_waiting_after_its_limit(rx, monkeypatch, tmp_pa
         assert "still running after 0.3 s; closing anyway" in layer.log.read_text()
     finally:
         layer.release()
+
+
+def test_an_edit_written_in_place_is_read_once_when_written(rx, monkeypatch):
+    """An editor that saves in place truncates the file, then writes it. Seen while empty, the file
+    is not read at once: the worker waits for its stamp to settle and reads it written, so a bad
+    edit gives one message, about what was written, not a second one about an empty file."""
+    monkeypatch.setattr(ES, "SETTLE_S", 0.3)
+    source = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",))
+    try:
+        source.poll()
+        edit(rx, "")                                        # truncated
+        assert source.poll() == ([], [])                    # the change is seen; the worker settles
+        doc = json.loads(json.dumps(RX))
+        doc["right"]["sphere_D"] = "oops"
+        edit(rx, doc)                                       # written, within the settling time
+        updates, messages = drain(source)
+        assert updates == [] and len(messages) == 1, messages
+        assert "not reloaded" in messages[0] and "sphere_D" in messages[0], messages
+        assert source.poll() == ([], [])                    # the file read is not read again
+        assert source.wait(10) and source.poll() == ([], [])
+    finally:
+        source.close()

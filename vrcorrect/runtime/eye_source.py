@@ -21,7 +21,8 @@ of CPU) never runs on the render thread after start:
   one message.  The display may be given as a function that returns it, called on first use: on
   the worker for this start (loading a display profile imports colour-science: seconds).
 
-One worker thread, jobs in order; a newer edit of the file supersedes a queued one.  The eyes of
+One worker thread, jobs in order; a newer edit of the file supersedes a queued one, and a changed
+file is read once its stamp has settled (:data:`SETTLE_S`).  The eyes of
 one reload (or start) arrive in the same :meth:`~EyeSource.poll`, every eye or none.  Layer 5:
 numpy; never torch.
 """
@@ -49,6 +50,11 @@ log = logging.getLogger(__name__)
 
 POLL_INTERVAL_S = 0.25
 """The prescription file's stamp is looked at no more often than this."""
+SETTLE_S = 0.1
+"""A changed file is read on the worker once its stamp has held for this long (looked at again up to
+:data:`SETTLE_TRIES` times): an editor that writes in place (truncates, then writes) is read once,
+when written, not also while empty."""
+SETTLE_TRIES = 20
 
 Offset = tuple[float, float, float]
 
@@ -172,11 +178,13 @@ class EyeSource:
         if path is not None and now - self._last_poll >= POLL_INTERVAL_S:
             self._last_poll = now
             stamp = file_stamp(path)
-            if stamp != self._stamp:
-                self._stamp = stamp
-                with self._lock:
+            with self._lock:
+                changed = stamp != self._stamp
+                if changed:
+                    self._stamp = stamp
                     self._file_generation += 1
                     generation = self._file_generation
+            if changed:
                 self._queue(("file", generation))
         updates: list[EyeUpdate] = []
         messages: list[str] = []
@@ -255,10 +263,21 @@ class EyeSource:
                 self._finish()
 
     def _reload(self, generation: int) -> None:
+        path = self.snapshot.path
         with self._lock:
             if generation != self._file_generation:         # a newer edit is queued: it will be read
                 return
-        path = self.snapshot.path
+        stamp = file_stamp(path)
+        for _ in range(SETTLE_TRIES):                       # wait for the writer to finish
+            time.sleep(SETTLE_S)
+            now = file_stamp(path)
+            if now == stamp:
+                break
+            stamp = now
+        with self._lock:
+            if generation != self._file_generation:         # poll saw a later stamp meanwhile: that job reads
+                return
+            self._stamp = stamp                             # what is read now; poll need not queue it again
         self._design_every(lambda: load_prescription(path), "reload",
                            f"{path}: not reloaded, keeping the last good prescription")
 
