@@ -515,11 +515,13 @@ def test_work_groups_are_an_option_checked_by_name_and_value():
     partial = WorkGroups(coarse={"COLUMNS": 8})
     assert partial.table() == default.table() and partial.table(coarse=True)["COLUMNS"] == 8
     assert partial.table(coarse=True)["ROWS_START"] == default.table(coarse=True)["ROWS_START"]
-    assert hash(WorkGroups.every(4)) == hash(WorkGroups(dict.fromkeys(default.table(), 4), dict.fromkeys(default.table(), 4)))
+    fours = dict.fromkeys(default.table(), 4)
+    assert WorkGroups.every(4) == WorkGroups(fours, fours)
+    assert hash(WorkGroups.every(4)) == hash(WorkGroups(fours, fours))
     assert WorkGroups.every(4) != default
-    for bad, field in (({"ROWS": 4}, "work_groups.full pass"), ({"COLUMNS": 3}, "work_groups.full[COLUMNS]"),
-                       ({"COLUMNS": 128}, "work_groups.full[COLUMNS]"), ({"COLUMNS": True}, "work_groups.full[COLUMNS]"),
-                       ({"COLUMNS": 0}, "work_groups.full[COLUMNS]"), ([4], "work_groups.full")):
+    column = "work_groups.full[COLUMNS]"
+    for bad, field in (({"ROWS": 4}, "work_groups.full pass"), ({"COLUMNS": 3}, column), ({"COLUMNS": 128}, column),
+                       ({"COLUMNS": True}, column), ({"COLUMNS": 0}, column), ([4], "work_groups.full")):
         with pytest.raises(ValidationError) as e:
             WorkGroups(bad)
         assert e.value.field == field, (bad, e.value.field)

@@ -239,7 +239,7 @@ class CorrectorOptions:
             raise ValidationError("precision", self.precision, one_of(Precision))
         check_iterations(self.cold_iterations, "cold_iterations")
         if isinstance(self.work_groups, Mapping) and set(self.work_groups) <= {"full", "coarse"}:
-            object.__setattr__(self, "work_groups", WorkGroups(**self.work_groups))     # as a JSON file gives it
+            object.__setattr__(self, "work_groups", WorkGroups(**self.work_groups))   # as JSON gives it
         if not isinstance(self.work_groups, WorkGroups):
             raise ValidationError("work_groups", self.work_groups,
                                   "a WorkGroups, or a mapping with 'full' and/or 'coarse' tables of values per thread")

@@ -3,18 +3,20 @@ timed on whatever GPU the context has, to choose (or check) each pass's values p
 
 A row or column pass of the ADMM frame runs one work group per line of the spectrum grid; each of
 its threads holds some values of each channel of that line, and the work group is the line's length
-over that number (:class:`~vrcorrect.runtime.eye_model.WorkGroups`, ``CorrectorOptions.work_groups``:
-per pass, and for a cold frame's half-resolution level). The shape changes no value, only which thread holds it; what it changes is
-how well the GPU is occupied, which no byte count shows.
+over that number (:class:`~vrcorrect.runtime.eye_model.WorkGroups`, the corrector's
+``work_groups`` option: per pass, and for a cold frame's half-resolution level). The shape changes
+no value, only which thread holds it; what it changes is how well the GPU is occupied, which no
+byte count shows.
 
 Each setting below gets its own :class:`~vrcorrect.runtime.corrector.Corrector` on one eye, with
-that shape as its ``work_groups`` option (the eye model built once). After :data:`~vrcorrect.studies.bench.cost.WARM_UP_S` seconds of untimed
-frames (a GPU raises its clocks under load), the settings' frames are timed **interleaved**, in
-rounds of :data:`PER_ROUND` (two untimed frames first), the order reversed every other round, so that
-a drift of the clocks falls on every setting alike: changing content (a new picture each frame, the
-budget case) and cold frames (a reset before each, as a cut). Each frame's GPU time comes from a
-``GL_TIME_ELAPSED`` query around it; the medians are reported. Every setting's output after the same
-three frames is compared with the default's, to the last bit of the 8-bit picture.
+that shape as its ``work_groups`` option (the eye model built once). After
+:data:`~vrcorrect.studies.bench.cost.WARM_UP_S` seconds of untimed frames (a GPU raises its clocks
+under load), the settings' frames are timed **interleaved**, in rounds of :data:`PER_ROUND` (two
+untimed frames first), the order reversed every other round, so that a drift of the clocks falls on
+every setting alike: changing content (a new picture each frame, the budget case) and cold frames (a
+reset before each, as a cut). Each frame's GPU time comes from a ``GL_TIME_ELAPSED`` query around
+it; the medians are reported. Every setting's output after the same three frames is compared with
+the default's, to the last bit of the 8-bit picture.
 
 On llvmpipe the figures measure CPU cores, not a GPU: the command runs there (the tests run it), but
 its choice is for a GPU. Layer 6.
@@ -108,7 +110,8 @@ def run_workgroup_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str 
     try:
         outputs = []
         for s in settings:
-            c = Corrector(ctx, rx, display, eye, eye_model=model, options=CorrectorOptions(work_groups=s.shape))
+            c = Corrector(ctx, rx, display, eye, eye_model=model,
+                          options=CorrectorOptions(work_groups=s.shape))
             correctors.append(c)
             for p in (0, 1, 0):                          # the same three frames for every setting
                 write_texture(src, pictures[p])
@@ -141,7 +144,8 @@ def run_workgroup_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str 
         ctx.release()
     rows = []
     for s, out_image, ch, co in zip(settings, outputs, changing, cold):
-        rows.append({"setting": s.label, "values_per_thread": s.shape.table(), "coarse_values_per_thread": s.shape.table(coarse=True),
+        rows.append({"setting": s.label, "values_per_thread": s.shape.table(),
+                     "coarse_values_per_thread": s.shape.table(coarse=True),
                      "changing_gpu_ms": statistics.median(ch) if ch else None,
                      "cold_gpu_ms": statistics.median(co) if co else None,
                      "changing_frames_ms": ch, "cold_frames_ms": co,
