@@ -357,11 +357,11 @@ def test_an_invalid_prescription_passes_through_until_a_valid_one_arrives_and_ho
             wait_for(proc, check, what, limit)
 
         waiting(lambda: len(frames(out)) >= 10, "ten passed-through frames")
-        _replace(rx, json.dumps(RX))
+        rx.write_text(json.dumps(RX))                     # in place: the eye source waits for it to settle
         waiting(lambda: any("correcting with" in line for line in layer_log(out)), "the valid prescription")
         waiting(lambda: any(_is_corrected(out, f) for f in frames(out)[-3:]), "a corrected frame")
         # hot reload: an invalid edit keeps the last good prescription (one log line), frames stay corrected
-        _replace(rx, "{ not json")
+        rx.write_text("{ not json")
         waiting(lambda: any("keeping the last good" in line for line in layer_log(out)), "the reload message")
         after = len(frames(out))
         waiting(lambda: len(frames(out)) >= after + 3, "three more frames")
@@ -387,14 +387,6 @@ def test_an_invalid_prescription_passes_through_until_a_valid_one_arrives_and_ho
     assert len([line for line in layer_log(out) if "keeping the last good" in line]) == 1
     _assert_app_images_untouched(out)
     assert_life_cycle(out, swapchains=4)
-
-
-def _replace(path: Path, text: str) -> None:
-    """One edit, as an editor that saves by rename makes it: a write in place is two to a watcher
-    (the file truncated, then written), and each state it reads is an edit of its own."""
-    part = path.with_name(path.name + ".part")
-    part.write_text(text)
-    part.replace(path)
 
 
 def _is_corrected(out: Path, frame: int) -> bool:
