@@ -22,9 +22,8 @@ of CPU) never runs on the render thread after start:
   the worker for this start (loading a display profile imports colour-science: seconds).
 
 One worker thread, jobs in order; a newer edit of the file supersedes a queued one, and a changed
-file is read once its stamp has settled (:data:`SETTLE_S`).  The eyes of
-one reload (or start) arrive in the same :meth:`~EyeSource.poll`, every eye or none.  Layer 5:
-numpy; never torch.
+file is read once its stamp has settled (:data:`SETTLE_S`).  The eyes of one reload (or start)
+arrive in the same :meth:`~EyeSource.poll`, every eye or none.  Layer 5: numpy; never torch.
 """
 
 from __future__ import annotations

@@ -58,13 +58,13 @@ class Setting:
     shape: WorkGroups
 
 
+_ROWS_8_COLUMNS_4 = {**dict.fromkeys(WORK_GROUP_PASSES, 8), "COLUMNS": 4}
 SETTINGS: tuple[Setting, ...] = (
     Setting("the default", WorkGroups()),
     Setting("8 everywhere (before 2026-11-27)", WorkGroups.every(8)),
     Setting("4 everywhere", WorkGroups.every(4)),
     Setting("2 everywhere", WorkGroups.every(2)),
-    Setting("columns 4, rows 8", WorkGroups({**WorkGroups.every(8).full, "COLUMNS": 4},
-                                            {**WorkGroups.every(8).full, "COLUMNS": 4})),
+    Setting("columns 4, rows 8", WorkGroups(_ROWS_8_COLUMNS_4, _ROWS_8_COLUMNS_4)),
     Setting("the default, coarse columns 8", WorkGroups(coarse={"COLUMNS": 8})),
 )
 """The settings compared, the default first (the ratios are to it)."""
