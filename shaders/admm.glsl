@@ -24,15 +24,15 @@
 // Row spectra are real-to-complex: each real channel keeps columns 0..NX/2 (HX = NX/2 + 1) of its
 // row transform, two channels transformed together as a + ib and split; u_spec is an HX x NY x 6
 // array of complex values, written in place by every pass. One work group per row (NX/PER threads)
-// or per spectrum column (NY/PER threads), PER set for each pass (the strategy's VALUES_PER_THREAD,
-// chosen by GPU time); each thread keeps PER values of each channel in
+// or per LINES spectrum columns (NY/PER threads each), PER and LINES set for each pass (the
+// strategy's work_groups, chosen by GPU time); each thread keeps PER values of each channel in
 // registers and the line being transformed is in shared memory; twiddle factors are a table
 // (u_twiddle: cos, sin of 2 pi m / TW_N, m < TW_N / 2) instead of cos/sin in every butterfly.
 // HALF: 16-bit float storage (rg16f, rgba16f; arithmetic in 32 bits, and a value a pass both stores
 // and uses is used as stored); else 32-bit.
 // Defines: NX, NY, LOG2_NX, LOG2_NY, HX, TW_N, PER, WG_X = NX / PER, WG_Y = NY / PER (the work group
-// of this program's row or column pass: a literal, as GLSL 4.30's layout asks), IMG_W, IMG_H, HALF, IDEAL,
-// one pass, its mode.
+// of this program's row or column pass: a literal, as GLSL 4.30's layout asks), LINES (a column
+// pass's lines a work group, default 1), IMG_W, IMG_H, HALF, IDEAL, one pass, its mode.
 #if defined COMPUTE_SHADER
 
 #if defined HALF
@@ -78,11 +78,20 @@ vec2 times_i(vec2 a) { return vec2(-a.y, a.x); }
 #endif
 
 #if defined LINE
-layout(local_size_x = WG) in;
-shared vec2 line[LINE];
+// LINES lines transformed together by one work group (a column pass's COLUMN_LINES; rows: 1): the
+// threads of one line share gl_LocalInvocationID.x = LCOL, neighbouring threads hold neighbouring
+// lines (their reads of one grid row sit side by side in memory), and the lines are interleaved in
+// shared memory (point i of line LCOL at AT(i)).
+#if !defined LINES
+#define LINES 1
+#endif
+layout(local_size_x = LINES, local_size_y = WG) in;
+shared vec2 line[LINE * LINES];
 uniform sampler2D u_twiddle;                   // (TW_N / 2) x 1, rg32f: cos, sin of 2 pi m / TW_N
 layout(SPEC_FMT, binding = 0) uniform image2DArray u_spec;
-#define lid int(gl_LocalInvocationID.x)
+#define lid int(gl_LocalInvocationID.y)
+#define LCOL int(gl_LocalInvocationID.x)
+#define AT(i) ((i) * LINES + LCOL)
 
 int bit_reverse(int i) { return int(bitfieldReverse(uint(i)) >> uint(32 - LOG2_LINE)); }
 
@@ -98,10 +107,10 @@ void fft_line(float sign) {
             int i1 = i0 + half_len;
             vec2 w = texelFetch(u_twiddle, ivec2(j * stride, 0), 0).xy;
             w.y *= sign;
-            vec2 u = line[i0];
-            vec2 v = cmul(line[i1], w);
-            line[i0] = u + v;
-            line[i1] = u - v;
+            vec2 u = line[AT(i0)];
+            vec2 v = cmul(line[AT(i1)], w);
+            line[AT(i0)] = u + v;
+            line[AT(i1)] = u - v;
         }
         barrier();
     }
@@ -112,12 +121,12 @@ void fft_line(float sign) {
 // Forward transform of the real pair (a, b) (PER values per thread at x = lid + WG m), split into
 // the two half spectra, stored in layers la and lb of row `row` (lb < 0: b is zero, only a's kept).
 void forward_pair(vec2 ab[PER], int row, int la, int lb) {
-    for (int m = 0; m < PER; ++m) line[bit_reverse(lid + WG * m)] = ab[m];
+    for (int m = 0; m < PER; ++m) line[AT(bit_reverse(lid + WG * m))] = ab[m];
     barrier();
     fft_line(-1.0);
     for (int k = lid; k <= NX / 2; k += WG) {
-        vec2 c = line[k];
-        vec2 d = conj2(line[(NX - k) & (NX - 1)]);
+        vec2 c = line[AT(k)];
+        vec2 d = conj2(line[AT((NX - k) & (NX - 1))]);
         imageStore(u_spec, ivec3(k, row, la), vec4(stored2(0.5 * (c + d)), 0.0, 0.0));
         if (lb >= 0) {
             vec2 e = 0.5 * (c - d);
@@ -134,12 +143,12 @@ void inverse_pair(int row, int la, int lb, out vec2 ab[PER]) {
         vec2 A = imageLoad(u_spec, ivec3(k, row, la)).xy;
         vec2 B = lb >= 0 ? imageLoad(u_spec, ivec3(k, row, lb)).xy : vec2(0.0);
         if (k == 0 || k == NX / 2) { A.y = 0.0; B.y = 0.0; }     // a real row's DC and Nyquist terms
-        line[bit_reverse(k)] = A + times_i(B);
-        if (k > 0 && k < NX / 2) line[bit_reverse(NX - k)] = conj2(A) + times_i(conj2(B));
+        line[AT(bit_reverse(k))] = A + times_i(B);
+        if (k > 0 && k < NX / 2) line[AT(bit_reverse(NX - k))] = conj2(A) + times_i(conj2(B));
     }
     barrier();
     fft_line(1.0);
-    for (int m = 0; m < PER; ++m) ab[m] = line[lid + WG * m] * (1.0 / float(NX));
+    for (int m = 0; m < PER; ++m) ab[m] = line[AT(lid + WG * m)] * (1.0 / float(NX));
     barrier();
 }
 
@@ -208,23 +217,27 @@ uniform float u_norm2;                          // n = ||K||^2
 vec2 kernel_at(int kx, int ky, int i, int j) { return texelFetch(u_kernel, ivec3(kx, ky, 3 * i + j), 0).xy; }
 
 void main() {
-    int kx = int(gl_WorkGroupID.x);
+    // this thread's spectrum column; a work group's last may lie past HX (HX is odd): it loads zeros,
+    // reads the kernel's last column, stores nothing, and keeps to the barriers
+    int kx = int(gl_WorkGroupID.x) * LINES + LCOL;
+    bool column = kx < HX;
+    int kx_read = min(kx, HX - 1);
     vec2 v[CH_IN > CH_OUT ? CH_IN : CH_OUT][PER];
     for (int c = 0; c < CH_IN; ++c) {
         for (int m = 0; m < PER; ++m) {
             int ky = lid + WG * m;
-            line[bit_reverse(ky)] = ky < u_rows_in ? imageLoad(u_spec, ivec3(kx, ky, c)).xy : vec2(0.0);
+            line[AT(bit_reverse(ky))] = column && ky < u_rows_in ? imageLoad(u_spec, ivec3(kx, ky, c)).xy : vec2(0.0);
         }
         barrier();
         fft_line(-1.0);
-        for (int m = 0; m < PER; ++m) v[c][m] = line[lid + WG * m];
+        for (int m = 0; m < PER; ++m) v[c][m] = line[AT(lid + WG * m)];
         barrier();
     }
     for (int m = 0; m < PER; ++m) {
         int ky = lid + WG * m;
         vec2 K[3][3];
         for (int i = 0; i < 3; ++i)
-            for (int j = 0; j < 3; ++j) K[i][j] = kernel_at(kx, ky, i, j);
+            for (int j = 0; j < 3; ++j) K[i][j] = kernel_at(kx_read, ky, i, j);
 #if defined MODE_TARGET
         vec2 x[3] = vec2[3](v[0][m], v[1][m], v[2][m]);
         for (int i = 0; i < 3; ++i) v[i][m] = cmul(K[i][0], x[0]) + cmul(K[i][1], x[1]) + cmul(K[i][2], x[2]);
@@ -271,13 +284,13 @@ void main() {
 #endif
     }
     for (int c = 0; c < CH_OUT; ++c) {
-        for (int m = 0; m < PER; ++m) line[bit_reverse(lid + WG * m)] = v[c][m];
+        for (int m = 0; m < PER; ++m) line[AT(bit_reverse(lid + WG * m))] = v[c][m];
         barrier();
         fft_line(1.0);
         for (int m = 0; m < PER; ++m) {
             int ky = lid + WG * m;
-            if (ky < u_rows_out)
-                imageStore(u_spec, ivec3(kx, ky, c), vec4(stored2(line[ky] * (1.0 / float(NY))), 0.0, 0.0));
+            if (column && ky < u_rows_out)
+                imageStore(u_spec, ivec3(kx, ky, c), vec4(stored2(line[AT(ky)] * (1.0 / float(NY))), 0.0, 0.0));
         }
         barrier();
     }

@@ -11,15 +11,17 @@ from vrcorrect.studies.bench.workgroups import PASSES, SETTINGS, Setting, run_wo
 
 
 def test_every_shape_is_timed_interleaved_and_gives_the_defaults_output(gl, tmp_path):
-    """Two settings (the default and 2 values a thread everywhere), 2 timed frames of each kind: each
-    has a positive median GPU time for changing and cold frames, the same 8-bit output as the
-    default, and the section and the JSON say so."""
+    """Three settings (the default, 2 values a thread everywhere, two columns a column pass's work
+    group), 2 timed frames of each kind: each has a positive median GPU time for changing and cold
+    frames, the same 8-bit output as the default, and the section and the JSON say so."""
     two = Setting("2 everywhere", WorkGroups.every(2))
+    paired = next(s for s in SETTINGS if s.shape.column_lines == {"full": 2, "coarse": 2} and
+                  s.shape.table() == WorkGroups().table())
     out, js = tmp_path / "bench.md", tmp_path / "wg.json"
-    report = run_workgroup_bench((72, 64), frames=2, settings=(SETTINGS[0], two), out=out, json_out=js,
+    report = run_workgroup_bench((72, 64), frames=2, settings=(SETTINGS[0], two, paired), out=out, json_out=js,
                                  warm_up_s=0.0, progress=False)
     rows = report["rows"]
-    assert [r["setting"] for r in rows] == ["the default", "2 everywhere"]
+    assert [r["setting"] for r in rows] == ["the default", "2 everywhere", paired.label]
     for r in rows:
         assert len(r["changing_frames_ms"]) == 2 and len(r["cold_frames_ms"]) == 2
         assert r["changing_gpu_ms"] > 0 and r["cold_gpu_ms"] > 0
@@ -27,6 +29,8 @@ def test_every_shape_is_timed_interleaved_and_gives_the_defaults_output(gl, tmp_
     assert rows[1]["values_per_thread"] == dict.fromkeys(PASSES, 2)
     text = out.read_text()
     assert "<!-- bench:workgroups -->" in text and "| 2 everywhere | 2 / 2 / 2 / 2, 2 (coarse columns 2) |" in text
+    assert rows[2]["column_lines"] == {"full": 2, "coarse": 2}
+    assert "| 8 / 4 / 8 / 8, 4 (coarse columns 2); 2 columns a work group (coarse 2) |" in text
     assert json.loads(js.read_text())["rows"][0]["values_per_thread"] == WorkGroups().table()
 
 

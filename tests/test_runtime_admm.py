@@ -15,7 +15,7 @@ from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector, CorrectorOptions, build_eye_model
 from vrcorrect.runtime.dispatch import CostLedger, resource_bytes
 from vrcorrect.runtime.eye_model import WorkGroups
-from vrcorrect.runtime.strategies.admm import values_per_thread
+from vrcorrect.runtime.strategies.admm import column_lines, values_per_thread
 from vrcorrect.solvers import make_problem, objective, solve
 from vrcorrect.solvers.admm import _admm
 from vrcorrect.solvers import guard_weight
@@ -504,6 +504,18 @@ def test_values_per_thread_keep_a_work_group_within_1024_threads():
     assert values_per_thread(8, 16) == 8            # a line shorter than the values asked
 
 
+def test_column_lines_keep_a_work_group_within_shared_memory_and_1024_threads():
+    """Columns a work group transforms together: as asked while the lines fit 32 KiB of shared
+    memory (8 bytes a point) and 1,024 threads, else halved until they do."""
+    assert column_lines(2048, 4, 1) == 1
+    assert column_lines(2048, 4, 2) == 2            # 2 x 2048 x 8 bytes = 32 KiB, 1,024 threads
+    assert column_lines(2048, 4, 8) == 2
+    assert column_lines(1024, 2, 8) == 2            # 512 threads a line: 1,024 for two
+    assert column_lines(1024, 4, 8) == 4            # shared memory: 4 x 1024 x 8 = 32 KiB
+    assert column_lines(256, 4, 8) == 8
+    assert column_lines(2048, 2, 2) == 1            # 1,024 threads a line already
+
+
 def test_work_groups_are_an_option_checked_by_name_and_value():
     """The shape is a CorrectorOptions field: every pass named, partial tables filled from the
     default's, equal shapes hash alike; a wrong pass, a value that is not a power of two from 1 to 64,
@@ -526,6 +538,17 @@ def test_work_groups_are_an_option_checked_by_name_and_value():
             WorkGroups(bad)
         assert e.value.field == field, (bad, e.value.field)
     assert CorrectorOptions(work_groups={"coarse": {"COLUMNS": 8}}).work_groups == partial
+    assert default.lines() == default.lines(coarse=True) == 1
+    paired = WorkGroups(column_lines={"full": 2})
+    assert (paired.lines(), paired.lines(coarse=True)) == (2, 1) and paired != default
+    assert hash(paired) == hash(WorkGroups(column_lines={"full": 2, "coarse": 1})) != hash(default)
+    assert CorrectorOptions(work_groups={"column_lines": {"coarse": 4}}).work_groups.lines(coarse=True) == 4
+    for bad, field in (({"full": 3}, "work_groups.column_lines[full]"), ({"full": 16}, "work_groups.column_lines[full]"),
+                       ({"full": True}, "work_groups.column_lines[full]"), ({"fine": 2}, "work_groups.column_lines level"),
+                       (2, "work_groups.column_lines")):
+        with pytest.raises(ValidationError) as e:
+            WorkGroups(column_lines=bad)
+        assert e.value.field == field, (bad, e.value.field)
     with pytest.raises(ValidationError) as e:
         CorrectorOptions(work_groups={"COLUMNS": 4})
     assert e.value.field == "work_groups"
@@ -533,9 +556,11 @@ def test_work_groups_are_an_option_checked_by_name_and_value():
 
 def test_the_work_group_shape_changes_no_value(gl, wide_clip):
     """The same frames (a cold one from the coarse level, then the content moving) with every pass's
-    work group at 2 values a thread and at 8 (and the default's mix of 8, 4 and 2), each given as the
-    corrector's ``work_groups`` option: the GPU's solutions in half precision are equal to the last
-    bit; only the threads that hold the values differ."""
+    work group at 2 values a thread and at 8 (and the default's mix of 8, 4 and 2), and with two and
+    four spectrum columns a column pass's work group (the spectrum's odd column count leaves the last
+    group one column short), each given as the corrector's ``work_groups`` option: the GPU's
+    solutions in half precision are equal to the last bit; only the threads that hold the values
+    differ."""
     def frames(shape: WorkGroups | None) -> list[np.ndarray]:
         r = Run(gl, "half", 2, size=(CW, CH), work_groups=shape)
         try:
@@ -549,14 +574,15 @@ def test_the_work_group_shape_changes_no_value(gl, wide_clip):
             for level, coarse in ((r.c.strategy, False), (r.c.strategy.coarse, True)):
                 (b,) = level._sized.values()
                 assert dict(b.values_per_thread) == asked.table(coarse), (coarse, b.values_per_thread)
+                assert b.column_lines == asked.lines(coarse) and b.column_groups == -(-(b.grid[1] // 2 + 1) // b.column_lines)
             return out
         finally:
             r.release()
 
     default = frames(None)
-    for per in (2, 8):
-        for f, (a, b) in enumerate(zip(default, frames(WorkGroups.every(per)))):
-            assert np.array_equal(a, b), (per, f, np.abs(a - b).max())
+    for shape in (WorkGroups.every(2), WorkGroups.every(8), WorkGroups(column_lines={"full": 2, "coarse": 4})):
+        for f, (a, b) in enumerate(zip(default, frames(shape))):
+            assert np.array_equal(a, b), (shape, f, np.abs(a - b).max())
 
 
 def test_a_cold_frames_coarse_level_is_counted_in_its_stage(gl, wide_clip):

@@ -41,7 +41,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from ..physics.kernel import EyeKernel, KernelOptions
 
 __all__ = ["as_options", "DEFAULT_ITERATIONS", "DEFAULT_COLD_ITERATIONS", "WORK_GROUP_PASSES", "VALUES_PER_THREAD",
-           "COARSE_VALUES_PER_THREAD", "WorkGroups", "CorrectorOptions", "EyeModel", "build_eye_model",
+           "COARSE_VALUES_PER_THREAD", "COLUMN_LINES", "WorkGroups", "CorrectorOptions", "EyeModel", "build_eye_model",
            "check_iterations"]
 
 # The names (backends, filters, precisions) and the iterations' ranges are the vocabulary's
@@ -71,6 +71,9 @@ COARSE_VALUES_PER_THREAD = {**VALUES_PER_THREAD, "COLUMNS": 2}
 """The same for a cold frame's coarse level (a grid half as wide: 1024 at headset size). There the
 columns at 4 made the cold frame 16.5 ms on the H100, at 8 10.6 ms, at 2 10.0 ms (the same day and
 way of timing; why 4 is slow at that length is not known)."""
+COLUMN_LINES = (1, 2, 4, 8)
+"""Spectrum columns one work group of a column pass may transform together (``WorkGroups.column_lines``).
+The shipped shape keeps 1, the only one timed on a GPU so far."""
 
 
 @dataclass(frozen=True)
@@ -82,10 +85,17 @@ class WorkGroups:
     (``vrcorrect bench workgroups`` times settings against each other). Where a line would need
     more than 1,024 threads or has fewer points than asked, the strategy adjusts it per line. The
     default is :data:`VALUES_PER_THREAD` and :data:`COARSE_VALUES_PER_THREAD`; a mapping given
-    may name some passes only, the others keep the default's."""
+    may name some passes only, the others keep the default's.
+
+    ``column_lines`` (``{"full": n, "coarse": n}``, either may be left out; default 1 each): the
+    spectrum columns one work group of a column pass transforms together, one of
+    :data:`COLUMN_LINES`. Its threads then read neighbouring columns of a grid row side by side
+    (one column a group reads a single value from each row). The strategy lowers it where the lines
+    would not fit the 32 KiB of shared memory every OpenGL 4.3 GPU has, or 1,024 threads."""
 
     full: Mapping[str, int] = field(default_factory=lambda: dict(VALUES_PER_THREAD))
     coarse: Mapping[str, int] = field(default_factory=lambda: dict(COARSE_VALUES_PER_THREAD))
+    column_lines: Mapping[str, int] = field(default_factory=lambda: {"full": 1, "coarse": 1})
 
     def __post_init__(self) -> None:
         for name, given, default in (("full", self.full, VALUES_PER_THREAD),
@@ -100,9 +110,23 @@ class WorkGroups:
                     raise ValidationError(f"work_groups.{name}[{pass_}]", per,
                                           f"a power of two from 1 to {MAX_VALUES_PER_THREAD}")
             object.__setattr__(self, name, {p: int(given.get(p, default[p])) for p in WORK_GROUP_PASSES})
+        lines = self.column_lines
+        if not isinstance(lines, Mapping):
+            raise ValidationError("work_groups.column_lines", lines, "a mapping with 'full' and/or 'coarse'")
+        for level, n in lines.items():
+            if level not in ("full", "coarse"):
+                raise ValidationError("work_groups.column_lines level", level, "'full' or 'coarse'")
+            if isinstance(n, bool) or n not in COLUMN_LINES:
+                raise ValidationError(f"work_groups.column_lines[{level}]", n,
+                                      "one of " + ", ".join(map(str, COLUMN_LINES)))
+        object.__setattr__(self, "column_lines", {level: int(lines.get(level, 1)) for level in ("full", "coarse")})
 
     def __hash__(self) -> int:
-        return hash((tuple(self.full.items()), tuple(self.coarse.items())))
+        return hash((tuple(self.full.items()), tuple(self.coarse.items()), tuple(self.column_lines.items())))
+
+    def lines(self, coarse: bool = False) -> int:
+        """Spectrum columns a column pass's work group transforms together, as asked."""
+        return self.column_lines["coarse" if coarse else "full"]
 
     def table(self, coarse: bool = False) -> dict[str, int]:
         """Values per thread by pass, at full resolution or on the coarse level (a copy)."""
@@ -238,11 +262,12 @@ class CorrectorOptions:
         if self.precision not in names(Precision):
             raise ValidationError("precision", self.precision, one_of(Precision))
         check_iterations(self.cold_iterations, "cold_iterations")
-        if isinstance(self.work_groups, Mapping) and set(self.work_groups) <= {"full", "coarse"}:
+        if isinstance(self.work_groups, Mapping) and set(self.work_groups) <= {"full", "coarse", "column_lines"}:
             object.__setattr__(self, "work_groups", WorkGroups(**self.work_groups))   # as JSON gives it
         if not isinstance(self.work_groups, WorkGroups):
             raise ValidationError("work_groups", self.work_groups,
-                                  "a WorkGroups, or a mapping with 'full' and/or 'coarse' tables of values per thread")
+                                  "a WorkGroups, or a mapping with 'full' and/or 'coarse' tables of values per thread "
+                                  "(and 'column_lines')")
         if self.cold_start_model is not None:
             if not isinstance(self.cold_start_model, str) or not self.cold_start_model:
                 raise ValidationError("cold_start_model", self.cold_start_model, "a path to an unrolled ONNX model or None")

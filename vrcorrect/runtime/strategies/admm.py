@@ -52,7 +52,7 @@ from .base import GuardResult, IterativeStrategy, Size, float_texture, groups_2d
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
-__all__ = ["AdmmStrategy", "values_per_thread"]
+__all__ = ["AdmmStrategy", "values_per_thread", "column_lines"]
 
 MAX_INVOCATIONS = 1024
 """Threads a work group may have (OpenGL 4.3's least ``GL_MAX_COMPUTE_WORK_GROUP_INVOCATIONS``)."""
@@ -62,6 +62,20 @@ def values_per_thread(line: int, per: int) -> int:
     """Values per thread for a line of ``line`` points: ``per``, raised where the work group would
     exceed ``MAX_INVOCATIONS`` and lowered to the line's length."""
     return min(max(int(per), -(-line // MAX_INVOCATIONS)), line)
+
+
+MIN_SHARED_BYTES = 32768
+"""Shared memory a work group may use (OpenGL 4.3's least ``GL_MAX_COMPUTE_SHARED_MEMORY_SIZE``)."""
+
+
+def column_lines(ny: int, per: int, lines: int) -> int:
+    """Spectrum columns one work group of a column pass transforms together for ``ny``-point columns
+    at ``per`` values a thread: ``lines``, halved until the lines (a ``vec2`` a point) fit
+    ``MIN_SHARED_BYTES`` and the threads ``MAX_INVOCATIONS``."""
+    n = max(1, int(lines))
+    while n > 1 and (n * ny * 8 > MIN_SHARED_BYTES or n * (ny // per) > MAX_INVOCATIONS):
+        n //= 2
+    return n
 
 
 EARLY_STOP_TOLERANCE = 1e-3
@@ -102,6 +116,8 @@ class AdmmBuffers:
     frames: int = field(default=0)
     skipped: int = 0                           # frames the GPU was told to skip (early stop) so far
     values_per_thread: tuple[tuple[str, int], ...] = ()   # each pass's, as compiled (work_groups, per line)
+    column_lines: int = 1                      # spectrum columns a column pass's work group transforms, as compiled
+    column_groups: int = 0                     # a column pass's work groups: ceil(HX / column_lines)
 
     def release(self) -> None:
         for f in fields(self):
@@ -193,12 +209,16 @@ class AdmmStrategy(IterativeStrategy):
 
         per_pass = self.options.work_groups.table(self.coarse_level)    # shape only, never a value
         compiled: dict[str, int] = {}
+        col_per = values_per_thread(ny, per_pass["COLUMNS"])
+        col_lines = column_lines(ny, col_per, self.options.work_groups.lines(self.coarse_level))
 
         def program(pass_: str, **extra: None) -> "moderngl.ComputeShader":
             per = values_per_thread(ny if pass_ == "COLUMNS" else nx, per_pass.get(pass_, 8))
             if pass_ in per_pass:
                 compiled[pass_] = per
             lines = {"PER": per, "WG_X": nx // per, "WG_Y": ny // per}
+            if pass_ == "COLUMNS":
+                lines["LINES"] = col_lines
             return compile_compute(ctx, "admm.glsl", defines={**defines, **lines, pass_: None, **extra})
 
         defines["MAX_PASSES"] = len(KINDS)
@@ -235,7 +255,8 @@ class AdmmStrategy(IterativeStrategy):
             history=ctx.buffer(np.full(4, -1.0, np.float32).tobytes()), args=ctx.buffer(reserve=12 * len(KINDS)),
             guard=GuardResult(ctx),
             out=float_texture(ctx, size), programs=programs, present=present,
-            present_vao=fullscreen_triangle(ctx, present), values_per_thread=tuple(sorted(compiled.items())))
+            present_vao=fullscreen_triangle(ctx, present), values_per_thread=tuple(sorted(compiled.items())),
+            column_lines=col_lines, column_groups=-(-hx // col_lines))
 
     # ------------------------------------------------------------------ frames
 
@@ -300,7 +321,7 @@ class AdmmStrategy(IterativeStrategy):
         b = self._buffers(size)
         W, H = size
         ny, nx = b.grid
-        hx = nx // 2 + 1
+        cols = b.column_groups                  # a column pass's work groups
         if linear is not b.t[b.next_t]:
             raise ValidationError("linear", "a texture not from decode_target", "this strategy's decode target")
         cold = not b.warm
@@ -313,8 +334,8 @@ class AdmmStrategy(IterativeStrategy):
         k = self._iterations
         if b.compared:
             self._begin("plan")
-            groups = {"rows_target": H, "cols_target": hx, "rows_start": ny, "cols_admm": hx, "rows_update": ny,
-                      "rows_last": ny, "rows_guard_input": H, "cols_guard": hx, "rows_guard": H, "guard_final": 1}
+            groups = {"rows_target": H, "cols_target": cols, "rows_start": ny, "cols_admm": cols, "rows_update": ny,
+                      "rows_last": ny, "rows_guard_input": H, "cols_guard": cols, "rows_guard": H, "guard_final": 1}
             gpu.run("plan (early stop)", b.programs["plan"], (1, 1, 1),
                     buffers={5: (b.changed, "rw"), 6: (b.history, "r"), 7: (b.args, "w")},
                     uniforms={"u_passes": len(KINDS), "u_groups": tuple(groups[kind] for kind in KINDS),
@@ -323,7 +344,7 @@ class AdmmStrategy(IterativeStrategy):
             self._begin("target")
             self._run(b, "rows_target", "rows: target t", H, sample={**twiddle, "u_t": linear}, write={0: b.spec},
                       rows={0: (H, 3)})
-            self._run(b, "cols_target", "columns: T = K_ref t", hx, sample={**twiddle, "u_kernel": b.reference},
+            self._run(b, "cols_target", "columns: T = K_ref t", cols, sample={**twiddle, "u_kernel": b.reference},
                       modify={0: b.spec}, uniforms={"u_rows_in": H, "u_rows_out": ny}, rows={0: (H, 3)},
                       written={0: (ny, 3)}, round_trip=True)
         self._begin("start")
@@ -367,7 +388,7 @@ class AdmmStrategy(IterativeStrategy):
         self._begin("iterations")
         if self.coarse_level:                     # the state is the result: every iteration a plain update
             for _ in range(k):
-                self._run(b, "cols_admm", "columns: ADMM solve", hx, sample={**twiddle, "u_kernel": b.kernel},
+                self._run(b, "cols_admm", "columns: ADMM solve", cols, sample={**twiddle, "u_kernel": b.kernel},
                           modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.norm2},
                           round_trip=True)
                 self._run(b, "rows_update", "rows: update, reflections", ny, sample={**twiddle, "u_T": b.T[new]},
@@ -376,7 +397,7 @@ class AdmmStrategy(IterativeStrategy):
             b.current, b.last_t, b.warm = new, b.next_t, True
             return linear
         for i in range(k):
-            self._run(b, "cols_admm", "columns: ADMM solve", hx, sample={**twiddle, "u_kernel": b.kernel},
+            self._run(b, "cols_admm", "columns: ADMM solve", cols, sample={**twiddle, "u_kernel": b.kernel},
                       modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.norm2},
                       round_trip=True)
             last = i == k - 1
@@ -391,7 +412,7 @@ class AdmmStrategy(IterativeStrategy):
             self._run(b, "rows_guard_input", "rows: guard input", H, sample={**twiddle, "u_t": linear},
                       read={3: b.q[new]}, write={0: b.spec}, rows={0: (H, 6), 3: H})
         self._begin("guard")
-        self._run(b, "cols_guard", "columns: K z, K t", hx, sample={**twiddle, "u_kernel": b.kernel},
+        self._run(b, "cols_guard", "columns: K z, K t", cols, sample={**twiddle, "u_kernel": b.kernel},
                   modify={0: b.spec}, uniforms={"u_rows_in": H, "u_rows_out": H}, rows={0: (H, 6)},
                   written={0: (H, 6)}, round_trip=True)
         self._run(b, "rows_guard", "rows: guard sums", H, sample={**twiddle, "u_T": b.T[new]}, read={0: b.spec},

@@ -16,7 +16,9 @@ untimed frames first), the order reversed every other round, so that a drift of 
 every setting alike: changing content (a new picture each frame, the budget case) and cold frames (a
 reset before each, as a cut). Each frame's GPU time comes from a ``GL_TIME_ELAPSED`` query around
 it; the medians are reported. Every setting's output after the same three frames is compared with
-the default's, to the last bit of the 8-bit picture.
+the default's, to the last bit of the 8-bit picture. Besides the values a thread, two settings give a
+column pass's work group two spectrum columns (``WorkGroups.column_lines``): its threads then read
+neighbouring columns of a grid row side by side, where one column a group reads one value a row.
 
 On llvmpipe the figures measure CPU cores, not a GPU: the command runs there (the tests run it), but
 its choice is for a GPU. Layer 6.
@@ -66,6 +68,9 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("2 everywhere", WorkGroups.every(2)),
     Setting("columns 4, rows 8", WorkGroups(_ROWS_8_COLUMNS_4, _ROWS_8_COLUMNS_4)),
     Setting("the default, coarse columns 8", WorkGroups(coarse={"COLUMNS": 8})),
+    Setting("the default, 2 columns a column work group", WorkGroups(column_lines={"full": 2, "coarse": 2})),
+    Setting("columns 8, 2 columns a column work group",
+            WorkGroups({"COLUMNS": 8}, {"COLUMNS": 8}, column_lines={"full": 2, "coarse": 2})),
 )
 """The settings compared, the default first (the ratios are to it)."""
 
@@ -146,6 +151,7 @@ def run_workgroup_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str 
     for s, out_image, ch, co in zip(settings, outputs, changing, cold):
         rows.append({"setting": s.label, "values_per_thread": s.shape.table(),
                      "coarse_values_per_thread": s.shape.table(coarse=True),
+                     "column_lines": dict(s.shape.column_lines),
                      "changing_gpu_ms": statistics.median(ch) if ch else None,
                      "cold_gpu_ms": statistics.median(co) if co else None,
                      "changing_frames_ms": ch, "cold_frames_ms": co,
@@ -169,7 +175,8 @@ def _markdown(report: Mapping[str, Any]) -> str:
     base = rows[0]
     W, H = report["size"]
     table = markdown_table(
-        ("setting", "values a thread: rows target / start / update / guard, columns", "changing frame, ms (GPU)",
+        ("setting", "values a thread: rows target / start / update / guard, columns; columns a work group",
+         "changing frame, ms (GPU)",
          "× the default", "cold frame, ms (GPU)", "× the default", "same output"),
         [(r["setting"], _describe(r), _ms(r["changing_gpu_ms"]), _ratio(r["changing_gpu_ms"], base["changing_gpu_ms"]),
           _ms(r["cold_gpu_ms"]), _ratio(r["cold_gpu_ms"], base["cold_gpu_ms"]),
@@ -185,4 +192,8 @@ def _markdown(report: Mapping[str, Any]) -> str:
 
 def _describe(row: Mapping[str, Any]) -> str:
     full, coarse = row["values_per_thread"], row["coarse_values_per_thread"]
-    return " / ".join(str(full[p]) for p in PASSES[:-1]) + f", {full['COLUMNS']} (coarse columns {coarse['COLUMNS']})"
+    lines = row.get("column_lines", {"full": 1, "coarse": 1})
+    shape = " / ".join(str(full[p]) for p in PASSES[:-1]) + f", {full['COLUMNS']} (coarse columns {coarse['COLUMNS']})"
+    if lines["full"] == lines["coarse"] == 1:
+        return shape
+    return shape + f"; {lines['full']} columns a work group (coarse {lines['coarse']})"
