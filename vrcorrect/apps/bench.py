@@ -71,6 +71,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                      out=Path(args.out), write=not args.no_write, json_out=_json_out(args),
                                      force=args.force)
         print(report["markdown"])
+    elif args.what == "halfres":
+        from ..studies.bench.halfres import run_halfres_bench
+
+        report = run_halfres_bench(out=Path(args.out), write=not args.no_write, json_out=_json_out(args),
+                                   force=args.force)
+        print(report["markdown"])
     elif args.what == "layer":
         from ..studies.bench.layer import run_layer_bench
 
@@ -106,19 +112,20 @@ def cmd_bench(args: argparse.Namespace) -> int:
         print(run_unrolled_bench(Path(args.model), out=Path(args.out), eyes=args.eyes, write=not args.no_write)
               ["markdown"])
     else:
-        raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, cost, workgroups, xr, layer, "
-                              "learned or unrolled")
+        raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, cost, workgroups, halfres, "
+                              "xr, layer, learned or unrolled")
     return 0
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md",
                        description="Measure one thing (kernel builds, solvers, render, realtime, cost, the work-group "
-                                   "shapes of its passes, xr, layer, learned or unrolled), print its table, and write "
+                                   "shapes of its passes, a half-resolution solve by eye (halfres), xr, layer, learned "
+                                   "or unrolled), print its table, and write "
                                    "it into its own section of the benchmarks file (--out), naming the machine it ran "
                                    "on.")
-    p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "cost", "workgroups", "xr", "layer",
-                                    "learned", "unrolled"),
+    p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "cost", "workgroups", "halfres", "xr",
+                                    "layer", "learned", "unrolled"),
                    help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
     p.add_argument("--resolutions", nargs="+", metavar="R",
@@ -135,7 +142,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quick", action="store_true", help="realtime: fewer frames and sizes (a smoke run)")
     p.add_argument("--size", default="1832x1920", metavar="WxH",
                    help="cost, workgroups: each eye's image size (default 1832x1920, a Quest 2 eye)")
-    p.add_argument("--json", metavar="OUT.json", help="cost, workgroups: also write the figures as JSON there")
+    p.add_argument("--json", metavar="OUT.json", help="cost, workgroups, halfres: also write the figures as JSON "
+                   "there")
     p.add_argument("--display", default="quest2",
                    help="cost, workgroups: display preset or profile (default quest2)")
     p.add_argument("--rx", metavar="RX.json", help="cost, workgroups: prescription (default: the bundled sample)")
@@ -146,5 +154,5 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="cost: time N changing and N cold frames per eye and method, and report the median "
                         "(default 1; a GPU measurement wants more, e.g. 50); workgroups: N of each per setting, "
                         "interleaved (default 20)")
-    p.add_argument("--force", action="store_true", help="cost, workgroups: overwrite --json's file")
+    p.add_argument("--force", action="store_true", help="cost, workgroups, halfres: overwrite --json's file")
     p.set_defaults(func=cmd_bench)
