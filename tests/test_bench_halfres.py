@@ -61,3 +61,44 @@ def test_bench_halfres_writes_its_section_and_json(tmp_path):
     text = out.read_text()
     assert "<!-- bench:halfres -->" in text and "| quest2 | -6.00 / +0.00 |" in text
     assert json.loads(js.read_text())["rows"][0]["sphere_D"] == -6.0
+
+
+def test_the_half_resolution_frames_stay_in_the_box_and_improve_on_none():
+    """The real-time twin of the half-resolution mode, frame after frame with the content moving: a
+    photograph's frames stay in [0, 1] and closer to the target's retina than no correction; a flat
+    grey field moved by odd pixels (the motion halved, the odd pixel carried) is never made worse
+    than itself (the guard)."""
+    from vrcorrect.studies.bench.halfres import HalfResolutionFrames
+    from vrcorrect.studies.bench.realtime import linear
+
+    display = get_display("quest2")
+    eye = EyeRx(-4.0, -1.0, 120.0, 4.0)
+    kernel, reference = build_kernel(eye, display), build_reference_kernel(eye, display)
+    frames = HalfResolutionFrames(kernel, reference, (80, 72))
+    picture = photo("coffee", 96)
+    for i in range(4):
+        image = picture[2 * i:2 * i + 80, 5:77]
+        shown = frames.frame(linear(image), 2, shift=None if i == 0 else (0, -2), cold=i == 0)
+        p = make_problem(linear(image), kernel, reference)
+        assert shown.shape == (80, 72, 3) and shown.min() >= 0.0 and shown.max() <= 1.0
+        assert objective(shown, p) < objective(p.target, p)
+    flat = HalfResolutionFrames(kernel, reference, (64, 64))
+    grey = np.full((64, 64, 3), 0.4, np.float32)
+    for i in range(3):
+        shown = flat.frame(grey, 2, shift=None if i == 0 else (1, 0), cold=i == 0)
+        p = make_problem(grey, kernel, reference)
+        assert objective(shown, p) <= objective(grey, p) * (1 + 1e-6)
+
+
+def test_bench_halfres_video_scores_the_held_out_clips():
+    """A short run of the video part: a row per held-out clip with every method's video JOD and the
+    default's and the half-resolution mode's shares of `fast`'s gain."""
+    from vrcorrect.studies.bench.halfres import run_halfres_video
+
+    rows = run_halfres_video(size=64, frames=6, progress=False)
+    assert [r["clip"] for r in rows] == ["sprite", "text", "cut"]
+    for r in rows:
+        assert set(r["jod"]) == {"none", "fast", "default", "half"} and all(np.isfinite(list(r["jod"].values())))
+        assert set(r["jod_share"]) == set(r["objective_share"]) == {"default", "half"}
+        assert r["objective_share"]["half"] is not None and r["objective_share"]["half"] > 0.0
+        assert 0.0 < r["beyond_half_band"] < 0.05

@@ -15,7 +15,13 @@ Beside each, how much the eye passes beyond half the Nyquist frequency
 (:func:`beyond_half_band`: the kernel's largest spectral magnitude there, relative to its largest
 at zero frequency), the quantity a runtime would switch on. Reported: the share of ``fast``'s
 objective gain over no correction, and of its JOD gain (ColorVideoVDP on what the eye sees against
-the glasses-on view), by case and by band. Layer 6.
+the glasses-on view), by case and by band.
+
+With ``video``, the held-out one-second clips of the real-time suite for one strong eye
+(:data:`VIDEO_EYE`, whose transfer beyond half band is 0.025): the half-resolution correction as a
+real-time mode would run it (:class:`HalfResolutionFrames`: the real-time ADMM twin on the pooled
+frames, 2 iterations a frame, warm-started, its guard weight applied to the upsampled correction)
+against the real-time default and ``fast`` per frame, judged as video. Layer 6.
 """
 
 from __future__ import annotations
@@ -38,8 +44,8 @@ from ...specs.vocabulary import Method
 from ...vision.forward import lms_to_display, simulate_lms
 from . import machine_description, markdown_table, publish
 
-__all__ = ["DISPLAYS", "SPHERES", "CYLINDERS", "BANDS", "beyond_half_band", "half_resolution_correction",
-           "run_halfres_bench"]
+__all__ = ["DISPLAYS", "SPHERES", "CYLINDERS", "BANDS", "VIDEO_EYE", "beyond_half_band", "half_resolution_correction",
+           "HalfResolutionFrames", "run_halfres_video", "run_halfres_bench"]
 
 DISPLAYS = ("quest2", "index", "desktop")
 SPHERES = (-6.0, -3.0, -1.5, -0.5, 1.0, 3.0)
@@ -53,6 +59,9 @@ BANDS = ((0.0, 0.02), (0.02, 0.05), (0.05, 0.1), (0.1, 0.3), (0.3, 10.0))
 """The bins of :func:`beyond_half_band` the summary groups cases by."""
 COARSE_TOLERANCE = 1e-3
 COARSE_MAX_ITERATIONS = 200
+VIDEO_DISPLAY = "quest2"
+VIDEO_EYE = {"sphere_D": -4.0, "cylinder_D": -1.0, "axis_deg": 120.0, "pupil_diameter_mm": 4.0}
+VIDEO_ITERATIONS = 2
 
 
 def beyond_half_band(kernel: EyeKernel) -> float:
@@ -88,6 +97,75 @@ def half_resolution_correction(problem: Problem) -> tuple[np.ndarray, int, float
     return (problem.target + np.float32(beta) * (z - problem.target)).astype(np.float32), iterations, beta
 
 
+class HalfResolutionFrames:
+    """The half-resolution correction as a real-time mode would run it, frame after frame (a study's
+    twin: no GPU strategy exists). The real-time ADMM twin (:class:`~vrcorrect.solvers.realtime.AdmmFrames`)
+    runs on the 2x2-pooled frames with the kernels a half-resolution image sees, warm-started, the
+    content's motion halved (an odd pixel carried to the next frame); the frame shown is the target
+    plus its correction upsampled (:func:`~vrcorrect.solvers.realtime.upsample_double`), clipped, then
+    blended with the target by the coarse guard's weight."""
+
+    def __init__(self, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int]):
+        from ...solvers.realtime import AdmmFrames, coarse_eye_kernel
+
+        H, W = shape
+        self.shape = (H, W)
+        self.coarse = AdmmFrames(coarse_eye_kernel(kernel), None if reference is None else coarse_eye_kernel(reference),
+                                 ((H + 1) // 2, (W + 1) // 2))
+        self._carry = np.zeros(2, int)
+
+    def frame(self, target: np.ndarray, iterations: int, shift: tuple[int, int] | None = None,
+              cold: bool = False) -> np.ndarray:
+        """The ``(H, W, 3)`` frame to show for the linear ``target``; ``shift``: the content's motion
+        ``(dx, dy)`` in full-resolution pixels; ``cold``: a shot's first frame."""
+        from ...solvers.realtime import pool_half, upsample_double
+
+        t = np.ascontiguousarray(np.moveaxis(np.asarray(target, np.float32), 2, 0))
+        coarse_shift = None
+        if cold or shift is None:
+            self._carry[:] = 0
+        else:
+            self._carry += np.asarray(shift, int)
+            halved = np.fix(self._carry / 2).astype(int)
+            self._carry -= 2 * halved
+            coarse_shift = (int(halved[0]), int(halved[1]))
+        tc = pool_half(t)
+        r = self.coarse.frame(np.moveaxis(tc, 0, 2), iterations, shift=coarse_shift, cold=cold)
+        z = np.clip(t + upsample_double(np.moveaxis(r.solution, 2, 0) - tc, self.shape), 0.0, 1.0)
+        return np.ascontiguousarray(np.moveaxis(t + np.float32(r.beta) * (z - t), 0, 2))
+
+
+def run_halfres_video(size: int = 256, frames: int = 90, display_name: str = VIDEO_DISPLAY,
+                      eye: Mapping[str, float] = VIDEO_EYE, progress: bool = True) -> list[dict[str, Any]]:
+    """The held-out clips (:func:`~vrcorrect.studies.bench.sequences.held_out`) for ``eye`` on
+    ``display_name``: none, ``fast`` per frame, the real-time default and :class:`HalfResolutionFrames`,
+    scored as video (the real-time bench's ``score_clip``): a row per clip."""
+    from . import realtime as rt
+    from .sequences import held_out
+
+    case = rt.make_case(display_name, dict(eye))
+    rows = []
+    for clip in tqdm(held_out(size, frames), desc="bench halfres (video)", unit="clip", leave=False,
+                     disable=None if progress else True):
+        motions = rt._motions(clip.frames)
+        none, fast = rt.floor_and_ceiling(case, clip)
+        default = rt.run_clip(case, clip, "admm", VIDEO_ITERATIONS, motions=motions)
+        half, twin = rt.Run(), HalfResolutionFrames(case.kernel, case.reference, clip.frames[0].shape[:2])
+        for i, frame in enumerate(clip.frames):
+            motion = None if i == 0 else motions[i - 1]
+            cold = i == 0 or motion == "cut"
+            shown = twin.frame(rt.linear(frame), VIDEO_ITERATIONS, shift=None if cold else motion, cold=cold)
+            half.shown.append(shown)
+            half.objective.append(objective(shown, case.problem(frame)))
+        scores = rt.score_clip(case, clip, {"none": none, "fast": fast, "default": default, "half": half})
+        rows.append({"clip": clip.name, "what": clip.what, "display": display_name, "eye": dict(eye),
+                     "beyond_half_band": beyond_half_band(case.kernel),
+                     "jod": {k: scores[k]["jod"] for k in ("none", "fast", "default", "half")},
+                     "jod_share": {k: scores[k]["jod_share"] for k in ("default", "half")},
+                     "objective_share": {k: scores[k]["objective_share"] for k in ("default", "half")}})
+    return rows
+
+
 def _band(value: float) -> str:
     for lo, hi in BANDS:
         if lo <= value < hi:
@@ -97,11 +175,13 @@ def _band(value: float) -> str:
 
 def run_halfres_bench(displays: Sequence[str] = DISPLAYS, spheres: Sequence[float] = SPHERES,
                       cylinders: Sequence[float] = CYLINDERS, size: int = SIZE, image: str = IMAGE,
-                      with_jod: bool = True, out: Path = Path("docs/benchmarks.md"), write: bool = True,
-                      json_out: Path | None = None, force: bool = False, progress: bool = True) -> dict[str, Any]:
+                      with_jod: bool = True, video: bool = False, out: Path = Path("docs/benchmarks.md"),
+                      write: bool = True, json_out: Path | None = None, force: bool = False,
+                      progress: bool = True) -> dict[str, Any]:
     """Every eye of ``spheres`` x ``cylinders`` (axis 30 deg, pupil 4 mm) on every display: the rows
-    (module docstring), a summary by band, the markdown; writes the ``halfres`` section of ``out``
-    and, with ``json_out``, the JSON."""
+    (module docstring), a summary by band, with ``video`` the held-out clips as video
+    (:func:`run_halfres_video`), the markdown; writes the ``halfres`` section of ``out`` and, with
+    ``json_out``, the JSON."""
     from .sequences import photo                       # scikit-image's photographs
     from ...vision.metrics import jod                  # the judge (torch), on use
 
@@ -132,7 +212,8 @@ def run_halfres_bench(displays: Sequence[str] = DISPLAYS, spheres: Sequence[floa
             row.update(jod=jods, jod_share=_share({k: -v for k, v in jods.items()}))
         rows.append(row)
     report = {"image": image, "size": size, "axis_deg": AXIS_DEG, "pupil_mm": PUPIL_MM,
-              "machine": machine_description(), "rows": rows, "bands": _summary(rows)}
+              "machine": machine_description(), "rows": rows, "bands": _summary(rows),
+              "video": run_halfres_video(progress=progress) if video else None}
     report["markdown"] = _markdown(report)
     return publish(report, "halfres", out, write, json_out, force)
 
@@ -182,4 +263,20 @@ def _markdown(report: Mapping[str, Any]) -> str:
             "guarded, against `fast` at full resolution: the share of `fast`'s gain over no correction it "
             "keeps, by the objective and by JOD (ColorVideoVDP, what the eye sees against the glasses-on "
             "view). 'Beyond half band': the largest magnitude of the eye's transfer functions beyond half the "
-            "Nyquist frequency, relative to zero frequency.\n\n" + bands + "\n\n" + cases + "\n")
+            "Nyquist frequency, relative to zero frequency.\n\n" + bands + "\n\n" + cases + "\n"
+            + (_video_markdown(report["video"]) if report.get("video") else ""))
+
+
+def _video_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
+    eye = rows[0]["eye"]
+    table = markdown_table(
+        ("held-out clip", "JOD none / `fast` / default / half", "video JOD gain kept: default / half",
+         "objective gain kept: default / half"),
+        [(r["what"], " / ".join(f"{r['jod'][k]:.2f}" for k in ("none", "fast", "default", "half")),
+          f"{_pct(r['jod_share']['default'])} / {_pct(r['jod_share']['half'])}",
+          f"{_pct(r['objective_share']['default'])} / {_pct(r['objective_share']['half'])}") for r in rows])
+    return (f"\nAs video (`--video`): the held-out one-second clips at 90 Hz, {rows[0]['display']}, "
+            f"{eye['sphere_D']:+.2f} / {eye['cylinder_D']:+.2f} x {eye['axis_deg']:g}, {eye['pupil_diameter_mm']:g} mm "
+            f"(beyond half band {rows[0]['beyond_half_band']:.3f}); the real-time default against the "
+            f"half-resolution correction run as a real-time mode would ({VIDEO_ITERATIONS} ADMM iterations a frame "
+            "on the pooled frames, warm-started), both as shares of `fast`'s gain per frame.\n\n" + table + "\n")
