@@ -558,7 +558,7 @@ def test_the_work_group_shape_changes_no_value(gl, wide_clip):
     """The same frames (a cold one from the coarse level, then the content moving) with every pass's
     work group at 2 values a thread and at 8 (and the default's mix of 8, 4 and 2), and with two and
     four spectrum columns a column pass's work group (the spectrum's odd column count leaves the last
-    group one column short), each given as the corrector's ``work_groups`` option: the GPU's
+    group with one column), each given as the corrector's ``work_groups`` option: the GPU's
     solutions in half precision are equal to the last bit; only the threads that hold the values
     differ."""
     def frames(shape: WorkGroups | None) -> list[np.ndarray]:
