@@ -9,6 +9,7 @@ mkdir -p .gl .whl
 for d in .gl .whl; do
     grep -qx "/$d/" .git/info/exclude 2>/dev/null || echo "/$d/" >> .git/info/exclude
 done
+ls /var/lib/apt/lists/*_Packages > /dev/null 2>&1 || apt-get update -qq      # a fresh machine has no package lists
 (cd .gl && apt-get download libglvnd0 libegl1 libgl1 libglx0 libopengl0 libgles2)
 python3 -m pip download -q --only-binary=:all: --no-deps --python-version 3.12 \
     --platform manylinux2014_x86_64 --platform manylinux_2_17_x86_64 -d .whl \
