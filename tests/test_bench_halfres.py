@@ -27,11 +27,13 @@ def test_a_strong_blur_passes_little_beyond_half_band_and_a_mild_one_much():
     assert 0.0 < strong < 0.03 and mild > 0.5 and strong < mild
 
 
-@pytest.mark.parametrize("sphere, least", [(-6.0, 0.85), (-0.5, None)])
+@pytest.mark.parametrize("sphere, least", [(-6.0, 0.8), (-0.5, None)])
 def test_the_half_resolution_correction_is_in_the_box_never_worse_than_none(sphere, least):
-    """On a 95 px photograph (odd: the last row and column keep the target): the correction displays
-    values in [0, 1] and its objective is at most the uncorrected one (the guard); for the strong
-    blur it keeps at least 85 % of `fast`'s objective gain (measured at 256 px: 94 %)."""
+    """On a 95 px photograph (odd: the last blocks repeat the last row and column, as the real-time
+    path pools): the correction displays values in [0, 1] and its objective is at most the
+    uncorrected one (the guard); for the strong blur it keeps at least 80 % of `fast`'s objective
+    gain (measured 84 % here and at 96 px, 94 % at 256 px), and the last row and column are
+    corrected too."""
     display = get_display("quest2")
     eye = EyeRx(sphere, 0.0, 0.0, 4.0)
     kernel, reference = build_kernel(eye, display), build_reference_kernel(eye, display)
@@ -45,6 +47,7 @@ def test_the_half_resolution_correction_is_in_the_box_never_worse_than_none(sphe
     if least is not None:
         full = solve(p, Method.FAST).objective
         assert (none - half) / (none - full) >= least
+        assert np.abs(shown[-1] - target[-1]).max() > 0.01 and np.abs(shown[:, -1] - target[:, -1]).max() > 0.01
 
 
 def test_bench_halfres_writes_its_section_and_json(tmp_path):

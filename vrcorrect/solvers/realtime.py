@@ -82,7 +82,7 @@ from .fista import FistaState, gradient_plan, projected_gradient
 from .problem import guard_weight, make_problem
 from .spectral import Blur, apply3, conj_transpose, hermitian_inverse, kernel_spectrum, spectral_norm_squared
 
-__all__ = ["ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "edge_band_widths", "edge_band", "pool_half", "upsample_double",
+__all__ = ["ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "edge_band_widths", "edge_band", "pool_half", "upsample_double", "guarded",
            "coarse_eye_kernel", "AdmmFrames", "AdmmFrame", "FistaFrames", "frames_twin"]
 
 ADMM_RHO = 0.2
@@ -391,7 +391,7 @@ class AdmmFrames:
         z = self.proj(self.q)[:, :H, :W]
         Kz = self._inverse(apply3(self.Kf, self._forward(self._on_grid(z))))[:, :H, :W]
         Kt = self._inverse(apply3(self.Kf, self._forward(self._on_grid(t))))[:, :H, :W]
-        return _guarded(t, z, (Kt - T_inside).astype(np.float64), (Kz - Kt).astype(np.float64))
+        return guarded(t, z, (Kt - T_inside).astype(np.float64), (Kz - Kt).astype(np.float64))
 
 
 def _frame_target(target: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -403,7 +403,7 @@ def _frame_target(target: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return t
 
 
-def _guarded(t: np.ndarray, z: np.ndarray, r0: np.ndarray, kd: np.ndarray) -> AdmmFrame:
+def guarded(t: np.ndarray, z: np.ndarray, r0: np.ndarray, kd: np.ndarray) -> AdmmFrame:
     """The guard of both twins (module docstring): the frame ``t + beta (z - t)`` for a ``(3, H, W)``
     target ``t`` and solution ``z``, with :func:`~vrcorrect.solvers.guard_weight`'s weight from the
     uncorrected residual ``r0 = K t - T`` and the change ``kd = K (z - t)`` (float64)."""
@@ -462,7 +462,7 @@ class FistaFrames:
         t64 = t.astype(np.float64)
         T = np.einsum("ij,jyx->iyx", self.A, t) if self.R is None else self.R.apply(t64)
         r0 = self.K.apply(t64) - T
-        return _guarded(t, z, r0, self.K.apply(z.astype(np.float64)) - T - r0)
+        return guarded(t, z, r0, self.K.apply(z.astype(np.float64)) - T - r0)
 
 
 def frames_twin(method: str, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int],

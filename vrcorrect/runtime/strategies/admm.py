@@ -213,7 +213,7 @@ class AdmmStrategy(IterativeStrategy):
         col_lines = column_lines(ny, col_per, self.options.work_groups.lines(self.coarse_level))
 
         def program(pass_: str, **extra: None) -> "moderngl.ComputeShader":
-            per = values_per_thread(ny if pass_ == "COLUMNS" else nx, per_pass.get(pass_, 8))
+            per = col_per if pass_ == "COLUMNS" else values_per_thread(nx, per_pass.get(pass_, 8))
             if pass_ in per_pass:
                 compiled[pass_] = per
             lines = {"PER": per, "WG_X": nx // per, "WG_Y": ny // per}

@@ -3,12 +3,15 @@ lever "correct the band the eye can still see at lower resolution where its MTF 
 real-time cost issue, measured before it is built.
 
 For each eye and display, on a held-out photograph: ``fast`` at full resolution (the ceiling), and
-the half-resolution correction: the problem pooled 2x2 (the target's block means, the kernel as an
-image of half the resolution sees it, :func:`~vrcorrect.solvers.admm.coarse_kernel`), solved there
+the half-resolution correction: the problem pooled 2x2 (the target's block means,
+:func:`~vrcorrect.solvers.realtime.pool_half`, and the kernel as an image of half the resolution
+sees it, :func:`~vrcorrect.solvers.admm.coarse_kernel`), solved there
 by ``fast``'s ADMM to a tolerance of 1e-3, and its correction (the coarse solution minus the coarse
-target) upsampled bilinearly and added to the full-resolution target, so that the target's finest
-detail stays (as the real-time path's cold start does), clipped to the box, then blended with the
-target by the guard's best weight. A quarter of the pixels: a real-time frame solved this way would
+target) upsampled bilinearly (:func:`~vrcorrect.solvers.realtime.upsample_double`) and added to the
+full-resolution target, so that the target's finest detail stays (as the real-time path's cold
+start does), clipped to the box, then blended with the target by the guard's best weight
+(:func:`~vrcorrect.solvers.realtime.guarded`). The video part below pools, upsamples and guards
+with the same functions. A quarter of the pixels: a real-time frame solved this way would
 move about a quarter of the bytes of the full-resolution one.
 
 Beside each, how much the eye passes beyond half the Nyquist frequency
@@ -36,8 +39,8 @@ from tqdm import tqdm
 
 from ...physics.kernel import EyeKernel, build_kernel, build_reference_kernel
 from ...solvers import Problem, make_problem, objective, solve
-from ...solvers.admm import FAST_RELAXATION, FAST_RHO, _admm, _pool2, _upsample2, coarse_kernel
-from ...solvers.problem import guard_weight
+from ...solvers.admm import FAST_RELAXATION, FAST_RHO, _admm, coarse_kernel
+from ...solvers.realtime import guarded, pool_half, upsample_double
 from ...specs.display import decode, encode, get_display
 from ...specs.prescription import EyeRx
 from ...specs.vocabulary import Method
@@ -83,18 +86,14 @@ def half_resolution_correction(problem: Problem) -> tuple[np.ndarray, int, float
     K = problem.kernel.kernel
     t_lms = np.ascontiguousarray(np.moveaxis(problem.target_lms, 2, 0), np.float32)
     target = np.ascontiguousarray(np.moveaxis(problem.target, 2, 0), np.float32)
-    coarse_target = _pool2(target)
-    zc, iterations, _, _, _ = _admm(coarse_kernel(K), _pool2(t_lms), coarse_target.copy(), FAST_RHO, FAST_RELAXATION,
-                                    1.0, COARSE_MAX_ITERATIONS, COARSE_TOLERANCE)
-    H, W = target.shape[1:]
-    x = target.copy()
-    x[:, :H // 2 * 2, :W // 2 * 2] += _upsample2(zc - coarse_target)    # an odd last row or column: the target
-    z = np.moveaxis(np.clip(x, 0.0, 1.0), 0, 2)
+    coarse_target = pool_half(target)
+    zc, iterations, _, _, _ = _admm(coarse_kernel(K), pool_half(t_lms), coarse_target.copy(), FAST_RHO,
+                                    FAST_RELAXATION, 1.0, COARSE_MAX_ITERATIONS, COARSE_TOLERANCE)
+    z = np.clip(target + upsample_double(zc - coarse_target, target.shape[1:]), 0.0, 1.0)
     seen_t = simulate_lms(problem.target, problem.kernel)[0].astype(np.float64)
-    r0 = seen_t - problem.target_lms
-    kd = simulate_lms(z, problem.kernel)[0].astype(np.float64) - seen_t
-    beta = guard_weight(float(np.vdot(r0, kd)), float(np.vdot(kd, kd)))
-    return (problem.target + np.float32(beta) * (z - problem.target)).astype(np.float32), iterations, beta
+    seen_z = simulate_lms(np.moveaxis(z, 0, 2), problem.kernel)[0].astype(np.float64)
+    frame = guarded(target, z, np.moveaxis(seen_t - problem.target_lms, 2, 0), np.moveaxis(seen_z - seen_t, 2, 0))
+    return frame.shown.astype(np.float32), iterations, frame.beta
 
 
 class HalfResolutionFrames:
@@ -118,8 +117,6 @@ class HalfResolutionFrames:
               cold: bool = False) -> np.ndarray:
         """The ``(H, W, 3)`` frame to show for the linear ``target``; ``shift``: the content's motion
         ``(dx, dy)`` in full-resolution pixels; ``cold``: a shot's first frame."""
-        from ...solvers.realtime import pool_half, upsample_double
-
         t = np.ascontiguousarray(np.moveaxis(np.asarray(target, np.float32), 2, 0))
         coarse_shift = None
         if cold or shift is None:
