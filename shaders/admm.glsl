@@ -212,7 +212,7 @@ void main() {
 uniform sampler2DArray u_kernel;                // HX x NY x 9: K_ij (cone i, primary j) at layer 3 i + j
 uniform int u_rows_in;                          // rows of u_spec holding data (the rest is zero)
 uniform int u_rows_out;                         // rows of the result that are stored
-uniform float u_norm2;                          // n = ||K||^2
+uniform float u_norm2;                          // n = balance ||K||^2, the box split's weight
 
 vec2 kernel_at(int kx, int ky, int i, int j) { return texelFetch(u_kernel, ivec3(kx, ky, 3 * i + j), 0).xy; }
 

@@ -33,9 +33,10 @@ learned part's job is the rest. From the target with zero duals the stages are a
 Inputs are batched channel-first: the target's cone image ``t_lms``, the start ``z0`` and its duals
 ``d1``, ``d2`` as ``(N, 3, H, W)`` float32, the kernel bank's spectrum and the data step's inverse on the padded grid
 as ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 pairs (:func:`kernel_spectra`), ``||K||^2`` per sample
-``(N,)`` and the eye's features ``(N, F)`` (any fixed length). (A pilot that also learned the
-split's balance per stage left it within 15 % of 1; it is fixed at ``fast``'s, so one inverse
-serves every stage.)
+``(N,)`` and the eye's features ``(N, F)`` (any fixed length). The box split's weight is fixed at
+``fast``'s ``||K||^2``, so one inverse serves every stage. (A pilot that learned it per stage left it
+within 15 % of 1; fitted to a held-out case's own objective it falls to 0.01-0.15, and a constant
+0.1-0.3 closes what the 16-stage twin leaves open: docs/learned.md.)
 """
 
 from __future__ import annotations

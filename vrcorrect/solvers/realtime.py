@@ -15,10 +15,12 @@ fields on the grid: ``w`` (the argument of the data step) and ``q`` (that of the
     U  = G (K^H A1 + n A2),   KU = K U                               (per frequency, exact)
     w += alpha (Ku - prox(w)),   q += alpha (u - proj(q))            (over-relaxed by alpha)
 
-with ``A = F(a)``, ``G = (K^H K + n I)^-1``, ``n = ||K||^2`` (the kernel's spectral norm squared,
-at DC), ``prox(w) = keep w + (1 - keep) T`` inside the image (``keep = rho n / (2 + rho n)``) and
+with ``A = F(a)``, ``G = (K^H K + n I)^-1``, ``n = balance ||K||^2`` (the kernel's spectral norm
+squared, at DC, weighed by :data:`ADMM_BALANCE`: how the box split weighs against the retina
+split), ``prox(w) = keep w + (1 - keep) T`` inside the image (``keep = rho ||K||^2 / (2 + rho ||K||^2)``) and
 ``w`` outside, ``proj(q) = clip(q, 0, 1)`` inside and 0 outside.  That is ``fast``'s iteration
-exactly (the same split, over-relaxation and steps; ``rho`` :data:`ADMM_RHO`, tuned for frames), one
+exactly (the same split, over-relaxation and steps; ``rho`` :data:`ADMM_RHO` and ``balance``
+:data:`ADMM_BALANCE`, tuned for frames), one
 FFT round trip of six real channels each.
 
 * **Cold start** (the first frame, a cut, a new prescription): ``w = T`` on the whole grid (the
@@ -82,7 +84,7 @@ from .fista import FistaState, gradient_plan, projected_gradient
 from .problem import guard_weight, make_problem
 from .spectral import Blur, apply3, conj_transpose, hermitian_inverse, kernel_spectrum, spectral_norm_squared
 
-__all__ = ["ADMM_RHO", "ADMM_RELAXATION", "admm_grid", "edge_band_widths", "edge_band", "pool_half", "upsample_double", "guarded",
+__all__ = ["ADMM_RHO", "ADMM_RELAXATION", "ADMM_BALANCE", "admm_grid", "edge_band_widths", "edge_band", "pool_half", "upsample_double", "guarded",
            "coarse_eye_kernel", "AdmmFrames", "AdmmFrame", "FistaFrames", "frames_twin"]
 
 ADMM_RHO = 0.2
@@ -92,6 +94,15 @@ head turn, 256 px, quest2: 77 % of the objective gain at 0.2 against 73 % at 0.1
 with still views, pans and cuts unchanged to 1 %: a sweep of 0.1 to 1 with the over-relaxation at
 1.6 and 1.8 (``docs/benchmarks.md``, real-time section)."""
 ADMM_RELAXATION = 1.8           # fast's over-relaxation
+ADMM_BALANCE = 0.5
+"""The box split's weight in the data step, relative to ``||K||^2`` (``fast``'s: 1), the retina
+split's penalty unchanged.  Lower converges faster: on the motion suite (CPU twin, 2 iterations a
+frame) 0.5 lifts the share of ``fast``'s objective gain on every clip (zoom 81 % to 87 %, head turn
+80 % to 87 %), and 0.1-0.2 would lift it further (93-94 %).  But faster convergence also reaches
+sooner the ripples the objective's optimum carries into flat fields from a black surround: after
+10 frames a flat grey departs from flat by 1 code value at 1, 5 at 0.5, 16 at 0.2 (the optimum:
+about 34).  0.5 is the lowest tried that keeps flat fields within what
+``test_flat_fields_come_back_unchanged_away_from_the_border`` allows (docs/realtime.md)."""
 MIN_GRID = 16
 
 
@@ -204,6 +215,9 @@ class AdmmFrames:
         ``"half"`` or ``"single"`` storage (module docstring).
     rho, relaxation
         ADMM's penalty (relative to ``||K||^2``) and over-relaxation (``fast``'s).
+    balance
+        The box split's penalty against the retina split's, relative to ``||K||^2``
+        (:data:`ADMM_BALANCE`; ``fast``'s is 1).
     cold_iterations
         Half-resolution iterations that start a cold frame, where that level pays (module
         docstring); 0: a cold frame starts from the target.
@@ -214,9 +228,11 @@ class AdmmFrames:
 
     def __init__(self, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int],
                  precision: str = Precision.HALF, rho: float = ADMM_RHO, relaxation: float = ADMM_RELAXATION,
-                 cold_iterations: int = COARSE_ITERATIONS, edge_band: bool = True):
+                 cold_iterations: int = COARSE_ITERATIONS, edge_band: bool = True, balance: float = ADMM_BALANCE):
         if precision not in names(Precision):
             raise ValidationError("precision", precision, one_of(Precision))
+        if not (isinstance(balance, (int, float)) and math.isfinite(balance) and balance > 0):
+            raise ValidationError("balance", balance, "a positive number (the box split's penalty relative to ||K||^2)")
         H, W = (int(v) for v in shape)
         self.shape = (H, W)
         self.half = precision == Precision.HALF
@@ -227,14 +243,15 @@ class AdmmFrames:
         if self.cold_iterations > 0 and coarse_level_pays(H, W, kernel.size):
             self.coarse = AdmmFrames(coarse_eye_kernel(kernel), None if reference is None else
                                      coarse_eye_kernel(reference), ((H + 1) // 2, (W + 1) // 2), precision, rho,
-                                     relaxation, cold_iterations=0)
+                                     relaxation, cold_iterations=0, balance=balance)
         size = max(kernel.size, reference.size if reference is not None else 1)
         self.grid = P = admm_grid(W, H, size)
-        self.n2 = n2 = spectral_norm_squared(kernel.kernel)
+        n2 = spectral_norm_squared(kernel.kernel)
+        self.box_weight = n = balance * n2              # the box split's weight in the data step
         self.Kf = _store_complex(self._spectrum(kernel.kernel), self.half)
         self.Rf = None if reference is None else _store_complex(self._spectrum(reference.kernel), self.half)
         self.A = kernel.matrix.astype(np.float32)
-        self.G = hermitian_inverse(self.Kf.astype(np.complex128), n2).astype(np.complex64)   # as the GPU's column pass
+        self.G = hermitian_inverse(self.Kf.astype(np.complex128), n).astype(np.complex64)    # as the GPU's column pass
         self.Kh = np.ascontiguousarray(conj_transpose(self.Kf))
         self.keep = np.float32(rho * n2 / (2.0 + rho * n2))
         self.alpha = np.float32(relaxation)
@@ -352,7 +369,7 @@ class AdmmFrames:
         pw, pq = self.prox(w, T), self.proj(q)
         A1 = self._forward(2 * pw - w)
         A2 = self._forward(2 * pq - q)
-        R = apply3(self.Kh, A1) + np.float32(self.n2) * A2
+        R = apply3(self.Kh, A1) + np.float32(self.box_weight) * A2
         U = apply3(self.G, R)
         KU = apply3(self.Kf, U)
         u, Ku = self._inverse(U), self._inverse(KU)
@@ -467,12 +484,12 @@ class FistaFrames:
 
 def frames_twin(method: str, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int],
                 precision: str = Precision.HALF, cold_iterations: int = COARSE_ITERATIONS,
-                edge_band: bool = True) -> "AdmmFrames | FistaFrames":
+                edge_band: bool = True, balance: float = ADMM_BALANCE) -> "AdmmFrames | FistaFrames":
     """The CPU twin of the GPU's ``method`` (``"admm"`` or ``"fista"``) for one eye and image size
-    (``cold_iterations``, ``edge_band``: ADMM's, see :class:`AdmmFrames`)."""
+    (``cold_iterations``, ``edge_band``, ``balance``: ADMM's, see :class:`AdmmFrames`)."""
     if method == Filter.ADMM:
         return AdmmFrames(kernel, reference, shape, precision=precision, cold_iterations=cold_iterations,
-                          edge_band=edge_band)
+                          edge_band=edge_band, balance=balance)
     if method == Filter.FISTA:
         return FistaFrames(kernel, reference, shape)
     raise ValidationError("method", method, either(ITERATIVE_FILTERS) + " (the methods that iterate over frames)")

@@ -135,13 +135,14 @@ class AdmmStrategy(IterativeStrategy):
 
     def __init__(self, *args: Any, coarse_level: bool = False, **kwargs: Any):
         super().__init__(*args, **kwargs)
-        from ...solvers.realtime import ADMM_RELAXATION, ADMM_RHO  # start-up time: scipy with the first eye
+        from ...solvers.realtime import ADMM_BALANCE, ADMM_RELAXATION, ADMM_RHO  # start-up time: scipy, first eye
         from ...solvers.spectral import spectral_norm_squared  # the same
 
         m = self.model
         self.half = self.options.precision == Precision.HALF
         self.norm2 = spectral_norm_squared(m.kernel.kernel)
         self.keep = float(np.float32(ADMM_RHO * self.norm2 / (2.0 + ADMM_RHO * self.norm2)))
+        self.box_weight = float(np.float32(ADMM_BALANCE * self.norm2))      # the shader's u_norm2: n of the data step
         self.alpha = float(np.float32(ADMM_RELAXATION))
         self._sized: dict[Size, AdmmBuffers] = {}
         self._last: AdmmBuffers | None = None
@@ -389,7 +390,7 @@ class AdmmStrategy(IterativeStrategy):
         if self.coarse_level:                     # the state is the result: every iteration a plain update
             for _ in range(k):
                 self._run(b, "cols_admm", "columns: ADMM solve", cols, sample={**twiddle, "u_kernel": b.kernel},
-                          modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.norm2},
+                          modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.box_weight},
                           round_trip=True)
                 self._run(b, "rows_update", "rows: update, reflections", ny, sample={**twiddle, "u_T": b.T[new]},
                           modify={0: b.spec, 2: b.w[new], 3: b.q[new]},
@@ -398,7 +399,7 @@ class AdmmStrategy(IterativeStrategy):
             return linear
         for i in range(k):
             self._run(b, "cols_admm", "columns: ADMM solve", cols, sample={**twiddle, "u_kernel": b.kernel},
-                      modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.norm2},
+                      modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.box_weight},
                       round_trip=True)
             last = i == k - 1
             sample = {**twiddle, "u_T": b.T[new]}
