@@ -18,10 +18,10 @@ fields on the grid: ``w`` (the argument of the data step) and ``q`` (that of the
 with ``A = F(a)``, ``G = (K^H K + n I)^-1``, ``n = balance ||K||^2`` (the kernel's spectral norm
 squared, at DC, weighed by :data:`ADMM_BALANCE`: how the box split weighs against the retina
 split), ``prox(w) = keep w + (1 - keep) T`` inside the image (``keep = rho ||K||^2 / (2 + rho ||K||^2)``) and
-``w`` outside, ``proj(q) = clip(q, 0, 1)`` inside and 0 outside.  That is ``fast``'s iteration
-exactly (the same split, over-relaxation and steps; ``rho`` :data:`ADMM_RHO` and ``balance``
-:data:`ADMM_BALANCE`, tuned for frames), one
-FFT round trip of six real channels each.
+``w`` outside, ``proj(q) = clip(q, 0, 1)`` inside and 0 outside.  That is ``fast``'s iteration (the
+same split, over-relaxation and steps) with penalties of its own, tuned for frames: ``rho``
+:data:`ADMM_RHO` and ``balance`` :data:`ADMM_BALANCE` (``fast``: 0.1 and 1); one FFT round trip of
+six real channels each.
 
 * **Cold start** (the first frame, a cut, a new prescription): ``w = T`` on the whole grid (the
   target retina, ``K_ref t``, spilling into the surround), ``q = t`` inside and 0 outside: the
@@ -216,8 +216,8 @@ class AdmmFrames:
     rho, relaxation
         ADMM's penalty (relative to ``||K||^2``) and over-relaxation (``fast``'s).
     balance
-        The box split's penalty against the retina split's, relative to ``||K||^2``
-        (:data:`ADMM_BALANCE`; ``fast``'s is 1).
+        The box split's weight in the data step, relative to ``||K||^2`` (:data:`ADMM_BALANCE`;
+        ``fast``'s is 1).
     cold_iterations
         Half-resolution iterations that start a cold frame, where that level pays (module
         docstring); 0: a cold frame starts from the target.
@@ -232,7 +232,7 @@ class AdmmFrames:
         if precision not in names(Precision):
             raise ValidationError("precision", precision, one_of(Precision))
         if not (isinstance(balance, (int, float)) and math.isfinite(balance) and balance > 0):
-            raise ValidationError("balance", balance, "a positive number (the box split's penalty relative to ||K||^2)")
+            raise ValidationError("balance", balance, "a positive number (the box split's weight relative to ||K||^2)")
         H, W = (int(v) for v in shape)
         self.shape = (H, W)
         self.half = precision == Precision.HALF
