@@ -85,7 +85,8 @@ from .problem import guard_weight, make_problem
 from .spectral import Blur, apply3, conj_transpose, hermitian_inverse, kernel_spectrum, spectral_norm_squared
 
 __all__ = ["ADMM_RHO", "ADMM_RELAXATION", "ADMM_BALANCE", "admm_grid", "edge_band_widths", "edge_band", "pool_half", "upsample_double", "guarded",
-           "coarse_eye_kernel", "AdmmFrames", "AdmmFrame", "FistaFrames", "frames_twin"]
+           "coarse_eye_kernel", "AdmmFrames", "AdmmFrame", "FistaFrames", "frames_twin",
+           "admm_weights"]
 
 ADMM_RHO = 0.2
 """The penalty, relative to ``||K||^2``: twice ``fast``'s 0.1.  Warm-started ADMM at two iterations a
@@ -104,6 +105,14 @@ sooner the ripples the objective's optimum carries into flat fields from a black
 about 34).  0.5 is the lowest tried that keeps flat fields within what
 ``test_flat_fields_come_back_unchanged_away_from_the_border`` allows (docs/realtime.md)."""
 MIN_GRID = 16
+
+
+def admm_weights(kernel: np.ndarray, rho: float = ADMM_RHO, balance: float = ADMM_BALANCE) -> tuple[float, float]:
+    """``(keep, n)`` of the frame iteration (module docstring) for a ``(3, 3, s, s)`` kernel bank: the
+    data step's ``keep = rho ||K||^2 / (2 + rho ||K||^2)`` and the box split's weight
+    ``n = balance ||K||^2``; float64, for the CPU twin and the GPU's uniforms alike."""
+    n2 = spectral_norm_squared(kernel)
+    return rho * n2 / (2.0 + rho * n2), balance * n2
 
 
 def admm_grid(width: int, height: int, kernel_size: int) -> tuple[int, int]:
@@ -246,14 +255,14 @@ class AdmmFrames:
                                      relaxation, cold_iterations=0, balance=balance)
         size = max(kernel.size, reference.size if reference is not None else 1)
         self.grid = P = admm_grid(W, H, size)
-        n2 = spectral_norm_squared(kernel.kernel)
-        self.box_weight = n = balance * n2              # the box split's weight in the data step
+        keep, n = admm_weights(kernel.kernel, rho, balance)
+        self.box_weight = n                             # the box split's weight in the data step
         self.Kf = _store_complex(self._spectrum(kernel.kernel), self.half)
         self.Rf = None if reference is None else _store_complex(self._spectrum(reference.kernel), self.half)
         self.A = kernel.matrix.astype(np.float32)
         self.G = hermitian_inverse(self.Kf.astype(np.complex128), n).astype(np.complex64)    # as the GPU's column pass
         self.Kh = np.ascontiguousarray(conj_transpose(self.Kf))
-        self.keep = np.float32(rho * n2 / (2.0 + rho * n2))
+        self.keep = np.float32(keep)
         self.alpha = np.float32(relaxation)
         self.inside = np.zeros(P, bool)
         self.inside[:H, :W] = True

@@ -135,14 +135,13 @@ class AdmmStrategy(IterativeStrategy):
 
     def __init__(self, *args: Any, coarse_level: bool = False, **kwargs: Any):
         super().__init__(*args, **kwargs)
-        from ...solvers.realtime import ADMM_BALANCE, ADMM_RELAXATION, ADMM_RHO  # start-up time: scipy, first eye
-        from ...solvers.spectral import spectral_norm_squared  # the same
+        from ...solvers.realtime import ADMM_RELAXATION, admm_weights  # start-up time: scipy with the first eye
 
         m = self.model
         self.half = self.options.precision == Precision.HALF
-        self.norm2 = spectral_norm_squared(m.kernel.kernel)
-        self.keep = float(np.float32(ADMM_RHO * self.norm2 / (2.0 + ADMM_RHO * self.norm2)))
-        self.box_weight = float(np.float32(ADMM_BALANCE * self.norm2))      # the shader's u_norm2: n of the data step
+        keep, n = admm_weights(m.kernel.kernel)                        # as the CPU twin's
+        self.keep = float(np.float32(keep))
+        self.box_weight = float(np.float32(n))                          # the shader's u_norm2: n of the data step
         self.alpha = float(np.float32(ADMM_RELAXATION))
         self._sized: dict[Size, AdmmBuffers] = {}
         self._last: AdmmBuffers | None = None
