@@ -28,8 +28,8 @@ def case():
     problem = make_problem(decode(display, star).astype(np.float32), kernel, build_reference_kernel(eye, display))
     t_lms = np.ascontiguousarray(problem.target_lms.transpose(2, 0, 1), np.float32)
     z0 = np.ascontiguousarray(problem.target.transpose(2, 0, 1), np.float32)
-    spectrum, inverse, norm2 = kernel_spectra([kernel.kernel], SIZE, power_of_two=False)   # fast's grid
-    return kernel, t_lms, z0, (spectrum, inverse), norm2
+    spectrum, gram, norm2 = kernel_spectra([kernel.kernel], SIZE, power_of_two=False)   # fast's grid
+    return kernel, t_lms, z0, (spectrum, gram), norm2
 
 
 def _run(model, case, **kw):
@@ -45,6 +45,19 @@ def test_the_twin_is_fasts_admm_iteration_for_iteration(case, stages):
     got = _run(twin(stages), case)
     assert got.shape == (3, *SIZE)
     assert np.abs(got - expected[:, :SIZE[0], :SIZE[1]]).max() < 1e-5
+
+
+@pytest.mark.parametrize("box_weight", [0.3, 0.01])
+def test_a_box_weight_of_its_own_is_admm_with_that_weight(case, box_weight):
+    """The stage's inverse from the eigen-decomposition at another box weight equals the numpy
+    ADMM's cofactor inverse at that weight (its ``balance`` scales the retina penalty too, hence
+    rho / weight), and differs from the twin at fast's weight."""
+    kernel, t_lms, z0, _, _ = case
+    expected = _admm(kernel.kernel, t_lms, z0, FAST_RHO / box_weight, FAST_RELAXATION, box_weight, 3, 0.0,
+                     track=False)[0][:, :SIZE[0], :SIZE[1]]
+    got = _run(twin(3, box_weight=box_weight), case)
+    assert np.abs(got - expected).max() < 1e-4
+    assert np.abs(got - _run(twin(3), case)).max() > 1e-2
 
 
 def test_the_twins_stages_lower_the_objective_stage_by_stage(case):
@@ -92,7 +105,9 @@ def test_training_reaches_the_stage_settings_and_the_prior(case):
         assert p.grad is not None and torch.isfinite(p.grad).all() and p.grad.abs().max() > 0, name
 
 
-@pytest.mark.parametrize("field, value", [("stages", 0), ("stages", 33), ("prior_width", -1), ("features", 2.5)])
+@pytest.mark.parametrize("field, value", [("stages", 0), ("stages", 33), ("prior_width", -1), ("features", 2.5),
+                                          ("box_weight", 0.0), ("box_weight", 1e-4), ("box_weight", 11.0),
+                                          ("box_weight", float("nan")), ("box_weight", True)])
 def test_bad_configurations_name_the_field(field, value):
     with pytest.raises(ValidationError, match=field):
         UnrolledConfig(**{field: value})
@@ -100,11 +115,14 @@ def test_bad_configurations_name_the_field(field, value):
 
 def test_a_spectrum_smaller_than_the_image_is_refused(case):
     _, t_lms, z0, _, _ = case
-    small, inverse, norm2 = kernel_spectra([np.ones((3, 3, 3, 3)) / 27], (8, 8))
+    small, gram, norm2 = kernel_spectra([np.ones((3, 3, 3, 3)) / 27], (8, 8))
+    T = (torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None])
     with pytest.raises(ValidationError, match="spectrum"):
-        twin(1)(torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None], small, inverse, norm2)
+        twin(1)(*T, small, gram, norm2)
     with pytest.raises(ValidationError, match="spectrum"):
-        twin(1)(torch.from_numpy(t_lms)[None], torch.from_numpy(z0)[None], small[..., 0], inverse[..., 0], norm2)
+        twin(1)(*T, small[..., 0], gram[..., 0], norm2)
+    with pytest.raises(ValidationError, match="spectrum"):
+        twin(1)(*T, small, gram[:, :, :, :4], norm2)
 
 
 def test_from_fasts_start_the_twin_continues_fasts_admm_with_its_duals():
@@ -123,11 +141,11 @@ def test_from_fasts_start_the_twin_continues_fasts_admm_with_its_duals():
     z0, d1, d2 = fast_start(kernel.kernel, target, t_lms)
     assert np.abs(d1).max() > 0 and np.abs(z0 - target).max() > 0.05          # the coarse level ran
     expected = _admm(kernel.kernel, t_lms, z0, FAST_RHO, FAST_RELAXATION, 1.0, 3, 0.0, duals=(d1, d2), track=False)[0]
-    spectrum, inverse, norm2 = kernel_spectra([kernel.kernel], (64, 64), power_of_two=False)
+    spectra = kernel_spectra([kernel.kernel], (64, 64), power_of_two=False)
     T = lambda a: torch.from_numpy(a)[None]
     with torch.no_grad():
-        warm = twin(3)(T(t_lms), T(z0), spectrum, inverse, norm2, d1=T(d1), d2=T(d2))
-        cold = twin(3)(T(t_lms), T(target), spectrum, inverse, norm2)
+        warm = twin(3)(T(t_lms), T(z0), *spectra, d1=T(d1), d2=T(d2))
+        cold = twin(3)(T(t_lms), T(target), *spectra)
     assert np.abs(warm[0].numpy() - expected[:, :64, :64]).max() < 1e-5
     k = torch.from_numpy(kernel.kernel).float()[None]
     assert objective_per_sample(warm, k, T(t_lms)).item() < 0.95 * objective_per_sample(cold, k, T(t_lms)).item()

@@ -38,7 +38,7 @@ def test_the_export_is_checked_and_carries_its_metadata(exported):
     assert report.max_abs_error <= TOLERANCE and (run / "unrolled.onnx").stat().st_size == report.bytes
     model = UnrolledModel(run / "unrolled.onnx")
     assert model.config["stages"] == 2 and model.displays == ["index"]
-    assert model.metadata["vrcorrect.format"] == "vrcorrect-unrolled-v2"
+    assert model.metadata["vrcorrect.format"] == "vrcorrect-unrolled-v3"
 
 
 @pytest.mark.parametrize("size", [(33, 47), (72, 64)])   # (72, 64): fast's start solves a coarse level
@@ -52,13 +52,13 @@ def test_onnxruntime_equals_torch_on_a_real_eye_at_any_size(exported, size):
     assert got.shape == (H, W, 3) and got.min() >= 0.0 and got.max() <= 1.0
     model = load_unrolled(run / "unrolled.pt")
     t_lms, _ = simulate_lms(image, entry.reference_kernel)
-    spectrum, inverse, norm2 = kernel_spectra([entry.kernel], (H, W))
+    spectrum, gram, norm2 = kernel_spectra([entry.kernel], (H, W))
     chw = np.ascontiguousarray(image.transpose(2, 0, 1))
     lms = np.ascontiguousarray(t_lms.transpose(2, 0, 1), np.float32)
     z0, d1, d2 = (torch.from_numpy(a)[None] for a in fast_start(entry.kernel, chw, lms))
     eye = entry.eye.minus_cylinder()
     with torch.no_grad():
-        ref = model(torch.from_numpy(lms)[None], z0, spectrum, inverse, norm2,
+        ref = model(torch.from_numpy(lms)[None], z0, spectrum, gram, norm2,
                     torch.from_numpy(unrolled_features(eye, entry.eye_kernel.size, CONFIG.ranges))[None],
                     torch.from_numpy(chw)[None], d1, d2)[0].numpy().transpose(1, 2, 0)
     assert np.abs(got - ref).max() <= TOLERANCE
@@ -97,7 +97,7 @@ def test_the_runtime_refuses_other_models_and_eyes_outside_the_range(exported, t
 
     other = tmp_path / "other.onnx"
     write_one_minus_x_model(other)
-    with pytest.raises(ValidationError, match="vrcorrect-unrolled-v2"):
+    with pytest.raises(ValidationError, match="vrcorrect-unrolled-v3"):
         UnrolledModel(other)
     run, _, pool = exported
     entry = pool["held_out"][0]
@@ -160,9 +160,9 @@ def test_bench_unrolled_scores_every_method_and_its_twin_is_the_torch_twin(expor
     chw = np.ascontiguousarray(target.transpose(2, 0, 1))
     lms = np.ascontiguousarray(p.target_lms.transpose(2, 0, 1), np.float32)
     z0, d1, d2 = (torch.from_numpy(a)[None] for a in fast_start(kernel.kernel, chw, lms))
-    spectrum, inverse, norm2 = kernel_spectra([kernel.kernel], (64, 64))
+    spectrum, gram, norm2 = kernel_spectra([kernel.kernel], (64, 64))
     with torch.no_grad():
-        z = twin(2)(torch.from_numpy(lms)[None], z0, spectrum, inverse, norm2, d1=d1, d2=d2)
+        z = twin(2)(torch.from_numpy(lms)[None], z0, spectrum, gram, norm2, d1=d1, d2=d2)
         obj = objective_per_sample(z, torch.from_numpy(kernel.kernel).float()[None], torch.from_numpy(lms)[None])
     assert case["objective_twin"] == pytest.approx(float(obj[0]), rel=1e-3)
 
@@ -177,8 +177,12 @@ def test_bench_unrolled_refuses_what_it_cannot_measure(exported, tmp_path, capsy
     run, _, _ = exported
     with pytest.raises(ValidationError, match="displays"):
         run_unrolled_bench(run / "unrolled.onnx", out=tmp_path / "b.md", displays=("quest2",), progress=False)
-    assert main(["bench", "unrolled", "--out", str(tmp_path / "b.md")]) == 2
-    assert "--model" in capsys.readouterr().err
+    from vrcorrect.runtime.onnx_backend import write_one_minus_x_model
+
+    other = tmp_path / "negate.onnx"
+    write_one_minus_x_model(other)                           # an ONNX file, not an unrolled model
+    assert main(["bench", "unrolled", "--model", str(other), "--out", str(tmp_path / "b.md")]) == 2
+    assert "not an unrolled model" in capsys.readouterr().err
     assert main(["bench", "unrolled", "--model", str(tmp_path / "none.onnx"), "--out", str(tmp_path / "b.md")]) == 2
     assert "no such model" in capsys.readouterr().err and not (tmp_path / "b.md").exists()
 
@@ -226,6 +230,42 @@ def test_the_learned_pass_is_the_real_time_cold_start(exported, gl):
         Corrector(gl, rx, "quest2", "right", cold_start_model=str(run / "unrolled.onnx"))
     with pytest.raises(ValidationError, match="cold_start_model"):
         Corrector(gl, rx, "index", "right", filter="fista", cold_start_model=str(run / "unrolled.onnx"))
+
+
+def test_backend_onnx_runs_the_unrolled_model_alone_on_every_frame(exported, gl):
+    """Corrector(backend="onnx", model=UNROLLED.onnx): each frame is the model's pass on that frame
+    (no temporal state), equal to the unbound pass within a code value; an eye the model was not
+    trained for is refused up front, naming the display."""
+    from vrcorrect.runtime import gl as G
+    from vrcorrect.runtime.corrector import Corrector
+    from vrcorrect.specs.display import encode
+    from vrcorrect.specs.prescription import Prescription
+
+    run, _, pool = exported
+    entry = pool["held_out"][0]
+    rx = Prescription(right=entry.eye, left=entry.eye)
+    model = UnrolledModel(run / "unrolled.onnx")
+    big = np.round(dict(bundled_images(96))["astronaut"] * 255).astype(np.uint8)
+    c = Corrector(gl, rx, "index", "right", backend="onnx", model=str(run / "unrolled.onnx"))
+    try:
+        for f, (y, x) in enumerate([(10, 5), (30, 33)]):            # two unrelated frames
+            frame = np.ascontiguousarray(big[y:y + 40, x:x + 56])
+            src = G.upload_texture(gl, frame)
+            tex, fbo = G.render_target(gl, width=56, height=40)
+            try:
+                c.apply(src, fbo)
+                got = G.read_framebuffer(fbo).astype(int)
+            finally:
+                G.release(fbo, tex, src)
+            lin = decode("srgb", frame.astype(np.float32) / 255).astype(np.float32)
+            want = model.correct(lin, entry.eye, entry.eye_kernel, entry.reference_kernel)
+            want = np.round(np.clip(encode("srgb", want), 0, 1) * 255).astype(int)
+            assert np.abs(got - want).max() <= 1, f
+            assert np.abs(got - frame.astype(int)).max() > 8              # it did correct
+    finally:
+        c.release()
+    with pytest.raises(ValidationError, match="display"):
+        Corrector(gl, rx, "quest2", "right", backend="onnx", model=str(run / "unrolled.onnx"))
 
 
 def test_render_takes_the_learned_cold_start(exported, tmp_path, capsys):

@@ -85,12 +85,27 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from ..studies.bench.realtime import run_realtime_bench
 
         print(run_realtime_bench(out=Path(args.out), write=not args.no_write, quick=args.quick))
-    elif args.what == "learned":
-        from ..studies.bench.learned import run_learned_bench
+    elif args.what in ("learned", "unrolled"):
+        from ..runtime.learned import model_metadata
+        from ..runtime.unrolled import UNROLLED_FORMAT
 
         path = Path(args.model) if args.model else DEFAULT_MODEL
         if not path.is_file():
-            raise InputError(f"{path}: no such model; pass --model PATH (a model exported by tools/export_onnx.py)")
+            raise InputError(f"{path}: no such model; pass --model PATH (an unrolled model: vrcorrect unroll -o RUN "
+                             "writes RUN/unrolled.onnx)")
+        if model_metadata(path).get("vrcorrect.format") == UNROLLED_FORMAT:
+            from ..studies.bench.unrolled import run_unrolled_bench
+
+            args.eyes = 2 if args.eyes is None else args.eyes
+            if args.eyes < 1:
+                raise ValidationError("--eyes", args.eyes, "at least 1")
+            print(run_unrolled_bench(path, out=Path(args.out), eyes=args.eyes, write=not args.no_write,
+                                     card=Path(args.card) if args.card else None)["markdown"])
+            return 0
+        if args.what == "unrolled":
+            raise InputError(f"{path}: not an unrolled model (vrcorrect unroll -o RUN writes RUN/unrolled.onnx)")
+        from ..studies.bench.learned import run_learned_bench
+
         args.eyes = 6 if args.eyes is None else args.eyes
         if args.eyes < 1:
             raise ValidationError("--eyes", args.eyes, "at least 1")
@@ -98,19 +113,6 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                 eyes=args.eyes, repeats=max(args.repeats, 3), write=not args.no_write,
                                 plot=Path(args.out).with_name("learned_heldout.png"),
                                 tradeoff=Path(args.out).with_name("learned_tradeoff.png"))["markdown"])
-    elif args.what == "unrolled":
-        from ..studies.bench.unrolled import run_unrolled_bench
-
-        if not args.model:
-            raise InputError("bench unrolled needs --model FILE: an unrolled model (vrcorrect unroll -o RUN writes "
-                             "RUN/unrolled.onnx)")
-        if not Path(args.model).is_file():
-            raise InputError(f"{args.model}: no such model file")
-        args.eyes = 2 if args.eyes is None else args.eyes
-        if args.eyes < 1:
-            raise ValidationError("--eyes", args.eyes, "at least 1")
-        print(run_unrolled_bench(Path(args.model), out=Path(args.out), eyes=args.eyes, write=not args.no_write)
-              ["markdown"])
     else:
         raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, cost, workgroups, halfres, "
                               "xr, layer, learned or unrolled")
@@ -134,11 +136,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="benchmarks file to update (default: the repository's docs/benchmarks.md, when run inside "
                         "the vrcorrect checkout; required anywhere else unless --no-write)")
     p.add_argument("--no-write", action="store_true", help="print only")
-    p.add_argument("--model", metavar="MODEL.onnx", help="learned: the model (default models/default.onnx); "
-                   "unrolled: the unrolled model (required)")
-    p.add_argument("--card", metavar="CARD.md", help="learned: also write the model card there")
-    p.add_argument("--eyes", type=int, help="learned: held-out eyes (default 6); unrolled: held-out eyes on each "
-                   "display (default 2)")
+    p.add_argument("--model", metavar="MODEL.onnx", help="learned, unrolled: the model (default "
+                   "models/default.onnx); an unrolled model is measured as `unrolled` under either name, an older "
+                   "U-Net model by the older learned bench")
+    p.add_argument("--card", metavar="CARD.md", help="learned, unrolled: also write the model card there")
+    p.add_argument("--eyes", type=int, help="learned, unrolled: held-out eyes (the U-Net bench: default 6; an "
+                   "unrolled model: on each display, default 2)")
     p.add_argument("--quick", action="store_true", help="realtime: fewer frames and sizes (a smoke run)")
     p.add_argument("--video", action="store_true",
                    help="halfres: also play the held-out clips through a half-resolution real-time twin for one "

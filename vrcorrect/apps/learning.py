@@ -122,7 +122,11 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
         bar.update(1)
         bar.set_postfix(loss=f"{loss:.3f}")
 
-    report = train_unrolled(out, config, train_images, held_out, pool=pool, progress=step, bank=bank)
+    from ..studies.bench import machine_description
+
+    about = {"image_px": args.image_px, "images": sorted(n for n in images if n not in HELD_OUT_IMAGES),
+             "machine": machine_description()}
+    report = train_unrolled(out, config, train_images, held_out, pool=pool, progress=step, bank=bank, about=about)
     bar.close()
     exported = export_unrolled(out / "unrolled.pt", out / "unrolled.onnx", force=True)
     s = report["share_of_fast_gain"]

@@ -200,8 +200,10 @@ def unrolled_features(eye: EyeRx, kernel_size: int, ranges: SamplingRanges) -> n
 def unrolled_spectra(kernel: np.ndarray, shape: tuple[int, int], grid_kernel_size: int | None = None,
                      power_of_two: bool = True) -> tuple[np.ndarray, np.ndarray, float]:
     """The unrolled model's data-step inputs for a ``(3, 3, s, s)`` kernel and ``shape`` images: the
-    spectrum ``K`` and ``(K^H K + ||K||^2 I)^-1``, each ``(3, 3, P0, P1 // 2 + 1, 2)`` float32 (computed
-    in float64; real and imaginary parts last), and ``||K||^2``.
+    spectrum ``K`` and the Gram matrix ``K^H K`` per frequency, each ``(3, 3, P0, P1 // 2 + 1, 2)``
+    float32 (computed in float64; real and imaginary parts last), and ``||K||^2``. From the Gram
+    matrix a stage solves ``(K^H K + n I) U = R`` by cofactors for a box weight ``n`` of its own (as
+    :func:`vrcorrect.solvers.spectral.hermitian_inverse` does for ``fast``).
 
     The grid holds the image and the blur of a ``grid_kernel_size`` kernel (default ``s``): with
     ``power_of_two`` the real-time path's power-of-two grid
@@ -209,16 +211,14 @@ def unrolled_spectra(kernel: np.ndarray, shape: tuple[int, int], grid_kernel_siz
     (other lengths run a direct DFT, slower and with float32 errors near 1e-4 after four stages);
     otherwise ``fast``'s (:func:`~vrcorrect.solvers.spectral.padded_shape`)."""
     from ..solvers.realtime import admm_grid
-    from ..solvers.spectral import hermitian_inverse, kernel_spectrum, padded_shape, spectral_norm_squared
+    from ..solvers.spectral import gram, kernel_spectrum, padded_shape, spectral_norm_squared
 
     k = np.asarray(kernel, np.float64)
     size = grid_kernel_size or k.shape[-1]
     grid = admm_grid(shape[1], shape[0], size) if power_of_two else padded_shape(shape[0], shape[1], size)
     spectrum = kernel_spectrum(k, grid)
     n = spectral_norm_squared(k)
-    inverse = hermitian_inverse(spectrum, n)
-
     def pairs(c: np.ndarray) -> np.ndarray:
         return np.stack([c.real, c.imag], axis=-1).astype(np.float32)
 
-    return pairs(spectrum), pairs(inverse), n
+    return pairs(spectrum), pairs(gram(spectrum)), n

@@ -10,17 +10,20 @@ FFT step). One model then serves any kernel the forward model can build, on any 
 One stage is one iteration of :func:`vrcorrect.solvers.admm._admm` (the boundary-aware split
 ``v = K u`` for the retina, ``z = u`` for the box; two FFT round trips):
 
-* ``u``: ``(K^H K + n I)^-1 (K^H F(v - d1) + n F(z - d2))`` per frequency with ``n = ||K||^2``, the
-  inverse made once per eye by :func:`vrcorrect.solvers.spectral.hermitian_inverse` (float64) and
-  given to the model as an input, like the spectrum; the 3x3 products in real arithmetic on
-  (real, imaginary) pairs, so that only the FFTs are complex and the graph exports to ONNX;
-* relaxation by ``alpha_s``; ``v`` per pixel inside the image (``rho_s``);
+* ``u``: ``(K^H K + n_s I)^-1 (K^H F(v - d1) + n_s F(z - d2))`` per frequency, with the stage's own
+  box weight ``n_s = beta_s ||K||^2``: solved by cofactors of the Hermitian ``K^H K + n_s I`` (as
+  ``fast``'s :func:`~vrcorrect.solvers.spectral.hermitian_inverse`), from the Gram matrix ``K^H K``
+  made once per eye in float64 (:func:`~vrcorrect.learn.conditioning.unrolled_spectra`) and given
+  to the model as an input, like the spectrum; all 3x3 arithmetic real, on (real, imaginary) pairs,
+  so that only the FFTs are complex and the graph exports to ONNX;
+* relaxation by ``alpha_s``; ``v`` per pixel inside the image (penalty ``rho_s ||K||^2``);
 * ``z``: ``u + d2``, plus the prior's residual (``prior(u + d2, target)``), then the box: clipped
   to [0, 1] inside the image, zero outside, at every stage;
 * the scaled duals.
 
-The stage settings ``(rho_s, alpha_s)`` start at ``fast``'s (0.1, 1.8) and a tiny MLP adds an eye-dependent correction (its last layer zero at start); the prior's last layer
-is zero at start too. So an untrained model *is* its unlearned twin: ``stages`` iterations of
+The stage settings ``(rho_s, alpha_s, beta_s)`` start at ``fast``'s (0.1, 1.8, 1) and a tiny MLP
+adds an eye-dependent correction (its last layer zero at start); the prior's last layer is zero at
+start too. So an untrained model *is* its unlearned twin: ``stages`` iterations of
 ``fast``'s ADMM from the same start, and :func:`twin` (``prior_width=0``) has no prior at all.
 Tests check the twin against the numpy ADMM iteration by iteration.
 
@@ -31,12 +34,14 @@ gain on held-out photographs, where 8 stages from the target reach 25–87 % (do
 learned part's job is the rest. From the target with zero duals the stages are a cold start.
 
 Inputs are batched channel-first: the target's cone image ``t_lms``, the start ``z0`` and its duals
-``d1``, ``d2`` as ``(N, 3, H, W)`` float32, the kernel bank's spectrum and the data step's inverse on the padded grid
-as ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 pairs (:func:`kernel_spectra`), ``||K||^2`` per sample
-``(N,)`` and the eye's features ``(N, F)`` (any fixed length). The box split's weight is fixed at
-``fast``'s ``||K||^2``, so one inverse serves every stage. (A pilot that learned it per stage left it
-within 15 % of 1; fitted to a held-out case's own objective it falls to 0.01-0.15, and a constant
-0.1-0.3 closes what the 16-stage twin leaves open: docs/learned.md.)
+``d1``, ``d2`` as ``(N, 3, H, W)`` float32, the kernel bank's spectrum and its Gram matrix ``K^H K``
+on the padded grid as ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 pairs (:func:`kernel_spectra`),
+``||K||^2`` per sample ``(N,)`` and the eye's features ``(N, F)`` (any fixed length).
+
+Why the box weight is learned. ``fast`` weighs the box split with ``||K||^2``; fitted to a held-out
+case's own objective the weight falls to 0.01-0.15 of that, and a constant 0.1-0.3 closes what the
+16-stage twin leaves open (docs/learned.md). ``UnrolledConfig.box_weight`` sets the starting value
+(1: ``fast``'s, the twin), so that a twin at a hand-set constant can be measured beside the model.
 """
 
 from __future__ import annotations
@@ -70,21 +75,34 @@ class UnrolledConfig:
         Length of the eye's feature vector the stage MLP reads (0: no MLP, shared settings).
     hidden
         Width of the stage MLP.
+    box_weight
+        The box split's weight at start, as a fraction of ``||K||^2`` (1: ``fast``'s), from
+        ``BOX_WEIGHT_RANGE``; training moves it per stage and per eye within that range.
     """
 
     stages: int = 4
     prior_width: int = 16
     features: int = 4
     hidden: int = 32
+    box_weight: float = 1.0
 
     def __post_init__(self) -> None:
         for name, lo, hi in (("stages", 1, 32), ("prior_width", 0, 256), ("features", 0, 64), ("hidden", 1, 1024)):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
                 raise ValidationError(name, value, f"an integer from {lo} to {hi}")
+        lo, hi = BOX_WEIGHT_RANGE
+        b = self.box_weight
+        if isinstance(b, bool) or not isinstance(b, (int, float)) or not lo <= b <= hi:
+            raise ValidationError("box_weight", b, f"a number from {lo:g} to {hi:g} (a fraction of ||K||^2)")
 
-    def as_dict(self) -> dict[str, int]:
+    def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+#: The box weights a stage may use, as fractions of ``||K||^2``: below 1e-3 the data step's inverse
+#: amplifies what the kernel all but removes by more than 1000x, and above 10 the box split stalls.
+BOX_WEIGHT_RANGE = (1e-3, 10.0)
 
 
 class _Prior(nn.Module):
@@ -120,46 +138,48 @@ class UnrolledADMM(nn.Module):
         super().__init__()
         self.config = config
         S = config.stages
-        # per-stage settings in an unconstrained form: log rho, logit(alpha / 2)
-        base = torch.tensor([math.log(FAST_RHO), math.log(FAST_RELAXATION / (2 - FAST_RELAXATION))],
-                            dtype=torch.float32)
-        self.stage_base = nn.Parameter(base.repeat(S, 1))                                  # (S, 2)
+        # per-stage settings in an unconstrained form: log rho, logit(alpha / 2), log beta
+        base = torch.tensor([math.log(FAST_RHO), math.log(FAST_RELAXATION / (2 - FAST_RELAXATION)),
+                             math.log(config.box_weight)], dtype=torch.float32)
+        self.stage_base = nn.Parameter(base.repeat(S, 1))                                  # (S, 3)
         if config.features:
             self.mlp = nn.Sequential(nn.Linear(config.features, config.hidden), nn.ReLU(),
-                                     nn.Linear(config.hidden, 2 * S))
+                                     nn.Linear(config.hidden, 3 * S))
             nn.init.zeros_(self.mlp[-1].weight)
             nn.init.zeros_(self.mlp[-1].bias)
         else:
             self.mlp = None
         self.prior = _Prior(config.prior_width) if config.prior_width else None
 
-    def stage_settings(self, features: torch.Tensor | None, n: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(rho, alpha)``, each ``(N, S)``: the shared settings plus the eye's correction."""
+    def stage_settings(self, features: torch.Tensor | None, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(rho, alpha, beta)``, each ``(N, S)``: the shared settings plus the eye's correction;
+        ``beta`` (the box weight over ``||K||^2``) held to ``BOX_WEIGHT_RANGE``."""
         raw = self.stage_base.unsqueeze(0).expand(n, -1, -1)
         if self.mlp is not None and features is not None:
-            raw = raw + self.mlp(features).view(n, self.config.stages, 2)
-        return torch.exp(raw[..., 0]), 2.0 * torch.sigmoid(raw[..., 1])     # over-relaxation in (0, 2)
+            raw = raw + self.mlp(features).view(n, self.config.stages, 3)
+        lo, hi = BOX_WEIGHT_RANGE
+        beta = torch.exp(torch.clamp(raw[..., 2], math.log(lo), math.log(hi)))
+        return torch.exp(raw[..., 0]), 2.0 * torch.sigmoid(raw[..., 1]), beta   # over-relaxation in (0, 2)
 
-    def forward(self, t_lms: torch.Tensor, z0: torch.Tensor, spectrum: torch.Tensor, inverse: torch.Tensor,
+    def forward(self, t_lms: torch.Tensor, z0: torch.Tensor, spectrum: torch.Tensor, gram: torch.Tensor,
                 norm2: torch.Tensor, features: torch.Tensor | None = None, target: torch.Tensor | None = None,
                 d1: torch.Tensor | None = None, d2: torch.Tensor | None = None,
                 history: list[torch.Tensor] | None = None) -> torch.Tensor:
         """The displayed image ``(N, 3, H, W)`` in [0, 1] after the stages.
 
-        ``spectrum`` and ``inverse`` (:func:`kernel_spectra`): ``K`` and ``(K^H K + ||K||^2 I)^-1``
-        per frequency, ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 (real and imaginary parts last);
-        ``norm2`` ``(N,)``. ``target``: the image the prior sees (default ``z0``). ``d1``, ``d2``:
+        ``spectrum`` and ``gram`` (:func:`kernel_spectra`): ``K`` and ``K^H K`` per frequency,
+        ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 (real and imaginary parts last); ``norm2`` ``(N,)``. ``target``: the image the prior sees (default ``z0``). ``d1``, ``d2``:
         the scaled duals to start from, ``(N, 3, H, W)`` inside the image (zero outside; default
         zero), as :func:`vrcorrect.solvers.admm.fast_start` gives them with ``z0``. ``history``, when
         given, receives each stage's ``z``."""
         N, _, H, W = t_lms.shape
         P = (spectrum.shape[-3], 2 * (spectrum.shape[-2] - 1))
-        if spectrum.shape[-1] != 2 or inverse.shape != spectrum.shape:
-            raise ValidationError("spectrum", tuple(spectrum.shape), "(N, 3, 3, P0, P1 // 2 + 1, 2), as the inverse")
+        if spectrum.shape[-1] != 2 or gram.shape != spectrum.shape:
+            raise ValidationError("spectrum", tuple(spectrum.shape), "(N, 3, 3, P0, P1 // 2 + 1, 2), as the Gram matrix")
         if P[0] < H or P[1] < W:
             raise ValidationError("spectrum", tuple(spectrum.shape), f"a grid of at least {H}x{W}")
         Kh = torch.stack([spectrum[..., 0].transpose(1, 2), -spectrum[..., 1].transpose(1, 2)], dim=-1)
-        rho, alpha = self.stage_settings(features, N)
+        rho, alpha, beta = self.stage_settings(features, N)
         pad = (0, P[1] - W, 0, P[0] - H)
         inside = nn.functional.pad(torch.ones_like(t_lms[:, :1]), pad)                  # (N, 1, P0, P1)
         t_grid = nn.functional.pad(t_lms, pad)
@@ -171,8 +191,9 @@ class UnrolledADMM(nn.Module):
         n = norm2.view(N, 1, 1, 1).to(t_lms.dtype)
         S = self.config.stages
         for s in range(S):
-            R = self._mul(Kh, self._rfft(v - d1, P)) + n.unsqueeze(-1) * self._rfft(z - d2, P)
-            U = self._mul(inverse, R)
+            nb = beta[:, s].view(N, 1, 1, 1) * n                                       # the box weight
+            R = self._mul(Kh, self._rfft(v - d1, P)) + nb.unsqueeze(-1) * self._rfft(z - d2, P)
+            U = self._solve(gram, nb, R)
             u = self._irfft(U, P)
             Ku = self._irfft(self._mul(spectrum, U), P)
             a = alpha[:, s].view(N, 1, 1, 1)
@@ -194,6 +215,33 @@ class UnrolledADMM(nn.Module):
         return z[..., :H, :W]
 
     @staticmethod
+    def _solve(gram: torch.Tensor, n: torch.Tensor, R: torch.Tensor) -> torch.Tensor:
+        """``(G + n I)^-1 R`` per frequency for the Hermitian Gram matrix ``G`` ``(N, 3, 3, ..., 2)``,
+        ``n`` ``(N, 1, 1, 1)`` and ``R`` ``(N, 3, ..., 2)``, by cofactors on (real, imaginary) pairs."""
+        def mul(x, y):
+            return torch.stack([x[..., 0] * y[..., 0] - x[..., 1] * y[..., 1],
+                                x[..., 0] * y[..., 1] + x[..., 1] * y[..., 0]], dim=-1)
+
+        def conj(x):
+            return torch.stack([x[..., 0], -x[..., 1]], dim=-1)
+
+        a, b, c = (gram[:, i, i, ..., 0] + n[:, 0] for i in range(3))     # real diagonal plus the weight
+        p, q, r = gram[:, 0, 1], gram[:, 0, 2], gram[:, 1, 2]                # the upper off-diagonal
+        c00 = b * c - (r * r).sum(-1)
+        c11 = a * c - (q * q).sum(-1)
+        c22 = a * b - (p * p).sum(-1)
+        a01 = mul(q, conj(r)) - c.unsqueeze(-1) * p                          # adjugate, upper part
+        a02 = mul(p, r) - b.unsqueeze(-1) * q
+        a12 = mul(q, conj(p)) - a.unsqueeze(-1) * r
+        det = a * c00 + (p * a01).sum(-1) + (q * a02).sum(-1)    # first row x cofactors (Re; Hermitian)
+        inv = (1.0 / det).unsqueeze(-1)
+        r0, r1, r2 = R[:, 0], R[:, 1], R[:, 2]
+        u0 = c00.unsqueeze(-1) * r0 + mul(a01, r1) + mul(a02, r2)
+        u1 = mul(conj(a01), r0) + c11.unsqueeze(-1) * r1 + mul(a12, r2)
+        u2 = mul(conj(a02), r0) + mul(conj(a12), r1) + c22.unsqueeze(-1) * r2
+        return torch.stack([u0, u1, u2], dim=1) * inv.unsqueeze(1)
+
+    @staticmethod
     def _rfft(x: torch.Tensor, P: tuple[int, int]) -> torch.Tensor:
         """``(N, 3, P0, P1)`` real planes -> ``(N, 3, P0, P1 // 2 + 1, 2)`` spectra (real, imaginary)."""
         return torch.view_as_real(torch.fft.rfft2(x, s=P))
@@ -211,16 +259,17 @@ class UnrolledADMM(nn.Module):
         return torch.stack([(mr * xr - mi * xi).sum(2), (mr * xi + mi * xr).sum(2)], dim=-1)
 
 
-def twin(stages: int) -> UnrolledADMM:
-    """The unlearned twin: ``stages`` of ``fast``'s ADMM iterations, no prior, no eye MLP."""
-    return UnrolledADMM(UnrolledConfig(stages=stages, prior_width=0, features=0))
+def twin(stages: int, box_weight: float = 1.0) -> UnrolledADMM:
+    """The unlearned twin: ``stages`` of ``fast``'s ADMM iterations, no prior, no eye MLP
+    (``box_weight``: the box split's weight over ``||K||^2``, ``fast``'s 1 by default)."""
+    return UnrolledADMM(UnrolledConfig(stages=stages, prior_width=0, features=0, box_weight=box_weight))
 
 
 def kernel_spectra(kernels: Sequence[np.ndarray], shape: tuple[int, int], power_of_two: bool = True
                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """:func:`~vrcorrect.learn.conditioning.unrolled_spectra` of each kernel on one grid (that of the
     largest; ``power_of_two``: the real-time path's, else ``fast``'s), batched: ``spectrum`` and
-    ``inverse`` ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 and ``||K||^2`` ``(N,)`` float32."""
+    ``gram`` ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 and ``||K||^2`` ``(N,)`` float32."""
     size = max(k.shape[-1] for k in kernels)
     made = [unrolled_spectra(k, shape, size, power_of_two) for k in kernels]
     return (torch.from_numpy(np.stack([m[0] for m in made])), torch.from_numpy(np.stack([m[1] for m in made])),

@@ -3,7 +3,7 @@
 
 The graph: inputs ``target_lms``, ``z0``, ``target`` and the start's duals ``d1``, ``d2``
 (:func:`vrcorrect.solvers.admm.fast_start`) float32 ``(1, 3, H, W)``; ``spectrum`` and
-``inverse`` float32 ``(1, 3, 3, P0, P1 // 2 + 1, 2)``; ``norm2`` ``(1,)``; ``features`` ``(1, 5)``
+``gram`` (``K^H K``) float32 ``(1, 3, 3, P0, P1 // 2 + 1, 2)``; ``norm2`` ``(1,)``; ``features`` ``(1, 5)``
 (:func:`vrcorrect.learn.conditioning.unrolled_features`). Output ``displayed`` ``(1, 3, H, W)`` in
 [0, 1]. ``H``, ``W``, ``P0`` and ``P1`` are dynamic: one file serves every image size and kernel.
 Metadata (``vrcorrect.*``): the format, the stages, the training ranges and displays, the
@@ -31,10 +31,10 @@ from .conditioning import N_UNROLLED_FEATURES
 from .export import stamp_and_write
 from .unrolled import UnrolledADMM, kernel_spectra
 
-FORMAT = "vrcorrect-unrolled-v2"      # v2: starts from fast_start (the duals d1, d2 added)
+FORMAT = "vrcorrect-unrolled-v3"      # v2: starts from fast_start (the duals d1, d2 added); v3: box weight per stage
 OPSET = 18
 TOLERANCE = 1e-4
-INPUTS = ("target_lms", "z0", "spectrum", "inverse", "norm2", "features", "target", "d1", "d2")
+INPUTS = ("target_lms", "z0", "spectrum", "gram", "norm2", "features", "target", "d1", "d2")
 OUTPUT = "displayed"
 
 
@@ -50,11 +50,11 @@ def _case(H: int, W: int, kernel_size: int, seed: int) -> tuple[torch.Tensor, ..
     rng = np.random.default_rng(seed)
     k = rng.random((3, 3, kernel_size, kernel_size))
     k /= 3 * k.sum(axis=(-2, -1), keepdims=True)
-    spectrum, inverse, norm2 = kernel_spectra([k], (H, W))
+    spectrum, gram, norm2 = kernel_spectra([k], (H, W))
     t = torch.from_numpy(rng.random((1, 3, H, W), dtype=np.float32))
     z0 = torch.from_numpy(rng.random((1, 3, H, W), dtype=np.float32))
     d1, d2 = (torch.from_numpy(rng.normal(0, 0.05, (1, 3, H, W)).astype(np.float32)) for _ in range(2))
-    return (torch.from_numpy(rng.random((1, 3, H, W), dtype=np.float32)), z0, spectrum, inverse, norm2,
+    return (torch.from_numpy(rng.random((1, 3, H, W), dtype=np.float32)), z0, spectrum, gram, norm2,
             torch.from_numpy(rng.uniform(-1, 1, (1, N_UNROLLED_FEATURES)).astype(np.float32)), t, d1, d2)
 
 
@@ -65,7 +65,7 @@ def onnx_bytes(model: UnrolledADMM) -> bytes:
     h, w = Dim("H", min=8, max=8192), Dim("W", min=8, max=8192)
     p0, f1 = Dim("P0", min=8, max=16384), Dim("F1", min=5, max=8193)
     image, spec = {2: h, 3: w}, {3: p0, 4: f1}
-    shapes = {"t_lms": image, "z0": image, "spectrum": spec, "inverse": spec, "norm2": None, "features": None,
+    shapes = {"t_lms": image, "z0": image, "spectrum": spec, "gram": spec, "norm2": None, "features": None,
               "target": image, "d1": image, "d2": image}
     buf = io.BytesIO()
     with warnings.catch_warnings():
@@ -112,8 +112,9 @@ def export_unrolled(checkpoint: str | Path, out: str | Path, force: bool = False
             "vrcorrect.inputs": ",".join(INPUTS), "vrcorrect.opset": str(OPSET),
             "vrcorrect.ranges": json.dumps(report.get("config", {}).get("ranges")),
             "vrcorrect.displays": json.dumps(report.get("config", {}).get("displays")),
-            "vrcorrect.train": json.dumps({k: report.get(k) for k in ("steps", "seconds", "share_of_fast_gain",
-                                                                       "held_out")})}
+            "vrcorrect.train": json.dumps({k: report.get(k) for k in ("config", "image_px", "images", "machine",
+                                                                       "steps", "seconds", "parameters",
+                                                                       "share_of_fast_gain", "held_out")})}
     blob = stamp_and_write(onnx.load_from_string(data), meta, out, force, "vrcorrect unrolled correction: inputs "
                            + ", ".join(INPUTS) + "; output displayed (1,3,H,W). See vrcorrect.runtime.unrolled.")
     return UnrolledExport(path=out, max_abs_error=error, metadata=meta, bytes=len(blob))

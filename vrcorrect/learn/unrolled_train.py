@@ -62,6 +62,7 @@ class UnrolledTrainConfig:
     steps: int = 2000
     minutes: float = 90.0
     lr: float = 2e-3
+    settings_lr: float = 2e-2
     seed: int = 0
     ranges: SamplingRanges = field(default_factory=SamplingRanges)
     fast_weight: float = 0.0
@@ -76,8 +77,10 @@ class UnrolledTrainConfig:
                 raise ValidationError(name, value, f"an integer from {lo} to {hi}")
         if not (isinstance(self.minutes, (int, float)) and 0 < self.minutes <= 24 * 60):
             raise ValidationError("minutes", self.minutes, "a number of minutes in (0, 1440]")
-        if not (isinstance(self.lr, (int, float)) and 0 < self.lr < 1):
-            raise ValidationError("lr", self.lr, "a learning rate in (0, 1)")
+        for name in ("lr", "settings_lr"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (isinstance(value, (int, float)) and 0 < value < 1):
+                raise ValidationError(name, value, "a learning rate in (0, 1)")
         if isinstance(self.fast_weight, bool) or not (isinstance(self.fast_weight, (int, float))
                                                       and 0 <= self.fast_weight <= 1000):
             raise ValidationError("fast_weight", self.fast_weight, "a weight from 0 (no pull towards fast) to 1000")
@@ -153,7 +156,9 @@ def build_pool(config: UnrolledTrainConfig, progress: Callable[[int, int], None]
 
 def make_batch(entries: Sequence[PoolEntry], crops: Sequence[np.ndarray]) -> dict[str, torch.Tensor]:
     """Tensors for one batch: ``target`` (linear RGB), ``target_lms`` (what the eye sees of it with
-    glasses), ``spectrum``, ``inverse`` and ``norm2`` (:func:`kernel_spectra`), ``kernel`` (padded to one size),
+    glasses), ``spectrum``, ``gram`` and ``norm2`` (:func:`kernel_spectra`, on
+    ``fast``'s grid: the least that does not wrap, three times cheaper here than the real-time
+    path's powers of two, and the model is the same on either), ``kernel`` (padded to one size),
     ``features``, and ``fast``'s start ``z0`` with its duals ``d1``, ``d2``
     (:func:`~vrcorrect.solvers.admm.fast_start`). ``crops`` are sRGB-coded ``(h, w, 3)`` crops, one per entry."""
     shape = crops[0].shape[:2]
@@ -166,17 +171,17 @@ def make_batch(entries: Sequence[PoolEntry], crops: Sequence[np.ndarray]) -> dic
     reference = torch.from_numpy(np.stack([_pad_kernel(e.reference, r) for e in entries]).astype(np.float32))
     with torch.no_grad():
         target_lms = retina(target, reference)
-    spectrum, inverse, norm2 = kernel_spectra([e.kernel for e in entries], shape)
+    spectrum, gram, norm2 = kernel_spectra([e.kernel for e in entries], shape, power_of_two=False)
     features = torch.from_numpy(np.stack([e.features for e in entries]))
     starts = [fast_start(e.kernel, t[i], target_lms[i].numpy()) for i, e in enumerate(entries)]
     z0, d1, d2 = (torch.from_numpy(np.stack([s[j] for s in starts])) for j in range(3))
-    return {"target": target, "target_lms": target_lms, "spectrum": spectrum, "inverse": inverse, "norm2": norm2,
+    return {"target": target, "target_lms": target_lms, "spectrum": spectrum, "gram": gram, "norm2": norm2,
             "kernel": kernel, "features": features, "z0": z0, "d1": d1, "d2": d2}
 
 
 def run_model(model: UnrolledADMM, batch: dict[str, torch.Tensor]) -> torch.Tensor:
     """``model`` on a batch of :func:`make_batch`, from ``fast``'s start."""
-    return model(batch["target_lms"], batch["z0"], batch["spectrum"], batch["inverse"], batch["norm2"],
+    return model(batch["target_lms"], batch["z0"], batch["spectrum"], batch["gram"], batch["norm2"],
                  features=batch["features"] if model.mlp is not None else None, target=batch["target"],
                  d1=batch["d1"], d2=batch["d2"])
 
@@ -194,7 +199,8 @@ def _crops(images: Sequence[np.ndarray], rng: np.random.Generator, n: int, size:
 def evaluate(model: UnrolledADMM, cases: Sequence[tuple[PoolEntry, np.ndarray]],
              fast_objectives: Sequence[float]) -> dict[str, Any]:
     """The share of ``fast``'s objective gain over no correction each case gets from ``model`` and
-    from its twin (``model.config.stages`` stages): medians, minima and per case."""
+    from its twin (``model.config.stages`` stages): medians, minima, the mean share left open (a
+    case past ``fast`` counts 0: the issue's halving goal) and per case."""
     shares: dict[str, list[float]] = {"learned": [], "twin": []}
     tw = twin(model.config.stages)
     with torch.no_grad():
@@ -205,7 +211,8 @@ def evaluate(model: UnrolledADMM, cases: Sequence[tuple[PoolEntry, np.ndarray]],
             for name, m in (("learned", model), ("twin", tw)):
                 obj = float(objective_per_sample(run_model(m, b), b["kernel"], b["target_lms"])[0])
                 shares[name].append((none - obj) / gain if gain > 0 else float("nan"))
-    summary = {name: {"median": float(np.nanmedian(v)), "min": float(np.nanmin(v)), "cases": v}
+    summary = {name: {"median": float(np.nanmedian(v)), "min": float(np.nanmin(v)),
+                      "mean_open": float(np.nanmean(np.maximum(0.0, 1.0 - np.asarray(v)))), "cases": v}
                for name, v in shares.items()}
     return summary
 
@@ -267,12 +274,14 @@ def build_fast_bank(config: UnrolledTrainConfig, pool: dict[str, list[PoolEntry]
 def train_unrolled(run_dir: str | Path, config: UnrolledTrainConfig, train_images: Sequence[np.ndarray],
                    held_out_images: Sequence[np.ndarray], pool: dict[str, list[PoolEntry]] | None = None,
                    progress: Callable[[int, float], None] | None = None, held_out_cases: int = 24,
-                   bank: list[tuple[int, np.ndarray, np.ndarray]] | None = None) -> dict[str, Any]:
+                   bank: list[tuple[int, np.ndarray, np.ndarray]] | None = None,
+                   about: dict[str, Any] | None = None) -> dict[str, Any]:
     """Train an :class:`UnrolledADMM` for ``config.steps`` steps or ``config.minutes``, whichever
     ends first (cosine learning rate over the steps), evaluate it against its twin on held-out
     eyes and images, and write ``unrolled.pt``, ``log.csv`` and ``report.json`` in ``run_dir``.
     With ``config.fast_weight`` above zero the crops come from ``bank`` (:func:`build_fast_bank`;
-    built here, in this process, when not given). Returns the report."""
+    built here, in this process, when not given). ``about``: more for the report (the images' size,
+    the machine). Returns the report."""
     import json
 
     run = Path(run_dir)
@@ -288,7 +297,13 @@ def train_unrolled(run_dir: str | Path, config: UnrolledTrainConfig, train_image
         bank = build_fast_bank(config, pool, train_images)
     model = UnrolledADMM(UnrolledConfig(stages=config.stages, prior_width=config.prior_width,
                                         features=N_UNROLLED_FEATURES))
-    optimiser = torch.optim.Adam(model.parameters(), lr=config.lr)
+    # the stage settings are a few log-scale numbers a stage: a step of 2e-3 would take 1,000 steps
+    # to move the box weight by e; the prior's weights take the usual rate
+    settings = [model.stage_base] + (list(model.mlp.parameters()) if model.mlp is not None else [])
+    groups = [{"params": settings, "lr": config.settings_lr}]
+    if model.prior is not None:
+        groups.append({"params": list(model.prior.parameters()), "lr": config.lr})
+    optimiser = torch.optim.Adam(groups)
     schedule = torch.optim.lr_scheduler.LambdaLR(
         optimiser, lambda s: 0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(s / config.steps, 1.0))))
     log = io.StringIO()
@@ -324,10 +339,12 @@ def train_unrolled(run_dir: str | Path, config: UnrolledTrainConfig, train_image
     result = evaluate(model, cases, fast_obj)
     report = {"config": {**{k: v for k, v in config.__dict__.items() if k != "ranges"},
                          "displays": list(config.displays), "ranges": config.ranges.as_dict()},
+              **(about or {}),
               "steps": step, "seconds": seconds, "parameters": sum(p.numel() for p in model.parameters()),
               "held_out": {"cases": len(cases), "eyes": len(pool["held_out"]),
                            "displays": sorted({e.display for e in pool["held_out"]})},
-              "share_of_fast_gain": {k: {"median": v["median"], "min": v["min"]} for k, v in result.items()},
+              "share_of_fast_gain": {k: {"median": v["median"], "min": v["min"], "mean_open": v["mean_open"]}
+                                     for k, v in result.items()},
               "per_case": [{"display": e.display, "learned": result["learned"]["cases"][i],
                             "twin": result["twin"]["cases"][i]} for i, (e, _) in enumerate(cases)]}
     torch.save({"format": "vrcorrect-unrolled-checkpoint", "config": model.config.as_dict(),

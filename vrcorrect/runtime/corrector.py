@@ -189,14 +189,18 @@ class Corrector:
         self.encoder = Encoder(self.gpu)
         self._seen: dict[tuple[int, int], "moderngl.Texture"] = {}
         self._onnx: OnnxModel | None = None
-        self._learned: LearnedModel | None = None
+        self._learned: LearnedModel | UnrolledModel | None = None
         if backend == Backend.ONNX:
-            from .learned import LearnedModel, is_learned_model  # start-up time: loads the optics and solvers
+            from .learned import LEARNED_FORMAT, LearnedModel, model_metadata  # start-up time: optics, solvers
+            from .unrolled import UNROLLED_FORMAT, UnrolledModel
 
             if not self.options.model:
                 raise ValidationError("model", None, "an ONNX model path for backend 'onnx'")
-            if is_learned_model(self.options.model):        # one model for many eyes: bound per eye
+            fmt = model_metadata(self.options.model).get("vrcorrect.format")
+            if fmt == LEARNED_FORMAT:                       # one model for many eyes: bound per eye
                 self._learned = LearnedModel(self.options.model)
+            elif fmt == UNROLLED_FORMAT:                    # the unrolled correction alone, every frame
+                self._learned = UnrolledModel(self.options.model)
             else:
                 self._onnx = OnnxModel(self.options.model)
         self.model: EyeModel                                # set by install below

@@ -3,7 +3,7 @@
 
 What the model needs besides the image is computed here with numpy, once per eye and size: the
 target's cone image through the eye with glasses (:func:`vrcorrect.vision.forward.simulate_lms`),
-the kernel's spectrum and the data step's inverse
+the kernel's spectrum and its Gram matrix ``K^H K`` (what the data steps solve with)
 (:func:`vrcorrect.learn.conditioning.unrolled_spectra`, float64 then float32) and the eye's
 features (:func:`~vrcorrect.learn.conditioning.unrolled_features`), and where the stages start:
 ``fast``'s own start (:func:`vrcorrect.solvers.admm.fast_start`: a half-resolution level of ADMM
@@ -39,8 +39,8 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
 __all__ = ["UNROLLED_FORMAT", "UnrolledModel", "UnrolledEye"]
 
-UNROLLED_FORMAT = "vrcorrect-unrolled-v2"
-INPUTS = ("target_lms", "z0", "spectrum", "inverse", "norm2", "features", "target", "d1", "d2")
+UNROLLED_FORMAT = "vrcorrect-unrolled-v3"
+INPUTS = ("target_lms", "z0", "spectrum", "gram", "norm2", "features", "target", "d1", "d2")
 
 
 class UnrolledModel:
@@ -94,11 +94,11 @@ class UnrolledModel:
         """The pass on a checked ``(H, W, 3)`` image, given the eye's features and the kernel's
         spectra on its grid (what depends on the eye and the size, not on the picture)."""
         t_lms, _ = simulate_lms(img, reference_kernel)
-        spectrum, inverse, norm2 = spectra
+        spectrum, gram, norm2 = spectra
         chw = np.ascontiguousarray(img.transpose(2, 0, 1))
         lms = np.ascontiguousarray(t_lms.transpose(2, 0, 1), np.float32)
         z0, d1, d2 = fast_start(kernel.kernel, chw, lms)
-        feed = {"target_lms": lms[None], "z0": z0[None], "spectrum": spectrum[None], "inverse": inverse[None],
+        feed = {"target_lms": lms[None], "z0": z0[None], "spectrum": spectrum[None], "gram": gram[None],
                 "norm2": np.array([norm2], np.float32), "features": features[None],
                 "target": chw[None], "d1": d1[None], "d2": d2[None]}
         out = self.session.run(None, feed)[0][0]

@@ -37,6 +37,7 @@ from tqdm import tqdm
 from ...learn.dataset import HELD_OUT_IMAGES
 from ...physics.kernel import build_kernel, build_reference_kernel
 from ...plumbing.errors import ValidationError
+from ...plumbing.fileio import write_text_atomic
 from ...runtime.unrolled import UnrolledModel
 from ...solvers import make_problem, objective, solve
 from ...solvers.admm import COARSE_ITERATIONS, FAST_RELAXATION, FAST_RHO, _admm, fast_start
@@ -55,19 +56,25 @@ METHODS = ("learned", "twin", "admm cold", "fista", "fast")
 START_ROUND_TRIPS = COARSE_ITERATIONS * 2 / 4
 #: The share of fast's JOD gain the issue asks of the learned model, case by case.
 JOD_GOAL = 0.85
+#: Hand-set box weights (fractions of ``||K||^2``, the same at every stage) the twin is also run at:
+#: what a constant does that the learned per-stage, per-eye weights must beat.
+BOX_WEIGHTS = (0.5, 0.3, 0.2, 0.1)
 
 
-def twin_stages(kernel: np.ndarray, t_chw: np.ndarray, lms: np.ndarray, stages: int, from_start: bool = True
-                ) -> np.ndarray:
+def twin_stages(kernel: np.ndarray, t_chw: np.ndarray, lms: np.ndarray, stages: int, from_start: bool = True,
+                box_weight: float = 1.0) -> np.ndarray:
     """The unlearned twin's output ``(H, W, 3)``: ``stages`` of ``fast``'s ADMM iterations with its
     settings, from :func:`~vrcorrect.solvers.admm.fast_start` and its duals (``from_start``) or from
-    the target ``t_chw`` with zero duals; ``lms``: the target's cone image ``(3, H, W)``."""
+    the target ``t_chw`` with zero duals; ``lms``: the target's cone image ``(3, H, W)``.
+    ``box_weight``: the box split's weight over ``||K||^2`` (``fast``'s 1), the retina split's
+    penalty unchanged (``_admm`` scales both by its ``balance``, so its ``rho`` is divided by it)."""
     if from_start:
         z0, d1, d2 = fast_start(kernel, t_chw, lms)
         duals: tuple[np.ndarray, np.ndarray] | None = (d1, d2)
     else:
         z0, duals = t_chw, None
-    z = _admm(kernel, lms, z0, FAST_RHO, FAST_RELAXATION, 1.0, stages, 0.0, duals=duals, track=False)[0]
+    z = _admm(kernel, lms, z0, FAST_RHO / box_weight, FAST_RELAXATION, box_weight, stages, 0.0, duals=duals,
+              track=False)[0]
     return np.moveaxis(z, 0, 2)
 
 
@@ -79,9 +86,10 @@ def _share(none: float, value: float, best: float) -> float:
 def run_unrolled_bench(model_path: str | Path, out: Path = Path("docs/benchmarks.md"), eyes: int = 2,
                        size: int = 256, images: Sequence[str] = HELD_OUT_IMAGES,
                        displays: Sequence[str] = DISPLAYS, write: bool = True, progress: bool = True,
-                       with_cut: bool = True) -> dict[str, Any]:
+                       with_cut: bool = True, card: Path | None = None) -> dict[str, Any]:
     """Measure the model (module docstring); returns ``cases``, ``summary`` and ``markdown``, and with
-    ``write`` writes the ``unrolled`` section of ``out``."""
+    ``write`` writes the ``unrolled`` section of ``out``; with ``card`` also the model card there
+    (:func:`card_text`)."""
     model = UnrolledModel(model_path, providers=("CPUExecutionProvider",))
     missing = [d for d in displays if model.displays is not None and d not in model.displays]
     if missing:
@@ -129,6 +137,9 @@ def run_unrolled_bench(model_path: str | Path, out: Path = Path("docs/benchmarks
                     s, _ = evaluate_seen(shown[m], target, kernel, display, target_lms=p.target_lms)
                     case.update({f"objective_{m}": objective(shown[m], p), f"jod_{m}": s.jod, f"flip_{m}": s.flip,
                                  f"ms_{m}": ms[m]})
+                for b in BOX_WEIGHTS:                       # the objective only: a scan, not a method
+                    case[f"gap_twin@{b:g}"] = _share(none_obj, objective(
+                        twin_stages(kernel.kernel, t_chw, lms, stages, box_weight=b), p), case["objective_fast"])
                 for m in METHODS:
                     case[f"gap_{m}"] = _share(none_obj, case[f"objective_{m}"], case["objective_fast"])
                     case[f"jod_share_{m}"] = _share(-case["jod_none"], -case[f"jod_{m}"], -case["jod_fast"])
@@ -140,7 +151,68 @@ def run_unrolled_bench(model_path: str | Path, out: Path = Path("docs/benchmarks
     body = _markdown(model, Path(model_path), stages, cases, summary, size, eyes, cut)
     if write:
         write_section(out, "unrolled", body)
+    if card is not None:
+        write_text_atomic(card, card_text(model, Path(model_path), body), force=True)
     return {"cases": cases, "summary": summary, "cut": cut, "markdown": body}
+
+
+def card_text(model: UnrolledModel, path: Path, bench_md: str) -> str:
+    """The model card of an unrolled model: what it is, its ranges and displays, its training as
+    the metadata states it, and the held-out figures of :func:`run_unrolled_bench` (``bench_md``)."""
+    import json
+
+    train = json.loads(model.metadata.get("vrcorrect.train") or "{}")
+    cfg = train.get("config") or {}
+    stages = int(model.config["stages"])
+    width = int(model.config.get("prior_width") or 0)
+    command = ("vrcorrect unroll -o RUN" + "".join(
+        f" --{flag} {value}" for flag, value in (
+            ("stages", cfg.get("stages")), ("prior-width", cfg.get("prior_width")), ("crop-px", cfg.get("crop_px")),
+            ("image-px", train.get("image_px")), ("batch-size", cfg.get("batch")), ("steps", cfg.get("steps")),
+            ("minutes", cfg.get("minutes")), ("seed", cfg.get("seed"))) if value is not None))
+    share = train.get("share_of_fast_gain") or {}
+    minutes = f"{train['seconds'] / 60:.0f} minutes" if train.get("seconds") else "(not recorded)"
+    return "\n".join([
+        f"# Model card: `{path.name}`, the unrolled correction",
+        "",
+        "vrcorrect's learned correction (docs/learned.md): `fast`'s own ADMM unrolled into a fixed number of "
+        "stages whose settings a tiny network sets from the eye. The eye's blur is an input (its cone x primary "
+        "kernel spectrum), so one file serves every eye in its ranges on every display it was trained for.",
+        "",
+        "## What it is",
+        f"- {stages} ADMM stages (two FFT round trips each) after `fast`'s start (a half-resolution level and "
+        "its duals); each stage's data step is `fast`'s per-frequency 3x3 solve with a box weight of its own; "
+        "the box [0, 1] holds at every stage",
+        "- learned: each stage's retina penalty, relaxation and box weight, shared values plus a correction an "
+        "MLP reads from the eye (power vector, pupil, the kernel's size); "
+        + (f"a {width}-channel prior network between the stages" if width else "no image prior")
+        + f"; {train.get('parameters', '?')} parameters",
+        f"- ranges (anything outside is refused): {model.ranges.describe()}",
+        f"- displays: {', '.join(model.displays or ['(any)'])}",
+        "- target: what the eye sees with glasses on; output: the displayed image, linear RGB in [0, 1]",
+        f"- format {model.metadata.get('vrcorrect.format')}, opset {model.metadata.get('vrcorrect.opset')}, "
+        f"vrcorrect {model.metadata.get('vrcorrect.version')}; onnxruntime, no torch",
+        "",
+        "## Data and training",
+        f"- command: `{command}` (then copied to models/default.onnx when it is the shipped model)",
+        f"- data: random {cfg.get('crop_px')}-px crops of the bundled photographs "
+        f"({', '.join(train.get('images') or []) or 'not recorded'}) at {train.get('image_px')} px; "
+        f"{cfg.get('eyes_per_display')} eyes drawn over the ranges per display; no paired targets",
+        "- loss: the log of the LMS objective of what the eye sees over the uncorrected one (the physics "
+        "objective; no perceptual metric is trained on)",
+        f"- run: {train.get('steps')} Adam steps in {minutes} on {train.get('machine') or '(not recorded)'}",
+        f"- its own held-out crops ({(train.get('held_out') or {}).get('cases')} of held-out images and eyes): "
+        f"share of `fast`'s objective gain, median (min): learned "
+        f"{100 * share.get('learned', {}).get('median', float('nan')):.0f} % "
+        f"({100 * share.get('learned', {}).get('min', float('nan')):.0f} %), its untrained twin "
+        f"{100 * share.get('twin', {}).get('median', float('nan')):.0f} % "
+        f"({100 * share.get('twin', {}).get('min', float('nan')):.0f} %)",
+        "",
+        "## Held-out figures (`vrcorrect bench learned`)",
+        "",
+        bench_md.split("\n", 1)[1].lstrip() if bench_md.startswith("## ") else bench_md,
+        "",
+    ])
 
 
 def after_a_cut(model: UnrolledModel, size: int = 256, frames: int = 90, display_name: str | None = None
@@ -197,6 +269,8 @@ def _summary(cases: list[dict[str, Any]]) -> dict[str, Any]:
     out["jod_goal_met"] = sum(c["jod_share_learned"] >= JOD_GOAL for c in cases)
     out["open_mean"] = {m: mean_gap_left_open([c[f"gap_{m}"] for c in cases]) for m in ("learned", "twin")}
     out["halving_met"] = out["open_mean"]["learned"] <= out["open_mean"]["twin"] / 2
+    out["open_mean_box"] = {b: mean_gap_left_open([c[f"gap_twin@{b:g}"] for c in cases]) for b in BOX_WEIGHTS}
+    out["gap_min_box"] = {b: min(c[f"gap_twin@{b:g}"] for c in cases) for b in BOX_WEIGHTS}
     out["flip_learned_worse_than_twin"] = sum(c["flip_learned"] > c["flip_twin"] for c in cases)
     return out
 
@@ -272,6 +346,18 @@ def _markdown(model: UnrolledModel, path: Path, stages: int, cases: list[dict[st
         f"{100 * s['open_mean']['learned']:.2f} %: halving it is {'met' if s['halving_met'] else 'not met'}. "
         f"FLIP of what the eye sees is worse with the learned model than with its twin on "
         f"{s['flip_learned_worse_than_twin']} of {len(cases)} cases.",
+        "",
+        "What a hand-set constant does instead of learning: the twin with its box split's weight at a fixed "
+        "fraction of ||K||^2 at every stage (`fast`'s is 1; the retina split's penalty unchanged), objective "
+        "only. The constants are scanned on these same held-out cases, so the best of them is an optimistic "
+        "bound on what a hand-set value gets; the learned model sets the weight per stage and per eye.",
+        "",
+        markdown_table(["box weight (x ||K||^2)", "1 (the twin)", *(f"{b:g}" for b in BOX_WEIGHTS), "learned"],
+                       [["mean gap left open", f"{100 * s['open_mean']['twin']:.2f} %",
+                         *(f"{100 * s['open_mean_box'][b]:.2f} %" for b in BOX_WEIGHTS),
+                         f"{100 * s['open_mean']['learned']:.2f} %"],
+                        ["least share of the gap closed", _pct(s["twin"]["gap_min"]),
+                         *(_pct(s["gap_min_box"][b]) for b in BOX_WEIGHTS), _pct(s["learned"]["gap_min"])]]),
         "",
         markdown_table(["display", "image", "eye (sph / cyl x axis, pupil)", "fast its", "JOD none", "learned",
                         "twin", "admm cold", "fista", "fast", "JOD share learned", "twin", "gap learned", "twin",
