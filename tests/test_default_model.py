@@ -1,9 +1,13 @@
-"""The shipped default model (models/default.onnx): it loads, carries its metadata, improves what
-the eye sees over no correction for several prescriptions, and refuses eyes outside its range."""
+"""The shipped default model (models/default.onnx, the unrolled correction): it is what the README's
+training command makes, it loads with its card and metadata, improves what the eye sees over no
+correction on every display it names, refuses eyes outside its range, and is what `--backend onnx`,
+`--method learned` and `--cold-start` use when no model is named."""
 
 from __future__ import annotations
 
 import json
+import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -11,14 +15,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vrcorrect.specs.display import decode, get_display
+from vrcorrect.learn.conditioning import SamplingRanges
+from vrcorrect.physics.kernel import build_kernel, build_reference_kernel
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.plumbing.imageio import read_image
-from vrcorrect.physics.kernel import build_kernel, build_reference_kernel
-from vrcorrect.learn.conditioning import SamplingRanges
-from vrcorrect.specs.prescription import EyeRx
-from vrcorrect.runtime.learned import LearnedModel
+from vrcorrect.runtime.unrolled import UnrolledModel
 from vrcorrect.solvers import make_problem, objective
+from vrcorrect.specs.display import decode, get_display, preset_names
+from vrcorrect.specs.prescription import EyeRx
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "models" / "default.onnx"
@@ -26,8 +30,34 @@ CARD = ROOT / "models" / "default.md"
 
 
 @pytest.fixture(scope="module")
-def model() -> LearnedModel:
-    return LearnedModel(MODEL, providers=("CPUExecutionProvider",))
+def model() -> UnrolledModel:
+    return UnrolledModel(MODEL, providers=("CPUExecutionProvider",))
+
+
+def _readme_training_command() -> list[str]:
+    """The one ``vrcorrect unroll`` line of the README's code blocks, as arguments."""
+    lines = [line.split("#")[0].strip() for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+             if line.strip().startswith("vrcorrect unroll ")]
+    assert len(lines) == 1, lines
+    return shlex.split(lines[0])[1:]
+
+
+def test_the_shipped_model_is_what_the_readmes_training_command_makes(model):
+    """Every setting the run records equals what the README's command asks (its flags read by the
+    real parser, defaults included), so the file was made by that command."""
+    from vrcorrect.apps.cli import build_parser
+
+    args = build_parser().parse_args(_readme_training_command())
+    train = json.loads(model.metadata["vrcorrect.train"])
+    cfg = train["config"]
+    asked = {"stages": args.stages, "prior_width": args.prior_width, "crop_px": args.crop_px,
+             "batch": args.batch_size, "steps": args.steps, "minutes": args.minutes, "seed": args.seed,
+             "eyes_per_display": args.eyes_per_display, "displays": list(args.displays),
+             "fast_weight": args.fast_weight}
+    assert {k: cfg[k] for k in asked} == asked
+    assert train["image_px"] == args.image_px
+    assert train["steps"] == cfg["steps"]                        # it ran all its steps, not out of time
+    assert train["seconds"] < 90 * 60                            # the issue's budget on this machine
 
 
 def test_default_model_is_shipped_small_with_its_card_and_metadata(model):
@@ -36,35 +66,35 @@ def test_default_model_is_shipped_small_with_its_card_and_metadata(model):
     assert DEFAULT_MODEL.resolve() == MODEL.resolve()
     assert MODEL.stat().st_size <= 10 * 2 ** 20
     assert model.ranges == SamplingRanges()                       # the issue's ranges, not a narrower set
-    assert model.display["name"] == "quest2" and model.reference == "glasses"
-    assert model.precorrection_steps > 0
+    assert sorted(model.displays) == sorted(preset_names()) and model.reference == "glasses"
     train = json.loads(model.metadata["vrcorrect.train"])
     assert train["images"] and not {"rocket", "retina"} & set(train["images"])   # the card's held-out images
-    assert model.metadata["vrcorrect.precision"] == "fp32"
     card = CARD.read_text(encoding="utf-8")
-    for needle in ("held-out", "rocket", "retina", "FLIP", "gap closed", model.ranges.describe()):
-        assert needle in card
+    for needle in ("held-out", "rocket", "retina", "FLIP", "gap closed", "JOD share", model.ranges.describe(),
+                   "vrcorrect unroll", "minutes"):
+        assert needle in card, needle
 
 
+@pytest.mark.parametrize("display", ["quest2", "desktop", "index"])
 @pytest.mark.parametrize("rx", [(-3.0, -1.5, 20.0, 4.0), (2.5, 0.0, 0.0, 3.0), (-5.5, -2.75, 110.0, 5.5)])
-def test_default_model_improves_the_objective_over_no_correction(model, rx):
+def test_default_model_improves_the_objective_over_no_correction(model, rx, display):
     """On the bundled sample image (not a training image), for a myope with astigmatism, a
-    hyperope and a strong mixed eye: the eye's objective is clearly below the uncorrected one's."""
-    display = get_display("quest2")
-    codes = read_image(ROOT / "vrcorrect" / "data" / "sample.png")[96:96 + 128, 128:128 + 160]
-    target = decode(display, codes)
+    hyperope and a strong mixed eye, on three displays: the eye's objective is clearly below the
+    uncorrected one's."""
+    d = get_display(display)
+    codes = read_image(ROOT / "vrcorrect" / "data" / "sample.png")[96:96 + 96, 128:128 + 112]
+    target = decode(d, codes).astype(np.float32)
     eye = EyeRx(*rx)
-    kernel, reference = build_kernel(eye, display), build_reference_kernel(eye, display)
-    bound = model.for_eye(eye, display, kernel, reference)
-    shown = np.moveaxis(bound.infer(np.ascontiguousarray(np.moveaxis(target, 2, 0))), 0, 2)
+    kernel, reference = build_kernel(eye, d), build_reference_kernel(eye, d)
+    shown = model.correct(target, eye, kernel, reference)
     p = make_problem(target, kernel, reference)
     assert shown.shape == target.shape and 0 <= shown.min() and shown.max() <= 1
-    assert objective(shown, p) < 0.95 * objective(target, p)       # measured: 0.84 to 0.88
+    assert objective(shown, p) < 0.9 * objective(target, p)
 
 
 def test_default_model_refuses_an_eye_outside_its_range(model, tmp_path):
     with pytest.raises(ValidationError) as err:
-        model.for_eye(EyeRx(-7.5, 0.0, 0.0, 4.0), get_display("quest2"))
+        model.check(EyeRx(-7.5, 0.0, 0.0, 4.0), get_display("quest2"))
     assert "-6 to 6 D" in str(err.value) and "wiener or fast" in str(err.value)
     rx = tmp_path / "rx.json"
     eye = {"sphere_D": -2.0, "cylinder_D": -4.0, "axis_deg": 90, "pupil_diameter_mm": 4.0}
@@ -90,3 +120,19 @@ def test_mirror_runs_the_default_model_per_eye(x_display, tmp_path):
                          env=env, cwd=tmp_path, timeout=600)
     assert run.returncode == 0, run.stderr
     assert "2 frame(s)" in run.stdout and "correct left" in run.stdout and "correct right" in run.stdout
+
+
+def test_cold_start_alone_takes_the_shipped_model(tmp_path, capsys):
+    """`vrcorrect render --cold-start` with no file: the shipped model starts the first frame."""
+    from PIL import Image
+
+    from vrcorrect.apps.cli import main
+
+    src = tmp_path / "in.png"
+    codes = read_image(ROOT / "vrcorrect" / "data" / "sample.png")[96:96 + 40, 128:128 + 48]
+    Image.fromarray(np.round(np.asarray(codes, np.float32) * 255).astype(np.uint8)).save(src)
+    out = tmp_path / "out.png"
+    assert main(["render", str(src), "-o", str(out), "--display", "desktop", "--cold-start", "--frames", "1"]) == 0
+    log = capsys.readouterr().out
+    assert "cold start" in log and re.search(r"default\.onnx", log), log
+    assert np.asarray(Image.open(out)).shape == (40, 48, 3)

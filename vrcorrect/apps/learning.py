@@ -205,28 +205,32 @@ def add_parser(sub) -> None:
     p.add_argument("--force", action="store_true", help="start again although RUN holds a checkpoint")
     p.set_defaults(func=cmd_train)
 
-    p = sub.add_parser("unroll", help="train the unrolled ADMM correction on every display (torch; "
-                                              "work in progress)",
+    p = sub.add_parser("unroll", help="train the learned correction: fast's ADMM unrolled, for every display "
+                                      "(torch; the defaults make the shipped models/default.onnx)",
                        description="Build kernels for eyes drawn over the prescription ranges on each display, "
-                                   "then train fast's ADMM unrolled into stages, with a learned prior and "
-                                   "eye-dependent stage settings, on the LMS objective of random crops; report "
-                                   "the share of fast's objective gain it and its untrained twin close on "
-                                   "held-out eyes and images. unrolled.pt, log.csv, report.json and the ONNX "
-                                   "export unrolled.onnx (for vrcorrect correct --method learned --model) in RUN.")
+                                   "then train fast's ADMM unrolled into stages, with eye-dependent stage settings "
+                                   "(retina penalty, relaxation, box weight) and optionally a learned prior, on the "
+                                   "LMS objective of random crops; report the share of fast's objective gain it "
+                                   "and its untrained twin close on held-out eyes and images. unrolled.pt, "
+                                   "log.csv, report.json and the ONNX export unrolled.onnx (for vrcorrect correct "
+                                   "--method learned --model, --backend onnx --model, --cold-start) in RUN. The "
+                                   "defaults take about 10 minutes on 2 CPU cores.")
     p.add_argument("-o", "--out", required=True, metavar="RUN", help="run folder")
     p.add_argument("--displays", nargs="+", default=list(_presets()), metavar="PRESET",
                    help="display presets (default: all)")
     p.add_argument("--eyes-per-display", type=int, default=5, help="training eyes per display (5)")
     p.add_argument("--stages", type=int, default=8, help="ADMM stages after fast's start, two FFT round trips "
                                                                "each (8)")
-    p.add_argument("--prior-width", type=int, default=16,
-                   help="channels of the prior network (16; 0: none, only the eye's stage settings are learned)")
-    p.add_argument("--crop-px", type=int, default=64, help="side of the training crops (64: the least at which "
-                   "fast's start solves a half-resolution level first, as it does on whole images)")
-    p.add_argument("--image-px", type=int, default=128, help="images are centre-cropped and resized to this (128)")
-    p.add_argument("--batch-size", type=int, default=8, help="crops per step (8)")
-    p.add_argument("--steps", type=int, default=2000, help="optimiser steps (2000)")
-    p.add_argument("--minutes", type=float, default=90.0, help="stop training after this long (90)")
+    p.add_argument("--prior-width", type=int, default=0,
+                   help="channels of a prior network between the stages (0, the default: none, only the eye's "
+                        "stage settings are learned; 16 was tried and costs FLIP on photographs)")
+    p.add_argument("--crop-px", type=int, default=256, help="side of the training crops (256, the size the bench "
+                   "judges; 64 is the least at which fast's start solves a half-resolution level first)")
+    p.add_argument("--image-px", type=int, default=320, help="images are centre-cropped and resized to this (320)")
+    p.add_argument("--batch-size", type=int, default=4, help="crops per step (4)")
+    p.add_argument("--steps", type=int, default=200, help="optimiser steps (200)")
+    p.add_argument("--minutes", type=float, default=60.0, help="stop training after this long, whatever the steps "
+                   "(60; the defaults need about 10 on 2 cores)")
     p.add_argument("--seed", type=int, default=0, help="seed of the eyes, crops and weights (0)")
     p.add_argument("--fast-weight", type=float, default=0.0, metavar="W",
                    help="add W times a pull towards fast's solution to the objective's loss (0: none); the crops "

@@ -73,10 +73,11 @@ def add_filter_options(p: argparse.ArgumentParser) -> None:
                         f"first, after a cut, after a prescription change), 0 to {MAX_ITERATIONS_PER_FRAME} (default "
                         f"{DEFAULT_COLD_ITERATIONS}, fast's own coarse-to-fine start; 0: from the target, cheaper "
                         "but a shot then starts blurred)")
-    p.add_argument("--cold-start", metavar="MODEL.onnx",
-                   help="with --filter admm: start a shot's first frame from this unrolled model's pass (vrcorrect "
-                        "unroll -o RUN writes RUN/unrolled.onnx) instead of the half-resolution level; the frame is "
-                        "read back and corrected on onnxruntime (CPU here: seconds at headset size)")
+    p.add_argument("--cold-start", metavar="MODEL.onnx", nargs="?", const="default",
+                   help="with --filter admm: start a shot's first frame from an unrolled model's pass (alone: the "
+                        "shipped models/default.onnx; vrcorrect unroll -o RUN writes RUN/unrolled.onnx) instead of "
+                        "the half-resolution level; the frame is read back and corrected on onnxruntime (CPU here: "
+                        "seconds at headset size)")
 
 
 def add_reprojection_option(p: argparse.ArgumentParser) -> None:
@@ -107,6 +108,10 @@ def filter_options(args: argparse.Namespace) -> dict[str, Any]:
             raise ValidationError("--cold-start", args.cold_start, "only with --filter admm on --backend glsl")
         from pathlib import Path
 
+        from ..runtime.model_path import DEFAULT_MODEL
+
+        if args.cold_start == "default" and not Path("default").is_file():
+            args.cold_start = str(DEFAULT_MODEL)
         if not Path(args.cold_start).is_file():
             raise ValidationError("--cold-start", args.cold_start, "an existing unrolled model file (.onnx)")
         options["cold_start_model"] = str(args.cold_start)

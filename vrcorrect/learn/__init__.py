@@ -7,7 +7,7 @@
 * :mod:`vrcorrect.learn.model` - the conditioned U-Net (torch).
 * :mod:`vrcorrect.learn.train` - training (torch): loss through the eye's kernel, checkpoints,
   CSV log, resumable.
-* :mod:`vrcorrect.learn.unrolled` - the unrolled ADMM correction (torch; issue 25, begun): ``fast``'s
+* :mod:`vrcorrect.learn.unrolled` - the unrolled ADMM correction (torch; issue 25): ``fast``'s
   exact per-frequency data step with the eye's kernel bank as input, stage settings from the eye, a
   small learned prior; untrained, it is ``fast``'s ADMM itself.
 * :mod:`vrcorrect.learn.export` - ONNX export checked against torch (``tools/export_onnx.py``);

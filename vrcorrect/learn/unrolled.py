@@ -1,4 +1,4 @@
-"""The unrolled correction (issue 25, begun): ``fast``'s ADMM as a fixed number of stages, each
+"""The unrolled correction: ``fast``'s ADMM as a fixed number of stages, each
 stage's settings predicted from the eye, with a small learned prior between the data steps (torch).
 
 Why unrolled. A network that sees only the image and four numbers about the eye must learn the
@@ -180,6 +180,7 @@ class UnrolledADMM(nn.Module):
             raise ValidationError("spectrum", tuple(spectrum.shape), f"a grid of at least {H}x{W}")
         Kh = torch.stack([spectrum[..., 0].transpose(1, 2), -spectrum[..., 1].transpose(1, 2)], dim=-1)
         rho, alpha, beta = self.stage_settings(features, N)
+        prepared = self._prepare(gram)
         pad = (0, P[1] - W, 0, P[0] - H)
         inside = nn.functional.pad(torch.ones_like(t_lms[:, :1]), pad)                  # (N, 1, P0, P1)
         t_grid = nn.functional.pad(t_lms, pad)
@@ -193,7 +194,7 @@ class UnrolledADMM(nn.Module):
         for s in range(S):
             nb = beta[:, s].view(N, 1, 1, 1) * n                                       # the box weight
             R = self._mul(Kh, self._rfft(v - d1, P)) + nb.unsqueeze(-1) * self._rfft(z - d2, P)
-            U = self._solve(gram, nb, R)
+            U = self._solve(prepared, nb, R)
             u = self._irfft(U, P)
             Ku = self._irfft(self._mul(spectrum, U), P)
             a = alpha[:, s].view(N, 1, 1, 1)
@@ -215,9 +216,10 @@ class UnrolledADMM(nn.Module):
         return z[..., :H, :W]
 
     @staticmethod
-    def _solve(gram: torch.Tensor, n: torch.Tensor, R: torch.Tensor) -> torch.Tensor:
-        """``(G + n I)^-1 R`` per frequency for the Hermitian Gram matrix ``G`` ``(N, 3, 3, ..., 2)``,
-        ``n`` ``(N, 1, 1, 1)`` and ``R`` ``(N, 3, ..., 2)``, by cofactors on (real, imaginary) pairs."""
+    def _prepare(gram: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """What every stage's solve needs from the Hermitian Gram matrix ``G`` ``(N, 3, 3, ..., 2)``,
+        made once a pass: ``G``, its adjugate (by cofactors, on (real, imaginary) pairs) and the
+        coefficients of ``det(G + n I) = n^3 + c2 n^2 + c1 n + c0``."""
         def mul(x, y):
             return torch.stack([x[..., 0] * y[..., 0] - x[..., 1] * y[..., 1],
                                 x[..., 0] * y[..., 1] + x[..., 1] * y[..., 0]], dim=-1)
@@ -225,7 +227,7 @@ class UnrolledADMM(nn.Module):
         def conj(x):
             return torch.stack([x[..., 0], -x[..., 1]], dim=-1)
 
-        a, b, c = (gram[:, i, i, ..., 0] + n[:, 0] for i in range(3))     # real diagonal plus the weight
+        a, b, c = (gram[:, i, i, ..., 0] for i in range(3))                  # the real diagonal
         p, q, r = gram[:, 0, 1], gram[:, 0, 2], gram[:, 1, 2]                # the upper off-diagonal
         c00 = b * c - (r * r).sum(-1)
         c11 = a * c - (q * q).sum(-1)
@@ -233,13 +235,24 @@ class UnrolledADMM(nn.Module):
         a01 = mul(q, conj(r)) - c.unsqueeze(-1) * p                          # adjugate, upper part
         a02 = mul(p, r) - b.unsqueeze(-1) * q
         a12 = mul(q, conj(p)) - a.unsqueeze(-1) * r
-        det = a * c00 + (p * a01).sum(-1) + (q * a02).sum(-1)    # first row x cofactors (Re; Hermitian)
-        inv = (1.0 / det).unsqueeze(-1)
-        r0, r1, r2 = R[:, 0], R[:, 1], R[:, 2]
-        u0 = c00.unsqueeze(-1) * r0 + mul(a01, r1) + mul(a02, r2)
-        u1 = mul(conj(a01), r0) + c11.unsqueeze(-1) * r1 + mul(a12, r2)
-        u2 = mul(conj(a02), r0) + mul(conj(a12), r1) + c22.unsqueeze(-1) * r2
-        return torch.stack([u0, u1, u2], dim=1) * inv.unsqueeze(1)
+        det = a * c00 + (p * a01).sum(-1) + (q * a02).sum(-1)                # first row x cofactors (real)
+        d = lambda v: torch.stack([v, torch.zeros_like(v)], dim=-1)          # noqa: E731  (a real entry)
+        adj = torch.stack([torch.stack([d(c00), a01, a02], dim=1),
+                           torch.stack([conj(a01), d(c11), a12], dim=1),
+                           torch.stack([conj(a02), conj(a12), d(c22)], dim=1)], dim=1)
+        return gram, adj, a + b + c, c00 + c11 + c22, det
+
+    @classmethod
+    def _solve(cls, prepared: tuple[torch.Tensor, ...], n: torch.Tensor, R: torch.Tensor) -> torch.Tensor:
+        """``(G + n I)^-1 R`` per frequency (``prepared``: :meth:`_prepare` of ``G``; ``n`` ``(N, 1, 1,
+        1)``, ``R`` ``(N, 3, ..., 2)``). By Cayley-Hamilton, ``adj(G + n I) = n^2 I + n (tr G I - G) +
+        adj G`` and ``det(G + n I) = n^3 + c2 n^2 + c1 n + c0``: two 3x3 products a stage, whatever ``n``."""
+        G, adj, c2, c1, c0 = prepared
+        n1 = n[:, 0]
+        det = ((n1 + c2) * n1 + c1) * n1 + c0                               # (N, ...)
+        num = (n1 * (n1 + c2)).unsqueeze(1).unsqueeze(-1) * R - n1.unsqueeze(1).unsqueeze(-1) * cls._mul(G, R) \
+            + cls._mul(adj, R)
+        return num / det.unsqueeze(1).unsqueeze(-1)
 
     @staticmethod
     def _rfft(x: torch.Tensor, P: tuple[int, int]) -> torch.Tensor:

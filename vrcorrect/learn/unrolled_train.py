@@ -1,5 +1,5 @@
 """Training the unrolled correction (:mod:`vrcorrect.learn.unrolled`) on the physics objective, for
-every display preset and eyes over a prescription range (issue 25, begun; torch).
+every display preset and eyes over a prescription range (issue 25; torch).
 
 By default no paired targets: the loss is the log of the objective of what the eye sees of the model's output
 (the LMS error against the target's cone image with glasses) over that of the uncorrected image,

@@ -12,7 +12,7 @@ The correction
   * ``eye_model`` - what the CPU prepares for an eye (kernel, regulariser, filters) per backend.
   * ``fft``, ``filters`` - the GPU FFT bank and the separable filter bank.
   * ``learned``, ``onnx_backend``, ``model_path`` - the learned model on onnxruntime; ``unrolled`` -
-    the unrolled model (issue 25, begun) on onnxruntime.
+    the unrolled model on onnxruntime.
   * ``motion`` - reprojection of the warm start (head pose, phase correlation).
   * ``render`` - one image through the pipeline, headless (``vrcorrect render``).
 GL and shaders

@@ -1,5 +1,5 @@
 """The unrolled correction on onnxruntime (no torch): a model exported by
-:mod:`vrcorrect.learn.unrolled_export` applied to one eye's image (issue 25, begun).
+:mod:`vrcorrect.learn.unrolled_export` applied to one eye's image.
 
 What the model needs besides the image is computed here with numpy, once per eye and size: the
 target's cone image through the eye with glasses (:func:`vrcorrect.vision.forward.simulate_lms`),
