@@ -142,7 +142,7 @@ def test_the_command_refuses_before_any_work(tmp_path, capsys):
     assert "--force" in _cli_error(["-o", str(run)], capsys)
     assert (run / "unrolled.pt").read_text() == "mine"
     assert "stages" in _cli_error(["-o", str(run), "--stages", "0", "--force"], capsys)
-    assert "crop" in _cli_error(["-o", str(tmp_path / "new"), "--crop-px", "200"], capsys)
+    assert "crop" in _cli_error(["-o", str(tmp_path / "new"), "--crop-px", "400"], capsys)   # > --image-px 320
     assert "fast_weight" in _cli_error(["-o", str(tmp_path / "new"), "--fast-weight", "-1"], capsys)
 
 
