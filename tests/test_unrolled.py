@@ -47,7 +47,7 @@ def test_the_twin_is_fasts_admm_iteration_for_iteration(case, stages):
     assert np.abs(got - expected[:, :SIZE[0], :SIZE[1]]).max() < 1e-5
 
 
-@pytest.mark.parametrize("box_weight", [0.3, 0.01])
+@pytest.mark.parametrize("box_weight", [10.0, 0.3, 0.01, 1e-3])   # the range's ends and between
 def test_a_box_weight_of_its_own_is_admm_with_that_weight(case, box_weight):
     """The stage's inverse from the eigen-decomposition at another box weight equals the numpy
     ADMM's cofactor inverse at that weight (its ``balance`` scales the retina penalty too, hence

@@ -11,8 +11,9 @@ One stage is one iteration of :func:`vrcorrect.solvers.admm._admm` (the boundary
 ``v = K u`` for the retina, ``z = u`` for the box; two FFT round trips):
 
 * ``u``: ``(K^H K + n_s I)^-1 (K^H F(v - d1) + n_s F(z - d2))`` per frequency, with the stage's own
-  box weight ``n_s = beta_s ||K||^2``: solved by cofactors of the Hermitian ``K^H K + n_s I`` (as
-  ``fast``'s :func:`~vrcorrect.solvers.spectral.hermitian_inverse`), from the Gram matrix ``K^H K``
+  box weight ``n_s = beta_s ||K||^2``: solved by Cayley-Hamilton (:meth:`UnrolledADMM._solve`: the
+  adjugate and the determinant's coefficients of the Hermitian ``K^H K`` made once a pass, by
+  cofactors as ``fast``'s :func:`~vrcorrect.solvers.spectral.hermitian_inverse`), from the Gram matrix ``K^H K``
   made once per eye in float64 (:func:`~vrcorrect.learn.conditioning.unrolled_spectra`) and given
   to the model as an input, like the spectrum; all 3x3 arithmetic real, on (real, imaginary) pairs,
   so that only the FFTs are complex and the graph exports to ONNX;
