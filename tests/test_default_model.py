@@ -53,7 +53,7 @@ def test_the_shipped_model_is_what_the_readmes_training_command_makes(model):
     asked = {"stages": args.stages, "prior_width": args.prior_width, "crop_px": args.crop_px,
              "batch": args.batch_size, "steps": args.steps, "minutes": args.minutes, "seed": args.seed,
              "eyes_per_display": args.eyes_per_display, "displays": list(args.displays),
-             "fast_weight": args.fast_weight}
+             "fast_weight": args.fast_weight, "box_floor": args.box_floor}
     assert {k: cfg[k] for k in asked} == asked
     assert train["image_px"] == args.image_px
     assert train["steps"] == cfg["steps"]                        # it ran all its steps, not out of time
@@ -136,3 +136,46 @@ def test_cold_start_alone_takes_the_shipped_model(tmp_path, capsys):
     log = capsys.readouterr().out
     assert "cold start" in log and re.search(r"default\.onnx", log), log
     assert np.asarray(Image.open(out)).shape == (40, 48, 3)
+
+
+def test_by_default_the_real_time_path_takes_the_learned_start_where_a_gpu_runs_it():
+    """``--cold-start`` left out (auto): the shipped model starts a shot wherever onnxruntime offers a
+    GPU execution provider; on a CPU-only machine the half-resolution level does, and the line says
+    why; nothing iterates, nothing is chosen."""
+    from vrcorrect.apps.realtime_options import cold_start_choice
+    from vrcorrect.runtime.model_path import DEFAULT_MODEL
+
+    for given in (None, "auto"):
+        model, note = cold_start_choice(given, "admm", "glsl", available=["CUDAExecutionProvider", "CPUExecutionProvider"])
+        assert model == str(DEFAULT_MODEL) and "CUDAExecutionProvider" in note
+        model, note = cold_start_choice(given, "admm", "glsl", available=["DmlExecutionProvider", "CPUExecutionProvider"])
+        assert model == str(DEFAULT_MODEL) and "DmlExecutionProvider" in note
+        model, note = cold_start_choice(given, "admm", "glsl", available=["CPUExecutionProvider"])
+        assert model is None and "half-resolution level" in note and "no GPU execution provider" in note
+        assert cold_start_choice(given, "fista", "glsl", available=["CUDAExecutionProvider"]) == (None, "")
+        assert cold_start_choice(given, "admm", "onnx", available=["CUDAExecutionProvider"]) == (None, "")
+    model, note = cold_start_choice("none", "admm", "glsl", available=["CUDAExecutionProvider"])
+    assert model is None and "--cold-start none" in note
+    assert cold_start_choice("default", "admm", "glsl", available=["CPUExecutionProvider"])[0] == str(DEFAULT_MODEL)
+    with pytest.raises(ValidationError, match="only with --filter admm"):
+        cold_start_choice("default", "fista", "glsl")
+
+
+def test_render_says_what_starts_a_shot_on_this_machine(tmp_path, capsys):
+    """The default render on this machine: the choice its line names is the one onnxruntime's own
+    providers here call for (CPU only in CI: the half-resolution level)."""
+    from PIL import Image
+
+    from vrcorrect.apps.cli import main
+    from vrcorrect.runtime.learned import gpu_provider
+
+    src = tmp_path / "in.png"
+    codes = read_image(ROOT / "vrcorrect" / "data" / "sample.png")[96:96 + 24, 128:128 + 32]
+    Image.fromarray(np.round(np.asarray(codes, np.float32) * 255).astype(np.uint8)).save(src)
+    assert main(["render", str(src), "-o", str(tmp_path / "out.png"), "--display", "desktop", "--frames", "1"]) == 0
+    log = capsys.readouterr().out
+    line = next(x for x in log.splitlines() if "cold start:" in x)
+    if gpu_provider() is None:
+        assert "half-resolution level" in line and "no GPU execution provider" in line
+    else:
+        assert "learned pass on " + gpu_provider() in line

@@ -107,10 +107,34 @@ def test_training_reaches_the_stage_settings_and_the_prior(case):
 
 @pytest.mark.parametrize("field, value", [("stages", 0), ("stages", 33), ("prior_width", -1), ("features", 2.5),
                                           ("box_weight", 0.0), ("box_weight", 1e-4), ("box_weight", 11.0),
-                                          ("box_weight", float("nan")), ("box_weight", True)])
+                                          ("box_weight", float("nan")), ("box_weight", True),
+                                          ("box_floor", 5e-4), ("box_floor", 1.5), ("box_floor", float("nan"))])
 def test_bad_configurations_name_the_field(field, value):
     with pytest.raises(ValidationError, match=field):
         UnrolledConfig(**{field: value})
+
+
+def test_a_box_weight_below_the_floor_is_refused():
+    with pytest.raises(ValidationError, match="box_weight.*box_floor"):
+        UnrolledConfig(box_weight=0.01, box_floor=0.05)
+
+
+@pytest.mark.parametrize("floor", [1e-3, 0.05, 1.0])            # the floor's range: its ends and the default's
+def test_no_stage_learns_a_box_weight_below_the_floor(floor):
+    """Whatever the shared settings and the eye's correction ask, each stage's box weight is held
+    at or above the floor, and left alone above it."""
+    model = UnrolledADMM(UnrolledConfig(stages=3, prior_width=0, features=2, box_floor=floor))
+    with torch.no_grad():
+        model.stage_base[:, 2] = torch.tensor([np.log(1e-6), np.log(floor), np.log(2.0)])
+        model.mlp[-1].bias.zero_()
+    _, _, beta = model.stage_settings(torch.zeros(1, 2), 1)
+    assert beta[0, 0].item() == pytest.approx(floor, rel=1e-6)          # asked for 1e-6: the floor
+    assert beta[0, 1].item() == pytest.approx(floor, rel=1e-6)
+    assert beta[0, 2].item() == pytest.approx(max(2.0, floor), rel=1e-6)  # above it: as asked
+    with torch.no_grad():
+        model.mlp[-1].bias.fill_(-50.0)                                 # the eye's correction pushes every setting down
+    _, _, beta = model.stage_settings(torch.zeros(1, 2), 1)
+    assert torch.allclose(beta, torch.full_like(beta, floor), rtol=1e-6)
 
 
 def test_a_spectrum_smaller_than_the_image_is_refused(case):

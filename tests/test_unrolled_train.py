@@ -105,7 +105,7 @@ def test_evaluate_reports_the_twin_as_the_untrained_model(pool, images):
 
 
 @pytest.mark.parametrize("field, value", [("stages", 0), ("crop_px", 8), ("minutes", 0), ("lr", 2.0),
-                                          ("displays", ()), ("batch", True)])
+                                          ("displays", ()), ("batch", True), ("box_floor", 0.0), ("box_floor", 2.0)])
 def test_bad_configs_name_the_field(field, value):
     with pytest.raises(ValidationError, match=field):
         UnrolledTrainConfig(**{field: value})
@@ -144,6 +144,9 @@ def test_the_command_refuses_before_any_work(tmp_path, capsys):
     assert "stages" in _cli_error(["-o", str(run), "--stages", "0", "--force"], capsys)
     assert "crop" in _cli_error(["-o", str(tmp_path / "new"), "--crop-px", "400"], capsys)   # > --image-px 320
     assert "fast_weight" in _cli_error(["-o", str(tmp_path / "new"), "--fast-weight", "-1"], capsys)
+    err = _cli_error(["-o", str(tmp_path / "new"), "--box-floor", "2"], capsys)
+    assert "box_floor" in err and "2" in err and "0.001 to 1" in err
+    assert not (tmp_path / "new").exists()
 
 
 def test_the_command_trains_reports_and_exports(tmp_path, capsys):

@@ -85,7 +85,7 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
     config = UnrolledTrainConfig(stages=args.stages, prior_width=args.prior_width, displays=tuple(args.displays),
                                  eyes_per_display=args.eyes_per_display, crop_px=args.crop_px, batch=args.batch_size,
                                  steps=args.steps, minutes=args.minutes, seed=args.seed,
-                                 fast_weight=args.fast_weight, fast_bank=args.fast_bank)
+                                 fast_weight=args.fast_weight, fast_bank=args.fast_bank, box_floor=args.box_floor)
     out = Path(args.out)
     if out.exists() and not out.is_dir():                         # all before minutes of kernels
         raise InputError(f"{out}: exists and is not a folder (-o names the run folder)")
@@ -237,6 +237,10 @@ def add_parser(sub) -> None:
                         "then come from a bank whose fast solutions are solved before training")
     p.add_argument("--fast-bank", type=int, default=64, metavar="N",
                    help="with --fast-weight: training crops in the bank, each with its eye and fast's solution (64)")
+    p.add_argument("--box-floor", type=float, default=0.07, metavar="B",
+                   help="the least box weight a stage may learn, as a fraction of ||K||^2 (0.07; from 0.001 to 1): "
+                        "below it one held-out myope's photograph lost all of fast's JOD gain at a near-equal "
+                        "objective (docs/learned.md)")
     p.add_argument("--ray", metavar="ADDRESS",
                    help="build the eyes' kernels as Ray tasks on the cluster at ADDRESS (auto, HOST:PORT, "
                         "ray://HOST:10001, or local: a one-node Ray on this machine's CPUs); default: local "

@@ -58,6 +58,8 @@ def cmd_mirror(args: argparse.Namespace) -> int:
                           backend=args.backend, corrector_options=options, reprojection=not args.no_reprojection)
     parse_source(config.source)  # fail on a bad source before anything slow
     print(key_map_text(KEY_MAP))
+    if args.cold_start_note:
+        print(f"cold start: {args.cold_start_note}")
     t0 = time.perf_counter()
     with Mirror(config) as mirror:
         t1 = time.perf_counter()

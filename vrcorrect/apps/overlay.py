@@ -67,6 +67,8 @@ def cmd_overlay(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with Overlay(config) as overlay:
         print(key_map_text(KEY_MAP))
+        if args.cold_start_note:
+            print(f"cold start: {args.cold_start_note}")
         t1 = time.perf_counter()
         overlay.run()
         t2 = time.perf_counter()

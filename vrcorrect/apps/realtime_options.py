@@ -5,7 +5,7 @@ options they make, each checked with a one-line error naming the option."""
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import Any, Sequence
 
 from ..plumbing.errors import ValidationError
 from ..runtime.eye_model import DEFAULT_COLD_ITERATIONS, DEFAULT_ITERATIONS
@@ -13,7 +13,8 @@ from ..runtime.model_path import model_for_backend
 from ..specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, MAX_ITERATIONS_PER_FRAME, Backend, Filter, names
 
 __all__ = ["FILTER_CHOICES", "parse_frames", "parse_whole_number", "parse_iterations_per_frame", "add_backend_option",
-           "add_rx_option", "add_filter_options", "add_reprojection_option", "filter_options", "corrector_options"]
+           "add_rx_option", "add_filter_options", "add_reprojection_option", "filter_options", "cold_start_choice",
+           "corrector_options"]
 
 FILTER_CHOICES = names(Filter)
 _ITERATIVE = " or ".join(names(ITERATIVE_FILTERS))
@@ -74,10 +75,12 @@ def add_filter_options(p: argparse.ArgumentParser) -> None:
                         f"{DEFAULT_COLD_ITERATIONS}, fast's own coarse-to-fine start; 0: from the target, cheaper "
                         "but a shot then starts blurred)")
     p.add_argument("--cold-start", metavar="MODEL.onnx", nargs="?", const="default",
-                   help="with --filter admm: start a shot's first frame from an unrolled model's pass (alone: the "
-                        "shipped models/default.onnx; vrcorrect unroll -o RUN writes RUN/unrolled.onnx) instead of "
-                        "the half-resolution level; the frame is read back and corrected on onnxruntime (CPU here: "
-                        "seconds at headset size)")
+                   help="with --filter admm: what starts a shot's first frame (the first, after a cut, after a "
+                        "prescription change). A model file: that unrolled model's pass (vrcorrect unroll -o RUN "
+                        "writes RUN/unrolled.onnx; the frame is read back, corrected on onnxruntime and uploaded); "
+                        "alone: the shipped models/default.onnx; none: the half-resolution level; auto (the "
+                        "default): the shipped model where onnxruntime runs it on a GPU, the half-resolution level "
+                        "where it would run on the CPU (seconds a cut at headset size)")
 
 
 def add_reprojection_option(p: argparse.ArgumentParser) -> None:
@@ -103,19 +106,45 @@ def filter_options(args: argparse.Namespace) -> dict[str, Any]:
             raise ValidationError("--cold-iterations", args.cold_iterations, "only with --filter admm")
         options["cold_iterations"] = parse_whole_number(args.cold_iterations, "--cold-iterations", 0,
                                                         MAX_ITERATIONS_PER_FRAME, "iterations")
-    if getattr(args, "cold_start", None) is not None:
-        if args.filter != Filter.ADMM or getattr(args, "backend", Backend.GLSL) != Backend.GLSL:
-            raise ValidationError("--cold-start", args.cold_start, "only with --filter admm on --backend glsl")
-        from pathlib import Path
-
-        from ..runtime.model_path import DEFAULT_MODEL
-
-        if args.cold_start == "default" and not Path("default").is_file():
-            args.cold_start = str(DEFAULT_MODEL)
-        if not Path(args.cold_start).is_file():
-            raise ValidationError("--cold-start", args.cold_start, "an existing unrolled model file (.onnx)")
-        options["cold_start_model"] = str(args.cold_start)
+    model, args.cold_start_note = cold_start_choice(getattr(args, "cold_start", None), args.filter,
+                                                    getattr(args, "backend", Backend.GLSL))
+    if model is not None:
+        options["cold_start_model"] = model
     return options
+
+
+def cold_start_choice(value: str | None, filter: str, backend: str,
+                      available: Sequence[str] | None = None) -> tuple[str | None, str]:
+    """``--cold-start``'s model (``None``: the half-resolution level) and a line saying what starts a
+    shot and why (empty where nothing iterates). ``value``: a path, ``default`` (the shipped
+    model), ``none``, or ``auto``/``None`` (not given): the shipped model where onnxruntime offers a
+    GPU execution provider (``available``: its providers, asked when not given), else the level."""
+    from pathlib import Path
+
+    from ..runtime.model_path import DEFAULT_MODEL
+
+    iterating = filter == Filter.ADMM and backend == Backend.GLSL
+    if value in (None, "auto"):
+        if not iterating:
+            return None, ""
+        if not DEFAULT_MODEL.is_file():
+            return None, f"half-resolution level (auto: no shipped model at {DEFAULT_MODEL})"
+        from ..runtime.learned import gpu_provider  # on use: numpy and the optics stay out of start-up
+
+        provider = gpu_provider(available)
+        if provider is None:
+            return None, ("half-resolution level (auto: onnxruntime has no GPU execution provider here, and the "
+                          "learned pass on the CPU takes seconds a cut at headset size; --cold-start to use it)")
+        return str(DEFAULT_MODEL), f"the shipped model's learned pass on {provider} (auto; --cold-start none: the level)"
+    if value == "none":
+        return None, "half-resolution level (--cold-start none)" if iterating else ""
+    if not iterating:
+        raise ValidationError("--cold-start", value, "only with --filter admm on --backend glsl")
+    path = str(DEFAULT_MODEL) if value == "default" and not Path("default").is_file() else value
+    if not Path(path).is_file():
+        raise ValidationError("--cold-start", value, "an existing unrolled model file (.onnx), default, none or auto")
+    return path, (f"the learned pass of {Path(path).name} (read back, onnxruntime, uploaded) instead of the "
+                  "half-resolution level")
 
 
 def corrector_options(args: argparse.Namespace) -> dict[str, Any]:

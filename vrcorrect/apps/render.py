@@ -123,9 +123,8 @@ def _render_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
 def _print_eye(args: argparse.Namespace, info: dict) -> None:
     print(f"{info['renderer']}: {args.eye} eye, sphere {info['sphere_D']:+.2f} D, cylinder {info['cylinder_D']:+.2f} "
           f"D, axis {info['axis_deg']:g} deg on {info['display']}; backend {info['backend']}")
-    if getattr(args, "cold_start", None):
-        print(f"  cold start: each shot's first frame starts from the unrolled model {Path(args.cold_start).name}'s "
-              "pass (read back, onnxruntime, uploaded) instead of the half-resolution level")
+    if getattr(args, "cold_start_note", ""):
+        print(f"  cold start: {args.cold_start_note}")
 
 
 def _median(values) -> float | None:

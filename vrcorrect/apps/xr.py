@@ -80,6 +80,8 @@ def cmd_xr(args: argparse.Namespace) -> int:
         s = app.summary
         print(f"runtime: {s.runtime}; system: {s.system}; {s.eye_size[0]}x{s.eye_size[1]} per eye; swapchains "
               f"{s.swapchain_format}; OpenGL: {s.renderer}")
+        if args.cold_start_note:
+            print(f"cold start: {args.cold_start_note}")
         t0 = time.perf_counter()
         summary = app.run()
         wall = time.perf_counter() - t0

@@ -78,7 +78,10 @@ class UnrolledConfig:
         Width of the stage MLP.
     box_weight
         The box split's weight at start, as a fraction of ``||K||^2`` (1: ``fast``'s), from
-        ``BOX_WEIGHT_RANGE``; training moves it per stage and per eye within that range.
+        ``BOX_WEIGHT_RANGE``; training moves it per stage and per eye within that range, above ``box_floor``.
+    box_floor
+        The least box weight a stage may learn, from ``BOX_WEIGHT_RANGE``'s floor to 1: the data step
+        then amplifies what the kernel all but removes by at most ``1 / box_floor``.
     """
 
     stages: int = 4
@@ -86,6 +89,7 @@ class UnrolledConfig:
     features: int = 4
     hidden: int = 32
     box_weight: float = 1.0
+    box_floor: float = 1e-3
 
     def __post_init__(self) -> None:
         for name, lo, hi in (("stages", 1, 32), ("prior_width", 0, 256), ("features", 0, 64), ("hidden", 1, 1024)):
@@ -93,9 +97,12 @@ class UnrolledConfig:
             if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
                 raise ValidationError(name, value, f"an integer from {lo} to {hi}")
         lo, hi = BOX_WEIGHT_RANGE
+        f = self.box_floor
+        if isinstance(f, bool) or not isinstance(f, (int, float)) or not lo <= f <= 1.0:
+            raise ValidationError("box_floor", f, f"a number from {lo:g} to 1 (a fraction of ||K||^2)")
         b = self.box_weight
-        if isinstance(b, bool) or not isinstance(b, (int, float)) or not lo <= b <= hi:
-            raise ValidationError("box_weight", b, f"a number from {lo:g} to {hi:g} (a fraction of ||K||^2)")
+        if isinstance(b, bool) or not isinstance(b, (int, float)) or not f <= b <= hi:
+            raise ValidationError("box_weight", b, f"a number from box_floor ({f:g}) to {hi:g} (a fraction of ||K||^2)")
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -154,12 +161,11 @@ class UnrolledADMM(nn.Module):
 
     def stage_settings(self, features: torch.Tensor | None, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """``(rho, alpha, beta)``, each ``(N, S)``: the shared settings plus the eye's correction;
-        ``beta`` (the box weight over ``||K||^2``) held to ``BOX_WEIGHT_RANGE``."""
+        ``beta`` (the box weight over ``||K||^2``) held between ``config.box_floor`` and ``BOX_WEIGHT_RANGE``'s top."""
         raw = self.stage_base.unsqueeze(0).expand(n, -1, -1)
         if self.mlp is not None and features is not None:
             raw = raw + self.mlp(features).view(n, self.config.stages, 3)
-        lo, hi = BOX_WEIGHT_RANGE
-        beta = torch.exp(torch.clamp(raw[..., 2], math.log(lo), math.log(hi)))
+        beta = torch.exp(torch.clamp(raw[..., 2], math.log(self.config.box_floor), math.log(BOX_WEIGHT_RANGE[1])))
         return torch.exp(raw[..., 0]), 2.0 * torch.sigmoid(raw[..., 1]), beta   # over-relaxation in (0, 2)
 
     def forward(self, t_lms: torch.Tensor, z0: torch.Tensor, spectrum: torch.Tensor, gram: torch.Tensor,

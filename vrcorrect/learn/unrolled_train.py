@@ -67,6 +67,7 @@ class UnrolledTrainConfig:
     ranges: SamplingRanges = field(default_factory=SamplingRanges)
     fast_weight: float = 0.0
     fast_bank: int = 64
+    box_floor: float = 1e-3
 
     def __post_init__(self) -> None:
         for name, lo, hi in (("stages", 1, 32), ("prior_width", 0, 256), ("eyes_per_display", 1, 1000),
@@ -84,6 +85,7 @@ class UnrolledTrainConfig:
         if isinstance(self.fast_weight, bool) or not (isinstance(self.fast_weight, (int, float))
                                                       and 0 <= self.fast_weight <= 1000):
             raise ValidationError("fast_weight", self.fast_weight, "a weight from 0 (no pull towards fast) to 1000")
+        UnrolledConfig(stages=self.stages, prior_width=self.prior_width, box_floor=self.box_floor)  # its checks
         if not self.displays:
             raise ValidationError("displays", self.displays, "at least one display preset")
         for name in self.displays:
@@ -296,7 +298,7 @@ def train_unrolled(run_dir: str | Path, config: UnrolledTrainConfig, train_image
     if config.fast_weight > 0 and bank is None:
         bank = build_fast_bank(config, pool, train_images)
     model = UnrolledADMM(UnrolledConfig(stages=config.stages, prior_width=config.prior_width,
-                                        features=N_UNROLLED_FEATURES))
+                                        features=N_UNROLLED_FEATURES, box_floor=config.box_floor))
     # the stage settings are a few log-scale numbers a stage: a step of 2e-3 would take 1,000 steps
     # to move the box weight by e; the prior's weights take the usual rate
     settings = [model.stage_base] + (list(model.mlp.parameters()) if model.mlp is not None else [])

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
@@ -54,6 +54,22 @@ INPUTS = ("image", "precorrected", "eye")
 GRADIENT_INPUT = "gradient"
 
 
+#: onnxruntime's execution providers on a GPU, in the order a session prefers them (the CPU's after them).
+GPU_PROVIDERS = ("CUDAExecutionProvider", "ROCMExecutionProvider", "DmlExecutionProvider")
+
+
+def gpu_provider(available: Sequence[str] | None = None) -> str | None:
+    """The first of :data:`GPU_PROVIDERS` that onnxruntime offers on this machine (``available``: its
+    ``get_available_providers()``, asked when not given); ``None`` where it offers none or is not installed."""
+    if available is None:
+        try:
+            import onnxruntime as ort  # optional dependency (the realtime extra)
+        except ImportError:
+            return None
+        available = ort.get_available_providers()
+    return next((p for p in GPU_PROVIDERS if p in available), None)
+
+
 def _session(path: Path, providers: tuple[str, ...] | None) -> "onnxruntime.InferenceSession":
     try:
         import onnxruntime as ort  # optional dependency (the realtime extra): needed only to load a model
@@ -62,7 +78,7 @@ def _session(path: Path, providers: tuple[str, ...] | None) -> "onnxruntime.Infe
     if not path.is_file():
         raise InputError(f"{path}: no such ONNX model file")
     available = ort.get_available_providers()
-    chosen = [x for x in (providers or ("CUDAExecutionProvider", "CPUExecutionProvider")) if x in available]
+    chosen = [x for x in (providers or GPU_PROVIDERS + ("CPUExecutionProvider",)) if x in available]
     try:
         return ort.InferenceSession(str(path), providers=chosen or ["CPUExecutionProvider"])
     except Exception as exc:                              # onnxruntime raises its own exception types

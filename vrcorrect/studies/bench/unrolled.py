@@ -169,7 +169,8 @@ def card_text(model: UnrolledModel, path: Path, bench_md: str) -> str:
         f" --{flag} {value}" for flag, value in (
             ("stages", cfg.get("stages")), ("prior-width", cfg.get("prior_width")), ("crop-px", cfg.get("crop_px")),
             ("image-px", train.get("image_px")), ("batch-size", cfg.get("batch")), ("steps", cfg.get("steps")),
-            ("minutes", cfg.get("minutes")), ("seed", cfg.get("seed"))) if value is not None))
+            ("minutes", cfg.get("minutes")), ("seed", cfg.get("seed")), ("box-floor", cfg.get("box_floor")))
+        if value is not None))
     share = train.get("share_of_fast_gain") or {}
     minutes = f"{train['seconds'] / 60:.0f} minutes" if train.get("seconds") else "(not recorded)"
     return "\n".join([
