@@ -372,13 +372,25 @@ static void self_dir(char *out, size_t size) {
     }
 }
 
-/* vrcorrect_layer.cfg beside the library: "home=<python prefix>" and "path=<sys.path entry>" lines,
- * written by the build (`vrcorrect layer install`). */
-static int read_cfg(char home[1024], char paths[16][1024], int *npaths) {
+/* vrcorrect_layer.cfg: "home=<python prefix>" and "path=<sys.path entry>" lines, written by
+ * `vrcorrect layer install`: beside the library (a layer the install's fallback or a test built), else
+ * in $XDG_DATA_HOME/vrcorrect/layer/ (default ~/.local/share; the library built into the package lies
+ * in site-packages, where install writes nothing). */
+static FILE *open_cfg(void) {
     char dir[1024], file[1200];
     self_dir(dir, sizeof dir);
     snprintf(file, sizeof file, "%s/vrcorrect_layer.cfg", dir);
     FILE *f = fopen(file, "r");
+    if (f) return f;
+    const char *data = getenv("XDG_DATA_HOME"), *home = getenv("HOME");
+    if (data && data[0]) snprintf(file, sizeof file, "%s/vrcorrect/layer/vrcorrect_layer.cfg", data);
+    else if (home && home[0]) snprintf(file, sizeof file, "%s/.local/share/vrcorrect/layer/vrcorrect_layer.cfg", home);
+    else return NULL;
+    return fopen(file, "r");
+}
+
+static int read_cfg(char home[1024], char paths[16][1024], int *npaths) {
+    FILE *f = open_cfg();
     *npaths = 0;
     home[0] = 0;
     if (!f) return 0;
@@ -427,6 +439,17 @@ static int python_start(void) {
         if (p && PySequence_Contains(sys_path, p) == 0) PyList_Insert(sys_path, 0, p);
         Py_XDECREF(p);
     }
+    /* the .pth files there too (a venv's editable installs, or one that reaches its dependencies through a
+     * .pth), as the venv's own interpreter processes them: site.addsitedir on a folder already in sys.path
+     * keeps its place and adds what its .pth files name */
+    PyObject *site = PyImport_ImportModule("site");
+    for (int i = 0; site && i < npaths; i++) {
+        PyObject *p = PyUnicode_DecodeFSDefault(paths[i]);
+        PyObject *r = p ? PyObject_CallMethod(site, "addsitedir", "O", p) : NULL;
+        Py_XDECREF(r);
+        Py_XDECREF(p);
+    }
+    Py_XDECREF(site);
     PyErr_Clear();
     PyGILState_Release(g);
     return 1;

@@ -414,7 +414,7 @@ class Engine:
         self._last_report = time.monotonic()
         self.frames = 0
         self.log.line(f"loaded ({api} session, runtime view size {view_width}x{view_height}, "
-                      f"Python {sys.version.split()[0]})")
+                      f"Python {sys.version.split()[0]}, vrcorrect from {Path(__file__).resolve().parents[1]})")
 
     # ------------------------------------------------------------ configuration and prescription
 
