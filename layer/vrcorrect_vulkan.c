@@ -525,13 +525,12 @@ static void copy_rects(VkCommandBuffer cmd, const FrameView *views, uint32_t nvi
     V.CmdCopyImage(cmd, from, from_layout, to, to_layout, n, regions);
 }
 
-int vk_correct_views(const FrameView *views, uint32_t nviews, Chain **acquired, int *nacq, double *sync_ms) {
+/* 1. the submitted rects into each chain's `input`, waited for; 1 when done */
+static int copy_in(const FrameView *views, uint32_t nviews) {
     const VkAccessFlags attachment = VK_ACCESS_COLOR_ATTACHMENT_READ_BIT | VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT;
     const VkPipelineStageFlags attachment_stage = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT;
     for (uint32_t i = 0; i < nviews; i++)
         if (!views[i].chain->imported) return 0;      /* the reason was logged at xrCreateSwapchain */
-    /* 1. the submitted rects into `input`, waited for */
-    double t0 = now_ms();
     VkCommandBuffer cmd = begin(V.cmd_in, V.fence_in, &V.pending_in);
     if (!cmd) { pass_reason("the application's queue did not finish the layer's earlier work (10 s)"); return 0; }
     for (uint32_t i = 0; i < nviews; i++) {
@@ -555,7 +554,27 @@ int vk_correct_views(const FrameView *views, uint32_t nviews, Chain **acquired, 
         pass_reason("the layer's copy did not complete on the application's queue within 10 s");
         return 0;
     }
-    double copy_in = now_ms() - t0;
+    return 1;
+}
+
+/* The submitted rects into `input` and each view handed to the engine, which reads them off this thread
+ * (the frame then passes through, and the next copy into `input` comes when the engine corrects). */
+void vk_capture_views(const FrameView *views, uint32_t nviews) {
+    if (!copy_in(views, nviews)) return;
+    for (uint32_t i = 0; i < nviews; i++) {
+        const FrameView *f = &views[i];
+        PyObject *res = engine_call("capture_vulkan", "(IiiiiiI)", f->index, (int)(f->chain - L.chains), f->rect.offset.x,
+                                    f->rect.offset.y, f->rect.extent.width, f->rect.extent.height, f->view);
+        Py_XDECREF(res);
+    }
+}
+
+int vk_correct_views(const FrameView *views, uint32_t nviews, Chain **acquired, int *nacq, double *sync_ms) {
+    const VkAccessFlags attachment = VK_ACCESS_COLOR_ATTACHMENT_READ_BIT | VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT;
+    const VkPipelineStageFlags attachment_stage = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT;
+    double t0 = now_ms();
+    if (!copy_in(views, nviews)) return 0;
+    double copy_in_ms = now_ms() - t0;
     /* 2. the engine: each view from `input` into `result`, then glFinish */
     int ok = 1;
     for (uint32_t i = 0; i < nviews && ok; i++) {
@@ -574,7 +593,7 @@ int vk_correct_views(const FrameView *views, uint32_t nviews, Chain **acquired, 
     /* 3. `result` into the output images */
     if (!acquire_outputs(views, nviews, acquired, nacq)) return 0;
     double t2 = now_ms();
-    cmd = begin(V.cmd_out, V.fence_out, &V.pending_out);
+    VkCommandBuffer cmd = begin(V.cmd_out, V.fence_out, &V.pending_out);
     if (!cmd) { pass_reason("the application's queue did not finish the layer's earlier work (10 s)"); return 0; }
     for (uint32_t i = 0; i < nviews; i++) {
         if (seen_before(views, i)) continue;
@@ -593,7 +612,7 @@ int vk_correct_views(const FrameView *views, uint32_t nviews, Chain **acquired, 
     }
     if (!submit(cmd, V.fence_out, &V.pending_out)) { pass_reason("vkQueueSubmit failed for the layer's copy"); return 0; }
     double copy_out = now_ms() - t2;
-    sync_ms[0] = copy_in;
+    sync_ms[0] = copy_in_ms;
     sync_ms[1] = finish;
     sync_ms[2] = copy_out;
     return 1;
