@@ -422,6 +422,8 @@ class _Pipeline:
 
         self.ctx, self.api, self.correctors, self.display, self.rx = ctx, api, correctors, display, rx
         self.targets: set[Target] = set()
+        self.steps: dict[str, float] = {}                 # seconds of each step of its build
+        self.primed_frames: dict[str, int] = {}           # frames each eye was primed for
         self.formats = GL_FORMATS if api == "OpenGL" else VK_FORMATS
         self._external: dict[tuple[int, int, int], moderngl.Texture] = {}    # the application's textures (OpenGL)
         self._staging: dict[tuple[int, int, str], moderngl.Texture] = {}
@@ -511,9 +513,10 @@ class _Pipeline:
             try:
                 corrector = self.correctors[c["eye"]]
                 previous = None
-                for _ in range(PRIME_MAX_FRAMES):
+                for n in range(PRIME_MAX_FRAMES):
                     if stopped():
                         return
+                    self.primed_frames[c["eye"]] = n + 1
                     self.correct_rect(c["eye"], c["format"], c["texture"], scratch, c["rect"],
                                       flip=self.api == "Vulkan")
                     fraction = corrector.last_objective_fraction((width, height))
@@ -985,14 +988,19 @@ class _Builder:
                     c.release()
                 raise
             pipeline = _Pipeline(ctx, engine.api, correctors, display, self.config.rx)
+            steps = pipeline.steps
+            steps["correctors"] = time.perf_counter() - t0
             copies = []
             if not self._stopped and request.ready.wait(CAPTURE_WAIT_S):
                 copies = pipeline.copy_views(request.views, engine.chain_memory())
+            steps["capture"] = time.perf_counter() - t0 - sum(steps.values())
             primed = {(c["code"], c["rect"][2], c["rect"][3]) for c in copies}
             if not self._stopped:
                 pipeline.warm_up(targets - primed, stopped=lambda: self._stopped)
+            steps["warm-up"] = time.perf_counter() - t0 - sum(steps.values())
             if not self._stopped and copies:
                 pipeline.prime(copies, stopped=lambda: self._stopped)
+            steps["priming"] = time.perf_counter() - t0 - sum(steps.values())
             if self._stopped:
                 return None, 0.0
             handed = True
@@ -1198,9 +1206,12 @@ class Engine:
             self._rx_failed_stamp = _NEVER
             models = "eye models from the cache" if info["cached_models"] else \
                 f"eye models designed in {info['design_seconds']:.1f} s"
+            steps = ", ".join(f"{k} {v:.1f} s" for k, v in pipeline.steps.items())
+            primed = ", ".join(f"{eye} {n}" for eye, n in pipeline.primed_frames.items())
             self.log.line(f"correcting with {pipeline.rx} on display {pipeline.display.name} ({info['why']}); built in "
                           f"{time.perf_counter() - self._t0:.1f} s off the application's thread ({models}; GL "
-                          f"{info['gl_seconds']:.1f} s: {programs})")
+                          f"{info['gl_seconds']:.1f} s: {steps}; {programs}"
+                          + (f"; primed on the application's frame: {primed} frames" if primed else "") + ")")
         elif info["what"] == "reload":
             self.log.line(f"{pipeline.rx}: reloaded (built in {info['seconds']:.1f} s off the application's thread; "
                           f"{programs})")
