@@ -434,6 +434,7 @@ static XrResult XRAPI_CALL layer_CreateSession(XrInstance instance, const XrSess
     uint32_t w, h;
     view_size(instance, info->systemId, &w, &h);
     engine_start(w, h, L.api == API_GL ? "OpenGL" : "Vulkan");
+    if (L.api == API_VULKAN && L.engine) vk_session_semaphores();
     if (glx && L.engine) {        /* the engine's contexts share the application's textures through its binding */
         PyGILState_STATE g = PyGILState_Ensure();
         PyObject *res = engine_call("attach_glx", "(KKK)", (unsigned long long)(uintptr_t)glx->xDisplay,
@@ -734,7 +735,7 @@ static int correct_frame(const XrFrameEndInfo *info, XrCompositionLayerProjectio
                                                    1: correct, 2: let the engine capture the views, pass through */
     Py_XDECREF(go);
     PyErr_Clear();
-    int ok = mode == 1;
+    int ok = mode == 1 || mode == 3;             /* 3: correct, ordered by external semaphores (Vulkan) */
     if (mode == 2) {            /* the engine prepares its correction on this frame's views, off this thread */
         if (L.api == API_GL) gl_capture_views(views, nviews);
         else vk_capture_views(views, nviews);
@@ -748,7 +749,7 @@ static int correct_frame(const XrFrameEndInfo *info, XrCompositionLayerProjectio
     if (L.api == API_GL) {
         ok = acquire_outputs(views, nviews, acquired, &nacq) && gl_correct_views(views, nviews);
     } else {
-        ok = vk_correct_views(views, nviews, acquired, &nacq, sync_ms);  /* acquires the outputs after the GL work */
+        ok = vk_correct_views(views, nviews, acquired, &nacq, sync_ms, mode == 3);   /* acquires the outputs after the GL work */
     }
     for (int a = 0; a < nacq; a++) L.ReleaseSwapchainImage(acquired[a]->out, NULL);
     /* the layer's time in this xrEndFrame (the correction, and for Vulkan the copies and waits) */

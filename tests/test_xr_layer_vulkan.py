@@ -117,6 +117,13 @@ def test_the_life_cycle_completes_and_the_log_names_the_vulkan_costs(corrected_r
     from vrcorrect.studies.bench.layer import _LINE                 # what `vrcorrect bench layer` reads from it
     assert all((m := _LINE.search(line)) and m.group(7) is not None for line in timing), timing
     assert not any("pass-through" in line for line in layer), layer
+    # how the copies are ordered with the GL work: external semaphores need VK_KHR_external_semaphore_fd on the
+    # device and GL_EXT_semaphore_fd in the engine's GL; lavapipe and llvmpipe (Mesa 22.3) offer neither, so the
+    # fence and glFinish run here, and the log says which one is missing
+    sync = [line for line in layer if "Vulkan copies synchronised by" in line]
+    assert len(sync) == 1, layer
+    assert "external semaphores" in sync[0] or ("a fence and glFinish (" in sync[0] and (
+        "VK_KHR_external_semaphore_fd" in sync[0] or "GL_EXT_semaphore_fd" in sync[0])), sync
 
 
 @pytest.mark.parametrize("fmts, enable", [

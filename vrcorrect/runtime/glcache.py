@@ -414,7 +414,8 @@ class GlxSharedContext:
     thread), ``release`` (destroy it and close the connection).
 
     ``display``, ``fbconfig``, ``context``: the application's ``Display*``, ``GLXFBConfig`` and
-    ``GLXContext`` (addresses, from ``XrGraphicsBindingOpenGLXlibKHR``)."""
+    ``GLXContext`` (addresses, from ``XrGraphicsBindingOpenGLXlibKHR``; the configuration is read from
+    the context, the ``GLXFBConfig`` is used only where that fails: applications may leave it NULL)."""
 
     def __init__(self, display: int, fbconfig: int, context: int, require: int = 430):
         self.gl = gl = ctypes.CDLL("libGL.so.1")
@@ -434,29 +435,38 @@ class GlxSharedContext:
         gl.glXDestroyContext.argtypes = [ptr, ptr]
         self.dpy = None
         self.ctx = None
+        x11.XScreenCount.argtypes = [ptr]
         gl.glXQueryContext.argtypes = [ptr, ptr, i32, ctypes.POINTER(ctypes.c_int)]
-        config_id, screen = ctypes.c_int(0), ctypes.c_int(0)
-        if gl.glXGetFBConfigAttrib(display, fbconfig, 0x8013, ctypes.byref(config_id)):    # GLX_FBCONFIG_ID
-            raise RuntimeError("the application's GLXFBConfig could not be read")
-        if gl.glXQueryContext(display, context, 0x800C, ctypes.byref(screen)):              # GLX_SCREEN
-            raise RuntimeError("the application's GLX context could not be queried")
+        # the config's ID from the context itself (a direct context answers without asking the server);
+        # the binding's glxFBConfig only where that fails (some applications leave it NULL)
+        config_id = ctypes.c_int(0)
+        if gl.glXQueryContext(display, context, 0x8013, ctypes.byref(config_id)) or not config_id.value:
+            if not fbconfig or gl.glXGetFBConfigAttrib(display, fbconfig, 0x8013, ctypes.byref(config_id)):
+                raise RuntimeError("the application's GLX context's configuration could not be read")
         name = x11.XDisplayString(display)
         self.dpy = x11.XOpenDisplay(name)
         if not self.dpy:
             raise RuntimeError(f"could not open a second connection to the X display {name!r}")
         try:
-            attribs = (ctypes.c_int * 3)(0x8013, config_id.value, 0)
-            count = ctypes.c_int(0)
-            configs = gl.glXChooseFBConfig(self.dpy, screen.value, attribs, ctypes.byref(count))
-            if not configs or count.value < 1:
-                raise RuntimeError(f"the application's GLXFBConfig {config_id.value:#x} is not on the second connection")
-            config = configs[0]
-            x11.XFree(ctypes.cast(configs, ptr))
-            address = gl.glXGetProcAddressARB(b"glXCreateContextAttribsARB")
-            if not address:
-                raise RuntimeError("GLX lacks glXCreateContextAttribsARB (GLX_ARB_create_context)")
-            create = ctypes.CFUNCTYPE(ptr, ptr, ptr, ptr, i32, ctypes.POINTER(ctypes.c_int))(address)
-            with _x_errors_ignored(x11, self.dpy):        # an unsupported version is an X error (GLXBadFBConfig)
+            # every X request on this connection with its errors caught (Xlib's default handler would end
+            # the application)
+            with _x_errors_ignored(x11, self.dpy):
+                config = None
+                attribs = (ctypes.c_int * 3)(0x8013, config_id.value, 0)
+                for screen in range(x11.XScreenCount(self.dpy)):       # the screen whose configs hold it
+                    count = ctypes.c_int(0)
+                    configs = gl.glXChooseFBConfig(self.dpy, screen, attribs, ctypes.byref(count))
+                    if configs and count.value >= 1:
+                        config = configs[0]
+                        x11.XFree(ctypes.cast(configs, ptr))
+                        break
+                if config is None:
+                    raise RuntimeError(f"the application's GLXFBConfig {config_id.value:#x} is not on the second "
+                                       "connection")
+                address = gl.glXGetProcAddressARB(b"glXCreateContextAttribsARB")
+                if not address:
+                    raise RuntimeError("GLX lacks glXCreateContextAttribsARB (GLX_ARB_create_context)")
+                create = ctypes.CFUNCTYPE(ptr, ptr, ptr, ptr, i32, ctypes.POINTER(ctypes.c_int))(address)
                 for major, minor in ((4, 6), (4, 5), (require // 100, require % 100 // 10)):
                     attrs = (ctypes.c_int * 7)(0x2091, major, 0x2092, minor, 0x9126, 1, 0)   # core profile
                     self.ctx = create(self.dpy, config, context, 1, attrs)

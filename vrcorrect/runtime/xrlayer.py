@@ -372,6 +372,49 @@ class _MemoryObjects:
         self.delete_memory(1, ctypes.byref(ctypes.c_uint(memory)))
 
 
+class _Semaphores:
+    """Vulkan sessions, where the device has ``VK_KHR_external_semaphore_fd`` and the engine's GL
+    ``GL_EXT_semaphore_fd``: the shim's two exported semaphores imported into a pipeline's context.
+    ``ready`` (the shim's copy into the shared ``input`` images has finished) is waited on by GL before
+    it reads them, ``done`` (the correction has finished) signalled by GL for the shim's copy out:
+    neither side waits on the CPU.  Both images stay in ``GENERAL`` on GL's side."""
+
+    LAYOUT_GENERAL = 0x958D                  # GL_LAYOUT_GENERAL_EXT
+
+    def __init__(self, loader: Any, fds: tuple[int, int]):
+        def fn(name: str, *argtypes: Any) -> Any:
+            address = loader._address(name)
+            if not address:
+                raise RuntimeError(f"the engine's GL gives no {name}")
+            return ctypes.CFUNCTYPE(None, *argtypes)(address)
+
+        uint_p = ctypes.POINTER(ctypes.c_uint)
+        gen = fn("glGenSemaphoresEXT", ctypes.c_int, uint_p)
+        import_fd = fn("glImportSemaphoreFdEXT", ctypes.c_uint, ctypes.c_uint, ctypes.c_int)
+        self._wait = fn("glWaitSemaphoreEXT", ctypes.c_uint, ctypes.c_uint, uint_p, ctypes.c_uint, uint_p, uint_p)
+        self._signal = fn("glSignalSemaphoreEXT", ctypes.c_uint, ctypes.c_uint, uint_p, ctypes.c_uint, uint_p, uint_p)
+        self._delete = fn("glDeleteSemaphoresEXT", ctypes.c_int, uint_p)
+        self.names = (ctypes.c_uint * 2)()
+        gen(2, self.names)
+        for name, fd in zip(self.names, fds):
+            import_fd(name, _GL_HANDLE_TYPE_OPAQUE_FD_EXT, os.dup(fd))     # GL owns the duplicate
+
+    def _call(self, fn: Any, semaphore: int, textures: list["moderngl.Texture"]) -> None:
+        n = len(textures)
+        names = (ctypes.c_uint * max(n, 1))(*[t.glo for t in textures])
+        layouts = (ctypes.c_uint * max(n, 1))(*([self.LAYOUT_GENERAL] * n))
+        fn(semaphore, 0, None, n, names, layouts)
+
+    def wait_ready(self, textures: list["moderngl.Texture"]) -> None:
+        self._call(self._wait, self.names[0], textures)
+
+    def signal_done(self, textures: list["moderngl.Texture"]) -> None:
+        self._call(self._signal, self.names[1], textures)
+
+    def release(self) -> None:
+        self._delete(2, self.names)
+
+
 @dataclass
 class _ChainMemory:
     """A Vulkan swapchain's two shared images as the shim exported them: the format, the size, and
@@ -432,6 +475,8 @@ class _Pipeline:
         self._sampler = ctx.sampler(filter=(moderngl.NEAREST, moderngl.NEAREST), repeat_x=False, repeat_y=False)
         self._memory: _MemoryObjects | None = None
         self.chains: dict[int, _SharedChain] = {}
+        self.semaphores: _Semaphores | None = None       # Vulkan: external semaphores, where GL has them
+        self.sync = ""                                    # Vulkan: how it is ordered with the copies (for the log)
         self._queries: dict[str, list[moderngl.Query]] = {}
         self._query_used: dict[str, list[bool]] = {}
 
@@ -692,6 +737,9 @@ class _Pipeline:
         try:
             for chain in list(self.chains):
                 self.release_chain(chain)
+            if self.semaphores is not None:
+                self.semaphores.release()
+                self.semaphores = None
             for c in self.correctors.values():
                 c.release()
             release(*self._framebuffers.values())       # never the application's textures themselves
@@ -988,6 +1036,8 @@ class _Builder:
                     c.release()
                 raise
             pipeline = _Pipeline(ctx, engine.api, correctors, display, self.config.rx)
+            if engine.api == "Vulkan":
+                pipeline.sync = engine.attach_semaphores(pipeline)
             steps = pipeline.steps
             steps["correctors"] = time.perf_counter() - t0
             copies = []
@@ -1048,6 +1098,10 @@ class Engine:
         self._asked: set[Target] = set()             # targets a rebuild was asked for
         self._chains: dict[int, _ChainMemory] = {}
         self.capture: _CaptureRequest | None = None  # set by the builder: the next frame's views, please
+        self._semaphore_fds: tuple[int, int] | None = None   # Vulkan: the shim's external semaphores (ours to close)
+        self._semaphore_note = "the Vulkan session's semaphores were not offered"
+        self._waited_ready = False                   # Vulkan, with semaphores: GL waited for this frame's copy in
+        self._sync_logged: str | None = None
         self._announced: set[str] = set()
         self._cpu_ms: dict[str, list[float]] = {}
         self._gpu_ms: dict[str, list[float | None]] = {}
@@ -1201,6 +1255,9 @@ class Engine:
         stats = info["stats"]
         programs = (f"{stats.loaded} programs from the cache, {stats.linked} compiled" if stats.disabled is None
                     else f"programs compiled ({stats.disabled})")
+        if pipeline.sync and pipeline.sync != self._sync_logged:
+            self._sync_logged = pipeline.sync
+            self.log.line(f"Vulkan copies synchronised by {pipeline.sync}")
         if info["what"] == "start":
             self.display, self.rx_path = pipeline.display, pipeline.rx
             self._rx_failed_stamp = _NEVER
@@ -1301,9 +1358,46 @@ class Engine:
             self.log.reason(reason)
             return 0
         if self.pipeline is not None:
-            return 1
+            self._waited_ready = False
+            return 3 if self.pipeline.semaphores is not None else 1
         request = self.capture                   # none yet: the models or the pipeline are being built
         return 2 if request is not None and not request.ready.is_set() else 0
+
+    def import_semaphores(self, ready_fd: int, done_fd: int) -> bool:
+        """Vulkan: the shim's two external semaphores as file descriptors (the engine's to close), or -1
+        when the device has no ``VK_KHR_external_semaphore_fd``; each pipeline imports duplicates where
+        its GL has ``GL_EXT_semaphore_fd``."""
+        if ready_fd < 0 or done_fd < 0:
+            self._semaphore_note = "the Vulkan device has no VK_KHR_external_semaphore_fd"
+            return False
+        self._semaphore_fds = (int(ready_fd), int(done_fd))
+        return True
+
+    def attach_semaphores(self, pipeline: _Pipeline) -> str:
+        """(The builder, on the pipeline's context.)  Import the external semaphores into ``pipeline``
+        where its GL can; returns how the pipeline is synchronised with the shim's copies."""
+        if self._semaphore_fds is None:
+            return f"a fence and glFinish ({self._semaphore_note})"
+        missing = sorted({"GL_EXT_semaphore", "GL_EXT_semaphore_fd"} - set(pipeline.ctx.extensions))
+        if missing:
+            renderer = pipeline.ctx.info.get("GL_RENDERER", "?")
+            return f"a fence and glFinish (the engine's GL, {renderer}, lacks {' and '.join(missing)})"
+        pipeline.semaphores = _Semaphores(pipeline.loader, self._semaphore_fds)
+        return "external semaphores (VK_KHR_external_semaphore_fd, GL_EXT_semaphore_fd): no CPU wait"
+
+    def drain(self) -> bool:
+        """Vulkan, with semaphores: the frame failed after the shim's copy in signalled ``ready``: GL
+        waits for it all the same (a binary semaphore is waited for before it is signalled again)."""
+        try:
+            p = self.pipeline
+            if p is not None and p.semaphores is not None and not self._waited_ready:
+                with self._current(p):
+                    p.semaphores.wait_ready([c.input for c in p.chains.values()])
+                self._waited_ready = True
+            return True
+        except Exception as exc:  # noqa: BLE001
+            self.log.reason(f"waiting for the Vulkan copy: {_one_line(exc)}")
+            return False
 
     def chain_memory(self) -> dict[int, _ChainMemory]:
         """The Vulkan swapchains' shared images now (any thread)."""
@@ -1468,6 +1562,9 @@ class Engine:
             if self.capture is not None and not self.capture.ready.is_set():    # a rebuild primes on this frame
                 self.capture_vulkan(view_index, chain, x, y, width, height, view_in_layer)
             with self._current(p):
+                if p.semaphores is not None and not self._waited_ready:       # the shim's copy in, on the GPU
+                    p.semaphores.wait_ready([c.input for c in p.chains.values()])
+                    self._waited_ready = True
                 ms = p.correct_rect(eye, shared.format, shared.input, shared.result, (x, y, width, height), flip=True,
                                     query=self._timed(p, eye))
             self._cpu_ms.setdefault(eye, []).append(ms)
@@ -1477,12 +1574,18 @@ class Engine:
             return False
 
     def finish(self) -> bool:
-        """Vulkan: wait for the GL work of the frame (``glFinish``), before the shim copies the results."""
+        """Vulkan: the GL work of the frame done before the shim copies the results: signalled on the
+        ``done`` semaphore (with semaphores), else waited for (``glFinish``)."""
         try:
-            if self.pipeline is None:
+            p = self.pipeline
+            if p is None:
                 raise RuntimeError("no correction is ready")
-            with self._current(self.pipeline) as ctx:
-                ctx.finish()
+            with self._current(p) as ctx:
+                if p.semaphores is not None:
+                    p.semaphores.signal_done([c.result for c in p.chains.values()])
+                    _flush(p.loader)
+                else:
+                    ctx.finish()
             return True
         except Exception as exc:  # noqa: BLE001
             self.log.reason(f"glFinish: {_one_line(exc)}")
@@ -1548,6 +1651,13 @@ class Engine:
         self._release_pipeline()
         for chain in list(self._chains):
             self.release_images(chain)
+        if self._semaphore_fds is not None:
+            for fd in self._semaphore_fds:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+            self._semaphore_fds = None
         with self._targets_lock:
             self._targets.clear()
         self._asked.clear()
@@ -1566,6 +1676,10 @@ class Engine:
             if not all(s.join(max(0.0, deadline - time.monotonic())) for s in running):
                 self.log.line(f"an eye model build still running after {CLOSE_WAIT_S:g} s; closing anyway")
         self.log.line(f"closed after {self.frames} corrected frames")
+
+
+def _flush(loader: Any) -> None:
+    ctypes.CFUNCTYPE(None)(loader._address("glFlush"))()
 
 
 def _wait_sync(loader: Any, fence: int | None) -> None:
