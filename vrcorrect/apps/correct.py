@@ -23,15 +23,20 @@ from .common import (
     add_model_options,
     build_eye_kernel,
     check_memory,
+    check_not_input,
     finite_json,
     kernel_decisions,
     kernel_options,
     load_eye,
     print_notes,
+    small_image_note,
 )
+from .progress import duration_text
 
 
 def cmd_correct(args: argparse.Namespace) -> int:
+    started = time.perf_counter()
+    check_not_input(args)                                 # never over the input, --force or not
     clip = clips.input_clip(args)                         # a clip is checked before any heavy import
     if clip is not None:
         return _correct_clip(args, clips.plan_frames(clip, args, None))
@@ -55,6 +60,9 @@ def cmd_correct(args: argparse.Namespace) -> int:
     kernel = build_eye_kernel(args, eye, display)
     reference = build_reference_kernel(eye, display, kernel_options(args)) if args.reference == "glasses" else None
     t1 = time.perf_counter()
+    small = small_image_note(image.shape[1], image.shape[0], kernel.size, "the correction")
+    if small:
+        print_notes([small])
     problem = make_problem(target, kernel, reference, contrast=args.contrast)
     options = _solver_options(args, learned, eye, display, kernel, reference)
     bar = None
@@ -65,11 +73,13 @@ def cmd_correct(args: argparse.Namespace) -> int:
             bar.total = total
             bar.n = done
             bar.refresh()
+    t2 = time.perf_counter()
     try:
         result = solve(problem, args.method, progress=progress, **options)
     finally:
         if bar is not None:
             bar.close()
+    t3 = time.perf_counter()
     outputs = [(out, png_writer(out, encode(display, result.image), bits=16 if args.sixteen_bit else 8))]
     if args.report:
         corrected, _ = evaluate_seen(result.image, target, kernel, display, target_lms=problem.target_lms)
@@ -84,12 +94,26 @@ def cmd_correct(args: argparse.Namespace) -> int:
             "settings": result.settings, "kernel_decisions": kernel_decisions(kernel),
         }
         outputs.append((Path(args.report), _report_writer(report, notes)))
+    t4 = time.perf_counter()
     # the image and its report appear together or not at all (an interruption leaves neither)
     write_together(outputs, force=args.force)
+    parts = [f"eye model {duration_text(t1 - t0)}", f"{_solve_text(result.method, result.iterations)} "
+             f"{duration_text(t3 - t2)}"]
+    if args.report:
+        parts.append(f"report (what the eye sees, judged) {duration_text(t4 - t3)}")
+    rest = time.perf_counter() - started - (t1 - t0) - (t3 - t2) - (t4 - t3 if args.report else 0.0)
+    parts.append(f"start-up, reading and writing {duration_text(rest)}")
     print(f"wrote {out}: {result.method} correction for the {args.eye} eye on {display.title} "
-          f"(objective {result.objective:.3g}, {result.iterations} iterations, {result.seconds:.2f} s)"
-          + (f"; report {args.report}" if args.report else ""))
+          f"(objective {result.objective:.3g})" + (f"; report {args.report}" if args.report else ""))
+    print(f"  took {duration_text(time.perf_counter() - started)}: " + ", ".join(parts))
     return 0
+
+
+def _solve_text(method: str, iterations: int) -> str:
+    """The solve in words: its iterations where the method iterates (one pass otherwise)."""
+    if method in (Method.LEARNED, Method.WIENER) or not iterations:
+        return f"{method} (one pass)"
+    return f"{method} ({iterations} iterations)"
 
 
 def _check_options(args: argparse.Namespace) -> None:
@@ -155,6 +179,7 @@ VIDEO_JOD_DEFAULT_FPS = 90.0
 
 def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     """Each frame of a clip solved on its own (the offline ceiling), into a folder of frames."""
+    started = time.perf_counter()
     folder = clips.output_folder(args, plan)        # checked before any work
     _check_options(args)
     from ..physics.kernel import build_reference_kernel  # on use: start-up time (apps/__init__)
@@ -198,7 +223,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
             if scored:
                 for name, image in zip(seen, images):
                     seen[name].append(image)
-            bar.update(1)
+            bar.advance()
         others = []
         if args.report:
             report = _clip_report(args, plan, rx_path, display, result, reference, kernel, per_frame, seen if scored
@@ -207,8 +232,11 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
         folder.commit(others)                       # the frames and the report appear together or not at all
     objectives = [f["objective"] for f in per_frame]
     print(f"wrote {args.output}: {plan.count} frames, {args.method} correction for the {args.eye} eye on "
-          f"{display.title} ({plan.text}; median objective {float(np.median(objectives)):.3g}, "
-          f"{sum(f['seconds'] for f in per_frame):.2f} s solving)" + (f"; report {args.report}" if args.report else ""))
+          f"{display.title} ({plan.text}; median objective {float(np.median(objectives)):.3g})"
+          + (f"; report {args.report}" if args.report else ""))
+    print(f"  took {duration_text(time.perf_counter() - started)}: eye model {duration_text(t1 - t0)}, "
+          f"{_solve_text(args.method, int(np.median([f['iterations'] for f in per_frame])))} "
+          f"{duration_text(sum(f['seconds'] for f in per_frame))} for the frames")
     return 0
 
 

@@ -12,10 +12,11 @@ from ..plumbing.fileio import check_readable, check_writable
 from ..plumbing.imageio import read_image, write_png
 from ..specs.display import decode, encode, get_display
 from . import clips
-from .common import add_model_options, build_eye_kernel, kernel_decisions, load_eye, print_notes
+from .common import add_model_options, build_eye_kernel, check_not_input, kernel_decisions, load_eye, print_notes
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    check_not_input(args)                                 # never over the input, --force or not
     clip = clips.input_clip(args)                         # a clip is checked before any heavy import
     if clip is not None:
         return _simulate_clip(args, clips.plan_frames(clip, args, None))
@@ -68,7 +69,7 @@ def _simulate_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
                 seen, info = what_the_eye_sees(decode(display, frame), kernel, method=args.method)
                 last_source = source
             folder.write(index, encode(display, seen), bits=16 if args.sixteen_bit else 8)
-            bar.update(1)
+            bar.advance()
         folder.commit()
     if args.explain:
         print(f"prescription {rx_path} ({args.eye} eye): sphere {eye.sphere_D:+.2f} D, cylinder "
