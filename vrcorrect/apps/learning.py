@@ -238,8 +238,11 @@ def add_parser(sub) -> None:
                                    "LMS objective of random crops; report the share of fast's objective gain it "
                                    "and its untrained twin close on held-out eyes and images. unrolled.pt, "
                                    "log.csv, report.json and the ONNX export unrolled.onnx (for vrcorrect correct "
-                                   "--method learned --model, --backend onnx --model, --cold-start) in RUN. The "
-                                   "defaults take about 6 minutes on 2 CPU cores.")
+                                   "--method learned --model, --backend onnx --model, --cold-start) in RUN (made "
+                                   "if missing). The defaults took about 6 minutes on 2 idle CPU cores, and over 40 "
+                                   "on 2 busy ones: the run shows its progress on standard error (a line every few "
+                                   "seconds when it is not a terminal) and writes RUN/checkpoint.pt every minute; "
+                                   "--resume continues a stopped run.")
     p.add_argument("-o", "--out", required=True, metavar="RUN", help="run folder")
     p.add_argument("--displays", nargs="+", default=list(_presets()), metavar="PRESET",
                    help="display presets (default: all)")
@@ -255,7 +258,7 @@ def add_parser(sub) -> None:
     p.add_argument("--batch-size", type=int, default=4, help="crops per step (4)")
     p.add_argument("--steps", type=int, default=200, help="optimiser steps (200)")
     p.add_argument("--minutes", type=float, default=60.0, help="stop training after this long, whatever the steps "
-                   "(60; the defaults need about 6 on 2 cores)")
+                   "(60; with the defaults a whole run took about 6 minutes on 2 idle cores)")
     p.add_argument("--seed", type=int, default=0, help="seed of the eyes, crops and weights (0)")
     p.add_argument("--fast-weight", type=float, default=0.0, metavar="W",
                    help="add W times a pull towards fast's solution to the objective's loss (0: none); the crops "
