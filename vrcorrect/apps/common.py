@@ -40,7 +40,7 @@ def kernel_progress(desc: str) -> Callable[[int, int], None]:
 
 def rx_path(args: argparse.Namespace) -> Path:
     """The prescription a command models: ``--rx``, else the bundled sample, which it says on one line
-    (standard error): a user who forgot ``--rx`` is not corrected for someone else's eyes silently."""
+    (standard output): a user who forgot ``--rx`` is not corrected for someone else's eyes silently."""
     if getattr(args, "rx", None):
         return Path(args.rx)
     path = bundled_sample_path()
@@ -49,8 +49,9 @@ def rx_path(args: argparse.Namespace) -> Path:
         eyes = "; ".join(f"{side} {_eye_text(rx.eye(side))}" for side in ("right", "left"))
     except Exception:  # noqa: BLE001  (the line is a courtesy: the command reads the file itself)
         eyes = "the bundled example"
+    # on standard output, with what the command reports: an error stays the one line on standard error
     print(f"vrcorrect: using the sample prescription {path} ({eyes}); pass --rx YOUR_RX.json for yours "
-          "(vrcorrect rx new writes a template)", file=sys.stderr)
+          "(vrcorrect rx new writes a template)", flush=True)
     return path
 
 

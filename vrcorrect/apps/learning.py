@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 from pathlib import Path
 
 from ..plumbing.errors import InputError, ValidationError
@@ -107,7 +106,7 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)                          # runs/default as the README writes it
     print(f"unroll: run folder {out}; {len(config.displays)} display(s) x {config.eyes_per_display} training eyes, "
           f"{config.steps} steps of {config.batch} crops of {config.crop_px} px (or {config.minutes:g} minutes); the "
-          f"training's checkpoint, {out / CHECKPOINT}, every minute (--resume continues it)", file=sys.stderr)
+          f"training's checkpoint, {out / CHECKPOINT}, every minute (--resume continues it)", flush=True)
     workers = max(1, os.cpu_count() or 1)
     saved_pool = out / "pool.pickle"                                # the kernels, kept for --resume
     pool = _load_pickle(saved_pool) if args.resume else None

@@ -58,7 +58,9 @@ class Progress:
         self.terminal = bool(isatty and isatty())
         self.start = clock()
         self.done = 0
-        self._last = -math.inf
+        # off a terminal the first line comes after an interval: a short run (or one that fails at once,
+        # whose error must stay the one line on standard error) writes none
+        self._last = -math.inf if self.terminal else self.start
         self._first_done_at: float | None = None     # after the first unit (its set-up is no guide to the rest)
         self._width = 0
         self.note = ""
@@ -83,8 +85,8 @@ class Progress:
     def __enter__(self) -> "Progress":
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        self.close(summary=exc_type is None)
 
     def update(self, done: int, total: int | None = None, note: str | None = None) -> None:
         """``done`` so far (of ``total``, when it changed); ``note``: more for the line (a loss)."""
@@ -142,8 +144,9 @@ class Progress:
         except (OSError, ValueError):
             pass
 
-    def close(self) -> None:
-        """The last line: how many, in how long (off a terminal; on one, the line is cleared)."""
+    def close(self, summary: bool = True) -> None:
+        """The last line: how many, in how long (off a terminal, where ``summary`` and a line was
+        written before; on one, the line is cleared)."""
         self._stop.set()
         with self._lock:
             if self.closed:
@@ -158,7 +161,7 @@ class Progress:
             except (OSError, ValueError):
                 pass
             return
-        if self.done:
+        if self.done and summary and self._last > self.start:
             per = self.per_unit()
             self._write(f"{self.what}: {self.done} {self.unit}s in {duration_text(self._last_update - self.start)}"
                         + (f" ({_per_unit(per)} {_a(self.unit)} {self.unit})" if per is not None else ""))

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -102,7 +101,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         total = frames if args.view != "seen-uncorrected" else 1
         h, w = image.shape[:2]
         print(f"render: {total} frame(s) of {args.input} ({w}x{h}) as a still video, the last written; "
-              + estimate_text(ctx.info.get("GL_RENDERER", "?"), (w, h), total, options), file=sys.stderr)
+              + estimate_text(ctx.info.get("GL_RENDERER", "?"), (w, h), total, options), flush=True)
         with Progress("render", "frame", total) as bar:
             result, info = render_frame(image, rx, args.display, args.eye, args.backend, view=args.view, ctx=ctx,
                                         frames=frames, progress=bar.update, **options)
@@ -153,11 +152,11 @@ def _render_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     print_notes(plan.clip.notes)
     from ..runtime.gl import headless_context
 
-    print(f"render: {plan.text}" + _rate_note(args, plan), file=sys.stderr)
+    print(f"render: {plan.text}" + _rate_note(args, plan), flush=True)
     ctx = headless_context(require=430)
     try:
         print("render: " + estimate_text(ctx.info.get("GL_RENDERER", "?"), plan.clip.size, plan.count, options),
-              file=sys.stderr)
+              flush=True)
         with folder, clips.frames_bar("render", plan.count) as bar:
             def emit(index: int, out) -> None:
                 folder.write(index, out / 255.0, bits=8)
