@@ -163,7 +163,7 @@ def _render_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
 
             info = render_clip(clips.planned_frames(plan), rx, args.display, args.eye, args.backend, view=args.view,
                                ctx=ctx, reprojection=not args.no_reprojection, emit=emit, progress=bar.update,
-                               **options)
+                               frame_time_s=1.0 / (plan.frames_per_s or DEFAULT_FPS), **options)
             folder.commit()
     finally:
         ctx.release()
@@ -188,6 +188,10 @@ def _print_eye(args: argparse.Namespace, info: dict) -> None:
           f"D, axis {info['axis_deg']:g} deg on {info['display']}; backend {info['backend']}")
     if getattr(args, "cold_start_note", ""):
         print(f"  cold start: {args.cold_start_note}")
+    if info.get("pupil_status"):
+        print(f"  {info['pupil_status']}" + ("; robust design" if info.get("robust") else ""))
+    elif info.get("pupil_mm") is not None:
+        print(f"  designed for a {info['pupil_mm']:.2f} mm pupil" + (", robust" if info.get("robust") else ""))
 
 
 def _median(values) -> float | None:
