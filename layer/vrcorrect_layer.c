@@ -56,6 +56,7 @@
 #include <pthread.h>
 
 #define LAYER_NAME "XR_APILAYER_VRCORRECT_correction"
+#define HELD_MS 100.0              /* a passed-through frame the layer held longer than this is logged */
 #define EXPORT __attribute__((visibility("default")))
 
 /* ------------------------------------------------------------------ loader negotiation (spec) */
@@ -730,6 +731,7 @@ static int correct_frame(const XrFrameEndInfo *info, XrCompositionLayerProjectio
     if (!collect_views(info, views, &nviews)) return 0;
     double t0 = now_ms();
     PyGILState_STATE g = PyGILState_Ensure();
+    double gil_ms = now_ms() - t0;              /* waiting for Python's lock (another thread of this process) */
     PyObject *go = engine_call("begin_frame", "()");
     long mode = go ? PyLong_AsLong(go) : 0;     /* 0: pass through (off, no prescription, ...: the engine logs why),
                                                    1: correct, 2: let the engine capture the views, pass through */
@@ -742,7 +744,14 @@ static int correct_frame(const XrFrameEndInfo *info, XrCompositionLayerProjectio
         PyObject *done = engine_call("end_frame", "(i(dddd))", 0, now_ms() - t0, -1.0, -1.0, -1.0);
         Py_XDECREF(done);
     }
-    if (!ok) { PyGILState_Release(g); return 0; }
+    if (!ok) {
+        PyGILState_Release(g);
+        double held = now_ms() - t0;
+        if (held > HELD_MS)      /* a frame the layer passed through but held up: say how long, and on what */
+            layer_log("a passed-through xrEndFrame held %.0f ms by the layer (%.0f ms of it waiting for Python's lock)",
+                      held, gil_ms);
+        return 0;
+    }
     Chain *acquired[MAX_LAYERS * MAX_VIEWS];
     int nacq = 0;
     double sync_ms[3] = {-1, -1, -1};               /* Vulkan: copy in and wait, glFinish, copy out */

@@ -62,6 +62,10 @@ want=$(cat pyproject.toml setup.py layer/*.c layer/*.h layer/build_flags.py | sh
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "installing Python packages into .venv (first run takes a few minutes) ..."
   .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip 2>&1 | grep -v "^WARNING: Location" || true
+  # a setuptools that builds this project (the same as pyproject's build-system): the wheel test
+  # (tests/test_xr_layer_wheel.py) runs `pip wheel --no-build-isolation` with it
+  .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade "setuptools>=77" 2>&1 \
+    | grep -v "^WARNING: Location" || true
   # torch==2.13.0 (CPU build) is pinned in the 'solve' extra: pip takes it from this machine's disk.
   # setuptools warns at every editable install that a folder named like the package may shadow it
   # (a generic banner: this checkout's vrcorrect/ is the package itself); silenced by its message

@@ -529,10 +529,13 @@ class _Pipeline:
                 source = int(view["texture"])
             else:
                 memory = chains.get(view["chain"])
-                if memory is None:
+                try:
+                    if memory is not None and view["chain"] not in self.chains:
+                        self.import_chain(view["chain"], memory)
+                except OSError:                  # the swapchain went away meanwhile: this view is not primed
+                    memory = None
+                if memory is None or view["chain"] not in self.chains:
                     continue
-                if view["chain"] not in self.chains:
-                    self.import_chain(view["chain"], memory)
                 source = self.chains[view["chain"]].input.glo
             texture = self._private_texture(view["code"], fmt, width, height)
             copy(source, _GL_TEXTURE_2D, 0, x, y, 0, texture.glo, _GL_TEXTURE_2D, 0, 0, 0, 0, width, height, 1)
