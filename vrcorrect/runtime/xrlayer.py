@@ -121,7 +121,10 @@ is handed over unprimed, warmed up only)."""
 PRIME_MAX_FRAMES = 40
 """Frames a build corrects a captured view for at most before handing over (converged sooner)."""
 BUILD_NICE = 10
-"""The build worker's CPU priority (Linux nice value, per thread): the application's threads come first."""
+"""The build worker's CPU priority (Linux nice value, per thread): the application's threads come first.
+Not the lowest: the worker holds Python's lock between its GL calls, and a worker the scheduler leaves
+waiting while it holds it keeps the application's ``xrEndFrame`` waiting too (nice 19 on a busy machine
+held passed-through frames up to 0.54 s on the lock; nice 10, 0.12 s)."""
 CLOSE_WAIT_S = 30.0
 """How long the instance's end waits for an eye-model build still running (:meth:`Engine.close`)."""
 _QUERY_MAX_MS = 0xFFFFFFFF / 1e6
