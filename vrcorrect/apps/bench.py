@@ -82,7 +82,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
         report = run_robust_bench(out=Path(args.out), write=not args.no_write,
                                   plot=Path(args.out).with_name("robust_sweep.png"), json_out=_json_out(args),
-                                  force=args.force)
+                                  force=args.force, video=args.video)
         print(report["markdown"])
     elif args.what == "layer":
         from ..studies.bench.layer import run_layer_bench
@@ -153,7 +153,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quick", action="store_true", help="realtime: fewer frames and sizes (a smoke run)")
     p.add_argument("--video", action="store_true",
                    help="halfres: also play the held-out clips through a half-resolution real-time twin for one "
-                        "strong eye, judged as video (some 15 minutes more on 2 cores)")
+                        "strong eye, judged as video (some 15 minutes more on 2 cores); robust: also the motion suite's "
+                        "video shares with the robust design and a dark clip cut to a bright one with the pupil "
+                        "following the light")
     p.add_argument("--size", default="1832x1920", metavar="WxH",
                    help="cost, workgroups: each eye's image size (default 1832x1920, a Quest 2 eye)")
     p.add_argument("--json", metavar="OUT.json", help="cost, workgroups, halfres, robust: also write the figures as JSON "
