@@ -184,6 +184,7 @@ def viewing_pupil(args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfi
                   age_years: float | None) -> tuple[float, list[str]]:
     """The pupil ``--pupil`` asks for, and lines saying where it came from (``auto``: the light of
     ``image_linear`` on ``display``, clamped with a note where it must be)."""
+    kernel_options(args)                            # every model option checked before a line is printed
     choice = parse_pupil(args.pupil)
     upper = eye.higher_order.pupil_diameter_mm if eye.higher_order is not None else None
     if choice == "rx":
