@@ -10,11 +10,11 @@ void STAGE_NAME(int ns, float sign, bool from_own, bool to_own, inout vec2 own[P
     const int OWN_STEP = PER / R;                     // (from_own and to_own only: R divides PER)
     int span = ns * R;
     int step = LINE / span;                           // twiddle index of w: LINE / (ns R)
-    vec2 v[B * R];
+    precise vec2 v[B * R];
     for (int b = 0; b < B; ++b) {
         int j = lid + WG * b;
         if (j >= J) continue;                         // (only where R does not divide PER)
-        vec2 x[R];
+        precise vec2 x[R];
         for (int r = 0; r < R; ++r)
             x[r] = from_own ? own[b + r * OWN_STEP] : line[AT(j + r * J)];
         if (ns > 1) {

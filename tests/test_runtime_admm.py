@@ -540,6 +540,27 @@ def test_a_cold_frame_starts_from_the_coarse_level_and_the_gpu_equals_its_twin(g
         plain.release()
 
 
+def test_a_wide_frame_past_2048_equals_the_twin_on_an_odd_grid(gl):
+    """2150 x 24 (cheap: 24 rows), past 2048 where the power-of-two grid jumped to 4096 and its passes
+    did not link: the grid is 2187 x 40 (2187 = 3^7, odd: real-to-complex rows of an odd length,
+    no Nyquist term), and over three frames, the content moving, the GPU's solution in single
+    precision equals the twin's to 1e-5 and its guarded objective to 1e-5."""
+    big = np.round(bundled_images(96)[0][1] * 255).astype(np.uint8)
+    strip = np.ascontiguousarray(np.tile(big, (1, 24, 1))[:40])
+    size = (2150, 24)
+    r = Run(gl, "single", 2, size=size)
+    try:
+        assert r.twin.grid == (40, 2187)
+        for f in range(3):
+            image = np.ascontiguousarray(strip[2 * f:2 * f + 24, 3 * f:3 * f + 2150])
+            cpu = r.frame(image, None if f == 0 else (-3, -2))
+            assert r.c.strategy._sized[size].grid == (40, 2187)
+            assert np.abs(r.c.solution(size) - cpu.solution).max() <= 1e-5, f
+            assert abs(r.c.last_objective_fraction(size) - cpu.objective / cpu.uncorrected) <= 1e-5, f
+    finally:
+        r.release()
+
+
 def test_values_per_thread_keep_a_work_group_within_1024_threads():
     """A line's work group is its length over the values per thread: raised where it would pass 1024
     threads (OpenGL's least limit), lowered to the line's length, else as asked."""

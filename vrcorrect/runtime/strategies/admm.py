@@ -181,26 +181,36 @@ class AdmmStrategy(IterativeStrategy):
             b = self._sized[size] = self._make(size)
         return b
 
-    def _make(self, size: Size) -> AdmmBuffers:
+    def grid(self, size: Size) -> tuple[int, int]:
+        """The ``(NY, NX)`` grid of ``size`` images (:func:`~vrcorrect.solvers.realtime.admm_grid`),
+        refused past :data:`MAX_ADMM_GRID` naming the size, the grid and the largest image allowed."""
         from ...solvers.realtime import admm_grid  # start-up time (as above)
 
-        ctx, m = self.ctx, self.model
+        m = self.model
         W, H = size
         ksize = max(m.kernel.size, m.reference.size if m.reference is not None else 1)
-        ny, nx = grid = admm_grid(W, H, ksize)
+        ny, nx = admm_grid(W, H, ksize)
         if max(nx, ny) > MAX_ADMM_GRID:
             raise ValidationError("image size", f"{W}x{H} with a {ksize} px kernel",
                                   f"a grid of at most {MAX_ADMM_GRID} px per side (the image plus the kernel "
                                   f"less one, rounded up to a 5-smooth length: {nx}x{ny} here), i.e. an image of "
                                   f"at most {MAX_ADMM_GRID - ksize + 1} px per side for this eye")
-        hx = nx // 2 + 1
-        dtype = "f2" if self.half else "f4"
-        defines = {"NX": nx, "NY": ny, "HX": hx, "IMG_W": W, "IMG_H": H}
+        return ny, nx
+
+    def compile_passes(self, size: Size) -> tuple[dict[str, "moderngl.ComputeShader"], dict[str, int], int]:
+        """Compile (and link) every compute pass of ``size`` frames, allocating nothing else: the
+        programs by kind, each row or column pass's values a thread as compiled, and a column pass's
+        lines a work group.  (A test links them at every grid class up to 4096 without the memory a
+        frame of that size takes.)"""
+        ctx, m = self.ctx, self.model
+        W, H = size
+        ny, nx = self.grid(size)
+        defines: dict[str, Any] = {"NX": nx, "NY": ny, "HX": nx // 2 + 1, "IMG_W": W, "IMG_H": H,
+                                   "MAX_PASSES": len(KINDS)}
         if self.half:
             defines["HALF"] = None
         if m.reference is None:
             defines["IDEAL"] = None
-
         per_pass = self.options.work_groups.table(self.coarse_level)    # shape only, never a value
         compiled: dict[str, int] = {}
         col_plan = fft.line_plan(ny, per_pass["COLUMNS"])
@@ -212,21 +222,34 @@ class AdmmStrategy(IterativeStrategy):
                 plan = col_plan if pass_ == "COLUMNS" else fft.line_plan(nx, per_pass.get(pass_, 8))
                 if pass_ in per_pass:
                     compiled[pass_] = plan.per
-                lines = {**plan.defines(), "WG": plan.threads}
+                lines = plan.defines()
                 if pass_ == "COLUMNS":
                     lines["LINES"] = col_lines
             return compile_compute(ctx, "admm.glsl", defines={**defines, **lines, pass_: None, **extra})
 
-        defines["MAX_PASSES"] = len(KINDS)
-        programs = {"rows_start": program("ROWS_START"), "cols_admm": program("COLUMNS", MODE_ADMM=None),
-                    "pool": program("POOL"),
-                    "rows_update": program("ROWS_UPDATE"), "rows_last": program("ROWS_UPDATE", LAST=None),
-                    "rows_guard_input": program("ROWS_UPDATE", LAST=None, NO_UPDATE=None),
-                    "cols_guard": program("COLUMNS", MODE_GUARD=None), "rows_guard": program("ROWS_GUARD"),
-                    "guard_final": program("GUARD_FINAL"), "blend": program("BLEND"), "plan": program("PLAN")}
-        if m.reference is not None:
-            programs["rows_target"] = program("ROWS_TARGET")
-            programs["cols_target"] = program("COLUMNS", MODE_TARGET=None)
+        programs: dict[str, "moderngl.ComputeShader"] = {}
+        try:
+            for kind, pass_, extra in (("rows_start", "ROWS_START", {}), ("cols_admm", "COLUMNS", {"MODE_ADMM": None}),
+                                       ("pool", "POOL", {}), ("rows_update", "ROWS_UPDATE", {}),
+                                       ("rows_last", "ROWS_UPDATE", {"LAST": None}),
+                                       ("rows_guard_input", "ROWS_UPDATE", {"LAST": None, "NO_UPDATE": None}),
+                                       ("cols_guard", "COLUMNS", {"MODE_GUARD": None}), ("rows_guard", "ROWS_GUARD", {}),
+                                       ("guard_final", "GUARD_FINAL", {}), ("blend", "BLEND", {}), ("plan", "PLAN", {}),
+                                       *((("rows_target", "ROWS_TARGET", {}), ("cols_target", "COLUMNS", {"MODE_TARGET": None}))
+                                         if m.reference is not None else ())):
+                programs[kind] = program(pass_, **extra)
+        except BaseException:
+            release(*programs.values())
+            raise
+        return programs, compiled, col_lines
+
+    def _make(self, size: Size) -> AdmmBuffers:
+        ctx, m = self.ctx, self.model
+        W, H = size
+        ny, nx = grid = self.grid(size)
+        hx = nx // 2 + 1
+        dtype = "f2" if self.half else "f4"
+        programs, compiled, col_lines = self.compile_passes(size)
         present = compile_program(ctx, "admm_present.glsl")
 
         def spectrum_array(kernel: np.ndarray) -> "moderngl.TextureArray":
