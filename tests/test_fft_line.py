@@ -126,3 +126,28 @@ def test_every_real_time_pass_links_up_to_a_4096_grid(gl, size):
                 release(*programs.values())
         finally:
             c.release()
+
+
+def test_a_grid_past_4096_is_refused_naming_the_size_the_grid_and_what_is_allowed(gl):
+    """The one-pass bank's grid and the ADMM strategy's: an image whose grid would pass 4096 per side
+    (one line of complex float32 in 32 KiB of shared memory) is refused with the field, the size, the
+    grid it would need and the largest image allowed."""
+    from vrcorrect.runtime.corrector import Corrector
+    from vrcorrect.runtime.fft import fft_grid
+    from vrcorrect.specs.prescription import EyeRx, Prescription
+
+    assert fft_grid(4076, 16, 10) == (40, 4096)
+    with pytest.raises(ValidationError) as e:
+        fft_grid(4090, 16, 10)
+    assert e.value.field == "image size" and "4090x16" in str(e.value) and "4320x40 grid" in str(e.value)
+    assert "at most 4076 px" in str(e.value)
+    eye = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=120.0, pupil_diameter_mm=4.0)
+    c = Corrector(gl, Prescription(right=eye, left=eye), "quest2", "right", filter="admm")
+    try:
+        k = max(c.model.kernel.size, c.model.reference.size)
+        assert max(c.strategy.grid((4096 - k + 1, 16))) == 4096
+        with pytest.raises(ValidationError) as e:
+            c.strategy.grid((4096 - k + 2, 16))
+        assert e.value.field == "image size" and f"at most {4096 - k + 1} px per side" in str(e.value)
+    finally:
+        c.release()

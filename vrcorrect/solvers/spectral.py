@@ -211,7 +211,8 @@ class Blur:
         sets the arithmetic's precision with the input's).
     grid
         ``(NY, NX)``, at least the image plus the kernel less one on each axis (:func:`padded_shape`,
-        or the real-time path's powers of two), so nothing wraps around.
+        or the real-time path's 5-smooth grid, :func:`vrcorrect.solvers.realtime.admm_grid`), so
+        nothing wraps around.
     shape
         The images' ``(H, W)``; the image sits at the grid's origin.
     """
