@@ -136,10 +136,10 @@ def test_a_grid_past_4096_is_refused_naming_the_size_the_grid_and_what_is_allowe
     from vrcorrect.runtime.fft import fft_grid
     from vrcorrect.specs.prescription import EyeRx, Prescription
 
-    assert fft_grid(4076, 16, 10) == (40, 4096)
+    assert fft_grid(4076, 16, 10) == (36, 4096)                 # 16 + 20 = 36 = 2^2 3^2
     with pytest.raises(ValidationError) as e:
         fft_grid(4090, 16, 10)
-    assert e.value.field == "image size" and "4090x16" in str(e.value) and "4320x40 grid" in str(e.value)
+    assert e.value.field == "image size" and "4090x16" in str(e.value) and "4320x36 grid" in str(e.value)
     assert "at most 4076 px" in str(e.value)
     eye = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=120.0, pupil_diameter_mm=4.0)
     c = Corrector(gl, Prescription(right=eye, left=eye), "quest2", "right", filter="admm")
