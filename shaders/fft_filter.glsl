@@ -1,8 +1,11 @@
 #version 430 core
 // A 3x3 filter bank applied by FFT (compute shaders): cost per pixel O(log N), whatever the
 // filter's size, and no truncation. The image (W x H, linear light) sits on a periodic
-// Nx x Ny grid (each side 5-smooth: 2^a 3^b 5^c) at offset (MARGIN, MARGIN); the rest of the grid is
-// filled by mirrored repeat of the image (BORDER_ZERO: black). Channels are packed two per complex
+// Nx x Ny grid (each side 5-smooth: 2^a 3^b 5^c) at offset (MARGIN, NY - H - MARGIN); the rest of the
+// grid is filled by mirrored repeat of the image (BORDER_ZERO: black). Rows are GL's (bottom first):
+// GL grid row r is row NY - 1 - r of the CPU's grid, which holds the image at (margin, margin), so
+// the two grids are each other's vertical flip exactly, whatever the grid's surplus beyond
+// H + 2 MARGIN (the bank's spectrum is uploaded flipped: F(fx, -fy)). Channels are packed two per complex
 // signal: layer 0 = R + iG, layer 1 = B. Passes (define exactly one):
 //   ROWS_FORWARD  load rows (grid fill) and FFT them           -> u_spec (rg32f array, 2 layers)
 //   COLS          FFT columns of u_spec in place (sign by INVERSE)
@@ -45,7 +48,7 @@ void main() {
     int row = int(gl_WorkGroupID.x);
     int layer = int(gl_WorkGroupID.y);
     ivec2 size = textureSize(u_linear_in, 0);
-    int y = row - MARGIN;
+    int y = row - (NY - size.y - MARGIN);
 #if defined BORDER_ZERO
     bool row_inside = y >= 0 && y < size.y;
 #else
@@ -129,7 +132,7 @@ uniform ivec2 u_size;
 void main() {
     int row = int(gl_WorkGroupID.x);
     int layer = int(gl_WorkGroupID.y);
-    int y = row - MARGIN;
+    int y = row - (NY - u_size.y - MARGIN);
     if (y < 0 || y >= u_size.y) return;                            // uniform per workgroup
     vec2 own[PER];
     for (int m = 0; m < PER; ++m) own[m] = imageLoad(u_spec, ivec3(lid + WG * m, row, layer)).xy;

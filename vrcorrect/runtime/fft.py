@@ -21,8 +21,10 @@ filter is not truncated: the GPU computes what
 :func:`vrcorrect.solvers.wiener._exact_inverse_image` computes on the CPU, on the same grid.
 
 GL orientation: textures hold rows bottom-up, so the bank's spectrum is uploaded for the
-vertically flipped filter (``F(fx, -fy)``); the grid fill and the crop are symmetric under
-the flip (see the notes in the code).  Layer 5: numpy and moderngl.
+vertically flipped filter (``F(fx, -fy)``) and the image sits at GL row offset
+``NY - H - margin``: GL grid row ``r`` is the CPU grid's row ``NY - 1 - r``, so the GPU's grid is
+the vertical flip of the CPU's (image at ``(margin, margin)``) exactly, whatever surplus the grid
+has beyond the image and its margins (``shaders/fft_filter.glsl``).  Layer 5: numpy and moderngl.
 """
 
 from __future__ import annotations
