@@ -85,6 +85,30 @@ def lms_to_rgb_matrix(display: DisplayProfile | Spectra) -> np.ndarray:
     return np.linalg.inv(rgb_to_lms_matrix(display))
 
 
+PHOTOPIC_DATASET = "CIE 1924 Photopic Standard Observer"
+
+
+@lru_cache(maxsize=1)
+def photopic_luminosity() -> Spectra:
+    """The CIE 1924 photopic luminous efficiency V(lambda), from colour-science."""
+    from colour.colorimetry import SDS_LEFS_PHOTOPIC  # lazy: slow to import
+
+    sd = SDS_LEFS_PHOTOPIC[PHOTOPIC_DATASET]
+    return Spectra(wavelength_nm=np.asarray(sd.wavelengths, dtype=np.float64),
+                   values=np.asarray(sd.values, dtype=np.float64)[:, None], labels=("V",),
+                   source=f"colour-science SDS_LEFS_PHOTOPIC[{PHOTOPIC_DATASET!r}]")
+
+
+def luminance_weights(display: DisplayProfile | Spectra) -> np.ndarray:
+    """Each primary's share of the display white's luminance: ``w_c = sum_lambda V(lambda) spd_c(lambda)``
+    (CIE 1924 photopic V, 1 nm grid), scaled to sum to 1, so that ``w @ rgb`` is a linear image's
+    luminance relative to the white (times the peak luminance: cd/m^2).  ``(3,)`` float64."""
+    spectra = display.primaries if isinstance(display, DisplayProfile) else display
+    v = photopic_luminosity().resample(INTEGRATION_GRID_NM).values[:, 0]
+    w = (spectra.resample(INTEGRATION_GRID_NM).values * v[:, None]).sum(axis=0)
+    return w / w.sum()
+
+
 def apply_matrix(matrix: np.ndarray, image: np.ndarray) -> np.ndarray:
     """Apply a 3x3 colour matrix to an ``(..., 3)`` image; dtype follows the image."""
     m = np.asarray(matrix, dtype=image.dtype)

@@ -128,6 +128,101 @@ def with_offset(base: EyeRx, offset: tuple[float, float, float]) -> EyeRx:
                              axis_deg=(base.axis_deg + da) % 180.0)
 
 
+class PupilState:
+    """A corrector's viewing pupil with ``pupil="auto"`` (:mod:`vrcorrect.runtime.pupil_bank`): the GPU's
+    luminance of each frame, the pupil following it, and the bank of designs it switches between."""
+
+    def __init__(self, corrector: "Corrector", first_luminance: float | None):
+        from ..physics.perception import luminance_weights  # start-up time: the optics load with the first eye
+        from .pupil_bank import PupilBank, PupilFollower
+        from .strategies.base import LuminanceMeter
+
+        self.c = corrector
+        self.first_luminance = first_luminance
+        self.meter = LuminanceMeter(corrector.gpu, luminance_weights(corrector.display))
+        self.kernels: dict = {}
+        self.follower: PupilFollower | None = None
+        self.bank: PupilBank | None = None
+        self.current: float | None = None
+        self.switches = 0
+        self._last_time: float | None = None
+        self._make = (PupilBank, PupilFollower)
+
+    def _upper(self, eye: EyeRx) -> float | None:
+        return eye.higher_order.pupil_diameter_mm if eye.higher_order is not None else None
+
+    def first_entry(self, eye: EyeRx) -> float:
+        """The bank entry the first model is designed for (the first frame's light where given)."""
+        from .eye_model import initial_pupil_mm
+
+        return initial_pupil_mm(eye, self.c.display, self.c.options, self.first_luminance, self.c.age_years)
+
+    def installed(self, model: EyeModel, switched: bool = False) -> None:
+        """A model is in use: a new eye (a new bank, the follower kept) or a bank's switch."""
+        PupilBank, PupilFollower = self._make
+        upper = self._upper(model.eye)
+        if not switched:
+            if self.bank is None or self.bank.eye != model.eye:
+                if self.bank is not None:
+                    self.bank.close()
+                self.bank = PupilBank(model.eye, self.c.display, self.c.options, self.c.age_years, self._build)
+                self.kernels = self.bank.kernels
+            self.bank.put(model.pupil_mm, model)
+            if self.follower is None:
+                self.follower = PupilFollower(self.c.display, self.c.age_years, upper, model.pupil_mm)
+            self.follower.upper_mm = upper
+        else:
+            self.switches += 1
+        self.current = model.pupil_mm
+        if self.follower is not None:
+            self.follower.entry_mm = model.pupil_mm
+
+    def _build(self, pupil_mm: float, kernels: dict, grids: tuple) -> EyeModel:
+        """A bank's design (on its worker): the model and its spectra on the strategy's grids."""
+        from .strategies.admm import bank_spectra
+
+        base = self.c.model
+        model = build_eye_model(base.eye, self.c.display, self.c.options, pupil_mm=pupil_mm,
+                                age_years=self.c.age_years, kernels=kernels, grid_kernel_size=base.grid_kernel_size)
+        self.c.check_eye(model.eye)
+        return replace(model, spectra=bank_spectra(model, grids)) if grids else model
+
+    def frame(self, linear: "moderngl.Texture") -> None:
+        """Measure this frame's light; follow the pupil with the frame two back; switch or ask."""
+        self.meter.measure(linear)
+        lum = self.meter.latest()
+        now = time.monotonic()
+        dt = self.c.frame_time_s if self.c.frame_time_s is not None else \
+            (0.0 if self._last_time is None else now - self._last_time)
+        self._last_time = now
+        if lum is None or self.follower is None or self.bank is None:
+            return
+        entry = self.follower.update(lum, dt)
+        if entry == self.current:
+            return
+        model = self.bank.get(entry)
+        grids = self.c.strategy.spectra_grids() if hasattr(self.c.strategy, "spectra_grids") else ()
+        if model is None:
+            if self.c.frame_time_s is not None:           # a batch render: deterministic, so wait for it
+                model = self.bank.build_now(entry, grids)
+            else:
+                self.bank.request(entry, grids)
+                return
+        self.c.switch_design(model)
+
+    def status(self) -> str:
+        f = self.follower
+        if f is None or f.pupil_mm is None or f.estimate is None:
+            return f"pupil auto: {self.current:.2f} mm design, no frame measured yet" if self.current else "pupil auto"
+        return (f"pupil {f.pupil_mm:.2f} mm (auto: {f.estimate.luminance_cd_m2:.3g} cd/m^2), design "
+                f"{self.current:.2f} mm, {self.switches} switch(es)")
+
+    def release(self) -> None:
+        self.meter.release()
+        if self.bank is not None:
+            self.bank.close()
+
+
 class Corrector:
     """Corrects one eye's texture for its prescription (see the module docstring).
 
@@ -159,7 +254,7 @@ class Corrector:
 
     def __init__(self, ctx: "moderngl.Context", rx: RxSource, display: str | os.PathLike[str] | DisplayProfile,
                  eye: str, backend: str = Backend.GLSL, *, eye_model: EyeModel | None = None,
-                 options: CorrectorOptions | None = None, **fields: Any):
+                 options: CorrectorOptions | None = None, first_luminance: float | None = None, **fields: Any):
         if backend not in names(Backend):
             raise ValidationError("backend", backend, one_of(Backend))
         if eye not in names(Eye):
@@ -217,8 +312,28 @@ class Corrector:
             self._learned.check(eye_rx, self.display)
         if self._cold_model is not None:
             self._cold_model.check(eye_rx, self.display)
-        self.install(eye_model if eye_model is not None else build_eye_model(eye_rx, self.display, self.options))
+        self.frame_time_s: float | None = None
+        """The time between frames for the pupil's dynamics (``pupil="auto"``): None, the wall clock
+        between :meth:`apply` calls; a batch render sets its clip's frame time."""
+        self._pupil: PupilState | None = None
+        if self.options.pupil == "auto":
+            self._pupil = PupilState(self, first_luminance)
+        if eye_model is None:
+            pupil = None if self._pupil is None else self._pupil.first_entry(eye_rx)
+            eye_model = build_eye_model(eye_rx, self.display, self.options, pupil_mm=pupil, age_years=self.age_years,
+                                        kernels=None if self._pupil is None else self._pupil.kernels)
+        self.install(eye_model)
         check_gl_errors(ctx, "Corrector build")
+
+    @property
+    def age_years(self) -> float | None:
+        """The wearer's age for the pupil's formula: the options', else the prescription's."""
+        return self.options.age_years if self.options.age_years is not None else self.prescription.age_years
+
+    @property
+    def pupil_status(self) -> str:
+        """The viewing pupil now, in words (``layer status``, the mirror's text): empty for a fixed pupil."""
+        return "" if self._pupil is None else self._pupil.status()
 
     # ------------------------------------------------------------------ the eye
 
@@ -301,7 +416,23 @@ class Corrector:
         self.model = model
         if prescription is not None:
             self.prescription = prescription
+        if self._pupil is not None:
+            self._pupil.installed(model)
         release(*old)
+
+    def switch_design(self, model: EyeModel) -> None:
+        """Correct with another design of the same eye from the next frame (a pupil bank's switch): the
+        iterative default goes on from its state with the new kernels' spectra (nothing built on this
+        thread but the upload); another strategy is installed anew (a cold start)."""
+        swap = getattr(self.strategy, "swap_model", None)
+        if swap is not None and swap(model):
+            self.model = model
+            self.preview.release()
+            self.preview = Preview(self.gpu, model)
+            if self._pupil is not None:
+                self._pupil.installed(model, switched=True)
+            return
+        self.install(model)
 
     def adjust(self, sphere_D: float = 0.0, cylinder_D: float = 0.0, axis_deg: float = 0.0) -> None:
         """Change this eye's prescription live by these amounts and rebuild now (the file is
@@ -315,10 +446,15 @@ class Corrector:
         try:
             eye = self._with_offset(self.prescription.eye(self.eye_name))
             self.check_eye(eye)
-            self.install(build_eye_model(eye, self.display, self.options))
+            self.install(build_eye_model(eye, self.display, self.options, pupil_mm=self._design_pupil(),
+                                         age_years=self.age_years))
         except VrcorrectError:
             self._offset = previous
             raise
+
+    def _design_pupil(self) -> float | None:
+        """The pupil a rebuilt model is designed for: the current one with ``pupil="auto"``."""
+        return self._pupil.current if self._pupil is not None else None
 
     def set_offset(self, offset: tuple[float, float, float]) -> None:
         """Record live changes whose model was built elsewhere (:meth:`install` it too)."""
@@ -346,7 +482,9 @@ class Corrector:
             rx = load_prescription(self.rx_path)
             eye = self._with_offset(rx.eye(self.eye_name))
             self.check_eye(eye)
-            self.install(build_eye_model(eye, self.display, self.options), rx)
+            self.install(build_eye_model(eye, self.display, self.options, pupil_mm=self._design_pupil(),
+                                         age_years=rx.age_years if self.options.age_years is None
+                                         else self.options.age_years), rx)
         except VrcorrectError as exc:
             self.status = f"{self.rx_path}: not reloaded, keeping the last good prescription: {exc}"
             log.warning(self.status)
@@ -422,6 +560,8 @@ class Corrector:
         t0 = time.perf_counter()
         self._set_motion(motion_px)
         linear = self._decode_source(src_texture)
+        if self._pupil is not None:
+            self._pupil.frame(linear)
         if self.enabled:
             shown = self._correct(linear)
             self.gpu.begin("present")
@@ -457,7 +597,8 @@ class Corrector:
         """What was built: prescription, regulariser, blend, strategy and its cost figures."""
         m = self.model
         info = {"eye": self.eye_name, "sphere_D": m.eye.sphere_D, "cylinder_D": m.eye.cylinder_D,
-                "axis_deg": m.eye.axis_deg, "display": self.display.name, "backend": self.backend,
+                "axis_deg": m.eye.axis_deg, "pupil_mm": m.pupil_mm, "pupil": self.options.pupil,
+                "robust": self.options.robust, "display": self.display.name, "backend": self.backend,
                 "filter": self.options.filter, "strategy": self.strategy.name, "kernel_size": m.kernel.size,
                 "mu_rel": m.mu_rel, "beta": m.beta, "identity": m.identity, "margin": m.margin,
                 "build_seconds": m.build_seconds, "notes": list(m.notes)}
@@ -467,6 +608,8 @@ class Corrector:
         return info
 
     def release(self) -> None:
+        if self._pupil is not None:
+            self._pupil.release()
         release(self.strategy, self.preview, self.encoder, self.decoder, *self._seen.values())
         self._seen.clear()
         if self._onnx is not None:

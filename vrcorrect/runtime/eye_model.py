@@ -40,7 +40,7 @@ from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from ..physics.kernel import EyeKernel, KernelOptions
 
-__all__ = ["as_options", "DEFAULT_ITERATIONS", "DEFAULT_COLD_ITERATIONS", "WORK_GROUP_PASSES", "VALUES_PER_THREAD",
+__all__ = ["as_options", "initial_pupil_mm", "NEUTRAL_LUMINANCE", "DEFAULT_ITERATIONS", "DEFAULT_COLD_ITERATIONS", "WORK_GROUP_PASSES", "VALUES_PER_THREAD",
            "COARSE_VALUES_PER_THREAD", "COLUMN_LINES", "WorkGroups", "CorrectorOptions", "EyeModel", "build_eye_model",
            "check_iterations"]
 
@@ -223,6 +223,20 @@ class CorrectorOptions:
         ``filter="admm"``: the row and column passes' work-group shape (:class:`WorkGroups`); it
         changes the GPU time, never the picture; a mapping ``{"full": {...}, "coarse": {...}}`` is
         taken as one. Default: the shape chosen on an H100.
+    pupil
+        The viewing pupil designed for: ``"rx"`` (the default here: the eye's ``pupil_diameter_mm`` as
+        given), a number of millimetres (:data:`~vrcorrect.physics.pupil.PUPIL_RANGE_MM`), or
+        ``"auto"``: from the light of the frames shown (:class:`~vrcorrect.runtime.pupil_bank.PupilBank`:
+        the GPU measures each frame's luminance, the pupil follows it with its own dynamics, and the
+        correction switches between designs built off the render thread).  The commands (``render``,
+        ``mirror``, ``overlay``, ``xr``, the layer) use ``"auto"``.
+    robust
+        Design over a band of pupils and defocus around the pupil
+        (:func:`~vrcorrect.physics.robust.design_eye`: one effective kernel, the frame's cost
+        unchanged) instead of for the one eye; the commands use ``True``.
+    age_years
+        The wearer's age for ``pupil="auto"`` (None: the prescription's ``age_years``, else the
+        pupil formula's reference age).
     """
 
     regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
@@ -242,8 +256,21 @@ class CorrectorOptions:
     cold_iterations: int = DEFAULT_COLD_ITERATIONS
     cold_start_model: str | None = None
     work_groups: WorkGroups = field(default_factory=WorkGroups)
+    pupil: str | float = "rx"
+    robust: bool = False
+    age_years: float | None = None
 
     def __post_init__(self) -> None:
+        if self.pupil not in ("rx", "auto"):
+            from ..physics.pupil import check_pupil_mm  # start-up time: the optics load with the first eye
+
+            object.__setattr__(self, "pupil", check_pupil_mm(self.pupil, "pupil"))
+        if not isinstance(self.robust, bool):
+            raise ValidationError("robust", self.robust, "True or False")
+        if self.age_years is not None and (isinstance(self.age_years, bool) or
+                                           not isinstance(self.age_years, (int, float)) or
+                                           not 1 <= self.age_years <= 120):
+            raise ValidationError("age_years", self.age_years, "None or a number of years from 1 to 120")
         if not self.regularisation or not all(isinstance(m, (int, float)) and m > 0 for m in self.regularisation):
             raise ValidationError("regularisation", self.regularisation, "one or more numbers > 0")
         if self.beta is not None and not (isinstance(self.beta, (int, float)) and 0.0 <= self.beta <= 1.0):
@@ -305,11 +332,22 @@ class EyeModel:
     beta: float
     build_seconds: float
     notes: tuple[str, ...] = field(default_factory=tuple)
+    seen: EyeKernel | None = None                # the physical eye (a robust design's kernel is not); None: kernel
+    pupil_mm: float | None = None                # the viewing pupil designed for
+    design: Any = None                           # the Design (vrcorrect.physics.robust) it came from
+    grid_kernel_size: int | None = None          # the kernel size grids are made for (a pupil bank's largest)
+    spectra: dict = field(default_factory=dict)  # precomputed half spectra by (grid, dtype, coarse): a bank's switch
+
+    @property
+    def seen_kernel(self) -> EyeKernel:
+        """The eye's physical kernel (what it sees of the display: previews, ``simulate``)."""
+        return self.seen if self.seen is not None else self.kernel
 
     @property
     def margin(self) -> int:
-        """Border of the FFT grid around the image (one kernel width)."""
-        return max(self.kernel.size, self.reference.size if self.reference is not None else 1)
+        """Border of the FFT grid around the image (one kernel width; a pupil bank's widest)."""
+        own = max(self.kernel.size, self.reference.size if self.reference is not None else 1)
+        return max(own, self.grid_kernel_size or 1)
 
 
 def _sample_target(size: int) -> np.ndarray:
@@ -327,12 +365,44 @@ def _identity_bank() -> SeparableBank:
     return separable_bank(np.eye(3)[:, :, None, None])
 
 
+def initial_pupil_mm(eye_rx: EyeRx, display: DisplayProfile, options: "CorrectorOptions",
+                     mean_relative_luminance: float | None = None, age_years: float | None = None) -> float:
+    """The pupil a model is first designed for: ``options.pupil``'s number, the eye's own for
+    ``"rx"``, and for ``"auto"`` the light's (:func:`~vrcorrect.physics.pupil.pupil_from_light`) of
+    ``mean_relative_luminance`` (None: a mid-grey frame, :data:`NEUTRAL_LUMINANCE`, until the GPU has
+    measured one), snapped to the pupil bank's nearest entry."""
+    if options.pupil == "rx":
+        return eye_rx.pupil_diameter_mm
+    if options.pupil != "auto":
+        return float(options.pupil)
+    from ..physics.pupil import pupil_from_light
+    from .pupil_bank import nearest_bank_pupil
+
+    lum = NEUTRAL_LUMINANCE if mean_relative_luminance is None else mean_relative_luminance
+    age = options.age_years if options.age_years is not None else age_years
+    upper = eye_rx.higher_order.pupil_diameter_mm if eye_rx.higher_order is not None else None
+    return nearest_bank_pupil(pupil_from_light(lum, display, age, upper_mm=upper).diameter_mm, upper)
+
+
+NEUTRAL_LUMINANCE = 0.2
+"""The mean relative luminance (white = 1) a ``pupil="auto"`` model assumes before the GPU has measured
+a frame: a typical photograph's."""
+
+
 def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
-                    options: CorrectorOptions = CorrectorOptions()) -> EyeModel:
+                    options: CorrectorOptions = CorrectorOptions(), *, pupil_mm: float | None = None,
+                    age_years: float | None = None, kernels: dict | None = None,
+                    grid_kernel_size: int | None = None) -> EyeModel:
     """Kernel, regulariser, blend weight (and, for the separable strategy, both banks) for one
-    eye (CPU, numpy); only what ``options.backend`` and ``options.filter`` use (module docstring)."""
+    eye (CPU, numpy); only what ``options.backend`` and ``options.filter`` use (module docstring).
+
+    The eye is designed for the viewing pupil ``pupil_mm`` (default :func:`initial_pupil_mm`), for
+    that eye alone or, with ``options.robust``, over the band around it
+    (:func:`~vrcorrect.physics.robust.design_eye`); ``kernels`` caches kernels between designs (a
+    pupil bank's), ``grid_kernel_size`` makes the grids hold a larger kernel than this design's."""
     # start-up time: optics and solvers (scipy) load with the first eye, not with the CLI's imports
-    from ..physics.kernel import KernelOptions, build_kernel, build_reference_kernel
+    from ..physics.kernel import KernelOptions
+    from ..physics.robust import design_eye
     from ..solvers import make_problem
     from ..solvers.wiener import correction_filters, wiener
 
@@ -340,19 +410,30 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
     separable = options.filter == Filter.SEPARABLE
     designs = options.backend == Backend.GLSL            # the ONNX backend corrects with its model
     kopts = options.kernel_options or KernelOptions()
-    kernel = build_kernel(eye_rx, display, kopts)
+    pupil = initial_pupil_mm(eye_rx, display, options, age_years=age_years) if pupil_mm is None else float(pupil_mm)
+    design = design_eye(eye_rx, display, pupil, robust=options.robust, reference=options.reference, options=kopts,
+                        kernels=kernels)
+    kernel, reference, seen = design.kernel, design.reference, design.nominal
+    if options.pupil == "auto" and grid_kernel_size is None:          # the grids hold every design of the bank
+        from .pupil_bank import bank_grid_kernel_size
+
+        grid_kernel_size = bank_grid_kernel_size(design)
     notes: list[str] = []
+    if options.pupil != "rx" or options.robust:
+        notes.append(f"designed for a {pupil:.2f} mm pupil" + (" (auto: from the light)" if options.pupil == "auto"
+                                                              else "") + "; " + "; ".join(design.describe()))
     simulation = None
     if separable:
-        sim_taps = np.einsum("ik,kjyx->ijyx", np.linalg.inv(kernel.matrix), kernel.kernel)   # A^-1 K
+        sim_taps = np.einsum("ik,kjyx->ijyx", np.linalg.inv(seen.matrix), seen.kernel)       # A^-1 K, the eye's own
         simulation = separable_bank(sim_taps, options.rank_tolerance)
-    reference = build_reference_kernel(eye_rx, display, kopts) if options.reference == "glasses" else None
 
     def model(correction: SeparableBank | None = None, mu_rel: float = 0.0, beta: float = 1.0,
               identity: bool = False) -> EyeModel:
         return EyeModel(eye=eye_rx, kernel=kernel, reference=reference, identity=identity, correction=correction,
                         simulation=simulation, mu_rel=mu_rel, beta=beta,
-                        build_seconds=time.perf_counter() - t0, notes=tuple(notes))
+                        build_seconds=time.perf_counter() - t0, notes=tuple(notes),
+                        seen=None if seen is kernel else seen, pupil_mm=pupil, design=design,
+                        grid_kernel_size=grid_kernel_size)
 
     def nothing_to_correct(why: str) -> EyeModel:
         notes.append(why + ": the correction is the identity")

@@ -157,7 +157,9 @@ def _admm(kernel: np.ndarray, t_lms: np.ndarray, z0: np.ndarray, rho: float, rel
 def coarse_kernel(kernel: np.ndarray) -> np.ndarray:
     """The kernel seen by an image of half the resolution (2x2 pixel blocks): the kernel
     convolved with the two box pixels ([1,2,1]/4 per axis) and sampled every second pixel
-    about its centre; sums kept equal to the fine kernel's."""
+    about its centre; sums kept equal to the fine kernel's (scaled, for a non-negative plane; the
+    difference added at the centre, for a signed one: a robust design's effective kernels,
+    :mod:`vrcorrect.physics.robust`)."""
     tri = np.array([0.25, 0.5, 0.25])
     k = kernel
     k = np.apply_along_axis(lambda v: np.convolve(v, tri), -1, k)
@@ -167,7 +169,12 @@ def coarse_kernel(kernel: np.ndarray) -> np.ndarray:
     idx = c + 2 * np.arange(-half, half + 1)
     out = k[..., idx[:, None], idx[None, :]]
     sums = out.sum(axis=(-2, -1), keepdims=True)
-    return out * np.where(sums > 0, kernel.sum(axis=(-2, -1), keepdims=True) / np.where(sums > 0, sums, 1), 0)
+    want = kernel.sum(axis=(-2, -1), keepdims=True)
+    scale = (sums > 0) & (want > 0)                                     # a physical kernel's planes
+    out = out * np.where(scale, want / np.where(scale, sums, 1), 1)
+    if not scale.all():                                                # signed planes (an effective kernel's) and
+        out[..., half, half] += np.where(scale, 0, want - out.sum(axis=(-2, -1), keepdims=True))[..., 0, 0]
+    return out                                                         # zero ones: the sum restored at the centre
 
 
 def _pool2(a: np.ndarray) -> np.ndarray:
@@ -269,7 +276,8 @@ def fast(problem: Problem, tolerance: float = 1e-2, max_iterations: int = 200, r
     """ADMM for the LMS objective in the box (see the module docstring).  Stops when an iteration
     lowers the best objective by less than ``tolerance`` (relative), after :data:`PATIENCE`
     iterations without a new best, or after ``max_iterations`` on the full-resolution level;
-    returns the best iterate."""
+    returns the best iterate.  A robust problem (``problem.members``) is solved on its effective
+    kernel (:mod:`vrcorrect.physics.robust`), as the real-time path solves it."""
     K = problem.kernel.kernel
     t = np.ascontiguousarray(np.moveaxis(problem.target_lms, 2, 0), dtype=np.float32)
     target = np.ascontiguousarray(np.moveaxis(problem.target, 2, 0), dtype=np.float32)

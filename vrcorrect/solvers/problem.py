@@ -12,7 +12,8 @@ Layer 4: numpy only.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,7 +21,11 @@ from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
 from ..vision.forward import check_image, simulate_lms
 
-__all__ = ["Problem", "Correction", "SolveResult", "scale_contrast", "make_problem", "objective", "guard_weight"]
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    from ..physics.robust import Design
+
+__all__ = ["Problem", "Correction", "SolveResult", "scale_contrast", "make_problem", "make_design_problem", "objective",
+           "guard_weight"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -40,6 +45,11 @@ class Problem:
     reference
         ``"glasses"`` (the same eye with its sphere and cylinder corrected: its own chromatic
         aberration and diffraction remain) or ``"ideal"`` (the paper's ``A t``, no blur at all).
+    members
+        A robust design's eyes (:func:`make_design_problem`): then ``kernel`` is the design's
+        effective kernel ``U`` and ``target_lms`` its ``R t``, the objective is the expectation over
+        the members (:func:`objective`), and ``fast`` minimises it exactly
+        (:mod:`vrcorrect.solvers.expectation`); the other methods solve the effective form.
     """
 
     target: np.ndarray
@@ -48,6 +58,7 @@ class Problem:
     contrast: float = 1.0
     reference: str = "ideal"
     reference_kernel: EyeKernel | None = None
+    members: tuple = ()
 
 
 def scale_contrast(image: np.ndarray, contrast: float) -> np.ndarray:
@@ -75,11 +86,36 @@ def make_problem(target: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKer
                    reference_kernel=reference_kernel)
 
 
+def make_design_problem(target: np.ndarray, design: "Design", contrast: float = 1.0) -> Problem:
+    """The :class:`Problem` of a correction design (:func:`vrcorrect.physics.robust.design_eye`): a
+    robust design's carries its members (each eye's kernel and target cone image: with glasses, its
+    glasses kernel's view; ideal, ``A t``), the effective kernel and ``R t``; a single eye's is
+    :func:`make_problem`'s."""
+    problem = make_problem(target, design.kernel, design.reference, contrast)
+    if not design.robust:
+        return problem
+    from .expectation import BandEye  # the robust path only
+
+    ts = scale_contrast(problem.target, contrast)
+    members = []
+    for m in design.members:
+        k, r = design.member_kernels(m)
+        tl = simulate_lms(ts, r)[0] if r is not None else (ts @ k.matrix.T.astype(np.float32))
+        members.append(BandEye(m.weight, k, np.asarray(tl, np.float32)))
+    return replace(problem, members=tuple(members), reference="glasses" if design.nominal_reference is not None
+                   else "ideal", reference_kernel=design.nominal_reference)
+
+
 def objective(displayed: np.ndarray, problem: Problem) -> float:
-    """Mean squared error between the retinal cone image of ``displayed`` and the target's (float64)."""
+    """Mean squared error between the retinal cone image of ``displayed`` and the target's (float64);
+    for a robust problem, its expectation over the members."""
     shown = check_image(displayed, "displayed").astype(np.float32)
     if shown.shape != problem.target.shape:
         raise ValidationError("displayed.shape", shown.shape, f"the problem's shape {problem.target.shape}")
+    if problem.members:
+        from .expectation import expectation_objective  # the robust path only
+
+        return expectation_objective(np.ascontiguousarray(np.moveaxis(shown, 2, 0)), problem.members)
     lms, _ = simulate_lms(shown, problem.kernel, "fft" if problem.kernel.size > 1 else "auto")
     d = lms.astype(np.float64) - problem.target_lms.astype(np.float64)
     return float(np.mean(d * d))

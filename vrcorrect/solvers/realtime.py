@@ -85,8 +85,9 @@ from .problem import guard_weight, make_problem
 from .spectral import (Blur, apply3, conj_transpose, hermitian_inverse, kernel_spectrum, smooth_length,
                        spectral_norm_squared)
 
-__all__ = ["ADMM_RHO", "ADMM_RELAXATION", "ADMM_BALANCE", "admm_grid", "power_of_two_grid", "edge_band_widths", "edge_band", "pool_half", "upsample_double", "guarded",
-           "coarse_eye_kernel", "AdmmFrames", "AdmmFrame", "FistaFrames", "frames_twin",
+__all__ = ["ADMM_RHO", "ADMM_RELAXATION", "ADMM_BALANCE", "admm_grid", "power_of_two_grid", "edge_band_widths",
+           "edge_band", "pool_half", "upsample_double", "guarded",
+           "coarse_eye_kernel", "coarse_kernel_size", "AdmmFrames", "AdmmFrame", "FistaFrames", "frames_twin",
            "admm_weights"]
 
 ADMM_RHO = 0.2
@@ -193,6 +194,11 @@ def upsample_double(a: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return (rows[:, :, x0] * (1 - fx) + rows[:, :, x1] * fx).astype(np.float32)
 
 
+def coarse_kernel_size(size: int) -> int:
+    """The size of :func:`~vrcorrect.solvers.admm.coarse_kernel` of a ``size`` px kernel."""
+    return 2 * (((size + 2) // 2) // 2) + 1
+
+
 def coarse_eye_kernel(kernel: EyeKernel) -> EyeKernel:
     """``kernel`` as an image of half the resolution sees it (:func:`~vrcorrect.solvers.admm.coarse_kernel`:
     2x2 pixel blocks; the sums, hence the colour matrix, unchanged)."""
@@ -253,7 +259,8 @@ class AdmmFrames:
 
     def __init__(self, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int],
                  precision: str = Precision.HALF, rho: float = ADMM_RHO, relaxation: float = ADMM_RELAXATION,
-                 cold_iterations: int = COARSE_ITERATIONS, edge_band: bool = True, balance: float = ADMM_BALANCE):
+                 cold_iterations: int = COARSE_ITERATIONS, edge_band: bool = True, balance: float = ADMM_BALANCE,
+                 grid_kernel_size: int | None = None):
         if precision not in names(Precision):
             raise ValidationError("precision", precision, one_of(Precision))
         if not (isinstance(balance, (int, float)) and math.isfinite(balance) and balance > 0):
@@ -268,16 +275,14 @@ class AdmmFrames:
         if self.cold_iterations > 0 and coarse_level_pays(H, W, kernel.size):
             self.coarse = AdmmFrames(coarse_eye_kernel(kernel), None if reference is None else
                                      coarse_eye_kernel(reference), ((H + 1) // 2, (W + 1) // 2), precision, rho,
-                                     relaxation, cold_iterations=0, balance=balance)
-        size = max(kernel.size, reference.size if reference is not None else 1)
+                                     relaxation, cold_iterations=0, balance=balance,
+                                     grid_kernel_size=None if grid_kernel_size is None else coarse_kernel_size(grid_kernel_size))
+        size = max(kernel.size, reference.size if reference is not None else 1, grid_kernel_size or 1)
         self.grid = P = admm_grid(W, H, size)
+        self.rho, self.balance = rho, balance
         keep, n = admm_weights(kernel.kernel, rho, balance)
         self.box_weight = n                             # the box split's weight in the data step
-        self.Kf = _store_complex(self._spectrum(kernel.kernel), self.half)
-        self.Rf = None if reference is None else _store_complex(self._spectrum(reference.kernel), self.half)
-        self.A = kernel.matrix.astype(np.float32)
-        self.G = hermitian_inverse(self.Kf.astype(np.complex128), n).astype(np.complex64)    # as the GPU's column pass
-        self.Kh = np.ascontiguousarray(conj_transpose(self.Kf))
+        self._set_spectra(kernel, reference)
         self.keep = np.float32(keep)
         self.alpha = np.float32(relaxation)
         self.inside = np.zeros(P, bool)
@@ -289,6 +294,28 @@ class AdmmFrames:
 
     def _spectrum(self, k: np.ndarray) -> np.ndarray:
         return kernel_spectrum(k, self.grid)
+
+    def _set_spectra(self, kernel: EyeKernel, reference: EyeKernel | None) -> None:
+        size = max(kernel.size, reference.size if reference is not None else 1)
+        room = min(self.grid[0] - self.shape[0], self.grid[1] - self.shape[1]) + 1
+        if size > room:
+            raise ValidationError("kernel size", size, f"at most {room} px: what the grid this twin was made for "
+                                                       "holds (grid_kernel_size)")
+        self.Kf = _store_complex(self._spectrum(kernel.kernel), self.half)
+        self.Rf = None if reference is None else _store_complex(self._spectrum(reference.kernel), self.half)
+        self.A = kernel.matrix.astype(np.float32)
+        self.G = hermitian_inverse(self.Kf.astype(np.complex128), self.box_weight).astype(np.complex64)  # as the GPU's
+        self.Kh = np.ascontiguousarray(conj_transpose(self.Kf))
+
+    def set_design(self, kernel: EyeKernel, reference: EyeKernel | None) -> None:
+        """Go on with another design's kernel and reference (a pupil bank's switch,
+        :mod:`vrcorrect.runtime.pupil_bank`): the spectra change, the state stays, so the next frame
+        continues from where this one left (as the GPU's ``AdmmStrategy.swap_model``).  The grid stays
+        (the kernels must fit it: ``grid_kernel_size``); so does the box weight (``||A||^2``: every
+        design of one eye and display has it)."""
+        self._set_spectra(kernel, reference)
+        if self.coarse is not None:
+            self.coarse.set_design(coarse_eye_kernel(kernel), None if reference is None else coarse_eye_kernel(reference))
 
     # ------------------------------------------------------------------ transforms, as the GPU stores them
 

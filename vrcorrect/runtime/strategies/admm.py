@@ -55,7 +55,9 @@ from .base import GuardResult, IterativeStrategy, Size, float_texture, groups_2d
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
-__all__ = ["AdmmStrategy", "values_per_thread", "column_lines"]
+    from ..eye_model import EyeModel
+
+__all__ = ["AdmmStrategy", "values_per_thread", "column_lines", "coarse_model", "model_spectra", "bank_spectra"]
 
 MAX_INVOCATIONS = fft.MAX_INVOCATIONS
 MIN_SHARED_BYTES = fft.MIN_SHARED_BYTES
@@ -188,7 +190,7 @@ class AdmmStrategy(IterativeStrategy):
 
         m = self.model
         W, H = size
-        ksize = max(m.kernel.size, m.reference.size if m.reference is not None else 1)
+        ksize = m.margin                             # a pupil bank's widest kernel: a switch keeps the grid
         ny, nx = admm_grid(W, H, ksize)
         if max(nx, ny) > MAX_ADMM_GRID:
             raise ValidationError("image size", f"{W}x{H} with a {ksize} px kernel",
@@ -252,8 +254,10 @@ class AdmmStrategy(IterativeStrategy):
         programs, compiled, col_lines = self.compile_passes(size)
         present = compile_program(ctx, "admm_present.glsl")
 
-        def spectrum_array(kernel: np.ndarray) -> "moderngl.TextureArray":
-            arr = ctx.texture_array((hx, ny, 9), 2, half_spectrum(kernel, grid, dtype).tobytes(), dtype=dtype)
+        spectra = model_spectra(m, grid, dtype)
+
+        def spectrum_array(data: np.ndarray) -> "moderngl.TextureArray":
+            arr = ctx.texture_array((hx, ny, 9), 2, data.tobytes(), dtype=dtype)
             arr.filter = (ctx.NEAREST, ctx.NEAREST)
             return arr
 
@@ -264,8 +268,8 @@ class AdmmStrategy(IterativeStrategy):
             T=[float_texture(ctx, size, dtype) for _ in range(2)],
             w=[float_texture(ctx, (nx, ny), dtype) for _ in range(2)],
             q=[float_texture(ctx, (nx, ny), dtype) for _ in range(2)],
-            spec=spec, kernel=spectrum_array(m.kernel.kernel),
-            reference=None if m.reference is None else spectrum_array(m.reference.kernel),
+            spec=spec, kernel=spectrum_array(spectra[0]),
+            reference=None if m.reference is None else spectrum_array(spectra[1]),
             twiddle_x=fft.twiddle_texture(ctx, nx), twiddle_y=fft.twiddle_texture(ctx, ny),
             partials=ctx.buffer(reserve=16 * H), changed=ctx.buffer(np.zeros(4, np.uint32).tobytes()),
             history=ctx.buffer(np.full(4, -1.0, np.float32).tobytes()), args=ctx.buffer(reserve=12 * len(KINDS)),
@@ -301,12 +305,8 @@ class AdmmStrategy(IterativeStrategy):
         ``cold_iterations`` iterations from a cold start; returns its buffers (``w``, ``q`` current)."""
         from dataclasses import replace
 
-        from ...solvers.realtime import coarse_eye_kernel  # start-up time (as above)
-
         if self.coarse is None:
-            m = self.model
-            model = replace(m, kernel=coarse_eye_kernel(m.kernel),
-                            reference=None if m.reference is None else coarse_eye_kernel(m.reference))
+            model = coarse_model(self.model)
             options = replace(self.options, iterations_per_frame=self.options.cold_iterations, early_stop=False,
                               cold_iterations=0)
             self.coarse = AdmmStrategy(self.gpu, model, options, self.encoder, self.decoder, coarse_level=True)
@@ -484,6 +484,39 @@ class AdmmStrategy(IterativeStrategy):
         q = q.reshape(b.grid[0], b.grid[1], 4)[:H, :W, :3].astype(np.float32)
         return np.ascontiguousarray(np.clip(q, 0.0, 1.0)[::-1])
 
+    def spectra_grids(self) -> tuple[tuple[tuple[int, int], str, bool], ...]:
+        """The grids (``(NY, NX)``, texture dtype, coarse level or not) whose kernel spectra a switch of
+        design rewrites: what a pupil bank precomputes (:func:`model_spectra` on each)."""
+        dtype = "f2" if self.half else "f4"
+        out = [(b.grid, dtype, self.coarse_level) for b in self._sized.values()]
+        if self.coarse is not None:
+            out += list(self.coarse.spectra_grids())
+        return tuple(out)
+
+    def swap_model(self, model: "EyeModel") -> bool:
+        """Go on with another design of the same eye (a pupil bank's switch,
+        :mod:`vrcorrect.runtime.pupil_bank`): the kernels' spectra are rewritten on every size's
+        buffers (from ``model.spectra``, which the bank computed off the render thread, where it has
+        them), and the state, the grids and the programs stay, so the iteration goes on from where it
+        was; the plan is told the frame changed, so the early stop looks again.  False (nothing done)
+        when the design does not fit the grids (the caller installs it instead)."""
+        if model.margin > self.model.margin and self._sized:
+            return False
+        dtype = "f2" if self.half else "f4"
+        for b in self._sized.values():
+            K, R = model_spectra(model, b.grid, dtype, self.coarse_level)
+            b.kernel.write(K.tobytes())
+            if b.reference is not None:
+                if R is None:
+                    return False
+                b.reference.write(R.tobytes())
+            b.changed.write(np.ones(4, np.uint32).tobytes())
+            b.history.write(np.full(4, -1.0, np.float32).tobytes())
+        self.model = model
+        if self.coarse is not None:
+            self.coarse.swap_model(coarse_model(model))
+        return True
+
     def describe(self) -> dict[str, Any]:
         rt = self._iterations + 1 + (self.model.reference is not None)
         return {"iterations_per_frame": self._iterations, "precision": self.options.precision,
@@ -505,6 +538,39 @@ class AdmmStrategy(IterativeStrategy):
 
 MAX_ADMM_GRID = 4096
 """Largest FFT grid side (the line a work group transforms sits in shared memory: 32 KiB at 4096)."""
+
+
+def coarse_model(m: "EyeModel") -> "EyeModel":
+    """The model a cold frame's half-resolution level runs: the kernels 2x2 pixel blocks see."""
+    from dataclasses import replace
+
+    from ...solvers.realtime import coarse_eye_kernel, coarse_kernel_size  # start-up time (as above)
+
+    return replace(m, kernel=coarse_eye_kernel(m.kernel),
+                   reference=None if m.reference is None else coarse_eye_kernel(m.reference),
+                   grid_kernel_size=None if m.grid_kernel_size is None else coarse_kernel_size(m.grid_kernel_size),
+                   spectra={k: v for k, v in m.spectra.items() if k[2]})
+
+
+def model_spectra(m: "EyeModel", grid: tuple[int, int], dtype: str, coarse: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray | None]:
+    """The kernel's and the reference's half spectra on ``grid`` as the textures hold them
+    (:func:`half_spectrum`): from ``m.spectra`` where a pupil bank computed them, else now."""
+    have = m.spectra.get((grid, dtype, coarse))
+    if have is not None:
+        return have
+    return (half_spectrum(m.kernel.kernel, grid, dtype),
+            None if m.reference is None else half_spectrum(m.reference.kernel, grid, dtype))
+
+
+def bank_spectra(m: "EyeModel", grids: tuple) -> dict:
+    """``model_spectra`` on each of ``grids`` (:meth:`AdmmStrategy.spectra_grids`), for
+    ``EyeModel.spectra``: what a pupil bank's worker computes before a switch."""
+    out = {}
+    for grid, dtype, coarse in grids:
+        source = coarse_model(m) if coarse else m
+        out[(grid, dtype, coarse)] = model_spectra(source, grid, dtype)
+    return out
 
 
 def half_spectrum(kernel: np.ndarray, grid: tuple[int, int], dtype: str) -> np.ndarray:

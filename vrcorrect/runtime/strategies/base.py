@@ -33,7 +33,8 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
     from ..eye_model import CorrectorOptions, EyeModel
 
-__all__ = ["Strategy", "Encoder", "Decoder", "FrameBlend", "GuardResult", "float_texture", "GROUP", "groups_2d"]
+__all__ = ["Strategy", "Encoder", "Decoder", "FrameBlend", "GuardResult", "LuminanceMeter", "float_texture", "GROUP",
+           "groups_2d"]
 
 GROUP = 16
 """Side of the 16 x 16 work groups of the per-pixel passes."""
@@ -242,6 +243,52 @@ class GuardResult:
 
     def release(self) -> None:
         release(self.result, *self.history)
+
+
+class LuminanceMeter:
+    """Each frame's mean relative luminance (white = 1) on the GPU, for the viewing pupil
+    (``shaders/luminance.glsl``: 16 x 16 work groups' sums of ``w . rgb`` of the decoded frame, ``w``
+    the display's luminance weights).  The sums go into a ring of :data:`RING` buffers and are read
+    :data:`RING` - 1 frames later, so nothing waits for the GPU: :meth:`latest` is that frame's mean
+    (None before it exists)."""
+
+    RING = 3
+
+    def __init__(self, gpu: Gpu, weights: np.ndarray):
+        self.gpu = gpu
+        self.weights = tuple(float(w) for w in np.asarray(weights, np.float64))
+        self.program = compile_compute(gpu.ctx, "luminance.glsl")
+        self._ring: list[tuple["moderngl.Buffer", int, int] | None] = [None] * self.RING
+        self.frames = 0
+
+    def measure(self, linear: "moderngl.Texture") -> None:
+        """Queue the reduction of this frame's decoded ``linear`` texture (W x H)."""
+        W, H = linear.size
+        groups = groups_2d((W, H))
+        count = groups[0] * groups[1]
+        slot = self.frames % self.RING
+        held = self._ring[slot]
+        buffer = held[0] if held is not None else None
+        if buffer is None or buffer.size < 4 * count:
+            if buffer is not None:
+                buffer.release()
+            buffer = self.gpu.ctx.buffer(reserve=4 * count)
+        self._ring[slot] = (buffer, W * H, count)
+        self.gpu.run("luminance", self.program, groups, sample={"u_linear": linear},
+                     buffers={0: (buffer, "w")}, uniforms={"u_weights": self.weights, "u_size": (W, H)})
+        self.frames += 1
+
+    def latest(self) -> float | None:
+        """The mean relative luminance of the frame measured :data:`RING` - 1 frames ago."""
+        if self.frames < self.RING - 1:
+            return None
+        buffer, pixels, count = self._ring[(self.frames - (self.RING - 1)) % self.RING]
+        data = np.frombuffer(buffer.read(size=4 * count), np.float32)
+        return float(data.astype(np.float64).sum() / max(pixels, 1))
+
+    def release(self) -> None:
+        release(self.program, *(h[0] for h in self._ring if h is not None))
+        self._ring = [None] * self.RING
 
 
 class FrameBlend:

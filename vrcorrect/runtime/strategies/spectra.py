@@ -31,9 +31,11 @@ def kernel_spectra(model: "EyeModel", grid: tuple[int, int]) -> tuple[np.ndarray
 
 
 def simulation_spectrum(model: "EyeModel", grid: tuple[int, int]) -> np.ndarray:
-    """The forward model's bank ``A^-1 K(f)`` (what the eye sees, in display RGB) on ``grid``."""
+    """The forward model's bank ``A^-1 K(f)`` (what the eye sees, in display RGB) on ``grid``: the
+    eye's own kernel (:attr:`~vrcorrect.runtime.eye_model.EyeModel.seen_kernel`), never a robust
+    design's effective one."""
     from ...solvers.spectral import centred_kernel  # start-up time (as above)
 
-    k = model.kernel
+    k = model.seen_kernel
     Kf = np.fft.fft2(centred_kernel(k.kernel, grid), axes=(2, 3))
     return np.einsum("ik,kjyx->ijyx", np.linalg.inv(k.matrix), Kf)

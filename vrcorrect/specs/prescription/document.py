@@ -13,6 +13,7 @@ from ...plumbing.errors import Problem, ValidationErrors
 from ..validation import check_number, unknown_key_problem
 from ..vocabulary import Eye, names
 from .model import (
+    AGE,
     COEFFICIENT,
     COEFFS_ALLOWED,
     EYE_FIELDS,
@@ -52,7 +53,7 @@ MISSING: Any = _Missing()
 
 _EYE_KEYS = tuple(EYE_FIELDS) + ("higher_order",)
 _HO_KEYS = ("pupil_diameter_mm", "coefficients_um")
-_TOP_KEYS = ("schema", "notes") + names(Eye)
+_TOP_KEYS = ("schema", "notes", "age_years") + names(Eye)
 
 _EYE_ALLOWED = (
     "an object with sphere_D, cylinder_D, axis_deg, pupil_diameter_mm "
@@ -148,6 +149,8 @@ def problems_in(doc: object) -> list[Problem]:
         problems.append(Problem("schema", schema, f"the string {SCHEMA!r}"))
     if "notes" in doc and not isinstance(doc["notes"], str):
         problems.append(Problem("notes", doc["notes"], "a string (free text)"))
+    if "age_years" in doc:
+        check_number(problems, "age_years", doc["age_years"], AGE)
     for name in names(Eye):
         _eye_doc_problems(doc.get(name, MISSING), name, problems)
     for key in doc:
@@ -198,6 +201,7 @@ def parse_prescription(doc: object, source: str | None = None) -> Prescription:
             right=_eye_from_doc(doc["right"]),
             left=_eye_from_doc(doc["left"]),
             notes=doc.get("notes", ""),
+            age_years=doc.get("age_years"),
         )
     except ValidationErrors as exc:  # pragma: no cover - problems_in is stricter
         raise ValidationErrors(exc.problems, source) from None

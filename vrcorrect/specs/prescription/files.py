@@ -150,6 +150,9 @@ def to_json_text(rx: Prescription) -> str:
     two-space indent, trailing newline.
     """
     doc = {"schema": SCHEMA, "notes": rx.notes, "right": _eye_to_dict(rx.right), "left": _eye_to_dict(rx.left)}
+    if rx.age_years is not None:
+        doc = {"schema": SCHEMA, "notes": rx.notes, "age_years": rx.age_years, "right": doc["right"],
+               "left": doc["left"]}
     return json.dumps(doc, indent=2, ensure_ascii=False, allow_nan=False) + "\n"
 
 
@@ -174,9 +177,11 @@ _TEMPLATE = """\
 //                      0 and 180 are both horizontal, 90 is vertical, angles
 //                      counter-clockwise as seen by someone facing the wearer).
 //                      Any value is fine when cylinder_D is 0.
-//   pupil_diameter_mm  pupil diameter in millimetres while looking at the
-//                      display, 1 to 9 (about 3-4 for a bright monitor, 5-6 in
-//                      a dim headset).
+//   pupil_diameter_mm  a pupil diameter in millimetres, 1 to 9: the one this
+//                      prescription is modelled through with --pupil rx. By
+//                      default (--pupil auto) vrcorrect takes the pupil you
+//                      view through from the display's light instead (about 3
+//                      mm for a bright monitor or a headset, more when dim).
 //   accommodation_D    optional: how many dioptres the eye can still focus by
 //                      itself (accommodation amplitude), 0 to 15; default 0,
 //                      which assumes none (the safe choice for presbyopes).
@@ -186,6 +191,7 @@ _TEMPLATE = """\
 //                                         "coefficients_um": {"7": 0.10, "12": -0.05}}
 //     pupil_diameter_mm  the pupil (1 to 9 mm) the coefficients were measured
 //                        at; it must be at least the eye's pupil_diameter_mm,
+//                        and a viewing pupil from the light is held at it,
 //                        because a wavefront cannot be extrapolated beyond the
 //                        measured pupil.
 //     coefficients_um    Zernike coefficients in micrometres (-10 to 10), keyed
@@ -194,7 +200,9 @@ _TEMPLATE = """\
 //                        astigmatism) come from sphere, cylinder and axis and
 //                        must not be given here.
 //
-// "notes" is optional free text.
+// "notes" is optional free text. "age_years" is optional too: the wearer's age
+// (1 to 120), which the viewing pupil's formula uses (older eyes have smaller
+// pupils); leave it out to use the formula's reference age.
 {
   "schema": "vrcorrect.prescription/1",
   "notes": "Template: replace the numbers with your own prescription.",

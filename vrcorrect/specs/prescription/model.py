@@ -39,6 +39,7 @@ AXIS = Range(0.0, 180.0, "a finite number from 0 to 180 (degrees, TABO / ISO 842
 PUPIL = Range(1.0, 9.0, "a finite number from 1 to 9 (millimetres)")
 ACCOMMODATION = Range(0.0, 15.0, "a finite number from 0 to 15 (dioptres of accommodation amplitude)")
 HO_PUPIL = Range(1.0, 9.0, "a finite number from 1 to 9 (millimetres; the pupil the coefficients were measured at)")
+AGE = Range(1.0, 120.0, "a finite number of years from 1 to 120")
 COEFFICIENT = Range(-10.0, 10.0, "a finite number from -10 to 10 (micrometres)")
 
 J_ALLOWED = (
@@ -228,7 +229,10 @@ class EyeRx:
         Cylinder axis α, degrees, 0 to 180 inclusive (TABO / ISO 8429;
         0 and 180 are the same meridian).
     pupil_diameter_mm
-        Pupil diameter while viewing the display, millimetres, 1 to 9.
+        The pupil this eye is modelled through, millimetres, 1 to 9.  In a prescription file it is
+        the pupil the prescription gives (``--pupil rx`` designs for it); the commands take the
+        viewing pupil from the display's light by default (``--pupil auto``,
+        :mod:`vrcorrect.physics.pupil`) and model the eye through that.
     accommodation_D
         Accommodation amplitude, dioptres, 0 to 15 (default 0: none).
     higher_order
@@ -377,11 +381,15 @@ class Prescription:
         Each eye's :class:`EyeRx`.
     notes
         Free text.
+    age_years
+        The wearer's age (1 to 120), or None: the viewing pupil's formula then uses its reference
+        age (:mod:`vrcorrect.physics.pupil`).
     """
 
     right: EyeRx
     left: EyeRx
     notes: str = ""
+    age_years: float | None = None
 
     def __post_init__(self) -> None:
         problems: list[Problem] = []
@@ -390,6 +398,10 @@ class Prescription:
                 problems.append(Problem(name, getattr(self, name), "an EyeRx"))
         if not isinstance(self.notes, str):
             problems.append(Problem("notes", self.notes, "a string"))
+        if self.age_years is not None:
+            age = check_number(problems, "age_years", self.age_years, AGE)
+            if age is not None:
+                object.__setattr__(self, "age_years", age)
         if problems:
             raise ValidationErrors(problems)
 

@@ -286,7 +286,8 @@ def run_peer(peer: str, results: Sequence[MethodCost], size: tuple[int, int], fr
         k = r.model.kernel
         ref = r.model.reference
         it = int(r.describe.get("iterations_per_frame", 2))
-        eyes[r.eye] = {**time_torch_peer(k, ref, size, it, frames, WARM_UP_S),
+        eyes[r.eye] = {**time_torch_peer(k, ref, size, it, frames, WARM_UP_S,
+                                         grid_kernel_size=getattr(r.model, "margin", None)),
                        "equal_to_twin": peer_against_twin(k, ref, device, iterations=it)}
     gpu = max(e["gpu_ms"] for e in eyes.values())
     glsl = _worst_ms(default, "gpu_ms")

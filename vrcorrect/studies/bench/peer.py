@@ -48,11 +48,13 @@ class TorchAdmmPeer:
 
     Parameters mirror :class:`~vrcorrect.solvers.realtime.AdmmFrames`: ``kernel`` and ``reference``
     (:class:`~vrcorrect.physics.kernel.EyeKernel`; ``None`` for the ideal target ``A t``), ``shape``
-    ``(H, W)``; ``device`` a torch device.  The kernels' spectra and the per-frequency inverse
+    ``(H, W)``, ``grid_kernel_size`` (the grid holds a kernel this large: the GLSL frame's
+    ``EyeModel.margin``); ``device`` a torch device.  The kernels' spectra and the per-frequency inverse
     ``G = (K^H K + n I)^-1`` are computed once in float64 on the CPU (as the twin does) and kept as
     complex64 on the device."""
 
-    def __init__(self, kernel: Any, reference: Any, shape: tuple[int, int], device: Any):
+    def __init__(self, kernel: Any, reference: Any, shape: tuple[int, int], device: Any,
+                 grid_kernel_size: int | None = None):
         import torch
 
         from ...solvers.realtime import ADMM_RELAXATION, admm_grid, admm_weights
@@ -60,7 +62,7 @@ class TorchAdmmPeer:
 
         H, W = (int(v) for v in shape)
         self.shape, self.device = (H, W), device
-        size = max(kernel.size, reference.size if reference is not None else 1)
+        size = max(kernel.size, reference.size if reference is not None else 1, grid_kernel_size or 1)
         self.grid = admm_grid(W, H, size)
         keep, n = admm_weights(kernel.kernel)
         Kf = kernel_spectrum(kernel.kernel, self.grid).astype(np.complex64)
@@ -167,7 +169,7 @@ class TorchAdmmPeer:
 
 
 def time_torch_peer(kernel: Any, reference: Any, size: tuple[int, int], iterations: int, frames: int,
-                    warm_up_s: float, seed: int = 0) -> dict[str, Any]:
+                    warm_up_s: float, seed: int = 0, grid_kernel_size: int | None = None) -> dict[str, Any]:
     """Time the peer's changing-content frames for one eye at ``size`` (``W, H``) on the CUDA device:
     ``{"status": "run", "device", "gpu_ms" (median), "frames_ms", "graph" (captured or not)}``, or
     ``{"status": NO_DEVICE, "reason"}`` where there is none."""
@@ -179,7 +181,7 @@ def time_torch_peer(kernel: Any, reference: Any, size: tuple[int, int], iteratio
     import torch
 
     W, H = size
-    peer = TorchAdmmPeer(kernel, reference, (H, W), device)
+    peer = TorchAdmmPeer(kernel, reference, (H, W), device, grid_kernel_size)
     g = torch.Generator(device="cpu").manual_seed(seed)
     pictures = [torch.rand((3, H, W), generator=g).to(device) for _ in range(2)]
     target = pictures[0].clone()

@@ -1,0 +1,239 @@
+"""The viewing pupil followed in real time: the frame's light to a pupil, and a bank of designs to
+switch between (``pupil="auto"``, :class:`~vrcorrect.runtime.eye_model.CorrectorOptions`).
+
+* **The light.**  The GPU reduces each decoded frame to its mean relative luminance
+  (:class:`~vrcorrect.runtime.strategies.base.LuminanceMeter`); the corrector reads it two frames late
+  (nothing waits for the GPU).
+* **The pupil** (:class:`PupilFollower`): Watson & Yellott's unified formula gives the light-adapted
+  pupil of that luminance on the display (:func:`~vrcorrect.physics.pupil.pupil_from_light`), and the
+  pupil moves towards it with its own dynamics (:class:`~vrcorrect.physics.pupil.PupilDynamics`:
+  it constricts within about 0.4 s and dilates over seconds).
+* **The bank** (:class:`PupilBank`): designs for the pupils of :data:`BANK_PUPILS_MM`, a step of
+  ``1.25^(1/3)`` (about 7.7 %) from 2 to 7.5 mm, so that the robust band's ``x0.8`` and ``x1.25``
+  pupils of one entry are entries three steps away and neighbouring designs share their kernels.  An
+  entry is designed on the bank's own worker thread when first asked for (never on the render thread),
+  with its spectra on the grids the corrector uses, and kept; the follower's pupil picks the nearest
+  entry with hysteresis (:data:`HYSTERESIS`: a quarter of a step past the midpoint), the current design
+  stays while the next is built, and the switch itself only uploads the new spectra: the iteration
+  goes on from its state, so the picture moves to the new design over a few frames instead of
+  jumping (``tests/test_pupil.py`` holds that).  Every design's grid holds the kernel of the bank's
+  largest pupil (:func:`bank_grid_kernel_size`), so a switch keeps the grids.
+
+Layer 5: numpy; never torch.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ..plumbing.errors import VrcorrectError
+from ..specs.display import DisplayProfile
+from ..specs.prescription import EyeRx
+
+__all__ = ["BANK_STEP", "BANK_PUPILS_MM", "HYSTERESIS", "GRID_MARGIN", "bank_pupils", "bank_grid_kernel_size",
+           "nearest_bank_pupil", "PupilFollower", "PupilBank"]
+
+log = logging.getLogger(__name__)
+
+BANK_STEP = 1.25 ** (1.0 / 3.0)
+"""The ratio of neighbouring pupils in the bank (the robust band's x1.25 is three steps)."""
+
+
+def bank_pupils() -> tuple[float, ...]:
+    from ..physics.pupil import PUPIL_RANGE_MM  # start-up time: the optics load with the first eye
+
+    lo, hi = PUPIL_RANGE_MM
+    n = int(math.floor(math.log(hi / lo) / math.log(BANK_STEP) + 1e-9))
+    pupils = [round(lo * BANK_STEP ** k, 4) for k in range(n + 1)]
+    if pupils[-1] < hi - 1e-6:
+        pupils.append(hi)
+    return tuple(pupils)
+
+
+BANK_PUPILS_MM: tuple[float, ...] = (2.0, 2.1544, 2.3208, 2.5, 2.693, 2.901, 3.125, 3.3663, 3.6262, 3.9063, 4.2079,
+                                     4.5328, 4.8828, 5.2599, 5.666, 6.1035, 6.5748, 7.0825, 7.5)
+"""The bank's pupils (mm): ``2 x BANK_STEP^k`` up to 7.5 mm, and 7.5 (``tests/test_pupil.py`` holds it
+to :data:`BANK_STEP` and :data:`~vrcorrect.physics.pupil.PUPIL_RANGE_MM`)."""
+HYSTERESIS = 0.25
+"""A switch to the next entry waits until the pupil is this fraction of a step past the midpoint."""
+
+
+GRID_MARGIN = 1.0
+"""The grids' room for a design's kernel beyond the linear extrapolation (:func:`bank_grid_kernel_size`):
+none, since the extrapolation over-estimates (measured from 3.9 to 8 mm pupils, -2.25 and -5 D, quest2
+and desktop: the kernels grew 1.5 to 1.8 times for a 2.05 times larger pupil)."""
+
+
+def bank_grid_kernel_size(design) -> int:
+    """The kernel size every grid of a bank holds, so that a switch keeps the grids: the widest member
+    kernel of ``design`` (:class:`~vrcorrect.physics.robust.Design`) extrapolated linearly in the pupil
+    (a defocus blur's width grows with it) to the bank's largest pupil, with :data:`GRID_MARGIN`
+    room, doubled for the effective kernels' window where the design is robust.  A later design that
+    still does not fit is installed anew (a cold start) instead of switched."""
+    from ..physics.robust import MAX_MEMBER_PUPIL_MM, RobustBand  # start-up time: the optics load with the first eye
+
+    members = design.members or ()
+    widest = max([m.kernel_size for m in members] + [design.nominal.size])
+    pupil = max([m.pupil_mm for m in members] + [design.pupil_mm])
+    top = min(max(BANK_PUPILS_MM) * (max(RobustBand().pupil_factors) if design.robust else 1.0), MAX_MEMBER_PUPIL_MM)
+    size = int(math.ceil(widest * max(top / pupil, 1.0) * GRID_MARGIN)) | 1
+    return 2 * size + 1 if design.robust else size
+
+
+def nearest_bank_pupil(pupil_mm: float, upper_mm: float | None = None) -> float:
+    """The bank entry nearest ``pupil_mm`` (in ratio), at most ``upper_mm`` where one is given (the
+    pupil higher-order terms were measured at; below the bank's least entry it is itself)."""
+    choices = [p for p in BANK_PUPILS_MM if upper_mm is None or p <= upper_mm + 1e-9]
+    if not choices:
+        return float(upper_mm)
+    return min(choices, key=lambda p: abs(math.log(pupil_mm / p)))
+
+
+class PupilFollower:
+    """The frames' light to a pupil (module docstring) and the bank entry it asks for.
+
+    ``update(mean_relative_luminance, dt_s)`` returns the entry to design for: the current one until
+    the dynamic pupil is nearer another by :data:`HYSTERESIS` of a step."""
+
+    def __init__(self, display: DisplayProfile, age_years: float | None = None, upper_mm: float | None = None,
+                 entry_mm: float | None = None):
+        from ..physics.pupil import PupilDynamics  # start-up time (as above)
+
+        self.display, self.age_years, self.upper_mm = display, age_years, upper_mm
+        self.dynamics = PupilDynamics()
+        self.entry_mm = entry_mm
+        self.estimate = None
+        self.notes: tuple[str, ...] = ()
+
+    @property
+    def pupil_mm(self) -> float | None:
+        """The pupil now (after its dynamics), None before the first measurement."""
+        return self.dynamics.diameter_mm
+
+    def update(self, mean_relative_luminance: float, dt_s: float) -> float:
+        from ..physics.pupil import pupil_from_light  # start-up time (as above)
+
+        self.estimate = pupil_from_light(max(float(mean_relative_luminance), 0.0), self.display, self.age_years,
+                                         upper_mm=self.upper_mm, upper_why="the pupil the higher-order terms were "
+                                                                           "measured at")
+        self.notes = self.estimate.notes
+        pupil = self.dynamics.update(self.estimate.diameter_mm, dt_s)
+        nearest = nearest_bank_pupil(pupil, self.upper_mm)
+        if self.entry_mm is None:
+            self.entry_mm = nearest
+        elif nearest != self.entry_mm:
+            step = math.log(BANK_STEP)
+            gap = abs(math.log(pupil / self.entry_mm)) - abs(math.log(pupil / nearest))
+            if gap >= 2.0 * HYSTERESIS * step:
+                self.entry_mm = nearest
+        return self.entry_mm
+
+
+@dataclass(frozen=True)
+class _Job:
+    pupil_mm: float
+    grids: tuple
+
+
+class PupilBank:
+    """Designs for one eye at the bank's pupils, built on a worker thread of the bank's own.
+
+    ``build(pupil_mm)`` designs one (:func:`~vrcorrect.runtime.eye_model.build_eye_model`) with its
+    grids' spectra (``spectra(model, grids)``, the strategy's); :meth:`request` asks for one without
+    waiting, :meth:`get` returns it once built (None before).  Designs share one cache of kernels.
+    A design that fails (an eye the model's range refuses) is remembered as failed, with its message.
+    """
+
+    def __init__(self, eye: EyeRx, display: DisplayProfile, options, age_years: float | None,
+                 build: Callable[..., object]):
+        self.eye, self.display, self.options, self.age_years = eye, display, options, age_years
+        self._build = build
+        self.kernels: dict = {}
+        self._models: dict[float, object] = {}
+        self.failed: dict[float, str] = {}
+        self._lock = threading.Lock()
+        self._jobs: queue.Queue[_Job | None] = queue.Queue()
+        self._queued: set[float] = set()
+        self._worker: threading.Thread | None = None
+
+    def get(self, pupil_mm: float):
+        with self._lock:
+            return self._models.get(pupil_mm)
+
+    def put(self, pupil_mm: float, model) -> None:
+        """Keep a design built elsewhere (the first, built before the first frame)."""
+        with self._lock:
+            self._models[pupil_mm] = model
+
+    def build_now(self, pupil_mm: float, grids: tuple = ()):
+        """Design ``pupil_mm`` on the caller's thread (a batch render that must not run ahead of it)."""
+        model = self.get(pupil_mm)
+        if model is None:
+            model = self._build(pupil_mm, self.kernels, grids)
+            self.put(pupil_mm, model)
+        return model
+
+    def request(self, pupil_mm: float, grids: tuple = ()) -> None:
+        """Have the worker design ``pupil_mm`` (nothing if it is built, queued or failed)."""
+        with self._lock:
+            if pupil_mm in self._models or pupil_mm in self._queued or pupil_mm in self.failed:
+                return
+            self._queued.add(pupil_mm)
+            if self._worker is None:
+                self._worker = threading.Thread(target=self._run, name="vrcorrect-pupil-bank", daemon=True)
+                self._worker.start()
+        self._jobs.put(_Job(pupil_mm, tuple(grids)))
+
+    def _run(self) -> None:
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            try:
+                model = self._build(job.pupil_mm, self.kernels, job.grids)
+                with self._lock:
+                    self._models[job.pupil_mm] = model
+            except VrcorrectError as exc:
+                with self._lock:
+                    self.failed[job.pupil_mm] = str(exc)
+                log.warning("pupil bank: no design for %.2f mm: %s", job.pupil_mm, exc)
+            except Exception as exc:                     # a worker must not die silently
+                with self._lock:
+                    self.failed[job.pupil_mm] = repr(exc)
+                log.exception("pupil bank: the design for %.2f mm failed", job.pupil_mm)
+            finally:
+                with self._lock:
+                    self._queued.discard(job.pupil_mm)
+
+    def wait_idle(self, timeout_s: float = 600.0) -> None:
+        """Wait until every queued design is built (tests, batch renders)."""
+        import time
+
+        end = time.monotonic() + timeout_s
+        while True:
+            with self._lock:
+                if not self._queued:
+                    return
+            if time.monotonic() > end:
+                raise TimeoutError("pupil bank: designs still queued")
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        if self._worker is not None:
+            self._jobs.put(None)
+            self._worker = None
+
+
+def relative_luminance_of(image_linear: np.ndarray, display: DisplayProfile) -> float:
+    """The mean relative luminance (white = 1) of an ``(H, W, 3)`` linear image on ``display``
+    (:func:`~vrcorrect.physics.perception.luminance_weights`): what the GPU's meter measures."""
+    from ..physics.perception import luminance_weights  # start-up time (as above)
+
+    return float(np.mean(np.asarray(image_linear, np.float64) @ luminance_weights(display)))
