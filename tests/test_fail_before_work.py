@@ -37,10 +37,13 @@ def no_kernel_builds(monkeypatch):
         raise AssertionError("a kernel was built before the refusal")
 
     import vrcorrect.physics.kernel as K
+    import vrcorrect.physics.robust as Rb
     import vrcorrect.runtime.corrector as C
 
-    monkeypatch.setattr(correct, "build_eye_kernel", tripwire)
+    monkeypatch.setattr(correct, "build_design", tripwire)
     monkeypatch.setattr(K, "build_kernel", tripwire)
+    monkeypatch.setattr(Rb, "build_kernel", tripwire)
+    monkeypatch.setattr(Rb, "build_reference_kernel", tripwire)
     monkeypatch.setattr(C, "build_eye_model", tripwire)
 
 

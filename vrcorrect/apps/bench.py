@@ -83,6 +83,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
         report = run_halfres_bench(video=args.video, out=Path(args.out), write=not args.no_write,
                                    json_out=_json_out(args), force=args.force)
         print(report["markdown"])
+    elif args.what == "robust":
+        from ..studies.bench.robust import run_robust_bench
+
+        report = run_robust_bench(out=Path(args.out), write=not args.no_write,
+                                  plot=Path(args.out).with_name("robust_sweep.png"), json_out=_json_out(args),
+                                  force=args.force)
+        print(report["markdown"])
     elif args.what == "layer":
         from ..studies.bench.layer import run_layer_bench
 
@@ -121,19 +128,20 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                 tradeoff=Path(args.out).with_name("learned_tradeoff.png"))["markdown"])
     else:
         raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, cost, workgroups, halfres, "
-                              "xr, layer, learned or unrolled")
+                              "robust, xr, layer, learned or unrolled")
     return 0
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md",
                        description="Measure one thing (kernel builds, solvers, render, realtime, cost, the work-group "
-                                   "shapes of its passes, a half-resolution solve by eye (halfres), xr, layer, learned "
-                                   "or unrolled), print its table, and write "
+                                   "shapes of its passes, a half-resolution solve by eye (halfres), a correction "
+                                   "against the eye as it is (robust), xr, layer, learned or unrolled), print its "
+                                   "table, and write "
                                    "it into its own section of the benchmarks file (--out), naming the machine it ran "
                                    "on.")
-    p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "cost", "workgroups", "halfres", "xr",
-                                    "layer", "learned", "unrolled"),
+    p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "cost", "workgroups", "halfres",
+                                    "robust", "xr", "layer", "learned", "unrolled"),
                    help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
     p.add_argument("--resolutions", nargs="+", metavar="R",
@@ -154,7 +162,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "strong eye, judged as video (some 15 minutes more on 2 cores)")
     p.add_argument("--size", default="1832x1920", metavar="WxH",
                    help="cost, workgroups: each eye's image size (default 1832x1920, a Quest 2 eye)")
-    p.add_argument("--json", metavar="OUT.json", help="cost, workgroups, halfres: also write the figures as JSON "
+    p.add_argument("--json", metavar="OUT.json", help="cost, workgroups, halfres, robust: also write the figures as JSON "
                    "there")
     p.add_argument("--display", default="quest2",
                    help="cost, workgroups: display preset or profile (default quest2)")
@@ -173,5 +181,5 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--default-only", action="store_true",
                    help="cost: count and time the default method only (not single precision, FISTA and the "
                         "one-pass inverse beside it)")
-    p.add_argument("--force", action="store_true", help="cost, workgroups, halfres: overwrite --json's file")
+    p.add_argument("--force", action="store_true", help="cost, workgroups, halfres, robust: overwrite --json's file")
     p.set_defaults(func=cmd_bench)

@@ -43,6 +43,13 @@ def load_eye(args: argparse.Namespace) -> tuple[Path, EyeRx]:
     return path, load_prescription(path).eye(args.eye)
 
 
+def load_eye_and_age(args: argparse.Namespace) -> tuple[Path, "EyeRx", float | None]:
+    """:func:`load_eye` and the prescription's ``age_years`` (None where it gives none)."""
+    path = Path(args.rx) if args.rx else bundled_sample_path()
+    rx = load_prescription(path)
+    return path, rx.eye(args.eye), rx.age_years
+
+
 def kernel_options(args: argparse.Namespace) -> KernelOptions:
     from ..physics.kernel import KernelOptions  # noqa: F811  (the run-time class; the one above is for hints)
     from ..physics.options import OpticsOptions
@@ -99,6 +106,79 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
                    help="accepted error of the wavelength step against 1 nm (default 1/255)")
     g.add_argument("--wavelength-step-nm", type=int, choices=(80, 40, 20, 10, 5, 1),
                    help="force a wavelength step instead of choosing one")
+
+
+PUPIL_HELP = ("the viewing pupil: auto (default: from the display's light, Watson & Yellott's formula on the "
+              "image's mean luminance, the display's peak luminance and field of view, and the prescription's "
+              "age_years), rx (the prescription's pupil_diameter_mm), or a diameter in mm from 2 to 7.5")
+ROBUST_HELP = ("on (default): design the correction for the band of eyes the estimate is uncertain in (pupils x0.8 "
+               "to x1.25, sphere -0.25 to +0.25 D), so that it stays better than none when the eye is not exactly "
+               "as modelled; off: for the one eye (pupil and sphere as given)")
+
+
+def parse_pupil(text: Any, field: str = "--pupil") -> str | float:
+    """``--pupil``: ``"auto"``, ``"rx"`` or a diameter in :data:`~vrcorrect.physics.pupil.PUPIL_RANGE_MM`."""
+    if isinstance(text, str) and text.strip().lower() in ("auto", "rx"):
+        return text.strip().lower()
+    from ..physics.pupil import check_pupil_mm  # on use: start-up time (module docstring)
+
+    return check_pupil_mm(text, field)
+
+
+def add_pupil_options(p: argparse.ArgumentParser, robust: bool = True) -> None:
+    """``--pupil`` (and ``--robust``): the eye as it is (``correct``, ``simulate``; the real-time
+    commands take them with their filter options)."""
+    g = p.add_argument_group("the eye as it is")
+    g.add_argument("--pupil", default="auto", metavar="auto|rx|MM", help=PUPIL_HELP)
+    if robust:
+        g.add_argument("--robust", choices=("on", "off"), default="on", help=ROBUST_HELP)
+
+
+def viewing_pupil(args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfile", image_linear: np.ndarray,
+                  age_years: float | None) -> tuple[float, list[str]]:
+    """The pupil ``--pupil`` asks for, and lines saying where it came from (``auto``: the light of
+    ``image_linear`` on ``display``, clamped with a note where it must be)."""
+    kernel_options(args)                            # every model option checked before a line is printed
+    choice = parse_pupil(args.pupil)
+    upper = eye.higher_order.pupil_diameter_mm if eye.higher_order is not None else None
+    if choice == "rx":
+        return eye.pupil_diameter_mm, [f"pupil {eye.pupil_diameter_mm:g} mm (the prescription's; --pupil rx)"]
+    if choice != "auto":
+        lines = [f"pupil {choice:g} mm (--pupil)"]
+        if upper is not None and choice > upper:
+            raise ValidationError("--pupil", choice, f"at most {upper:g} mm, the pupil the prescription's "
+                                                     "higher-order terms were measured at")
+        return float(choice), lines
+    from ..physics.perception import luminance_weights  # on use: start-up time (module docstring)
+    from ..physics.pupil import pupil_from_light
+
+    h, w = image_linear.shape[:2]
+    mean = float(np.mean(np.asarray(image_linear, np.float64) @ luminance_weights(display)))
+    estimate = pupil_from_light(mean, display, age_years, image_size=(w, h), upper_mm=upper,
+                                upper_why="the pupil the higher-order terms were measured at")
+    return estimate.diameter_mm, [estimate.describe() + " (--pupil auto)", *estimate.notes]
+
+
+def build_design(args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfile", pupil_mm: float,
+                 reference: str, robust: bool | None = None):
+    """The correction's design (:func:`vrcorrect.physics.robust.design_eye`) with a progress bar:
+    robust as ``--robust`` says (or ``robust``), for ``pupil_mm``, ``reference`` glasses or ideal."""
+    from ..physics.robust import design_eye  # on use: start-up time (module docstring)
+
+    robust = (getattr(args, "robust", "on") == "on") if robust is None else robust
+    bar = tqdm(desc="building the eye's kernels" + (" (the robust band)" if robust else ""), unit="kernel",
+               disable=None, leave=False, file=sys.stderr)
+
+    def progress(done: int, total: int) -> None:
+        bar.total = total
+        bar.n = done
+        bar.refresh()
+
+    try:
+        return design_eye(eye, display, pupil_mm, robust=robust, reference=reference, options=kernel_options(args),
+                          progress=progress)
+    finally:
+        bar.close()
 
 
 def print_notes(notes: Sequence[str]) -> None:

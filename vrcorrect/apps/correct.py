@@ -21,13 +21,15 @@ from ..specs.vocabulary import Method, names
 from . import clips
 from .common import (
     add_model_options,
-    build_eye_kernel,
+    add_pupil_options,
+    build_design,
     check_memory,
     finite_json,
     kernel_decisions,
-    kernel_options,
-    load_eye,
+    load_eye_and_age,
+    parse_pupil,
     print_notes,
+    viewing_pupil,
 )
 
 
@@ -41,22 +43,27 @@ def cmd_correct(args: argparse.Namespace) -> int:
     check_writable(out, force=args.force)
     _check_options(args)
     check_readable(args.input)                      # before the heavy imports: a typo is told at once
-    from ..physics.kernel import build_reference_kernel  # on use: start-up time (apps/__init__)
-    from ..solvers import make_problem, solve
+    from ..solvers import make_problem, objective, solve  # on use: start-up time (apps/__init__)
+    from ..solvers.problem import make_design_problem
     from ..vision.metrics import evaluate_seen
 
-    learned, rx_path, eye, display = _eye_and_model(args)
+    learned, rx_path, eye, display, age = _eye_and_model(args)
     notes: list[str] = []
     image = read_image(args.input, notes)
     print_notes(notes)
     check_memory(args.method, *image.shape[:2])
     target = decode(display, image)
+    pupil, pupil_lines = viewing_pupil(args, eye, display, target, age)
+    for line in pupil_lines:
+        print(f"vrcorrect: {line}", file=sys.stderr)
     t0 = time.perf_counter()
-    kernel = build_eye_kernel(args, eye, display)
-    reference = build_reference_kernel(eye, display, kernel_options(args)) if args.reference == "glasses" else None
+    design = build_design(args, eye, display, pupil, args.reference)
+    kernel, reference = design.kernel, design.reference
     t1 = time.perf_counter()
-    problem = make_problem(target, kernel, reference, contrast=args.contrast)
-    options = _solver_options(args, learned, eye, display, kernel, reference)
+    problem = make_design_problem(target, design, contrast=args.contrast)
+    seen_problem = problem if not design.robust else make_problem(target, design.nominal, design.nominal_reference,
+                                                                  contrast=args.contrast)
+    options = _solver_options(args, learned, eye.with_changes(pupil_diameter_mm=pupil), display, kernel, reference)
     bar = None
     if args.method in (Method.PAPER, Method.FAST, Method.CONVENTIONAL):
         bar = tqdm(desc=f"{args.method}", unit="it", disable=None, leave=False, file=sys.stderr)
@@ -72,21 +79,25 @@ def cmd_correct(args: argparse.Namespace) -> int:
             bar.close()
     outputs = [(out, png_writer(out, encode(display, result.image), bits=16 if args.sixteen_bit else 8))]
     if args.report:
-        corrected, _ = evaluate_seen(result.image, target, kernel, display, target_lms=problem.target_lms)
-        uncorrected, _ = evaluate_seen(target, target, kernel, display, target_lms=problem.target_lms)
+        seen = design.nominal
+        corrected, _ = evaluate_seen(result.image, target, seen, display, target_lms=seen_problem.target_lms)
+        uncorrected, _ = evaluate_seen(target, target, seen, display, target_lms=seen_problem.target_lms)
         report = {
             "input": str(args.input), "output": str(out), "prescription": str(rx_path), "eye": args.eye,
             "display": display.name, "method": result.method, "reference": problem.reference,
             "contrast": args.contrast, "iterations": result.iterations,
+            "pupil_mm": pupil, "pupil": pupil_lines, "robust": design.robust, "design": design.describe(),
             "seconds": {"kernel": t1 - t0, "solve": result.seconds},
-            "objective": result.objective, "objective_uncorrected": uncorrected.objective,
+            "objective": result.objective, "objective_uncorrected": objective(target, problem),
             "metrics": corrected.__dict__, "metrics_uncorrected": uncorrected.__dict__,
-            "settings": result.settings, "kernel_decisions": kernel_decisions(kernel),
+            "settings": result.settings, "kernel_decisions": kernel_decisions(seen),
         }
         outputs.append((Path(args.report), _report_writer(report, notes)))
     # the image and its report appear together or not at all (an interruption leaves neither)
     write_together(outputs, force=args.force)
-    print(f"wrote {out}: {result.method} correction for the {args.eye} eye on {display.title} "
+    design_text = (f"designed for a {pupil:.2f} mm pupil" + (f", robust over {len(design.members)} eyes"
+                                                               if design.robust else ""))
+    print(f"wrote {out}: {result.method} correction for the {args.eye} eye on {display.title}, {design_text} "
           f"(objective {result.objective:.3g}, {result.iterations} iterations, {result.seconds:.2f} s)"
           + (f"; report {args.report}" if args.report else ""))
     return 0
@@ -111,17 +122,18 @@ def _check_options(args: argparse.Namespace) -> None:
         raise ValidationError("--iterations", args.iterations, f"nothing: {args.method} is one pass")
     if args.model is not None and args.method != Method.LEARNED:
         raise ValidationError("--model", args.model, "only with --method learned")
+    parse_pupil(args.pupil)
 
 
 def _eye_and_model(args: argparse.Namespace):
     """The learned model (``--method learned``) and its range checked against the eye and display,
     before any work: ``(learned or None, prescription path, eye, display)``."""
     learned = _learned_model(args) if args.method == Method.LEARNED else None
-    rx_path, eye = load_eye(args)
+    rx_path, eye, age = load_eye_and_age(args)
     display = get_display(args.display)
     if learned is not None:                         # the model's range and display, before any work
         learned.check(eye, display)
-    return learned, rx_path, eye, display
+    return learned, rx_path, eye, display, age
 
 
 def _solver_options(args: argparse.Namespace, learned, eye, display, kernel, reference) -> dict:
@@ -157,17 +169,21 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     """Each frame of a clip solved on its own (the offline ceiling), into a folder of frames."""
     folder = clips.output_folder(args, plan)        # checked before any work
     _check_options(args)
-    from ..physics.kernel import build_reference_kernel  # on use: start-up time (apps/__init__)
-    from ..solvers import make_problem, objective, solve
+    from ..solvers import objective, solve  # on use: start-up time (apps/__init__)
+    from ..solvers.problem import make_design_problem
     from ..vision.forward import lms_to_display, simulate_lms
 
-    learned, rx_path, eye, display = _eye_and_model(args)
+    learned, rx_path, eye, display, age = _eye_and_model(args)
     clip = plan.clip
     print_notes(clip.notes)
     check_memory(args.method, clip.size[1], clip.size[0])
+    first = next(iter(clips.planned_frames(plan)))[1]
+    pupil, pupil_lines = viewing_pupil(args, eye, display, decode(display, first), age)
+    for line in pupil_lines:
+        print(f"vrcorrect: {line} (the clip's first frame)", file=sys.stderr)
     t0 = time.perf_counter()
-    kernel = build_eye_kernel(args, eye, display)
-    reference = build_reference_kernel(eye, display, kernel_options(args)) if args.reference == "glasses" else None
+    design = build_design(args, eye, display, pupil, args.reference)
+    kernel, reference = design.nominal, design.nominal_reference
     t1 = time.perf_counter()
     options: dict | None = None
     scored = bool(args.report) and plan.count * clip.size[0] * clip.size[1] <= VIDEO_JOD_MAX_PIXELS
@@ -182,15 +198,18 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     with folder, clips.frames_bar(f"correct ({args.method})", plan.count) as bar:
         for index, (source, frame) in enumerate(clips.planned_frames(plan)):
             if source != last_source:               # a repeated source frame has the same correction
-                problem = make_problem(decode(display, frame), kernel, reference, contrast=args.contrast)
+                problem = make_design_problem(decode(display, frame), design, contrast=args.contrast)
                 if options is None:
-                    options = _solver_options(args, learned, eye, display, kernel, reference)
+                    options = _solver_options(args, learned, eye.with_changes(pupil_diameter_mm=pupil), display,
+                                              design.kernel, design.reference)
                 result = solve(problem, args.method, **options)
                 entry = {"source_frame": source, "objective": result.objective,
                          "objective_uncorrected": objective(problem.target, problem) if args.report else None,
                          "iterations": result.iterations, "seconds": result.seconds}
                 if scored:
-                    images = (srgb_seen(problem.target_lms), srgb_seen(simulate_lms(result.image, kernel)[0]),
+                    seen_target = simulate_lms(problem.target, design.nominal_reference)[0] \
+                        if design.nominal_reference is not None else problem.target @ kernel.matrix.T
+                    images = (srgb_seen(seen_target), srgb_seen(simulate_lms(result.image, kernel)[0]),
                               srgb_seen(simulate_lms(problem.target, kernel)[0]))
                 last_source = source
             folder.write(index, encode(display, result.image), bits=bits)
@@ -274,6 +293,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "objective, a summary, and ColorVideoVDP in video mode of what the eye sees.")
     clips.add_input_output(p, "image file (sRGB code values)")
     add_model_options(p)
+    add_pupil_options(p)
     p.add_argument("--method", choices=names((Method.CONVENTIONAL, Method.PAPER, Method.FAST, Method.WIENER,
                                                Method.LEARNED)), default=Method.FAST.value,
                    help="correction method (default fast)")

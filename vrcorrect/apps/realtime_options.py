@@ -13,8 +13,8 @@ from ..runtime.model_path import model_for_backend
 from ..specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, MAX_ITERATIONS_PER_FRAME, Backend, Filter, names
 
 __all__ = ["FILTER_CHOICES", "parse_frames", "parse_whole_number", "parse_iterations_per_frame", "add_backend_option",
-           "add_rx_option", "add_filter_options", "add_reprojection_option", "filter_options", "cold_start_choice",
-           "corrector_options"]
+           "add_rx_option", "add_filter_options", "add_pupil_choice", "pupil_options", "add_reprojection_option",
+           "filter_options", "cold_start_choice", "corrector_options"]
 
 FILTER_CHOICES = names(Filter)
 _ITERATIVE = " or ".join(names(ITERATIVE_FILTERS))
@@ -74,6 +74,7 @@ def add_filter_options(p: argparse.ArgumentParser) -> None:
                         f"first, after a cut, after a prescription change), 0 to {MAX_ITERATIONS_PER_FRAME} (default "
                         f"{DEFAULT_COLD_ITERATIONS}, fast's own coarse-to-fine start; 0: from the target, cheaper "
                         "but a shot then starts blurred)")
+    add_pupil_choice(p)
     p.add_argument("--cold-start", metavar="MODEL.onnx", nargs="?", const="default",
                    help="with --filter admm: what starts a shot's first frame (the first, after a cut, after a "
                         "prescription change). A model file: that unrolled model's pass (vrcorrect unroll -o RUN "
@@ -81,6 +82,28 @@ def add_filter_options(p: argparse.ArgumentParser) -> None:
                         "alone: the shipped models/default.onnx; none: the half-resolution level; auto (the "
                         "default): the shipped model where onnxruntime runs it on a GPU, the half-resolution level "
                         "where it would run on the CPU (seconds a cut at headset size)")
+
+
+def add_pupil_choice(p: argparse.ArgumentParser) -> None:
+    """``--pupil`` and ``--robust`` (``render``, ``mirror``, ``overlay``, ``xr``): the eye as it is.
+    With ``auto`` the pupil follows each frame's light (measured on the GPU, with the pupil's own
+    dynamics) and the correction switches between designs built off the render thread."""
+    from .common import PUPIL_HELP, ROBUST_HELP
+
+    g = p.add_argument_group("the eye as it is")
+    g.add_argument("--pupil", default="auto", metavar="auto|rx|MM",
+                   help=PUPIL_HELP.replace("from the display's light, Watson & Yellott's formula on the image's mean "
+                                           "luminance", "followed frame by frame from the light shown: Watson & "
+                                           "Yellott's formula on the frame's mean luminance (measured on the GPU), "
+                                           "with the pupil's own dynamics,"))
+    g.add_argument("--robust", choices=("on", "off"), default="on", help=ROBUST_HELP)
+
+
+def pupil_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The :class:`~vrcorrect.runtime.eye_model.CorrectorOptions` fields of ``--pupil`` and ``--robust``."""
+    from .common import parse_pupil
+
+    return {"pupil": parse_pupil(getattr(args, "pupil", "auto")), "robust": getattr(args, "robust", "on") == "on"}
 
 
 def add_reprojection_option(p: argparse.ArgumentParser) -> None:
@@ -96,7 +119,7 @@ def filter_options(args: argparse.Namespace) -> dict[str, Any]:
     """The :class:`~vrcorrect.runtime.corrector.Corrector` options of :func:`add_filter_options`'s
     arguments (checked: one line naming the option when wrong)."""
     k = parse_iterations_per_frame(args.iterations_per_frame)
-    options: dict[str, Any] = {"filter": args.filter}
+    options: dict[str, Any] = {"filter": args.filter, **pupil_options(args)}
     if k is not None:
         if args.filter not in ITERATIVE_FILTERS:
             raise ValidationError("--iterations-per-frame", args.iterations_per_frame, f"only with --filter {_ITERATIVE}")

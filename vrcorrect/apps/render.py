@@ -114,7 +114,8 @@ def _render_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
             bar.refresh()
 
         info = render_clip(clips.planned_frames(plan), rx, args.display, args.eye, args.backend, view=args.view,
-                           reprojection=not args.no_reprojection, emit=emit, progress=progress, **options)
+                           reprojection=not args.no_reprojection, emit=emit, progress=progress,
+                           frame_time_s=1.0 / (plan.frames_per_s or DEFAULT_FPS), **options)
         folder.commit()
     _print_clip_summary(args, plan, info)
     return 0
@@ -125,6 +126,10 @@ def _print_eye(args: argparse.Namespace, info: dict) -> None:
           f"D, axis {info['axis_deg']:g} deg on {info['display']}; backend {info['backend']}")
     if getattr(args, "cold_start_note", ""):
         print(f"  cold start: {args.cold_start_note}")
+    if info.get("pupil_status"):
+        print(f"  {info['pupil_status']}" + ("; robust design" if info.get("robust") else ""))
+    elif info.get("pupil_mm") is not None:
+        print(f"  designed for a {info['pupil_mm']:.2f} mm pupil" + (", robust" if info.get("robust") else ""))
 
 
 def _median(values) -> float | None:

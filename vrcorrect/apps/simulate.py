@@ -4,6 +4,7 @@ folder of frames."""
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -12,7 +13,8 @@ from ..plumbing.fileio import check_readable, check_writable
 from ..plumbing.imageio import read_image, write_png
 from ..specs.display import decode, encode, get_display
 from . import clips
-from .common import add_model_options, build_eye_kernel, kernel_decisions, load_eye, print_notes
+from .common import (add_model_options, add_pupil_options, build_eye_kernel, kernel_decisions, load_eye_and_age,
+                     parse_pupil, print_notes, viewing_pupil)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -26,11 +28,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if out.suffix.lower() != ".png":
         raise ValidationError("--output", str(out), "a path ending in .png")
     check_writable(out, force=args.force)
-    rx_path, eye = load_eye(args)
+    parse_pupil(args.pupil)
+    rx_path, eye, age = load_eye_and_age(args)
     display = get_display(args.display)
     notes: list[str] = []
     image = read_image(args.input, notes)
     print_notes(notes)
+    eye = _at_pupil(args, eye, display, decode(display, image), age)
     t0 = time.perf_counter()
     kernel = build_eye_kernel(args, eye, display)
     t1 = time.perf_counter()
@@ -57,9 +61,12 @@ def _simulate_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     folder = clips.output_folder(args, plan)        # checked before any work
     from ..vision.forward import what_the_eye_sees  # on use: start-up time (apps/__init__)
 
-    rx_path, eye = load_eye(args)
+    parse_pupil(args.pupil)
+    rx_path, eye, age = load_eye_and_age(args)
     display = get_display(args.display)
     print_notes(plan.clip.notes)
+    eye = _at_pupil(args, eye, display, decode(display, next(iter(clips.planned_frames(plan)))[1]), age,
+                    " (the clip's first frame)")
     kernel = build_eye_kernel(args, eye, display)
     last_source, seen, info = -1, None, None
     with folder, clips.frames_bar("simulate", plan.count) as bar:
@@ -80,12 +87,21 @@ def _simulate_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     return 0
 
 
+def _at_pupil(args: argparse.Namespace, eye, display, image_linear, age, where: str = ""):
+    """The eye through the pupil ``--pupil`` asks for (``auto``: the image's light), said on one line."""
+    pupil, lines = viewing_pupil(args, eye, display, image_linear, age)
+    for line in lines:
+        print(f"vrcorrect: {line}{where}", file=sys.stderr)
+    return eye.with_changes(pupil_diameter_mm=pupil)
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="what an eye sees of an image on a display; of each frame of a clip",
                        description="What an eye sees of an image on a display. " + clips.CLIP_HELP + " Each source "
                                    "frame of a clip is simulated once unless --fps asks for another rate.")
     clips.add_input_output(p, "image file (PNG, JPEG, ...; sRGB code values)")
     add_model_options(p)
+    add_pupil_options(p, robust=False)
     p.add_argument("--convolution", dest="method", choices=("auto", "fft", "direct"), default="auto",
                    help="how the blur is computed: by FFT, directly, or the faster of the two for the kernel (auto, "
                         "the default); the result is the same to float precision")

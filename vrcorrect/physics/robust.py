@@ -344,8 +344,8 @@ def design_eye(eye: EyeRx, display: DisplayProfile, pupil_mm: float, *, robust: 
     :class:`RobustBand`) or for the one eye (``robust=False``, today's single-pupil design).
 
     ``reference`` is ``"glasses"`` or ``"ideal"``.  ``kernels`` caches built kernels between designs
-    (keyed by the eye as built, whether it is a glasses kernel and the options: one cache per
-    display): a bank of designs shares them.
+    (keyed by the eye as built, whether it is a glasses kernel, the options and the display's name,
+    pixels per degree and distance): a bank of designs shares them.
     ``progress(done, total)`` after each kernel built.  A member's pupil is held within the
     prescription's higher-order measurement pupil and above 1 mm, with a note.
     """
@@ -377,7 +377,7 @@ def design_eye(eye: EyeRx, display: DisplayProfile, pupil_mm: float, *, robust: 
     def get(p: float, s: float, glasses: bool) -> EyeKernel:
         nonlocal done
         e = eye.with_changes(pupil_diameter_mm=held(p), sphere_D=eye.sphere_D + (0.0 if glasses else s))
-        key = (e, glasses, options)                      # the eye as built: a cache serves any eye
+        key = (e, glasses, options, display.name, display.pixels_per_degree, display.distance_m)   # any eye, display
         if key not in cache:
             cache[key] = build_reference_kernel(e, display, options) if glasses else build_kernel(e, display, options)
         done += 1

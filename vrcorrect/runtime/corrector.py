@@ -581,6 +581,8 @@ class Corrector:
         t0 = time.perf_counter()
         self._set_motion(motion_px)
         linear = self._decode_source(src_texture)
+        if self._pupil is not None:
+            self._pupil.frame(linear)
         shown = self.strategy.shown_texture(self._correct(linear)) if corrected and self.enabled else linear
         self.gpu.begin("simulate")
         size = tuple(linear.size)
@@ -598,7 +600,8 @@ class Corrector:
         m = self.model
         info = {"eye": self.eye_name, "sphere_D": m.eye.sphere_D, "cylinder_D": m.eye.cylinder_D,
                 "axis_deg": m.eye.axis_deg, "pupil_mm": m.pupil_mm, "pupil": self.options.pupil,
-                "robust": self.options.robust, "display": self.display.name, "backend": self.backend,
+                "pupil_status": self.pupil_status, "robust": self.options.robust, "display": self.display.name,
+                "backend": self.backend,
                 "filter": self.options.filter, "strategy": self.strategy.name, "kernel_size": m.kernel.size,
                 "mu_rel": m.mu_rel, "beta": m.beta, "identity": m.identity, "margin": m.margin,
                 "build_seconds": m.build_seconds, "notes": list(m.notes)}

@@ -421,7 +421,7 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
     notes: list[str] = []
     if options.pupil != "rx" or options.robust:
         notes.append(f"designed for a {pupil:.2f} mm pupil" + (" (auto: from the light)" if options.pupil == "auto"
-                                                              else "") + "; " + "; ".join(design.describe()))
+                                                              else "") + "; " + design.describe()[0])
     simulation = None
     if separable:
         sim_taps = np.einsum("ik,kjyx->ijyx", np.linalg.inv(seen.matrix), seen.kernel)       # A^-1 K, the eye's own

@@ -438,6 +438,9 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
                  f"edits: {s.edit_eye} eye"]
         for eye in VIEW_ORDER:
             lines.append(f"{eye}\t{self._rx_text(eye)}")
+            corrector = self.correctors.get(eye)
+            if corrector is not None and corrector.pupil_status:
+                lines.append(f"\t{corrector.pupil_status}")
         knob = knob_text(self.correctors, self.config.eye_size, s.correction and s.view != "seen_uncorrected")
         if knob:
             lines.append(knob)

@@ -17,6 +17,7 @@ benchmarks.  Layer 5 (numpy, moderngl; onnxruntime for the ONNX backend).
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
 import time
 from typing import TYPE_CHECKING, Any, Callable, Hashable, Iterable, Iterator
@@ -62,7 +63,7 @@ def check_frames(frames: object, field: str = "frames") -> int:
 def render_frame(image: np.ndarray, rx: RxSource, display: str | os.PathLike[str] | DisplayProfile,
                  eye: str = Eye.RIGHT, backend: str = Backend.GLSL, view: str = "corrected",
                  ctx: "moderngl.Context | None" = None, frames: int = 1,
-                 progress: Callable[[int, int], None] | None = None,
+                 progress: Callable[[int, int], None] | None = None, frame_time_s: float = 1.0 / 90.0,
                  **options: Any) -> tuple[np.ndarray, dict[str, Any]]:
     """Correct (or simulate) one ``(H, W, 3)`` image of sRGB code values in [0, 1] (float) or
     uint8, ``frames`` times as a still video (the last frame is returned); returns the 8-bit result
@@ -70,11 +71,13 @@ def render_frame(image: np.ndarray, rx: RxSource, display: str | os.PathLike[str
     frames, with the upload and the read-back), ``frames`` and ``objective_fraction``: the last
     frame's objective over uncorrected where the GPU computes it (``filter="fista"`` and the
     per-frame blend), else None).  ``ctx``: an existing context (default: a new headless one);
-    ``progress(done, total)`` is called after each frame."""
+    ``progress(done, total)`` is called after each frame.  With ``pupil="auto"`` the first design is
+    for the image's own light and the pupil's dynamics run at ``frame_time_s`` a frame."""
     _check_view(view)
     frames = check_frames(frames)
     img = _codes(image, "image")
-    with _corrector_session(ctx, rx, display, eye, backend, options) as (ctx, corrector, held, build_s):
+    options = _with_first_light(options, img, display)
+    with _corrector_session(ctx, rx, display, eye, backend, options, frame_time_s) as (ctx, corrector, held, build_s):
         t1 = time.perf_counter()
         src = upload_texture(ctx, img)
         held.append(src)
@@ -105,9 +108,23 @@ def _check_view(view: str) -> None:
         raise ValidationError("view", view, "one of " + ", ".join(VIEWS))
 
 
+def _with_first_light(options: dict[str, Any], first_codes: np.ndarray, display: Any) -> dict[str, Any]:
+    """``options`` with the first frame's mean relative luminance (``first_luminance``) where the pupil
+    follows the light, so that the first design is for it."""
+    if options.get("pupil") != "auto":
+        return options
+    from ..specs.display import decode, get_display
+    from .pupil_bank import relative_luminance_of
+
+    profile = display if isinstance(display, DisplayProfile) else get_display(display)
+    linear = decode(profile, first_codes.astype(np.float32) / 255.0)
+    return {**options, "first_luminance": relative_luminance_of(linear, profile)}
+
+
 @contextlib.contextmanager
 def _corrector_session(ctx: "moderngl.Context | None", rx: RxSource, display: Any, eye: str, backend: str,
-                       options: dict[str, Any]) -> Iterator[tuple["moderngl.Context", Corrector, list[Any], float]]:
+                       options: dict[str, Any], frame_time_s: float | None = None
+                       ) -> Iterator[tuple["moderngl.Context", Corrector, list[Any], float]]:
     """``(ctx, corrector, held, build_s)``: a Corrector on ``ctx`` (default: a new headless context,
     released at the end), a list the caller adds its GL objects to (all released when the block
     ends, however it ends) and the seconds the Corrector took to build."""
@@ -119,6 +136,7 @@ def _corrector_session(ctx: "moderngl.Context | None", rx: RxSource, display: An
     try:
         t0 = time.perf_counter()
         corrector = Corrector(ctx, rx, display, eye, backend, **options)
+        corrector.frame_time_s = frame_time_s
         yield ctx, corrector, held, time.perf_counter() - t0
     finally:
         if corrector is not None:
@@ -140,7 +158,8 @@ def render_clip(frames: Iterable[tuple[Hashable, np.ndarray]], rx: RxSource,
                 display: str | os.PathLike[str] | DisplayProfile, eye: str = Eye.RIGHT, backend: str = Backend.GLSL,
                 view: str = "corrected", ctx: "moderngl.Context | None" = None, *, reprojection: bool = True,
                 emit: Callable[[int, np.ndarray], None] | None = None,
-                progress: Callable[[int], None] | None = None, **options: Any) -> dict[str, Any]:
+                progress: Callable[[int], None] | None = None, frame_time_s: float = 1.0 / 90.0,
+                **options: Any) -> dict[str, Any]:
     """Play a clip through one :class:`~vrcorrect.runtime.corrector.Corrector` as a headset does.
 
     ``frames``: ``(key, image)`` per displayed frame, in order; ``image`` ``(H, W, 3)`` sRGB code
@@ -158,6 +177,9 @@ def render_clip(frames: Iterable[tuple[Hashable, np.ndarray]], rx: RxSource,
     Without ``reprojection`` the warm start is the previous solution as it was and no cut is
     detected.
 
+    With ``pupil="auto"`` the first design is for the first frame's light and the pupil's dynamics run
+    at ``frame_time_s`` a frame (the clip's rate: ``vrcorrect render`` plays it at ``--fps``).
+
     Returns ``Corrector.describe()`` plus ``renderer``, ``view``, ``build_s``, ``frames``,
     ``size``, ``cuts`` (indices of the displayed frames that started cold after a detected cut),
     ``motion_tracked``, ``frame_ms`` (each frame's upload, GPU work and read-back, in ms) and
@@ -165,7 +187,13 @@ def render_clip(frames: Iterable[tuple[Hashable, np.ndarray]], rx: RxSource,
     read one frame late without a stall, the last one at the end; ``None`` where there is none:
     ``seen-uncorrected``, methods without a per-frame guard)."""
     _check_view(view)
-    with _corrector_session(ctx, rx, display, eye, backend, options) as (ctx, corrector, held, build_s):
+    frames = iter(frames)
+    first = next(frames, None)
+    if first is None:
+        raise ValidationError("frames", "no frames", "one or more frames")
+    options = _with_first_light(options, _codes(first[1], "frames[0]"), display)
+    frames = itertools.chain([first], frames)
+    with _corrector_session(ctx, rx, display, eye, backend, options, frame_time_s) as (ctx, corrector, held, build_s):
         iterates = runs_iterations(corrector) and view != "seen-uncorrected"
         tracker = MotionTracker() if reprojection and iterates else None
         guarded = view != "seen-uncorrected" and corrector.enabled
