@@ -19,20 +19,24 @@
 //   PLAN         early stop: zero work groups for every pass above when the view is still and converged
 //   BLEND        x = t + beta (proj(q) - t) into an image (previews; the frame's own present is
 //                admm_present.glsl)
-// The grid (NX x NY, powers of two) holds the image at the origin (GL texel coordinates, rows bottom
-// first; the kernels' spectra are uploaded for the vertically flipped kernels) and a black surround.
-// Row spectra are real-to-complex: each real channel keeps columns 0..NX/2 (HX = NX/2 + 1) of its
-// row transform, two channels transformed together as a + ib and split; u_spec is an HX x NY x 6
-// array of complex values, written in place by every pass. One work group per row (NX/PER threads)
-// or per LINES spectrum columns (NY/PER threads each), PER and LINES set for each pass (the
-// strategy's work_groups, chosen by GPU time); each thread keeps PER values of each channel in
-// registers and the line being transformed is in shared memory; twiddle factors are a table
-// (u_twiddle: cos, sin of 2 pi m / TW_N, m < TW_N / 2) instead of cos/sin in every butterfly.
+// The grid (NX x NY, each side 5-smooth: 2^a 3^b 5^c, vrcorrect.solvers.realtime.admm_grid) holds the
+// image at the origin (GL texel coordinates, rows bottom first; the kernels' spectra are uploaded for
+// the vertically flipped kernels) and a black surround. Row spectra are real-to-complex: each real
+// channel keeps columns 0..NX/2 (HX = NX/2 + 1, NX odd or even) of its row transform, two channels
+// transformed together as a + ib and split; u_spec is an HX x NY x 6 array of complex values, written
+// in place by every pass. One work group per row (WG threads) or per LINES spectrum columns (WG
+// threads each); each thread keeps PER values of each channel of its line in registers (WG * PER is
+// the line's length), and a line is transformed by fft_line.glsl's mixed-radix Stockham FFT: radix
+// 2, 3, 4, 5 and 8 butterflies in registers, one pass through shared memory between two stages, none
+// at the ends of a column pass's transforms where the plan allows; twiddle factors are a table
+// (u_twiddle: cos, sin of 2 pi k / LINE for k < LINE, the pass's own line) instead of cos/sin in
+// every butterfly. PER, LINES and the plan are set for each pass on the CPU
+// (vrcorrect.runtime.fft.line_plan; the strategy's work_groups, chosen by GPU time).
 // HALF: 16-bit float storage (rg16f, rgba16f; arithmetic in 32 bits, and a value a pass both stores
 // and uses is used as stored); else 32-bit.
-// Defines: NX, NY, LOG2_NX, LOG2_NY, HX, TW_N, PER, WG_X = NX / PER, WG_Y = NY / PER (the work group
-// of this program's row or column pass: a literal, as GLSL 4.30's layout asks), LINES (a column
-// pass's lines a work group, default 1), IMG_W, IMG_H, HALF, IDEAL, one pass, its mode.
+// Defines: NX, NY, HX, IMG_W, IMG_H, HALF, IDEAL, one pass, its mode; a row or column pass also
+// LINE (NX or NY), PER, WG = LINE / PER (the work group: a literal, as GLSL 4.30's layout asks),
+// FFT_STAGES, FFT_RADICES and LINES (a column pass's lines a work group, default 1).
 #if defined COMPUTE_SHADER
 
 #if defined HALF
@@ -67,14 +71,7 @@ vec2 conj2(vec2 a) { return vec2(a.x, -a.y); }
 vec2 times_i(vec2 a) { return vec2(-a.y, a.x); }
 
 #if defined ROWS_TARGET || defined ROWS_START || defined ROWS_UPDATE || defined ROWS_GUARD
-#define LINE NX
-#define LOG2_LINE LOG2_NX
-#define WG WG_X
 #define ROWS_PASS
-#elif defined COLUMNS
-#define LINE NY
-#define LOG2_LINE LOG2_NY
-#define WG WG_Y
 #endif
 
 #if defined LINE
@@ -87,90 +84,70 @@ vec2 times_i(vec2 a) { return vec2(-a.y, a.x); }
 #endif
 layout(local_size_x = LINES, local_size_y = WG) in;
 shared vec2 line[LINE * LINES];
-uniform sampler2D u_twiddle;                   // (TW_N / 2) x 1, rg32f: cos, sin of 2 pi m / TW_N
+uniform sampler2D u_twiddle;                   // LINE x 1, rg32f: cos, sin of 2 pi k / LINE
 layout(SPEC_FMT, binding = 0) uniform image2DArray u_spec;
 #define lid int(gl_LocalInvocationID.y)
 #define LCOL int(gl_LocalInvocationID.x)
 #define AT(i) ((i) * LINES + LCOL)
 
-int bit_reverse(int i) { return int(bitfieldReverse(uint(i)) >> uint(32 - LOG2_LINE)); }
-
-// In-place radix-2 FFT of line[] (input in bit-reversed order); sign -1: forward, +1: inverse
-// (unscaled).
-void fft_line(float sign) {
-    for (int s = 1; s <= LOG2_LINE; ++s) {
-        int half_len = 1 << (s - 1);
-        int stride = TW_N >> s;
-        for (int k = lid; k < (LINE >> 1); k += WG) {
-            int j = k & (half_len - 1);
-            int i0 = ((k >> (s - 1)) << s) + j;
-            int i1 = i0 + half_len;
-            vec2 w = texelFetch(u_twiddle, ivec2(j * stride, 0), 0).xy;
-            w.y *= sign;
-            vec2 u = line[AT(i0)];
-            vec2 v = cmul(line[AT(i1)], w);
-            line[AT(i0)] = u + v;
-            line[AT(i1)] = u - v;
-        }
-        barrier();
-    }
-}
+vec2 line_twiddle(int k) { return texelFetch(u_twiddle, ivec2(k, 0), 0).xy; }
+#include "fft_line.glsl"
 #endif
 
 #if defined ROWS_PASS
 // Forward transform of the real pair (a, b) (PER values per thread at x = lid + WG m), split into
 // the two half spectra, stored in layers la and lb of row `row` (lb < 0: b is zero, only a's kept).
 void forward_pair(vec2 ab[PER], int row, int la, int lb) {
-    for (int m = 0; m < PER; ++m) line[AT(bit_reverse(lid + WG * m))] = ab[m];
-    barrier();
-    fft_line(-1.0);
-    for (int k = lid; k <= NX / 2; k += WG) {
+    fft_line(ab, -1.0, false, true);                 // the spectrum in line[], natural order
+    for (int k = lid; k < HX; k += WG) {
         vec2 c = line[AT(k)];
-        vec2 d = conj2(line[AT((NX - k) & (NX - 1))]);
+        vec2 d = conj2(line[AT(k == 0 ? 0 : NX - k)]);
         imageStore(u_spec, ivec3(k, row, la), vec4(stored2(0.5 * (c + d)), 0.0, 0.0));
         if (lb >= 0) {
             vec2 e = 0.5 * (c - d);
             imageStore(u_spec, ivec3(k, row, lb), vec4(stored2(vec2(e.y, -e.x)), 0.0, 0.0));   // (c - d) / 2i
         }
     }
-    barrier();
 }
 
 // Inverse transform of the half spectra in layers la, lb of row `row` (lb < 0: b is zero): the real
 // pair (a, b) at x = lid + WG m, scaled by 1 / NX.
 void inverse_pair(int row, int la, int lb, out vec2 ab[PER]) {
-    for (int k = lid; k <= NX / 2; k += WG) {
+    barrier();                                       // line[] may still be read (fft_line.glsl)
+    for (int k = lid; k < HX; k += WG) {
         vec2 A = imageLoad(u_spec, ivec3(k, row, la)).xy;
         vec2 B = lb >= 0 ? imageLoad(u_spec, ivec3(k, row, lb)).xy : vec2(0.0);
-        if (k == 0 || k == NX / 2) { A.y = 0.0; B.y = 0.0; }     // a real row's DC and Nyquist terms
-        line[AT(bit_reverse(k))] = A + times_i(B);
-        if (k > 0 && k < NX / 2) line[AT(bit_reverse(NX - k))] = conj2(A) + times_i(conj2(B));
+        bool self_mirrored = k == 0 || 2 * k == NX;  // a real row's DC and (NX even) Nyquist terms
+        if (self_mirrored) { A.y = 0.0; B.y = 0.0; }
+        line[AT(k)] = A + times_i(B);
+        if (!self_mirrored) line[AT(NX - k)] = conj2(A) + times_i(conj2(B));
     }
     barrier();
-    fft_line(1.0);
-    for (int m = 0; m < PER; ++m) ab[m] = line[AT(lid + WG * m)] * (1.0 / float(NX));
-    barrier();
+    fft_line(ab, 1.0, true, false);
+    for (int m = 0; m < PER; ++m) ab[m] *= 1.0 / float(NX);
 }
 
-// Three real pairs from six channels (two vec3 per position) and back.
+// Three real pairs from six channels (two vec3 per position) and back: pair i is channels 2i and
+// 2i + 1 (layers 2i, 2i + 1). One transform in a loop rather than three written out: the same work,
+// a third of the code (the pair is chosen by branches, never by indexing, so nothing needs unrolling).
 void forward_six(vec3 p[PER], vec3 q[PER], int row) {
-    vec2 ab[PER];
-    for (int m = 0; m < PER; ++m) ab[m] = p[m].xy;
-    forward_pair(ab, row, 0, 1);
-    for (int m = 0; m < PER; ++m) ab[m] = vec2(p[m].z, q[m].x);
-    forward_pair(ab, row, 2, 3);
-    for (int m = 0; m < PER; ++m) ab[m] = q[m].yz;
-    forward_pair(ab, row, 4, 5);
+    for (int pair = 0; pair < 3; ++pair) {
+        vec2 ab[PER];
+        for (int m = 0; m < PER; ++m)
+            ab[m] = pair == 0 ? p[m].xy : pair == 1 ? vec2(p[m].z, q[m].x) : q[m].yz;
+        forward_pair(ab, row, 2 * pair, 2 * pair + 1);
+    }
 }
 
 void inverse_six(int row, out vec3 p[PER], out vec3 q[PER]) {
-    vec2 ab[PER], cd[PER], ef[PER];
-    inverse_pair(row, 0, 1, ab);
-    inverse_pair(row, 2, 3, cd);
-    inverse_pair(row, 4, 5, ef);
-    for (int m = 0; m < PER; ++m) {
-        p[m] = vec3(ab[m], cd[m].x);
-        q[m] = vec3(cd[m].y, ef[m]);
+    for (int pair = 0; pair < 3; ++pair) {
+        vec2 ab[PER];
+        inverse_pair(row, 2 * pair, 2 * pair + 1, ab);
+        for (int m = 0; m < PER; ++m) {
+            if (pair == 0) p[m].xy = ab[m];
+            else if (pair == 1) { p[m].z = ab[m].x; q[m].x = ab[m].y; }
+            else q[m].yz = ab[m];
+        }
     }
 }
 
@@ -205,9 +182,11 @@ void main() {
 #if defined MODE_TARGET
 #define CH_IN 3
 #define CH_OUT 3
+#define CH 3
 #else
 #define CH_IN 6
 #define CH_OUT 6
+#define CH 6
 #endif
 uniform sampler2DArray u_kernel;                // HX x NY x 9: K_ij (cone i, primary j) at layer 3 i + j
 uniform int u_rows_in;                          // rows of u_spec holding data (the rest is zero)
@@ -216,22 +195,56 @@ uniform float u_norm2;                          // n = balance ||K||^2, the box 
 
 vec2 kernel_at(int kx, int ky, int i, int j) { return texelFetch(u_kernel, ivec3(kx, ky, 3 * i + j), 0).xy; }
 
+// The channels' spectra in this thread's points (v[c][m]: channel c at ky = lid + WG m). The channel
+// loops below transform one channel at a time and reach v through these, by branches rather than by
+// indexing with the loop's counter: the loop then needs no unrolling (one transform's code, not six)
+// and v stays in registers.
+vec2 v[CH][PER];
+
+void set_channel(int c, vec2 own[PER]) {
+    for (int m = 0; m < PER; ++m) {
+        if (c == 0) v[0][m] = own[m];
+        else if (c == 1) v[1][m] = own[m];
+#if CH > 3
+        else if (c == 2) v[2][m] = own[m];
+        else if (c == 3) v[3][m] = own[m];
+        else if (c == 4) v[4][m] = own[m];
+        else v[5][m] = own[m];
+#else
+        else v[2][m] = own[m];
+#endif
+    }
+}
+
+void get_channel(int c, out vec2 own[PER]) {
+    for (int m = 0; m < PER; ++m) {
+        if (c == 0) own[m] = v[0][m];
+        else if (c == 1) own[m] = v[1][m];
+#if CH > 3
+        else if (c == 2) own[m] = v[2][m];
+        else if (c == 3) own[m] = v[3][m];
+        else if (c == 4) own[m] = v[4][m];
+        else own[m] = v[5][m];
+#else
+        else own[m] = v[2][m];
+#endif
+    }
+}
+
 void main() {
-    // this thread's spectrum column; a work group's last may lie past HX (HX is odd): it loads zeros,
-    // reads the kernel's last column, stores nothing, and keeps to the barriers
+    // this thread's spectrum column; a work group's last may lie past HX: it loads zeros, reads the
+    // kernel's last column, stores nothing, and keeps to the barriers
     int kx = int(gl_WorkGroupID.x) * LINES + LCOL;
     bool column = kx < HX;
     int kx_read = min(kx, HX - 1);
-    vec2 v[CH_IN > CH_OUT ? CH_IN : CH_OUT][PER];
     for (int c = 0; c < CH_IN; ++c) {
+        vec2 own[PER];
         for (int m = 0; m < PER; ++m) {
             int ky = lid + WG * m;
-            line[AT(bit_reverse(ky))] = column && ky < u_rows_in ? imageLoad(u_spec, ivec3(kx, ky, c)).xy : vec2(0.0);
+            own[m] = column && ky < u_rows_in ? imageLoad(u_spec, ivec3(kx, ky, c)).xy : vec2(0.0);
         }
-        barrier();
-        fft_line(-1.0);
-        for (int m = 0; m < PER; ++m) v[c][m] = line[AT(lid + WG * m)];
-        barrier();
+        fft_line(own, -1.0, false, false);
+        set_channel(c, own);
     }
     for (int m = 0; m < PER; ++m) {
         int ky = lid + WG * m;
@@ -284,15 +297,14 @@ void main() {
 #endif
     }
     for (int c = 0; c < CH_OUT; ++c) {
-        for (int m = 0; m < PER; ++m) line[AT(bit_reverse(lid + WG * m))] = v[c][m];
-        barrier();
-        fft_line(1.0);
+        vec2 own[PER];
+        get_channel(c, own);
+        fft_line(own, 1.0, false, false);
         for (int m = 0; m < PER; ++m) {
             int ky = lid + WG * m;
             if (column && ky < u_rows_out)
-                imageStore(u_spec, ivec3(kx, ky, c), vec4(stored2(line[AT(ky)] * (1.0 / float(NY))), 0.0, 0.0));
+                imageStore(u_spec, ivec3(kx, ky, c), vec4(stored2(own[m] * (1.0 / float(NY))), 0.0, 0.0));
         }
-        barrier();
     }
 }
 #endif
@@ -494,7 +506,23 @@ void main() {
 #if defined ROWS_GUARD
 uniform sampler2D u_T;
 layout(std430, binding = 4) writeonly buffer Partials { vec4 u_partials[]; };
-shared vec4 sums[WG];
+
+// The sum over the work group of every thread's `value`, in thread 0, through line[] (the line's
+// shared memory: a work group of this pass has at most LINE threads, so no more is needed even at
+// 4096 points, where line[] alone takes GL 4.3's 32 KiB).
+vec2 group_sum(vec2 value) {
+    barrier();
+    line[lid] = value;
+    barrier();
+    int stride = 1;
+    while (stride < WG) stride <<= 1;
+    for (stride >>= 1; stride > 0; stride >>= 1) {
+        if (lid < stride && lid + stride < WG) line[lid] += line[lid + stride];
+        barrier();
+    }
+    return line[0];
+}
+
 void main() {
     int y = int(gl_WorkGroupID.x);
     vec3 Kz[PER], Kt[PER];
@@ -508,13 +536,9 @@ void main() {
             s += vec4(dot(r0, kd), dot(kd, kd), dot(r0, r0), 0.0);
         }
     }
-    sums[lid] = s;
-    barrier();
-    for (int stride = WG / 2; stride > 0; stride >>= 1) {
-        if (lid < stride) sums[lid] += sums[lid + stride];
-        barrier();
-    }
-    if (lid == 0) u_partials[y] = sums[0];
+    vec2 xy = group_sum(s.xy);
+    float z = group_sum(vec2(s.z, 0.0)).x;
+    if (lid == 0) u_partials[y] = vec4(xy, z, 0.0);
 }
 #endif
 

@@ -1,8 +1,11 @@
 #version 430 core
 // A 3x3 filter bank applied by FFT (compute shaders): cost per pixel O(log N), whatever the
 // filter's size, and no truncation. The image (W x H, linear light) sits on a periodic
-// Nx x Ny grid (powers of two) at offset (MARGIN, MARGIN); the rest of the grid is filled by
-// mirrored repeat of the image (BORDER_ZERO: black). Channels are packed two per complex
+// Nx x Ny grid (each side 5-smooth: 2^a 3^b 5^c) at offset (MARGIN, NY - H - MARGIN); the rest of the
+// grid is filled by mirrored repeat of the image (BORDER_ZERO: black). Rows are GL's (bottom first):
+// GL grid row r is row NY - 1 - r of the CPU's grid, which holds the image at (margin, margin), so
+// the two grids are each other's vertical flip exactly, whatever the grid's surplus beyond
+// H + 2 MARGIN (the bank's spectrum is uploaded flipped: F(fx, -fy)). Channels are packed two per complex
 // signal: layer 0 = R + iG, layer 1 = B. Passes (define exactly one):
 //   ROWS_FORWARD  load rows (grid fill) and FFT them           -> u_spec (rg32f array, 2 layers)
 //   COLS          FFT columns of u_spec in place (sign by INVERSE)
@@ -10,44 +13,28 @@
 //   ROWS_INVERSE  inverse FFT of rows, keep the image's window  -> u_filtered (rg32f array)
 //   COMBINE       u_filtered + target -> u_out (rgba32f): correction blend, delta, clip, raw,
 //                 residual (v - u_other) or a FISTA update of u_x, u_y
-// Defines: NX, NY, LOG2_MAX (log2 of max(NX, NY)), MARGIN, BORDER_ZERO, ADJOINT, and the COMBINE mode.
+// A line is transformed by fft_line.glsl's mixed-radix Stockham FFT (one work group a line, WG
+// threads of PER points each; twiddle factors computed, not read: this bank binds no table).
+// Defines: NX, NY, MARGIN, BORDER_ZERO, ADJOINT, the COMBINE mode; a row or column pass also LINE,
+// PER, WG and FFT_SEQUENCE (vrcorrect.runtime.fft.LinePlan.defines).
 // With BORDER_ZERO the fill, the product and the crop are an exact linear convolution with black
 // outside the image, and the ADJOINT product is its exact adjoint (correlation, then the crop).
 #include "srgb.glsl"
 
 #if defined COMPUTE_SHADER
-#define WG 256
 #define PI 3.14159265358979323846
 
 #if defined ROWS_FORWARD || defined COLS || defined ROWS_INVERSE
+#define LINES 1
 layout(local_size_x = WG) in;
-shared vec2 buf[1 << LOG2_MAX];
-
-vec2 cmul(vec2 a, vec2 b) { return vec2(a.x * b.x - a.y * b.y, a.x * b.y + a.y * b.x); }
-
-// In-place radix-2 FFT of buf[0..n) whose input was stored in bit-reversed order.
-// sign -1: forward (e^{-i...}); +1: inverse (unscaled).
-void fft_shared(int n, float sign) {
-    for (int len = 2; len <= n; len <<= 1) {
-        int half_len = len >> 1;
-        for (int k = int(gl_LocalInvocationID.x); k < (n >> 1); k += WG) {
-            int j = k % half_len;
-            int i0 = (k / half_len) * len + j;
-            int i1 = i0 + half_len;
-            float a = sign * 2.0 * PI * float(j) / float(len);
-            vec2 w = vec2(cos(a), sin(a));
-            vec2 u = buf[i0];
-            vec2 v = cmul(buf[i1], w);
-            buf[i0] = u + v;
-            buf[i1] = u - v;
-        }
-        barrier();
-    }
+shared vec2 line[LINE];
+#define lid int(gl_LocalInvocationID.x)
+#define AT(i) (i)
+vec2 line_twiddle(int k) {
+    float a = 2.0 * PI * float(k) / float(LINE);
+    return vec2(cos(a), sin(a));
 }
-
-int bit_reverse(int i, int log2n) {
-    return int(bitfieldReverse(uint(i)) >> uint(32 - log2n));
-}
+#include "fft_line.glsl"
 #else
 layout(local_size_x = 16, local_size_y = 16) in;
 #endif
@@ -57,20 +44,20 @@ layout(local_size_x = 16, local_size_y = 16) in;
 #if defined ROWS_FORWARD
 uniform sampler2D u_linear_in;
 layout(rg32f, binding = 0) writeonly uniform image2DArray u_spec;
-const int LOG2_NX = LOG2_MAX_X;
 void main() {
     int row = int(gl_WorkGroupID.x);
     int layer = int(gl_WorkGroupID.y);
     ivec2 size = textureSize(u_linear_in, 0);
-    int y = row - MARGIN;
+    int y = row - (NY - size.y - MARGIN);
 #if defined BORDER_ZERO
     bool row_inside = y >= 0 && y < size.y;
 #else
     y = mirror_index(y, size.y);
     bool row_inside = true;
 #endif
-    for (int u = int(gl_LocalInvocationID.x); u < NX; u += WG) {
-        int x = u - MARGIN;
+    vec2 own[PER];
+    for (int m = 0; m < PER; ++m) {
+        int x = lid + WG * m - MARGIN;
         vec2 value = vec2(0.0);
 #if defined BORDER_ZERO
         bool inside = row_inside && x >= 0 && x < size.x;
@@ -82,31 +69,27 @@ void main() {
             vec3 rgb = texelFetch(u_linear_in, ivec2(x, y), 0).rgb;
             value = layer == 0 ? rgb.rg : vec2(rgb.b, 0.0);
         }
-        buf[bit_reverse(u, LOG2_NX)] = value;
+        own[m] = value;
     }
-    barrier();
-    fft_shared(NX, -1.0);
-    for (int u = int(gl_LocalInvocationID.x); u < NX; u += WG)
-        imageStore(u_spec, ivec3(u, row, layer), vec4(buf[u], 0.0, 0.0));
+    fft_line(own, -1.0, false, false);
+    for (int m = 0; m < PER; ++m)
+        imageStore(u_spec, ivec3(lid + WG * m, row, layer), vec4(own[m], 0.0, 0.0));
 }
 #endif
 
 #if defined COLS
 layout(rg32f, binding = 0) uniform image2DArray u_spec;
-const int LOG2_NY = LOG2_MAX_Y;
 void main() {
     int col = int(gl_WorkGroupID.x);
     int layer = int(gl_WorkGroupID.y);
-    for (int v = int(gl_LocalInvocationID.x); v < NY; v += WG)
-        buf[bit_reverse(v, LOG2_NY)] = imageLoad(u_spec, ivec3(col, v, layer)).xy;
-    barrier();
+    vec2 own[PER];
+    for (int m = 0; m < PER; ++m) own[m] = imageLoad(u_spec, ivec3(col, lid + WG * m, layer)).xy;
 #if defined INVERSE
-    fft_shared(NY, 1.0);
+    fft_line(own, 1.0, false, false);
 #else
-    fft_shared(NY, -1.0);
+    fft_line(own, -1.0, false, false);
 #endif
-    for (int v = int(gl_LocalInvocationID.x); v < NY; v += WG)
-        imageStore(u_spec, ivec3(col, v, layer), vec4(buf[v], 0.0, 0.0));
+    for (int m = 0; m < PER; ++m) imageStore(u_spec, ivec3(col, lid + WG * m, layer), vec4(own[m], 0.0, 0.0));
 }
 #endif
 
@@ -146,19 +129,19 @@ void main() {
 layout(rg32f, binding = 0) readonly uniform image2DArray u_spec;
 layout(rg32f, binding = 1) writeonly uniform image2DArray u_filtered;   // W x H x 2
 uniform ivec2 u_size;
-const int LOG2_NX = LOG2_MAX_X;
 void main() {
     int row = int(gl_WorkGroupID.x);
     int layer = int(gl_WorkGroupID.y);
-    int y = row - MARGIN;
+    int y = row - (NY - u_size.y - MARGIN);
     if (y < 0 || y >= u_size.y) return;                            // uniform per workgroup
-    for (int u = int(gl_LocalInvocationID.x); u < NX; u += WG)
-        buf[bit_reverse(u, LOG2_NX)] = imageLoad(u_spec, ivec3(u, row, layer)).xy;
-    barrier();
-    fft_shared(NX, 1.0);
+    vec2 own[PER];
+    for (int m = 0; m < PER; ++m) own[m] = imageLoad(u_spec, ivec3(lid + WG * m, row, layer)).xy;
+    fft_line(own, 1.0, false, false);
     float scale = 1.0 / (float(NX) * float(NY));
-    for (int x = int(gl_LocalInvocationID.x); x < u_size.x; x += WG)
-        imageStore(u_filtered, ivec3(x, y, layer), vec4(buf[x + MARGIN] * scale, 0.0, 0.0));
+    for (int m = 0; m < PER; ++m) {
+        int x = lid + WG * m - MARGIN;
+        if (x >= 0 && x < u_size.x) imageStore(u_filtered, ivec3(x, y, layer), vec4(own[m] * scale, 0.0, 0.0));
+    }
 }
 #endif
 

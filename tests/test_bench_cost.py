@@ -7,7 +7,9 @@ import json
 
 import pytest
 
-from vrcorrect.studies.bench.cost import TARGET_BYTES, _measured_sentence, eye_frame_cost, parse_size
+from vrcorrect.runtime.dispatch import BANDWIDTHS
+from vrcorrect.studies.bench.cost import (REFERENCE_RUNS, TARGET_BYTES, _measured_sentence, efficiency_source,
+                                          eye_frame_cost, parse_size)
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.specs.display import get_display
 from vrcorrect.specs.prescription import bundled_sample_path, load_prescription
@@ -16,11 +18,14 @@ from vrcorrect.specs.prescription import bundled_sample_path, load_prescription
 def test_the_default_frame_of_a_quest2_eye_moves_at_most_2_gb(gl):
     """Counted (not run: the count does not depend on the pixels) for both eyes of the sample
     prescription at 1832 x 1920: the default's changing-content frame is within the target, in
-    k + 2 round trips, and a real run at a small size counts the same passes as a dry run."""
+    k + 2 round trips; a Quest 3 eye (2064 x 2208) costs at most 1.5x as much; and a real run at a
+    small size counts the same passes as a dry run."""
     rx = load_prescription(bundled_sample_path())
     display = get_display("quest2")
+    quest2 = 0
     for eye in ("left", "right"):
         cost = eye_frame_cost(gl, rx, display, eye, (1832, 1920), {}, warmup=1, dry_run=True)
+        quest2 = max(quest2, cost.changing.bytes)
         assert cost.changing.bytes <= TARGET_BYTES, (eye, cost.changing.bytes)
         assert cost.changing.fft_round_trips == cost.describe["iterations_per_frame"] + 2
         # the cold frame: the same passes plus the coarse level's (15 iterations at a quarter of the
@@ -28,6 +33,11 @@ def test_the_default_frame_of_a_quest2_eye_moves_at_most_2_gb(gl):
         coarse = [r for r in cost.cold.records if r.stage == "cold start"]
         assert sum(r.round_trip for r in coarse) == cost.describe["cold_iterations"] + 1
         assert cost.changing.bytes < cost.cold.bytes < 2.5 * cost.changing.bytes, (eye, cost.cold.bytes)
+    # a Quest 3 eye, 1.30x the pixels: at most 1.5x the bytes (a power-of-two grid made it 4096 x 4096,
+    # four times the work, and its passes did not link)
+    quest3 = eye_frame_cost(gl, rx, get_display("quest3"), "right", (2064, 2208), {}, warmup=1, dry_run=True)
+    assert quest3.grid is not None and max(quest3.grid) < 4096
+    assert quest3.changing.bytes <= 1.5 * quest2, (quest3.changing.bytes, quest2)
     dry = eye_frame_cost(gl, rx, display, "right", (64, 48), {}, warmup=1, dry_run=True)
     real = eye_frame_cost(gl, rx, display, "right", (64, 48), {}, warmup=1)
     assert [(r.name, r.bytes) for r in dry.changing.records] == [(r.name, r.bytes) for r in real.changing.records]
@@ -72,6 +82,15 @@ def test_bench_cost_command_prints_writes_and_refuses_bad_input(tmp_path, capsys
     assert report["size"] == [64, 48] and report["dry_run"] is True
     assert {"dispatches", "fft_round_trips", "bytes_per_eye_frame"} <= set(report["default"])
     assert set(report["methods"][0]["projected_ms"]) == {"RTX 3060", "RTX 4090", "H100 SXM"}
+    assert report["methods"][0]["grid"] == report["default"]["grid"] and len(report["default"]["grid"]) == 2
+    # projected from the last measured efficiency (llvmpipe is no GPU), not from peak bandwidth
+    eff = REFERENCE_RUNS[-1].efficiency
+    assert report["projection"]["this_run"] is False and report["projection"]["efficiency"] == eff
+    row = report["methods"][0]
+    for gpu, (bw, _) in BANDWIDTHS.items():
+        assert row["projected_ms"][gpu] == pytest.approx(1e3 * row["bytes_per_eye_frame"] / (bw * eff))
+        assert row["projected_ms"][gpu] > 10 * row["peak_bound_ms"][gpu]
+    assert "projections, not measurements" in printed and "NVIDIA H200, 2026-11-27" in printed
     assert "<!-- bench:cost -->" in out.read_text()
     assert main(["bench", "cost", "--size", "64x48", "--dry-run", "--out", str(out), "--json", str(js)]) == 2
     assert "--force" in capsys.readouterr().err                       # the JSON is not overwritten
@@ -100,3 +119,22 @@ def test_a_measurement_on_a_projected_gpu_is_set_beside_its_projection():
     software = _measured_sentence(d, "llvmpipe (LLVM 15.0.6, 256 bits)")
     assert "not a GPU" in software and "projected for" not in software
     assert _measured_sentence({**d, "measured_ms_per_eye_frame": None}, "llvmpipe") == ""
+
+
+def test_projections_use_the_measured_efficiency_of_this_run_or_the_last_gpu_run():
+    """The H200's run of 2026-11-27 (1.79 GB in 6.10 ms of GPU time, 4.8 TB/s peak) reached 6.1 % of
+    its peak: the RTX 3060 projection is then 1.79 GB at 6.1 % of 360 GB/s, 81 ms per eye, where its
+    peak bandwidth alone said 5.0 ms.  A run on an H100 uses its own efficiency; a software renderer
+    or an unknown card the last GPU run's."""
+    last = REFERENCE_RUNS[-1]
+    assert last.card == "NVIDIA H200" and last.efficiency == pytest.approx(0.0611, abs=5e-4)
+    assert 1e3 * last.bytes_ / (BANDWIDTHS["RTX 3060"][0] * last.efficiency) == pytest.approx(81.3, abs=0.5)
+    llvmpipe = efficiency_source("llvmpipe (LLVM 15.0.6, 256 bits)", 10 ** 9, 500.0)
+    assert llvmpipe["efficiency"] == last.efficiency and not llvmpipe["this_run"] and "H200" in llvmpipe["source"]
+    h100 = efficiency_source("NVIDIA H100 80GB HBM3/PCIe/SSE2", 1_000_000_000, 2.0)
+    assert h100["this_run"] and h100["efficiency"] == pytest.approx(1e9 / 2e-3 / 3.35e12)
+    assert "this run" in h100["source"] and "H100" in h100["source"]
+    h200 = efficiency_source("NVIDIA H200/PCIe/SSE2", 1_000_000_000, 2.0)
+    assert h200["efficiency"] == pytest.approx(1e9 / 2e-3 / 4.8e12)
+    assert not efficiency_source("NVIDIA H100 PCIe/PCIe/SSE2", 10 ** 9, 2.0)["this_run"]      # another card
+    assert not efficiency_source("NVIDIA H200", 10 ** 9, None)["this_run"]                      # not timed

@@ -104,8 +104,12 @@ def test_half_precision_gl_equals_its_twin_and_single_precision_to_1e3(gl, clip)
     """Half precision (the default).  One iteration from the cold start: the GPU equals the twin that
     rounds at the same points to two float16 steps.  Over eight frames of a moving clip the two
     implementations' rounding ties part (a value on either side of a float16 step) without
-    drifting: the solutions stay within 10 steps at most and 5e-4 on average, the objectives within
-    1e-4; and half precision keeps the single-precision objective to 1e-3.  (The edge band, which
+    drifting: the solutions stay within 12 steps at most and 5e-4 on average, the objectives within
+    1e-4; and half precision keeps the single-precision objective to 1e-3.  (Measured on llvmpipe
+    with the mixed-radix transforms, 2026-11-28: at most 11 steps and 3.8e-4 on average at frame 7;
+    the radix-2 transforms before them: 7.5 steps and 3.4e-4.  The ties part more often as the
+    transforms' float32 rounding departs from scipy's, not as it grows: in single precision the
+    two stay within 3e-7 on average.)  (The edge band, which
     stays in place while the content moves, covers over half of this 56 x 40 image with the eye's
     8 px radius; a tie there is carried from frame to frame: over 16 frames to and fro the average
     levels off at about 4.5e-4.)  The twin rounds as Mesa's llvmpipe does, which CI runs; on NVIDIA's
@@ -125,7 +129,7 @@ def test_half_precision_gl_equals_its_twin_and_single_precision_to_1e3(gl, clip)
             cpu = half.frame(image, motion)
             ref = single.frame(image, motion)
             diff = np.abs(half.c.solution((W, H)) - cpu.solution)
-            assert diff.max() <= 10 * step and diff.mean() <= 5e-4, (f, diff.max(), diff.mean())
+            assert diff.max() <= 12 * step and diff.mean() <= 5e-4, (f, diff.max(), diff.mean())
             fraction = half.c.last_objective_fraction((W, H))
             assert fraction == pytest.approx(cpu.objective / cpu.uncorrected, abs=1e-4)
             assert cpu.objective == pytest.approx(ref.objective, rel=1e-3)
@@ -331,10 +335,26 @@ def test_a_frame_allocates_nothing_after_the_first(gl, clip):
         r.release()
 
 
+def _is_5_smooth(n: int) -> bool:
+    for p in (2, 3, 5):
+        while n % p == 0:
+            n //= p
+    return n == 1
+
+
 def test_admm_grid_and_guard_weight():
-    assert admm_grid(1832, 1920, 17) == (2048, 2048)
+    """The grid: each side the smallest 5-smooth length holding the image plus the kernel less one (a
+    linear convolution without wrap-around), at least 16; a Quest 2 eye no longer pads to 2048 nor a
+    Quest 3 eye to 4096."""
+    assert admm_grid(1832, 1920, 17) == (1944, 1875)         # (NY, NX): 2^3 3^5 and 3 5^4
+    assert admm_grid(2064, 2208, 21) == (2250, 2160)
     assert admm_grid(1, 1, 1) == (16, 16)
-    assert admm_grid(100, 50, 31) == (128, 256)              # (NY, NX)
+    assert admm_grid(100, 50, 31) == (80, 135)               # (NY, NX)
+    for n in list(range(1, 400)) + [2047, 2048, 2049, 2110, 3690, 4000, 4096]:
+        side = admm_grid(n, 1, 9)[1]
+        need = max(16, n + 8)
+        assert _is_5_smooth(side) and side >= need, (n, side)
+        assert not any(_is_5_smooth(m) for m in range(need, side)), (n, side)   # none smaller
     assert guard_weight(-1.0, 2.0) == 0.5
     assert guard_weight(1.0, 2.0) == 0.0                 # a correction that only hurts: none of it
     assert guard_weight(-5.0, 2.0) == 1.0
@@ -353,7 +373,7 @@ def test_a_round_trip_is_counted_pass_by_pass_as_a_hand_count(gl):
 
     size, margin = (48, 40), 5
     ny, nx = fft_grid(*size, margin)
-    assert (ny, nx) == (64, 64)
+    assert (ny, nx) == (50, 60)                      # 40 + 10 and 48 + 10, rounded up to 5-smooth lengths
     spectrum = np.zeros((3, 3, ny, nx), complex)
     bank = FftBankGL(gl, spectrum, size, margin, border="zero", combine="residual")
     ledger = CostLedger()
@@ -398,13 +418,13 @@ def test_an_admm_frame_is_counted_as_its_passes(gl, clip):
         ny, nx = admm_grid(W, H, max(r.c.model.kernel.size, r.c.model.reference.size))
         hx = nx // 2 + 1
         layer = hx * ny * 4                                   # one complex half-float layer
-        twiddle = (max(nx, ny) // 2) * 8
+        twiddle, col_twiddle = nx * 8, ny * 8                 # each line's table: cos, sin as float32
         kernel = 9 * layer
         cols = {rec.name: rec for rec in ledger.records if rec.name.startswith("columns")}
         assert (cols["columns: ADMM solve"].bytes_read, cols["columns: ADMM solve"].bytes_written) == \
-            (twiddle + kernel + 6 * layer, 6 * layer)
+            (col_twiddle + kernel + 6 * layer, 6 * layer)
         assert (cols["columns: T = K_ref t"].bytes_read, cols["columns: T = K_ref t"].bytes_written) == \
-            (twiddle + kernel + 3 * layer * H // ny, 3 * layer)
+            (col_twiddle + kernel + 3 * layer * H // ny, 3 * layer)
         assert cols["columns: K z, K t"].bytes_written == 6 * layer * H // ny
         state = nx * ny * 8                                   # w or q, rgba16f on the grid
         update = next(rec for rec in ledger.records if rec.name == "rows: update, reflections")
@@ -520,6 +540,27 @@ def test_a_cold_frame_starts_from_the_coarse_level_and_the_gpu_equals_its_twin(g
         plain.release()
 
 
+def test_a_wide_frame_past_2048_equals_the_twin_on_an_odd_grid(gl):
+    """2150 x 24 (cheap: 24 rows), past 2048 where the power-of-two grid jumped to 4096 and its passes
+    did not link: the grid is 2187 x 40 (2187 = 3^7, odd: real-to-complex rows of an odd length,
+    no Nyquist term), and over three frames, the content moving, the GPU's solution in single
+    precision equals the twin's to 1e-5 and its guarded objective to 1e-5."""
+    big = np.round(bundled_images(96)[0][1] * 255).astype(np.uint8)
+    strip = np.ascontiguousarray(np.tile(big, (1, 24, 1))[:40])
+    size = (2150, 24)
+    r = Run(gl, "single", 2, size=size)
+    try:
+        assert r.twin.grid == (40, 2187)
+        for f in range(3):
+            image = np.ascontiguousarray(strip[2 * f:2 * f + 24, 3 * f:3 * f + 2150])
+            cpu = r.frame(image, None if f == 0 else (-3, -2))
+            assert r.c.strategy._sized[size].grid == (40, 2187)
+            assert np.abs(r.c.solution(size) - cpu.solution).max() <= 1e-5, f
+            assert abs(r.c.last_objective_fraction(size) - cpu.objective / cpu.uncorrected) <= 1e-5, f
+    finally:
+        r.release()
+
+
 def test_values_per_thread_keep_a_work_group_within_1024_threads():
     """A line's work group is its length over the values per thread: raised where it would pass 1024
     threads (OpenGL's least limit), lowered to the line's length, else as asked."""
@@ -527,6 +568,10 @@ def test_values_per_thread_keep_a_work_group_within_1024_threads():
     assert values_per_thread(4096, 2) == 4          # 2048 threads asked: raised to 1024 threads
     assert values_per_thread(2048, 1) == 2
     assert values_per_thread(8, 16) == 8            # a line shorter than the values asked
+    # a mixed-radix line: the divisor nearest the values asked, by ratio (threads x values = the line)
+    assert values_per_thread(1875, 4) == 5          # 1875 = 3 5^4: 3 or 5 (5/4 is nearer than 4/3)
+    assert values_per_thread(2250, 8) == 9
+    assert values_per_thread(3750, 2) == 5          # 3 would make 1,250 threads
 
 
 def test_column_lines_keep_a_work_group_within_shared_memory_and_1024_threads():
@@ -594,11 +639,15 @@ def test_the_work_group_shape_changes_no_value(gl, wide_clip):
                 G.write_texture(r.src, image)
                 r.c.apply(r.src, r.fbo, motion_px=None if f == 0 else (-3, -2))
                 out.append(r.c.solution((CW, CH)))
-            # the shape asked is the one compiled, at both levels (every line here is long enough)
+            # the shape compiled is the one asked, as the lines' lengths allow (the divisor of the line
+            # nearest the values asked), at both levels
             asked = shape or WorkGroups()
             for level, coarse in ((r.c.strategy, False), (r.c.strategy.coarse, True)):
                 (b,) = level._sized.values()
-                assert dict(b.values_per_thread) == asked.table(coarse), (coarse, b.values_per_thread)
+                ny, nx = b.grid
+                allowed = {p: values_per_thread(ny if p == "COLUMNS" else nx, per)
+                           for p, per in asked.table(coarse).items()}
+                assert dict(b.values_per_thread) == allowed, (coarse, b.values_per_thread)
                 assert b.column_lines == asked.lines(coarse) and b.column_groups == -(-(b.grid[1] // 2 + 1) // b.column_lines)
             return out
         finally:

@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Gathers, on this machine, what a lent GPU machine needs to run vrcorrect's GL benches there: it has
-# no network, a Python 3.12 with numpy, scipy and tqdm, and no OpenGL dispatch libraries. The Debian
-# packages go to .gl/ and the wheels to .whl/ (both listed in .git/info/exclude: pass them as the
-# device call's `carry`). Then run tools/gpu_check.sh there.
+# no network, a Python 3.12 with numpy, scipy, tqdm, pytest and PyTorch (CUDA; bench cost --peer torch
+# uses that torch, so none is carried here), and no OpenGL dispatch libraries. The Debian packages go
+# to .gl/ and the wheels to .whl/ (both listed in .git/info/exclude: pass them as the device call's
+# `carry`). Then run tools/gpu_check.sh there (issue 43's checks, at most about 8 minutes), e.g.
+#   run(command="bash tools/gpu_check.sh", carry=[".gl", ".whl"], timeout_s=560)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 mkdir -p .gl .whl

@@ -56,13 +56,19 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
         print(run_xr_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     elif args.what == "cost":
-        from ..studies.bench.cost import parse_size, run_cost_bench
+        from ..studies.bench.cost import METHODS, parse_size, run_cost_bench
+        from ..studies.bench.peer import NO_DEVICE, PEERS
 
         size = parse_size(args.size)
+        if args.peer is not None and args.peer not in PEERS:
+            raise ValidationError("--peer", args.peer, "one of " + ", ".join(PEERS))
         report = run_cost_bench(size, args.display, str(rx_path(args)), out=Path(args.out), write=not args.no_write,
                                 json_out=_json_out(args), dry_run=args.dry_run,
-                                force=args.force, frames=1 if args.frames is None else args.frames)
+                                force=args.force, frames=1 if args.frames is None else args.frames,
+                                methods=METHODS[:1] if args.default_only else METHODS, peer=args.peer)
         print(report["markdown"])
+        if report.get("peer", {}).get("status") == NO_DEVICE:
+            print(NO_DEVICE)
     elif args.what == "workgroups":
         from ..studies.bench.cost import parse_size
         from ..studies.bench.workgroups import run_workgroup_bench
@@ -171,5 +177,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="cost: time N changing and N cold frames per eye and method, and report the median "
                         "(default 1; a GPU measurement wants more, e.g. 50); workgroups: N of each per setting, "
                         "interleaved (default 20)")
+    p.add_argument("--peer", metavar="NAME",
+                   help="cost: also time the default frame written plainly in NAME (torch: torch on cuFFT) in the "
+                        "same run on the same GPU, with its ratio to the GLSL frame; where torch sees no CUDA device "
+                        "it prints 'no CUDA device: peer not run'")
+    p.add_argument("--default-only", action="store_true",
+                   help="cost: count and time the default method only (not single precision, FISTA and the "
+                        "one-pass inverse beside it)")
     p.add_argument("--force", action="store_true", help="cost, workgroups, halfres, robust: overwrite --json's file")
     p.set_defaults(func=cmd_bench)

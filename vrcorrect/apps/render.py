@@ -34,7 +34,8 @@ METHOD_TITLES = {Filter.ADMM: "ADMM", Filter.FISTA: "projected gradient (FISTA)"
 DEFAULT_FPS = 90.0
 #: Seconds a frame of the default (ADMM, 2 iterations a frame) took on Mesa's llvmpipe for changing content (a
 #: pan: every frame iterates; a settled still view costs less), by the FFT grid's pixels (the image plus the
-#: kernel, padded to powers of two: 96x64 -> 128x128, 256x256 -> 512x512, 512x512 -> 1024x1024), on a 2-core AMD
+#: kernel, padded to powers of two as the grids were then: 96x64 -> 128x128, 256x256 -> 512x512, 512x512 ->
+#: 1024x1024; issue 43's smaller 5-smooth grids make the estimate an upper bound), on a 2-core AMD
 #: EPYC shared with other jobs (load average 3 to 4), 2026-11-28 (docs/realtime.md): what ``render`` says before
 #: its first frames, interpolated in log-log, scaled by the FFT round trips a frame (iterations + 2).
 SOFTWARE_S_PER_FRAME = ((128 * 128, 0.30), (512 * 512, 6.0), (1024 * 1024, 36.0))

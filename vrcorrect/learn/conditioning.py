@@ -206,16 +206,16 @@ def unrolled_spectra(kernel: np.ndarray, shape: tuple[int, int], grid_kernel_siz
     :func:`vrcorrect.solvers.spectral.hermitian_inverse` does for ``fast``).
 
     The grid holds the image and the blur of a ``grid_kernel_size`` kernel (default ``s``): with
-    ``power_of_two`` the real-time path's power-of-two grid
-    (:func:`vrcorrect.solvers.realtime.admm_grid`), on which onnxruntime's DFT is a radix-2 FFT
+    ``power_of_two`` a power-of-two grid (:func:`vrcorrect.solvers.realtime.power_of_two_grid`, the
+    real-time path's before its mixed-radix grids), on which onnxruntime's DFT is a radix-2 FFT
     (other lengths run a direct DFT, slower and with float32 errors near 1e-4 after four stages);
     otherwise ``fast``'s (:func:`~vrcorrect.solvers.spectral.padded_shape`)."""
-    from ..solvers.realtime import admm_grid
+    from ..solvers.realtime import power_of_two_grid
     from ..solvers.spectral import gram, kernel_spectrum, padded_shape, spectral_norm_squared
 
     k = np.asarray(kernel, np.float64)
     size = grid_kernel_size or k.shape[-1]
-    grid = admm_grid(shape[1], shape[0], size) if power_of_two else padded_shape(shape[0], shape[1], size)
+    grid = power_of_two_grid(shape[1], shape[0], size) if power_of_two else padded_shape(shape[0], shape[1], size)
     spectrum = kernel_spectrum(k, grid)
     n = spectral_norm_squared(k)
     def pairs(c: np.ndarray) -> np.ndarray:

@@ -288,7 +288,7 @@ def twin(stages: int, box_weight: float = 1.0) -> UnrolledADMM:
 def kernel_spectra(kernels: Sequence[np.ndarray], shape: tuple[int, int], power_of_two: bool = True
                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """:func:`~vrcorrect.learn.conditioning.unrolled_spectra` of each kernel on one grid (that of the
-    largest; ``power_of_two``: the real-time path's, else ``fast``'s), batched: ``spectrum`` and
+    largest; ``power_of_two``: a power-of-two grid, else ``fast``'s), batched: ``spectrum`` and
     ``gram`` ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 and ``||K||^2`` ``(N,)`` float32."""
     size = max(k.shape[-1] for k in kernels)
     made = [unrolled_spectra(k, shape, size, power_of_two) for k in kernels]

@@ -159,8 +159,8 @@ def build_pool(config: UnrolledTrainConfig, progress: Callable[[int, int], None]
 def make_batch(entries: Sequence[PoolEntry], crops: Sequence[np.ndarray]) -> dict[str, torch.Tensor]:
     """Tensors for one batch: ``target`` (linear RGB), ``target_lms`` (what the eye sees of it with
     glasses), ``spectrum``, ``gram`` and ``norm2`` (:func:`kernel_spectra`, on
-    ``fast``'s grid: the least that does not wrap, three times cheaper here than the real-time
-    path's powers of two, and the model is the same on either), ``kernel`` (padded to one size),
+    ``fast``'s grid: the least that does not wrap, three times cheaper here than a
+    power-of-two grid, and the model is the same on either), ``kernel`` (padded to one size),
     ``features``, and ``fast``'s start ``z0`` with its duals ``d1``, ``d2``
     (:func:`~vrcorrect.solvers.admm.fast_start`). ``crops`` are sRGB-coded ``(h, w, 3)`` crops, one per entry."""
     shape = crops[0].shape[:2]

@@ -57,8 +57,9 @@ from .eye_model import (  # noqa: F401  (re-exported)
 from .fft import fft_grid
 from .gl import check_gl_errors, release
 from .onnx_backend import OnnxModel
+from .pupil_bank import PupilBank, PupilFollower
 from .strategies import Decoder, Encoder, Preview, Strategy, make_strategy
-from .strategies.base import float_texture
+from .strategies.base import LuminanceMeter, float_texture
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
@@ -134,19 +135,16 @@ class PupilState:
 
     def __init__(self, corrector: "Corrector", first_luminance: float | None):
         from ..physics.perception import luminance_weights  # start-up time: the optics load with the first eye
-        from .pupil_bank import PupilBank, PupilFollower
-        from .strategies.base import LuminanceMeter
 
         self.c = corrector
         self.first_luminance = first_luminance
         self.meter = LuminanceMeter(corrector.gpu, luminance_weights(corrector.display))
-        self.kernels: dict = {}
+        self.kernels: dict = {}                         # shared by every design of this eye (the bank's)
         self.follower: PupilFollower | None = None
         self.bank: PupilBank | None = None
         self.current: float | None = None
         self.switches = 0
         self._last_time: float | None = None
-        self._make = (PupilBank, PupilFollower)
 
     def _upper(self, eye: EyeRx) -> float | None:
         return eye.higher_order.pupil_diameter_mm if eye.higher_order is not None else None
@@ -159,14 +157,14 @@ class PupilState:
 
     def installed(self, model: EyeModel, switched: bool = False) -> None:
         """A model is in use: a new eye (a new bank, the follower kept) or a bank's switch."""
-        PupilBank, PupilFollower = self._make
         upper = self._upper(model.eye)
         if not switched:
             if self.bank is None or self.bank.eye != model.eye:
                 if self.bank is not None:
                     self.bank.close()
-                self.bank = PupilBank(model.eye, self.c.display, self.c.options, self.c.age_years, self._build)
-                self.kernels = self.bank.kernels
+                    self.kernels = {}                   # a new eye: its own kernels
+                self.bank = PupilBank(model.eye, self.c.display, self.c.options, self.c.age_years, self._build,
+                                      self.kernels)
             self.bank.put(model.pupil_mm, model)
             if self.follower is None:
                 self.follower = PupilFollower(self.c.display, self.c.age_years, upper, model.pupil_mm)

@@ -83,7 +83,9 @@ class WorkGroups:
     64), at full resolution (``full``) and on a cold frame's half-resolution level (``coarse``).
     The shape changes which thread holds a value, never the value: it is a GPU's tuning
     (``vrcorrect bench workgroups`` times settings against each other). Where a line would need
-    more than 1,024 threads or has fewer points than asked, the strategy adjusts it per line. The
+    more than 1,024 threads, has fewer points than asked or a length the value does not divide (a
+    5-smooth line), the strategy compiles the divisor of the line nearest it
+    (:func:`vrcorrect.runtime.fft.values_per_thread`). The
     default is :data:`VALUES_PER_THREAD` and :data:`COARSE_VALUES_PER_THREAD`; a mapping given
     may name some passes only, the others keep the default's.
 

@@ -145,17 +145,18 @@ class _Job:
 class PupilBank:
     """Designs for one eye at the bank's pupils, built on a worker thread of the bank's own.
 
-    ``build(pupil_mm)`` designs one (:func:`~vrcorrect.runtime.eye_model.build_eye_model`) with its
-    grids' spectra (``spectra(model, grids)``, the strategy's); :meth:`request` asks for one without
-    waiting, :meth:`get` returns it once built (None before).  Designs share one cache of kernels.
+    ``build(pupil_mm, kernels, grids)`` designs one (:func:`~vrcorrect.runtime.eye_model.build_eye_model`)
+    with its spectra on the strategy's grids; :meth:`request` asks for one without waiting, :meth:`get`
+    returns it once built (None before).  Designs share one cache of kernels (``kernels``: the first
+    design's too).
     A design that fails (an eye the model's range refuses) is remembered as failed, with its message.
     """
 
     def __init__(self, eye: EyeRx, display: DisplayProfile, options, age_years: float | None,
-                 build: Callable[..., object]):
+                 build: Callable[..., object], kernels: dict | None = None):
         self.eye, self.display, self.options, self.age_years = eye, display, options, age_years
         self._build = build
-        self.kernels: dict = {}
+        self.kernels: dict = {} if kernels is None else kernels
         self._models: dict[float, object] = {}
         self.failed: dict[float, str] = {}
         self._lock = threading.Lock()

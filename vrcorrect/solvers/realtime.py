@@ -57,9 +57,9 @@ point where the GPU stores a value in a 16-bit texture: the decoded target, the 
 the passes, ``w``, ``q``, ``T`` and the kernels' spectra; arithmetic stays float32 (float64 for the
 kernel's spectrum before it is rounded).  ``"single"`` stores float32.
 
-Grid: powers of two (the GPU's radix-2 FFT), at least the image plus the kernel less one in each
-direction, the image at the origin (:func:`admm_grid`); spectra are real-to-complex (half the
-columns), as the GPU keeps them.
+Grid: the smallest 5-smooth length (``2^a 3^b 5^c``: the GPU's mixed-radix FFT) of at least the image
+plus the kernel less one in each direction, the image at the origin (:func:`admm_grid`); spectra are
+real-to-complex (half the columns, ``NX // 2 + 1``, for an odd ``NX`` too), as the GPU keeps them.
 
 The per-frequency 3x3 algebra, the kernels' spectra and the FISTA twin's blur are
 :mod:`vrcorrect.solvers.spectral`'s; the ADMM twin's transforms are its own (they round where the
@@ -82,9 +82,11 @@ from ..specs.vocabulary import ITERATIVE_FILTERS, Filter, Precision, either, nam
 from .admm import COARSE_ITERATIONS, coarse_kernel, coarse_level_pays
 from .fista import FistaState, gradient_plan, projected_gradient
 from .problem import guard_weight, make_problem
-from .spectral import Blur, apply3, conj_transpose, hermitian_inverse, kernel_spectrum, spectral_norm_squared
+from .spectral import (Blur, apply3, conj_transpose, hermitian_inverse, kernel_spectrum, smooth_length,
+                       spectral_norm_squared)
 
-__all__ = ["ADMM_RHO", "ADMM_RELAXATION", "ADMM_BALANCE", "admm_grid", "edge_band_widths", "edge_band", "pool_half", "upsample_double", "guarded",
+__all__ = ["ADMM_RHO", "ADMM_RELAXATION", "ADMM_BALANCE", "admm_grid", "power_of_two_grid", "edge_band_widths",
+           "edge_band", "pool_half", "upsample_double", "guarded",
            "coarse_eye_kernel", "coarse_kernel_size", "AdmmFrames", "AdmmFrame", "FistaFrames", "frames_twin",
            "admm_weights"]
 
@@ -116,8 +118,23 @@ def admm_weights(kernel: np.ndarray, rho: float = ADMM_RHO, balance: float = ADM
 
 
 def admm_grid(width: int, height: int, kernel_size: int) -> tuple[int, int]:
-    """The ``(NY, NX)`` power-of-two grid of the ADMM strategy: the image at the origin and room
-    for the blur of a ``kernel_size`` kernel around it (a linear convolution with no wrap-around)."""
+    """The ``(NY, NX)`` grid of the ADMM strategy: the image at the origin and room for the blur of a
+    ``kernel_size`` kernel around it (a linear convolution with no wrap-around), each side the
+    smallest 5-smooth length (``2^a 3^b 5^c``, :func:`~vrcorrect.solvers.spectral.smooth_length`:
+    what the GPU's mixed-radix line transforms take) of at least the image plus the kernel less one,
+    and at least :data:`MIN_GRID`.  One Quest 2 eye (1832 x 1920, a 17 px kernel) is 1944 x 1875
+    where a power-of-two grid was 2048 x 2048; a Quest 3 eye (2064 x 2208) 2250 x 2160 where it was
+    4096 x 4096."""
+    def side(n: int) -> int:
+        return max(MIN_GRID, smooth_length(n + kernel_size - 1))
+
+    return side(height), side(width)
+
+
+def power_of_two_grid(width: int, height: int, kernel_size: int) -> tuple[int, int]:
+    """The ``(NY, NX)`` power-of-two grid holding the image and the blur of a ``kernel_size`` kernel
+    (the real-time grid before the mixed-radix transforms; the learned model's spectra keep it, since
+    onnxruntime's DFT is a radix-2 FFT only on powers of two)."""
     def side(n: int) -> int:
         return max(MIN_GRID, 1 << math.ceil(math.log2(n + kernel_size - 1)))
 

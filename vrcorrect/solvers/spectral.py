@@ -6,7 +6,9 @@ convolution theorem it is one 3x3 matrix per spatial frequency.  Spectra are sto
 ``(3, H, W)``, and every 3x3 operation below works plane by plane (a loop over nine planes is far
 faster than a batched ``np.linalg`` call on 3x3 blocks).
 
-* Grids: :func:`padded_shape` (room for a linear convolution, no wrap-around), :func:`margin_shape`
+* Grids: :func:`smooth_length` (the smallest FFT length of small prime factors, 2, 3 and 5, at least
+  a given one: the real-time path's mixed-radix grids), :func:`padded_shape` (room for a linear
+  convolution, no wrap-around), :func:`margin_shape`
   (room for a mirrored border), :func:`centred_kernel`
   (the kernel's centre wrapped to the origin, so no shift), :func:`kernel_spectrum`,
   :func:`mirror_fill` (an image and its mirrored repeat, the one-pass filters' borders).
@@ -26,12 +28,35 @@ from __future__ import annotations
 import numpy as np
 import scipy.fft
 
-__all__ = ["padded_shape", "margin_shape", "centred_kernel", "kernel_spectrum", "mirror_fill", "rfft_grid",
+from ..plumbing.errors import ValidationError
+
+__all__ = ["FFT_PRIMES", "smooth_length", "padded_shape", "margin_shape", "centred_kernel", "kernel_spectrum",
+           "mirror_fill", "rfft_grid",
            "irfft_grid", "apply3", "matmul3", "conj_transpose", "gram", "inv3", "hermitian_inverse",
            "spectral_norm_squared", "Blur"]
 
 
 # ---------------------------------------------------------------------------------------------- grids
+
+FFT_PRIMES = (2, 3, 5)
+"""The prime factors a GPU line transform handles (radix 2, 3, 4, 5 and 8 butterflies,
+``shaders/fft_line.glsl``): its lengths are 5-smooth."""
+
+
+def smooth_length(n: int, primes: tuple[int, ...] = FFT_PRIMES) -> int:
+    """The smallest integer at least ``n`` (and at least 1) whose prime factors are all in ``primes``
+    (by default 5-smooth: 2^a 3^b 5^c)."""
+    if not primes or any(int(p) < 2 for p in primes):
+        raise ValidationError("primes", primes, "one or more integers of at least 2")
+    m = max(1, int(n))
+    while True:
+        rest = m
+        for p in primes:
+            while rest % p == 0:
+                rest //= p
+        if rest == 1:
+            return m
+        m += 1
 
 
 def padded_shape(height: int, width: int, kernel_size: int) -> tuple[int, int]:
@@ -186,7 +211,8 @@ class Blur:
         sets the arithmetic's precision with the input's).
     grid
         ``(NY, NX)``, at least the image plus the kernel less one on each axis (:func:`padded_shape`,
-        or the real-time path's powers of two), so nothing wraps around.
+        or the real-time path's 5-smooth grid, :func:`vrcorrect.solvers.realtime.admm_grid`), so
+        nothing wraps around.
     shape
         The images' ``(H, W)``; the image sits at the grid's origin.
     """

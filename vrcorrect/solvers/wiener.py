@@ -130,7 +130,7 @@ def _exact_inverse_image(image_chw: np.ndarray, kernel: EyeKernel, reference_ker
                          mu: float, grid: tuple[int, int] | None = None, margin: int | None = None) -> np.ndarray:
     """``F t`` without truncation on a periodic grid holding the image at ``(margin, margin)``
     and its mirrored repeat around it (default: one kernel width of margin, the next fast FFT
-    size).  The real-time FFT path computes exactly this on its power-of-two grid."""
+    size).  The real-time FFT path computes exactly this on its (5-smooth) grid."""
     _, H, W = image_chw.shape
     m = margin if margin is not None else max(kernel.size, reference_kernel.size if reference_kernel is not None else 1)
     Q = grid if grid is not None else margin_shape(H, W, m)

@@ -15,7 +15,10 @@ passes as the data allow:
 * the per-pixel work is fused into the row passes (the inverse row FFTs of one iteration, the
   update of the state, the forward row FFTs of the next);
 * spectra are real-to-complex (half the columns), the kernels' spectra too;
-* twiddle factors come from a table;
+* the grid is 5-smooth on each side (:func:`~vrcorrect.solvers.realtime.admm_grid`), and a line is
+  transformed by a mixed-radix Stockham FFT (``shaders/fft_line.glsl``: radix 2, 3, 4, 5 and 8
+  butterflies in registers, one pass through shared memory between two stages, the plan
+  :func:`vrcorrect.runtime.fft.line_plan`); twiddle factors come from a table of each line's length;
 * ``precision="half"`` (the default) stores every texture in 16-bit floats (arithmetic in 32
   bits): half the bytes of ``"single"``, the objective unchanged to 1e-3 (the tests say by how
   much).
@@ -36,7 +39,6 @@ Layer 5: numpy, moderngl; never torch.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any, Callable
 
@@ -44,6 +46,7 @@ import numpy as np
 
 from ...plumbing.errors import ValidationError
 from ...specs.vocabulary import Filter, Precision
+from .. import fft
 from ..dispatch import resource_bytes
 from ..gl import fullscreen_triangle, release
 from ..shaders import compile_compute, compile_program
@@ -56,24 +59,15 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
 __all__ = ["AdmmStrategy", "values_per_thread", "column_lines", "coarse_model", "model_spectra", "bank_spectra"]
 
-MAX_INVOCATIONS = 1024
-"""Threads a work group may have (OpenGL 4.3's least ``GL_MAX_COMPUTE_WORK_GROUP_INVOCATIONS``)."""
-
-
-def values_per_thread(line: int, per: int) -> int:
-    """Values per thread for a line of ``line`` points: ``per``, raised where the work group would
-    exceed ``MAX_INVOCATIONS`` and lowered to the line's length."""
-    return min(max(int(per), -(-line // MAX_INVOCATIONS)), line)
-
-
-MIN_SHARED_BYTES = 32768
-"""Shared memory a work group may use (OpenGL 4.3's least ``GL_MAX_COMPUTE_SHARED_MEMORY_SIZE``)."""
+MAX_INVOCATIONS = fft.MAX_INVOCATIONS
+MIN_SHARED_BYTES = fft.MIN_SHARED_BYTES
+values_per_thread = fft.values_per_thread
 
 
 def column_lines(ny: int, per: int, lines: int) -> int:
     """Spectrum columns one work group of a column pass transforms together for ``ny``-point columns
-    at ``per`` values a thread: ``lines``, halved until the lines (a ``vec2`` a point) fit
-    ``MIN_SHARED_BYTES`` and the threads ``MAX_INVOCATIONS``."""
+    at ``per`` values a thread (as compiled: :func:`values_per_thread`): ``lines``, halved until the
+    lines (a ``vec2`` a point) fit ``MIN_SHARED_BYTES`` and the threads ``MAX_INVOCATIONS``."""
     n = max(1, int(lines))
     while n > 1 and (n * ny * 8 > MIN_SHARED_BYTES or n * (ny // per) > MAX_INVOCATIONS):
         n //= 2
@@ -100,7 +94,8 @@ class AdmmBuffers:
     spec: "moderngl.TextureArray"              # row and column spectra, HX x NY x 6
     kernel: "moderngl.TextureArray"            # K's half spectrum, HX x NY x 9
     reference: "moderngl.TextureArray | None"  # K_ref's (None: the ideal target A t)
-    twiddle: "moderngl.Texture"
+    twiddle_x: "moderngl.Texture"              # the row passes' twiddle factors (NX points)
+    twiddle_y: "moderngl.Texture"              # the column passes' (NY points)
     partials: "moderngl.Buffer"
     changed: "moderngl.Buffer"                 # set by the decode's comparison with the last target
     history: "moderngl.Buffer"                 # the last two frames' guarded objectives
@@ -188,51 +183,75 @@ class AdmmStrategy(IterativeStrategy):
             b = self._sized[size] = self._make(size)
         return b
 
-    def _make(self, size: Size) -> AdmmBuffers:
+    def grid(self, size: Size) -> tuple[int, int]:
+        """The ``(NY, NX)`` grid of ``size`` images (:func:`~vrcorrect.solvers.realtime.admm_grid`),
+        refused past :data:`MAX_ADMM_GRID` naming the size, the grid and the largest image allowed."""
         from ...solvers.realtime import admm_grid  # start-up time (as above)
 
-        ctx, m = self.ctx, self.model
+        m = self.model
         W, H = size
         ksize = m.margin                             # a pupil bank's widest kernel: a switch keeps the grid
-        ny, nx = grid = admm_grid(W, H, ksize)
+        ny, nx = admm_grid(W, H, ksize)
         if max(nx, ny) > MAX_ADMM_GRID:
             raise ValidationError("image size", f"{W}x{H} with a {ksize} px kernel",
                                   f"a grid of at most {MAX_ADMM_GRID} px per side (the image plus the kernel "
-                                  f"less one, padded to a power of two)")
-        hx = nx // 2 + 1
-        dtype = "f2" if self.half else "f4"
-        tw_n = max(nx, ny)
-        defines = {"NX": nx, "NY": ny, "LOG2_NX": int(math.log2(nx)), "LOG2_NY": int(math.log2(ny)), "HX": hx,
-                   "TW_N": tw_n, "IMG_W": W, "IMG_H": H}
+                                  f"less one, rounded up to a 5-smooth length: {nx}x{ny} here), i.e. an image of "
+                                  f"at most {MAX_ADMM_GRID - ksize + 1} px per side for this eye")
+        return ny, nx
+
+    def compile_passes(self, size: Size) -> tuple[dict[str, "moderngl.ComputeShader"], dict[str, int], int]:
+        """Compile (and link) every compute pass of ``size`` frames, allocating nothing else: the
+        programs by kind, each row or column pass's values a thread as compiled, and a column pass's
+        lines a work group.  (A test links them at every grid class up to 4096 without the memory a
+        frame of that size takes.)"""
+        ctx, m = self.ctx, self.model
+        W, H = size
+        ny, nx = self.grid(size)
+        defines: dict[str, Any] = {"NX": nx, "NY": ny, "HX": nx // 2 + 1, "IMG_W": W, "IMG_H": H,
+                                   "MAX_PASSES": len(KINDS)}
         if self.half:
             defines["HALF"] = None
         if m.reference is None:
             defines["IDEAL"] = None
-
         per_pass = self.options.work_groups.table(self.coarse_level)    # shape only, never a value
         compiled: dict[str, int] = {}
-        col_per = values_per_thread(ny, per_pass["COLUMNS"])
-        col_lines = column_lines(ny, col_per, self.options.work_groups.lines(self.coarse_level))
+        col_plan = fft.line_plan(ny, per_pass["COLUMNS"])
+        col_lines = column_lines(ny, col_plan.per, self.options.work_groups.lines(self.coarse_level))
 
         def program(pass_: str, **extra: None) -> "moderngl.ComputeShader":
-            per = col_per if pass_ == "COLUMNS" else values_per_thread(nx, per_pass.get(pass_, 8))
-            if pass_ in per_pass:
-                compiled[pass_] = per
-            lines = {"PER": per, "WG_X": nx // per, "WG_Y": ny // per}
-            if pass_ == "COLUMNS":
-                lines["LINES"] = col_lines
+            lines: dict[str, Any] = {}
+            if pass_ == "COLUMNS" or pass_.startswith("ROWS"):
+                plan = col_plan if pass_ == "COLUMNS" else fft.line_plan(nx, per_pass.get(pass_, 8))
+                if pass_ in per_pass:
+                    compiled[pass_] = plan.per
+                lines = plan.defines()
+                if pass_ == "COLUMNS":
+                    lines["LINES"] = col_lines
             return compile_compute(ctx, "admm.glsl", defines={**defines, **lines, pass_: None, **extra})
 
-        defines["MAX_PASSES"] = len(KINDS)
-        programs = {"rows_start": program("ROWS_START"), "cols_admm": program("COLUMNS", MODE_ADMM=None),
-                    "pool": program("POOL"),
-                    "rows_update": program("ROWS_UPDATE"), "rows_last": program("ROWS_UPDATE", LAST=None),
-                    "rows_guard_input": program("ROWS_UPDATE", LAST=None, NO_UPDATE=None),
-                    "cols_guard": program("COLUMNS", MODE_GUARD=None), "rows_guard": program("ROWS_GUARD"),
-                    "guard_final": program("GUARD_FINAL"), "blend": program("BLEND"), "plan": program("PLAN")}
-        if m.reference is not None:
-            programs["rows_target"] = program("ROWS_TARGET")
-            programs["cols_target"] = program("COLUMNS", MODE_TARGET=None)
+        programs: dict[str, "moderngl.ComputeShader"] = {}
+        try:
+            for kind, pass_, extra in (("rows_start", "ROWS_START", {}), ("cols_admm", "COLUMNS", {"MODE_ADMM": None}),
+                                       ("pool", "POOL", {}), ("rows_update", "ROWS_UPDATE", {}),
+                                       ("rows_last", "ROWS_UPDATE", {"LAST": None}),
+                                       ("rows_guard_input", "ROWS_UPDATE", {"LAST": None, "NO_UPDATE": None}),
+                                       ("cols_guard", "COLUMNS", {"MODE_GUARD": None}), ("rows_guard", "ROWS_GUARD", {}),
+                                       ("guard_final", "GUARD_FINAL", {}), ("blend", "BLEND", {}), ("plan", "PLAN", {}),
+                                       *((("rows_target", "ROWS_TARGET", {}), ("cols_target", "COLUMNS", {"MODE_TARGET": None}))
+                                         if m.reference is not None else ())):
+                programs[kind] = program(pass_, **extra)
+        except BaseException:
+            release(*programs.values())
+            raise
+        return programs, compiled, col_lines
+
+    def _make(self, size: Size) -> AdmmBuffers:
+        ctx, m = self.ctx, self.model
+        W, H = size
+        ny, nx = grid = self.grid(size)
+        hx = nx // 2 + 1
+        dtype = "f2" if self.half else "f4"
+        programs, compiled, col_lines = self.compile_passes(size)
         present = compile_program(ctx, "admm_present.glsl")
 
         spectra = model_spectra(m, grid, dtype)
@@ -244,10 +263,6 @@ class AdmmStrategy(IterativeStrategy):
 
         spec = ctx.texture_array((hx, ny, 6), 2, dtype=dtype)
         spec.filter = (ctx.NEAREST, ctx.NEAREST)
-        angles = 2.0 * np.pi * np.arange(tw_n // 2) / tw_n
-        twiddle = ctx.texture((tw_n // 2, 1), 2, np.stack([np.cos(angles), np.sin(angles)], -1).astype(np.float32)
-                              .tobytes(), dtype="f4")
-        twiddle.filter = (ctx.NEAREST, ctx.NEAREST)
         return AdmmBuffers(
             grid=grid, t=[float_texture(ctx, size, dtype) for _ in range(2)],
             T=[float_texture(ctx, size, dtype) for _ in range(2)],
@@ -255,7 +270,8 @@ class AdmmStrategy(IterativeStrategy):
             q=[float_texture(ctx, (nx, ny), dtype) for _ in range(2)],
             spec=spec, kernel=spectrum_array(spectra[0]),
             reference=None if m.reference is None else spectrum_array(spectra[1]),
-            twiddle=twiddle, partials=ctx.buffer(reserve=16 * H), changed=ctx.buffer(np.zeros(4, np.uint32).tobytes()),
+            twiddle_x=fft.twiddle_texture(ctx, nx), twiddle_y=fft.twiddle_texture(ctx, ny),
+            partials=ctx.buffer(reserve=16 * H), changed=ctx.buffer(np.zeros(4, np.uint32).tobytes()),
             history=ctx.buffer(np.full(4, -1.0, np.float32).tobytes()), args=ctx.buffer(reserve=12 * len(KINDS)),
             guard=GuardResult(ctx),
             out=float_texture(ctx, size), programs=programs, present=present,
@@ -330,7 +346,8 @@ class AdmmStrategy(IterativeStrategy):
         # state is updated in place (and a frame the plan skips leaves it as it was)
         old, new = (b.current, 1 - b.current) if shifted else (b.current, b.current)
         t_prev = b.t[b.last_t]
-        twiddle = {"u_twiddle": b.twiddle}
+        twiddle = {"u_twiddle": b.twiddle_x}            # the row passes' table; the column passes': col_tw
+        col_tw = {"u_twiddle": b.twiddle_y}
         k = self._iterations
         if b.compared:
             self._begin("plan")
@@ -344,7 +361,7 @@ class AdmmStrategy(IterativeStrategy):
             self._begin("target")
             self._run(b, "rows_target", "rows: target t", H, sample={**twiddle, "u_t": linear}, write={0: b.spec},
                       rows={0: (H, 3)})
-            self._run(b, "cols_target", "columns: T = K_ref t", cols, sample={**twiddle, "u_kernel": b.reference},
+            self._run(b, "cols_target", "columns: T = K_ref t", cols, sample={**col_tw, "u_kernel": b.reference},
                       modify={0: b.spec}, uniforms={"u_rows_in": H, "u_rows_out": ny}, rows={0: (H, 3)},
                       written={0: (ny, 3)}, round_trip=True)
         self._begin("start")
@@ -388,7 +405,7 @@ class AdmmStrategy(IterativeStrategy):
         self._begin("iterations")
         if self.coarse_level:                     # the state is the result: every iteration a plain update
             for _ in range(k):
-                self._run(b, "cols_admm", "columns: ADMM solve", cols, sample={**twiddle, "u_kernel": b.kernel},
+                self._run(b, "cols_admm", "columns: ADMM solve", cols, sample={**col_tw, "u_kernel": b.kernel},
                           modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.box_weight},
                           round_trip=True)
                 self._run(b, "rows_update", "rows: update, reflections", ny, sample={**twiddle, "u_T": b.T[new]},
@@ -397,7 +414,7 @@ class AdmmStrategy(IterativeStrategy):
             b.current, b.last_t, b.warm = new, b.next_t, True
             return linear
         for i in range(k):
-            self._run(b, "cols_admm", "columns: ADMM solve", cols, sample={**twiddle, "u_kernel": b.kernel},
+            self._run(b, "cols_admm", "columns: ADMM solve", cols, sample={**col_tw, "u_kernel": b.kernel},
                       modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.box_weight},
                       round_trip=True)
             last = i == k - 1
@@ -412,7 +429,7 @@ class AdmmStrategy(IterativeStrategy):
             self._run(b, "rows_guard_input", "rows: guard input", H, sample={**twiddle, "u_t": linear},
                       read={3: b.q[new]}, write={0: b.spec}, rows={0: (H, 6), 3: H})
         self._begin("guard")
-        self._run(b, "cols_guard", "columns: K z, K t", cols, sample={**twiddle, "u_kernel": b.kernel},
+        self._run(b, "cols_guard", "columns: K z, K t", cols, sample={**col_tw, "u_kernel": b.kernel},
                   modify={0: b.spec}, uniforms={"u_rows_in": H, "u_rows_out": H}, rows={0: (H, 6)},
                   written={0: (H, 6)}, round_trip=True)
         self._run(b, "rows_guard", "rows: guard sums", H, sample={**twiddle, "u_T": b.T[new]}, read={0: b.spec},

@@ -2,7 +2,7 @@
 frames (selectable; ADMM, :mod:`.admm`, is the default iteration).
 
 It minimises the CPU solvers' objective itself, ``||crop(K x) - T||^2`` with ``x`` in [0, 1], the
-convolution exact and linear with black outside the image (zero-filled power-of-two FFT grid,
+convolution exact and linear with black outside the image (zero-filled 5-smooth FFT grid,
 cropped to the image: :func:`vrcorrect.solvers.objective`), ``T = K_ref t`` (glasses on) or
 ``A t`` (ideal).  Each iteration is two FFT round trips, ``r = K y - T`` then ``K^H r`` (the exact
 adjoint: the conjugate transpose of ``K``'s 3x3 spectrum, the same zero fill and crop), then

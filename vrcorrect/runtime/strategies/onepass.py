@@ -3,7 +3,7 @@ frame, then blended with the target (cheaper per frame than the iterations, furt
 optimum; selectable).
 
 * ``method="fft"`` (:class:`FftInverse`): ``F`` with mirrored borders by FFT compute shaders on a
-  power-of-two grid (:mod:`vrcorrect.runtime.fft`), ``O(log N)`` per pixel whatever the filter's
+  5-smooth grid (:mod:`vrcorrect.runtime.fft`), ``O(log N)`` per pixel whatever the filter's
   size, the inverse not truncated; then ``x = t + beta (clip(F t) - t)`` with ``beta`` either the
   frame's own objective-optimal weight, computed on the GPU (``blend="frame"``, the default: two
   more FFT filterings and a reduction, so no frame is worse than uncorrected) or the weight chosen

@@ -1,4 +1,4 @@
-"""The eye's kernel spectra on a power-of-two FFT grid, computed on the CPU for the strategies that
+"""The eye's kernel spectra on a 5-smooth FFT grid, computed on the CPU for the strategies that
 upload whole 3x3 complex spectra (:class:`~vrcorrect.runtime.fft.FftBankGL`: FISTA, the one-pass
 FFT inverse and the preview's forward model).
 

@@ -9,25 +9,25 @@ no value, only which thread holds it; what it changes is how well the GPU is occ
 byte count shows.
 
 Each setting below gets its own :class:`~vrcorrect.runtime.corrector.Corrector` on one eye, with
-that shape as its ``work_groups`` option (the eye model built once). After
-:data:`~vrcorrect.studies.bench.cost.WARM_UP_S` seconds of untimed frames (a GPU raises its clocks
-under load), the settings' frames are timed **interleaved**, in rounds of :data:`PER_ROUND` (two
-untimed frames first), the order reversed every other round, so that a drift of the clocks falls on
-every setting alike: changing content (a new picture each frame, the budget case) and cold frames (a
-reset before each, as a cut). Each frame's GPU time comes from a ``GL_TIME_ELAPSED`` query around
-it; the medians are reported. Every setting's output after the same three frames is compared with
-the default's, to the last bit of the 8-bit picture. Besides the values a thread, two settings give a
-column pass's work group two spectrum columns (``WorkGroups.column_lines``): its threads then read
-neighbouring columns of a grid row side by side, where one column a group reads one value a row.
-
-On llvmpipe the figures measure CPU cores, not a GPU: the command runs there (the tests run it), but
-its choice is for a GPU. Layer 6.
+that shape as its ``work_groups`` option (the eye model built once). Its frames are timed by the
+routine ``bench cost`` times its own with (:func:`~vrcorrect.studies.bench.frame_timing.time_frames`):
+after :data:`~vrcorrect.studies.bench.cost.WARM_UP_S` seconds of untimed frames (a GPU raises its
+clocks under load), **interleaved**, in rounds of
+:data:`~vrcorrect.studies.bench.frame_timing.PER_ROUND` (two untimed frames first), the order
+reversed every other round, so that a drift of the clocks falls on every setting alike: changing
+content (a new picture each frame, the budget case) and cold frames (a reset before each, as a cut).
+Each frame's GPU time comes from a ``GL_TIME_ELAPSED`` query around it; the medians are reported.
+Every setting's output after the same three frames is compared with the default's, to the last bit
+of the 8-bit picture. Besides the values a thread, two settings give a column pass's work group two
+spectrum columns (``WorkGroups.column_lines``): its threads then read neighbouring columns of a grid
+row side by side, where one column a group reads one value a row. On llvmpipe the figures measure
+CPU cores, not a GPU: the command runs there (the tests run it), but its choice is for a GPU. Layer
+6.
 """
 
 from __future__ import annotations
 
 import statistics
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -37,19 +37,17 @@ from tqdm import tqdm
 
 from ...runtime.corrector import Corrector, CorrectorOptions, build_eye_model
 from ...runtime.eye_model import WORK_GROUP_PASSES, WorkGroups
-from ...runtime.gl import (headless_context, read_framebuffer, release, render_target, timer_query_ms,
-                           upload_texture, write_texture)
+from ...runtime.gl import headless_context, read_framebuffer, release, render_target, upload_texture, write_texture
 from ...specs.display import get_display
 from ...specs.prescription import bundled_sample_path, load_prescription
 from . import machine_description, markdown_table, publish
 from .cost import HEADSET_SIZE, WARM_UP_S, check_frames
+from .frame_timing import PER_ROUND, Subject, time_frames
 
 __all__ = ["PASSES", "SETTINGS", "PER_ROUND", "Setting", "run_workgroup_bench"]
 
 PASSES = WORK_GROUP_PASSES
 """The passes that have a work-group shape, in the order the tables print them."""
-PER_ROUND = 5
-"""Timed frames of one setting in a row before the next setting's."""
 
 
 @dataclass(frozen=True)
@@ -94,23 +92,10 @@ def run_workgroup_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str 
     pictures = [rng.integers(0, 256, (H, W, 3), dtype=np.uint8) for _ in range(2)]
     src = upload_texture(ctx, pictures[0])
     tex, fbo = render_target(ctx, width=W, height=H)
-    query = ctx.query(time=True)
     correctors: list[Corrector] = []
-    shown = [0]
 
-    def frame(c: Corrector, cold: bool = False, timed: bool = False) -> float | None:
-        shown[0] += 1
-        write_texture(src, pictures[shown[0] % 2])
-        if cold:
-            c.reset()
-        ctx.finish()
-        if not timed:
-            c.apply(src, fbo)
-            return None
-        with query:
-            c.apply(src, fbo)
-        ctx.finish()
-        return timer_query_ms(query.elapsed)
+    def picture(i: int) -> None:
+        write_texture(src, pictures[i % 2])
 
     try:
         outputs = []
@@ -122,31 +107,18 @@ def run_workgroup_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str 
                 write_texture(src, pictures[p])
                 c.apply(src, fbo)
             outputs.append(read_framebuffer(fbo))
-        until = time.perf_counter() + warm_up_s
-        while time.perf_counter() < until:
-            frame(correctors[0])
         rounds = -(-int(frames) // PER_ROUND)
-        changing: list[list[float]] = [[] for _ in settings]
-        cold: list[list[float]] = [[] for _ in settings]
-        order = list(range(len(settings)))
+        subjects = [Subject(apply=lambda c=c: c.apply(src, fbo), picture=picture, reset=c.reset) for c in correctors]
         with tqdm(total=2 * rounds * len(settings), desc="bench workgroups", unit="run", leave=False,
                   disable=None if progress else True) as bar:
-            for r in range(rounds):
-                for i in (order if r % 2 == 0 else order[::-1]):
-                    n = min(PER_ROUND, int(frames) - r * PER_ROUND)
-                    for kind, times in ((False, changing[i]), (True, cold[i])):
-                        for _ in range(2):
-                            frame(correctors[i], cold=kind)
-                        for _ in range(n):
-                            ms = frame(correctors[i], cold=kind, timed=True)
-                            if ms is not None:                 # None: a saturated query (4.29 s or more)
-                                times.append(ms)
-                        bar.update()
+            timed = time_frames(ctx, subjects, frames, warm_up_s, progress=bar.update)
     finally:
         for c in correctors:
             c.release()
         release(fbo, tex, src)
         ctx.release()
+    changing = [t["changing"].gpu_ms for t in timed]
+    cold = [t["cold"].gpu_ms for t in timed]
     rows = []
     for s, out_image, ch, co in zip(settings, outputs, changing, cold):
         rows.append({"setting": s.label, "values_per_thread": s.shape.table(),

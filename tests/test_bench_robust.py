@@ -1,0 +1,28 @@
+"""``vrcorrect bench robust`` (the eye as it is against the eye as modelled), run small: it sweeps the
+eyes it says, scores every method on each, and writes its section; and the 4 mm design it replaces
+is worse than the default through a small pupil."""
+
+from __future__ import annotations
+
+import json
+import math
+
+from vrcorrect.studies.bench.robust import METHODS, run_robust_bench
+
+
+def test_a_small_sweep_scores_every_method_and_writes_its_section(tmp_path):
+    out = tmp_path / "bench.md"
+    report = run_robust_bench(out, displays=("quest2",), images=("page",), boundary=False, size=64,
+                              seen_pupils=(2.5, 3.0), seen_spheres=(0.5,), json_out=tmp_path / "r.json")
+    text = out.read_text()
+    assert "<!-- bench:robust -->" in text and "### The checks" in text and "quest2, page" in text
+    case = report["cases"][0]
+    assert [(r["pupil_mm"], r["sphere_offset_D"]) for r in case["rows"]] == [
+        (2.5, 0.0), (3.0, 0.0), (case["pupil_mm"], 0.5)]
+    for r in case["rows"]:
+        assert set(r["scores"]) == set(METHODS)
+        assert all(math.isfinite(v) for s in r["scores"].values() for v in s.values())
+    at = {r["pupil_mm"]: r["scores"] for r in case["rows"]}
+    gain = {m: at[2.5][m]["jod"] - at[2.5]["none"]["jod"] for m in METHODS}
+    assert gain["4 mm"] < gain["default"]
+    assert json.loads((tmp_path / "r.json").read_text())["cases"][0]["checks"]["share_at_3mm"] is not None
