@@ -17,7 +17,19 @@ from typing import IO, Callable
 __all__ = ["Progress", "duration_text", "INTERVAL_S"]
 
 INTERVAL_S = 5.0
-"""Seconds between the lines written when the output is not a terminal."""
+"""Seconds between the lines written when the output is not a terminal (``VRCORRECT_PROGRESS_S`` sets
+another: a CI log may want fewer lines, a test more)."""
+INTERVAL_ENV = "VRCORRECT_PROGRESS_S"
+
+
+def _interval() -> float:
+    import os
+
+    try:
+        value = float(os.environ.get(INTERVAL_ENV, INTERVAL_S))
+    except ValueError:
+        return INTERVAL_S
+    return value if math.isfinite(value) and value > 0 else INTERVAL_S
 _REDRAW_S = 0.2
 
 
@@ -45,15 +57,16 @@ def _a(unit: str) -> str:
 class Progress:
     """``what``: ``"render"``; ``unit``: ``"frame"``; ``total``: how many (``None``: unknown).  Call
     :meth:`update` with the count done; :meth:`close` at the end (or use it as a context manager).
-    ``stream``: where it writes (standard error); ``interval``: seconds between lines off a terminal;
+    ``stream``: where it writes (standard error); ``interval``: seconds between lines off a terminal
+    (default :data:`INTERVAL_S` or ``$VRCORRECT_PROGRESS_S``);
     ``clock``: for tests.  Between updates (a long step, or the work after the last one) a thread says
     every ``interval`` that it is still working, so that no stretch of a run is silent."""
 
     def __init__(self, what: str, unit: str, total: int | None = None, *, stream: IO[str] | None = None,
-                 interval: float = INTERVAL_S, clock: Callable[[], float] = time.monotonic):
+                 interval: float | None = None, clock: Callable[[], float] = time.monotonic):
         self.what, self.unit, self.total = what, unit, total
         self.stream = sys.stderr if stream is None else stream
-        self.interval, self.clock = interval, clock
+        self.interval, self.clock = (_interval() if interval is None else interval), clock
         isatty = getattr(self.stream, "isatty", None)
         self.terminal = bool(isatty and isatty())
         self.start = clock()
