@@ -56,6 +56,7 @@
 #include <pthread.h>
 
 #define LAYER_NAME "XR_APILAYER_VRCORRECT_correction"
+#define HELD_MS 100.0              /* a passed-through frame the layer held longer than this is logged */
 #define EXPORT __attribute__((visibility("default")))
 
 /* ------------------------------------------------------------------ loader negotiation (spec) */
@@ -102,190 +103,21 @@ typedef struct {
 #define L_GL_RGBA8 0x8058
 #define L_GL_RGB10_A2 0x8059
 #define L_GL_RGBA16F 0x881A
-#define L_GL_FRAMEBUFFER_SRGB 0x8DB9
-#define L_GL_PRIMITIVE_RESTART 0x8F9D
-#define L_GL_PRIMITIVE_RESTART_FIXED_INDEX 0x8D69
-#define L_GL_PROGRAM_POINT_SIZE 0x8642
-#define L_GL_TEXTURE_CUBE_MAP_SEAMLESS 0x884F
-#define L_GL_RASTERIZER_DISCARD 0x8C89
-#define L_GL_DRAW_FRAMEBUFFER_BINDING 0x8CA6
-#define L_GL_READ_FRAMEBUFFER_BINDING 0x8CAA
-#define L_GL_DRAW_FRAMEBUFFER 0x8CA9
-#define L_GL_READ_FRAMEBUFFER 0x8CA8
-#define L_GL_CURRENT_PROGRAM 0x8B8D
-#define L_GL_VERTEX_ARRAY_BINDING 0x85B5
-#define L_GL_ACTIVE_TEXTURE 0x84E0
-#define L_GL_TEXTURE0 0x84C0
-#define L_GL_TEXTURE_BINDING_2D_ARRAY 0x8C1D
-#define L_GL_TEXTURE_2D_ARRAY 0x8C1A
-#define L_GL_SAMPLER_BINDING 0x8919
-#define L_GL_ARRAY_BUFFER 0x8892
-#define L_GL_ARRAY_BUFFER_BINDING 0x8894
-#define L_GL_PIXEL_PACK_BUFFER 0x88EB
-#define L_GL_PIXEL_UNPACK_BUFFER 0x88EC
-#define L_GL_PIXEL_PACK_BUFFER_BINDING 0x88ED
-#define L_GL_PIXEL_UNPACK_BUFFER_BINDING 0x88EF
-#define L_GL_COPY_READ_BUFFER 0x8F36
-#define L_GL_COPY_WRITE_BUFFER 0x8F37
-#define L_GL_SHADER_STORAGE_BUFFER 0x90D2
-#define L_GL_SHADER_STORAGE_BUFFER_BINDING 0x90D3
-#define L_GL_UNIFORM_BUFFER 0x8A11
-#define L_GL_UNIFORM_BUFFER_BINDING 0x8A28
-#define L_GL_IMAGE_BINDING_NAME 0x8F3A
-#define L_GL_IMAGE_BINDING_LEVEL 0x8F3B
-#define L_GL_IMAGE_BINDING_LAYERED 0x8F3C
-#define L_GL_IMAGE_BINDING_LAYER 0x8F3D
-#define L_GL_IMAGE_BINDING_ACCESS 0x8F3E
-#define L_GL_IMAGE_BINDING_FORMAT 0x906E
-#define L_GL_BLEND_SRC_RGB 0x80C9
-#define L_GL_BLEND_DST_RGB 0x80C8
-#define L_GL_BLEND_SRC_ALPHA 0x80CB
-#define L_GL_BLEND_DST_ALPHA 0x80CA
-#define L_GL_BLEND_EQUATION_RGB 0x8009
-#define L_GL_BLEND_EQUATION_ALPHA 0x883D
-#define L_GL_PACK_ALIGNMENT_ 0x0D05
-#define L_GL_UNPACK_ALIGNMENT_ 0x0CF5
-#define UNITS 8
 
+/* The one GL entry point the shim itself calls: the engine corrects on contexts of its own (which share
+ * the application's textures) and never touches the application's GL state. */
 static struct {
-    void (*GetIntegerv)(GLenum, GLint *);
-    void (*GetIntegeri_v)(GLenum, GLuint, GLint *);
-    void (*GetBooleanv)(GLenum, GLboolean *);
-    GLboolean (*IsEnabled)(GLenum);
-    void (*Enable)(GLenum);
-    void (*Disable)(GLenum);
-    GLenum (*GetError)(void);
-    void (*UseProgram)(GLuint);
-    void (*BindVertexArray)(GLuint);
-    void (*BindFramebuffer)(GLenum, GLuint);
-    void (*Viewport)(GLint, GLint, GLsizei, GLsizei);
-    void (*Scissor)(GLint, GLint, GLsizei, GLsizei);
-    void (*ActiveTexture)(GLenum);
-    void (*BindTexture)(GLenum, GLuint);
-    void (*BindSampler)(GLuint, GLuint);
-    void (*BindBuffer)(GLenum, GLuint);
-    void (*BindBufferBase)(GLenum, GLuint, GLuint);
-    void (*BindImageTexture)(GLuint, GLuint, GLint, GLboolean, GLint, GLenum, GLenum);
-    void (*ColorMask)(GLboolean, GLboolean, GLboolean, GLboolean);
-    void (*DepthMask)(GLboolean);
-    void (*BlendFuncSeparate)(GLenum, GLenum, GLenum, GLenum);
-    void (*BlendEquationSeparate)(GLenum, GLenum);
-    void (*PixelStorei)(GLenum, GLint);
-    void (*Finish)(void);
     GLXContext (*GetCurrentContext)(void);
 } gl;
 
 static int load_gl(void) {
-    if (gl.GetIntegerv) return 1;
+    if (gl.GetCurrentContext) return 1;
     void *lib = dlopen("libGL.so.1", RTLD_NOW | RTLD_GLOBAL);
     if (!lib) return 0;
     void *(*gpa)(const char *) = (void *(*)(const char *))dlsym(lib, "glXGetProcAddressARB");
     if (!gpa) return 0;
-#define GET(field, name) *(void **)&gl.field = gpa(name); if (!gl.field) return 0;
-    GET(GetIntegeri_v, "glGetIntegeri_v") GET(GetBooleanv, "glGetBooleanv") GET(IsEnabled, "glIsEnabled")
-    GET(Enable, "glEnable") GET(Disable, "glDisable") GET(GetError, "glGetError") GET(UseProgram, "glUseProgram")
-    GET(BindVertexArray, "glBindVertexArray") GET(BindFramebuffer, "glBindFramebuffer") GET(Viewport, "glViewport")
-    GET(Scissor, "glScissor") GET(ActiveTexture, "glActiveTexture") GET(BindTexture, "glBindTexture")
-    GET(BindSampler, "glBindSampler") GET(BindBuffer, "glBindBuffer") GET(BindBufferBase, "glBindBufferBase")
-    GET(BindImageTexture, "glBindImageTexture") GET(ColorMask, "glColorMask") GET(DepthMask, "glDepthMask")
-    GET(BlendFuncSeparate, "glBlendFuncSeparate") GET(BlendEquationSeparate, "glBlendEquationSeparate")
-    GET(PixelStorei, "glPixelStorei") GET(Finish, "glFinish") GET(GetCurrentContext, "glXGetCurrentContext")
-    GET(GetIntegerv, "glGetIntegerv")
-#undef GET
-    return 1;
-}
-
-/* The GL state the correction (moderngl) may touch, saved before and restored after. */
-static const GLenum CAPS[] = {GL_BLEND, GL_DEPTH_TEST, GL_CULL_FACE, GL_STENCIL_TEST, GL_SCISSOR_TEST, GL_DITHER,
-                              L_GL_FRAMEBUFFER_SRGB, L_GL_PRIMITIVE_RESTART, L_GL_PRIMITIVE_RESTART_FIXED_INDEX,
-                              L_GL_PROGRAM_POINT_SIZE, L_GL_TEXTURE_CUBE_MAP_SEAMLESS, L_GL_RASTERIZER_DISCARD};
-#define NCAPS (sizeof CAPS / sizeof CAPS[0])
-typedef struct {
-    GLboolean caps[NCAPS];
-    GLint program, vao, draw_fb, read_fb, viewport[4], scissor[4], active, array_buffer, pack, unpack, copy_read,
-        copy_write, ssbo, ubo, pack_align, unpack_align;
-    GLint tex2d[UNITS], tex2d_array[UNITS], sampler[UNITS];
-    GLint ssbo_at[UNITS], ubo_at[UNITS];
-    GLint image[UNITS][6];
-    GLboolean color_mask[4], depth_mask;
-    GLint blend[6];
-} GlState;
-
-static void save_gl(GlState *s) {
-    for (size_t i = 0; i < NCAPS; i++) s->caps[i] = gl.IsEnabled(CAPS[i]);
-    gl.GetIntegerv(L_GL_CURRENT_PROGRAM, &s->program);
-    gl.GetIntegerv(L_GL_VERTEX_ARRAY_BINDING, &s->vao);
-    gl.GetIntegerv(L_GL_DRAW_FRAMEBUFFER_BINDING, &s->draw_fb);
-    gl.GetIntegerv(L_GL_READ_FRAMEBUFFER_BINDING, &s->read_fb);
-    gl.GetIntegerv(GL_VIEWPORT, s->viewport);
-    gl.GetIntegerv(GL_SCISSOR_BOX, s->scissor);
-    gl.GetIntegerv(L_GL_ACTIVE_TEXTURE, &s->active);
-    gl.GetIntegerv(L_GL_ARRAY_BUFFER_BINDING, &s->array_buffer);
-    gl.GetIntegerv(L_GL_PIXEL_PACK_BUFFER_BINDING, &s->pack);
-    gl.GetIntegerv(L_GL_PIXEL_UNPACK_BUFFER_BINDING, &s->unpack);
-    gl.GetIntegerv(L_GL_COPY_READ_BUFFER, &s->copy_read);
-    gl.GetIntegerv(L_GL_COPY_WRITE_BUFFER, &s->copy_write);
-    gl.GetIntegerv(L_GL_SHADER_STORAGE_BUFFER_BINDING, &s->ssbo);
-    gl.GetIntegerv(L_GL_UNIFORM_BUFFER_BINDING, &s->ubo);
-    gl.GetIntegerv(L_GL_PACK_ALIGNMENT_, &s->pack_align);
-    gl.GetIntegerv(L_GL_UNPACK_ALIGNMENT_, &s->unpack_align);
-    for (GLuint u = 0; u < UNITS; u++) {
-        gl.ActiveTexture(L_GL_TEXTURE0 + u);
-        gl.GetIntegerv(GL_TEXTURE_BINDING_2D, &s->tex2d[u]);
-        gl.GetIntegerv(L_GL_TEXTURE_BINDING_2D_ARRAY, &s->tex2d_array[u]);
-        gl.GetIntegerv(L_GL_SAMPLER_BINDING, &s->sampler[u]);
-        gl.GetIntegeri_v(L_GL_SHADER_STORAGE_BUFFER_BINDING, u, &s->ssbo_at[u]);
-        gl.GetIntegeri_v(L_GL_UNIFORM_BUFFER_BINDING, u, &s->ubo_at[u]);
-        gl.GetIntegeri_v(L_GL_IMAGE_BINDING_NAME, u, &s->image[u][0]);
-        gl.GetIntegeri_v(L_GL_IMAGE_BINDING_LEVEL, u, &s->image[u][1]);
-        gl.GetIntegeri_v(L_GL_IMAGE_BINDING_LAYERED, u, &s->image[u][2]);
-        gl.GetIntegeri_v(L_GL_IMAGE_BINDING_LAYER, u, &s->image[u][3]);
-        gl.GetIntegeri_v(L_GL_IMAGE_BINDING_ACCESS, u, &s->image[u][4]);
-        gl.GetIntegeri_v(L_GL_IMAGE_BINDING_FORMAT, u, &s->image[u][5]);
-    }
-    gl.ActiveTexture((GLenum)s->active);
-    gl.GetBooleanv(GL_COLOR_WRITEMASK, s->color_mask);
-    gl.GetBooleanv(GL_DEPTH_WRITEMASK, &s->depth_mask);
-    gl.GetIntegerv(L_GL_BLEND_SRC_RGB, &s->blend[0]);
-    gl.GetIntegerv(L_GL_BLEND_DST_RGB, &s->blend[1]);
-    gl.GetIntegerv(L_GL_BLEND_SRC_ALPHA, &s->blend[2]);
-    gl.GetIntegerv(L_GL_BLEND_DST_ALPHA, &s->blend[3]);
-    gl.GetIntegerv(L_GL_BLEND_EQUATION_RGB, &s->blend[4]);
-    gl.GetIntegerv(L_GL_BLEND_EQUATION_ALPHA, &s->blend[5]);
-}
-
-static void restore_gl(const GlState *s) {
-    for (size_t i = 0; i < NCAPS; i++) (s->caps[i] ? gl.Enable : gl.Disable)(CAPS[i]);
-    gl.UseProgram((GLuint)s->program);
-    gl.BindVertexArray((GLuint)s->vao);
-    gl.BindFramebuffer(L_GL_DRAW_FRAMEBUFFER, (GLuint)s->draw_fb);
-    gl.BindFramebuffer(L_GL_READ_FRAMEBUFFER, (GLuint)s->read_fb);
-    gl.Viewport(s->viewport[0], s->viewport[1], s->viewport[2], s->viewport[3]);
-    gl.Scissor(s->scissor[0], s->scissor[1], s->scissor[2], s->scissor[3]);
-    for (GLuint u = 0; u < UNITS; u++) {
-        gl.ActiveTexture(L_GL_TEXTURE0 + u);
-        gl.BindTexture(GL_TEXTURE_2D, (GLuint)s->tex2d[u]);
-        gl.BindTexture(L_GL_TEXTURE_2D_ARRAY, (GLuint)s->tex2d_array[u]);
-        gl.BindSampler(u, (GLuint)s->sampler[u]);
-        gl.BindBufferBase(L_GL_SHADER_STORAGE_BUFFER, u, (GLuint)s->ssbo_at[u]);
-        gl.BindBufferBase(L_GL_UNIFORM_BUFFER, u, (GLuint)s->ubo_at[u]);
-        gl.BindImageTexture(u, (GLuint)s->image[u][0], s->image[u][1], (GLboolean)s->image[u][2], s->image[u][3],
-                            (GLenum)s->image[u][4], (GLenum)s->image[u][5]);
-    }
-    gl.ActiveTexture((GLenum)s->active);
-    gl.BindBuffer(L_GL_ARRAY_BUFFER, (GLuint)s->array_buffer);
-    gl.BindBuffer(L_GL_PIXEL_PACK_BUFFER, (GLuint)s->pack);
-    gl.BindBuffer(L_GL_PIXEL_UNPACK_BUFFER, (GLuint)s->unpack);
-    gl.BindBuffer(L_GL_COPY_READ_BUFFER, (GLuint)s->copy_read);
-    gl.BindBuffer(L_GL_COPY_WRITE_BUFFER, (GLuint)s->copy_write);
-    gl.BindBuffer(L_GL_SHADER_STORAGE_BUFFER, (GLuint)s->ssbo);
-    gl.BindBuffer(L_GL_UNIFORM_BUFFER, (GLuint)s->ubo);
-    gl.PixelStorei(L_GL_PACK_ALIGNMENT_, s->pack_align);
-    gl.PixelStorei(L_GL_UNPACK_ALIGNMENT_, s->unpack_align);
-    gl.ColorMask(s->color_mask[0], s->color_mask[1], s->color_mask[2], s->color_mask[3]);
-    gl.DepthMask(s->depth_mask);
-    gl.BlendFuncSeparate((GLenum)s->blend[0], (GLenum)s->blend[1], (GLenum)s->blend[2], (GLenum)s->blend[3]);
-    gl.BlendEquationSeparate((GLenum)s->blend[4], (GLenum)s->blend[5]);
+    *(void **)&gl.GetCurrentContext = gpa("glXGetCurrentContext");
+    return gl.GetCurrentContext != NULL;
 }
 
 /* ------------------------------------------------------------------ logging (one line a reason) */
@@ -372,13 +204,25 @@ static void self_dir(char *out, size_t size) {
     }
 }
 
-/* vrcorrect_layer.cfg beside the library: "home=<python prefix>" and "path=<sys.path entry>" lines,
- * written by the build (`vrcorrect layer install`). */
-static int read_cfg(char home[1024], char paths[16][1024], int *npaths) {
+/* vrcorrect_layer.cfg: "home=<python prefix>" and "path=<sys.path entry>" lines, written by
+ * `vrcorrect layer install`: beside the library (a layer the install's fallback or a test built), else
+ * in $XDG_DATA_HOME/vrcorrect/layer/ (default ~/.local/share; the library built into the package lies
+ * in site-packages, where install writes nothing). */
+static FILE *open_cfg(void) {
     char dir[1024], file[1200];
     self_dir(dir, sizeof dir);
     snprintf(file, sizeof file, "%s/vrcorrect_layer.cfg", dir);
     FILE *f = fopen(file, "r");
+    if (f) return f;
+    const char *data = getenv("XDG_DATA_HOME"), *home = getenv("HOME");
+    if (data && data[0]) snprintf(file, sizeof file, "%s/vrcorrect/layer/vrcorrect_layer.cfg", data);
+    else if (home && home[0]) snprintf(file, sizeof file, "%s/.local/share/vrcorrect/layer/vrcorrect_layer.cfg", home);
+    else return NULL;
+    return fopen(file, "r");
+}
+
+static int read_cfg(char home[1024], char paths[16][1024], int *npaths) {
+    FILE *f = open_cfg();
     *npaths = 0;
     home[0] = 0;
     if (!f) return 0;
@@ -427,6 +271,17 @@ static int python_start(void) {
         if (p && PySequence_Contains(sys_path, p) == 0) PyList_Insert(sys_path, 0, p);
         Py_XDECREF(p);
     }
+    /* the .pth files there too (a venv's editable installs, or one that reaches its dependencies through a
+     * .pth), as the venv's own interpreter processes them: site.addsitedir on a folder already in sys.path
+     * keeps its place and adds what its .pth files name */
+    PyObject *site = PyImport_ImportModule("site");
+    for (int i = 0; site && i < npaths; i++) {
+        PyObject *p = PyUnicode_DecodeFSDefault(paths[i]);
+        PyObject *r = p ? PyObject_CallMethod(site, "addsitedir", "O", p) : NULL;
+        Py_XDECREF(r);
+        Py_XDECREF(p);
+    }
+    Py_XDECREF(site);
     PyErr_Clear();
     PyGILState_Release(g);
     return 1;
@@ -580,25 +435,32 @@ static XrResult XRAPI_CALL layer_CreateSession(XrInstance instance, const XrSess
     uint32_t w, h;
     view_size(instance, info->systemId, &w, &h);
     engine_start(w, h, L.api == API_GL ? "OpenGL" : "Vulkan");
+    if (L.api == API_VULKAN && L.engine) vk_session_semaphores();
+    if (glx && L.engine) {        /* the engine's contexts share the application's textures through its binding */
+        PyGILState_STATE g = PyGILState_Ensure();
+        PyObject *res = engine_call("attach_glx", "(KKK)", (unsigned long long)(uintptr_t)glx->xDisplay,
+                                    (unsigned long long)(uintptr_t)glx->glxFBConfig,
+                                    (unsigned long long)(uintptr_t)glx->glxContext);
+        Py_XDECREF(res);
+        PyGILState_Release(g);
+    }
     return r;
 }
 
 static void release_engine_gl(void) {
     if (!L.engine) return;
-    /* OpenGL: objects are deleted only on the session's context, else dropped unreleased; Vulkan: the
-     * engine's own context */
-    int current = L.api == API_VULKAN || (gl.GetCurrentContext && gl.GetCurrentContext() == L.context);
+    int current = 1;                 /* the engine's objects live on contexts of its own: always released */
     PyGILState_STATE g = PyGILState_Ensure();
     PyObject *res = engine_call("release_gl", "(i)", current);
     Py_XDECREF(res);
     PyGILState_Release(g);
 }
 
-/* OpenGL: the engine lets go of what it made for a swapchain's textures (framebuffers), whose names
- * the runtime may give to new textures; GL objects are deleted only on the session's context. */
+/* OpenGL: the engine lets go of what it made for a swapchain's textures (wrappers, framebuffers on its
+ * own context), whose names the runtime may give to new textures. */
 static void forget_gl_textures(Chain *c) {
     if (!L.engine || c->out == XR_NULL_HANDLE) return;
-    int current = gl.GetCurrentContext && gl.GetCurrentContext() == L.context;
+    int current = 1;
     PyGILState_STATE g = PyGILState_Ensure();
     PyObject *names = PyList_New(0);
     for (uint32_t i = 0; names && i < c->app_count + c->out_count; i++) {
@@ -729,6 +591,13 @@ static XrResult XRAPI_CALL layer_CreateSwapchain(XrSession session, const XrSwap
         failed = 1;
     } else if (api == API_VULKAN) {
         failed = !vk_chain_start(c, (int)(c - L.chains), reason, sizeof reason);   /* reason "": the engine logged */
+    } else if (L.engine) {        /* OpenGL: the engine prepares its corrections for this format and size */
+        PyGILState_STATE g = PyGILState_Ensure();
+        PyObject *res = engine_call("add_swapchain", "(iLII)", (int)(c - L.chains), (long long)c->format, c->width,
+                                    c->height);
+        failed = !res || !PyObject_IsTrue(res);      /* the engine logged why */
+        Py_XDECREF(res);
+        PyGILState_Release(g);
     }
     if (failed) {
         if (api == API_VULKAN) vk_chain_stop(c, (int)(c - L.chains));
@@ -764,23 +633,15 @@ static XrResult XRAPI_CALL layer_ReleaseSwapchainImage(XrSwapchain swapchain, co
     return r;
 }
 
-/* OpenGL: each view corrected on the application's context straight into the acquired output image
- * (the GL state saved before and restored after). Returns 1 when every view was corrected. */
+/* OpenGL: each view corrected straight into the acquired output image, on the engine's own context,
+ * which shares the application's textures (the engine makes it current around each view, ordered
+ * after the application's rendering by a fence, and puts the application's context back). Returns 1
+ * when every view was corrected. */
 static int gl_correct_views(const FrameView *views, uint32_t nviews) {
     if (gl.GetCurrentContext() != L.context) {
         pass_reason("the session's GLX context is not current at xrEndFrame");
         return 0;
     }
-    GlState saved;
-    save_gl(&saved);
-    while (gl.GetError() != GL_NO_ERROR) {}                     /* the application's errors are not ours */
-    /* fixed-function state the application may have left on, which would clip or blend the layer's draws */
-    const GLenum off[] = {GL_SCISSOR_TEST, GL_BLEND, GL_DEPTH_TEST, GL_CULL_FACE, GL_STENCIL_TEST,
-                          L_GL_RASTERIZER_DISCARD, L_GL_FRAMEBUFFER_SRGB};
-    for (size_t i = 0; i < sizeof off / sizeof off[0]; i++) gl.Disable(off[i]);
-    gl.ColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
-    gl.BindBuffer(L_GL_PIXEL_PACK_BUFFER, 0);
-    gl.BindBuffer(L_GL_PIXEL_UNPACK_BUFFER, 0);
     int ok = 1;
     for (uint32_t i = 0; i < nviews && ok; i++) {
         const FrameView *f = &views[i];
@@ -791,16 +652,21 @@ static int gl_correct_views(const FrameView *views, uint32_t nviews) {
         if (!res || !PyObject_IsTrue(res)) ok = 0;
         Py_XDECREF(res);
     }
-    GLenum err = gl.GetError();
-    if (ok && err != GL_NO_ERROR) {
-        char why[96];
-        snprintf(why, sizeof why, "a GL error 0x%04X during the correction", err);
-        pass_reason(why);
-        ok = 0;
-    }
-    while (gl.GetError() != GL_NO_ERROR) {}
-    restore_gl(&saved);
     return ok;
+}
+
+/* OpenGL: each view's submitted rect handed to the engine (which copies it off this thread, ordered by a
+ * fence), the frame then passing through. */
+static void gl_capture_views(const FrameView *views, uint32_t nviews) {
+    if (gl.GetCurrentContext() != L.context) return;
+    for (uint32_t i = 0; i < nviews; i++) {
+        const FrameView *f = &views[i];
+        Chain *c = f->chain;
+        PyObject *res = engine_call("capture_gl", "(IIiIIiiiiI)", f->index, c->app_tex[c->released], (int)c->format,
+                                    c->width, c->height, f->rect.offset.x, f->rect.offset.y, f->rect.extent.width,
+                                    f->rect.extent.height, f->view);
+        Py_XDECREF(res);
+    }
 }
 
 /* Collects the frame's projection views; 0 when the frame passes through (the reason logged). */
@@ -865,17 +731,34 @@ static int correct_frame(const XrFrameEndInfo *info, XrCompositionLayerProjectio
     if (!collect_views(info, views, &nviews)) return 0;
     double t0 = now_ms();
     PyGILState_STATE g = PyGILState_Ensure();
+    double gil_ms = now_ms() - t0;              /* waiting for Python's lock (another thread of this process) */
     PyObject *go = engine_call("begin_frame", "()");
-    int ok = go && PyObject_IsTrue(go);                          /* off, no prescription, ...: the engine logs why */
+    long mode = go ? PyLong_AsLong(go) : 0;     /* 0: pass through (off, no prescription, ...: the engine logs why),
+                                                   1: correct, 2: let the engine capture the views, pass through */
     Py_XDECREF(go);
-    if (!ok) { PyGILState_Release(g); return 0; }
+    PyErr_Clear();
+    int ok = mode == 1 || mode == 3;             /* 3: correct, ordered by external semaphores (Vulkan) */
+    if (mode == 2) {            /* the engine prepares its correction on this frame's views, off this thread */
+        if (L.api == API_GL) gl_capture_views(views, nviews);
+        else vk_capture_views(views, nviews);
+        PyObject *done = engine_call("end_frame", "(i(dddd))", 0, now_ms() - t0, -1.0, -1.0, -1.0);
+        Py_XDECREF(done);
+    }
+    if (!ok) {
+        PyGILState_Release(g);
+        double held = now_ms() - t0;
+        if (held > HELD_MS)      /* a frame the layer passed through but held up: say how long, and on what */
+            layer_log("a passed-through xrEndFrame held %.0f ms by the layer (%.0f ms of it waiting for Python's lock)",
+                      held, gil_ms);
+        return 0;
+    }
     Chain *acquired[MAX_LAYERS * MAX_VIEWS];
     int nacq = 0;
     double sync_ms[3] = {-1, -1, -1};               /* Vulkan: copy in and wait, glFinish, copy out */
     if (L.api == API_GL) {
         ok = acquire_outputs(views, nviews, acquired, &nacq) && gl_correct_views(views, nviews);
     } else {
-        ok = vk_correct_views(views, nviews, acquired, &nacq, sync_ms);  /* acquires the outputs after the GL work */
+        ok = vk_correct_views(views, nviews, acquired, &nacq, sync_ms, mode == 3);   /* acquires the outputs after the GL work */
     }
     for (int a = 0; a < nacq; a++) L.ReleaseSwapchainImage(acquired[a]->out, NULL);
     /* the layer's time in this xrEndFrame (the correction, and for Vulkan the copies and waits) */

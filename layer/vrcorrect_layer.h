@@ -104,6 +104,9 @@ int vk_session_start(const XrGraphicsBindingVulkanKHR *binding, char *reason, si
 void vk_session_stop(void);
 int vk_chain_start(Chain *c, int chain_id, char *reason, size_t size);
 void vk_chain_stop(Chain *c, int chain_id);
-int vk_correct_views(const FrameView *views, uint32_t nviews, Chain **acquired, int *nacq, double *sync_ms);
+int vk_correct_views(const FrameView *views, uint32_t nviews, Chain **acquired, int *nacq, double *sync_ms,
+                     int semaphores);
+void vk_session_semaphores(void);                  /* exports the external semaphores (if any) to the engine */
+void vk_capture_views(const FrameView *views, uint32_t nviews);   /* the rects into `input`, for the engine */
 
 #endif

@@ -40,10 +40,16 @@
 #include <unistd.h>
 
 static const char *const INSTANCE_EXTENSIONS[] = {"VK_KHR_external_memory_capabilities",
-                                                  "VK_KHR_get_physical_device_properties2"};
-static const char *const DEVICE_EXTENSIONS[] = {"VK_KHR_external_memory", "VK_KHR_external_memory_fd"};
-#define N_INSTANCE_EXTENSIONS 2
-#define N_DEVICE_EXTENSIONS 2
+                                                  "VK_KHR_get_physical_device_properties2",
+                                                  "VK_KHR_external_semaphore_capabilities"};
+/* the first two are needed (else the session passes through); the last two are added where the device
+ * offers both: external semaphores, which spare the CPU waits where the GL offers GL_EXT_semaphore_fd */
+static const char *const DEVICE_EXTENSIONS[] = {"VK_KHR_external_memory", "VK_KHR_external_memory_fd",
+                                                "VK_KHR_external_semaphore", "VK_KHR_external_semaphore_fd"};
+#define N_INSTANCE_EXTENSIONS 3
+#define N_DEVICE_EXTENSIONS 4
+#define NEEDED_DEVICE_BITS 0x3u
+#define SEMAPHORE_DEVICE_BITS 0xCu
 #define MAX_EXTENSIONS 256
 #define FENCE_TIMEOUT_NS 10000000000ULL   /* 10 s: a queue that long behind is treated as a failure */
 
@@ -85,6 +91,12 @@ static struct {
     PFN_vkDestroyFence DestroyFence;
     PFN_vkWaitForFences WaitForFences;
     PFN_vkResetFences ResetFences;
+    /* external semaphores (VK_KHR_external_semaphore_fd), where the device and the engine's GL have them */
+    PFN_vkCreateSemaphore CreateSemaphore;
+    PFN_vkDestroySemaphore DestroySemaphore;
+    PFN_vkGetSemaphoreFdKHR GetSemaphoreFdKHR;
+    VkSemaphore ready, done;                /* copy-in finished -> GL may read; GL finished -> copy-out may run */
+    int done_signalled;                     /* `done` was signalled by GL and not yet waited for */
 } V;
 
 /* ------------------------------------------------------------------ formats */
@@ -146,8 +158,6 @@ static unsigned offered(VkPhysicalDevice physical, const char *const *want, int 
     return bits;
 }
 
-static int all_offered(unsigned bits, int n) { return bits == (1u << n) - 1; }
-
 /* `have` plus those of `want` it lacks, into `out` (at most MAX_EXTENSIONS); returns the count */
 static uint32_t merged(const char *const *have, uint32_t nhave, const char *const *want, int nwant, const char **out) {
     uint32_t n = 0;
@@ -161,6 +171,15 @@ static uint32_t merged(const char *const *have, uint32_t nhave, const char *cons
 }
 
 /* ------------------------------------------------------------------ the application's Vulkan set-up */
+/* The device extensions the layer adds: the needed ones where the device offers both, then the
+ * semaphore ones where it offers both of those too; 0 when it lacks a needed one. */
+static unsigned device_bits(VkPhysicalDevice physical) {
+    unsigned bits = offered(physical, DEVICE_EXTENSIONS, N_DEVICE_EXTENSIONS);
+    if ((bits & NEEDED_DEVICE_BITS) != NEEDED_DEVICE_BITS) return 0;
+    if ((bits & SEMAPHORE_DEVICE_BITS) != SEMAPHORE_DEVICE_BITS) bits &= NEEDED_DEVICE_BITS;
+    return bits;
+}
+
 static XrResult XRAPI_CALL layer_GetVulkanGraphicsDeviceKHR(XrInstance instance, XrSystemId system, VkInstance vulkan,
                                                             VkPhysicalDevice *physical) {
     XrResult r = L.GetVulkanGraphicsDeviceKHR(instance, system, vulkan, physical);
@@ -225,8 +244,7 @@ static XrResult XRAPI_CALL layer_GetVulkanInstanceExtensionsKHR(XrInstance insta
  * xrGetVulkanGraphicsDeviceKHR, which the application calls first); else the session passes through. */
 static XrResult XRAPI_CALL layer_GetVulkanDeviceExtensionsKHR(XrInstance instance, XrSystemId system, uint32_t cap,
                                                               uint32_t *count, char *buffer) {
-    unsigned bits = V.physical ? offered(V.physical, DEVICE_EXTENSIONS, N_DEVICE_EXTENSIONS) : 0;
-    if (!all_offered(bits, N_DEVICE_EXTENSIONS)) bits = 0;
+    unsigned bits = V.physical ? device_bits(V.physical) : 0;
     return extended_list(L.GetVulkanDeviceExtensionsKHR, instance, system, DEVICE_EXTENSIONS, bits,
                          N_DEVICE_EXTENSIONS, cap, count, buffer);
 }
@@ -251,13 +269,16 @@ static XrResult XRAPI_CALL layer_CreateVulkanInstanceKHR(XrInstance instance, co
 
 static XrResult XRAPI_CALL layer_CreateVulkanDeviceKHR(XrInstance instance, const XrVulkanDeviceCreateInfoKHR *info,
                                                        VkDevice *device, VkResult *result) {
-    if (!info || !info->vulkanCreateInfo || !info->vulkanPhysicalDevice ||
-        !all_offered(offered(info->vulkanPhysicalDevice, DEVICE_EXTENSIONS, N_DEVICE_EXTENSIONS), N_DEVICE_EXTENSIONS))
-        return L.CreateVulkanDeviceKHR(instance, info, device, result);
+    unsigned bits = info && info->vulkanPhysicalDevice ? device_bits(info->vulkanPhysicalDevice) : 0;
+    if (!info || !info->vulkanCreateInfo || !bits) return L.CreateVulkanDeviceKHR(instance, info, device, result);
+    const char *wanted[N_DEVICE_EXTENSIONS];
+    int nwanted = 0;
+    for (int k = 0; k < N_DEVICE_EXTENSIONS; k++)
+        if (bits >> k & 1) wanted[nwanted++] = DEVICE_EXTENSIONS[k];
     const char *names[MAX_EXTENSIONS];
     VkDeviceCreateInfo create = *info->vulkanCreateInfo;
     create.enabledExtensionCount = merged(create.ppEnabledExtensionNames, create.enabledExtensionCount,
-                                          DEVICE_EXTENSIONS, N_DEVICE_EXTENSIONS, names);
+                                          wanted, nwanted, names);
     create.ppEnabledExtensionNames = names;
     XrVulkanDeviceCreateInfoKHR copy = *info;
     copy.vulkanCreateInfo = &create;
@@ -321,6 +342,11 @@ int vk_session_start(const XrGraphicsBindingVulkanKHR *b, char *reason, size_t s
                  "through xrCreateVulkanDeviceKHR or xrGetVulkanDeviceExtensionsKHR)");
         return 0;
     }
+    /* present only when the device was made with VK_KHR_external_semaphore_fd (vkGetDeviceProcAddr gives NULL
+     * for the commands of an extension the device did not enable) */
+    *(void **)&V.GetSemaphoreFdKHR = (void *)V.GetDeviceProcAddr(d, "vkGetSemaphoreFdKHR");
+    *(void **)&V.CreateSemaphore = (void *)V.GetDeviceProcAddr(d, "vkCreateSemaphore");
+    *(void **)&V.DestroySemaphore = (void *)V.GetDeviceProcAddr(d, "vkDestroySemaphore");
     memory_properties(b->physicalDevice, &V.memory);
     V.device = d;
     V.family = b->queueFamilyIndex;
@@ -359,6 +385,8 @@ void vk_session_stop(void) {
         wait_fence(V.fence_out, &V.pending_out);
         if (V.fence_in) V.DestroyFence(V.device, V.fence_in, NULL);
         if (V.fence_out) V.DestroyFence(V.device, V.fence_out, NULL);
+        if (V.ready) V.DestroySemaphore(V.device, V.ready, NULL);
+        if (V.done) V.DestroySemaphore(V.device, V.done, NULL);
         if (V.pool) V.DestroyCommandPool(V.device, V.pool, NULL);   /* frees its command buffers */
     }
     V.device = VK_NULL_HANDLE;
@@ -367,6 +395,41 @@ void vk_session_stop(void) {
     V.cmd_in = V.cmd_out = VK_NULL_HANDLE;
     V.fence_in = V.fence_out = VK_NULL_HANDLE;
     V.pending_in = V.pending_out = 0;
+    V.ready = V.done = VK_NULL_HANDLE;
+    V.done_signalled = 0;
+}
+
+static int export_semaphore(VkSemaphore *semaphore) {
+    VkExportSemaphoreCreateInfo export = {VK_STRUCTURE_TYPE_EXPORT_SEMAPHORE_CREATE_INFO, NULL,
+                                          VK_EXTERNAL_SEMAPHORE_HANDLE_TYPE_OPAQUE_FD_BIT};
+    VkSemaphoreCreateInfo info = {VK_STRUCTURE_TYPE_SEMAPHORE_CREATE_INFO, &export, 0};
+    if (V.CreateSemaphore(V.device, &info, NULL, semaphore) != VK_SUCCESS) return -1;
+    VkSemaphoreGetFdInfoKHR get = {VK_STRUCTURE_TYPE_SEMAPHORE_GET_FD_INFO_KHR, NULL, *semaphore,
+                                   VK_EXTERNAL_SEMAPHORE_HANDLE_TYPE_OPAQUE_FD_BIT};
+    int fd = -1;
+    return V.GetSemaphoreFdKHR(V.device, &get, &fd) == VK_SUCCESS ? fd : -1;
+}
+
+/* External semaphores where the device has VK_KHR_external_semaphore_fd: two, exported to the engine,
+ * which uses them where its GL has GL_EXT_semaphore_fd (begin_frame then answers 3); else the fence and
+ * glFinish. The engine logs which. */
+void vk_session_semaphores(void) {
+    int ready_fd = -1, done_fd = -1;
+    if (V.device && V.GetSemaphoreFdKHR && V.CreateSemaphore && V.DestroySemaphore) {
+        ready_fd = export_semaphore(&V.ready);
+        done_fd = ready_fd >= 0 ? export_semaphore(&V.done) : -1;
+        if (done_fd < 0) {
+            if (ready_fd >= 0) close(ready_fd);
+            ready_fd = -1;
+            if (V.ready) V.DestroySemaphore(V.device, V.ready, NULL);
+            if (V.done) V.DestroySemaphore(V.device, V.done, NULL);
+            V.ready = V.done = VK_NULL_HANDLE;
+        }
+    }
+    PyGILState_STATE g = PyGILState_Ensure();
+    PyObject *res = engine_call("import_semaphores", "(ii)", ready_fd, done_fd);   /* -1: the device has none */
+    Py_XDECREF(res);
+    PyGILState_Release(g);
 }
 
 /* ------------------------------------------------------------------ commands */
@@ -378,13 +441,29 @@ static VkCommandBuffer begin(VkCommandBuffer cmd, VkFence fence, int *pending) {
     return V.BeginCommandBuffer(cmd, &info) == VK_SUCCESS ? cmd : VK_NULL_HANDLE;
 }
 
-static int submit(VkCommandBuffer cmd, VkFence fence, int *pending) {
+static int submit_with(VkCommandBuffer cmd, VkFence fence, int *pending, VkSemaphore wait, VkSemaphore signal) {
     if (V.EndCommandBuffer(cmd) != VK_SUCCESS) return 0;
     V.ResetFences(V.device, 1, &fence);
-    VkSubmitInfo info = {VK_STRUCTURE_TYPE_SUBMIT_INFO, NULL, 0, NULL, NULL, 1, &cmd, 0, NULL};
+    VkPipelineStageFlags stage = VK_PIPELINE_STAGE_TRANSFER_BIT;
+    VkSubmitInfo info = {VK_STRUCTURE_TYPE_SUBMIT_INFO, NULL, wait ? 1u : 0u, wait ? &wait : NULL, wait ? &stage : NULL,
+                         1, &cmd, signal ? 1u : 0u, signal ? &signal : NULL};
     if (V.QueueSubmit(V.queue, 1, &info, fence) != VK_SUCCESS) return 0;
     *pending = 1;
     return 1;
+}
+
+static int submit(VkCommandBuffer cmd, VkFence fence, int *pending) {
+    return submit_with(cmd, fence, pending, VK_NULL_HANDLE, VK_NULL_HANDLE);
+}
+
+/* `done` signalled by GL but no copy was submitted to wait for it: an empty batch waits, so that the next
+ * frame may signal it again (a binary semaphore must be waited for before it is signalled again) */
+static void consume_done(void) {
+    if (!V.done_signalled) return;
+    VkPipelineStageFlags stage = VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT;
+    VkSubmitInfo info = {VK_STRUCTURE_TYPE_SUBMIT_INFO, NULL, 1, &V.done, &stage, 0, NULL, 0, NULL};
+    V.QueueSubmit(V.queue, 1, &info, VK_NULL_HANDLE);
+    V.done_signalled = 0;
 }
 
 static void barrier(VkCommandBuffer cmd, VkImage image, VkImageLayout from, VkImageLayout to, VkAccessFlags src_access,
@@ -395,15 +474,17 @@ static void barrier(VkCommandBuffer cmd, VkImage image, VkImageLayout from, VkIm
     V.CmdPipelineBarrier(cmd, src_stage, dst_stage, 0, 0, NULL, 0, NULL, 1, &b);
 }
 
-/* a shared image back from GL (before the queue uses it) or over to GL (after) */
-static void from_gl(VkCommandBuffer cmd, SharedImage *s, VkAccessFlags access) {
-    if (!s->external) return;
-    barrier(cmd, s->image, VK_IMAGE_LAYOUT_GENERAL, VK_IMAGE_LAYOUT_GENERAL, 0, access,
-            VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_QUEUE_FAMILY_EXTERNAL, V.family);
+/* A shared image back from GL into `layout` for the queue's copy (the ownership acquired from
+ * VK_QUEUE_FAMILY_EXTERNAL, where GL had it, in GENERAL), or over to GL after the copy (released from
+ * `layout` into GENERAL, the layout GL reads and writes it in). */
+static void from_gl(VkCommandBuffer cmd, SharedImage *s, VkImageLayout layout, VkAccessFlags access) {
+    barrier(cmd, s->image, VK_IMAGE_LAYOUT_GENERAL, layout, 0, access, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT,
+            VK_PIPELINE_STAGE_TRANSFER_BIT, s->external ? VK_QUEUE_FAMILY_EXTERNAL : VK_QUEUE_FAMILY_IGNORED,
+            s->external ? V.family : VK_QUEUE_FAMILY_IGNORED);
 }
 
-static void to_gl(VkCommandBuffer cmd, SharedImage *s, VkAccessFlags access) {
-    barrier(cmd, s->image, VK_IMAGE_LAYOUT_GENERAL, VK_IMAGE_LAYOUT_GENERAL, access, 0, VK_PIPELINE_STAGE_TRANSFER_BIT,
+static void to_gl(VkCommandBuffer cmd, SharedImage *s, VkImageLayout layout, VkAccessFlags access) {
+    barrier(cmd, s->image, layout, VK_IMAGE_LAYOUT_GENERAL, access, 0, VK_PIPELINE_STAGE_TRANSFER_BIT,
             VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, V.family, VK_QUEUE_FAMILY_EXTERNAL);
 }
 
@@ -464,7 +545,7 @@ int vk_chain_start(Chain *c, int chain_id, char *reason, size_t size) {
     barrier(cmd, c->result.image, VK_IMAGE_LAYOUT_UNDEFINED, VK_IMAGE_LAYOUT_GENERAL, 0, 0,
             VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_QUEUE_FAMILY_IGNORED,
             VK_QUEUE_FAMILY_IGNORED);
-    to_gl(cmd, &c->result, 0);
+    to_gl(cmd, &c->result, VK_IMAGE_LAYOUT_GENERAL, 0);
     if (!submit(cmd, V.fence_in, &V.pending_in) || !wait_fence(V.fence_in, &V.pending_in)) {
         snprintf(reason, size, "the layer's image set-up did not complete on the application's queue");
         return 0;
@@ -525,38 +606,68 @@ static void copy_rects(VkCommandBuffer cmd, const FrameView *views, uint32_t nvi
     V.CmdCopyImage(cmd, from, from_layout, to, to_layout, n, regions);
 }
 
-int vk_correct_views(const FrameView *views, uint32_t nviews, Chain **acquired, int *nacq, double *sync_ms) {
+/* 1. the submitted rects into each chain's `input`: waited for (a fence), or with `semaphores` signalling
+ * `ready` for GL to wait on; 1 when done */
+static int copy_in(const FrameView *views, uint32_t nviews, int semaphores) {
     const VkAccessFlags attachment = VK_ACCESS_COLOR_ATTACHMENT_READ_BIT | VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT;
     const VkPipelineStageFlags attachment_stage = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT;
     for (uint32_t i = 0; i < nviews; i++)
         if (!views[i].chain->imported) return 0;      /* the reason was logged at xrCreateSwapchain */
-    /* 1. the submitted rects into `input`, waited for */
-    double t0 = now_ms();
     VkCommandBuffer cmd = begin(V.cmd_in, V.fence_in, &V.pending_in);
     if (!cmd) { pass_reason("the application's queue did not finish the layer's earlier work (10 s)"); return 0; }
     for (uint32_t i = 0; i < nviews; i++) {
         if (seen_before(views, i)) continue;
         Chain *c = views[i].chain;
         VkImage app = c->app_image[c->released];
-        from_gl(cmd, &c->input, VK_ACCESS_TRANSFER_WRITE_BIT);
+        from_gl(cmd, &c->input, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_ACCESS_TRANSFER_WRITE_BIT);
         barrier(cmd, app, VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
                 VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT, VK_ACCESS_TRANSFER_READ_BIT, attachment_stage,
                 VK_PIPELINE_STAGE_TRANSFER_BIT, VK_QUEUE_FAMILY_IGNORED, VK_QUEUE_FAMILY_IGNORED);
         copy_rects(cmd, views, nviews, c, app, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, c->input.image,
-                   VK_IMAGE_LAYOUT_GENERAL);
+                   VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL);
         barrier(cmd, app, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL,
                 VK_ACCESS_TRANSFER_READ_BIT, attachment, VK_PIPELINE_STAGE_TRANSFER_BIT, attachment_stage,
                 VK_QUEUE_FAMILY_IGNORED, VK_QUEUE_FAMILY_IGNORED);
-        to_gl(cmd, &c->input, VK_ACCESS_TRANSFER_WRITE_BIT);
+        to_gl(cmd, &c->input, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_ACCESS_TRANSFER_WRITE_BIT);
     }
-    if (!submit(cmd, V.fence_in, &V.pending_in)) { pass_reason("vkQueueSubmit failed for the layer's copy"); return 0; }
+    if (!submit_with(cmd, V.fence_in, &V.pending_in, VK_NULL_HANDLE, semaphores ? V.ready : VK_NULL_HANDLE)) {
+        pass_reason("vkQueueSubmit failed for the layer's copy");
+        return 0;
+    }
     for (uint32_t i = 0; i < nviews; i++) views[i].chain->input.external = 1;
+    if (semaphores) return 1;                      /* GL waits on `ready` instead of this thread on the fence */
     if (!wait_fence(V.fence_in, &V.pending_in)) {
         pass_reason("the layer's copy did not complete on the application's queue within 10 s");
         return 0;
     }
-    double copy_in = now_ms() - t0;
-    /* 2. the engine: each view from `input` into `result`, then glFinish */
+    return 1;
+}
+
+/* The submitted rects into `input` and each view handed to the engine, which reads them off this thread
+ * (the frame then passes through, and the next copy into `input` comes when the engine corrects). */
+void vk_capture_views(const FrameView *views, uint32_t nviews) {
+    if (!copy_in(views, nviews, 0)) return;
+    for (uint32_t i = 0; i < nviews; i++) {
+        const FrameView *f = &views[i];
+        PyObject *res = engine_call("capture_vulkan", "(IiiiiiI)", f->index, (int)(f->chain - L.chains), f->rect.offset.x,
+                                    f->rect.offset.y, f->rect.extent.width, f->rect.extent.height, f->view);
+        Py_XDECREF(res);
+    }
+}
+
+/* The frame's views corrected: `semaphores` (the engine's choice: begin_frame answered 3) orders the GL
+ * work between the two copies by the external semaphores `ready` and `done`, else the copy in is waited
+ * for on its fence and the GL work by glFinish. Returns 1 when the frame goes down corrected. */
+int vk_correct_views(const FrameView *views, uint32_t nviews, Chain **acquired, int *nacq, double *sync_ms,
+                     int semaphores) {
+    const VkAccessFlags attachment = VK_ACCESS_COLOR_ATTACHMENT_READ_BIT | VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT;
+    const VkPipelineStageFlags attachment_stage = VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT;
+    semaphores = semaphores && V.ready && V.done;
+    double t0 = now_ms();
+    if (!copy_in(views, nviews, semaphores)) return 0;
+    double copy_in_ms = now_ms() - t0;
+    /* 2. the engine: each view from `input` into `result` (after waiting for `ready`), then glFinish or a
+     * signal of `done` */
     int ok = 1;
     for (uint32_t i = 0; i < nviews && ok; i++) {
         const FrameView *f = &views[i];
@@ -570,30 +681,47 @@ int vk_correct_views(const FrameView *views, uint32_t nviews, Chain **acquired, 
     ok = res && PyObject_IsTrue(res);
     Py_XDECREF(res);
     double finish = now_ms() - t1;
+    if (semaphores) {
+        if (ok) V.done_signalled = 1;
+        else {                                     /* `ready` must be waited for even so (the engine does) */
+            PyObject *drained = engine_call("drain", "()");
+            Py_XDECREF(drained);
+        }
+    }
     if (!ok) return 0;
-    /* 3. `result` into the output images */
-    if (!acquire_outputs(views, nviews, acquired, nacq)) return 0;
+    /* 3. `result` into the output images (after `done`, with semaphores) */
+    if (!acquire_outputs(views, nviews, acquired, nacq)) { consume_done(); return 0; }
     double t2 = now_ms();
-    cmd = begin(V.cmd_out, V.fence_out, &V.pending_out);
-    if (!cmd) { pass_reason("the application's queue did not finish the layer's earlier work (10 s)"); return 0; }
+    VkCommandBuffer cmd = begin(V.cmd_out, V.fence_out, &V.pending_out);
+    if (!cmd) {
+        consume_done();
+        pass_reason("the application's queue did not finish the layer's earlier work (10 s)");
+        return 0;
+    }
     for (uint32_t i = 0; i < nviews; i++) {
         if (seen_before(views, i)) continue;
         Chain *c = views[i].chain;
         VkImage out = c->out_image[c->out_index];
-        from_gl(cmd, &c->result, VK_ACCESS_TRANSFER_READ_BIT);
+        from_gl(cmd, &c->result, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_ACCESS_TRANSFER_READ_BIT);
         barrier(cmd, out, VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, attachment,
                 VK_ACCESS_TRANSFER_WRITE_BIT, attachment_stage, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_QUEUE_FAMILY_IGNORED,
                 VK_QUEUE_FAMILY_IGNORED);
-        copy_rects(cmd, views, nviews, c, c->result.image, VK_IMAGE_LAYOUT_GENERAL, out,
+        copy_rects(cmd, views, nviews, c, c->result.image, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, out,
                    VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL);
         barrier(cmd, out, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL,
                 VK_ACCESS_TRANSFER_WRITE_BIT, attachment, VK_PIPELINE_STAGE_TRANSFER_BIT, attachment_stage,
                 VK_QUEUE_FAMILY_IGNORED, VK_QUEUE_FAMILY_IGNORED);
-        to_gl(cmd, &c->result, VK_ACCESS_TRANSFER_READ_BIT);
+        to_gl(cmd, &c->result, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_ACCESS_TRANSFER_READ_BIT);
     }
-    if (!submit(cmd, V.fence_out, &V.pending_out)) { pass_reason("vkQueueSubmit failed for the layer's copy"); return 0; }
+    int waits = semaphores && V.done_signalled;
+    if (!submit_with(cmd, V.fence_out, &V.pending_out, waits ? V.done : VK_NULL_HANDLE, VK_NULL_HANDLE)) {
+        consume_done();
+        pass_reason("vkQueueSubmit failed for the layer's copy");
+        return 0;
+    }
+    if (waits) V.done_signalled = 0;
     double copy_out = now_ms() - t2;
-    sync_ms[0] = copy_in;
+    sync_ms[0] = copy_in_ms;
     sync_ms[1] = finish;
     sync_ms[2] = copy_out;
     return 1;

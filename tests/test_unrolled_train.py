@@ -79,7 +79,7 @@ def test_fasts_yardstick_is_below_no_correction_and_the_twin_between(pool, image
 def test_a_short_run_writes_its_files_and_beats_its_twin_on_what_it_trained(tmp_path, pool, images):
     report = train_unrolled(tmp_path, CONFIG, images[0], images[1], pool=pool, held_out_cases=3)
     assert report["steps"] == 30
-    assert {p.name for p in tmp_path.iterdir()} == {"unrolled.pt", "log.csv", "report.json"}
+    assert {p.name for p in tmp_path.iterdir()} == {"unrolled.pt", "log.csv", "report.json", "checkpoint.pt"}
     rows = list(csv.DictReader((tmp_path / "log.csv").open()))
     assert len(rows) == 30 and all(np.isfinite(float(r["loss"])) for r in rows)
     saved = json.loads((tmp_path / "report.json").read_text())
@@ -135,7 +135,6 @@ def _cli_error(args, capsys):
 def test_the_command_refuses_before_any_work(tmp_path, capsys):
     (tmp_path / "file").write_text("x")
     assert "not a folder" in _cli_error(["-o", str(tmp_path / "file")], capsys)
-    assert "no such folder" in _cli_error(["-o", str(tmp_path / "missing" / "run")], capsys)
     run = tmp_path / "run"
     run.mkdir()
     (run / "unrolled.pt").write_text("mine")
@@ -147,21 +146,38 @@ def test_the_command_refuses_before_any_work(tmp_path, capsys):
     err = _cli_error(["-o", str(tmp_path / "new"), "--box-floor", "2"], capsys)
     assert "box_floor" in err and "2" in err and "0.001 to 1" in err
     assert not (tmp_path / "new").exists()
+    (run / "checkpoint.pt").write_text("a run's state")           # an earlier run stopped: continue or start over
+    err = _cli_error(["-o", str(run)], capsys)
+    assert "--resume" in err and "--force" in err
+    assert "--resume" in _cli_error(["-o", str(run), "--resume", "--force"], capsys)
 
 
-def test_the_command_trains_reports_and_exports(tmp_path, capsys):
-    """A new user's run, tiny: kernels, training, the held-out report and an ONNX file that
-    ``correct --method learned`` can use."""
+def test_the_command_trains_reports_and_exports(tmp_path, capsys, monkeypatch):
+    """A new user's run as the README writes it (``unroll -o runs/NAME``: the folders are made), tiny:
+    kernels, training, the held-out report and an ONNX file that ``correct --method learned`` can use;
+    progress on standard error though it is not a terminal; a checkpoint ``--resume`` continues."""
     from vrcorrect.apps.cli import main
     from vrcorrect.runtime.unrolled import UnrolledModel
 
-    run = tmp_path / "run"
-    assert main(["unroll", "-o", str(run), "--displays", "index", "--eyes-per-display", "1", "--steps", "3",
-                 "--crop-px", "24", "--image-px", "48", "--stages", "1", "--prior-width", "4"]) == 0
-    out = capsys.readouterr().out
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("VRCORRECT_PROGRESS_S", "0.2")            # lines within this short run, whatever the machine
+    args = ["--displays", "index", "--eyes-per-display", "1", "--steps", "3", "--crop-px", "24", "--image-px", "48",
+            "--stages", "1", "--prior-width", "4"]
+    assert main(["unroll", "-o", "runs/x", *args]) == 0
+    run = tmp_path / "runs" / "x"
+    captured = capsys.readouterr()
+    out, err = captured.out, captured.err
     assert "trained 3 steps" in out and "its untrained twin" in out and "unrolled.onnx" in out
-    assert {p.name for p in run.iterdir()} == {"unrolled.pt", "log.csv", "report.json", "unrolled.onnx"}
+    assert {p.name for p in run.iterdir()} == {"unrolled.pt", "log.csv", "report.json", "unrolled.onnx",
+                                               "checkpoint.pt", "pool.pickle"}
     assert UnrolledModel(run / "unrolled.onnx").displays == ["index"]
+    assert "unroll: run folder runs/x" in out and "checkpoint" in out
+    # not a terminal: a line every interval, and a word while the model is judged after its last step
+    assert "unroll: kernels: 3 eyes in" in err and "unroll: training: " in err, err[-3000:]
+    log = (run / "log.csv").read_text()
+    assert main(["unroll", "-o", "runs/x", *args, "--resume"]) == 0          # nothing left: the same model again
+    assert "trained 3 steps" in capsys.readouterr().out
+    assert (run / "log.csv").read_text() == log
 
 
 def test_the_pull_towards_fast_is_zero_at_fast_and_one_at_the_target():
@@ -201,3 +217,33 @@ def test_a_bad_fast_weight_is_refused_by_name():
             UnrolledTrainConfig(fast_weight=value)
     with pytest.raises(ValidationError, match="fast_bank"):
         UnrolledTrainConfig(fast_bank=0)
+
+
+def test_a_stopped_run_resumed_from_its_checkpoint_ends_as_an_unstopped_one(tmp_path, pool, images):
+    """The training's state (weights, optimiser, schedule, random streams, log) is checkpointed; a run
+    stopped after 10 steps and resumed ends with the weights of one never stopped."""
+    import torch
+
+    config = replace(CONFIG, steps=16)
+    train_unrolled(tmp_path / "whole", config, images[0], images[1], pool=pool, held_out_cases=2)
+
+    def stop_at_ten(step: int, loss: float) -> None:
+        if step == 10:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train_unrolled(tmp_path / "parts", config, images[0], images[1], pool=pool, held_out_cases=2,
+                       progress=stop_at_ten, checkpoint_every_s=0.0)
+    assert torch.load(tmp_path / "parts" / "checkpoint.pt", weights_only=False)["step"] == 10
+    assert not (tmp_path / "parts" / "unrolled.pt").exists()
+    report = train_unrolled(tmp_path / "parts", config, images[0], images[1], pool=pool, held_out_cases=2,
+                            resume=True)
+    assert report["steps"] == 16
+    whole = load_unrolled(tmp_path / "whole" / "unrolled.pt").state_dict()
+    parts = load_unrolled(tmp_path / "parts" / "unrolled.pt").state_dict()
+    assert whole.keys() == parts.keys() and all(torch.equal(whole[k], parts[k]) for k in whole)
+    logged = [line.split(",")[:2] for line in (tmp_path / "parts" / "log.csv").read_text().splitlines()]
+    assert logged == [line.split(",")[:2] for line in (tmp_path / "whole" / "log.csv").read_text().splitlines()]
+    with pytest.raises(ValidationError, match="same configuration"):
+        train_unrolled(tmp_path / "parts", replace(config, seed=1), images[0], images[1], pool=pool,
+                       held_out_cases=2, resume=True)

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from xr_layer_kit import (CLEAN_STATES, EYES, RX, VIEW, Kit, assert_corrected, assert_life_cycle, assert_validation_clean,
-                          corrector_codes, corrector_input, env, frames, kit, layer_log, light_or_codes, reasons, received, run,
+                          converged_codes, corrector_input, env, frames, kit, layer_log, light_or_codes, reasons, received, run,
                           runtime_log, stored, wait_for)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -78,14 +78,16 @@ def _corrected_frames(out: Path, n: int, rect: tuple[int, int, int, int] | None 
 
 def _expected(kit: Kit, gl, count: int, rect: tuple[int, int, int, int] | None = None,
               fmt: str = "srgb") -> dict[str, list[np.ndarray]]:
-    """Each eye's correction of its picture (or of the rect x, y, w, h of it, GL pixels) by a
-    separate Corrector: the first ``count`` applies, sRGB codes, top row first."""
+    """Each eye's correction of its still picture (or of the rect x, y, w, h of it, GL pixels) by a
+    separate Corrector, converged (the layer primes its correction on the application's frame off
+    its thread, so every corrected frame of a still picture shows that): ``count`` times, sRGB
+    codes, top row first."""
     out = {}
     for eye, picture in _pictures().items():
         if rect is not None:
             x, y, w, h = rect
             picture = picture[VIEW[1] - y - h:VIEW[1] - y, x:x + w]
-        out[eye] = corrector_codes(gl, kit, eye, [corrector_input(stored(picture, fmt), fmt)] * count)
+        out[eye] = [converged_codes(gl, kit, eye, corrector_input(stored(picture, fmt), fmt))] * count
     return out
 
 
@@ -211,7 +213,7 @@ def test_every_format_arrives_corrected_in_its_own_encoding(x_display, kit, gl, 
     for view, (eye, fmt) in enumerate(zip(EYES, formats)):
         assert np.allclose(light_or_codes(sources[eye], fmt), light_or_codes(stored(_pictures()[eye], fmt, 2.0), fmt),
                            rtol=2 ** -10, atol=1 / 1023 + 1e-9), eye        # GL rounds its own way
-        expected = corrector_codes(gl, kit, eye, [corrector_input(sources[eye], fmt)])[0]
+        expected = converged_codes(gl, kit, eye, corrector_input(sources[eye], fmt))
         got = received(out, first, view)
         assert_corrected(got, sources[eye], fmt, expected, eye)
         if fmt == "rgba16f":

@@ -269,12 +269,16 @@ def assert_validation_clean(stdout: str) -> None:
 
 
 def assert_vulkan_validation_clean(text: str) -> None:
-    """Khronos Vulkan validation ran (the Vulkan loader inserted it into the application's instance)
-    and reported no error.  Its performance warnings are allowed: the layer keeps its shared images
-    in VK_IMAGE_LAYOUT_GENERAL on purpose."""
+    """Khronos Vulkan validation ran (the Vulkan loader inserted it into the application's instance,
+    below the layer's Vulkan calls, which go through the application's device) and reported no error,
+    and no performance warning about the layer's copies (``vkCmdCopyImage``: the shared images are in
+    TRANSFER_SRC/DST_OPTIMAL for them; the runtime's read-back is a ``vkCmdCopyImageToBuffer``)."""
     assert f'Insert instance layer "{VULKAN_VALIDATION}"' in text, text[-2000:]
     errors = [line for line in text.splitlines() if "Validation Error" in line]
     assert not errors, "\n".join(errors[:5])
+    copies = [line for line in text.splitlines() if "Performance Warning" in line
+              and re.search(r"vkCmdCopyImage(?!ToBuffer)|vkCmdPipelineBarrier|vkQueueSubmit", line)]
+    assert not copies, "\n".join(copies[:5])
 
 
 # --------------------------------------------------------------------------
@@ -361,6 +365,48 @@ def corrector_codes(gl, kit: Kit, eye: str, inputs: list[tuple[str, np.ndarray]]
     finally:
         corrector.release()
     return results
+
+
+_CONVERGED: dict[tuple[str, str, bytes], np.ndarray] = {}
+
+
+def converged_codes(gl, kit: Kit, eye: str, kind_image: tuple[str, np.ndarray], limit: int = 60) -> np.ndarray:
+    """What a fresh Corrector shows of a still picture once converged: ``Corrector.apply`` on it
+    frame after frame until its early stop's criterion holds (the last two frames' objectives agree
+    to ``EARLY_STOP_TOLERANCE``), then once more (a frame the early stop skips): sRGB codes, int
+    (H, W, 3), top row first.  The layer corrects a still view from its first corrected frame on as
+    this: it primes its correction on the application's frame off the application's thread."""
+    from vrcorrect.runtime.corrector import Corrector
+    from vrcorrect.runtime.gl import read_framebuffer, release, render_target, upload_texture
+    from vrcorrect.runtime.strategies.admm import EARLY_STOP_TOLERANCE
+
+    kind, image = kind_image
+    key = (eye, kind, image.tobytes() + str(image.shape).encode())
+    if key in _CONVERGED:
+        return _CONVERGED[key]
+    corrector = Corrector(gl, kit.rx, "quest2", eye, eye_model=eye_model(kit, eye))
+    h, w = image.shape[:2]
+    if kind == "codes":
+        tex = upload_texture(gl, np.ascontiguousarray(image))
+    else:
+        tex = gl.texture((w, h), 4, np.ascontiguousarray(image[::-1]).tobytes(), dtype="f4")
+    target, fb = render_target(gl, width=w, height=h)
+    try:
+        previous = None
+        for _ in range(limit):
+            corrector.apply(tex, fb)
+            fraction = corrector.last_objective_fraction((w, h))
+            if previous is not None and abs(fraction - previous) <= EARLY_STOP_TOLERANCE * max(previous, 1e-30):
+                break
+            previous = fraction
+        else:
+            raise AssertionError(f"the {eye} eye's correction did not converge in {limit} frames")
+        corrector.apply(tex, fb)
+        _CONVERGED[key] = read_framebuffer(fb, components=3).astype(int)
+    finally:
+        release(fb, target, tex)
+        corrector.release()
+    return _CONVERGED[key]
 
 
 def assert_corrected(got: np.ndarray, source: np.ndarray, fmt: str, codes: np.ndarray, where: object = "") -> None:

@@ -54,18 +54,26 @@ fi
 
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 
-# Reinstall only when the dependency list changed.
+# Reinstall only when the dependency list or the build changed: setup.py compiles the OpenXR layer
+# (layer/, with layer/build_flags.py's -Werror flags) into the package, in place for this editable
+# install, so an edited layer source is rebuilt here too.
 stamp=.venv/.vrcorrect-installed
-want=$(sha256sum pyproject.toml | cut -d' ' -f1)
+want=$(cat pyproject.toml setup.py layer/*.c layer/*.h layer/build_flags.py | sha256sum | cut -d' ' -f1)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "installing Python packages into .venv (first run takes a few minutes) ..."
   .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip 2>&1 | grep -v "^WARNING: Location" || true
+  # a setuptools that builds this project (the same as pyproject's build-system): the wheel test
+  # (tests/test_xr_layer_wheel.py) runs `pip wheel --no-build-isolation` with it
+  .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade "setuptools>=77" 2>&1 \
+    | grep -v "^WARNING: Location" || true
   # torch==2.13.0 (CPU build) is pinned in the 'solve' extra: pip takes it from this machine's disk.
   # setuptools warns at every editable install that a folder named like the package may shadow it
   # (a generic banner: this checkout's vrcorrect/ is the package itself); silenced by its message
   PYTHONWARNINGS="ignore:Editable installation" \
     .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[solve,learn,metrics,test,realtime,ray]" 2>&1 \
     | grep -v -e "^WARNING: Location" || true
+  [ -f vrcorrect/runtime/libvrcorrect_layer.so ] \
+    || { echo "installation failed: the OpenXR layer (vrcorrect/runtime/libvrcorrect_layer.so) was not built" >&2; exit 1; }
   .venv/bin/python -c "import vrcorrect, numpy, scipy, colour, PIL, torch, pytest, hypothesis, moderngl, glfw, onnxruntime, onnx, onnxscript, imageio_ffmpeg, mss, xr, ray" \
     || { echo "installation failed" >&2; exit 1; }
   # ColorVideoVDP (the primary perceptual score) must import beside the CPU build of torch.

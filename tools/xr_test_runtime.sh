@@ -22,7 +22,7 @@ cc=${CC:-cc}
 command -v "$cc" >/dev/null || cc=gcc
 command -v "$cc" >/dev/null || { echo "$0: no C compiler (cc or gcc): apt-get install gcc libc6-dev" >&2; exit 1; }
 library="$out/libvrcorrect_xr_test_runtime.so"
-if ! "$cc" -std=c11 -O2 -Wall -Wextra -shared -fPIC -fvisibility=hidden -o "$library.tmp" "$source" -ldl -lm; then
+if ! "$cc" -std=c11 -O2 -Wall -Wextra -Werror -shared -fPIC -fvisibility=hidden -o "$library.tmp" "$source" -ldl -lm; then
   echo "$0: building $source failed (the headers come from libopenxr-dev libvulkan-dev libgl-dev libx11-dev)" >&2
   exit 1
 fi

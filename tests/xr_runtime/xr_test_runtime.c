@@ -49,6 +49,10 @@
  *   XRTEST_STOP_AFTER      after this many xrEndFrame calls the runtime asks the app to quit
  *                          (FOCUSED -> VISIBLE -> SYNCHRONIZED -> STOPPING, then IDLE -> EXITING)
  *   XRTEST_STOP_FILE       the same, at the first xrEndFrame after this file exists
+ *                          (with XRTEST_OUT_DIR, frame_times.txt records every xrEndFrame that reaches the
+ *                          runtime: when it arrived, the gap since the previous one, the time from
+ *                          xrBeginFrame to it, which holds the application's rendering and every API layer's
+ *                          time in xrEndFrame, and the runtime's own time in it)
  *   XRTEST_YAW_MRAD        the head turns left about the vertical axis through its centre by this many
  *                          milliradians per xrEndFrame call (default 0: a still head)
  *   XRTEST_NO_HMD          "1": xrGetSystem answers XR_ERROR_FORM_FACTOR_UNAVAILABLE
@@ -263,6 +267,7 @@ static struct {
     XrDuration period;
     int paced;
     XrTime t0, next_display, last_wait;
+    XrTime began, last_end;            /* the last xrBeginFrame's return, the last xrEndFrame's arrival */
     Swapchain sc[MAX_SWAPCHAINS];
     Space spaces[MAX_SPACES];
     char paths[MAX_PATHS][XR_MAX_PATH_LENGTH];
@@ -1303,6 +1308,7 @@ static XrResult begin_frame(XrSession session, const XrFrameBeginInfo *info) {
     rt.frame_waited = 0;
     int discarded = rt.frame_begun;
     rt.frame_begun = 1;
+    rt.began = now_ns();
     return discarded ? XR_FRAME_DISCARDED : XR_SUCCESS;
 }
 
@@ -1418,7 +1424,38 @@ static void dump_swapchains(long frame) {
     }
 }
 
+/* frame_times.txt: one line per xrEndFrame that reaches the runtime (header first). */
+static void record_times(long frame, XrTime arrived, XrTime returned) {
+    if (!rt.out_dir[0]) return;
+    char path[1200];
+    snprintf(path, sizeof path, "%s/frame_times.txt", rt.out_dir);
+    FILE *f = fopen(path, "a");
+    if (!f) return;
+    if (frame == 0)
+        fprintf(f, "# frame arrival_ms gap_ms begin_to_end_ms end_frame_ms: arrival since the session began; the gap "
+                   "since the previous xrEndFrame arrived; from xrBeginFrame's return to xrEndFrame's arrival (the "
+                   "application's rendering and every API layer's time in xrEndFrame); the runtime's own time in "
+                   "it\n");
+    fprintf(f, "%ld %.3f %.3f %.3f %.3f\n", frame, (double)(arrived - rt.t0) / 1e6,
+            frame == 0 ? 0.0 : (double)(arrived - rt.last_end) / 1e6, rt.began ? (double)(arrived - rt.began) / 1e6 : -1.0,
+            (double)(returned - arrived) / 1e6);
+    fclose(f);
+}
+
+static XrResult end_frame_body(XrSession session, const XrFrameEndInfo *info, long *frame_out);
+
 static XrResult end_frame(XrSession session, const XrFrameEndInfo *info) {
+    XrTime arrived = now_ns();
+    long frame = -1;
+    XrResult r = end_frame_body(session, info, &frame);
+    if (frame >= 0) {
+        record_times(frame, arrived, now_ns());
+        rt.last_end = arrived;
+    }
+    return r;
+}
+
+static XrResult end_frame_body(XrSession session, const XrFrameEndInfo *info, long *frame_out) {
     CHECK_SESSION(session);
     if (!rt.running) return XR_ERROR_SESSION_NOT_RUNNING;
     if (!rt.frame_begun) return XR_ERROR_CALL_ORDER_INVALID;
@@ -1436,6 +1473,7 @@ static XrResult end_frame(XrSession session, const XrFrameEndInfo *info) {
     }
     rt.frame_begun = 0;
     long frame = rt.end_frames++;
+    *frame_out = frame;
     char views[256] = "";
     for (uint32_t k = 0; k < info->layerCount; k++) {
         const XrCompositionLayerProjection *p = (const XrCompositionLayerProjection *)info->layers[k];

@@ -14,6 +14,7 @@ from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.fileio import check_writable
 from ..runtime.model_path import DEFAULT_MODEL
 from ..studies.bench import BENCHMARKS_FILE, default_out
+from .common import rx_path
 
 
 def _json_out(args: argparse.Namespace) -> Path | None:
@@ -61,7 +62,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         size = parse_size(args.size)
         if args.peer is not None and args.peer not in PEERS:
             raise ValidationError("--peer", args.peer, "one of " + ", ".join(PEERS))
-        report = run_cost_bench(size, args.display, args.rx, out=Path(args.out), write=not args.no_write,
+        report = run_cost_bench(size, args.display, str(rx_path(args)), out=Path(args.out), write=not args.no_write,
                                 json_out=_json_out(args), dry_run=args.dry_run,
                                 force=args.force, frames=1 if args.frames is None else args.frames,
                                 methods=METHODS[:1] if args.default_only else METHODS, peer=args.peer)
@@ -73,7 +74,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from ..studies.bench.workgroups import run_workgroup_bench
 
         size = parse_size(args.size)
-        report = run_workgroup_bench(size, args.display, args.rx, frames=20 if args.frames is None else args.frames,
+        report = run_workgroup_bench(size, args.display, str(rx_path(args)), frames=20 if args.frames is None else args.frames,
                                      out=Path(args.out), write=not args.no_write, json_out=_json_out(args),
                                      force=args.force)
         print(report["markdown"])

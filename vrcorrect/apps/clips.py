@@ -10,16 +10,17 @@ The clip itself (folders, animations, videos; the all-or-nothing folder of frame
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
-from tqdm import tqdm
 
 from ..plumbing.clips import MAX_CLIP_FRAMES, Clip, FrameFolder, clip_kind, open_clip, resample_indices
 from ..plumbing.errors import ValidationError
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    from .progress import Progress
 
 __all__ = ["MAX_RATE", "CLIP_HELP", "add_input_output", "add_clip_options", "input_clip", "ClipPlan", "plan_frames",
            "output_folder", "frames_bar", "planned_frames"]
@@ -140,9 +141,12 @@ def output_folder(args: argparse.Namespace, plan: ClipPlan) -> FrameFolder:
     return FrameFolder(out, plan.count, force=args.force)
 
 
-def frames_bar(desc: str, total: int) -> tqdm:
-    """A progress bar over frames (silent when stderr is not a terminal)."""
-    return tqdm(desc=desc, total=total, unit="frame", disable=None, leave=False, file=sys.stderr)
+def frames_bar(desc: str, total: int) -> "Progress":
+    """Progress over frames (:class:`~vrcorrect.apps.progress.Progress`: a line redrawn on a terminal,
+    a line every few seconds otherwise)."""
+    from .progress import Progress
+
+    return Progress(desc, "frame", total)
 
 
 def planned_frames(plan: ClipPlan) -> Iterator[tuple[int, np.ndarray]]:

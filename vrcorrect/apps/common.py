@@ -38,14 +38,60 @@ def kernel_progress(desc: str) -> Callable[[int, int], None]:
     return update
 
 
+def rx_path(args: argparse.Namespace) -> Path:
+    """The prescription a command models: ``--rx``, else the bundled sample, which it says on one line
+    (standard output): a user who forgot ``--rx`` is not corrected for someone else's eyes silently."""
+    if getattr(args, "rx", None):
+        return Path(args.rx)
+    path = bundled_sample_path()
+    try:
+        rx = load_prescription(path)
+        eyes = "; ".join(f"{side} {_eye_text(rx.eye(side))}" for side in ("right", "left"))
+    except Exception:  # noqa: BLE001  (the line is a courtesy: the command reads the file itself)
+        eyes = "the bundled example"
+    # on standard output, with what the command reports: an error stays the one line on standard error
+    print(f"vrcorrect: using the sample prescription {path} ({eyes}); pass --rx YOUR_RX.json for yours "
+          "(vrcorrect rx new writes a template)", flush=True)
+    return path
+
+
+def check_not_input(args: argparse.Namespace) -> None:
+    """``-o`` must not be the input (a file, or a clip's folder): a command never writes over its own
+    input, ``--force`` or not."""
+    source, out = Path(args.input), Path(args.output)
+    same = source.resolve() == out.resolve()
+    if not same and source.exists() and out.exists():
+        try:
+            same = source.samefile(out)
+        except OSError:
+            same = False
+    if same:
+        raise ValidationError("--output", str(out), f"another path than the input {source}: vrcorrect never writes "
+                              "over its input, not even with --force")
+
+
+def small_image_note(width: int, height: int, kernel_px: int, what: str) -> str | None:
+    """A note when the image is smaller than the eye's blur kernel (``kernel_px`` wide): what the result
+    means then."""
+    if width >= kernel_px and height >= kernel_px:
+        return None
+    return (f"the image ({width}x{height} px) is smaller than this eye's blur on this display (a {kernel_px}x"
+            f"{kernel_px} px kernel): the eye sees it spread into the black around it, and {what} works only inside "
+            "the image, so it can recover little; the result says little about a picture of ordinary size")
+
+
+def _eye_text(e: EyeRx) -> str:
+    return f"{e.sphere_D:+.2f}/{e.cylinder_D:+.2f}x{e.axis_deg:g}"
+
+
 def load_eye(args: argparse.Namespace) -> tuple[Path, EyeRx]:
-    path = Path(args.rx) if args.rx else bundled_sample_path()
+    path = rx_path(args)
     return path, load_prescription(path).eye(args.eye)
 
 
 def load_eye_and_age(args: argparse.Namespace) -> tuple[Path, "EyeRx", float | None]:
     """:func:`load_eye` and the prescription's ``age_years`` (None where it gives none)."""
-    path = Path(args.rx) if args.rx else bundled_sample_path()
+    path = rx_path(args)
     rx = load_prescription(path)
     return path, rx.eye(args.eye), rx.age_years
 

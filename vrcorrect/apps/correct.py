@@ -24,16 +24,21 @@ from .common import (
     add_pupil_options,
     build_design,
     check_memory,
+    check_not_input,
     finite_json,
     kernel_decisions,
     load_eye_and_age,
     parse_pupil,
     print_notes,
+    small_image_note,
     viewing_pupil,
 )
+from .progress import duration_text
 
 
 def cmd_correct(args: argparse.Namespace) -> int:
+    started = time.perf_counter()
+    check_not_input(args)                                 # never over the input, --force or not
     clip = clips.input_clip(args)                         # a clip is checked before any heavy import
     if clip is not None:
         return _correct_clip(args, clips.plan_frames(clip, args, None))
@@ -55,11 +60,14 @@ def cmd_correct(args: argparse.Namespace) -> int:
     target = decode(display, image)
     pupil, pupil_lines = viewing_pupil(args, eye, display, target, age)
     for line in pupil_lines:
-        print(f"vrcorrect: {line}", file=sys.stderr)
+        print(f"vrcorrect: {line}", flush=True)          # stdout: an error stays the one line on stderr
     t0 = time.perf_counter()
     design = build_design(args, eye, display, pupil, args.reference)
     kernel, reference = design.kernel, design.reference
     t1 = time.perf_counter()
+    small = small_image_note(image.shape[1], image.shape[0], kernel.size, "the correction")
+    if small:
+        print_notes([small])
     problem = make_design_problem(target, design, contrast=args.contrast)
     seen_problem = problem if not design.robust else make_problem(target, design.nominal, design.nominal_reference,
                                                                   contrast=args.contrast)
@@ -72,11 +80,13 @@ def cmd_correct(args: argparse.Namespace) -> int:
             bar.total = total
             bar.n = done
             bar.refresh()
+    t2 = time.perf_counter()
     try:
         result = solve(problem, args.method, progress=progress, **options)
     finally:
         if bar is not None:
             bar.close()
+    t3 = time.perf_counter()
     outputs = [(out, png_writer(out, encode(display, result.image), bits=16 if args.sixteen_bit else 8))]
     if args.report:
         seen = design.nominal
@@ -93,14 +103,28 @@ def cmd_correct(args: argparse.Namespace) -> int:
             "settings": result.settings, "kernel_decisions": kernel_decisions(seen),
         }
         outputs.append((Path(args.report), _report_writer(report, notes)))
+    t4 = time.perf_counter()
     # the image and its report appear together or not at all (an interruption leaves neither)
     write_together(outputs, force=args.force)
     design_text = (f"designed for a {pupil:.2f} mm pupil" + (f", robust over {len(design.members)} eyes"
                                                                if design.robust else ""))
+    parts = [f"eye model {duration_text(t1 - t0)}", f"{_solve_text(result.method, result.iterations)} "
+             f"{duration_text(t3 - t2)}"]
+    if args.report:
+        parts.append(f"report (what the eye sees, judged) {duration_text(t4 - t3)}")
+    rest = time.perf_counter() - started - (t1 - t0) - (t3 - t2) - (t4 - t3 if args.report else 0.0)
+    parts.append(f"start-up, reading and writing {duration_text(rest)}")
     print(f"wrote {out}: {result.method} correction for the {args.eye} eye on {display.title}, {design_text} "
-          f"(objective {result.objective:.3g}, {result.iterations} iterations, {result.seconds:.2f} s)"
-          + (f"; report {args.report}" if args.report else ""))
+          f"(objective {result.objective:.3g})" + (f"; report {args.report}" if args.report else ""))
+    print(f"  took {duration_text(time.perf_counter() - started)}: " + ", ".join(parts))
     return 0
+
+
+def _solve_text(method: str, iterations: int) -> str:
+    """The solve in words: its iterations where the method iterates (one pass otherwise)."""
+    if method in (Method.LEARNED, Method.WIENER) or not iterations:
+        return f"{method} (one pass)"
+    return f"{method} ({iterations} iterations)"
 
 
 def _check_options(args: argparse.Namespace) -> None:
@@ -167,6 +191,7 @@ VIDEO_JOD_DEFAULT_FPS = 90.0
 
 def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     """Each frame of a clip solved on its own (the offline ceiling), into a folder of frames."""
+    started = time.perf_counter()
     folder = clips.output_folder(args, plan)        # checked before any work
     _check_options(args)
     from ..solvers import objective, solve  # on use: start-up time (apps/__init__)
@@ -180,7 +205,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     first = next(iter(clips.planned_frames(plan)))[1]
     pupil, pupil_lines = viewing_pupil(args, eye, display, decode(display, first), age)
     for line in pupil_lines:
-        print(f"vrcorrect: {line} (the clip's first frame)", file=sys.stderr)
+        print(f"vrcorrect: {line} (the clip's first frame)", flush=True)
     t0 = time.perf_counter()
     design = build_design(args, eye, display, pupil, args.reference)
     kernel, reference = design.nominal, design.nominal_reference
@@ -217,7 +242,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
             if scored:
                 for name, image in zip(seen, images):
                     seen[name].append(image)
-            bar.update(1)
+            bar.advance()
         others = []
         if args.report:
             report = _clip_report(args, plan, rx_path, display, result, reference, kernel, per_frame, seen if scored
@@ -226,8 +251,11 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
         folder.commit(others)                       # the frames and the report appear together or not at all
     objectives = [f["objective"] for f in per_frame]
     print(f"wrote {args.output}: {plan.count} frames, {args.method} correction for the {args.eye} eye on "
-          f"{display.title} ({plan.text}; median objective {float(np.median(objectives)):.3g}, "
-          f"{sum(f['seconds'] for f in per_frame):.2f} s solving)" + (f"; report {args.report}" if args.report else ""))
+          f"{display.title} ({plan.text}; median objective {float(np.median(objectives)):.3g})"
+          + (f"; report {args.report}" if args.report else ""))
+    print(f"  took {duration_text(time.perf_counter() - started)}: eye model {duration_text(t1 - t0)}, "
+          f"{_solve_text(args.method, int(np.median([f['iterations'] for f in per_frame])))} "
+          f"{duration_text(sum(f['seconds'] for f in per_frame))} for the frames")
     return 0
 
 

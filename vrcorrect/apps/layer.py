@@ -1,13 +1,15 @@
 """``vrcorrect layer install | uninstall | status``: vrcorrect as an implicit OpenXR API layer.
 
-``install`` compiles ``layer/`` (``vrcorrect_layer.c`` and ``vrcorrect_vulkan.c``: the C shim that
-embeds this Python and runs :mod:`vrcorrect.runtime.xrlayer`) with the machine's C compiler into the user's data folder
-(``$XDG_DATA_HOME/vrcorrect/layer/``, default ``~/.local/share``), writes beside it
-``vrcorrect_layer.cfg`` (the Python home and the ``sys.path`` entries the embedded interpreter
-needs), writes the layer configuration (prescription, display) to
-``$XDG_CONFIG_HOME/vrcorrect/layer.json`` and the implicit-layer manifest to
-``$XDG_DATA_HOME/openxr/1/api_layers/implicit.d/`` (default ``~/.local/share``: where the OpenXR
-loader looks for a user's layers), which the loader reads for every application.  ``DISABLE_VRCORRECT_LAYER=1`` in an application's
+The layer's library (``layer/``: ``vrcorrect_layer.c`` and ``vrcorrect_vulkan.c``, the C shim that
+embeds this Python and runs :mod:`vrcorrect.runtime.xrlayer`) is compiled when vrcorrect is built
+(``pip install``, ``pip wheel``) and ships inside the package.  ``install`` writes the
+implicit-layer manifest naming it to ``$XDG_DATA_HOME/openxr/1/api_layers/implicit.d/`` (default
+``~/.local/share``: where the OpenXR loader looks for a user's layers), which the loader reads for
+every application; ``vrcorrect_layer.cfg`` (the Python home and the ``sys.path`` entries the embedded
+interpreter needs) to ``$XDG_DATA_HOME/vrcorrect/layer/``; and the layer configuration
+(prescription, display) to ``$XDG_CONFIG_HOME/vrcorrect/layer.json``.  Only a source checkout
+without a built library (or with one older than its sources) compiles ``layer/`` there with the
+machine's C compiler, and says so (the fallback).  ``DISABLE_VRCORRECT_LAYER=1`` in an application's
 environment makes the loader skip the layer.  A user's file is never overwritten without
 ``--force`` (files the command wrote itself are recognised and replaced).
 
@@ -24,7 +26,8 @@ from pathlib import Path
 from typing import Mapping
 
 from ..plumbing.errors import InputError, ValidationError
-from ..runtime.layer_build import LIBRARY, MARK, build_layer, manifest_text
+from ..runtime.layer_build import CFG, LIBRARY, MARK, SOURCE_DIR, build_layer, manifest_text, packaged_library, \
+    stale_sources, write_cfg
 from ..runtime.xrlayer import DISABLE_ENV, LAYER_NAME, OFF_ENV, config_path, log_path, off_file, read_config
 
 MANIFEST = "vrcorrect_layer.json"
@@ -64,6 +67,24 @@ def _check_free(path: Path, force: bool) -> None:
         raise InputError(f"{path} exists and was not written by vrcorrect; pass --force to replace it")
 
 
+def layer_library(env: Mapping[str, str] | None = None) -> tuple[Path, str]:
+    """The library the manifest will name, and a line saying where it came from: the one built into
+    the package (``pip install``), else (a source checkout without one, or with one older than the
+    sources it was built from) one compiled now into the user's data folder: the fallback."""
+    library = packaged_library()
+    if library is not None:
+        stale = stale_sources(library)
+        if not stale:
+            return library, f"using the layer built into this installation: {library}"
+        why = (f"the built layer {library} is older than its sources ({', '.join(p.name for p in stale)}): "
+               "compiling them")
+    else:
+        why = f"this installation has no built layer (a source checkout): compiling {SOURCE_DIR}"
+    built = build_layer(library_dir(env))
+    return built, (f"{why} with the machine's C compiler, the fallback for a source checkout "
+                   f"(pip install builds the layer into the package): built {built}")
+
+
 def cmd_install(args: argparse.Namespace, env: Mapping[str, str] | None = None) -> int:
     from ..specs.display import get_display
     from ..specs.prescription import load_prescription
@@ -81,7 +102,8 @@ def cmd_install(args: argparse.Namespace, env: Mapping[str, str] | None = None) 
     _check_free(manifest, args.force)
     if rx is not None or args.display or args.iterations is not None:
         _check_free(config, args.force)
-    library = build_layer(library_dir(env))
+    library, how = layer_library(env)
+    write_cfg(library_dir(env))
     if rx is not None or args.display or args.iterations is not None or not config.exists():
         doc = {"comment": MARK}
         if config.exists() and _ours(config):
@@ -99,7 +121,7 @@ def cmd_install(args: argparse.Namespace, env: Mapping[str, str] | None = None) 
         config.write_text(json.dumps(doc, indent=2) + "\n")
     manifest.parent.mkdir(parents=True, exist_ok=True)
     manifest.write_text(manifest_text(library))
-    print(f"built {library}")
+    print(how)
     print(f"wrote {manifest} (implicit layer {LAYER_NAME}; {DISABLE_ENV}=1 disables it)")
     print(f"configuration {config}")
     if "rx" not in json.loads(config.read_text(encoding="utf-8")) and not env.get("VRCORRECT_RX"):
@@ -116,7 +138,7 @@ def cmd_uninstall(args: argparse.Namespace, env: Mapping[str, str] | None = None
     _check_free(manifest, args.force)
     manifest.unlink()
     folder = library_dir(env)
-    for name in (LIBRARY, "vrcorrect_layer.cfg"):
+    for name in (LIBRARY, CFG):
         (folder / name).unlink(missing_ok=True)
     print(f"removed {manifest} and the layer in {folder} (the configuration {config_path(env)} is kept)")
     return 0
@@ -193,15 +215,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                        description=__doc__.split("\n\n")[0].replace("``", ""))
     actions = p.add_subparsers(dest="action", metavar="ACTION")
     actions.required = True
-    i = actions.add_parser("install", help="build the layer and write its manifest and configuration")
+    i = actions.add_parser("install", help="write the layer's manifest and configuration (the layer ships built "
+                                          "in the package; a source checkout without it compiles it)")
     i.add_argument("--rx", help="prescription JSON the layer corrects for")
     i.add_argument("--display", help="display preset or profile JSON (default: the preset matching the "
                                      "runtime's view size, else quest2)")
     i.add_argument("--iterations-per-frame", dest="iterations", type=int,
-                   help="FISTA iterations per frame and eye (1-64; default the Corrector's)")
+                   help="iterations per frame and eye of the real-time method (ADMM by default; 1-64; "
+                        "default: the method's own, 2 for ADMM)")
     i.add_argument("--force", action="store_true", help="replace files vrcorrect did not write")
     i.set_defaults(func=cmd_layer)
-    u = actions.add_parser("uninstall", help="remove the manifest and the built layer")
+    u = actions.add_parser("uninstall", help="remove the manifest (and a layer the fallback built)")
     u.add_argument("--force", action="store_true", help="remove a manifest vrcorrect did not write")
     u.set_defaults(func=cmd_layer)
     s = actions.add_parser("status", help="will the loader find it; prescription, display, last log lines")

@@ -74,12 +74,12 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_train_unrolled(args: argparse.Namespace) -> int:
-    from tqdm import tqdm  # on use: start-up time (apps/__init__)
-
-    from ..learn.dataset import HELD_OUT_IMAGES, check_ray
+    from ..learn.dataset import HELD_OUT_IMAGES, check_ray  # on use: start-up time (apps/__init__)
     from ..learn.unrolled_export import export_unrolled
-    from ..learn.unrolled_train import UnrolledTrainConfig, build_fast_bank, build_pool, train_unrolled
+    from ..learn.unrolled_train import (CHECKPOINT, UnrolledTrainConfig, build_fast_bank, build_pool,
+                                        train_unrolled)
     from ..plumbing.fileio import check_writable
+    from .progress import Progress
 
     check_ray(args.ray)                                             # Ray installed? before any work
     config = UnrolledTrainConfig(stages=args.stages, prior_width=args.prior_width, displays=tuple(args.displays),
@@ -89,9 +89,13 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():                         # all before minutes of kernels
         raise InputError(f"{out}: exists and is not a folder (-o names the run folder)")
-    if not out.resolve().parent.is_dir():
-        raise InputError(f"{out.resolve().parent}: no such folder (the run folder's parent must exist)")
-    if out.is_dir():
+    if args.resume and args.force:
+        raise ValidationError("--resume", "with --force", "one of them: --resume continues RUN's checkpoint, --force "
+                              "starts RUN over")
+    if out.is_dir() and not args.resume:
+        if (out / CHECKPOINT).exists() and not args.force:
+            raise InputError(f"{out} holds a training checkpoint ({CHECKPOINT}): pass --resume to continue it, or "
+                             "--force to start over")
         for name in ("unrolled.pt", "log.csv", "report.json", "unrolled.onnx"):
             check_writable(out / name, force=args.force)
     images = dict(bundled_images(args.image_px))
@@ -99,35 +103,35 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
     held_out = [im for n, im in images.items() if n in HELD_OUT_IMAGES]
     if args.crop_px > args.image_px:
         raise ValidationError("--crop-px", args.crop_px, f"at most --image-px ({args.image_px})")
-    bar = tqdm(desc="kernels", unit="eye", disable=None, leave=False)
-
-    def kernels(done: int, total: int) -> None:
-        bar.total = total
-        bar.update(done - bar.n)
-
-    pool = build_pool(config, kernels, workers=max(1, os.cpu_count() or 1), ray_address=args.ray)
-    bar.close()
+    out.mkdir(parents=True, exist_ok=True)                          # runs/default as the README writes it
+    print(f"unroll: run folder {out}; {len(config.displays)} display(s) x {config.eyes_per_display} training eyes, "
+          f"{config.steps} steps of {config.batch} crops of {config.crop_px} px (or {config.minutes:g} minutes); the "
+          f"training's checkpoint, {out / CHECKPOINT}, every minute (--resume continues it)", flush=True)
+    workers = max(1, os.cpu_count() or 1)
+    saved_pool = out / "pool.pickle"                                # the kernels, kept for --resume
+    pool = _load_pickle(saved_pool) if args.resume else None
+    if pool is None:
+        with Progress("unroll: kernels", "eye") as bar:
+            pool = build_pool(config, bar.update, workers=workers, ray_address=args.ray)
+        _save_pickle(saved_pool, pool)
     bank = None
     if config.fast_weight > 0:
-        bar = tqdm(desc="fast's solutions", unit="crop", total=config.fast_bank, disable=None, leave=False)
-
-        def solved(done: int, total: int) -> None:
-            bar.update(done - bar.n)
-
-        bank = build_fast_bank(config, pool, train_images, workers=max(1, os.cpu_count() or 1), progress=solved)
-        bar.close()
-    bar = tqdm(desc="training", unit="step", total=config.steps, disable=None, leave=False)
-
-    def step(n: int, loss: float) -> None:
-        bar.update(1)
-        bar.set_postfix(loss=f"{loss:.3f}")
-
+        saved_bank = out / "bank.pickle"
+        bank = _load_pickle(saved_bank) if args.resume else None
+        if bank is None:
+            with Progress("unroll: fast's solutions", "crop", config.fast_bank) as bar:
+                bank = build_fast_bank(config, pool, train_images, workers=workers, progress=bar.update)
+            _save_pickle(saved_bank, bank)
     from ..studies.bench import machine_description
 
     about = {"image_px": args.image_px, "images": sorted(n for n in images if n not in HELD_OUT_IMAGES),
              "machine": machine_description()}
-    report = train_unrolled(out, config, train_images, held_out, pool=pool, progress=step, bank=bank, about=about)
-    bar.close()
+    with Progress("unroll: training", "step", config.steps) as bar:
+        def step(n: int, loss: float) -> None:
+            bar.update(n, note=f"loss {loss:.3f}")
+
+        report = train_unrolled(out, config, train_images, held_out, pool=pool, progress=step, bank=bank, about=about,
+                                resume=args.resume)
     exported = export_unrolled(out / "unrolled.pt", out / "unrolled.onnx", force=True)
     s = report["share_of_fast_gain"]
     print(f"trained {report['steps']} steps in {report['seconds']:.0f} s ({report['parameters']} parameters); "
@@ -137,6 +141,26 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
           f"{out / 'unrolled.pt'}, {out / 'log.csv'}, {out / 'report.json'}; {exported.path} (onnxruntime equals "
           f"torch to {exported.max_abs_error:.1e}: vrcorrect correct --method learned --model {exported.path})")
     return 0
+
+
+def _load_pickle(path: Path):
+    """What :func:`_save_pickle` wrote for a run (its own kernels or bank), or None."""
+    import pickle
+
+    try:
+        with open(path, "rb") as f:
+            return pickle.load(f)
+    except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError):
+        return None
+
+
+def _save_pickle(path: Path, value) -> None:
+    import pickle
+
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        pickle.dump(value, f, protocol=pickle.HIGHEST_PROTOCOL)
+    tmp.replace(path)
 
 
 def add_parser(sub) -> None:
@@ -213,8 +237,11 @@ def add_parser(sub) -> None:
                                    "LMS objective of random crops; report the share of fast's objective gain it "
                                    "and its untrained twin close on held-out eyes and images. unrolled.pt, "
                                    "log.csv, report.json and the ONNX export unrolled.onnx (for vrcorrect correct "
-                                   "--method learned --model, --backend onnx --model, --cold-start) in RUN. The "
-                                   "defaults take about 6 minutes on 2 CPU cores.")
+                                   "--method learned --model, --backend onnx --model, --cold-start) in RUN (made "
+                                   "if missing). The defaults took about 6 minutes on 2 idle CPU cores, and over 40 "
+                                   "on 2 busy ones: the run shows its progress on standard error (a line every few "
+                                   "seconds when it is not a terminal) and writes RUN/checkpoint.pt every minute; "
+                                   "--resume continues a stopped run.")
     p.add_argument("-o", "--out", required=True, metavar="RUN", help="run folder")
     p.add_argument("--displays", nargs="+", default=list(_presets()), metavar="PRESET",
                    help="display presets (default: all)")
@@ -230,7 +257,7 @@ def add_parser(sub) -> None:
     p.add_argument("--batch-size", type=int, default=4, help="crops per step (4)")
     p.add_argument("--steps", type=int, default=200, help="optimiser steps (200)")
     p.add_argument("--minutes", type=float, default=60.0, help="stop training after this long, whatever the steps "
-                   "(60; the defaults need about 6 on 2 cores)")
+                   "(60; with the defaults a whole run took about 6 minutes on 2 idle cores)")
     p.add_argument("--seed", type=int, default=0, help="seed of the eyes, crops and weights (0)")
     p.add_argument("--fast-weight", type=float, default=0.0, metavar="W",
                    help="add W times a pull towards fast's solution to the objective's loss (0: none); the crops "
@@ -245,5 +272,7 @@ def add_parser(sub) -> None:
                    help="build the eyes' kernels as Ray tasks on the cluster at ADDRESS (auto, HOST:PORT, "
                         "ray://HOST:10001, or local: a one-node Ray on this machine's CPUs); default: local "
                         "processes; the extra 'ray'")
-    p.add_argument("--force", action="store_true", help="overwrite RUN's earlier files")
+    p.add_argument("--resume", action="store_true",
+                   help="continue RUN's training from its checkpoint (written every minute; its kernels too)")
+    p.add_argument("--force", action="store_true", help="overwrite RUN's earlier files (a checkpoint: start over)")
     p.set_defaults(func=cmd_train_unrolled)

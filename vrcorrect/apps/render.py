@@ -6,20 +6,21 @@ warm start carried from frame to frame, and every frame written to a folder."""
 from __future__ import annotations
 
 import argparse
-import sys
+import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from ..plumbing.errors import ValidationError
 from ..plumbing.fileio import check_readable, check_writable
 from ..plumbing.imageio import read_image, write_png
 from ..runtime.model_path import model_for_backend
-from ..specs.prescription import bundled_sample_path, load_prescription
+from ..specs.prescription import load_prescription
 from ..specs.vocabulary import ITERATIVE_FILTERS, Backend, Filter
 from . import clips
-from .common import add_model_options, kernel_options, print_notes
+from .common import add_model_options, check_not_input, kernel_options, print_notes, rx_path, small_image_note
+from .progress import Progress, duration_text
 from .realtime_options import (
     add_backend_option,
     add_filter_options,
@@ -31,9 +32,48 @@ from .realtime_options import (
 METHOD_TITLES = {Filter.ADMM: "ADMM", Filter.FISTA: "projected gradient (FISTA)"}
 #: The headset rate a clip is played at unless ``--fps`` says otherwise.
 DEFAULT_FPS = 90.0
+#: Seconds a frame of the default (ADMM, 2 iterations a frame) took on Mesa's llvmpipe for changing content (a
+#: pan: every frame iterates; a settled still view costs less), by the FFT grid's pixels (the image plus the
+#: kernel, padded to powers of two as the grids were then: 96x64 -> 128x128, 256x256 -> 512x512, 512x512 ->
+#: 1024x1024; issue 43's smaller 5-smooth grids make the estimate an upper bound), on a 2-core AMD
+#: EPYC shared with other jobs (load average 3 to 4), 2026-11-28 (docs/realtime.md): what ``render`` says before
+#: its first frames, interpolated in log-log, scaled by the FFT round trips a frame (iterations + 2).
+SOFTWARE_S_PER_FRAME = ((128 * 128, 0.30), (512 * 512, 6.0), (1024 * 1024, 36.0))
+
+
+def _software_seconds(size: tuple[int, int], kernel_px: int = 27) -> float:
+    """The table above at the grid of an image of ``size`` (W, H) with a ``kernel_px`` kernel."""
+    grid = 1
+    for side in size:
+        grid *= 2 ** math.ceil(math.log2(side + kernel_px - 1))
+    points = SOFTWARE_S_PER_FRAME
+    (g0, t0), (g1, t1) = (points[0], points[1]) if grid <= points[1][0] else (points[1], points[2])
+    p = math.log(t1 / t0) / math.log(g1 / g0)
+    return t0 * (grid / g0) ** p
+
+
+def estimate_text(renderer: str, size: tuple[int, int], frames: int, options: dict[str, Any]) -> str:
+    """What ``render`` says at its start about the time it will take on ``renderer``."""
+    from ..runtime.eye_model import DEFAULT_ITERATIONS  # light
+    from ..runtime.gl import software_renderer
+
+    name = renderer.split(" (")[0]
+    if not software_renderer(renderer):
+        return f"on {name}: the time a frame takes is measured on the first frames"
+    method = options.get("filter", Filter.ADMM)
+    if method not in (Filter.ADMM, Filter.FISTA):
+        return f"on {name} (software rendering on the CPU): the time a frame takes is measured on the first frames"
+    k = options.get("iterations_per_frame") or DEFAULT_ITERATIONS.get(method, 2)
+    per = _software_seconds(size) * (k + 2) / 4
+    if method == Filter.FISTA:
+        per *= 4.9                    # a FISTA frame took about 5 times the default's (docs/benchmarks.md)
+    return (f"on {name} (software rendering on the CPU) expect roughly {duration_text(per)} a frame while the "
+            f"picture changes, {duration_text(per * frames)} for the {frames} frames, plus the shaders' first "
+            "compile; measured on the first frames from here on")
 
 
 def cmd_render(args: argparse.Namespace) -> int:
+    check_not_input(args)                                     # never over the input, --force or not
     clip = clips.input_clip(args, still_options=("frames",))  # before the heavy imports: a bad clip is told at once
     if clip is not None:
         return _render_clip(args, clips.plan_frames(clip, args, DEFAULT_FPS))
@@ -49,23 +89,29 @@ def cmd_render(args: argparse.Namespace) -> int:
     check_readable(args.input)
     check_writable(out, force=args.force)
     model = model_for_backend(args.backend, args.model)
-    rx_path = args.rx or str(bundled_sample_path())
-    rx = load_prescription(rx_path)
+    rx = load_prescription(rx_path(args))
     notes: list[str] = []
     image = read_image(args.input, notes)
     print_notes(notes)
     if model:
         options["model"] = model
+    from ..runtime.gl import headless_context
 
-    with tqdm(total=frames, desc="render", unit="frame", disable=None, leave=False, file=sys.stderr) as bar:
-        def progress(done: int, total: int) -> None:
-            bar.total = total
-            bar.n = done
-            bar.refresh()
-
-        result, info = render_frame(image, rx, args.display, args.eye, args.backend, view=args.view,
-                                    frames=frames, progress=progress, **options)
+    ctx = headless_context(require=430)
+    try:
+        total = frames if args.view != "seen-uncorrected" else 1
+        h, w = image.shape[:2]
+        print(f"render: {total} frame(s) of {args.input} ({w}x{h}) as a still video, the last written; "
+              + estimate_text(ctx.info.get("GL_RENDERER", "?"), (w, h), total, options), flush=True)
+        with Progress("render", "frame", total) as bar:
+            result, info = render_frame(image, rx, args.display, args.eye, args.backend, view=args.view, ctx=ctx,
+                                        frames=frames, progress=bar.update, **options)
+    finally:
+        ctx.release()
     write_png(out, result / 255.0, bits=8, force=args.force)
+    small = small_image_note(w, h, int(info.get("kernel_size", 1)), "the correction")
+    if small:
+        print_notes([small])
     _print_eye(args, info)
     fraction = info.get("objective_fraction")
     # With the GLSL backend and a correction that is not the identity, the eye model's last note describes
@@ -103,22 +149,39 @@ def _render_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     model = model_for_backend(args.backend, args.model)
     if model:
         options["model"] = model
-    rx = load_prescription(args.rx or str(bundled_sample_path()))
+    rx = load_prescription(rx_path(args))
     print_notes(plan.clip.notes)
-    with folder, clips.frames_bar("render", plan.count) as bar:
-        def emit(index: int, out) -> None:
-            folder.write(index, out / 255.0, bits=8)
+    from ..runtime.gl import headless_context
 
-        def progress(done: int) -> None:
-            bar.n = done
-            bar.refresh()
+    print(f"render: {plan.text}" + _rate_note(args, plan), flush=True)
+    ctx = headless_context(require=430)
+    try:
+        print("render: " + estimate_text(ctx.info.get("GL_RENDERER", "?"), plan.clip.size, plan.count, options),
+              flush=True)
+        with folder, clips.frames_bar("render", plan.count) as bar:
+            def emit(index: int, out) -> None:
+                folder.write(index, out / 255.0, bits=8)
 
-        info = render_clip(clips.planned_frames(plan), rx, args.display, args.eye, args.backend, view=args.view,
-                           reprojection=not args.no_reprojection, emit=emit, progress=progress,
-                           frame_time_s=1.0 / (plan.frames_per_s or DEFAULT_FPS), **options)
-        folder.commit()
+            info = render_clip(clips.planned_frames(plan), rx, args.display, args.eye, args.backend, view=args.view,
+                               ctx=ctx, reprojection=not args.no_reprojection, emit=emit, progress=bar.update,
+                               frame_time_s=1.0 / (plan.frames_per_s or DEFAULT_FPS), **options)
+            folder.commit()
+    finally:
+        ctx.release()
     _print_clip_summary(args, plan, info)
     return 0
+
+
+def _rate_note(args: argparse.Namespace, plan: clips.ClipPlan) -> str:
+    """Where the clip is played at another rate than its own by default: say so, and how to keep it."""
+    clip = plan.clip
+    own = clip.frames_per_s
+    if own is None and clip.durations_s and max(clip.durations_s) - min(clip.durations_s) < 1e-9:
+        own = 1.0 / clip.durations_s[0]
+    if args.fps is not None or getattr(args, "clip_fps", None) is not None or own is None or abs(own - DEFAULT_FPS) < 1e-6:
+        return ""
+    return (f"; played at the headset's {DEFAULT_FPS:g} fps by default (--fps {own:.3g} keeps one frame per "
+            "source frame)")
 
 
 def _print_eye(args: argparse.Namespace, info: dict) -> None:

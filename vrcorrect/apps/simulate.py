@@ -4,7 +4,6 @@ folder of frames."""
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -13,11 +12,12 @@ from ..plumbing.fileio import check_readable, check_writable
 from ..plumbing.imageio import read_image, write_png
 from ..specs.display import decode, encode, get_display
 from . import clips
-from .common import (add_model_options, add_pupil_options, build_eye_kernel, kernel_decisions, load_eye_and_age,
-                     parse_pupil, print_notes, viewing_pupil)
+from .common import (add_model_options, add_pupil_options, build_eye_kernel, check_not_input, kernel_decisions,
+                     load_eye_and_age, parse_pupil, print_notes, viewing_pupil)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    check_not_input(args)                                 # never over the input, --force or not
     clip = clips.input_clip(args)                         # a clip is checked before any heavy import
     if clip is not None:
         return _simulate_clip(args, clips.plan_frames(clip, args, None))
@@ -75,7 +75,7 @@ def _simulate_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
                 seen, info = what_the_eye_sees(decode(display, frame), kernel, method=args.method)
                 last_source = source
             folder.write(index, encode(display, seen), bits=16 if args.sixteen_bit else 8)
-            bar.update(1)
+            bar.advance()
         folder.commit()
     if args.explain:
         print(f"prescription {rx_path} ({args.eye} eye): sphere {eye.sphere_D:+.2f} D, cylinder "
@@ -91,7 +91,7 @@ def _at_pupil(args: argparse.Namespace, eye, display, image_linear, age, where: 
     """The eye through the pupil ``--pupil`` asks for (``auto``: the image's light), said on one line."""
     pupil, lines = viewing_pupil(args, eye, display, image_linear, age)
     for line in lines:
-        print(f"vrcorrect: {line}{where}", file=sys.stderr)
+        print(f"vrcorrect: {line}{where}", flush=True)       # stdout: an error stays the one line on stderr
     return eye.with_changes(pupil_diameter_mm=pupil)
 
 

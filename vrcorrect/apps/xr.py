@@ -13,6 +13,7 @@ from ..runtime.model_path import model_for_backend
 from ..runtime.sources import parse_source
 from ..runtime.window import XrUnavailableError
 from ..runtime.xr import EXIT_NO_RUNTIME, EXIT_SESSION_LOST, XrApp, XrConfig
+from .common import rx_path
 from .realtime_options import (
     add_backend_option,
     add_filter_options,
@@ -68,7 +69,7 @@ def cmd_xr(args: argparse.Namespace) -> int:
     model = model_for_backend(args.backend, args.model)
     if model:
         options["model"] = model
-    config = XrConfig(rx=args.rx, display=args.display, source=args.source, region=args.region, frames=frames,
+    config = XrConfig(rx=str(rx_path(args)), display=args.display, source=args.source, region=args.region, frames=frames,
                       mirror=args.mirror, mirror_height=mirror_height, validation=args.validation,
                       backend=args.backend, corrector_options=options, reprojection=not args.no_reprojection)
     try:

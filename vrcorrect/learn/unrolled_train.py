@@ -273,17 +273,32 @@ def build_fast_bank(config: UnrolledTrainConfig, pool: dict[str, list[PoolEntry]
     return list(zip(eyes, crops, solutions))
 
 
+CHECKPOINT = "checkpoint.pt"
+"""The training's state in the run folder, written every :data:`CHECKPOINT_EVERY_S` and at the end."""
+CHECKPOINT_EVERY_S = 60.0
+
+
+def _config_key(config: UnrolledTrainConfig) -> str:
+    """What a checkpoint must share with the run that resumes it (everything but the time budget)."""
+    fields = {k: v for k, v in config.__dict__.items() if k not in ("minutes", "ranges")}
+    return repr(sorted(fields.items())) + repr(config.ranges.as_dict())
+
+
 def train_unrolled(run_dir: str | Path, config: UnrolledTrainConfig, train_images: Sequence[np.ndarray],
                    held_out_images: Sequence[np.ndarray], pool: dict[str, list[PoolEntry]] | None = None,
                    progress: Callable[[int, float], None] | None = None, held_out_cases: int = 24,
                    bank: list[tuple[int, np.ndarray, np.ndarray]] | None = None,
-                   about: dict[str, Any] | None = None) -> dict[str, Any]:
+                   about: dict[str, Any] | None = None, resume: bool = False,
+                   checkpoint_every_s: float = CHECKPOINT_EVERY_S) -> dict[str, Any]:
     """Train an :class:`UnrolledADMM` for ``config.steps`` steps or ``config.minutes``, whichever
     ends first (cosine learning rate over the steps), evaluate it against its twin on held-out
     eyes and images, and write ``unrolled.pt``, ``log.csv`` and ``report.json`` in ``run_dir``.
     With ``config.fast_weight`` above zero the crops come from ``bank`` (:func:`build_fast_bank`;
     built here, in this process, when not given). ``about``: more for the report (the images' size,
-    the machine). Returns the report."""
+    the machine).  The training's state (weights, optimiser, schedule, random streams, log) goes to
+    ``run_dir/checkpoint.pt`` every ``checkpoint_every_s`` seconds of training and at its end;
+    ``resume`` continues from it (the same configuration; the time budget counts the time already
+    trained), as if the run had not stopped.  Returns the report."""
     import json
 
     run = Path(run_dir)
@@ -310,9 +325,37 @@ def train_unrolled(run_dir: str | Path, config: UnrolledTrainConfig, train_image
         optimiser, lambda s: 0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(s / config.steps, 1.0))))
     log = io.StringIO()
     writer = csv.writer(log)
-    writer.writerow(["step", "loss", "lr", "seconds"])
-    t0 = time.perf_counter()
     step = 0
+    trained_s = 0.0                                 # seconds trained before this process (a resumed run)
+    checkpoint = run / CHECKPOINT
+    if resume and checkpoint.is_file():
+        state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+        if not isinstance(state, dict) or state.get("format") != "vrcorrect-unrolled-training":
+            raise ValidationError("--resume", str(checkpoint), "a checkpoint written by vrcorrect unroll")
+        if state["config"] != _config_key(config):
+            raise ValidationError("--resume", str(checkpoint), "a checkpoint of the same configuration (the options "
+                                  "but --minutes as the run that wrote it)")
+        model.load_state_dict(state["model"])
+        optimiser.load_state_dict(state["optimiser"])
+        schedule.load_state_dict(state["schedule"])
+        rng.bit_generator.state = state["rng"]
+        torch.set_rng_state(state["torch_rng"])
+        step, trained_s = int(state["step"]), float(state["seconds"])
+        log.write(state["log"])
+    else:
+        writer.writerow(["step", "loss", "lr", "seconds"])
+
+    def save_checkpoint(seconds: float) -> None:
+        state = {"format": "vrcorrect-unrolled-training", "config": _config_key(config), "step": step,
+                 "seconds": seconds, "model": model.state_dict(), "optimiser": optimiser.state_dict(),
+                 "schedule": schedule.state_dict(), "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(),
+                 "log": log.getvalue()}
+        tmp = checkpoint.with_name(checkpoint.name + ".tmp")
+        torch.save(state, tmp)
+        tmp.replace(checkpoint)
+
+    t0 = time.perf_counter() - trained_s
+    saved = time.perf_counter()
     while step < config.steps and time.perf_counter() - t0 < 60.0 * config.minutes:
         if config.fast_weight > 0:
             drawn = [bank[int(i)] for i in rng.integers(len(bank), size=config.batch)]
@@ -335,9 +378,13 @@ def train_unrolled(run_dir: str | Path, config: UnrolledTrainConfig, train_image
         step += 1
         writer.writerow([step, f"{loss.item():.5f}", f"{schedule.get_last_lr()[0]:.3e}",
                          f"{time.perf_counter() - t0:.1f}"])
+        if time.perf_counter() - saved >= checkpoint_every_s:
+            save_checkpoint(time.perf_counter() - t0)
+            saved = time.perf_counter()
         if progress is not None:
             progress(step, loss.item())
     seconds = time.perf_counter() - t0
+    save_checkpoint(seconds)
     result = evaluate(model, cases, fast_obj)
     report = {"config": {**{k: v for k, v in config.__dict__.items() if k != "ranges"},
                          "displays": list(config.displays), "ranges": config.ranges.as_dict()},

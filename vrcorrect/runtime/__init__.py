@@ -18,13 +18,18 @@ The correction
 GL and shaders
   * ``gl`` - contexts (headless EGL), GL error checks, textures with the one place that handles
     OpenGL's bottom-up rows; ``shaders`` - the GLSL loader (``shaders/``), text only.
+  * ``glcache`` - GL contexts for building off an application's frame: a loader that caches
+    compiled programs between runs (``glGetProgramBinary``) and lets other threads run during long
+    GL calls; the layer's EGL contexts and GLX contexts shared with an application's.
+  * ``eye_cache`` - designed eye models kept between runs (the layer's second launch).
 What is shown and where
   * ``sources`` - picture sources (still, folder, animated, video, screen grab); ``scene`` - the
     3D demo scene; ``text`` - font atlas and text layout.
   * ``window`` - the window shell the apps share (optional imports, GLFW, sRGB check, stage
     times, screenshots); ``mirror``, ``overlay``, ``xr`` - the desktop mirror, the screen overlay
     and the OpenXR headset loop; ``xrlayer`` - the OpenXR API layer's engine, ``layer_build`` - its
-    C shim compiled and its loader manifest.
+    C shim (built into the package by ``setup.py``; compiled here only as a source checkout's
+    fallback), its Python configuration and its loader manifest.
 
 Importing this package imports neither moderngl nor glfw; the submodules that need them do.
 """

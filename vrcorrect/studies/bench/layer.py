@@ -91,7 +91,8 @@ def _measure(api: str, app: Path, manifest: Path, layer_dir: Path, picture: Path
                VRCORRECT_RX=str(package_data("sample_rx.json")), VRCORRECT_LAYER_CONFIG=str(out / "none.json"),
                APP_LOADER=str(Path(xr.__file__).parent / "library" / "linux_x86_64" / "libopenxr_loader.so"),
                APP_IMAGE_LEFT=str(picture), APP_IMAGE_RIGHT=str(picture), APP_STOP_FILE=str(stop), APP_FRAMES="1",
-               MESA_SHADER_CACHE_DIR=str(out / "shader_cache"))      # empty: every run compiles, as a first launch
+               MESA_SHADER_CACHE_DIR=str(out / "shader_cache"),      # empty: every run compiles, as a first launch
+               VRCORRECT_CACHE_DIR=str(out / "vrcorrect_cache"))     # (the layer's programs and eye models too)
 
     def timing() -> list[re.Match[str]]:
         text = log.read_text() if log.exists() else ""
@@ -170,13 +171,13 @@ def run_layer_bench(repeats: int = 3, out: Path = Path("docs/benchmarks.md"), wr
         f"{repeats} one-second means the layer logs (the first left out), in ms: each eye's GPU time (timer "
         "queries) and CPU time (issuing its correction), the layer's whole time in xrEndFrame, and, for Vulkan, "
         "the steps the OpenGL path does not have: the copy of the submitted rects into the shared images with "
-        "the wait for the application's queue (there is no GL_EXT_semaphore_fd on llvmpipe, so the layer waits on "
-        "a fence and calls glFinish), glFinish, and the copy of the result into the output image (not waited "
-        "for). `first frame`: the layer's time in the first corrected frame's xrEndFrame (one run), where the "
-        "Correctors compile their shaders and make their buffers on the application's thread: the application "
-        "stalls for it once. Each run starts with an empty Mesa shader cache (MESA_SHADER_CACHE_DIR), as a first "
-        "launch does; with the shaders cached by an earlier run, that frame took well under a second at 96x64 in "
-        "this session. `-` where the figure does not exist.\n\n"
+        "the wait for the application's queue (there is no GL_EXT_semaphore_fd on llvmpipe nor "
+        "VK_KHR_external_semaphore_fd on lavapipe, so the layer waits on a fence and calls glFinish), glFinish, and the copy of the result into the output image (not waited "
+        "for). `first frame`: the layer's time in the first corrected frame's xrEndFrame (one run). The layer "
+        "builds its correction off the application's thread (a GL context of its own, its programs compiled or "
+        "loaded from its cache, primed on the application's frame until converged), so that frame costs what a "
+        "converged frame costs. Each run starts with an empty Mesa shader cache (MESA_SHADER_CACHE_DIR) and an "
+        "empty vrcorrect cache, as a first launch does. `-` where the figure does not exist.\n\n"
         + markdown_table(["view", "session", *COLUMNS], rows)
         + "\n\nThe Vulkan path's own steps (copy in and wait, glFinish, copy out) took "
         + ("; ".join(steps) or "-")
