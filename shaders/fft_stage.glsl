@@ -3,6 +3,9 @@
 // ns: the product of the radices before this stage. from_own: the input is own[] (the first stage,
 // STAGE_R dividing PER), else line[]. to_own: leave the output in own[] (the last stage, STAGE_R
 // dividing PER), else store it into line[] between two barriers.
+#if !defined(STAGE_R) || !defined(STAGE_NAME) || !defined(STAGE_DFT)
+#error fft_stage.glsl is a template: define STAGE_R, STAGE_NAME and STAGE_DFT before each include
+#endif
 void STAGE_NAME(int ns, float sign, bool from_own, bool to_own, inout vec2 own[PER]) {
     const int R = STAGE_R;
     const int B = (PER + R - 1) / R;                  // butterflies a thread

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -84,7 +85,8 @@ def _names(folder: Path) -> list[str]:
 
 def _one_line_error(code: int, capsys, *words: str) -> str:
     err = capsys.readouterr().err
-    lines = [line for line in err.splitlines() if line.strip()]
+    # progress lines ("N/M frames, ...") may come first on a run that got that far; the error is one line
+    lines = [line for line in err.splitlines() if line.strip() and not re.match(r"^\S.*: \d+/\d+ frames", line)]
     assert code == 2, err
     assert len(lines) == 1 and lines[0].startswith("vrcorrect: error:"), err
     assert "Traceback" not in err
@@ -316,12 +318,17 @@ def test_sigterm_while_correcting_a_clip_leaves_nothing(tmp_path, frames):
 # --------------------------------------------------------------------------
 
 
+PUPIL_MM = 3.0
+"""The cut test's fixed pupil (the pupil from the light would follow the clip's history)."""
+
+
 def _fresh_corrector_output(ctx, frame: np.ndarray) -> np.ndarray:
-    """What a Corrector made now (a cold start) shows for ``frame``: the default render's options."""
+    """What a Corrector made now (a cold start) shows for ``frame``: the default render's options (the
+    robust design), the pupil fixed."""
     from vrcorrect.runtime import gl as G
     from vrcorrect.runtime.corrector import Corrector
 
-    corrector = Corrector(ctx, SAMPLE_RX, "quest2", "right")
+    corrector = Corrector(ctx, SAMPLE_RX, "quest2", "right", pupil=PUPIL_MM, robust=True)
     src = G.upload_texture(ctx, frame)
     tex, fbo = G.render_target(ctx, width=W, height=H)
     try:
@@ -337,7 +344,7 @@ def test_render_resets_on_a_cut_as_a_fresh_corrector_starts(gl, inputs, frames, 
     frame is what a fresh Corrector makes of it (a cold start) within 2/255; without reprojection
     no cut is detected and the warm start from the other picture shows."""
     out = tmp_path / "shown"
-    assert cli.main(["render", str(inputs["folder"]), "-o", str(out)]) == 0
+    assert cli.main(["render", str(inputs["folder"]), "-o", str(out), "--pupil", str(PUPIL_MM)]) == 0
     printed = capsys.readouterr().out
     assert _names(out) == FRAME_NAMES
     assert f"1 cut(s) detected: at frame {CUT}" in printed, printed
@@ -348,7 +355,8 @@ def test_render_resets_on_a_cut_as_a_fresh_corrector_starts(gl, inputs, frames, 
     assert np.abs(_png(out / FRAME_NAMES[CUT + 1]) - _fresh_corrector_output(gl, frames[CUT + 1])).max() > 2
 
     plain = tmp_path / "plain"
-    assert cli.main(["render", str(inputs["folder"]), "-o", str(plain), "--no-reprojection"]) == 0
+    assert cli.main(["render", str(inputs["folder"]), "-o", str(plain), "--no-reprojection", "--pupil",
+                     str(PUPIL_MM)]) == 0
     printed = capsys.readouterr().out
     assert "--no-reprojection: no motion, no cut detection" in printed and "cut(s) detected" not in printed
     assert np.abs(_png(plain / FRAME_NAMES[CUT]) - fresh).max() > 2

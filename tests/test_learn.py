@@ -603,7 +603,7 @@ def test_correct_with_the_learned_method(tiny_onnx, tmp_path, capsys):
     rx = _rx_file(tmp_path / "rx.json", (-1.0, -0.25, 30.0), (-3.0, 0.0, 0.0))
     out, report = tmp_path / "out.png", tmp_path / "r.json"
     args = ["correct", str(src), "-o", str(out), "--rx", str(rx), "--display", "quest2", "--method", "learned",
-            "--model", str(tiny_onnx), "--wavelength-step-nm", "40"]
+            "--model", str(tiny_onnx), "--wavelength-step-nm", "40", "--pupil", "rx", "--robust", "off"]
     assert main(args + ["--report", str(report)]) == 0
     doc = json.loads(report.read_text())
     assert doc["method"] == "learned" and doc["settings"]["model"] == str(tiny_onnx)

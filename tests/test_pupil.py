@@ -126,6 +126,40 @@ def test_the_bank_is_a_geometric_ladder_whose_band_lands_on_entries():
     assert nearest_bank_pupil(6.9, upper_mm=5.0) == pytest.approx(4.8828)
 
 
+def test_closing_a_bank_stops_the_design_in_progress_and_waits_for_its_worker():
+    """A design on the worker is stopped at its next kernel once the bank closes, and close() returns
+    with the worker ended: no thread is left inside a C extension at the interpreter's exit (which
+    aborts the process: 'terminate called without an active exception')."""
+    import threading
+    import time
+
+    from vrcorrect.runtime.pupil_bank import PupilBank
+
+    started, kernels_done = threading.Event(), []
+
+    def build(pupil_mm, kernels, grids, progress):
+        started.set()
+        for k in range(1000):                        # a design of many kernels, 10 ms each
+            time.sleep(0.01)
+            kernels_done.append(k)
+            if progress is not None:
+                progress(k + 1, 1000)
+        return object()
+
+    eye = EyeRx(-2.0, -1.0, 120.0, 4.0)
+    bank = PupilBank(eye, get_display("quest2"), None, None, build)
+    for p in BANK_PUPILS_MM[:4]:
+        bank.request(p)
+    assert started.wait(10)
+    worker = bank._worker
+    assert worker is not None and not worker.daemon
+    bank.close()
+    assert not worker.is_alive()
+    assert len(kernels_done) < 1000                  # stopped part-way, and the queued designs never began
+    assert all(bank.get(p) is None for p in BANK_PUPILS_MM[:4])
+    assert bank.build_now(BANK_PUPILS_MM[0]) is not None   # the caller's own thread still designs
+
+
 def test_the_follower_switches_entries_with_hysteresis():
     f = PupilFollower(QUEST2, entry_mm=3.125)
     step = math.log(BANK_STEP)

@@ -971,7 +971,9 @@ def test_cli_renders_n_frames_and_exits(x_display, tmp_path, mirror_image):
                    "--screenshot-dir", str(tmp_path / "shots")], env, tmp_path)
     assert result.returncode == 0, result.stderr
     out = result.stdout
-    assert out.startswith("keys:") and "Esc / q" in out
+    first, rest = out.split("\n", 1)            # no --rx: the sample prescription is said first, then the keys
+    assert first.startswith("vrcorrect: using the sample prescription"), out
+    assert rest.startswith("keys:") and "Esc / q" in rest
     assert "3 frame(s)" in out and "correct left" in out and "correct right" in out
 
 
@@ -988,12 +990,12 @@ def _edit_during_first_build(monkeypatch, rx: Path, text: str) -> None:
     real = C.build_eye_model
     pending = [text]
 
-    def build(eye, display, options=C.CorrectorOptions()):
+    def build(eye, display, options=C.CorrectorOptions(), **design):
         if pending:
             rx.write_text(pending.pop())
             st = rx.stat()
             os.utime(rx, ns=(st.st_atime_ns, st.st_mtime_ns + 10_000_000))   # visible on coarse clocks
-        return real(eye, display, options)
+        return real(eye, display, options, **design)
 
     monkeypatch.setattr(C, "build_eye_model", build)
 

@@ -360,10 +360,12 @@ def test_bundled_files_follow_the_conventions(name):
         for src in program.stages:
             defines = [f"#define {S.stage_macro(src.stage)}", "#define DECODE_SRGB", "#define ENCODE_SRGB"]
             assert_mapping_exact(src, S.shaders_dir(), defines)
-    else:  # a library: guarded, no stages
+    else:  # a library: guarded (or a template, included once per set of parameters, that refuses to
+        # build without them), no stages
         assert lines[0].startswith("//"), "a library starts with a comment saying what it is"
         text = "\n".join(lines)
-        assert re.search(r"^#ifndef (\w+)\n#define \1$", text, re.M), "a library has an include guard"
+        template = re.search(r"^#if !defined\((\w+)\).*\n#error .*template", text, re.M)
+        assert template or re.search(r"^#ifndef (\w+)\n#define \1$", text, re.M), "a library has an include guard"
         assert not S._STAGE_REF.search(text)
 
 

@@ -205,7 +205,10 @@ def _expected_corrections(ctx, rx_path: Path, source, frames: int = 1) -> dict[s
 @pytest.fixture(scope="module")
 def srgb_run(x_display, xr_runtime, rx_file, tmp_path_factory):
     out = tmp_path_factory.mktemp("xr_srgb")
-    result = _run(xr_runtime, out, "--rx", str(rx_file), "--source", str(SAMPLE), "--frames", "3")
+    # the prescription's pupil and the single-pupil design: the frames are compared with Correctors of
+    # the library's defaults (test_pupil.py follows the light; the other runs here take the CLI's auto)
+    result = _run(xr_runtime, out, "--rx", str(rx_file), "--source", str(SAMPLE), "--frames", "3", "--pupil", "rx",
+                  "--robust", "off")
     return result, out
 
 
@@ -270,7 +273,8 @@ def test_rgba8_swapchains_get_linear_light_of_each_eyes_view_of_the_demo_scene(x
     from vrcorrect.runtime.scene import DemoScene
 
     out = tmp_path / "xr"
-    result = _run(xr_runtime, out, "--rx", str(rx_file), "--source", "demo", "--frames", "2", XRTEST_FORMATS="rgba8")
+    result = _run(xr_runtime, out, "--rx", str(rx_file), "--source", "demo", "--frames", "2", "--pupil", "rx",
+                  "--robust", "off", XRTEST_FORMATS="rgba8")             # compared with the library's defaults
     assert result.returncode == 0, result.stderr + result.stdout
     _assert_validation_clean(result.stdout)
     assert "create_swapchain 0 format=0x8058 96x64" in _log(out)

@@ -432,6 +432,18 @@ def test_install_status_uninstall_and_never_overwriting_a_users_file(kit, tmp_pa
     lines = "\n".join(layer.status_lines(environ))
     assert "the loader will find it" in lines and f"prescription: {kit.rx} (valid)" in lines, lines
     assert "display:" in lines and "nothing logged yet" in lines
+    # the prescription's pupil and the single-pupil design unless the configuration says otherwise
+    assert "pupil: the prescription's pupil_diameter_mm (rx); single-pupil design (robust off) (the default" \
+        in lines, lines
+    assert layer.cmd_install(parser.parse_args(["layer", "install", "--pupil", "3.5", "--robust", "off"]),
+                             env=environ) == 0
+    assert json.loads((home / "cfg" / "vrcorrect" / "layer.json").read_text())["options"] == \
+        {"pupil": 3.5, "robust": False}
+    assert "pupil: 3.5 mm; single-pupil design (robust off)" in "\n".join(layer.status_lines(environ))
+    assert layer.cmd_install(parser.parse_args(["layer", "install", "--pupil", "auto", "--robust", "on"]),
+                             env=environ) == 0
+    assert "pupil: followed from the light of the frames shown (auto); robust design over" in \
+        "\n".join(layer.status_lines(environ))
     # a second install replaces its own files without --force
     assert layer.cmd_install(parser.parse_args(["layer", "install", "--display", "quest2"]), env=environ) == 0
     assert "display: quest2" in "\n".join(layer.status_lines(environ))
@@ -459,6 +471,8 @@ def test_install_refuses_a_bad_prescription_or_display_before_writing(kit, tmp_p
         layer.cmd_install(parser.parse_args(["layer", "install", "--display", "nope"]), env=environ)
     with pytest.raises(VrcorrectError, match="--iterations-per-frame"):
         layer.cmd_install(parser.parse_args(["layer", "install", "--iterations-per-frame", "0"]), env=environ)
+    with pytest.raises(VrcorrectError, match=r"--pupil.*1\.5.*2"):
+        layer.cmd_install(parser.parse_args(["layer", "install", "--pupil", "1.5"]), env=environ)
     assert not (home / "cfg").exists()
 
 

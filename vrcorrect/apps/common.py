@@ -38,21 +38,33 @@ def kernel_progress(desc: str) -> Callable[[int, int], None]:
     return update
 
 
-def rx_path(args: argparse.Namespace) -> Path:
+def rx_path(args: argparse.Namespace, say: bool = True) -> Path:
     """The prescription a command models: ``--rx``, else the bundled sample, which it says on one line
-    (standard output): a user who forgot ``--rx`` is not corrected for someone else's eyes silently."""
+    (standard output; ``say=False``: the command says it itself with :func:`say_sample_rx` once its
+    other arguments passed): a user who forgot ``--rx`` is not corrected for someone else's eyes
+    silently."""
     if getattr(args, "rx", None):
         return Path(args.rx)
+    if say:
+        say_sample_rx(args)
+    return bundled_sample_path()
+
+
+def say_sample_rx(args: argparse.Namespace) -> None:
+    """The line saying the bundled sample prescription is modelled (nothing when ``--rx`` was given)."""
+    if getattr(args, "rx", None):
+        return
+    from ..specs.vocabulary import Eye
+
     path = bundled_sample_path()
     try:
         rx = load_prescription(path)
-        eyes = "; ".join(f"{side} {_eye_text(rx.eye(side))}" for side in ("right", "left"))
+        eyes = "; ".join(f"{side} {_eye_text(rx.eye(side))}" for side in Eye)     # the prescription's order
     except Exception:  # noqa: BLE001  (the line is a courtesy: the command reads the file itself)
         eyes = "the bundled example"
     # on standard output, with what the command reports: an error stays the one line on standard error
     print(f"vrcorrect: using the sample prescription {path} ({eyes}); pass --rx YOUR_RX.json for yours "
           "(vrcorrect rx new writes a template)", flush=True)
-    return path
 
 
 def check_not_input(args: argparse.Namespace) -> None:
@@ -183,7 +195,9 @@ def add_pupil_options(p: argparse.ArgumentParser, robust: bool = True) -> None:
 def viewing_pupil(args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfile", image_linear: np.ndarray,
                   age_years: float | None) -> tuple[float, list[str]]:
     """The pupil ``--pupil`` asks for, and lines saying where it came from (``auto``: the light of
-    ``image_linear`` on ``display``, clamped with a note where it must be)."""
+    ``image_linear`` on ``display``, clamped with a note where it must be, then the nearest of the pupil
+    bank's entries, :data:`~vrcorrect.runtime.pupil_bank.BANK_PUPILS_MM`, as the real-time path designs
+    for, so that a still, a clip's frame and a rendered frame of the same light agree)."""
     kernel_options(args)                            # every model option checked before a line is printed
     choice = parse_pupil(args.pupil)
     upper = eye.higher_order.pupil_diameter_mm if eye.higher_order is not None else None
@@ -200,9 +214,13 @@ def viewing_pupil(args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfi
 
     h, w = image_linear.shape[:2]
     mean = float(np.mean(np.asarray(image_linear, np.float64) @ luminance_weights(display)))
+    from ..runtime.pupil_bank import nearest_bank_pupil
+
     estimate = pupil_from_light(mean, display, age_years, image_size=(w, h), upper_mm=upper,
                                 upper_why="the pupil the higher-order terms were measured at")
-    return estimate.diameter_mm, [estimate.describe() + " (--pupil auto)", *estimate.notes]
+    entry = nearest_bank_pupil(estimate.diameter_mm, upper)
+    return entry, [estimate.describe() + f" (--pupil auto): designed for {entry:.2f} mm, the nearest of the pupils "
+                   "the real-time path keeps designs for", *estimate.notes]
 
 
 def build_design(args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfile", pupil_mm: float,

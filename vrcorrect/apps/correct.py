@@ -52,9 +52,9 @@ def cmd_correct(args: argparse.Namespace) -> int:
     from ..solvers.problem import make_design_problem
     from ..vision.metrics import evaluate_seen
 
-    learned, rx_path, eye, display, age = _eye_and_model(args)
     notes: list[str] = []
-    image = read_image(args.input, notes)
+    image = read_image(args.input, notes)           # a broken input is the one line, before any other
+    learned, rx_path, eye, display, age = _eye_and_model(args)
     print_notes(notes)
     check_memory(args.method, *image.shape[:2])
     target = decode(display, image)
@@ -202,14 +202,24 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     clip = plan.clip
     print_notes(clip.notes)
     check_memory(args.method, clip.size[1], clip.size[0])
-    first = next(iter(clips.planned_frames(plan)))[1]
-    pupil, pupil_lines = viewing_pupil(args, eye, display, decode(display, first), age)
-    for line in pupil_lines:
-        print(f"vrcorrect: {line} (the clip's first frame)", flush=True)
-    t0 = time.perf_counter()
-    design = build_design(args, eye, display, pupil, args.reference)
+    designs: dict = {}                              # by pupil: each source frame designed for its own light
+    said: list = [None]
+    design_s = [0.0]
+
+    def design_for(linear):
+        pupil, lines = viewing_pupil(args, eye, display, linear, age)
+        if pupil != said[0]:
+            for line in lines:
+                print(f"vrcorrect: {line}", flush=True)
+            said[0] = pupil
+        if pupil not in designs:
+            t = time.perf_counter()
+            designs[pupil] = build_design(args, eye, display, pupil, args.reference)
+            design_s[0] += time.perf_counter() - t
+        return pupil, designs[pupil]
+
+    pupil, design = design_for(decode(display, next(iter(clips.planned_frames(plan)))[1]))
     kernel, reference = design.nominal, design.nominal_reference
-    t1 = time.perf_counter()
     options: dict | None = None
     scored = bool(args.report) and plan.count * clip.size[0] * clip.size[1] <= VIDEO_JOD_MAX_PIXELS
     seen: dict[str, list] = {"target": [], "corrected": [], "uncorrected": []}
@@ -223,10 +233,14 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     with folder, clips.frames_bar(f"correct ({args.method})", plan.count) as bar:
         for index, (source, frame) in enumerate(clips.planned_frames(plan)):
             if source != last_source:               # a repeated source frame has the same correction
-                problem = make_design_problem(decode(display, frame), design, contrast=args.contrast)
-                if options is None:
-                    options = _solver_options(args, learned, eye.with_changes(pupil_diameter_mm=pupil), display,
+                linear = decode(display, frame)
+                new_pupil, design = design_for(linear)
+                kernel = design.nominal
+                problem = make_design_problem(linear, design, contrast=args.contrast)
+                if options is None or new_pupil != pupil:
+                    options = _solver_options(args, learned, eye.with_changes(pupil_diameter_mm=new_pupil), display,
                                               design.kernel, design.reference)
+                pupil = new_pupil
                 result = solve(problem, args.method, **options)
                 entry = {"source_frame": source, "objective": result.objective,
                          "objective_uncorrected": objective(problem.target, problem) if args.report else None,
@@ -246,14 +260,14 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
         others = []
         if args.report:
             report = _clip_report(args, plan, rx_path, display, result, reference, kernel, per_frame, seen if scored
-                                  else None, t1 - t0)
+                                  else None, design_s[0])
             others.append((Path(args.report), _report_writer(report, list(clip.notes))))
         folder.commit(others)                       # the frames and the report appear together or not at all
     objectives = [f["objective"] for f in per_frame]
     print(f"wrote {args.output}: {plan.count} frames, {args.method} correction for the {args.eye} eye on "
           f"{display.title} ({plan.text}; median objective {float(np.median(objectives)):.3g})"
           + (f"; report {args.report}" if args.report else ""))
-    print(f"  took {duration_text(time.perf_counter() - started)}: eye model {duration_text(t1 - t0)}, "
+    print(f"  took {duration_text(time.perf_counter() - started)}: eye model {duration_text(design_s[0])}, "
           f"{_solve_text(args.method, int(np.median([f['iterations'] for f in per_frame])))} "
           f"{duration_text(sum(f['seconds'] for f in per_frame))} for the frames")
     return 0

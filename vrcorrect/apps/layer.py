@@ -88,6 +88,7 @@ def layer_library(env: Mapping[str, str] | None = None) -> tuple[Path, str]:
 def cmd_install(args: argparse.Namespace, env: Mapping[str, str] | None = None) -> int:
     from ..specs.display import get_display
     from ..specs.prescription import load_prescription
+    from .common import parse_pupil
 
     env = _env(env)
     rx = Path(args.rx).expanduser().resolve() if args.rx else None
@@ -97,14 +98,18 @@ def cmd_install(args: argparse.Namespace, env: Mapping[str, str] | None = None) 
         get_display(args.display)
     if args.iterations is not None and not 1 <= args.iterations <= 64:
         raise ValidationError("--iterations-per-frame", args.iterations, "1 to 64")
+    pupil = parse_pupil(args.pupil) if args.pupil is not None else None
+    robust = {"on": True, "off": False}[args.robust] if args.robust is not None else None
+    options = {k: v for k, v in (("iterations_per_frame", args.iterations), ("pupil", pupil), ("robust", robust))
+               if v is not None}
     manifest = manifest_dir(env) / MANIFEST
     config = config_path(env)
     _check_free(manifest, args.force)
-    if rx is not None or args.display or args.iterations is not None:
+    if rx is not None or args.display or options:
         _check_free(config, args.force)
     library, how = layer_library(env)
     write_cfg(library_dir(env))
-    if rx is not None or args.display or args.iterations is not None or not config.exists():
+    if rx is not None or args.display or options or not config.exists():
         doc = {"comment": MARK}
         if config.exists() and _ours(config):
             try:
@@ -115,8 +120,8 @@ def cmd_install(args: argparse.Namespace, env: Mapping[str, str] | None = None) 
             doc["rx"] = str(rx)
         if args.display:
             doc["display"] = args.display
-        if args.iterations is not None:
-            doc.setdefault("options", {})["iterations_per_frame"] = args.iterations
+        if options:
+            doc["options"] = {**(doc.get("options") if isinstance(doc.get("options"), dict) else {}), **options}
         config.parent.mkdir(parents=True, exist_ok=True)
         config.write_text(json.dumps(doc, indent=2) + "\n")
     manifest.parent.mkdir(parents=True, exist_ok=True)
@@ -191,6 +196,15 @@ def status_lines(env: Mapping[str, str] | None = None, tail: int = 10) -> list[s
             except VrcorrectError as exc:
                 lines.append(f"prescription: {config.rx} is not usable, frames pass through: {exc}")
         lines.append(f"display: {config.display or 'the preset matching the runtime view size, else quest2'}")
+        # the Corrector's own defaults where the configuration does not say (rx, robust off): the layer's
+        # corrections are pinned to a Corrector's of the same options by its tests
+        pupil, robust = config.options.get("pupil", "rx"), config.options.get("robust", False)
+        lines.append("pupil: " + ("followed from the light of the frames shown (auto)" if pupil == "auto" else
+                                  "the prescription's pupil_diameter_mm (rx)" if pupil == "rx" else f"{pupil} mm")
+                     + ("; robust design over the band of pupils and +-0.25 D" if robust is True else
+                        "; single-pupil design (robust off)" if robust is False else f"; robust {robust!r}")
+                     + ("" if "pupil" in config.options else " (the default; layer install --pupil auto --robust on "
+                                                            "follows the light)"))
     log = log_path(env)
     if log.exists():
         last = log.read_text(encoding="utf-8", errors="replace").splitlines()[-tail:]
@@ -223,6 +237,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     i.add_argument("--iterations-per-frame", dest="iterations", type=int,
                    help="iterations per frame and eye of the real-time method (ADMM by default; 1-64; "
                         "default: the method's own, 2 for ADMM)")
+    i.add_argument("--pupil", default=None, metavar="auto|rx|MM",
+                   help="the viewing pupil the layer designs for: auto (followed from the light of the frames "
+                        "shown), rx (the default: the prescription's pupil_diameter_mm) or a diameter in mm")
+    i.add_argument("--robust", choices=("on", "off"), default=None,
+                   help="the robust design over the band of pupils and +-0.25 D (default: off)")
     i.add_argument("--force", action="store_true", help="replace files vrcorrect did not write")
     i.set_defaults(func=cmd_layer)
     u = actions.add_parser("uninstall", help="remove the manifest (and a layer the fallback built)")

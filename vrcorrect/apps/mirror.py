@@ -10,7 +10,7 @@ from ..runtime.gl import format_ms
 from ..runtime.mirror import KEY_MAP, Mirror, MirrorConfig
 from ..runtime.sources import parse_size, parse_source
 from ..runtime.window import key_map_text, knob_text
-from .common import rx_path
+from .common import rx_path, say_sample_rx
 from .realtime_options import (
     add_backend_option,
     add_filter_options,
@@ -54,10 +54,11 @@ def cmd_mirror(args: argparse.Namespace) -> int:
     """``vrcorrect mirror``: check the arguments, open the mirror, run it, print a summary."""
     frames = parse_frames(args.frames)
     options = corrector_options(args)
-    config = MirrorConfig(rx=str(rx_path(args)), display=args.display, source=args.source, eye_size=parse_size(args.size),
+    config = MirrorConfig(rx=str(rx_path(args, say=False)), display=args.display, source=args.source, eye_size=parse_size(args.size),
                           frames=frames, screenshot_dir=args.screenshot_dir, vsync=frames is None,
                           backend=args.backend, corrector_options=options, reprojection=not args.no_reprojection)
     parse_source(config.source)  # fail on a bad source before anything slow
+    say_sample_rx(args)          # after the arguments' checks: a refused command prints only its error
     print(key_map_text(KEY_MAP))
     if args.cold_start_note:
         print(f"cold start: {args.cold_start_note}")

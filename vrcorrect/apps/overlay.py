@@ -11,7 +11,7 @@ from ..runtime.overlay import KEY_MAP, Overlay, OverlayConfig
 from ..runtime.sources import parse_region, parse_size
 from ..runtime.window import key_map_text
 from ..specs.vocabulary import Eye, names
-from .common import rx_path
+from .common import rx_path, say_sample_rx
 from .realtime_options import (
     add_backend_option,
     add_filter_options,
@@ -60,13 +60,15 @@ def cmd_overlay(args: argparse.Namespace) -> int:
     frames = parse_frames(args.frames)
     options = corrector_options(args)
     config = OverlayConfig(
-        source=args.source, region=None if args.region is None else parse_region(args.region), rx=str(rx_path(args)),
+        source=args.source, region=None if args.region is None else parse_region(args.region),
+        rx=str(rx_path(args, say=False)),
         eye=args.eye, display=args.display, window=None if args.window is None else parse_size(args.window, "--window"),
         frames=frames, screenshot_dir=args.screenshot_dir, backend=args.backend, corrector_options=options,
         reprojection=not args.no_reprojection,
         vsync=frames is None)
     t0 = time.perf_counter()
     with Overlay(config) as overlay:
+        say_sample_rx(args)                                 # once the arguments, the source and the screen passed
         print(key_map_text(KEY_MAP))
         if args.cold_start_note:
             print(f"cold start: {args.cold_start_note}")

@@ -29,10 +29,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         raise ValidationError("--output", str(out), "a path ending in .png")
     check_writable(out, force=args.force)
     parse_pupil(args.pupil)
+    notes: list[str] = []
+    image = read_image(args.input, notes)           # a broken input is the one line, before any other
     rx_path, eye, age = load_eye_and_age(args)
     display = get_display(args.display)
-    notes: list[str] = []
-    image = read_image(args.input, notes)
     print_notes(notes)
     eye = _at_pupil(args, eye, display, decode(display, image), age)
     t0 = time.perf_counter()
@@ -62,17 +62,25 @@ def _simulate_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     from ..vision.forward import what_the_eye_sees  # on use: start-up time (apps/__init__)
 
     parse_pupil(args.pupil)
-    rx_path, eye, age = load_eye_and_age(args)
+    rx_path, base, age = load_eye_and_age(args)
     display = get_display(args.display)
     print_notes(plan.clip.notes)
-    eye = _at_pupil(args, eye, display, decode(display, next(iter(clips.planned_frames(plan)))[1]), age,
-                    " (the clip's first frame)")
-    kernel = build_eye_kernel(args, eye, display)
-    last_source, seen, info = -1, None, None
+    kernels: dict = {}                              # by pupil: each source frame through the pupil its light gives
+    last_source, seen, info, eye, kernel, said = -1, None, None, base, None, None
     with folder, clips.frames_bar("simulate", plan.count) as bar:
         for index, (source, frame) in enumerate(clips.planned_frames(plan)):
             if source != last_source:               # a repeated source frame is seen the same
-                seen, info = what_the_eye_sees(decode(display, frame), kernel, method=args.method)
+                linear = decode(display, frame)
+                pupil, lines = viewing_pupil(args, base, display, linear, age)
+                if pupil != said:
+                    for line in lines:
+                        print(f"vrcorrect: {line} (from frame {index})", flush=True)
+                    said = pupil
+                eye = base.with_changes(pupil_diameter_mm=pupil)
+                if pupil not in kernels:
+                    kernels[pupil] = build_eye_kernel(args, eye, display)
+                kernel = kernels[pupil]
+                seen, info = what_the_eye_sees(linear, kernel, method=args.method)
                 last_source = source
             folder.write(index, encode(display, seen), bits=16 if args.sixteen_bit else 8)
             bar.advance()

@@ -175,13 +175,14 @@ class PupilState:
         if self.follower is not None:
             self.follower.entry_mm = model.pupil_mm
 
-    def _build(self, pupil_mm: float, kernels: dict, grids: tuple) -> EyeModel:
+    def _build(self, pupil_mm: float, kernels: dict, grids: tuple, progress=None) -> EyeModel:
         """A bank's design (on its worker): the model and its spectra on the strategy's grids."""
         from .strategies.admm import bank_spectra
 
         base = self.c.model
         model = build_eye_model(base.eye, self.c.display, self.c.options, pupil_mm=pupil_mm,
-                                age_years=self.c.age_years, kernels=kernels, grid_kernel_size=base.grid_kernel_size)
+                                age_years=self.c.age_years, kernels=kernels, grid_kernel_size=base.grid_kernel_size,
+                                progress=progress)
         self.c.check_eye(model.eye)
         return replace(model, spectra=bank_spectra(model, grids)) if grids else model
 

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
 
@@ -392,14 +392,16 @@ a frame: a typical photograph's."""
 def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
                     options: CorrectorOptions = CorrectorOptions(), *, pupil_mm: float | None = None,
                     age_years: float | None = None, kernels: dict | None = None,
-                    grid_kernel_size: int | None = None) -> EyeModel:
+                    grid_kernel_size: int | None = None,
+                    progress: Callable[[int, int], None] | None = None) -> EyeModel:
     """Kernel, regulariser, blend weight (and, for the separable strategy, both banks) for one
     eye (CPU, numpy); only what ``options.backend`` and ``options.filter`` use (module docstring).
 
     The eye is designed for the viewing pupil ``pupil_mm`` (default :func:`initial_pupil_mm`), for
     that eye alone or, with ``options.robust``, over the band around it
     (:func:`~vrcorrect.physics.robust.design_eye`); ``kernels`` caches kernels between designs (a
-    pupil bank's), ``grid_kernel_size`` makes the grids hold a larger kernel than this design's."""
+    pupil bank's), ``grid_kernel_size`` makes the grids hold a larger kernel than this design's;
+    ``progress(done, total)`` after each kernel (a bank's worker stops a design from it)."""
     # start-up time: optics and solvers (scipy) load with the first eye, not with the CLI's imports
     from ..physics.kernel import KernelOptions
     from ..physics.robust import design_eye
@@ -412,7 +414,7 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
     kopts = options.kernel_options or KernelOptions()
     pupil = initial_pupil_mm(eye_rx, display, options, age_years=age_years) if pupil_mm is None else float(pupil_mm)
     design = design_eye(eye_rx, display, pupil, robust=options.robust, reference=options.reference, options=kopts,
-                        kernels=kernels)
+                        kernels=kernels, progress=progress)
     kernel, reference, seen = design.kernel, design.reference, design.nominal
     if options.pupil == "auto" and grid_kernel_size is None:          # the grids hold every design of the bank
         from .pupil_bank import bank_grid_kernel_size

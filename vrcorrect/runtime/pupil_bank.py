@@ -136,6 +136,10 @@ class PupilFollower:
         return self.entry_mm
 
 
+class _Closed(Exception):
+    """Raised from a design's progress on the worker of a bank that closed."""
+
+
 @dataclass(frozen=True)
 class _Job:
     pupil_mm: float
@@ -145,7 +149,7 @@ class _Job:
 class PupilBank:
     """Designs for one eye at the bank's pupils, built on a worker thread of the bank's own.
 
-    ``build(pupil_mm, kernels, grids)`` designs one (:func:`~vrcorrect.runtime.eye_model.build_eye_model`)
+    ``build(pupil_mm, kernels, grids, progress)`` designs one (:func:`~vrcorrect.runtime.eye_model.build_eye_model`)
     with its spectra on the strategy's grids; :meth:`request` asks for one without waiting, :meth:`get`
     returns it once built (None before).  Designs share one cache of kernels (``kernels``: the first
     design's too).
@@ -163,6 +167,7 @@ class PupilBank:
         self._jobs: queue.Queue[_Job | None] = queue.Queue()
         self._queued: set[float] = set()
         self._worker: threading.Thread | None = None
+        self._closing = threading.Event()
 
     def get(self, pupil_mm: float):
         with self._lock:
@@ -177,7 +182,7 @@ class PupilBank:
         """Design ``pupil_mm`` on the caller's thread (a batch render that must not run ahead of it)."""
         model = self.get(pupil_mm)
         if model is None:
-            model = self._build(pupil_mm, self.kernels, grids)
+            model = self._build(pupil_mm, self.kernels, grids, None)
             self.put(pupil_mm, model)
         return model
 
@@ -188,7 +193,9 @@ class PupilBank:
                 return
             self._queued.add(pupil_mm)
             if self._worker is None:
-                self._worker = threading.Thread(target=self._run, name="vrcorrect-pupil-bank", daemon=True)
+                # not a daemon: at exit the interpreter must not tear down a thread that is inside
+                # a C extension (scipy's FFT), which aborts the process; close() waits for it.
+                self._worker = threading.Thread(target=self._run, name="vrcorrect-pupil-bank", daemon=False)
                 self._worker.start()
         self._jobs.put(_Job(pupil_mm, tuple(grids)))
 
@@ -198,9 +205,11 @@ class PupilBank:
             if job is None:
                 return
             try:
-                model = self._build(job.pupil_mm, self.kernels, job.grids)
+                model = self._build(job.pupil_mm, self.kernels, job.grids, self._check)
                 with self._lock:
                     self._models[job.pupil_mm] = model
+            except _Closed:
+                return
             except VrcorrectError as exc:
                 with self._lock:
                     self.failed[job.pupil_mm] = str(exc)
@@ -226,10 +235,28 @@ class PupilBank:
                 raise TimeoutError("pupil bank: designs still queued")
             time.sleep(0.01)
 
+    def _check(self, done: int, total: int) -> None:
+        """A design's progress on the worker: stop it (between two kernels) once the bank closes."""
+        if self._closing.is_set():
+            raise _Closed
+
     def close(self) -> None:
-        if self._worker is not None:
-            self._jobs.put(None)
-            self._worker = None
+        """Drop the designs still queued, stop the one in progress at its next kernel and wait for it."""
+        worker, self._worker = self._worker, None
+        if worker is None:
+            return
+        self._closing.set()
+        while True:
+            try:
+                job = self._jobs.get_nowait()
+            except queue.Empty:
+                break
+            if job is not None:
+                with self._lock:
+                    self._queued.discard(job.pupil_mm)
+        self._jobs.put(None)
+        if worker is not threading.current_thread():
+            worker.join()
 
 
 def relative_luminance_of(image_linear: np.ndarray, display: DisplayProfile) -> float:
