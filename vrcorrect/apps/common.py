@@ -193,11 +193,12 @@ def add_pupil_options(p: argparse.ArgumentParser, robust: bool = True) -> None:
 
 
 def viewing_pupil(args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfile", image_linear: np.ndarray,
-                  age_years: float | None) -> tuple[float, list[str]]:
+                  age_years: float | None, design: bool = True) -> tuple[float, list[str]]:
     """The pupil ``--pupil`` asks for, and lines saying where it came from (``auto``: the light of
     ``image_linear`` on ``display``, clamped with a note where it must be, then the nearest of the pupil
     bank's entries, :data:`~vrcorrect.runtime.pupil_bank.BANK_PUPILS_MM`, as the real-time path designs
-    for, so that a still, a clip's frame and a rendered frame of the same light agree)."""
+    for, so that a still, a clip's frame and a rendered frame of the same light agree; ``design=False``:
+    the light's own pupil, the pupil the eye sees through, for ``simulate``)."""
     kernel_options(args)                            # every model option checked before a line is printed
     choice = parse_pupil(args.pupil)
     upper = eye.higher_order.pupil_diameter_mm if eye.higher_order is not None else None
@@ -218,6 +219,8 @@ def viewing_pupil(args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfi
 
     estimate = pupil_from_light(mean, display, age_years, image_size=(w, h), upper_mm=upper,
                                 upper_why="the pupil the higher-order terms were measured at")
+    if not design:
+        return estimate.diameter_mm, [estimate.describe() + " (--pupil auto)", *estimate.notes]
     entry = nearest_bank_pupil(estimate.diameter_mm, upper)
     return entry, [estimate.describe() + f" (--pupil auto): designed for {entry:.2f} mm, the nearest of the pupils "
                    "the real-time path keeps designs for", *estimate.notes]

@@ -71,7 +71,7 @@ def _simulate_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
         for index, (source, frame) in enumerate(clips.planned_frames(plan)):
             if source != last_source:               # a repeated source frame is seen the same
                 linear = decode(display, frame)
-                pupil, lines = viewing_pupil(args, base, display, linear, age)
+                pupil, lines = viewing_pupil(args, base, display, linear, age, design=False)
                 if pupil != said:
                     for line in lines:
                         print(f"vrcorrect: {line} (from frame {index})", flush=True)
@@ -97,7 +97,7 @@ def _simulate_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
 
 def _at_pupil(args: argparse.Namespace, eye, display, image_linear, age, where: str = ""):
     """The eye through the pupil ``--pupil`` asks for (``auto``: the image's light), said on one line."""
-    pupil, lines = viewing_pupil(args, eye, display, image_linear, age)
+    pupil, lines = viewing_pupil(args, eye, display, image_linear, age, design=False)   # the eye's own pupil
     for line in lines:
         print(f"vrcorrect: {line}{where}", flush=True)       # stdout: an error stays the one line on stderr
     return eye.with_changes(pupil_diameter_mm=pupil)

@@ -14,7 +14,9 @@ Methods (``fast`` unless said):
 * ``none``: the target, uncorrected (the floor);
 * ``4 mm``: designed for a 4 mm pupil, the prescription's sphere, one eye (every design before the
   pupil came from the light);
-* ``default``: ``--pupil auto --robust on``: the pupil from the image's light, the robust band;
+* ``default``: ``--pupil auto --robust on``: the pupil from the image's light (designed for the pupil
+  bank's nearest entry, as every command does; the eye as it is sees through the light's own pupil),
+  the robust band;
 * ``real time``: the same design through the real-time default's CPU twin (equal to the GPU,
   ``tests/test_pupil.py``), ten frames of the still (``vrcorrect render``'s default);
 * ``learned``: the shipped learned model (``models/default.onnx``) given the same design;
@@ -110,11 +112,14 @@ def _case(display_name: str, image_name: str, bar, kernels: dict, size: int = SI
     codes = held_out_image(image_name, size)
     target = decode(display, codes).astype(np.float32)
     estimate = pupil_from_light(float(np.mean(target.astype(np.float64) @ luminance_weights(display))), display)
-    p = estimate.diameter_mm
+    p = estimate.diameter_mm                      # the eye as it is sees through this pupil
+    from ...runtime.pupil_bank import nearest_bank_pupil
+
+    entry = nearest_bank_pupil(p)                 # the default designs for the pupil bank's nearest entry
     shown: dict[str, np.ndarray] = {"none": target}
     old = design_eye(EYE, display, OLD_PUPIL_MM, robust=False, kernels=kernels)
     shown["4 mm"] = solve(make_problem(target, old.kernel, old.reference), "fast").image
-    default = design_eye(EYE, display, p, kernels=kernels)
+    default = design_eye(EYE, display, entry, kernels=kernels)
     problem = make_design_problem(target, default)
     t0 = time.perf_counter()
     shown["default"] = solve(problem, "fast").image
@@ -134,7 +139,8 @@ def _case(display_name: str, image_name: str, bar, kernels: dict, size: int = SI
             scores[method] = {"jod": m.jod, "flip": m.flip, "objective": objective(image, seen_target)}
             bar.update(1)
         rows.append({"pupil_mm": q, "sphere_offset_D": s, "scores": scores})
-    return {"display": display_name, "image": image_name, "pupil_mm": p, "pupil": estimate.describe(),
+    return {"display": display_name, "image": image_name, "pupil_mm": p, "design_pupil_mm": entry,
+            "pupil": estimate.describe() + f"; the default designed for {entry:.2f} mm, the pupil bank's nearest entry",
             "design": default.describe()[0], "default_seconds": default_s, "rows": rows,
             "_problem": problem, "_default": default, "_target": target}
 
