@@ -226,6 +226,35 @@ def viewing_pupil(args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfi
                    "the real-time path keeps designs for", *estimate.notes]
 
 
+class PupilPerFrame:
+    """``--pupil`` for each source frame of a clip: the pupil its light gives (:func:`viewing_pupil`),
+    its lines said when the pupil changes, and what ``build(pupil_mm)`` makes for it, made once per
+    pupil (``seconds``: the time those builds took)."""
+
+    def __init__(self, args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfile", age_years: float | None,
+                 build: Callable[[float], Any], design: bool = True):
+        self.args, self.eye, self.display, self.age_years = args, eye, display, age_years
+        self.build, self.design = build, design
+        self.built: dict[float, Any] = {}
+        self.said: float | None = None
+        self.seconds = 0.0
+
+    def __call__(self, image_linear: np.ndarray, where: str = "") -> tuple[float, Any]:
+        import time
+
+        pupil, lines = viewing_pupil(self.args, self.eye, self.display, image_linear, self.age_years,
+                                     design=self.design)
+        if pupil != self.said:
+            for line in lines:
+                print(f"vrcorrect: {line}{where}", flush=True)   # stdout: an error stays the one line on stderr
+            self.said = pupil
+        if pupil not in self.built:
+            t0 = time.perf_counter()
+            self.built[pupil] = self.build(pupil)
+            self.seconds += time.perf_counter() - t0
+        return pupil, self.built[pupil]
+
+
 def build_design(args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfile", pupil_mm: float,
                  reference: str, robust: bool | None = None):
     """The correction's design (:func:`vrcorrect.physics.robust.design_eye`) with a progress bar:

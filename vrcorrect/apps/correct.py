@@ -20,6 +20,7 @@ from ..specs.display import decode, encode, get_display
 from ..specs.vocabulary import Method, names
 from . import clips
 from .common import (
+    PupilPerFrame,
     add_model_options,
     add_pupil_options,
     build_design,
@@ -202,22 +203,8 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     clip = plan.clip
     print_notes(clip.notes)
     check_memory(args.method, clip.size[1], clip.size[0])
-    designs: dict = {}                              # by pupil: each source frame designed for its own light
-    said: list = [None]
-    design_s = [0.0]
-
-    def design_for(linear):
-        pupil, lines = viewing_pupil(args, eye, display, linear, age)
-        if pupil != said[0]:
-            for line in lines:
-                print(f"vrcorrect: {line}", flush=True)
-            said[0] = pupil
-        if pupil not in designs:
-            t = time.perf_counter()
-            designs[pupil] = build_design(args, eye, display, pupil, args.reference)
-            design_s[0] += time.perf_counter() - t
-        return pupil, designs[pupil]
-
+    # each source frame designed for its own light
+    design_for = PupilPerFrame(args, eye, display, age, lambda p: build_design(args, eye, display, p, args.reference))
     pupil, design = design_for(decode(display, next(iter(clips.planned_frames(plan)))[1]))
     kernel, reference = design.nominal, design.nominal_reference
     options: dict | None = None
@@ -260,14 +247,14 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
         others = []
         if args.report:
             report = _clip_report(args, plan, rx_path, display, result, reference, kernel, per_frame, seen if scored
-                                  else None, design_s[0])
+                                  else None, design_for.seconds)
             others.append((Path(args.report), _report_writer(report, list(clip.notes))))
         folder.commit(others)                       # the frames and the report appear together or not at all
     objectives = [f["objective"] for f in per_frame]
     print(f"wrote {args.output}: {plan.count} frames, {args.method} correction for the {args.eye} eye on "
           f"{display.title} ({plan.text}; median objective {float(np.median(objectives)):.3g})"
           + (f"; report {args.report}" if args.report else ""))
-    print(f"  took {duration_text(time.perf_counter() - started)}: eye model {duration_text(design_s[0])}, "
+    print(f"  took {duration_text(time.perf_counter() - started)}: eye model {duration_text(design_for.seconds)}, "
           f"{_solve_text(args.method, int(np.median([f['iterations'] for f in per_frame])))} "
           f"{duration_text(sum(f['seconds'] for f in per_frame))} for the frames")
     return 0

@@ -198,7 +198,10 @@ def status_lines(env: Mapping[str, str] | None = None, tail: int = 10) -> list[s
         lines.append(f"display: {config.display or 'the preset matching the runtime view size, else quest2'}")
         # the Corrector's own defaults where the configuration does not say (rx, robust off): the layer's
         # corrections are pinned to a Corrector's of the same options by its tests
-        pupil, robust = config.options.get("pupil", "rx"), config.options.get("robust", False)
+        from ..runtime.eye_model import CorrectorOptions
+
+        pupil = config.options.get("pupil", CorrectorOptions.pupil)
+        robust = config.options.get("robust", CorrectorOptions.robust)
         lines.append("pupil: " + ("followed from the light of the frames shown (auto)" if pupil == "auto" else
                                   "the prescription's pupil_diameter_mm (rx)" if pupil == "rx" else f"{pupil} mm")
                      + ("; robust design over the band of pupils and +-0.25 D" if robust is True else

@@ -12,8 +12,8 @@ from ..plumbing.fileio import check_readable, check_writable
 from ..plumbing.imageio import read_image, write_png
 from ..specs.display import decode, encode, get_display
 from . import clips
-from .common import (add_model_options, add_pupil_options, build_eye_kernel, check_not_input, kernel_decisions,
-                     load_eye_and_age, parse_pupil, print_notes, viewing_pupil)
+from .common import (PupilPerFrame, add_model_options, add_pupil_options, build_eye_kernel, check_not_input,
+                     kernel_decisions, load_eye_and_age, parse_pupil, print_notes, viewing_pupil)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -65,21 +65,17 @@ def _simulate_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     rx_path, base, age = load_eye_and_age(args)
     display = get_display(args.display)
     print_notes(plan.clip.notes)
-    kernels: dict = {}                              # by pupil: each source frame through the pupil its light gives
-    last_source, seen, info, eye, kernel, said = -1, None, None, base, None, None
+    # each source frame through the pupil its light gives
+    kernel_for = PupilPerFrame(args, base, display, age,
+                               lambda p: build_eye_kernel(args, base.with_changes(pupil_diameter_mm=p), display),
+                               design=False)
+    last_source, seen, info, eye = -1, None, None, base
     with folder, clips.frames_bar("simulate", plan.count) as bar:
         for index, (source, frame) in enumerate(clips.planned_frames(plan)):
             if source != last_source:               # a repeated source frame is seen the same
                 linear = decode(display, frame)
-                pupil, lines = viewing_pupil(args, base, display, linear, age, design=False)
-                if pupil != said:
-                    for line in lines:
-                        print(f"vrcorrect: {line} (from frame {index})", flush=True)
-                    said = pupil
+                pupil, kernel = kernel_for(linear, f" (from frame {index})")
                 eye = base.with_changes(pupil_diameter_mm=pupil)
-                if pupil not in kernels:
-                    kernels[pupil] = build_eye_kernel(args, eye, display)
-                kernel = kernels[pupil]
                 seen, info = what_the_eye_sees(linear, kernel, method=args.method)
                 last_source = source
             folder.write(index, encode(display, seen), bits=16 if args.sixteen_bit else 8)
