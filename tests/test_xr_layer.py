@@ -483,3 +483,17 @@ def test_the_engine_never_imports_torch_or_the_apps():
     names = {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
     names |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
     assert not any("torch" in n or "apps" in n for n in names), names
+
+
+def test_the_priming_budget_reads_seconds_or_converge_and_names_a_bad_value():
+    import math
+
+    from vrcorrect.plumbing.errors import ValidationError
+    from vrcorrect.runtime.xrlayer import PRIME_BUDGET_S, PRIME_ENV, prime_budget
+
+    assert prime_budget({}) == PRIME_BUDGET_S == 1.0
+    assert prime_budget({PRIME_ENV: " 2.5 "}) == 2.5 and prime_budget({PRIME_ENV: "0"}) == 0.0
+    assert math.isinf(prime_budget({PRIME_ENV: "converge"}))
+    for bad in ("-1", "soon", "nan", "61"):
+        with pytest.raises(ValidationError, match=f"{PRIME_ENV}.*{bad}.*seconds from 0 to 60, or 'converge'"):
+            prime_budget({PRIME_ENV: bad})

@@ -10,12 +10,11 @@ is corrected, each API in a fresh ``HOME`` (empty caches: vrcorrect's and Mesa's
   ``hello_xr``'s thread;
 * the first launch is corrected within 60 s of its first frame;
 * a second launch finds its eye models and every compiled program in the caches (vrcorrect's, under
-  the fresh ``HOME``'s ``~/.cache``) and has its correction set up within 5 s of its first frame.
-  Before it corrects, the layer primes the correction on ``hello_xr``'s frame until converged (so
-  that no corrected frame costs more than a converged one); on llvmpipe that is compute, some 35
-  frames of both eyes at 96x64 (about 0.35 s each on this project's 2-core machines): the second
-  launch is *corrected* about 12 s after its first frame there, not within 5 s.  The time is
-  recorded, and the set-up (everything but the priming) is what is held to 5 s.
+  the fresh ``HOME``'s ``~/.cache``) and is corrected within 5 s of its first frame.  Before it
+  corrects, the layer primes the correction on ``hello_xr``'s frame for its default budget
+  (``PRIME_BUDGET_S``, 1 s: on llvmpipe a still scene needs some 35 frames of both eyes at 96x64, about
+  0.1 s each, so it hands over unconverged and converges on ``hello_xr``'s frames; the gap bound
+  above holds for those frames too).
 
 The fresh environment is ``python -m venv --without-pip`` with the wheel installed by pip (``--python``,
 no index, no dependencies) and its dependencies reached through a ``.pth`` file naming this
@@ -182,7 +181,7 @@ def _launch(kit, out: Path, venv: Path, home: Path, api: str, display: str) -> t
     arrived; returns (seconds from the first frame to the first corrected one, the largest gap
     between frames after the first three, in seconds, and the seconds the layer spent priming)."""
     environ = env(kit, out, app="vk", home=home, DISPLAY=display, XRTEST_FRAME_MS="20", explicit=False,
-                  PATH=str(venv / "bin"))
+                  PATH=str(venv / "bin"), prime=None)                  # the layer's default priming budget
     environ.pop("MESA_SHADER_CACHE_DIR")                   # Mesa's own cache in the fresh HOME, as a user's
     result = run([_hello_xr(), "-g", api], out, environ, corrected=3, stop_env="XRTEST_STOP_FILE", stdin=True)
     assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
@@ -224,5 +223,5 @@ def test_hello_xr_corrected_from_the_wheel_never_stalls_and_starts_again_within_
     assert any("correcting with" in line and ", 0 compiled" in line for line in second_log), second_log
     assert first_gap <= MAX_GAP_S and second_gap <= MAX_GAP_S, (first_gap, second_gap)
     assert first_s <= FIRST_LAUNCH_S, first_s
-    assert second_s - second_priming <= SECOND_LAUNCH_S, (second_s, second_priming)
+    assert second_s <= SECOND_LAUNCH_S, (second_s, second_priming)
     assert "destroy_instance" in runtime_log(tmp_path / "second")

@@ -139,10 +139,13 @@ def kit(tmp_path_factory) -> Kit:
 
 
 def env(kit: Kit, out: Path, *, app: str = "gl", explicit: bool = True, validation: bool = False,
-        vulkan_validation: bool = False, home: Path | None = None, **extra: str) -> dict[str, str]:
+        vulkan_validation: bool = False, home: Path | None = None, prime: str | None = "converge",
+        **extra: str) -> dict[str, str]:
     """The environment of a run writing to ``out``: a private HOME and XDG folders, the test runtime,
     the application's inputs; the layer explicit (``XR_API_LAYER_PATH``) unless ``explicit`` is False;
-    Khronos core validation below it; Khronos Vulkan validation in the application's instance."""
+    Khronos core validation below it; Khronos Vulkan validation in the application's instance.
+    ``prime``: the layer's ``VRCORRECT_LAYER_PRIME_S`` (``converge``, so that the first corrected frame
+    of a still picture is :func:`converged_codes`; ``None``: unset, the layer's default budget)."""
     out.mkdir(parents=True, exist_ok=True)
     environ = {k: v for k, v in os.environ.items()
                if not k.startswith(("XR_", "XRTEST_", "APP_", "VRCORRECT_", "XDG_", "DISABLE_VRCORRECT", "VK_"))}
@@ -170,6 +173,8 @@ def env(kit: Kit, out: Path, *, app: str = "gl", explicit: bool = True, validati
     if vulkan_validation:
         environ["VK_INSTANCE_LAYERS"] = VULKAN_VALIDATION
         environ["VK_LOADER_DEBUG"] = "layer"          # the Vulkan loader says when it inserts the layer
+    if prime is not None:
+        environ["VRCORRECT_LAYER_PRIME_S"] = prime
     environ.update(extra)
     return environ
 
@@ -407,6 +412,44 @@ def converged_codes(gl, kit: Kit, eye: str, kind_image: tuple[str, np.ndarray], 
         release(fb, target, tex)
         corrector.release()
     return _CONVERGED[key]
+
+
+def primed_codes(gl, kit: Kit, eye: str, kind_image: tuple[str, np.ndarray], primed: int, count: int) -> list[np.ndarray]:
+    """What a fresh Corrector shows of a still picture on each of ``count`` frames after ``primed``
+    frames of it (the layer primes that many off the application's thread, within its budget, then
+    corrects each of the application's frames): ``Corrector.apply`` ``primed + count`` times, the
+    last ``count`` outputs as sRGB codes, int (H, W, 3), top row first."""
+    from vrcorrect.runtime.corrector import Corrector
+    from vrcorrect.runtime.gl import read_framebuffer, release, render_target, upload_texture
+
+    kind, image = kind_image
+    corrector = Corrector(gl, kit.rx, "quest2", eye, eye_model=eye_model(kit, eye))
+    h, w = image.shape[:2]
+    if kind == "codes":
+        tex = upload_texture(gl, np.ascontiguousarray(image))
+    else:
+        tex = gl.texture((w, h), 4, np.ascontiguousarray(image[::-1]).tobytes(), dtype="f4")
+    target, fb = render_target(gl, width=w, height=h)
+    out = []
+    try:
+        for n in range(primed + count):
+            corrector.apply(tex, fb)
+            if n >= primed:
+                out.append(read_framebuffer(fb, components=3).astype(int))
+    finally:
+        release(fb, target, tex)
+        corrector.release()
+    return out
+
+
+def primed_frames(log: list[str]) -> dict[str, int]:
+    """Each eye's priming frames, from the layer log's "correcting with" line."""
+    import re
+
+    line = next(line for line in log if "correcting with" in line and "primed on the application's frame" in line)
+    found = dict((eye, int(n)) for eye, n in re.findall(r"(left|right) (\d+)", line.split("primed on the application's frame")[1]))
+    assert set(found) == set(EYES), line
+    return found
 
 
 def assert_corrected(got: np.ndarray, source: np.ndarray, fmt: str, codes: np.ndarray, where: object = "") -> None:

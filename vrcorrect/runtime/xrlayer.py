@@ -74,6 +74,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import json
+import math
 import os
 import queue
 import sys
@@ -120,6 +121,14 @@ CAPTURE_WAIT_S = 2.0
 is handed over unprimed, warmed up only)."""
 PRIME_MAX_FRAMES = 40
 """Frames a build corrects a captured view for at most before handing over (converged sooner)."""
+PRIME_ENV = "VRCORRECT_LAYER_PRIME_S"
+PRIME_BUDGET_S = 1.0
+"""Seconds a build primes its correction for at most (all eyes together; ``VRCORRECT_LAYER_PRIME_S``
+sets another, ``converge`` none).  On a GPU priming converges well inside it (a frame's iterations
+take milliseconds); on a software renderer, where a frame of both eyes at 96x64 takes 0.1-0.2 s and
+a still scene needs some 35 frames, the correction is handed over after the budget and goes on
+converging on the application's frames, as it does after any cut, instead of keeping the
+application uncorrected for seconds more."""
 BUILD_NICE = 10
 """The build worker's CPU priority (Linux nice value, per thread): the application's threads come first.
 Not the lowest: the worker holds Python's lock between its GL calls, and a worker the scheduler leaves
@@ -201,6 +210,30 @@ def log_path(env: Mapping[str, str] | None = None) -> Path:
         return Path(env[LOG_ENV])
     state = env.get("XDG_STATE_HOME") or str(Path(env.get("HOME") or Path.home()) / ".local" / "state")
     return Path(state) / "vrcorrect" / "layer.log"
+
+
+def prime_budget(env: Mapping[str, str] | None = None) -> float:
+    """The priming budget in seconds (:data:`PRIME_BUDGET_S`; ``VRCORRECT_LAYER_PRIME_S``: seconds,
+    or ``converge`` for no budget but :data:`PRIME_MAX_FRAMES`).
+
+    Raises
+    ------
+    ValidationError
+        The variable is neither a number of seconds from 0 to 60 nor ``converge``.
+    """
+    env = os.environ if env is None else env
+    text = env.get(PRIME_ENV, "").strip()
+    if not text:
+        return PRIME_BUDGET_S
+    if text == "converge":
+        return math.inf
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 <= value <= 60.0:
+        raise ValidationError(PRIME_ENV, text, "seconds from 0 to 60, or 'converge'")
+    return value
 
 
 def eye_of_view(view: int) -> str:
@@ -470,6 +503,7 @@ class _Pipeline:
         self.targets: set[Target] = set()
         self.steps: dict[str, float] = {}                 # seconds of each step of its build
         self.primed_frames: dict[str, int] = {}           # frames each eye was primed for
+        self.prime_converged: dict[str, bool] = {}        # whether its priming converged
         self.formats = GL_FORMATS if api == "OpenGL" else VK_FORMATS
         self._external: dict[tuple[int, int, int], moderngl.Texture] = {}    # the application's textures (OpenGL)
         self._staging: dict[tuple[int, int, str], moderngl.Texture] = {}
@@ -551,29 +585,40 @@ class _Pipeline:
             raise RuntimeError(f"a GL error ({error}) copying the captured views")
         return out
 
-    def prime(self, copies: list[dict[str, Any]], stopped: Any = lambda: False) -> None:
+    def prime(self, copies: list[dict[str, Any]], stopped: Any = lambda: False,
+              budget_s: float = PRIME_BUDGET_S) -> None:
         """Correct each eye's captured view as frames would, from a cold start until the early stop
         would skip the next frame of the same content (the last two frames' objectives agree to its
-        tolerance), so that the application's first corrected frames are already converged; the
-        Correctors keep that state (a fresh Corrector given the same frames reaches the same one)."""
+        tolerance), so that the application's first corrected frames are already converged, or until
+        the eye's share of ``budget_s`` is spent (then the application's frames go on from there);
+        the Correctors keep that state (a fresh Corrector given the same number of frames reaches the
+        same one).  :attr:`primed_frames` counts each eye's frames, :attr:`prime_converged` says
+        whether they converged."""
         from .strategies.admm import EARLY_STOP_TOLERANCE
 
+        share = budget_s / max(len(copies), 1)
         for c in copies:
             x, y, width, height = c["rect"]
             scratch = self._private_texture(c["code"], c["format"], width, height)
+            deadline = time.perf_counter() + share
+            self.prime_converged[c["eye"]] = False
             try:
                 corrector = self.correctors[c["eye"]]
                 previous = None
                 for n in range(PRIME_MAX_FRAMES):
                     if stopped():
                         return
+                    if n > 0 and time.perf_counter() >= deadline:
+                        break
                     self.primed_frames[c["eye"]] = n + 1
                     self.correct_rect(c["eye"], c["format"], c["texture"], scratch, c["rect"],
                                       flip=self.api == "Vulkan")
                     fraction = corrector.last_objective_fraction((width, height))
                     if fraction is None:                       # no guard: nothing to converge on
+                        self.prime_converged[c["eye"]] = True
                         break
                     if previous is not None and abs(fraction - previous) <= EARLY_STOP_TOLERANCE * max(previous, 1e-30):
+                        self.prime_converged[c["eye"]] = True
                         break
                     previous = fraction
                 self.targets.add((c["code"], width, height))
@@ -1055,7 +1100,12 @@ class _Builder:
                 pipeline.warm_up(targets - primed, stopped=lambda: self._stopped)
             steps["warm-up"] = time.perf_counter() - t0 - sum(steps.values())
             if not self._stopped and copies:
-                pipeline.prime(copies, stopped=lambda: self._stopped)
+                try:
+                    budget = prime_budget(engine.env)
+                except ValidationError as exc:
+                    budget = PRIME_BUDGET_S
+                    self._post("log", f"{exc}; priming for {PRIME_BUDGET_S:g} s")
+                pipeline.prime(copies, stopped=lambda: self._stopped, budget_s=budget)
             steps["priming"] = time.perf_counter() - t0 - sum(steps.values())
             if self._stopped:
                 return None, 0.0
@@ -1271,10 +1321,13 @@ class Engine:
                 f"eye models designed in {info['design_seconds']:.1f} s"
             steps = ", ".join(f"{k} {v:.1f} s" for k, v in pipeline.steps.items())
             primed = ", ".join(f"{eye} {n}" for eye, n in pipeline.primed_frames.items())
+            if primed:
+                primed += (" frames, converged" if all(pipeline.prime_converged.values()) else
+                           " frames, then converging on the application's frames (priming budget reached)")
             self.log.line(f"correcting with {pipeline.rx} on display {pipeline.display.name} ({info['why']}); built in "
                           f"{time.perf_counter() - self._t0:.1f} s off the application's thread ({models}; GL "
                           f"{info['gl_seconds']:.1f} s: {steps}; {programs}"
-                          + (f"; primed on the application's frame: {primed} frames" if primed else "") + ")")
+                          + (f"; primed on the application's frame: {primed}" if primed else "") + ")")
         elif info["what"] == "reload":
             self.log.line(f"{pipeline.rx}: reloaded (built in {info['seconds']:.1f} s off the application's thread; "
                           f"{programs})")
