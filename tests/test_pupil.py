@@ -194,13 +194,22 @@ def design():
 
 def test_the_effective_kernel_keeps_the_white_and_the_band(design):
     """U(0) = R(0) (a flat field in the gamut is shown unchanged), U(0)^T U(0) = A^T A (the floor aside);
-    nine members, weights summing to 1, the eye as modelled weighted most, a sharper eye (smaller
-    pupil) above a blurrier one at the same sphere."""
+    the default band's three members at one pupil a bank step below the estimate (3.0 x 0.928 mm),
+    weights summing to 1, the eye as modelled weighted most, a sharper eye (less myopic) above a
+    blurrier one; a band of pupils, given, has its nine members, a smaller pupil above a larger."""
     U, R, A = design.kernel.kernel, design.reference.kernel, design.nominal.matrix
     assert np.allclose(U.sum(axis=(2, 3)), R.sum(axis=(2, 3)), atol=1e-12)
     assert np.allclose(U.sum(axis=(2, 3)).T @ U.sum(axis=(2, 3)), A.T @ A, atol=2e-4 * np.linalg.norm(A, 2) ** 2)
-    assert len(design.members) == 9
-    w = {(round(m.pupil_mm, 3), m.sphere_offset_D): m.weight for m in design.members}
+    assert len(design.members) == 3 and design.pupil_mm == 3.0
+    assert all(m.pupil_mm == pytest.approx(3.0 * 1.25 ** (-1 / 3), abs=1e-4) for m in design.members)
+    w = {m.sphere_offset_D: m.weight for m in design.members}
+    assert sum(w.values()) == pytest.approx(1.0)
+    assert max(w, key=w.get) == 0.0
+    assert EYE.sphere_D < 0 and w[0.25] > w[-0.25]
+    band = RobustBand((0.8, 1.0, 1.25), (-0.25, 0.0, 0.25), (1.0, 2.0, 1.0), (1.0, 2.0, 1.0))
+    wide = design_eye(EYE, QUEST2, 3.0, band=band)
+    assert len(wide.members) == 9
+    w = {(round(m.pupil_mm, 3), m.sphere_offset_D): m.weight for m in wide.members}
     assert sum(w.values()) == pytest.approx(1.0)
     assert max(w, key=w.get) == (3.0, 0.0)
     assert w[(2.4, 0.0)] > w[(3.75, 0.0)]

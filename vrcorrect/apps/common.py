@@ -169,9 +169,9 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
 PUPIL_HELP = ("the viewing pupil: auto (default: from the display's light, Watson & Yellott's formula on the "
               "image's mean luminance, the display's peak luminance and field of view, and the prescription's "
               "age_years), rx (the prescription's pupil_diameter_mm), or a diameter in mm from 2 to 7.5")
-ROBUST_HELP = ("on (default): design the correction for the band of eyes the estimate is uncertain in (pupils x0.8 "
-               "to x1.25, sphere -0.25 to +0.25 D), so that it stays better than none when the eye is not exactly "
-               "as modelled; off: for the one eye (pupil and sphere as given)")
+ROBUST_HELP = ("on (default): design the correction for the eyes the estimate leaves open (sphere -0.25 to +0.25 D "
+               "at a pupil 7 %% below the estimate, where an error costs least), so that it stays better than none "
+               "when the eye is not exactly as modelled; off: for the one eye (pupil and sphere as given)")
 
 
 def parse_pupil(text: Any, field: str = "--pupil") -> str | float:

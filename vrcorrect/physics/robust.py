@@ -9,8 +9,21 @@ robust design minimises the objective's expectation over a band of eyes instead 
     sum_i w_i || C K_i x - T_i ||^2,    K_i: the eye at pupil p f_i and sphere S + s_i,
                                           T_i = K_ref,i t (its view with glasses) or A t (ideal)
 
-with pupils ``p x {0.8, 1, 1.25}`` and spheres ``S + {-0.25, 0, +0.25} D`` by default, the eye as
-modelled counting twice on each axis (:class:`RobustBand`).  Offline, ``fast`` minimises exactly that
+over the eyes of a :class:`RobustBand`: by default spheres ``S + {-0.25, 0, +0.25} D`` (the eye as
+modelled counting three times) at one pupil, ``0.93 p``.
+
+Why that band.  Over-correcting an eye that sees better than modelled (a smaller pupil, less defocus)
+costs far more than under-correcting one that sees worse: a 4 mm design seen through 2.5 mm lost
+about 1 JOD against no correction, seen through 5.5 mm it still gained 0.2-0.3.  A first band of
+pupils ``p x {0.8, 1, 1.25}`` with the same spheres, the modelled eye counting twice on each axis,
+kept only 54-63 % of an exact design's gain at 3 mm on a text image (scikit-image's ``text``) and
+fell 0.04-0.10 JOD below no correction with the sphere 0.5 D off on photographs.  On the choice
+images (:data:`CHOICE_NOTE`) a sweep of bands (pupil factors and priors, sphere offsets and
+priors, where the design pupil sits) found the pupil axis best collapsed to one pupil a bank step
+below the estimate: 79-101 % of the exact gain at 3 mm, and no worse than -0.05 JOD with the pupil
+at 2.5 to 5.5 mm or the sphere 0.5 D off (the pupil band with equal sphere weights: 75 % and
++0.03; the modelled sphere counting four times: 81 % and -0.10).  ``RobustBand(pupil_factors=...)``
+still designs over a band of pupils.  Offline, ``fast`` minimises exactly that
 (:func:`vrcorrect.solvers.expectation.fast_expectation`, one split per member: about five times the
 work).  For every other solver, the real-time path among them, the design is *one effective
 kernel*: without the crop ``C`` the expectation's normal equations are one 3x3 system per
@@ -64,7 +77,7 @@ from .sampling import crop_center
 
 __all__ = ["RobustBand", "Member", "Design", "design_eye", "design_grid", "member_spectra", "effective_kernels",
            "member_weights", "CROP_TAIL", "FLOOR_REL", "MAX_MEMBER_PUPIL_MM",
-           "MAX_WEIGHT_RATIO", "ROBUST_CHOICES"]
+           "MAX_WEIGHT_RATIO", "ROBUST_CHOICES", "DESIGN_PUPIL_FACTOR", "CHOICE_NOTE"]
 
 #: The effective kernels keep all but this fraction of their magnitude (sum of |values|): an error of
 #: at most about this in any cone response of an image in [0, 1].
@@ -75,6 +88,12 @@ FLOOR_REL = 1e-4
 MAX_WEIGHT_RATIO = 20.0
 #: A band's pupils are held at or below this (mm): about the largest a dark-adapted young eye opens to.
 MAX_MEMBER_PUPIL_MM = 8.0
+#: The robust design's pupil as a multiple of the estimate: one step of the pupil bank below it
+#: (``1.25 ** (-1/3)``, about 0.93, so that a bank entry's design lands on the entry below).
+DESIGN_PUPIL_FACTOR = 1.25 ** (-1.0 / 3.0)
+#: How the default band was chosen (the module docstring says why).
+CHOICE_NOTE = ("chosen on scikit-image's astronaut, coffee and text and the project's text chart, on desktop and quest2 "
+               "(the eye -2.00/-1.00 x 120 at 256 px), never on the held-out images of vrcorrect bench robust")
 #: ``--robust``'s values.
 ROBUST_CHOICES = ("on", "off")
 
@@ -91,16 +110,16 @@ class RobustBand:
         Offsets added to the prescription's sphere, dioptres (each within +-2).
     pupil_priors, sphere_priors
         Prior weights of the factors and offsets (None: equal); a member's prior is the product.
-        The default counts the eye as modelled twice on each axis (a triangular prior): on the
-        evaluation photograph it kept 81-88 % of the gain a correction for the eye exactly would
-        have at 3 mm, against 78-82 % with equal priors, and stayed above no correction with the
-        sphere 0.5 D off (docs/benchmarks.md, ``vrcorrect bench robust``).
+
+    The default (chosen on the choice images, :data:`CHOICE_NOTE`): one pupil,
+    :data:`DESIGN_PUPIL_FACTOR` of the estimate, and spheres -0.25/0/+0.25 D with the eye as
+    modelled counting three times.
     """
 
-    pupil_factors: tuple[float, ...] = (0.8, 1.0, 1.25)
+    pupil_factors: tuple[float, ...] = (DESIGN_PUPIL_FACTOR,)
     sphere_offsets_D: tuple[float, ...] = (-0.25, 0.0, 0.25)
-    pupil_priors: tuple[float, ...] | None = (1.0, 2.0, 1.0)
-    sphere_priors: tuple[float, ...] | None = (1.0, 2.0, 1.0)
+    pupil_priors: tuple[float, ...] | None = None
+    sphere_priors: tuple[float, ...] | None = (1.0, 3.0, 1.0)
 
     def prior(self, i: int, j: int) -> float:
         """The prior weight of pupil factor ``i`` with sphere offset ``j`` (uniform unless given)."""

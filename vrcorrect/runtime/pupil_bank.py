@@ -9,8 +9,9 @@ switch between (``pupil="auto"``, :class:`~vrcorrect.runtime.eye_model.Corrector
   pupil moves towards it with its own dynamics (:class:`~vrcorrect.physics.pupil.PupilDynamics`:
   it constricts within about 0.4 s and dilates over seconds).
 * **The bank** (:class:`PupilBank`): designs for the pupils of :data:`BANK_PUPILS_MM`, a step of
-  ``1.25^(1/3)`` (about 7.7 %) from 2 to 7.5 mm, so that the robust band's ``x0.8`` and ``x1.25``
-  pupils of one entry are entries three steps away and neighbouring designs share their kernels.  An
+  ``1.25^(1/3)`` (about 7.7 %) from 2 to 7.5 mm, so that the robust design's pupil (one step below the
+  entry, :data:`~vrcorrect.physics.robust.DESIGN_PUPIL_FACTOR`) is the entry below and a band of pupils
+  ``x0.8``/``x1.25`` lands on entries three steps away: neighbouring designs share their kernels.  An
   entry is designed on the bank's own worker thread when first asked for (never on the render thread),
   with its spectra on the grids the corrector uses, and kept; the follower's pupil picks the nearest
   entry with hysteresis (:data:`HYSTERESIS`: a quarter of a step past the midpoint), the current design
@@ -43,7 +44,8 @@ __all__ = ["BANK_STEP", "BANK_PUPILS_MM", "HYSTERESIS", "GRID_MARGIN", "bank_pup
 log = logging.getLogger(__name__)
 
 BANK_STEP = 1.25 ** (1.0 / 3.0)
-"""The ratio of neighbouring pupils in the bank (the robust band's x1.25 is three steps)."""
+"""The ratio of neighbouring pupils in the bank (the robust design's pupil is one step below an entry;
+x1.25 is three steps)."""
 
 
 def bank_pupils() -> tuple[float, ...]:

@@ -57,8 +57,8 @@ __all__ = ["EYE", "IMAGES", "DISPLAYS", "SEEN_PUPILS_MM", "SEEN_SPHERES_D", "run
 EYE = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=120.0, pupil_diameter_mm=4.0)
 """The issue's eye (right, -2.00/-1.00 x 120)."""
 IMAGES = ("motorcycle", "page")
-"""Held out from choosing the band (it was chosen on scikit-image's astronaut and the project's text
-chart): scikit-image's stereo_motorcycle (its left view, a colour photograph) and page (a scanned
+"""Held out from choosing the band (it was chosen on scikit-image's astronaut, coffee and text and the
+project's text chart, ``tools/robust_band_choice.py``): scikit-image's stereo_motorcycle (its left view, a colour photograph) and page (a scanned
 page of text)."""
 DISPLAYS = ("desktop", "quest2")
 SEEN_PUPILS_MM = (2.0, 2.5, 3.0, 4.0, 5.5, 7.0)
