@@ -1322,8 +1322,10 @@ class Engine:
             steps = ", ".join(f"{k} {v:.1f} s" for k, v in pipeline.steps.items())
             primed = ", ".join(f"{eye} {n}" for eye, n in pipeline.primed_frames.items())
             if primed:
+                over_budget = sum(pipeline.primed_frames.values()) < PRIME_MAX_FRAMES * len(pipeline.primed_frames)
                 primed += (" frames, converged" if all(pipeline.prime_converged.values()) else
-                           " frames, then converging on the application's frames (priming budget reached)")
+                           " frames, then converging on the application's frames (priming "
+                           + ("budget reached)" if over_budget else f"stopped at {PRIME_MAX_FRAMES} frames an eye)"))
             self.log.line(f"correcting with {pipeline.rx} on display {pipeline.display.name} ({info['why']}); built in "
                           f"{time.perf_counter() - self._t0:.1f} s off the application's thread ({models}; GL "
                           f"{info['gl_seconds']:.1f} s: {steps}; {programs}"
