@@ -345,22 +345,29 @@ def corrector_input(raw: np.ndarray, fmt: str) -> tuple[str, np.ndarray]:
     return "linear", np.concatenate([light, np.ones(light.shape[:2] + (1,), np.float32)], axis=-1)
 
 
+def _input_texture(gl, kind: str, image: np.ndarray):
+    """A Corrector's input texture: sRGB codes (``"codes"``) or linear light (``"linear"``, top row first)."""
+    from vrcorrect.runtime.gl import upload_texture
+
+    if kind == "codes":
+        return upload_texture(gl, np.ascontiguousarray(image))
+    h, w = image.shape[:2]
+    return gl.texture((w, h), 4, np.ascontiguousarray(image[::-1]).tobytes(), dtype="f4")
+
+
 def corrector_codes(gl, kit: Kit, eye: str, inputs: list[tuple[str, np.ndarray]]) -> list[np.ndarray]:
     """``Corrector.apply`` of a fresh Corrector on each input in turn (the n-th corrected frame is the
     n-th apply: the default filter continues its iterations from frame to frame): sRGB codes, int
     (H, W, 3), top row first."""
     from vrcorrect.runtime.corrector import Corrector
-    from vrcorrect.runtime.gl import read_framebuffer, release, render_target, upload_texture
+    from vrcorrect.runtime.gl import read_framebuffer, release, render_target
 
     corrector = Corrector(gl, kit.rx, "quest2", eye, eye_model=eye_model(kit, eye))
     results = []
     try:
         for kind, image in inputs:
             h, w = image.shape[:2]
-            if kind == "codes":
-                tex = upload_texture(gl, np.ascontiguousarray(image))
-            else:
-                tex = gl.texture((w, h), 4, np.ascontiguousarray(image[::-1]).tobytes(), dtype="f4")
+            tex = _input_texture(gl, kind, image)
             target, fb = render_target(gl, width=w, height=h)
             try:
                 corrector.apply(tex, fb)
@@ -382,7 +389,7 @@ def converged_codes(gl, kit: Kit, eye: str, kind_image: tuple[str, np.ndarray], 
     (H, W, 3), top row first.  The layer corrects a still view from its first corrected frame on as
     this: it primes its correction on the application's frame off the application's thread."""
     from vrcorrect.runtime.corrector import Corrector
-    from vrcorrect.runtime.gl import read_framebuffer, release, render_target, upload_texture
+    from vrcorrect.runtime.gl import read_framebuffer, release, render_target
     from vrcorrect.runtime.strategies.admm import EARLY_STOP_TOLERANCE
 
     kind, image = kind_image
@@ -391,10 +398,7 @@ def converged_codes(gl, kit: Kit, eye: str, kind_image: tuple[str, np.ndarray], 
         return _CONVERGED[key]
     corrector = Corrector(gl, kit.rx, "quest2", eye, eye_model=eye_model(kit, eye))
     h, w = image.shape[:2]
-    if kind == "codes":
-        tex = upload_texture(gl, np.ascontiguousarray(image))
-    else:
-        tex = gl.texture((w, h), 4, np.ascontiguousarray(image[::-1]).tobytes(), dtype="f4")
+    tex = _input_texture(gl, kind, image)
     target, fb = render_target(gl, width=w, height=h)
     try:
         previous = None
@@ -417,29 +421,9 @@ def converged_codes(gl, kit: Kit, eye: str, kind_image: tuple[str, np.ndarray], 
 def primed_codes(gl, kit: Kit, eye: str, kind_image: tuple[str, np.ndarray], primed: int, count: int) -> list[np.ndarray]:
     """What a fresh Corrector shows of a still picture on each of ``count`` frames after ``primed``
     frames of it (the layer primes that many off the application's thread, within its budget, then
-    corrects each of the application's frames): ``Corrector.apply`` ``primed + count`` times, the
-    last ``count`` outputs as sRGB codes, int (H, W, 3), top row first."""
-    from vrcorrect.runtime.corrector import Corrector
-    from vrcorrect.runtime.gl import read_framebuffer, release, render_target, upload_texture
-
-    kind, image = kind_image
-    corrector = Corrector(gl, kit.rx, "quest2", eye, eye_model=eye_model(kit, eye))
-    h, w = image.shape[:2]
-    if kind == "codes":
-        tex = upload_texture(gl, np.ascontiguousarray(image))
-    else:
-        tex = gl.texture((w, h), 4, np.ascontiguousarray(image[::-1]).tobytes(), dtype="f4")
-    target, fb = render_target(gl, width=w, height=h)
-    out = []
-    try:
-        for n in range(primed + count):
-            corrector.apply(tex, fb)
-            if n >= primed:
-                out.append(read_framebuffer(fb, components=3).astype(int))
-    finally:
-        release(fb, target, tex)
-        corrector.release()
-    return out
+    corrects each of the application's frames): :func:`corrector_codes` of ``primed + count`` copies,
+    the last ``count``."""
+    return corrector_codes(gl, kit, eye, [kind_image] * (primed + count))[primed:]
 
 
 def primed_frames(log: list[str]) -> dict[str, int]:
