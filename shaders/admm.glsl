@@ -157,6 +157,22 @@ uniform float u_alpha;         // over-relaxation
 bool inside(ivec2 p) { return all(greaterThanEqual(p, ivec2(0))) && p.x < IMG_W && p.y < IMG_H; }
 vec3 prox(vec3 w, vec3 T, bool in_image) { return in_image ? u_keep * w + (1.0 - u_keep) * T : w; }
 vec3 proj(vec3 q, bool in_image) { return in_image ? clamp(q, 0.0, 1.0) : vec3(0.0); }
+// FOVEA (a foveated frame, vrcorrect.runtime.strategies.foveated): the image is the sub-image around
+// the gaze; the data term holds on the window u_win (x0, y0, x1, y1: GL texels of the image, half
+// open) only, and the rest of the image (the ring) is held to the target t: proj there is t itself
+// (the CPU twin: vrcorrect.solvers.foveated).
+#if defined FOVEA
+uniform ivec4 u_win;
+bool in_data(ivec2 p) { return all(greaterThanEqual(p, u_win.xy)) && all(lessThan(p, u_win.zw)); }
+#else
+bool in_data(ivec2 p) { return inside(p); }
+#endif
+vec3 proj_at(vec3 q, ivec2 p, bool in_image, vec3 t) {
+#if defined FOVEA
+    if (in_image && !in_data(p)) return t;
+#endif
+    return proj(q, in_image);
+}
 #endif
 
 // ------------------------------------------------------------------ ROWS_TARGET
@@ -452,8 +468,8 @@ void main() {
         q = stored(q);
         imageStore(u_w, p, vec4(w, 1.0));
         imageStore(u_q, p, vec4(q, 1.0));
-        a1[m] = 2.0 * prox(w, Tp, in_image) - w;
-        a2[m] = 2.0 * proj(q, in_image) - q;
+        a1[m] = 2.0 * prox(w, Tp, in_data(p)) - w;
+        a2[m] = 2.0 * proj_at(q, p, in_image, t) - q;
     }
     forward_six(a1, a2, y);
 }
@@ -463,7 +479,7 @@ void main() {
 // (NO_UPDATE, with LAST: no iteration this frame; only the guard's input from the state as it is.)
 #if defined ROWS_UPDATE
 uniform sampler2D u_T;                          // this frame's T inside the image
-uniform sampler2D u_t;                          // LAST: the target, for the guard
+uniform sampler2D u_t;                          // LAST: the target, for the guard (FOVEA: every pass)
 layout(IMG_FMT, binding = 2) uniform image2D u_w;
 layout(IMG_FMT, binding = 3) uniform image2D u_q;
 void main() {
@@ -477,22 +493,27 @@ void main() {
         ivec2 p = ivec2(lid + WG * m, y);
         bool in_image = inside(p);
         vec3 q = imageLoad(u_q, p).rgb;
+#if defined FOVEA
+        vec3 tp = in_image ? texelFetch(u_t, p, 0).rgb : vec3(0.0);
+#else
+        vec3 tp = vec3(0.0);
+#endif
 #if !defined NO_UPDATE
         vec3 T = in_image ? texelFetch(u_T, p, 0).rgb : vec3(0.0);
         vec3 w = imageLoad(u_w, p).rgb;
-        vec3 pw = prox(w, T, in_image);
-        vec3 pq = proj(q, in_image);
+        vec3 pw = prox(w, T, in_data(p));
+        vec3 pq = proj_at(q, p, in_image, tp);
         w = stored(w + u_alpha * (Ku[m] - pw));
         q = stored(q + u_alpha * (u[m] - pq));
         imageStore(u_w, p, vec4(w, 1.0));
         imageStore(u_q, p, vec4(q, 1.0));
 #endif
 #if defined LAST
-        a1[m] = proj(q, in_image);                                     // z
+        a1[m] = proj_at(q, p, in_image, tp);                           // z
         a2[m] = in_image ? texelFetch(u_t, p, 0).rgb : vec3(0.0);      // t
 #else
-        a1[m] = 2.0 * prox(w, T, in_image) - w;
-        a2[m] = 2.0 * proj(q, in_image) - q;
+        a1[m] = 2.0 * prox(w, T, in_data(p)) - w;
+        a2[m] = 2.0 * proj_at(q, p, in_image, tp) - q;
 #endif
     }
 #if defined LAST
@@ -602,11 +623,17 @@ uniform sampler2D u_t;
 uniform sampler2D u_q;
 layout(std430, binding = 3) readonly buffer Guard { float u_beta; float u_sums[3]; };
 layout(rgba32f, binding = 1) writeonly uniform image2D u_out;
+#if defined FOVEA
+uniform ivec4 u_win;
+#endif
 void main() {
     ivec2 p = ivec2(gl_GlobalInvocationID.xy);
     if (p.x >= IMG_W || p.y >= IMG_H) return;
     vec3 t = texelFetch(u_t, p, 0).rgb;
     vec3 z = clamp(texelFetch(u_q, p, 0).rgb, 0.0, 1.0);
+#if defined FOVEA
+    if (!(all(greaterThanEqual(p, u_win.xy)) && all(lessThan(p, u_win.zw)))) z = t;    // the ring: t
+#endif
     imageStore(u_out, p, vec4(t + u_beta * (z - t), 1.0));
 }
 #endif

@@ -59,6 +59,7 @@ from .gl import check_gl_errors, release
 from .onnx_backend import OnnxModel
 from .pupil_bank import PupilBank, PupilFollower
 from .strategies import Decoder, Encoder, Preview, Strategy, make_strategy
+from .strategies.foveated import FoveatedStrategy, gaze_pixels
 from .strategies.base import LuminanceMeter, float_texture
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -278,6 +279,9 @@ class Corrector:
         self.timings_ms: dict[str, float] = {}
         self.gpu = Gpu(ctx)
         self._offset = (0.0, 0.0, 0.0)                      # live sphere, cylinder, axis changes
+        self.gaze_deg: tuple[float, float] = (0.0, 0.0)
+        """Where the eye looks, degrees from the view's centre ``(x, y)``, x right, y up (OpenXR's view
+        space): the window's centre with ``fovea_deg`` (set it before each :meth:`apply`)."""
         self._iterations = self.options.iterations_per_frame
         self.decoder = Decoder(self.gpu)
         self.encoder = Encoder(self.gpu)
@@ -407,7 +411,8 @@ class Corrector:
         old = (self.strategy, self.preview)
         options = self.options if self._iterations == self.options.iterations_per_frame else \
             replace(self.options, iterations_per_frame=self._iterations)
-        self.strategy = make_strategy(self.gpu, model, options, self.encoder, self.decoder, slot)
+        self.strategy = make_strategy(self.gpu, model, options, self.encoder, self.decoder, slot,
+                                      ppd=self.display.pixels_per_degree)
         if self._cold_model is not None and not model.identity and hasattr(self.strategy, "use_first_guess"):
             self.strategy.use_first_guess(self._cold_model.for_eye(model.eye, self.display, model.kernel,
                                                                    model.reference))
@@ -499,6 +504,8 @@ class Corrector:
         return fft_grid(*size, self.model.margin), self.model.margin
 
     def _decode_source(self, src: "moderngl.Texture") -> "moderngl.Texture":
+        if isinstance(self.strategy, FoveatedStrategy):
+            self.strategy.gaze_px = gaze_pixels(self.gaze_deg, tuple(src.size), self.display.pixels_per_degree)
         self.gpu.begin("decode")
         return self.strategy.decode(src, self._motion_gl)
 

@@ -237,6 +237,10 @@ class CorrectorOptions:
     age_years
         The wearer's age for ``pupil="auto"`` (None: the prescription's ``age_years``, else the
         pupil formula's reference age).
+    fovea_deg
+        ``filter="admm"``: correct only a window of this radius (degrees of visual angle, the half-side
+        of a square) around the gaze (:attr:`Corrector.gaze_deg`), the rest of the view shown as it
+        is (:mod:`vrcorrect.runtime.strategies.foveated`); ``None`` (default): the whole view.
     """
 
     regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
@@ -259,6 +263,7 @@ class CorrectorOptions:
     pupil: str | float = "rx"
     robust: bool = False
     age_years: float | None = None
+    fovea_deg: float | None = None
 
     def __post_init__(self) -> None:
         if self.pupil not in ("rx", "auto"):
@@ -297,6 +302,16 @@ class CorrectorOptions:
             raise ValidationError("work_groups", self.work_groups,
                                   "a WorkGroups, or a mapping with 'full' and/or 'coarse' tables of values per thread "
                                   "(and 'column_lines')")
+        if self.fovea_deg is not None:
+            from .strategies.foveated import MAX_FOVEA_DEG, MIN_FOVEA_DEG
+
+            if isinstance(self.fovea_deg, bool) or not isinstance(self.fovea_deg, (int, float)) or \
+                    not MIN_FOVEA_DEG <= self.fovea_deg <= MAX_FOVEA_DEG:
+                raise ValidationError("fovea_deg", self.fovea_deg,
+                                      f"None (the whole view) or a radius from {MIN_FOVEA_DEG:g} to {MAX_FOVEA_DEG:g} degrees")
+            if self.filter != Filter.ADMM or self.backend != Backend.GLSL or self.cold_start_model is not None:
+                raise ValidationError("fovea_deg", self.fovea_deg, "only with filter 'admm' on the glsl backend "
+                                      "(no cold_start_model)")
         if self.cold_start_model is not None:
             if not isinstance(self.cold_start_model, str) or not self.cold_start_model:
                 raise ValidationError("cold_start_model", self.cold_start_model, "a path to an unrolled ONNX model or None")

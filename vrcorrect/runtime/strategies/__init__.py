@@ -3,6 +3,7 @@ per-size buffers, each running its passes through :class:`~vrcorrect.runtime.dis
 frame's cost is counted from its dispatches).
 
 * :mod:`.admm` - ``"admm"`` (the default): ADMM iterations spread over frames.
+* :mod:`.foveated` - ``"admm"`` with ``fovea_deg``: the same on a window around the gaze.
 * :mod:`.fista` - ``"fista"``: projected-gradient (FISTA) iterations spread over frames.
 * :mod:`.onepass` - ``"fft"`` and ``"separable"``: the regularised inverse in one pass.
 * :mod:`.onnx` - ``backend="onnx"``: a model through onnxruntime.
@@ -17,10 +18,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from ...plumbing.errors import ValidationError
 from ...specs.vocabulary import Filter
 from .admm import AdmmStrategy
 from .base import Decoder, Encoder, FrameBlend, Strategy
 from .fista import FistaStrategy
+from .foveated import FoveatedStrategy
 from .onepass import FftInverse, SeparableInverse
 from .onnx import OnnxStrategy
 from .preview import Preview
@@ -49,10 +52,15 @@ STRATEGIES: dict[str, type[Strategy]] = {Filter.ADMM: AdmmStrategy, Filter.FISTA
 
 
 def make_strategy(gpu: "Gpu", model: "EyeModel", options: "CorrectorOptions", encoder: Encoder, decoder: Decoder,
-                  slot: "Slot | None" = None) -> Strategy:
-    """The strategy that corrects ``model``'s eye with ``options`` (``slot``: the ONNX backend's model)."""
+                  slot: "Slot | None" = None, ppd: float | None = None) -> Strategy:
+    """The strategy that corrects ``model``'s eye with ``options`` (``slot``: the ONNX backend's model;
+    ``ppd``: the display's pixels per degree, for ``options.fovea_deg``)."""
     if slot is not None:
         return OnnxStrategy(gpu, model, options, encoder, decoder, slot=slot)
     if model.identity:
         return Identity(gpu, model, options, encoder, decoder)
+    if options.fovea_deg is not None and options.filter == Filter.ADMM:
+        if ppd is None:
+            raise ValidationError("ppd", ppd, "the display's pixels per degree (for fovea_deg)")
+        return FoveatedStrategy(gpu, model, options, encoder, decoder, radius_px=options.fovea_deg * ppd)
     return STRATEGIES[options.filter](gpu, model, options, encoder, decoder)

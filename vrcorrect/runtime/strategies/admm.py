@@ -130,8 +130,14 @@ class AdmmBuffers:
 class AdmmStrategy(IterativeStrategy):
     name = Filter.ADMM
 
-    def __init__(self, *args: Any, coarse_level: bool = False, **kwargs: Any):
+    def __init__(self, *args: Any, coarse_level: bool = False, fovea: bool = False, **kwargs: Any):
         super().__init__(*args, **kwargs)
+        self.fovea = fovea
+        """A foveated frame's sub-image (:mod:`vrcorrect.runtime.strategies.foveated`): the data term
+        holds on :attr:`window_gl` only and the rest of the image is held to the target (``FOVEA``
+        in ``admm.glsl``); no coarse level."""
+        self.window_gl: tuple[int, int, int, int] = (0, 0, 0, 0)
+        """With ``fovea``: the window ``(x0, y0, x1, y1)`` in GL texels of the image, half open."""
         from ...solvers.realtime import ADMM_RELAXATION, admm_weights  # start-up time: scipy with the first eye
 
         m = self.model
@@ -213,6 +219,8 @@ class AdmmStrategy(IterativeStrategy):
             defines["HALF"] = None
         if m.reference is None:
             defines["IDEAL"] = None
+        if self.fovea:
+            defines["FOVEA"] = None
         per_pass = self.options.work_groups.table(self.coarse_level)    # shape only, never a value
         compiled: dict[str, int] = {}
         col_plan = fft.line_plan(ny, per_pass["COLUMNS"])
@@ -298,7 +306,7 @@ class AdmmStrategy(IterativeStrategy):
     def _uses_coarse(self, size: Size) -> bool:
         from ...solvers.admm import coarse_level_pays  # start-up time (as above)
 
-        return self.options.cold_iterations > 0 and coarse_level_pays(size[1], size[0], self.model.kernel.size)
+        return not self.fovea and self.options.cold_iterations > 0 and coarse_level_pays(size[1], size[0], self.model.kernel.size)
 
     def _coarse_start(self, linear: "moderngl.Texture") -> AdmmBuffers:
         """A cold frame's coarse level: the target's block means into the coarse strategy, its
@@ -399,7 +407,7 @@ class AdmmStrategy(IterativeStrategy):
                             "u_shift": motion_gl if shifted else (0, 0),
                             "u_band": self._band(motion_gl) if shifted else (0, 0),
                             "u_coarse": coarse, "u_coarse_size": coarse_size,
-                            "u_keep": self.keep,
+                            "u_keep": self.keep, "u_win": self.window_gl,
                             "u_matrix": tuple(float(v) for v in self.model.kernel.matrix.T.ravel())},
                   rows={0: (ny, 3)}, written={0: (ny, 6)}, **images)
         self._begin("iterations")
@@ -419,15 +427,16 @@ class AdmmStrategy(IterativeStrategy):
                       round_trip=True)
             last = i == k - 1
             sample = {**twiddle, "u_T": b.T[new]}
-            if last:
+            if last or self.fovea:
                 sample["u_t"] = linear
             self._run(b, "rows_last" if last else "rows_update",
                       "rows: update" + (", guard input" if last else ", reflections"), ny, sample=sample,
-                      modify={0: b.spec, 2: b.w[new], 3: b.q[new]}, uniforms={"u_keep": self.keep, "u_alpha": self.alpha},
+                      modify={0: b.spec, 2: b.w[new], 3: b.q[new]},
+                      uniforms={"u_keep": self.keep, "u_alpha": self.alpha, "u_win": self.window_gl},
                       written={0: (H, 6)} if last else None)
         if k == 0:
             self._run(b, "rows_guard_input", "rows: guard input", H, sample={**twiddle, "u_t": linear},
-                      read={3: b.q[new]}, write={0: b.spec}, rows={0: (H, 6), 3: H})
+                      read={3: b.q[new]}, write={0: b.spec}, rows={0: (H, 6), 3: H}, uniforms={"u_win": self.window_gl})
         self._begin("guard")
         self._run(b, "cols_guard", "columns: K z, K t", cols, sample={**col_tw, "u_kernel": b.kernel},
                   modify={0: b.spec}, uniforms={"u_rows_in": H, "u_rows_out": H}, rows={0: (H, 6)},
@@ -462,7 +471,8 @@ class AdmmStrategy(IterativeStrategy):
         b = self._last
         size = tuple(shown.size)
         self.gpu.run("blend", b.programs["blend"], groups_2d(size), sample={"u_t": shown, "u_q": b.q[b.current]},
-                     write={1: b.out}, buffers={3: (b.guard.result, "r")}, rows={"u_q": size[1]})
+                     write={1: b.out}, buffers={3: (b.guard.result, "r")}, rows={"u_q": size[1]},
+                     uniforms={"u_win": self.window_gl})
         return b.out
 
     # ------------------------------------------------------------------ read-backs
