@@ -130,3 +130,19 @@ def test_a_bad_fovea_is_refused_naming_the_field(value, field):
 def test_a_fovea_needs_the_admm_method():
     with pytest.raises(ValidationError, match="only with filter 'admm'"):
         CorrectorOptions(fovea_deg=10, filter="fft")
+
+
+def test_bench_cost_counts_a_15_degree_fovea_at_a_quest_2_eye_under_half_a_gigabyte(tmp_path):
+    """Issue 45's bar, counted from the dispatches (a dry run: nothing runs): a Quest 2 eye
+    (1832 x 1920) foveated at 15 degrees moves at most 0.5 GB a changing frame, its FFT grid the
+    window's (625 x 625: 2 x 283 px and a 41 px kernel's ring, 5-smooth), not the view's; the report
+    says so."""
+    from vrcorrect.studies.bench.cost import METHODS, run_cost_bench
+
+    report = run_cost_bench((1832, 1920), "quest2", methods=METHODS[:1], fovea=(15.0,), dry_run=True, write=False,
+                            out=tmp_path / "benchmarks.md")
+    (f,) = report["fovea"]
+    assert f["radius_px"] == round(15 * PPD) and f["grid"][0] < 700 and f["grid"][1] < 700
+    assert f["bytes_per_eye_frame"] <= 0.5e9 < report["default"]["bytes_per_eye_frame"]
+    assert "radius 15 deg" in report["markdown"] and "at most 0.5 GB: met" in report["markdown"]
+    assert not (tmp_path / "benchmarks.md").exists()

@@ -14,7 +14,7 @@ from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.fileio import check_writable
 from ..runtime.model_path import DEFAULT_MODEL
 from ..studies.bench import BENCHMARKS_FILE, default_out
-from .common import rx_path
+from .common import GAZE_HELP, parse_fovea, parse_gaze, rx_path
 
 
 def _json_out(args: argparse.Namespace) -> Path | None:
@@ -60,12 +60,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from ..studies.bench.peer import NO_DEVICE, PEERS
 
         size = parse_size(args.size)
+        fovea = [] if args.fovea is None else [r for r in (parse_fovea(v) for v in args.fovea.split(",")) if r is not None]
         if args.peer is not None and args.peer not in PEERS:
             raise ValidationError("--peer", args.peer, "one of " + ", ".join(PEERS))
         report = run_cost_bench(size, args.display, str(rx_path(args)), out=Path(args.out), write=not args.no_write,
                                 json_out=_json_out(args), dry_run=args.dry_run,
                                 force=args.force, frames=1 if args.frames is None else args.frames,
-                                methods=METHODS[:1] if args.default_only else METHODS, peer=args.peer)
+                                methods=METHODS[:1] if args.default_only else METHODS, peer=args.peer,
+                                fovea=fovea, gaze_deg=parse_gaze(args.gaze))
         print(report["markdown"])
         if report.get("peer", {}).get("status") == NO_DEVICE:
             print(NO_DEVICE)
@@ -181,6 +183,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="cost: also time the default frame written plainly in NAME (torch: torch on cuFFT) in the "
                         "same run on the same GPU, with its ratio to the GLSL frame; where torch sees no CUDA device "
                         "it prints 'no CUDA device: peer not run'")
+    p.add_argument("--fovea", metavar="DEG[,DEG...]",
+                   help="cost: also count the default frame foveated at each radius (degrees of visual angle: "
+                        "the correction solved on a window around the gaze, the rest of the view shown as it is)")
+    p.add_argument("--gaze", default="0,0", metavar="X,Y", help="cost: where the eye looks for --fovea, " + GAZE_HELP)
     p.add_argument("--default-only", action="store_true",
                    help="cost: count and time the default method only (not single precision, FISTA and the "
                         "one-pass inverse beside it)")

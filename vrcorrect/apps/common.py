@@ -183,6 +183,40 @@ def parse_pupil(text: Any, field: str = "--pupil") -> str | float:
     return check_pupil_mm(text, field)
 
 
+FOVEA_HELP = ("correct only a window of this radius in degrees of visual angle around the gaze (a square of half-side "
+              "DEG times the display's pixels per degree; the rest of the view is shown as it is), or off: the whole "
+              "view (default)")
+GAZE_HELP = "where the eye looks, degrees from the view's centre, x right and y up (default 0,0: the centre)"
+
+
+def parse_fovea(text: Any, field: str = "--fovea") -> float | None:
+    """``--fovea``: ``off`` (None) or a window radius in degrees
+    (:data:`~vrcorrect.runtime.strategies.foveated.MIN_FOVEA_DEG` to ``MAX_FOVEA_DEG``)."""
+    from ..runtime.strategies.foveated import MAX_FOVEA_DEG, MIN_FOVEA_DEG  # on use: start-up time
+
+    if text is None or (isinstance(text, str) and text.strip().lower() == "off"):
+        return None
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if not (math.isfinite(value) and MIN_FOVEA_DEG <= value <= MAX_FOVEA_DEG):
+        raise ValidationError(field, text, f"off or a radius in degrees from {MIN_FOVEA_DEG:g} to {MAX_FOVEA_DEG:g}")
+    return value
+
+
+def parse_gaze(text: Any, field: str = "--gaze") -> tuple[float, float]:
+    """``--gaze X,Y``: degrees from the view's centre, each from -90 to 90."""
+    try:
+        x, y = (float(v) for v in str(text).split(","))
+    except ValueError:
+        x = y = float("nan")
+    if not all(math.isfinite(v) and -90.0 <= v <= 90.0 for v in (x, y)):
+        raise ValidationError(field, text, "X,Y: two numbers of degrees from the view's centre, each from -90 to 90 "
+                              "(x right, y up), e.g. 5,-3")
+    return x, y
+
+
 def add_pupil_options(p: argparse.ArgumentParser, robust: bool = True) -> None:
     """``--pupil`` (and ``--robust``): the eye as it is (``correct``, ``simulate``; the real-time
     commands take them with their filter options)."""

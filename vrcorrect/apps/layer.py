@@ -88,7 +88,7 @@ def layer_library(env: Mapping[str, str] | None = None) -> tuple[Path, str]:
 def cmd_install(args: argparse.Namespace, env: Mapping[str, str] | None = None) -> int:
     from ..specs.display import get_display
     from ..specs.prescription import load_prescription
-    from .common import parse_pupil
+    from .common import parse_fovea, parse_gaze, parse_pupil
 
     env = _env(env)
     rx = Path(args.rx).expanduser().resolve() if args.rx else None
@@ -100,7 +100,12 @@ def cmd_install(args: argparse.Namespace, env: Mapping[str, str] | None = None) 
         raise ValidationError("--iterations-per-frame", args.iterations, "1 to 64")
     pupil = parse_pupil(args.pupil) if args.pupil is not None else None
     robust = {"on": True, "off": False}[args.robust] if args.robust is not None else None
-    options = {k: v for k, v in (("iterations_per_frame", args.iterations), ("pupil", pupil), ("robust", robust))
+    fovea = parse_fovea(args.fovea) if args.fovea is not None else None
+    gaze = parse_gaze(args.gaze) if args.gaze is not None else None
+    if gaze is not None and fovea is None:
+        raise ValidationError("--gaze", args.gaze, "only with --fovea DEG (the window it places)")
+    options = {k: v for k, v in (("iterations_per_frame", args.iterations), ("pupil", pupil), ("robust", robust),
+                                 ("fovea_deg", fovea), ("gaze_deg", None if gaze is None else list(gaze)))
                if v is not None}
     manifest = manifest_dir(env) / MANIFEST
     config = config_path(env)
@@ -208,6 +213,12 @@ def status_lines(env: Mapping[str, str] | None = None, tail: int = 10) -> list[s
                         "; single-pupil design (robust off)" if robust is False else f"; robust {robust!r}")
                      + ("" if "pupil" in config.options else " (the default; layer install --pupil auto --robust on "
                                                             "follows the light)"))
+        fovea = config.options.get("fovea_deg")
+        gaze = config.options.get("gaze_deg", (0, 0))
+        lines.append("fovea: " + ("off, the whole view corrected (layer install --fovea DEG corrects a window around "
+                                  "the gaze)" if fovea is None else
+                                  f"a window of radius {fovea:g} deg around the gaze at ({gaze[0]:g}, {gaze[1]:g}) deg "
+                                  "from the view's centre; the rest of the view as the application drew it"))
     log = log_path(env)
     if log.exists():
         last = log.read_text(encoding="utf-8", errors="replace").splitlines()[-tail:]
@@ -245,6 +256,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "shown), rx (the default: the prescription's pupil_diameter_mm) or a diameter in mm")
     i.add_argument("--robust", choices=("on", "off"), default=None,
                    help="the robust design over the band of pupils and +-0.25 D (default: off)")
+    i.add_argument("--fovea", default=None, metavar="DEG|off",
+                   help="correct only a window of this radius in degrees around the gaze (default: off, the whole "
+                        "view)")
+    i.add_argument("--gaze", default=None, metavar="X,Y",
+                   help="with --fovea: where the window stands, degrees from the view's centre, x right and y up "
+                        "(default 0,0)")
     i.add_argument("--force", action="store_true", help="replace files vrcorrect did not write")
     i.set_defaults(func=cmd_layer)
     u = actions.add_parser("uninstall", help="remove the manifest (and a layer the fallback built)")

@@ -13,7 +13,8 @@ from ..runtime.model_path import model_for_backend
 from ..specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, MAX_ITERATIONS_PER_FRAME, Backend, Filter, names
 
 __all__ = ["FILTER_CHOICES", "parse_frames", "parse_whole_number", "parse_iterations_per_frame", "add_backend_option",
-           "add_rx_option", "add_filter_options", "add_pupil_choice", "pupil_options", "add_reprojection_option",
+           "add_rx_option", "add_filter_options", "add_pupil_choice", "pupil_options", "add_fovea_choice",
+           "fovea_options", "add_reprojection_option",
            "filter_options", "cold_start_choice", "corrector_options"]
 
 FILTER_CHOICES = names(Filter)
@@ -75,6 +76,7 @@ def add_filter_options(p: argparse.ArgumentParser) -> None:
                         f"{DEFAULT_COLD_ITERATIONS}, fast's own coarse-to-fine start; 0: from the target, cheaper "
                         "but a shot then starts blurred)")
     add_pupil_choice(p)
+    add_fovea_choice(p)
     p.add_argument("--cold-start", metavar="MODEL.onnx", nargs="?", const="default",
                    help="with --filter admm: what starts a shot's first frame (the first, after a cut, after a "
                         "prescription change). A model file: that unrolled model's pass (vrcorrect unroll -o RUN "
@@ -99,6 +101,31 @@ def add_pupil_choice(p: argparse.ArgumentParser) -> None:
     g.add_argument("--robust", choices=("on", "off"), default="on", help=ROBUST_HELP)
 
 
+def add_fovea_choice(p: argparse.ArgumentParser) -> None:
+    """``--fovea`` and ``--gaze`` (``render``, ``mirror``, ``overlay``, ``xr``): correct where the eye looks."""
+    from .common import FOVEA_HELP, GAZE_HELP
+
+    g = p.add_argument_group("where the eye looks")
+    g.add_argument("--fovea", default="off", metavar="DEG|off", help="with --filter admm: " + FOVEA_HELP)
+    g.add_argument("--gaze", default="0,0", metavar="X,Y", help="with --fovea: " + GAZE_HELP)
+
+
+def fovea_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The :class:`~vrcorrect.runtime.eye_model.CorrectorOptions` fields of ``--fovea`` and ``--gaze``
+    (none when the window is off; ``--gaze`` without a window is refused)."""
+    from .common import parse_fovea, parse_gaze
+
+    fovea = parse_fovea(getattr(args, "fovea", "off"))
+    gaze = parse_gaze(getattr(args, "gaze", "0,0"))
+    if fovea is None:
+        if gaze != (0.0, 0.0):
+            raise ValidationError("--gaze", args.gaze, "only with --fovea DEG (the window it places)")
+        return {}
+    if getattr(args, "filter", Filter.ADMM) != Filter.ADMM or getattr(args, "backend", Backend.GLSL) != Backend.GLSL:
+        raise ValidationError("--fovea", args.fovea, "only with --filter admm on --backend glsl")
+    return {"fovea_deg": fovea, "gaze_deg": gaze}
+
+
 def pupil_options(args: argparse.Namespace) -> dict[str, Any]:
     """The :class:`~vrcorrect.runtime.eye_model.CorrectorOptions` fields of ``--pupil`` and ``--robust``."""
     from .common import parse_pupil
@@ -119,7 +146,7 @@ def filter_options(args: argparse.Namespace) -> dict[str, Any]:
     """The :class:`~vrcorrect.runtime.corrector.Corrector` options of :func:`add_filter_options`'s
     arguments (checked: one line naming the option when wrong)."""
     k = parse_iterations_per_frame(args.iterations_per_frame)
-    options: dict[str, Any] = {"filter": args.filter, **pupil_options(args)}
+    options: dict[str, Any] = {"filter": args.filter, **pupil_options(args), **fovea_options(args)}
     if k is not None:
         if args.filter not in ITERATIVE_FILTERS:
             raise ValidationError("--iterations-per-frame", args.iterations_per_frame, f"only with --filter {_ITERATIVE}")
@@ -131,6 +158,11 @@ def filter_options(args: argparse.Namespace) -> dict[str, Any]:
                                                         MAX_ITERATIONS_PER_FRAME, "iterations")
     model, args.cold_start_note = cold_start_choice(getattr(args, "cold_start", None), args.filter,
                                                     getattr(args, "backend", Backend.GLSL))
+    if "fovea_deg" in options:
+        if getattr(args, "cold_start", None) not in (None, "auto", "none"):
+            raise ValidationError("--cold-start", args.cold_start, "none or auto with --fovea (the window's "
+                                  "frames start from the target)")
+        model, args.cold_start_note = None, "the target (--fovea: a window's frames start from the target)"
     if model is not None:
         options["cold_start_model"] = model
     return options

@@ -125,6 +125,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"  {METHOD_TITLES[info['filter']]}, {info.get('iterations_per_frame', '-')} iteration(s) per frame, "
               f"{frames} frame(s) warm-started, {info.get('fft_round_trips_per_frame', '-')} FFT round trips a frame"
               + storage + (f"; last frame's objective {fraction:.3f} of uncorrected" if fraction is not None else ""))
+        _print_fovea(info)
     elif args.backend == Backend.GLSL and "ranks" in info:
         print(f"  separable filters {info['filter_size']} px, ranks {info['ranks']} ({info['taps_per_pixel']} "
               f"taps/pixel), regulariser {info['mu_rel']:g}, blend {info['beta']:.3f}{chosen}")
@@ -195,6 +196,19 @@ def _print_eye(args: argparse.Namespace, info: dict) -> None:
         print(f"  designed for a {info['pupil_mm']:.2f} mm pupil" + (", robust" if info.get("robust") else ""))
 
 
+def _print_fovea(info: dict) -> None:
+    """The foveated window, where the correction was solved (nothing without ``--fovea``)."""
+    if info.get("fovea_deg") is None:
+        return
+    x, y = info["gaze_deg"]
+    window = info.get("fovea_window")
+    where = "" if window is None else (f" (the last frame's window: rows {window[0]}-{window[1]}, columns "
+                                       f"{window[2]}-{window[3]})")
+    print(f"  foveated: corrected on a window of radius {info['fovea_deg']:g} deg ({info['fovea_radius_px']} px) around "
+          f"the gaze at ({x:g}, {y:g}) deg{where}, faded over {info['fovea_band_px']} px; the rest of the view as it "
+          "is; the objective is the window's sub-image's")
+
+
 def _median(values) -> float | None:
     kept = [v for v in values if v is not None]
     return float(np.median(kept)) if kept else None
@@ -217,6 +231,7 @@ def _print_clip_summary(args: argparse.Namespace, plan: clips.ClipPlan, info: di
         else:
             carry = "warm start carried across frames as it was (--no-reprojection: no motion, no cut detection)"
         print(f"  {title}, {info.get('iterations_per_frame', '-')} iteration(s) per frame; {carry}")
+        _print_fovea(info)
     elif args.view == "seen-uncorrected":
         print("  what the eye sees of each frame without correction")
     fraction = _median(info["objective_fractions"])

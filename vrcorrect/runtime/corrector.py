@@ -279,7 +279,7 @@ class Corrector:
         self.timings_ms: dict[str, float] = {}
         self.gpu = Gpu(ctx)
         self._offset = (0.0, 0.0, 0.0)                      # live sphere, cylinder, axis changes
-        self.gaze_deg: tuple[float, float] = (0.0, 0.0)
+        self.gaze_deg: tuple[float, float] = self.options.gaze_deg
         """Where the eye looks, degrees from the view's centre ``(x, y)``, x right, y up (OpenXR's view
         space): the window's centre with ``fovea_deg`` (set it before each :meth:`apply`)."""
         self._iterations = self.options.iterations_per_frame

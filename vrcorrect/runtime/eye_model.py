@@ -23,6 +23,7 @@ Layer 5: numpy only; never torch.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Mapping
@@ -241,6 +242,9 @@ class CorrectorOptions:
         ``filter="admm"``: correct only a window of this radius (degrees of visual angle, the half-side
         of a square) around the gaze (:attr:`Corrector.gaze_deg`), the rest of the view shown as it
         is (:mod:`vrcorrect.runtime.strategies.foveated`); ``None`` (default): the whole view.
+    gaze_deg
+        With ``fovea_deg``: where the eye looks at first, ``(x, y)`` degrees from the view's centre, x
+        right, y up (:attr:`Corrector.gaze_deg` follows an eye tracker from there).
     """
 
     regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
@@ -264,6 +268,7 @@ class CorrectorOptions:
     robust: bool = False
     age_years: float | None = None
     fovea_deg: float | None = None
+    gaze_deg: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         if self.pupil not in ("rx", "auto"):
@@ -312,6 +317,13 @@ class CorrectorOptions:
             if self.filter != Filter.ADMM or self.backend != Backend.GLSL or self.cold_start_model is not None:
                 raise ValidationError("fovea_deg", self.fovea_deg, "only with filter 'admm' on the glsl backend "
                                       "(no cold_start_model)")
+        gaze = self.gaze_deg
+        if not (isinstance(gaze, (tuple, list)) and len(gaze) == 2 and
+                all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and -90 <= v <= 90
+                    for v in gaze)):
+            raise ValidationError("gaze_deg", gaze, "(x, y): two numbers of degrees from the view's centre, each "
+                                  "from -90 to 90")
+        object.__setattr__(self, "gaze_deg", (float(gaze[0]), float(gaze[1])))
         if self.cold_start_model is not None:
             if not isinstance(self.cold_start_model, str) or not self.cold_start_model:
                 raise ValidationError("cold_start_model", self.cold_start_model, "a path to an unrolled ONNX model or None")

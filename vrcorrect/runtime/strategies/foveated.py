@@ -85,7 +85,8 @@ class FoveatedStrategy(AdmmStrategy):
 
     def describe(self) -> dict[str, Any]:
         info = super().describe()
-        info.update(fovea_radius_px=self.radius_px, fovea_band_px=self.band_px,
+        info.update(fovea_deg=self.options.fovea_deg, gaze_deg=list(self.options.gaze_deg),
+                    fovea_radius_px=self.radius_px, fovea_band_px=self.band_px,
                     fovea_window=None if self.window is None else list(self.window.win))
         return info
 

@@ -61,7 +61,7 @@ from ...specs.vocabulary import VIEW_ORDER
 from . import machine_description, markdown_table, publish
 from .frame_timing import KindTimes, Subject, time_frames
 
-__all__ = ["METHODS", "FRAME_BUDGET_MS", "TARGET_BYTES", "MethodCost", "parse_size", "eye_frame_cost",
+__all__ = ["METHODS", "FRAME_BUDGET_MS", "TARGET_BYTES", "FOVEA_TARGET_BYTES", "fovea_method", "MethodCost", "parse_size", "eye_frame_cost",
            "run_cost_bench", "check_frames", "PEAKS", "ReferenceRun", "REFERENCE_RUNS", "efficiency_source"]
 
 HEADSET_SIZE = (1832, 1920)                   # one Quest 2 eye, width x height
@@ -121,6 +121,15 @@ METHODS: tuple[tuple[str, dict[str, Any]], ...] = (
 """The methods compared, by label and Corrector options (the first is the default)."""
 
 
+FOVEA_TARGET_BYTES = 0.5e9
+"""Issue 45's target for a foveated frame at a 15 degree radius, per eye and changing frame."""
+
+
+def fovea_method(radius_deg: float) -> tuple[str, dict[str, Any]]:
+    """The foveated default frame at ``radius_deg``, as a method row: label and Corrector options."""
+    return f"admm (default), fovea {radius_deg:g} deg", {"fovea_deg": float(radius_deg)}
+
+
 def parse_size(text: str, field: str = "--size") -> tuple[int, int]:
     """``WxH`` -> ``(W, H)``, each 16 to 4096 px."""
     try:
@@ -175,17 +184,19 @@ def check_frames(frames: int, what: str = "timed frames") -> None:
 
 def eye_frame_cost(ctx: Any, rx: Prescription, display: Any, eye: str, size: tuple[int, int],
                    options: dict[str, Any], warmup: int = 2, dry_run: bool = False, seed: int = 0,
-                   label: str = "", frames: int = 1) -> MethodCost:
+                   label: str = "", frames: int = 1, gaze_deg: tuple[float, float] = (0.0, 0.0)) -> MethodCost:
     """One eye's frame costs: ``warmup`` frames of changing content (the first, cold, counted; more
     until ``WARM_UP_S`` seconds have passed, unless ``dry_run``), then
     ``frames`` timed frames of new content (the budget case; the first counted), then, unless
     ``dry_run``, ``frames`` more with each pass timed (a ``glFinish`` around it) and ``frames`` timed
     cold frames (a reset before each, as a cut), then the same picture
-    once more counted as the early stop's plan leaves a converged still view (module docstring)."""
+    once more counted as the early stop's plan leaves a converged still view (module docstring).
+    ``gaze_deg``: where the eye looks (a foveated method's window, ``fovea_deg`` in ``options``)."""
     check_frames(frames)
     rng = np.random.default_rng(seed)
     W, H = size
     corrector = Corrector(ctx, rx, display, eye, **options)
+    corrector.gaze_deg = tuple(gaze_deg)
     corrector.gpu.dry_run = dry_run
     src = upload_texture(ctx, rng.integers(0, 256, (H, W, 3), dtype=np.uint8))
     tex, fbo = render_target(ctx, width=W, height=H)
@@ -241,6 +252,9 @@ def eye_frame_cost(ctx: Any, rx: Prescription, display: Any, eye: str, size: tup
 def _grid_of(corrector: Corrector, size: tuple[int, int]) -> tuple[int, int] | None:
     """The ``(NY, NX)`` FFT grid the corrector's strategy runs ``size`` frames on."""
     strategy = corrector.strategy
+    window = getattr(strategy, "window", None)
+    if window is not None:                               # foveated: the sub-image's grid
+        return tuple(strategy.grid(window.sub_shape[::-1]))
     if hasattr(strategy, "grid"):
         return tuple(strategy.grid(size))
     try:
@@ -298,11 +312,14 @@ def run_peer(peer: str, results: Sequence[MethodCost], size: tuple[int, int], fr
 def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "quest2", rx_path: str | None = None,
                    out: Path = Path("docs/benchmarks.md"), json_out: Path | None = None, write: bool = True,
                    dry_run: bool = False, methods: Sequence[tuple[str, dict[str, Any]]] = METHODS,
-                   force: bool = False, frames: int = 1, peer: str | None = None) -> dict[str, Any]:
+                   force: bool = False, frames: int = 1, peer: str | None = None, fovea: Sequence[float] = (),
+                   gaze_deg: tuple[float, float] = (0.0, 0.0)) -> dict[str, Any]:
     """Count one frame per eye for each method and time ``frames`` of each kind (module docstring),
     and with ``peer`` the peer's frame; returns the report (a dict with ``markdown``), writes the
-    ``cost`` section of ``out`` and, with ``json_out``, the JSON."""
+    ``cost`` section of ``out`` and, with ``json_out``, the JSON.  ``fovea``: radii (degrees) of
+    foveated default frames counted beside the methods, their windows around ``gaze_deg``."""
     check_frames(frames)
+    methods = list(methods) + [fovea_method(r) for r in fovea]
     if peer is not None:
         from .peer import PEERS
 
@@ -318,7 +335,7 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
             for label, options in methods:
                 for eye in VIEW_ORDER:
                     results.append(eye_frame_cost(ctx, rx, display, eye, size, options, dry_run=dry_run,
-                                                  label=label, frames=frames))
+                                                  label=label, frames=frames, gaze_deg=gaze_deg))
                     bar.update()
     finally:
         ctx.release()
@@ -346,11 +363,37 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
                     "measured_cold_ms_per_eye_frame": _worst_ms(default, "cold_ms"),
                     "measured_cold_gpu_ms_per_eye_frame": _worst_ms(default, "cold_gpu_ms")},
         "methods": [r.row(projection["efficiency"]) for r in results],
+        "gaze_deg": list(gaze_deg),
+        "fovea": [{"radius_deg": r, "radius_px": int(round(r * display.pixels_per_degree)),
+                   "bytes_per_eye_frame": max(m.changing.bytes for m in results if m.label == fovea_method(r)[0]),
+                   "grid": list(max((m for m in results if m.label == fovea_method(r)[0]),
+                                    key=lambda m: m.changing.bytes).grid or ())} for r in fovea],
     }
     if peer is not None:
         report["peer"] = run_peer(peer, results, size, frames, dry_run)
     report["markdown"] = _markdown(report, results, size, display.name, renderer, dry_run)
     return publish(report, "cost", out, write, json_out, force)
+
+
+def _fovea_section(report: dict[str, Any], gpus: list[str], efficiency: float) -> str:
+    """The foveated frames against the default's (empty without ``--fovea``)."""
+    if not report["fovea"]:
+        return ""
+    d = report["default"]["bytes_per_eye_frame"]
+    x, y = report["gaze_deg"]
+    lines = []
+    for f in report["fovea"]:
+        b = f["bytes_per_eye_frame"]
+        both = ", ".join(f"{2 * project_ms(b, BANDWIDTHS[g][0] * efficiency):.1f} ms on {g}" for g in gpus)
+        grid = "x".join(str(v) for v in f["grid"][::-1])
+        lines.append(f"- radius {f['radius_deg']:g} deg ({f['radius_px']} px, a window of {2 * f['radius_px']} px a side "
+                     f"and its ring, FFT grid {grid}): {_gb(b)} GB per eye per changing frame, {100 * b / d:.0f} % of "
+                     f"the full field's; both eyes projected at {both}"
+                     + (f" (issue 45's target at 15 deg: at most {FOVEA_TARGET_BYTES / 1e9:.1f} GB: "
+                        f"{'met' if b <= FOVEA_TARGET_BYTES else 'not met'})" if f["radius_deg"] == 15 else ""))
+    return (f"**Foveated** (`--fovea`; the default frame solved on a window around the gaze at ({x:g}, {y:g}) deg, "
+            "the rest of the view shown as it is; projections as above, not measurements):\n\n"
+            + "\n".join(lines) + "\n\n")
 
 
 def _still_sentence(d: dict[str, Any]) -> str:
@@ -520,7 +563,7 @@ def _markdown(report: dict, results: list[MethodCost], size: tuple[int, int], di
         + (f"inside the budget on {', '.join(fits)}" if fits else "outside it on all three")
         + "; at peak bandwidth, a bound no code reaches, " + ", ".join(f"{bound[g]:.1f} ms on {g}" for g in gpus)
         + ". " + _measured_sentence(d, renderer) + _still_sentence(d) + " "
-        + _cold_sentence(d, gpus, eff) + "\n\n" + _peer_section(report)
+        + _cold_sentence(d, gpus, eff) + "\n\n" + _fovea_section(report, gpus, eff) + _peer_section(report)
         + "The default's passes, changing content, one eye"
         + ("" if dry_run else f" (measured: the median of {report['timed_frames']} frame(s) with a `glFinish` before "
            f"and after each pass, on {where}; the waits add a little to each)") + ":\n\n" + passes + "\n"
