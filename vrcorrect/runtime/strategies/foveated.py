@@ -27,8 +27,8 @@ import math
 from typing import TYPE_CHECKING, Any
 
 from ...plumbing.errors import ValidationError
-from ..gl import release
-from ..shaders import compile_compute
+from ..gl import fullscreen_triangle, release
+from ..shaders import compile_compute, compile_program
 from .admm import AdmmStrategy
 from .base import Size, float_texture, groups_2d
 
@@ -75,6 +75,7 @@ class FoveatedStrategy(AdmmStrategy):
         self._out: dict[Size, "moderngl.Texture"] = {}
         self._view: Size | None = None
         self._passes: dict[str, "moderngl.ComputeShader"] = {}
+        self._present: tuple["moderngl.Program", "moderngl.VertexArray"] | None = None
 
     def _pass(self, kind: str) -> "moderngl.ComputeShader":
         program = self._passes.get(kind)
@@ -139,25 +140,36 @@ class FoveatedStrategy(AdmmStrategy):
         super().correct(target, total)
         return linear
 
+    def _window_uniforms(self, size: Size) -> dict[str, Any]:
+        W, H = size
+        sy0, sy1, sx0, sx1 = self.window.sub
+        y0, y1, x0, x1 = self.window.win
+        return {"u_origin": (sx0, H - sy1), "u_view": size, "u_win": (x0, x1, y0, y1), "u_band": float(self.band_px)}
+
     def _compose(self, full: "moderngl.Texture") -> "moderngl.Texture":
+        """The view shown into a float texture (previews, read-backs)."""
         size = tuple(full.size)
         out = self._out.get(size)
         if out is None:
             out = self._out[size] = float_texture(self.ctx, size)
-        b, window = self._last, self.window
-        W, H = size
-        sy0, sy1, sx0, sx1 = window.sub
-        y0, y1, x0, x1 = window.win
+        b = self._last
         self.gpu.run("compose: the window blended into the view", self._pass("COMPOSE"), groups_2d(size),
                      sample={"u_t": full, "u_q": b.q[b.current]}, write={1: out}, buffers={3: (b.guard.result, "r")},
-                     uniforms={"u_origin": (sx0, H - sy1), "u_view": size, "u_win": (x0, x1, y0, y1),
-                               "u_band": float(self.band_px)},
-                     rows={"u_q": sy1 - sy0})
+                     uniforms=self._window_uniforms(size), rows={"u_q": self.window.sub_shape[0]})
         return out
 
     def present(self, shown: "moderngl.Texture", dst: "moderngl.Framebuffer",
                 viewport: tuple[int, int, int, int] | None) -> None:
-        self.encoder.present(self._compose(shown), dst, viewport)
+        """The view composed and sRGB-encoded in one draw (``fovea_present.glsl``)."""
+        if self._present is None:
+            program = compile_program(self.ctx, "fovea_present.glsl")
+            self._present = (program, fullscreen_triangle(self.ctx, program))
+        program, vao = self._present
+        b = self._last
+        vp = viewport if viewport is not None else (0, 0, *dst.size)
+        self.gpu.draw("compose and encode", vao, program, dst, vp, sample={"u_t": shown, "u_q": b.q[b.current]},
+                      uniforms=self._window_uniforms(tuple(shown.size)), buffers={3: b.guard.result},
+                      rows={"u_q": self.window.sub_shape[0]})
 
     def shown_texture(self, shown: "moderngl.Texture") -> "moderngl.Texture":
         return self._compose(shown)
@@ -166,9 +178,10 @@ class FoveatedStrategy(AdmmStrategy):
         """The view shown (linear, ``(H, W, 3)`` rows top first): the composed frame, read back."""
         import numpy as np
 
-        out = self._out.get(tuple(size))
-        if out is None:
+        full = self._full.get(tuple(size))
+        if full is None or self.window is None:
             return None
+        out = self._compose(full)
         W, H = size
         a = np.frombuffer(out.read(), np.float32).reshape(H, W, 4)[:, :, :3]
         return np.ascontiguousarray(a[::-1])
@@ -180,7 +193,8 @@ class FoveatedStrategy(AdmmStrategy):
         return None if self.window is None else super().blend_weight(self.window.sub_shape[::-1])
 
     def release(self) -> None:
-        release(*self._full.values(), *self._out.values(), *self._passes.values())
+        release(*self._full.values(), *self._out.values(), *self._passes.values(), *(self._present or ()))
+        self._present = None
         self._full.clear()
         self._out.clear()
         self._passes.clear()
