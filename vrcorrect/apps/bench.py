@@ -93,6 +93,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                   plot=Path(args.out).with_name("robust_sweep.png"), json_out=_json_out(args),
                                   force=args.force, video=args.video)
         print(report["markdown"])
+    elif args.what == "fovea":
+        from ..studies.bench.fovea import run_fovea_bench
+
+        quick = {"images": ("rocket",), "iterations": (2,), "radii": (15.0,), "view": 640} if args.quick else {}
+        report = run_fovea_bench(out=Path(args.out), write=not args.no_write,
+                                 plot=Path(args.out).with_name("fovea_tradeoff.png"), json_out=_json_out(args),
+                                 force=args.force, **quick)
+        print(report["markdown"])
     elif args.what == "layer":
         from ..studies.bench.layer import run_layer_bench
 
@@ -131,7 +139,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                 tradeoff=Path(args.out).with_name("learned_tradeoff.png"))["markdown"])
     else:
         raise ValidationError("bench", args.what, "kernel, solvers, render, realtime, cost, workgroups, halfres, "
-                              "robust, xr, layer, learned or unrolled")
+                              "robust, fovea, xr, layer, learned or unrolled")
     return 0
 
 
@@ -139,12 +147,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="benchmarks: print a table and write docs/benchmarks.md",
                        description="Measure one thing (kernel builds, solvers, render, realtime, cost, the work-group "
                                    "shapes of its passes, a half-resolution solve by eye (halfres), a correction "
-                                   "against the eye as it is (robust), xr, layer, learned or unrolled), print its "
+                                   "against the eye as it is (robust), a correction where the eye looks (fovea), xr, "
+                                   "layer, learned or unrolled), print its "
                                    "table, and write "
                                    "it into its own section of the benchmarks file (--out), naming the machine it ran "
                                    "on.")
     p.add_argument("what", choices=("kernel", "solvers", "render", "realtime", "cost", "workgroups", "halfres",
-                                    "robust", "xr", "layer", "learned", "unrolled"),
+                                    "robust", "fovea", "xr", "layer", "learned", "unrolled"),
                    help="what to measure")
     p.add_argument("--repeats", type=int, default=3, help="timed runs per case (median reported)")
     p.add_argument("--resolutions", nargs="+", metavar="R",
@@ -159,7 +168,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--card", metavar="CARD.md", help="learned, unrolled: also write the model card there")
     p.add_argument("--eyes", type=int, help="learned, unrolled: held-out eyes (the U-Net bench: default 6; an "
                    "unrolled model: on each display, default 2)")
-    p.add_argument("--quick", action="store_true", help="realtime: fewer frames and sizes (a smoke run)")
+    p.add_argument("--quick", action="store_true", help="realtime: fewer frames and sizes (a smoke run); fovea: the "
+                   "rocket only, at 15 degrees and 2 iterations, on a 640 px view")
     p.add_argument("--video", action="store_true",
                    help="halfres: also play the held-out clips through a half-resolution real-time twin for one "
                         "strong eye, judged as video (some 15 minutes more on 2 cores); robust: also the motion suite's "

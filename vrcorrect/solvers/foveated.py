@@ -41,9 +41,17 @@ import numpy as np
 from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
 from ..specs.vocabulary import Precision
-from .realtime import ADMM_BALANCE, ADMM_RELAXATION, ADMM_RHO, AdmmFrame, AdmmFrames, _frame_target, admm_grid
+from .realtime import (ADMM_BALANCE, ADMM_RELAXATION, ADMM_RHO, AdmmFrame, AdmmFrames, _frame_target, admm_grid,
+                       coarse_eye_kernel, pool_half, upsample_double)
 
-__all__ = ["FoveaWindow", "fovea_window", "blend_ramp", "FoveatedFrames", "FoveatedFrame", "foveated_grid"]
+__all__ = ["FoveaWindow", "fovea_window", "blend_ramp", "FoveatedFrames", "FoveatedFrame", "foveated_grid",
+           "PERIPHERIES"]
+
+PERIPHERIES = ("target", "half", "quarter")
+"""What the view shows outside the window: the target itself, or a half- or quarter-resolution
+correction of the whole view (the real-time frame on the target's 2x2 or 4x4 block means, its change
+upsampled)."""
+_LEVELS = {"target": 0, "half": 1, "quarter": 2}
 
 
 @dataclass(frozen=True)
@@ -127,7 +135,7 @@ class _WindowTwin(AdmmFrames):
         self.fixed = np.zeros((3,) + self.grid, np.float32)
 
     def hold(self, t: np.ndarray) -> None:
-        """The ring's values this frame: the target as stored, ``(3, h, w)``."""
+        """The ring's values this frame, ``(3, h, w)`` as stored: what the view shows there."""
         H, W = self.shape
         self.fixed[:, :H, :W] = t
 
@@ -145,6 +153,7 @@ class FoveatedFrame:
     shown: np.ndarray
     window: FoveaWindow
     sub: AdmmFrame
+    periphery: np.ndarray | None = None         # the half-resolution correction shown outside, (H, W, 3)
 
 
 class FoveatedFrames:
@@ -162,12 +171,23 @@ class FoveatedFrames:
         The blend band's width (default: a quarter of the radius, at least 4 pixels, at most the radius).
     precision, rho, relaxation, balance
         As the full-field twin's.
+    periphery
+        ``"target"`` (default): the view outside the window is the target; ``"half"`` or
+        ``"quarter"``: a correction of the whole view at half or a quarter of the resolution
+        (:class:`AdmmFrames` on the target's 2x2 or 4x4 block means with the kernels such blocks
+        see, warm-started from frame to frame; its change from the block means upsampled bilinearly
+        onto the target), which the window's ring is held to and the blend fades to.
+    periphery_iterations
+        Its ADMM iterations a frame (None: the window's).
     """
 
     def __init__(self, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int], radius_px: float,
                  band_px: int | None = None, precision: str = Precision.HALF, rho: float = ADMM_RHO,
-                 relaxation: float = ADMM_RELAXATION, balance: float = ADMM_BALANCE):
+                 relaxation: float = ADMM_RELAXATION, balance: float = ADMM_BALANCE, periphery: str = "target",
+                 periphery_iterations: int | None = None):
         r = _check_radius(radius_px)
+        if periphery not in PERIPHERIES:
+            raise ValidationError("periphery", periphery, " or ".join(PERIPHERIES))
         if band_px is None:
             band_px = min(max(r // 4, 4), r)
         if not (isinstance(band_px, int) and 0 <= band_px <= r):
@@ -179,11 +199,25 @@ class FoveatedFrames:
         self._options = {"precision": precision, "rho": rho, "relaxation": relaxation, "balance": balance}
         self.twin: _WindowTwin | None = None
         self.window: FoveaWindow | None = None
+        self.periphery = periphery
+        self.periphery_iterations = periphery_iterations
+        self.coarse = None
+        self.levels = _LEVELS[periphery]
+        if self.levels:
+            k, ref, shape = kernel, reference, (H, W)
+            self._shapes = [shape]
+            for _ in range(self.levels):
+                k, ref = coarse_eye_kernel(k), None if ref is None else coarse_eye_kernel(ref)
+                shape = ((shape[0] + 1) // 2, (shape[1] + 1) // 2)
+                self._shapes.append(shape)
+            self.coarse = AdmmFrames(k, ref, shape, cold_iterations=0, **self._options)
 
     def reset(self) -> None:
         """The next frame starts cold."""
         if self.twin is not None:
             self.twin.reset()
+        if self.coarse is not None:
+            self.coarse.reset()
 
     def frame(self, target: np.ndarray, iterations: int, gaze_px: tuple[float, float],
               shift: tuple[int, int] | None = None, cold: bool = False) -> FoveatedFrame:
@@ -208,18 +242,42 @@ class FoveatedFrames:
         if cold or abs(total[0]) >= window.sub_shape[1] or abs(total[1]) >= window.sub_shape[0]:
             twin.reset()
         twin.set_window(inner)
+        outside = t_full                                   # what the view shows outside the window, (3, H, W)
+        periphery = None
+        if self.coarse is not None:
+            pooled = t_full
+            for _ in range(self.levels):
+                pooled = pool_half(pooled)
+            scale = 2 ** self.levels
+            half = (int(round(content[0] / scale)), int(round(content[1] / scale)))
+            k = iterations if self.periphery_iterations is None else self.periphery_iterations
+            c = self.coarse.frame(np.moveaxis(pooled, 0, 2), k, shift=half if half != (0, 0) else None,
+                                  cold=cold)
+            change = np.moveaxis(c.shown, 2, 0) - pooled
+            for shape in self._shapes[-2::-1]:
+                change = upsample_double(change, shape)
+            outside = np.clip(t_full + change, 0.0, 1.0).astype(np.float32)
+            periphery = np.ascontiguousarray(np.moveaxis(outside, 0, 2))
         t = np.ascontiguousarray(t_full[:, sy0:sy1, sx0:sx1])
         t_stored, T, T_inside = twin._targets(t)
-        twin.hold(t_stored)
+        twin.hold(t_stored if self.coarse is None else
+                  _store_like(np.ascontiguousarray(outside[:, sy0:sy1, sx0:sx1]), twin))
         twin.start(t_stored, T, total if total != (0, 0) else None)
         for _ in range(iterations):
             twin.iterate(T)
         sub = twin.guard(t_stored, T_inside)
         self.window = window
-        shown = np.ascontiguousarray(np.moveaxis(t_full, 0, 2)).copy()
+        shown = np.ascontiguousarray(np.moveaxis(outside, 0, 2)).copy()
         y0, y1, x0, x1 = window.win
         ramp = blend_ramp(window, self.shape, self.band_px)[..., None]
         inside = sub.shown[inner[0]:inner[1], inner[2]:inner[3]]
         blended = shown[y0:y1, x0:x1] + ramp * (inside - shown[y0:y1, x0:x1])
         shown[y0:y1, x0:x1] = np.where(ramp >= 1.0, inside, blended)        # the solution itself, unrounded
-        return FoveatedFrame(shown=shown, window=window, sub=sub)
+        return FoveatedFrame(shown=shown, window=window, sub=sub, periphery=periphery)
+
+
+def _store_like(a: np.ndarray, twin: AdmmFrames) -> np.ndarray:
+    """``a`` as ``twin`` stores its state (16-bit floats, rounded to nearest, where it is half)."""
+    from .realtime import _store
+
+    return _store(a, twin.half)

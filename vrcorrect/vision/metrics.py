@@ -69,6 +69,7 @@ __all__ = [
     "ssim",
     "flip",
     "jod",
+    "foveated_jod",
     "video_jod",
     "lms_objective",
     "evaluate_seen",
@@ -390,6 +391,59 @@ def jod(reference_srgb: np.ndarray, test_srgb: np.ndarray, display: DisplayProfi
     torch, metric = _cvvdp_for(display, a.shape[1], a.shape[0])
     with torch.no_grad():
         q, _stats = metric.predict(torch.from_numpy(b), torch.from_numpy(a), dim_order="HWC")
+    return float(q)
+
+
+def foveated_jod(reference_srgb: np.ndarray, test_srgb: np.ndarray, display: DisplayProfile,
+                 fixation_px: tuple[float, float]) -> float:
+    """FovVideoVDP's quality of ``test_srgb`` against ``reference_srgb`` on ``display`` for an eye
+    fixating ``fixation_px`` (``(x, y)`` pixels, rows top first), in JOD.
+
+    FovVideoVDP (PyPI ``pyfvvdp``; Mantiuk, Ashraf, Chapiro, "FovVideoVDP: A visible difference
+    predictor for wide field-of-view video", ACM Transactions on Graphics 40(4), 2021), in its
+    foveated mode: the eye's sensitivity falls with the eccentricity from the fixation point, so a
+    difference far from it counts less than one at it.  It compares luminance (no colour).  The
+    viewing conditions are :func:`jod`'s: the display's pixels per degree (as a horizontal field of
+    view of the image's width) and photometry (peak luminance, contrast, ambient light and
+    reflectivity, the sRGB transfer function).  It runs on the CPU, offline.
+
+    Raises
+    ------
+    ValidationError
+        As :func:`jod`, and ``fixation_px`` outside the image.
+    InputError
+        When FovVideoVDP or torch is not installed.
+    """
+    if not isinstance(display, DisplayProfile):
+        raise ValidationError("display", type(display).__name__, "a DisplayProfile (vrcorrect.specs.display.get_display)")
+    names = ("reference_srgb", "test_srgb")
+    a, b = _check_pair(reference_srgb, test_srgb, require_rgb=True, names=names)
+    if min(a.shape[:2]) < JOD_MIN_SIDE:
+        raise ValidationError(f"{names[0]}.shape", a.shape, f"at least {JOD_MIN_SIDE}x{JOD_MIN_SIDE} pixels")
+    H, W = a.shape[:2]
+    fx, fy = (float(v) for v in fixation_px)
+    if not (math.isfinite(fx) and math.isfinite(fy) and 0 <= fx < W and 0 <= fy < H):
+        raise ValidationError("fixation_px", fixation_px, f"a point inside the {W}x{H} image")
+    a = np.ascontiguousarray(_check_unit_range(a, names[0]), dtype=np.float32)
+    b = np.ascontiguousarray(_check_unit_range(b, names[1]), dtype=np.float32)
+    torch, _ = _import_cvvdp()             # torch and torchvision set up as ColorVideoVDP needs them
+    try:
+        import pyfvvdp  # optional: pyfvvdp (the metrics extra)
+    except ImportError as exc:
+        raise InputError(f"FovVideoVDP (PyPI 'pyfvvdp') cannot be imported ({exc}); install the 'metrics' extra "
+                         "(bash tools/setup.sh)") from None
+    ph = display.photometry
+    ppd = float(display.pixels_per_degree)
+    fov = 2.0 * math.degrees(math.atan(W * math.tan(math.radians(0.5 / ppd))))
+    metric = pyfvvdp.fvvdp(
+        display_name=display.name, foveated=True, quiet=True, device=torch.device("cpu"),
+        display_geometry=pyfvvdp.fvvdp_display_geometry((W, H), fov_horizontal=fov),
+        display_photometry=pyfvvdp.fvvdp_display_photo_eotf(ph.peak_luminance_cd_m2, contrast=ph.contrast, EOTF="sRGB",
+                                                            E_ambient=ph.ambient_lux, k_refl=ph.reflectivity,
+                                                            name=display.name))
+    with torch.no_grad():
+        q, _stats = metric.predict(torch.from_numpy(b), torch.from_numpy(a), dim_order="HWC",
+                                   fixation_point=torch.tensor([int(fx), int(fy)]))
     return float(q)
 
 

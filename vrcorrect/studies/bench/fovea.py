@@ -1,0 +1,352 @@
+"""``vrcorrect bench fovea``: what correcting only where the eye looks costs and keeps.
+
+The real-time default's frame (ADMM over frames) solved on the whole view against the same frame
+solved on a window around the gaze (:mod:`vrcorrect.solvers.foveated`, the CPU twin the GPU's
+foveated frame equals, ``tests/test_runtime_fovea.py``), for window radii :data:`RADII_DEG` and
+iterations per frame :data:`ITERATIONS`, on images the foveation was never tuned on (nothing in it
+was tuned on an image: the blend band is a quarter of the radius, the ring the kernel's radius):
+scikit-image's stereo_motorcycle and rocket (colour photographs) and page (a scanned page of text,
+grey paper), each centre-cropped and scaled to the view.  The view is :data:`VIEW` px square on ``quest2`` (18.9 px a degree:
+51 degrees); the eye is the issue's (right, -2.00/-1.00 x 120) through a 3 mm pupil, a headset's
+(Watson & Yellott 2012).  Each still is shown for :data:`FRAMES` frames (178 ms at 90 Hz, about a
+fixation) from a cold start, as after a saccade or a cut.
+
+What the eye sees of each is scored against the glasses-on view:
+
+* **FovVideoVDP** (:func:`~vrcorrect.vision.metrics.foveated_jod`, foveated mode) with the eye
+  fixating the window's centre, and fixating :data:`OFF_DEG` degrees to its right (the tracker's
+  error, or a fixed window and a wandering eye), each against no correction and the full field;
+* **ColorVideoVDP** (:func:`~vrcorrect.vision.metrics.jod`) on the window's crop (foveated against
+  the full field there) and on the view's strips left and right of the window (foveated against no
+  correction there: the view outside the window is the target, only the light the window spills
+  changes it).
+
+Cost: the bytes of a changing frame counted from the GPU's dispatches (a dry run: nothing runs) at a
+Quest 2 eye, 1832x1920, and the frame's wall time on this machine's OpenGL renderer at the bench's
+view (the median of :data:`TIMED_FRAMES` frames after two untimed ones; on llvmpipe a measurement of
+CPU cores, not of a GPU).  A table and a plot go into ``docs/benchmarks.md``.  Layer 6.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+from ...physics.kernel import build_kernel, build_reference_kernel
+from ...solvers.foveated import PERIPHERIES, FoveatedFrames
+from ...solvers.realtime import AdmmFrames
+from ...specs.display import decode, get_display
+from ...specs.prescription import EyeRx, Prescription
+from ...vision.metrics import evaluate_seen, foveated_jod, jod
+from . import machine_description, markdown_table, publish
+
+__all__ = ["RADII_DEG", "ITERATIONS", "VIEW", "FRAMES", "OFF_DEG", "EYE", "IMAGES", "run_fovea_bench"]
+
+RADII_DEG = (5.0, 10.0, 15.0, 20.0)
+"""Window radii (degrees). 30 degrees would be the whole of the bench's 51 degree view."""
+ITERATIONS = (1, 2, 4)
+DEFAULT_ITERATIONS = 2
+VIEW = 960
+FRAMES = 16
+OFF_DEG = 10.0
+TIMED_FRAMES = 3
+QUEST2_EYE = (1832, 1920)
+EYE = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=120.0, pupil_diameter_mm=3.0)
+IMAGES = ("motorcycle", "rocket", "page")
+CHECK_RADIUS_DEG = 15.0
+PERIPHERY_ITERATIONS = {"half": 1, "quarter": 2}
+"""The periphery's ADMM iterations a frame: about what their bytes allow beside a 15 degree window
+(a quarter-resolution frame costs about a sixteenth of the view's, a half-resolution one a quarter)."""
+DEFAULT_PERIPHERY = "half"
+
+
+def bench_image(name: str, size: int) -> np.ndarray:
+    """A bench image, sRGB code values ``(size, size, 3)``."""
+    if name == "chart":
+        from ...plumbing.charts import text_chart
+        from ...plumbing.images import prepare_image
+
+        return prepare_image(text_chart(size, size), size, "chart")
+    from .robust import held_out_image
+
+    return held_out_image(name, size)
+
+
+def _frames(twin: Any, target: np.ndarray, k: int, frames: int, **kwargs: Any) -> tuple[np.ndarray, Any]:
+    out = None
+    for _ in range(frames):
+        out = twin.frame(target, k, **kwargs)
+    return np.clip(out.shown, 0.0, 1.0), out
+
+
+def _gl_costs(radius: float | None, k: int, view: tuple[int, int], counted: tuple[int, int],
+              timed: bool) -> dict[str, Any]:
+    """The bytes of a changing frame of ``counted`` size (a dry run: nothing runs) and, when ``timed``,
+    the frame's wall time at ``view`` on this machine's renderer (the median of :data:`TIMED_FRAMES`
+    after one untimed)."""
+    from ...runtime.corrector import Corrector
+    from ...runtime.dispatch import CostLedger
+    from ...runtime.gl import headless_context, release, render_target, upload_texture, write_texture
+
+    ctx = headless_context(require=430)
+    rng = np.random.default_rng(5)
+    rx = Prescription(right=EYE, left=EYE)
+    options = {"iterations_per_frame": k, "early_stop": False, "cold_iterations": 0,
+               **({} if radius is None else {"fovea_deg": radius})}
+    result: dict[str, Any] = {"renderer": ctx.info.get("GL_RENDERER", "?"), "ms": None}
+    try:
+        for size, dry in ((counted, True), (view, False))[:2 if timed else 1]:
+            W, H = size
+            c = Corrector(ctx, rx, "quest2", "right", **options)
+            pictures = [rng.integers(0, 256, (H, W, 3), dtype=np.uint8) for _ in range(2)]
+            src = upload_texture(ctx, pictures[0])
+            tex, fbo = render_target(ctx, width=W, height=H)
+            try:
+                c.gpu.dry_run = dry
+                for i in range(2 if dry else 1):
+                    write_texture(src, pictures[(i + 1) % 2])
+                    c.apply(src, fbo)
+                if dry:
+                    c.ledger = ledger = CostLedger()
+                    write_texture(src, pictures[0])
+                    c.apply(src, fbo)
+                    result["bytes"] = ledger.bytes
+                else:
+                    times = []
+                    for i in range(TIMED_FRAMES):
+                        write_texture(src, pictures[i % 2])
+                        ctx.finish()
+                        t0 = time.perf_counter()
+                        c.apply(src, fbo)
+                        ctx.finish()
+                        times.append(1e3 * (time.perf_counter() - t0))
+                    result["ms"] = statistics.median(times)
+            finally:
+                c.release()
+                release(fbo, tex, src)
+    finally:
+        ctx.release()
+    return result
+
+
+def settings_of(radii: Sequence[float], iterations: Sequence[int]) -> list[tuple[int, float | None, str]]:
+    """The settings run per image, ``(iterations a frame, radius or None for the full field,
+    periphery)``: every radius with every periphery at the default iterations; the full field and
+    :data:`CHECK_RADIUS_DEG` with the default periphery at the other iterations."""
+    out: list[tuple[int, float | None, str]] = []
+    for k in iterations:
+        out.append((k, None, "-"))
+        if k == DEFAULT_ITERATIONS:
+            out += [(k, r, p) for r in radii for p in PERIPHERIES]
+        elif CHECK_RADIUS_DEG in radii:
+            out.append((k, CHECK_RADIUS_DEG, DEFAULT_PERIPHERY))
+    return out
+
+
+def run_fovea_bench(out: Path, write: bool = True, plot: Path | None = None, json_out: Path | None = None,
+                    force: bool = False, images: Sequence[str] = IMAGES, radii: Sequence[float] = RADII_DEG,
+                    iterations: Sequence[int] = ITERATIONS, view: int = VIEW, frames: int = FRAMES) -> dict[str, Any]:
+    """Run the bench (module docstring); returns the report (with ``markdown``), writes the ``fovea``
+    section of ``out``, the plot and, with ``json_out``, the JSON."""
+    display = get_display("quest2")
+    ppd = float(display.pixels_per_degree)
+    K, R = build_kernel(EYE, display), build_reference_kernel(EYE, display)
+    shape = (view, view)
+    centre = (view / 2.0, view / 2.0)
+    off = (view / 2.0 + OFF_DEG * ppd, view / 2.0)
+    t_start = time.perf_counter()
+    settings = settings_of(radii, iterations)
+    gl_settings = sorted({(k, r) for k, r, _ in settings}, key=lambda kr: (kr[0], kr[1] or 0.0))
+    periphery_sizes = {p: (math.ceil(QUEST2_EYE[0] / 2 ** lv), math.ceil(QUEST2_EYE[1] / 2 ** lv),
+                           math.ceil(view / 2 ** lv)) for p, lv in (("half", 1), ("quarter", 2))}
+    cases = []
+    with tqdm(total=len(images) * len(settings) + len(gl_settings) + len(periphery_sizes), desc="bench fovea",
+              unit="setting", leave=False) as bar:
+        costs = {}
+        for k, r in gl_settings:
+            costs[(k, r)] = _gl_costs(r, k, (view, view), QUEST2_EYE, timed=k == DEFAULT_ITERATIONS)
+            bar.update()
+        for p, (w, h, v2) in periphery_sizes.items():    # the periphery's frame: a full-field frame at its size
+            costs[p] = _gl_costs(None, PERIPHERY_ITERATIONS[p], (v2, v2), (w, h), timed=True)
+            bar.update()
+        for name in images:
+            target = decode(display, bench_image(name, view)).astype(np.float32)
+
+            def seen(shown: np.ndarray) -> dict[str, np.ndarray]:
+                return evaluate_seen(shown, target, K, display, reference_kernel=R, with_jod=False)[1]
+
+            none = seen(target)
+            base = {"centre": foveated_jod(none["target_srgb"], none["seen_srgb"], display, centre),
+                    "off": foveated_jod(none["target_srgb"], none["seen_srgb"], display, off)}
+            rows = []
+            full_images: dict[int, dict[str, np.ndarray]] = {}
+            for k, r, p in settings:
+                if r is None:
+                    shown, _ = _frames(AdmmFrames(K, R, shape), target, k, frames)
+                    window = (0, view, 0, view)
+                else:
+                    twin = FoveatedFrames(K, R, shape, radius_px=r * ppd, periphery=p,
+                                          periphery_iterations=PERIPHERY_ITERATIONS.get(p))
+                    shown, last = _frames(twin, target, k, frames, gaze_px=centre)
+                    window = last.window.win
+                s = seen(shown)
+                c = costs[(k, r)]
+                extra = costs.get(p)
+                row = {"radius_deg": r, "iterations": k, "periphery": p, "window": list(window),
+                       "fov_jod_centre": foveated_jod(s["target_srgb"], s["seen_srgb"], display, centre),
+                       "fov_jod_off": foveated_jod(s["target_srgb"], s["seen_srgb"], display, off),
+                       "bytes_quest2_eye": c["bytes"] + (extra["bytes"] if extra else 0),
+                       "ms_view": None if c["ms"] is None else c["ms"] + (extra["ms"] if extra else 0.0)}
+                if r is None:
+                    full_images[k] = s
+                elif k == DEFAULT_ITERATIONS and r == CHECK_RADIUS_DEG and window != (0, view, 0, view):
+                    y0, y1, x0, x1 = window
+                    f = full_images[k]
+                    row["crop_jod"] = jod(s["target_srgb"][y0:y1, x0:x1], s["seen_srgb"][y0:y1, x0:x1], display)
+                    row["crop_jod_full"] = jod(f["target_srgb"][y0:y1, x0:x1], f["seen_srgb"][y0:y1, x0:x1], display)
+                    strips = [(a, b) for a, b in ((0, x0), (x1, view)) if b - a >= 32]
+                    row["outside_jod"] = [jod(s["target_srgb"][:, a:b], s["seen_srgb"][:, a:b], display)
+                                          for a, b in strips]
+                    row["outside_jod_none"] = [jod(none["target_srgb"][:, a:b], none["seen_srgb"][:, a:b], display)
+                                               for a, b in strips]
+                rows.append(row)
+                bar.update()
+            cases.append({"image": name, "none": base, "rows": rows})
+    report = {"machine": machine_description(), "renderer": costs[gl_settings[0]]["renderer"],
+              "view": view, "ppd": ppd, "frames": frames, "off_deg": OFF_DEG, "eye": "right, -2.00/-1.00 x 120",
+              "periphery_iterations": PERIPHERY_ITERATIONS, "seconds": time.perf_counter() - t_start, "cases": cases}
+    report["markdown"] = _markdown(report)
+    if plot is not None and write:
+        _plot(report, plot)
+    return publish(report, "fovea", out, write, json_out, force)
+
+
+def _setting(r: float | None) -> str:
+    return "off (full field)" if r is None else f"{r:g} deg"
+
+
+def _share(row: dict, full: dict, none: dict, where: str) -> float:
+    gain = full[f"fov_jod_{where}"] - none[where]
+    return (row[f"fov_jod_{where}"] - none[where]) / gain if gain > 1e-9 else float("nan")
+
+
+def _full(case: dict, k: int) -> dict:
+    return next(r for r in case["rows"] if r["radius_deg"] is None and r["iterations"] == k)
+
+
+def checks(report: dict) -> list[dict[str, Any]]:
+    """Issue 45's bars at :data:`CHECK_RADIUS_DEG` and the default iterations, per image and periphery."""
+    out = []
+    for case in report["cases"]:
+        full = _full(case, DEFAULT_ITERATIONS)
+        for row in case["rows"]:
+            if row["radius_deg"] != CHECK_RADIUS_DEG or row["iterations"] != DEFAULT_ITERATIONS:
+                continue
+            out.append({"image": case["image"], "periphery": row["periphery"],
+                        "delta_centre": row["fov_jod_centre"] - full["fov_jod_centre"],
+                        "share_off": _share(row, full, case["none"], "off"),
+                        "crop_delta": row.get("crop_jod", float("nan")) - row.get("crop_jod_full", float("nan")),
+                        "outside_least": min((a - b for a, b in zip(row.get("outside_jod", []),
+                                                                    row.get("outside_jod_none", []))),
+                                             default=float("nan")),
+                        "bytes": row["bytes_quest2_eye"]})
+    return out
+
+
+def _periphery(p: str, report: dict) -> str:
+    if p == "-":
+        return "-"
+    k = report["periphery_iterations"].get(p)
+    return "the target" if p == "target" else f"{p} resolution, {k} iteration{'s' if k != 1 else ''}"
+
+
+def _markdown(report: dict) -> str:
+    view, ppd = report["view"], report["ppd"]
+    parts = [
+        "## Correct where the eye looks: foveated correction (`vrcorrect bench fovea`)\n\n"
+        f"Machine: {report['machine']}; OpenGL renderer: {report['renderer']}. {len(report['cases'])} image(s) in "
+        f"{report['seconds'] / 60:.0f} min. The real-time default's frame (ADMM over frames; its CPU twin, which the "
+        "GPU's frame equals) on the whole view, and on a window of each radius around the gaze with the view outside "
+        "it either the target itself or a correction of the whole view at half or a quarter of the resolution "
+        f"(the periphery). Each still is shown for {report['frames']} frames from a cold start (178 ms at 90 Hz, "
+        f"about a fixation). A {view}x{view} view on quest2 ({ppd:.2f} px a degree: {view / ppd:.0f} degrees); the "
+        f"eye {report['eye']} through a 3 mm pupil, a headset's. Images: scikit-image's stereo_motorcycle and rocket "
+        "(photographs) and page (scanned text), none used to choose anything in the foveation. Judged on what the eye "
+        "sees against its glasses-on view: FovVideoVDP (foveated JOD) with the eye fixating the window's centre and "
+        f"fixating {report['off_deg']:g} degrees to its right; ColorVideoVDP on the window's crop and on the strips of "
+        "the view left and right of it.\n\n"
+        "Bytes: a changing frame at a Quest 2 eye (1832x1920), counted from the GPU's dispatches (a dry run). The "
+        "GPU's foveated frame corrects the window with the target outside it; a periphery is so far built only in "
+        "the CPU twin, so its bytes are **counted for the frame it would add**: the full-field default at the "
+        "periphery's size (916x960 or 458x480, its own decode and present included: an overcount). ms: the frame's "
+        f"wall time at the bench's view on {report['renderer']} at {DEFAULT_ITERATIONS} iterations a frame (the "
+        f"median of {TIMED_FRAMES} after one untimed; a periphery's frame, timed at its size, added; on llvmpipe, CPU "
+        "cores, not a GPU).\n"]
+    checked = checks(report)
+    if checked:
+        parts.append(f"\n### The checks ({CHECK_RADIUS_DEG:g} degrees, {DEFAULT_ITERATIONS} iterations a frame)\n\n"
+                     "Issue 45's bars: within 0.2 JOD of the full field (FovVideoVDP, fixating the window's centre); "
+                     f"fixating {report['off_deg']:g} degrees off, at least 50 % of the full field's gain over no "
+                     "correction; inside the window within 0.1 JOD of the full field (ColorVideoVDP on the crop); "
+                     "outside it never below no correction; at most 0.5 GB a Quest 2 eye frame.\n\n"
+                     + markdown_table(["image", "periphery", "foveated - full, at the centre",
+                                       f"share of the full field's gain, {report['off_deg']:g} deg off",
+                                       "window crop: foveated - full", "outside: least foveated - none",
+                                       "GB a Quest 2 eye frame"],
+                                      [[c["image"], _periphery(c["periphery"], report), f"{c['delta_centre']:+.2f}",
+                                        f"{100 * c['share_off']:.0f} %", f"{c['crop_delta']:+.2f}",
+                                        f"{c['outside_least']:+.2f}", f"{c['bytes'] / 1e9:.2f}"] for c in checked])
+                     + "\n")
+    for case in report["cases"]:
+        none = case["none"]
+        rows = []
+        for r in case["rows"]:
+            f = _full(case, r["iterations"])
+            rows.append([_setting(r["radius_deg"]), _periphery(r["periphery"], report), r["iterations"],
+                         f"{r['bytes_quest2_eye'] / 1e9:.2f}",
+                         "-" if r["ms_view"] is None else f"{r['ms_view']:.0f}", f"{r['fov_jod_centre']:.2f}",
+                         f"{r['fov_jod_centre'] - none['centre']:+.2f}", f"{r['fov_jod_off']:.2f}",
+                         f"{100 * _share(r, f, none, 'off'):.0f} %"])
+        parts.append(f"\n### {case['image']}\n\nNo correction: FovVideoVDP {none['centre']:.2f} fixating the centre, "
+                     f"{none['off']:.2f} fixating {report['off_deg']:g} deg off.\n\n"
+                     + markdown_table(["fovea radius", "periphery", "iterations a frame", "GB a Quest 2 eye frame",
+                                       f"ms a frame at {view} px (this renderer)", "FovVideoVDP, centre",
+                                       "gain over none", f"FovVideoVDP, {report['off_deg']:g} deg off",
+                                       "share of the full field's gain, off"], rows) + "\n")
+    parts.append("\n![Foveated JOD against the window's radius, by periphery](fovea_tradeoff.png)\n")
+    parts.append(f"\n_Run on {time.strftime('%Y-%m-%d')}._\n")
+    return "".join(parts)
+
+
+def _plot(report: dict, path: Path) -> None:
+    from ..plots import pyplot, save_figure
+
+    plt = pyplot()
+    cases = report["cases"]
+    fig, axes = plt.subplots(1, len(cases), figsize=(5.0 * len(cases), 3.8), squeeze=False)
+    colours = {"target": "tab:red", "half": "tab:blue", "quarter": "tab:green"}
+    for ax, case in zip(axes[0], cases):
+        rows = [r for r in case["rows"] if r["iterations"] == DEFAULT_ITERATIONS]
+        full = _full(case, DEFAULT_ITERATIONS)
+        for p, colour in colours.items():
+            fov = [r for r in rows if r["periphery"] == p]
+            if not fov:
+                continue
+            x = [r["radius_deg"] for r in fov]
+            ax.plot(x, [r["fov_jod_centre"] for r in fov], color=colour, marker="o", ms=3,
+                    label=f"periphery: {_periphery(p, report)}")
+            ax.plot(x, [r["fov_jod_off"] for r in fov], color=colour, ls=":", marker="s", ms=3)
+        ax.axhline(full["fov_jod_centre"], color="k", lw=0.9, label="full field")
+        ax.axhline(case["none"]["centre"], color="0.5", lw=0.9, ls="--", label="no correction")
+        ax.set_xlabel(f"fovea radius (degrees); dotted: fixating {report['off_deg']:g} deg off")
+        ax.set_ylabel("FovVideoVDP (JOD)")
+        ax.set_title(case["image"], fontsize=9)
+    axes[0][0].legend(fontsize=6)
+    fig.tight_layout()
+    save_figure(fig, path)
