@@ -128,3 +128,37 @@ def test_the_foveated_grid_is_the_windows_not_the_views():
 def test_a_bad_window_is_refused_with_its_field(kernels, radius, band):
     with pytest.raises(ValidationError, match="radius_px" if band is None else "band_px"):
         FoveatedFrames(*kernels, (H, W), radius_px=radius, band_px=band)
+
+
+@pytest.mark.parametrize("periphery", ["half", "quarter"])
+def test_a_coarse_periphery_corrects_outside_the_window_and_the_ring_holds_it(kernels, target, periphery):
+    """With a half- or quarter-resolution periphery the view outside the window is that correction
+    (not the target), which lowers the retinal error there against the target periphery; the
+    window's ring is held to it (the light from outside is what is shown there); values stay in
+    [0, 1]."""
+    plain = FoveatedFrames(*kernels, (H, W), radius_px=20, band_px=5)
+    coarse = FoveatedFrames(*kernels, (H, W), radius_px=20, band_px=5, periphery=periphery)
+    for _ in range(10):
+        a = plain.frame(target, 2, gaze_px=(40, 48))
+        b = coarse.frame(target, 2, gaze_px=(40, 48))
+    assert a.periphery is None and b.periphery is not None
+    y0, y1, x0, x1 = b.window.win
+    outside = np.ones((H, W), bool)
+    outside[y0:y1, x0:x1] = False
+    np.testing.assert_array_equal(b.shown[outside], b.periphery[outside])
+    assert np.abs(b.periphery - target).max() > 0.05                     # a correction, not the target
+    assert b.shown.min() >= 0.0 and b.shown.max() <= 1.0
+    right = (8, H - 8, x1 + 12, W - 8)                                   # the view right of the window
+    bound = {"half": 0.8, "quarter": 0.95}[periphery]                     # a 24 x 32 quarter view corrects less
+    assert _error(kernels, b.shown, target, right) < bound * _error(kernels, a.shown, target, right)
+    twin = coarse.twin
+    z = twin.proj(twin.q)
+    sy0, sy1, sx0, sx1 = b.window.sub
+    held = twin.held[:sy1 - sy0, :sx1 - sx0]
+    ring = np.moveaxis(b.periphery[sy0:sy1, sx0:sx1], 2, 0)[:, held]
+    np.testing.assert_allclose(z[:, :sy1 - sy0, :sx1 - sx0][:, held], ring, atol=2e-3)
+
+
+def test_an_unknown_periphery_is_refused(kernels):
+    with pytest.raises(ValidationError, match="periphery"):
+        FoveatedFrames(*kernels, (H, W), radius_px=20, periphery="blurred")

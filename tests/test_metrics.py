@@ -13,7 +13,7 @@ import skimage.data
 from vrcorrect.specs.display import decode, get_display
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.physics.kernel import KernelOptions, build_kernel
-from vrcorrect.vision.metrics import ImageMetrics, evaluate_seen, flip, jod, lms_objective, psnr, ssim
+from vrcorrect.vision.metrics import ImageMetrics, evaluate_seen, flip, foveated_jod, jod, lms_objective, psnr, ssim
 from vrcorrect.physics.options import OpticsOptions
 from vrcorrect.specs.prescription import EyeRx
 
@@ -376,6 +376,26 @@ def test_jod_depends_on_the_viewing_conditions(astronaut_srgb):
 def test_jod_smallest_image(rng):
     a = rng.uniform(0.2, 0.8, size=(2, 2, 3))
     assert jod(a, a, get_display("desktop")) == pytest.approx(10.0, abs=1e-4)
+
+
+def test_foveated_jod_counts_a_difference_at_the_fixation_more_than_far_from_it():
+    """FovVideoVDP (foveated): identical images score 10; an image blurred on its left half scores
+    lower for an eye fixating the blur than for one fixating the sharp right half 20 degrees away."""
+    big = skimage.data.astronaut()[::2, ::2].astype(np.float64) / 255.0         # 256 x 256
+    quest2 = get_display("quest2")                                              # 18.9 px a degree
+    assert foveated_jod(big, big.copy(), quest2, (128, 128)) == pytest.approx(10.0, abs=1e-3)
+    test = big.copy()
+    test[:, :128] = blurred(big, 2.0)[:, :128]
+    at_blur = foveated_jod(big, test, quest2, (40, 128))
+    away = foveated_jod(big, test, quest2, (215, 128))
+    assert at_blur < away < 10.0, (at_blur, away)
+
+
+@pytest.mark.parametrize("fixation", [(-1, 10), (10, 96), (float("nan"), 3)])
+def test_foveated_jod_refuses_a_fixation_outside_the_image(astronaut_srgb, fixation):
+    with pytest.raises(ValidationError) as info:
+        foveated_jod(astronaut_srgb, astronaut_srgb, get_display("quest2"), fixation)
+    assert info.value.field == "fixation_px"
 
 
 @pytest.mark.parametrize("args, field", [
