@@ -179,6 +179,32 @@ def test_a_sub_rect_is_corrected_and_the_applications_gl_state_comes_back(x_disp
     _assert_app_images_untouched(out)
 
 
+def test_a_foveated_layer_corrects_only_the_window_around_the_configured_gaze(x_display, kit, tmp_path):
+    """``layer install --fovea DEG --gaze X,Y``'s configuration: each view is corrected inside the
+    window around the gaze (degrees from the view's centre, y up) and is the application's picture,
+    code for code, outside it."""
+    from vrcorrect.specs.display import get_display
+
+    ppd = get_display("quest2").pixels_per_degree
+    radius, (gx, gy) = 12, (60, 30)                          # px; the gaze's pixel (x, y rows top first)
+    gaze_deg = [(gx + 0.5 - VIEW[0] / 2) / ppd, (VIEW[1] / 2 - gy - 0.5) / ppd]
+    config = tmp_path / "layer.json"
+    config.write_text(json.dumps({"rx": str(kit.rx), "display": "quest2",
+                                  "options": {"fovea_deg": radius / ppd, "gaze_deg": gaze_deg}}))
+    out = tmp_path / "fovea"
+    _run(kit, out, corrected=1, VRCORRECT_LAYER_CONFIG=str(config), APP_FRAMES="1")
+    frame = _corrected_frames(out, 1)[0]
+    pics = _pictures()
+    y0, y1, x0, x1 = gy - radius, gy + radius, gx - radius, gx + radius
+    outside = np.ones(VIEW[::-1], bool)
+    outside[y0:y1, x0:x1] = False
+    for view, eye in enumerate(EYES):
+        got, picture = received(out, frame, view)[..., :3], pics[eye][..., :3]
+        assert np.array_equal(got[outside], picture[outside]), eye
+        inner = np.abs(got[y0 + 3:y1 - 3, x0 + 3:x1 - 3].astype(int) - picture[y0 + 3:y1 - 3, x0 + 3:x1 - 3])
+        assert inner.max() >= 8, eye                                      # the window is corrected
+
+
 def test_both_eyes_in_one_side_by_side_swapchain_are_each_corrected(x_display, kit, gl, tmp_path):
     """One swapchain twice as wide, each eye's view a rect in its half: one output swapchain,
     acquired once per frame, each half corrected for its own eye."""
