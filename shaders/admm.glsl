@@ -159,10 +159,13 @@ vec3 prox(vec3 w, vec3 T, bool in_image) { return in_image ? u_keep * w + (1.0 -
 vec3 proj(vec3 q, bool in_image) { return in_image ? clamp(q, 0.0, 1.0) : vec3(0.0); }
 // FOVEA (a foveated frame, vrcorrect.runtime.strategies.foveated): the image is the sub-image around
 // the gaze; the data term holds on the window u_win (x0, y0, x1, y1: GL texels of the image, half
-// open) only, and the rest of the image (the ring) is held to the target t: proj there is t itself
-// (the CPU twin: vrcorrect.solvers.foveated).
+// open) only, and the rest of the image (the ring) is held to what the view shows there, u_hold (the
+// target, or the periphery's correction): proj there is that value (the CPU twin:
+// vrcorrect.solvers.foveated).
 #if defined FOVEA
 uniform ivec4 u_win;
+uniform sampler2D u_hold;
+vec3 held_at(ivec2 p, bool in_image) { return in_image ? texelFetch(u_hold, p, 0).rgb : vec3(0.0); }
 bool in_data(ivec2 p) { return all(greaterThanEqual(p, u_win.xy)) && all(lessThan(p, u_win.zw)); }
 #else
 bool in_data(ivec2 p) { return inside(p); }
@@ -469,7 +472,11 @@ void main() {
         imageStore(u_w, p, vec4(w, 1.0));
         imageStore(u_q, p, vec4(q, 1.0));
         a1[m] = 2.0 * prox(w, Tp, in_data(p)) - w;
+#if defined FOVEA
+        a2[m] = 2.0 * proj_at(q, p, in_image, held_at(p, in_image)) - q;
+#else
         a2[m] = 2.0 * proj_at(q, p, in_image, t) - q;
+#endif
     }
     forward_six(a1, a2, y);
 }
@@ -479,7 +486,7 @@ void main() {
 // (NO_UPDATE, with LAST: no iteration this frame; only the guard's input from the state as it is.)
 #if defined ROWS_UPDATE
 uniform sampler2D u_T;                          // this frame's T inside the image
-uniform sampler2D u_t;                          // LAST: the target, for the guard (FOVEA: every pass)
+uniform sampler2D u_t;                          // LAST: the target, for the guard
 layout(IMG_FMT, binding = 2) uniform image2D u_w;
 layout(IMG_FMT, binding = 3) uniform image2D u_q;
 void main() {
@@ -494,7 +501,7 @@ void main() {
         bool in_image = inside(p);
         vec3 q = imageLoad(u_q, p).rgb;
 #if defined FOVEA
-        vec3 tp = in_image ? texelFetch(u_t, p, 0).rgb : vec3(0.0);
+        vec3 tp = held_at(p, in_image);                 // the ring's value
 #else
         vec3 tp = vec3(0.0);
 #endif
@@ -625,6 +632,7 @@ layout(std430, binding = 3) readonly buffer Guard { float u_beta; float u_sums[3
 layout(rgba32f, binding = 1) writeonly uniform image2D u_out;
 #if defined FOVEA
 uniform ivec4 u_win;
+uniform sampler2D u_hold;
 #endif
 void main() {
     ivec2 p = ivec2(gl_GlobalInvocationID.xy);
@@ -632,7 +640,7 @@ void main() {
     vec3 t = texelFetch(u_t, p, 0).rgb;
     vec3 z = clamp(texelFetch(u_q, p, 0).rgb, 0.0, 1.0);
 #if defined FOVEA
-    if (!(all(greaterThanEqual(p, u_win.xy)) && all(lessThan(p, u_win.zw)))) z = t;    // the ring: t
+    if (!(all(greaterThanEqual(p, u_win.xy)) && all(lessThan(p, u_win.zw)))) z = texelFetch(u_hold, p, 0).rgb;
 #endif
     imageStore(u_out, p, vec4(t + u_beta * (z - t), 1.0));
 }

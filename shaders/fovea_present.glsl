@@ -20,6 +20,9 @@ uniform sampler2D u_t;
 uniform sampler2D u_q;
 uniform ivec2 u_origin;
 layout(std430, binding = 3) readonly buffer Guard { float u_beta; float u_sums[3]; };
+#if defined PERIPHERY
+#include "fovea_periphery.glsl"
+#endif
 #include "fovea_window.glsl"
 in vec2 v_uv;
 out vec4 f_color;

@@ -14,6 +14,7 @@ from vrcorrect.plumbing.images import bundled_images
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector, CorrectorOptions
 from vrcorrect.runtime.dispatch import CostLedger
+from vrcorrect.runtime.strategies.foveated import PERIPHERY_ITERATIONS
 from vrcorrect.solvers.foveated import FoveatedFrames
 from vrcorrect.specs.display import decode, get_display
 from vrcorrect.specs.prescription import EyeRx, Prescription
@@ -47,13 +48,17 @@ FRAMES = (((64.5, 48.5), None), ((70.5, 44.5), None), ((70.5, 44.5), (-3, -2)), 
           ((122.5, 3.5), None))
 
 
-def test_the_gl_foveated_frame_equals_its_cpu_twin_as_the_gaze_and_content_move(gl, clip):
-    """Single precision, 2 iterations a frame: the view the GPU composes (window solved, ring held,
-    blend band, guard, warm start across the window's and the content's motion, a window at the
-    view's corner) equals the twin's to 2e-5, frame by frame."""
-    c = Corrector(gl, RX, QUEST2, "right", precision="single", iterations_per_frame=2, fovea_deg=RADIUS / PPD)
+@pytest.mark.parametrize("periphery", ["target", "half", "quarter"])
+def test_the_gl_foveated_frame_equals_its_cpu_twin_as_the_gaze_and_content_move(gl, clip, periphery):
+    """Single precision, 2 iterations a frame: the view the GPU composes (window solved, ring held to
+    the periphery, blend band, guard, warm start across the window's and the content's motion, a
+    window at the view's corner; the periphery's own frame, pooled, guarded and upsampled) equals the
+    twin's to 2e-5, frame by frame."""
+    c = Corrector(gl, RX, QUEST2, "right", precision="single", iterations_per_frame=2, fovea_deg=RADIUS / PPD,
+                  fovea_periphery=periphery)
     twin = FoveatedFrames(build_kernel(EYE, QUEST2), build_reference_kernel(EYE, QUEST2), (H, W), radius_px=RADIUS,
-                          precision="single")
+                          precision="single", periphery=periphery,
+                          periphery_iterations=PERIPHERY_ITERATIONS.get(periphery))
     src = G.upload_texture(gl, np.zeros((H, W, 3), np.uint8))
     tex, fbo = G.render_target(gl, width=W, height=H)
     try:
@@ -73,9 +78,9 @@ def test_the_gl_foveated_frame_equals_its_cpu_twin_as_the_gaze_and_content_move(
 
 
 def test_outside_the_window_the_codes_are_the_applications_and_inside_they_change(gl, clip):
-    """The default precision (half), the shipped settings: every pixel outside the window is shown
-    with the code values it came with; inside the window the picture is corrected."""
-    c = Corrector(gl, RX, QUEST2, "right", fovea_deg=RADIUS / PPD)
+    """The default precision (half), the periphery the target: every pixel outside the window is
+    shown with the code values it came with; inside the window the picture is corrected."""
+    c = Corrector(gl, RX, QUEST2, "right", fovea_deg=RADIUS / PPD, fovea_periphery="target")
     src = G.upload_texture(gl, clip[0])
     tex, fbo = G.render_target(gl, width=W, height=H)
     try:
@@ -97,14 +102,15 @@ def test_outside_the_window_the_codes_are_the_applications_and_inside_they_chang
 
 
 def test_a_foveated_frame_moves_fewer_bytes_than_the_full_field(gl):
-    """At 480 x 400 with a 5 degree window (94 px on quest2) the counted bytes of a changing frame fall
+    """At 480 x 400 with a 5 degree window (94 px on quest2) and the target outside it, the counted
+    bytes of a changing frame fall
     to under 40 % of the full field's (the FFT grid is the sub-image's, 228 px a side against the view's 480 x
     400; the decode and the compose still read and write the whole view)."""
     size = (480, 400)
     rng = np.random.default_rng(3)
     moved = {}
     for fovea in (None, 5.0):
-        c = Corrector(gl, RX, QUEST2, "right", fovea_deg=fovea)
+        c = Corrector(gl, RX, QUEST2, "right", fovea_deg=fovea, fovea_periphery="target")
         src = G.upload_texture(gl, (rng.random((size[1], size[0], 3)) * 255).astype(np.uint8))
         tex, fbo = G.render_target(gl, width=size[0], height=size[1])
         try:
@@ -134,13 +140,14 @@ def test_a_fovea_needs_the_admm_method():
 
 def test_bench_cost_counts_a_15_degree_fovea_at_a_quest_2_eye_under_half_a_gigabyte(tmp_path):
     """Issue 45's bar, counted from the dispatches (a dry run: nothing runs): a Quest 2 eye
-    (1832 x 1920) foveated at 15 degrees moves at most 0.5 GB a changing frame, its FFT grid the
-    window's (625 x 625: 2 x 283 px and a 41 px kernel's ring, 5-smooth), not the view's; the report
-    says so."""
+    (1832 x 1920) foveated at 15 degrees with the default periphery (a quarter-resolution correction
+    of the whole view) moves at most 0.5 GB a changing frame, its window's FFT grid the window's
+    (625 x 625: 2 x 283 px and a 41 px kernel's ring, 5-smooth), not the view's; the report says so."""
     from vrcorrect.studies.bench.cost import METHODS, run_cost_bench
 
     report = run_cost_bench((1832, 1920), "quest2", methods=METHODS[:1], fovea=(15.0,), dry_run=True, write=False,
                             out=tmp_path / "benchmarks.md")
+    assert report["fovea"][0]["periphery"] == "quarter"
     (f,) = report["fovea"]
     assert f["radius_px"] == round(15 * PPD) and f["grid"][0] < 700 and f["grid"][1] < 700
     assert f["bytes_per_eye_frame"] <= 0.5e9 < report["default"]["bytes_per_eye_frame"]

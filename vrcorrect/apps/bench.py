@@ -14,7 +14,7 @@ from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.fileio import check_writable
 from ..runtime.model_path import DEFAULT_MODEL
 from ..studies.bench import BENCHMARKS_FILE, default_out
-from .common import GAZE_HELP, parse_fovea, parse_gaze, rx_path
+from .common import GAZE_HELP, PERIPHERY_HELP, parse_fovea, parse_gaze, rx_path
 
 
 def _json_out(args: argparse.Namespace) -> Path | None:
@@ -67,7 +67,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                 json_out=_json_out(args), dry_run=args.dry_run,
                                 force=args.force, frames=1 if args.frames is None else args.frames,
                                 methods=METHODS[:1] if args.default_only else METHODS, peer=args.peer,
-                                fovea=fovea, gaze_deg=parse_gaze(args.gaze))
+                                fovea=fovea, gaze_deg=parse_gaze(args.gaze), periphery=args.periphery)
         print(report["markdown"])
         if report.get("peer", {}).get("status") == NO_DEVICE:
             print(NO_DEVICE)
@@ -197,6 +197,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="cost: also count the default frame foveated at each radius (degrees of visual angle: "
                         "the correction solved on a window around the gaze, the rest of the view shown as it is)")
     p.add_argument("--gaze", default="0,0", metavar="X,Y", help="cost: where the eye looks for --fovea, " + GAZE_HELP)
+    p.add_argument("--periphery", choices=("quarter", "half", "target"), default=None,
+                   help="cost: with --fovea, " + PERIPHERY_HELP)
     p.add_argument("--default-only", action="store_true",
                    help="cost: count and time the default method only (not single precision, FISTA and the "
                         "one-pass inverse beside it)")

@@ -187,6 +187,10 @@ FOVEA_HELP = ("correct only a window of this radius in degrees of visual angle a
               "DEG times the display's pixels per degree; the rest of the view is shown as it is), or off: the whole "
               "view (default)")
 GAZE_HELP = "where the eye looks, degrees from the view's centre, x right and y up (default 0,0: the centre)"
+PERIPHERY_HELP = ("what the view shows outside the window: quarter (default; a correction of the whole view at a "
+                  "quarter of the resolution, 2 iterations a frame), half (at half the resolution, 1 iteration: "
+                  "nearer the full field, about twice the bytes) or target (the view as it came: the cheapest, "
+                  "and on a headset the periphery still sees the blur)")
 
 
 def parse_fovea(text: Any, field: str = "--fovea") -> float | None:

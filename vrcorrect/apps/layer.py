@@ -104,8 +104,11 @@ def cmd_install(args: argparse.Namespace, env: Mapping[str, str] | None = None) 
     gaze = parse_gaze(args.gaze) if args.gaze is not None else None
     if gaze is not None and fovea is None:
         raise ValidationError("--gaze", args.gaze, "only with --fovea DEG (the window it places)")
+    if args.periphery is not None and fovea is None:
+        raise ValidationError("--periphery", args.periphery, "only with --fovea DEG (outside its window)")
     options = {k: v for k, v in (("iterations_per_frame", args.iterations), ("pupil", pupil), ("robust", robust),
-                                 ("fovea_deg", fovea), ("gaze_deg", None if gaze is None else list(gaze)))
+                                 ("fovea_deg", fovea), ("gaze_deg", None if gaze is None else list(gaze)),
+                                 ("fovea_periphery", args.periphery))
                if v is not None}
     manifest = manifest_dir(env) / MANIFEST
     config = config_path(env)
@@ -218,7 +221,11 @@ def status_lines(env: Mapping[str, str] | None = None, tail: int = 10) -> list[s
         lines.append("fovea: " + ("off, the whole view corrected (layer install --fovea DEG corrects a window around "
                                   "the gaze)" if fovea is None else
                                   f"a window of radius {fovea:g} deg around the gaze at ({gaze[0]:g}, {gaze[1]:g}) deg "
-                                  "from the view's centre; the rest of the view as the application drew it"))
+                                  "from the view's centre; outside it "
+                                  + {"target": "the view as the application drew it",
+                                     "half": "a correction of the whole view at half the resolution",
+                                     "quarter": "a correction of the whole view at a quarter of the resolution"}.get(
+                                      config.options.get("fovea_periphery", "quarter"), "?")))
     log = log_path(env)
     if log.exists():
         last = log.read_text(encoding="utf-8", errors="replace").splitlines()[-tail:]
@@ -262,6 +269,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     i.add_argument("--gaze", default=None, metavar="X,Y",
                    help="with --fovea: where the window stands, degrees from the view's centre, x right and y up "
                         "(default 0,0)")
+    i.add_argument("--periphery", choices=("quarter", "half", "target"), default=None,
+                   help="with --fovea: what the view shows outside the window (default quarter: a correction of the "
+                        "whole view at a quarter of the resolution; half; target: the application's picture)")
     i.add_argument("--force", action="store_true", help="replace files vrcorrect did not write")
     i.set_defaults(func=cmd_layer)
     u = actions.add_parser("uninstall", help="remove the manifest (and a layer the fallback built)")

@@ -103,11 +103,13 @@ def add_pupil_choice(p: argparse.ArgumentParser) -> None:
 
 def add_fovea_choice(p: argparse.ArgumentParser) -> None:
     """``--fovea`` and ``--gaze`` (``render``, ``mirror``, ``overlay``, ``xr``): correct where the eye looks."""
-    from .common import FOVEA_HELP, GAZE_HELP
+    from .common import FOVEA_HELP, GAZE_HELP, PERIPHERY_HELP
 
     g = p.add_argument_group("where the eye looks")
     g.add_argument("--fovea", default="off", metavar="DEG|off", help="with --filter admm: " + FOVEA_HELP)
     g.add_argument("--gaze", default="0,0", metavar="X,Y", help="with --fovea: " + GAZE_HELP)
+    g.add_argument("--periphery", choices=("quarter", "half", "target"), default=None,
+                   help="with --fovea: " + PERIPHERY_HELP)
 
 
 def fovea_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -117,13 +119,16 @@ def fovea_options(args: argparse.Namespace) -> dict[str, Any]:
 
     fovea = parse_fovea(getattr(args, "fovea", "off"))
     gaze = parse_gaze(getattr(args, "gaze", "0,0"))
+    periphery = getattr(args, "periphery", None)
     if fovea is None:
         if gaze != (0.0, 0.0):
             raise ValidationError("--gaze", args.gaze, "only with --fovea DEG (the window it places)")
+        if periphery is not None:
+            raise ValidationError("--periphery", periphery, "only with --fovea DEG (outside its window)")
         return {}
     if getattr(args, "filter", Filter.ADMM) != Filter.ADMM or getattr(args, "backend", Backend.GLSL) != Backend.GLSL:
         raise ValidationError("--fovea", args.fovea, "only with --filter admm on --backend glsl")
-    return {"fovea_deg": fovea, "gaze_deg": gaze}
+    return {"fovea_deg": fovea, "gaze_deg": gaze, **({} if periphery is None else {"fovea_periphery": periphery})}
 
 
 def pupil_options(args: argparse.Namespace) -> dict[str, Any]:

@@ -242,6 +242,10 @@ class CorrectorOptions:
         ``filter="admm"``: correct only a window of this radius (degrees of visual angle, the half-side
         of a square) around the gaze (:attr:`Corrector.gaze_deg`), the rest of the view shown as it
         is (:mod:`vrcorrect.runtime.strategies.foveated`); ``None`` (default): the whole view.
+    fovea_periphery
+        With ``fovea_deg``: what the view shows outside the window: ``"quarter"`` (default) or
+        ``"half"``, a correction of the whole view at that resolution, or ``"target"``, the view as
+        it came (:data:`~vrcorrect.runtime.strategies.foveated.DEFAULT_PERIPHERY` says why).
     gaze_deg
         With ``fovea_deg``: where the eye looks at first, ``(x, y)`` degrees from the view's centre, x
         right, y up (:attr:`Corrector.gaze_deg` follows an eye tracker from there).
@@ -268,6 +272,7 @@ class CorrectorOptions:
     robust: bool = False
     age_years: float | None = None
     fovea_deg: float | None = None
+    fovea_periphery: str = "quarter"
     gaze_deg: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
@@ -317,6 +322,8 @@ class CorrectorOptions:
             if self.filter != Filter.ADMM or self.backend != Backend.GLSL or self.cold_start_model is not None:
                 raise ValidationError("fovea_deg", self.fovea_deg, "only with filter 'admm' on the glsl backend "
                                       "(no cold_start_model)")
+        if self.fovea_periphery not in ("target", "half", "quarter"):
+            raise ValidationError("fovea_periphery", self.fovea_periphery, "'target', 'half' or 'quarter'")
         gaze = self.gaze_deg
         if not (isinstance(gaze, (tuple, list)) and len(gaze) == 2 and
                 all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and -90 <= v <= 90

@@ -138,6 +138,8 @@ class AdmmStrategy(IterativeStrategy):
         in ``admm.glsl``); no coarse level."""
         self.window_gl: tuple[int, int, int, int] = (0, 0, 0, 0)
         """With ``fovea``: the window ``(x0, y0, x1, y1)`` in GL texels of the image, half open."""
+        self.hold: "moderngl.Texture | None" = None
+        """With ``fovea``: what the view shows on the ring (the image's size; None: the target)."""
         from ...solvers.realtime import ADMM_RELAXATION, admm_weights  # start-up time: scipy with the first eye
 
         m = self.model
@@ -374,6 +376,8 @@ class AdmmStrategy(IterativeStrategy):
                       written={0: (ny, 3)}, round_trip=True)
         self._begin("start")
         sample = {**twiddle, "u_t": linear}
+        held = {"u_hold": self.hold if self.hold is not None else linear} if self.fovea else {}
+        sample.update(held)
         images: dict[str, dict[int, Any]] = {"write": {}, "read": {}, "modify": {}}
         if b.reference is not None:               # reads T's spectra (3 layers), writes the reflections' (6)
             images["modify"][0] = b.spec
@@ -426,8 +430,8 @@ class AdmmStrategy(IterativeStrategy):
                       modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.box_weight},
                       round_trip=True)
             last = i == k - 1
-            sample = {**twiddle, "u_T": b.T[new]}
-            if last or self.fovea:
+            sample = {**twiddle, "u_T": b.T[new], **held}
+            if last:
                 sample["u_t"] = linear
             self._run(b, "rows_last" if last else "rows_update",
                       "rows: update" + (", guard input" if last else ", reflections"), ny, sample=sample,
@@ -435,7 +439,7 @@ class AdmmStrategy(IterativeStrategy):
                       uniforms={"u_keep": self.keep, "u_alpha": self.alpha, "u_win": self.window_gl},
                       written={0: (H, 6)} if last else None)
         if k == 0:
-            self._run(b, "rows_guard_input", "rows: guard input", H, sample={**twiddle, "u_t": linear},
+            self._run(b, "rows_guard_input", "rows: guard input", H, sample={**twiddle, "u_t": linear, **held},
                       read={3: b.q[new]}, write={0: b.spec}, rows={0: (H, 6), 3: H}, uniforms={"u_win": self.window_gl})
         self._begin("guard")
         self._run(b, "cols_guard", "columns: K z, K t", cols, sample={**col_tw, "u_kernel": b.kernel},
@@ -470,7 +474,8 @@ class AdmmStrategy(IterativeStrategy):
     def shown_texture(self, shown: "moderngl.Texture") -> "moderngl.Texture":
         b = self._last
         size = tuple(shown.size)
-        self.gpu.run("blend", b.programs["blend"], groups_2d(size), sample={"u_t": shown, "u_q": b.q[b.current]},
+        held = {"u_hold": self.hold if self.hold is not None else shown} if self.fovea else {}
+        self.gpu.run("blend", b.programs["blend"], groups_2d(size), sample={"u_t": shown, "u_q": b.q[b.current], **held},
                      write={1: b.out}, buffers={3: (b.guard.result, "r")}, rows={"u_q": size[1]},
                      uniforms={"u_win": self.window_gl})
         return b.out

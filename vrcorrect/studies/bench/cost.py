@@ -125,9 +125,14 @@ FOVEA_TARGET_BYTES = 0.5e9
 """Issue 45's target for a foveated frame at a 15 degree radius, per eye and changing frame."""
 
 
-def fovea_method(radius_deg: float) -> tuple[str, dict[str, Any]]:
-    """The foveated default frame at ``radius_deg``, as a method row: label and Corrector options."""
-    return f"admm (default), fovea {radius_deg:g} deg", {"fovea_deg": float(radius_deg)}
+def fovea_method(radius_deg: float, periphery: str | None = None) -> tuple[str, dict[str, Any]]:
+    """The foveated default frame at ``radius_deg`` (``periphery``: None, the default's), as a method
+    row: label and Corrector options."""
+    from ...runtime.strategies.foveated import DEFAULT_PERIPHERY
+
+    p = periphery or DEFAULT_PERIPHERY
+    return f"admm (default), fovea {radius_deg:g} deg, periphery {p}", {"fovea_deg": float(radius_deg),
+                                                                        "fovea_periphery": p}
 
 
 def parse_size(text: str, field: str = "--size") -> tuple[int, int]:
@@ -313,13 +318,14 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
                    out: Path = Path("docs/benchmarks.md"), json_out: Path | None = None, write: bool = True,
                    dry_run: bool = False, methods: Sequence[tuple[str, dict[str, Any]]] = METHODS,
                    force: bool = False, frames: int = 1, peer: str | None = None, fovea: Sequence[float] = (),
-                   gaze_deg: tuple[float, float] = (0.0, 0.0)) -> dict[str, Any]:
+                   gaze_deg: tuple[float, float] = (0.0, 0.0), periphery: str | None = None) -> dict[str, Any]:
     """Count one frame per eye for each method and time ``frames`` of each kind (module docstring),
     and with ``peer`` the peer's frame; returns the report (a dict with ``markdown``), writes the
     ``cost`` section of ``out`` and, with ``json_out``, the JSON.  ``fovea``: radii (degrees) of
-    foveated default frames counted beside the methods, their windows around ``gaze_deg``."""
+    foveated default frames counted beside the methods, their windows around ``gaze_deg``, the view
+    outside them ``periphery`` (None: the default's)."""
     check_frames(frames)
-    methods = list(methods) + [fovea_method(r) for r in fovea]
+    methods = list(methods) + [fovea_method(r, periphery) for r in fovea]
     if peer is not None:
         from .peer import PEERS
 
@@ -365,8 +371,10 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
         "methods": [r.row(projection["efficiency"]) for r in results],
         "gaze_deg": list(gaze_deg),
         "fovea": [{"radius_deg": r, "radius_px": int(round(r * display.pixels_per_degree)),
-                   "bytes_per_eye_frame": max(m.changing.bytes for m in results if m.label == fovea_method(r)[0]),
-                   "grid": list(max((m for m in results if m.label == fovea_method(r)[0]),
+                   "periphery": fovea_method(r, periphery)[1]["fovea_periphery"],
+                   "bytes_per_eye_frame": max(m.changing.bytes for m in results
+                                              if m.label == fovea_method(r, periphery)[0]),
+                   "grid": list(max((m for m in results if m.label == fovea_method(r, periphery)[0]),
                                     key=lambda m: m.changing.bytes).grid or ())} for r in fovea],
     }
     if peer is not None:
@@ -387,12 +395,14 @@ def _fovea_section(report: dict[str, Any], gpus: list[str], efficiency: float) -
         both = ", ".join(f"{2 * project_ms(b, BANDWIDTHS[g][0] * efficiency):.1f} ms on {g}" for g in gpus)
         grid = "x".join(str(v) for v in f["grid"][::-1])
         lines.append(f"- radius {f['radius_deg']:g} deg ({f['radius_px']} px, a window of {2 * f['radius_px']} px a side "
-                     f"and its ring, FFT grid {grid}): {_gb(b)} GB per eye per changing frame, {100 * b / d:.0f} % of "
+                     f"and its ring, FFT grid {grid}; periphery: {f['periphery']}): {_gb(b)} GB per eye per changing "
+                     f"frame, {100 * b / d:.0f} % of "
                      f"the full field's; both eyes projected at {both}"
                      + (f" (issue 45's target at 15 deg: at most {FOVEA_TARGET_BYTES / 1e9:.1f} GB: "
                         f"{'met' if b <= FOVEA_TARGET_BYTES else 'not met'})" if f["radius_deg"] == 15 else ""))
-    return (f"**Foveated** (`--fovea`; the default frame solved on a window around the gaze at ({x:g}, {y:g}) deg, "
-            "the rest of the view shown as it is; projections as above, not measurements):\n\n"
+    return (f"**Foveated** (`--fovea`; the default frame solved on a window around the gaze at ({x:g}, {y:g}) deg; "
+            "outside it the periphery: a correction of the whole view at a quarter or half of the resolution, or the "
+            "target as it is; projections as above, not measurements):\n\n"
             + "\n".join(lines) + "\n\n")
 
 

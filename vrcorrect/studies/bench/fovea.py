@@ -29,7 +29,6 @@ CPU cores, not of a GPU).  A table and a plot go into ``docs/benchmarks.md``.  L
 
 from __future__ import annotations
 
-import math
 import statistics
 import time
 from pathlib import Path
@@ -39,6 +38,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ...physics.kernel import build_kernel, build_reference_kernel
+from ...runtime.strategies.foveated import DEFAULT_PERIPHERY, PERIPHERY_ITERATIONS
 from ...solvers.foveated import PERIPHERIES, FoveatedFrames
 from ...solvers.realtime import AdmmFrames
 from ...specs.display import decode, get_display
@@ -60,10 +60,6 @@ QUEST2_EYE = (1832, 1920)
 EYE = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=120.0, pupil_diameter_mm=3.0)
 IMAGES = ("motorcycle", "rocket", "page")
 CHECK_RADIUS_DEG = 15.0
-PERIPHERY_ITERATIONS = {"half": 1, "quarter": 2}
-"""The periphery's ADMM iterations a frame: about what their bytes allow beside a 15 degree window
-(a quarter-resolution frame costs about a sixteenth of the view's, a half-resolution one a quarter)."""
-DEFAULT_PERIPHERY = "half"
 
 
 def bench_image(name: str, size: int) -> np.ndarray:
@@ -85,7 +81,7 @@ def _frames(twin: Any, target: np.ndarray, k: int, frames: int, **kwargs: Any) -
     return np.clip(out.shown, 0.0, 1.0), out
 
 
-def _gl_costs(radius: float | None, k: int, view: tuple[int, int], counted: tuple[int, int],
+def _gl_costs(radius: float | None, k: int, periphery: str, view: tuple[int, int], counted: tuple[int, int],
               timed: bool) -> dict[str, Any]:
     """The bytes of a changing frame of ``counted`` size (a dry run: nothing runs) and, when ``timed``,
     the frame's wall time at ``view`` on this machine's renderer (the median of :data:`TIMED_FRAMES`
@@ -98,7 +94,7 @@ def _gl_costs(radius: float | None, k: int, view: tuple[int, int], counted: tupl
     rng = np.random.default_rng(5)
     rx = Prescription(right=EYE, left=EYE)
     options = {"iterations_per_frame": k, "early_stop": False, "cold_iterations": 0,
-               **({} if radius is None else {"fovea_deg": radius})}
+               **({} if radius is None else {"fovea_deg": radius, "fovea_periphery": periphery})}
     result: dict[str, Any] = {"renderer": ctx.info.get("GL_RENDERER", "?"), "ms": None}
     try:
         for size, dry in ((counted, True), (view, False))[:2 if timed else 1]:
@@ -162,19 +158,12 @@ def run_fovea_bench(out: Path, write: bool = True, plot: Path | None = None, jso
     off = (view / 2.0 + OFF_DEG * ppd, view / 2.0)
     t_start = time.perf_counter()
     settings = settings_of(radii, iterations)
-    gl_settings = sorted({(k, r) for k, r, _ in settings}, key=lambda kr: (kr[0], kr[1] or 0.0))
-    periphery_sizes = {p: (math.ceil(QUEST2_EYE[0] / 2 ** lv), math.ceil(QUEST2_EYE[1] / 2 ** lv),
-                           math.ceil(view / 2 ** lv)) for p, lv in (("half", 1), ("quarter", 2))}
     cases = []
-    with tqdm(total=len(images) * len(settings) + len(gl_settings) + len(periphery_sizes), desc="bench fovea",
-              unit="setting", leave=False) as bar:
+    with tqdm(total=(2 + len(images)) * len(settings), desc="bench fovea", unit="setting", leave=False) as bar:
         costs = {}
-        for k, r in gl_settings:
-            costs[(k, r)] = _gl_costs(r, k, (view, view), QUEST2_EYE, timed=k == DEFAULT_ITERATIONS)
-            bar.update()
-        for p, (w, h, v2) in periphery_sizes.items():    # the periphery's frame: a full-field frame at its size
-            costs[p] = _gl_costs(None, PERIPHERY_ITERATIONS[p], (v2, v2), (w, h), timed=True)
-            bar.update()
+        for k, r, p in settings:
+            costs[(k, r, p)] = _gl_costs(r, k, p, (view, view), QUEST2_EYE, timed=k == DEFAULT_ITERATIONS)
+            bar.update(2)
         for name in images:
             target = decode(display, bench_image(name, view)).astype(np.float32)
 
@@ -196,13 +185,11 @@ def run_fovea_bench(out: Path, write: bool = True, plot: Path | None = None, jso
                     shown, last = _frames(twin, target, k, frames, gaze_px=centre)
                     window = last.window.win
                 s = seen(shown)
-                c = costs[(k, r)]
-                extra = costs.get(p)
+                c = costs[(k, r, p)]
                 row = {"radius_deg": r, "iterations": k, "periphery": p, "window": list(window),
                        "fov_jod_centre": foveated_jod(s["target_srgb"], s["seen_srgb"], display, centre),
                        "fov_jod_off": foveated_jod(s["target_srgb"], s["seen_srgb"], display, off),
-                       "bytes_quest2_eye": c["bytes"] + (extra["bytes"] if extra else 0),
-                       "ms_view": None if c["ms"] is None else c["ms"] + (extra["ms"] if extra else 0.0)}
+                       "bytes_quest2_eye": c["bytes"], "ms_view": c["ms"]}
                 if r is None:
                     full_images[k] = s
                 elif k == DEFAULT_ITERATIONS and r == CHECK_RADIUS_DEG and window != (0, view, 0, view):
@@ -218,7 +205,7 @@ def run_fovea_bench(out: Path, write: bool = True, plot: Path | None = None, jso
                 rows.append(row)
                 bar.update()
             cases.append({"image": name, "none": base, "rows": rows})
-    report = {"machine": machine_description(), "renderer": costs[gl_settings[0]]["renderer"],
+    report = {"machine": machine_description(), "renderer": costs[settings[0]]["renderer"],
               "view": view, "ppd": ppd, "frames": frames, "off_deg": OFF_DEG, "eye": "right, -2.00/-1.00 x 120",
               "periphery_iterations": PERIPHERY_ITERATIONS, "seconds": time.perf_counter() - t_start, "cases": cases}
     report["markdown"] = _markdown(report)
@@ -281,13 +268,10 @@ def _markdown(report: dict) -> str:
         "sees against its glasses-on view: FovVideoVDP (foveated JOD) with the eye fixating the window's centre and "
         f"fixating {report['off_deg']:g} degrees to its right; ColorVideoVDP on the window's crop and on the strips of "
         "the view left and right of it.\n\n"
-        "Bytes: a changing frame at a Quest 2 eye (1832x1920), counted from the GPU's dispatches (a dry run). The "
-        "GPU's foveated frame corrects the window with the target outside it; a periphery is so far built only in "
-        "the CPU twin, so its bytes are **counted for the frame it would add**: the full-field default at the "
-        "periphery's size (916x960 or 458x480, its own decode and present included: an overcount). ms: the frame's "
-        f"wall time at the bench's view on {report['renderer']} at {DEFAULT_ITERATIONS} iterations a frame (the "
-        f"median of {TIMED_FRAMES} after one untimed; a periphery's frame, timed at its size, added; on llvmpipe, CPU "
-        "cores, not a GPU).\n"]
+        "Bytes: a changing frame of the GPU's path at a Quest 2 eye (1832x1920), counted from its dispatches (a dry "
+        "run). ms: the GPU path's frame, wall time at the bench's view on "
+        f"{report['renderer']} at {DEFAULT_ITERATIONS} iterations a frame (the median of {TIMED_FRAMES} after one "
+        f"untimed; on llvmpipe, CPU cores, not a GPU). The default periphery is {DEFAULT_PERIPHERY} resolution.\n"]
     checked = checks(report)
     if checked:
         parts.append(f"\n### The checks ({CHECK_RADIUS_DEG:g} degrees, {DEFAULT_ITERATIONS} iterations a frame)\n\n"
