@@ -145,6 +145,8 @@ CLI_CASES = [
     ("render fovea with a cold-start model", ["render", "{d}/small.png", "-o", "{d}/out.png", "--fovea", "10",
                                               "--cold-start", "{d}/small.png"], "--cold-start"),
     ("bench cost fovea 0", ["bench", "cost", "--dry-run", "--fovea", "0", "--no-write"], "--fovea"),
+    ("render periphery without fovea", ["render", "{d}/small.png", "-o", "{d}/out.png", "--periphery", "half"],
+     "--periphery"),
     ("render cold iterations with fista", ["render", "{d}/small.png", "-o", "{d}/out.png", "--filter", "fista",
                                            "--cold-iterations", "4"], "only with --filter admm"),
     ("render cold start missing", ["render", "{d}/small.png", "-o", "{d}/out.png", "--cold-start", "{d}/none.onnx"],

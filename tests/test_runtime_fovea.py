@@ -153,3 +153,30 @@ def test_bench_cost_counts_a_15_degree_fovea_at_a_quest_2_eye_under_half_a_gigab
     assert f["bytes_per_eye_frame"] <= 0.5e9 < report["default"]["bytes_per_eye_frame"]
     assert "radius 15 deg" in report["markdown"] and "at most 0.5 GB: met" in report["markdown"]
     assert not (tmp_path / "benchmarks.md").exists()
+
+
+def test_render_with_a_window_says_where_and_keeps_the_codes_outside_it(tmp_path, capsys, clip):
+    """``vrcorrect render --fovea --gaze --periphery target``, as a user runs it: the summary names the
+    window and what is outside it; the written picture is the input, code for code, outside the window
+    the summary names, and corrected inside it."""
+    from PIL import Image
+
+    from vrcorrect.apps import cli
+
+    Image.fromarray(clip[0]).save(tmp_path / "in.png")
+    radius_deg = RADIUS / PPD
+    code = cli.main(["render", str(tmp_path / "in.png"), "-o", str(tmp_path / "out.png"), "--fovea", f"{radius_deg}",
+                     "--gaze", "1,0.5", "--periphery", "target", "--frames", "3"])
+    text = capsys.readouterr().out
+    assert code == 0
+    line = next(line for line in text.splitlines() if "foveated:" in line)
+    assert "the rest of the view as it is" in line and "around the gaze at (1, 0.5) deg" in line
+    rows, cols = line.split("rows ")[1].split(", columns ")
+    y0, y1 = (int(v) for v in rows.split("-"))
+    x0, x1 = (int(v) for v in cols.split(")")[0].split("-"))
+    assert (y1 - y0, x1 - x0) == (2 * RADIUS, 2 * RADIUS)
+    out = np.asarray(Image.open(tmp_path / "out.png").convert("RGB"))
+    outside = np.ones((H, W), bool)
+    outside[y0:y1, x0:x1] = False
+    np.testing.assert_array_equal(out[outside], clip[0][outside])
+    assert np.abs(out[y0:y1, x0:x1].astype(int) - clip[0][y0:y1, x0:x1]).max() >= 16

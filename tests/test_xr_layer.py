@@ -180,9 +180,9 @@ def test_a_sub_rect_is_corrected_and_the_applications_gl_state_comes_back(x_disp
 
 
 def test_a_foveated_layer_corrects_only_the_window_around_the_configured_gaze(x_display, kit, tmp_path):
-    """``layer install --fovea DEG --gaze X,Y``'s configuration: each view is corrected inside the
-    window around the gaze (degrees from the view's centre, y up) and is the application's picture,
-    code for code, outside it."""
+    """``layer install --fovea DEG --gaze X,Y --periphery target``'s configuration: each view is
+    corrected inside the window around the gaze (degrees from the view's centre, y up) and is the
+    application's picture, code for code, outside it."""
     from vrcorrect.specs.display import get_display
 
     ppd = get_display("quest2").pixels_per_degree
@@ -190,7 +190,8 @@ def test_a_foveated_layer_corrects_only_the_window_around_the_configured_gaze(x_
     gaze_deg = [(gx + 0.5 - VIEW[0] / 2) / ppd, (VIEW[1] / 2 - gy - 0.5) / ppd]
     config = tmp_path / "layer.json"
     config.write_text(json.dumps({"rx": str(kit.rx), "display": "quest2",
-                                  "options": {"fovea_deg": radius / ppd, "gaze_deg": gaze_deg}}))
+                                  "options": {"fovea_deg": radius / ppd, "gaze_deg": gaze_deg,
+                                              "fovea_periphery": "target"}}))
     out = tmp_path / "fovea"
     _run(kit, out, corrected=1, VRCORRECT_LAYER_CONFIG=str(config), APP_FRAMES="1")
     frame = _corrected_frames(out, 1)[0]
