@@ -341,6 +341,20 @@ def _import_cvvdp():
     return torch, pycvvdp
 
 
+def _jod_pair(reference_srgb: Any, test_srgb: Any, display: Any) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`jod`'s and :func:`foveated_jod`'s inputs checked (each error naming its field) and as
+    the metrics take them: float32 ``(H, W, 3)`` in [0, 1]."""
+    if not isinstance(display, DisplayProfile):
+        raise ValidationError("display", type(display).__name__, "a DisplayProfile (vrcorrect.specs.display.get_display)")
+    names = ("reference_srgb", "test_srgb")
+    a, b = _check_pair(reference_srgb, test_srgb, require_rgb=True, names=names)
+    if min(a.shape[:2]) < JOD_MIN_SIDE:
+        raise ValidationError(f"{names[0]}.shape", a.shape, f"at least {JOD_MIN_SIDE}x{JOD_MIN_SIDE} pixels "
+                              "(the metrics' pyramids need two)")
+    return (np.ascontiguousarray(_check_unit_range(a, names[0]), dtype=np.float32),
+            np.ascontiguousarray(_check_unit_range(b, names[1]), dtype=np.float32))
+
+
 def jod(reference_srgb: np.ndarray, test_srgb: np.ndarray, display: DisplayProfile) -> float:
     """ColorVideoVDP quality of ``test_srgb`` against ``reference_srgb`` on ``display``, in JOD.
 
@@ -379,15 +393,7 @@ def jod(reference_srgb: np.ndarray, test_srgb: np.ndarray, display: DisplayProfi
     InputError
         When ColorVideoVDP or torch is not installed.
     """
-    if not isinstance(display, DisplayProfile):
-        raise ValidationError("display", type(display).__name__, "a DisplayProfile (vrcorrect.specs.display.get_display)")
-    names = ("reference_srgb", "test_srgb")
-    a, b = _check_pair(reference_srgb, test_srgb, require_rgb=True, names=names)
-    if min(a.shape[:2]) < JOD_MIN_SIDE:
-        raise ValidationError(f"{names[0]}.shape", a.shape, f"at least {JOD_MIN_SIDE}x{JOD_MIN_SIDE} pixels "
-                              "(ColorVideoVDP's pyramid needs two)")
-    a = np.ascontiguousarray(_check_unit_range(a, names[0]), dtype=np.float32)
-    b = np.ascontiguousarray(_check_unit_range(b, names[1]), dtype=np.float32)
+    a, b = _jod_pair(reference_srgb, test_srgb, display)
     torch, metric = _cvvdp_for(display, a.shape[1], a.shape[0])
     with torch.no_grad():
         q, _stats = metric.predict(torch.from_numpy(b), torch.from_numpy(a), dim_order="HWC")
@@ -414,18 +420,11 @@ def foveated_jod(reference_srgb: np.ndarray, test_srgb: np.ndarray, display: Dis
     InputError
         When FovVideoVDP or torch is not installed.
     """
-    if not isinstance(display, DisplayProfile):
-        raise ValidationError("display", type(display).__name__, "a DisplayProfile (vrcorrect.specs.display.get_display)")
-    names = ("reference_srgb", "test_srgb")
-    a, b = _check_pair(reference_srgb, test_srgb, require_rgb=True, names=names)
-    if min(a.shape[:2]) < JOD_MIN_SIDE:
-        raise ValidationError(f"{names[0]}.shape", a.shape, f"at least {JOD_MIN_SIDE}x{JOD_MIN_SIDE} pixels")
+    a, b = _jod_pair(reference_srgb, test_srgb, display)
     H, W = a.shape[:2]
     fx, fy = (float(v) for v in fixation_px)
     if not (math.isfinite(fx) and math.isfinite(fy) and 0 <= fx < W and 0 <= fy < H):
         raise ValidationError("fixation_px", fixation_px, f"a point inside the {W}x{H} image")
-    a = np.ascontiguousarray(_check_unit_range(a, names[0]), dtype=np.float32)
-    b = np.ascontiguousarray(_check_unit_range(b, names[1]), dtype=np.float32)
     torch, _ = _import_cvvdp()             # torch and torchvision set up as ColorVideoVDP needs them
     try:
         import pyfvvdp  # optional: pyfvvdp (the metrics extra)
