@@ -4,6 +4,8 @@
 // sub-image's guarded solution t + beta (clip(q, 0, 1) - t), faded to the target over the blend band
 // along the window's edges that lie inside the view, a raised cosine on each axis (the CPU twin's
 // vrcorrect.solvers.foveated.blend_ramp).
+#ifndef FOVEA_WINDOW_GLSL
+#define FOVEA_WINDOW_GLSL
 uniform ivec2 u_view;           // the view's size (W, H)
 uniform ivec4 u_win;            // the window in the view: x0, x1 (columns) and y0, y1 (rows top first), half open
 uniform float u_band;           // the blend band's width (0: no fade)
@@ -31,3 +33,4 @@ vec3 fovea_shown(ivec2 p) {
     vec3 s = t + u_beta * (z - t);
     return a >= 1.0 ? s : base + a * (s - base);
 }
+#endif
