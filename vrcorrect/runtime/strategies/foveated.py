@@ -8,7 +8,8 @@ The GPU's foveated frame, held to its CPU twin :class:`vrcorrect.solvers.foveate
   inside the view where it would cross an edge: :func:`~vrcorrect.solvers.foveated.fovea_window`)
   into the ADMM strategy's target;
 * the ADMM frame of :class:`~vrcorrect.runtime.strategies.admm.AdmmStrategy` on the sub-image's
-  grid, compiled with ``FOVEA``: the data term on the window only, the ring held to the target;
+  grid, compiled with ``FOVEA``: the data term on the window only, the ring held to what the view
+  shows there (the periphery);
   the warm start reprojected by the content's motion less the window's, cold when the window
   jumps by the sub-image's size or more; no coarse level (it would not know the window);
 * **compose** the view: the periphery outside the window; inside, the guarded solution faded to
@@ -57,7 +58,7 @@ loses nearly all of the full field's gain to FovVideoVDP on a Quest 2 (``bench f
 a degree the display carries at most 9.4 cycles a degree, and an eye 15-20 degrees from the fovea
 still resolves about 6-8, so the periphery sees the blur.  A half-resolution periphery keeps nearly
 all of the gain but costs a Quest 2 eye 0.67 GB a frame at a 15 degree window; a quarter-resolution
-one 0.35 GB, inside issue 45's 0.5 GB."""
+one 0.45 GB, inside issue 45's 0.5 GB (``bench cost --fovea 15``)."""
 _LEVELS = {"target": 0, "half": 1, "quarter": 2}
 
 
