@@ -1,19 +1,23 @@
-"""The real-time correction where the eye looks: the CPU twin of a foveated frame (issue 45, begun).
+"""The real-time correction where the eye looks: the CPU twin of a foveated frame (issue 45).
 
 Acuity falls steeply away from the fovea, so the full correction is solved only on a *window*
 around the gaze, a square of half-side ``radius_px`` (a radius in degrees times the display's
-pixels per degree), and the rest of the view shows the target itself.
+pixels per degree), and the rest of the view shows the *periphery*: the target itself, or a
+correction of the whole view at half or a quarter of the resolution.
 
 * **The sub-problem.**  The real-time ADMM (:class:`~vrcorrect.solvers.realtime.AdmmFrames`) runs on
   a sub-image: the window plus a *ring* as wide as the kernel's radius on each side that lies inside
   the image.  The data term holds on the window's retina only.  The ring's pixels are held to the
-  target (their box is ``[t, t]``): the light that reaches the window's retina from outside it is
-  modelled as what is really shown there, not as black.  Past the image's own edges the grid's
+  periphery (their box is ``[p, p]``): the light that reaches the window's retina from outside it
+  is modelled as what is really shown there, not as black.  Past the image's own edges the grid's
   surround is black, as in the full-field twin.  The sub-image keeps one size (it is moved, not
   shrunk, where the window meets the image's edge), so one grid serves every gaze.
-* **The blend.**  The solution is shown inside the window, faded to the target over a band
+* **The blend.**  The solution is shown inside the window, faded to the periphery over a band
   (``band_px``, a raised cosine) along the window's edges that lie inside the image: no seam.
-  Outside the window the view is the target, exactly.
+  Outside the window the view is the periphery, exactly.
+* **The periphery** (``periphery="half"`` or ``"quarter"``): the full-field twin on the view's 2x2
+  (or twice 2x2) block means with the kernels such blocks see, warm-started, guarded; its change
+  from the block means upsampled bilinearly (once or twice) onto the target, clipped to [0, 1].
 * **The guard.**  As the full-field twin's, on the sub-image: the window's correction is scaled by the
   weight that minimises the objective over the sub-image's retina, so it is never worse than none
   there.
@@ -25,8 +29,8 @@ pixels per degree), and the rest of the view shows the target itself.
 
 With the window as large as the view, a frame equals the full-field twin's (``tests/test_foveated.py``).
 
-Not yet (issue 45): the GPU path (the ``Corrector``), ``--fovea``/``--gaze`` on the commands, the
-gaze from OpenXR, the frame budget and ``bench fovea``.
+The GPU's foveated frame (:mod:`vrcorrect.runtime.strategies.foveated`) equals this twin to 2e-5
+(``tests/test_runtime_fovea.py``).  Not yet (issue 45): the gaze from OpenXR and the frame budget.
 
 Layer 4: numpy and scipy.fft; no torch.
 """
