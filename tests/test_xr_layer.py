@@ -474,6 +474,14 @@ def test_install_status_uninstall_and_never_overwriting_a_users_file(kit, tmp_pa
     # a second install replaces its own files without --force
     assert layer.cmd_install(parser.parse_args(["layer", "install", "--display", "quest2"]), env=environ) == 0
     assert "display: quest2" in "\n".join(layer.status_lines(environ))
+    assert "fovea: off, the whole view corrected" in "\n".join(layer.status_lines(environ))
+    assert layer.cmd_install(parser.parse_args(["layer", "install", "--fovea", "12", "--gaze", "2,-1"]),
+                             env=environ) == 0
+    assert "fovea: a window of radius 12 deg around the gaze at (2, -1) deg from the view's centre; outside it " \
+           "a correction of the whole view at a quarter of the resolution" in "\n".join(layer.status_lines(environ))
+    assert layer.cmd_install(parser.parse_args(["layer", "install", "--fovea", "12", "--periphery", "target"]),
+                             env=environ) == 0
+    assert "outside it the view as the application drew it" in "\n".join(layer.status_lines(environ))
     assert json.loads((home / "cfg" / "vrcorrect" / "layer.json").read_text())["rx"] == str(kit.rx)
     assert "DISABLE_VRCORRECT_LAYER=1" in "\n".join(
         layer.status_lines({**environ, "DISABLE_VRCORRECT_LAYER": "1"}))

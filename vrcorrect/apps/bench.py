@@ -13,6 +13,7 @@ from pathlib import Path
 from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.fileio import check_writable
 from ..runtime.model_path import DEFAULT_MODEL
+from ..specs.vocabulary import Periphery, names
 from ..studies.bench import BENCHMARKS_FILE, default_out
 from .common import GAZE_HELP, PERIPHERY_HELP, parse_fovea, parse_gaze, rx_path
 
@@ -197,7 +198,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="cost: also count the default frame foveated at each radius (degrees of visual angle: "
                         "the correction solved on a window around the gaze, the rest of the view shown as it is)")
     p.add_argument("--gaze", default="0,0", metavar="X,Y", help="cost: where the eye looks for --fovea, " + GAZE_HELP)
-    p.add_argument("--periphery", choices=("quarter", "half", "target"), default=None,
+    p.add_argument("--periphery", choices=names(Periphery), default=None,
                    help="cost: with --fovea, " + PERIPHERY_HELP)
     p.add_argument("--default-only", action="store_true",
                    help="cost: count and time the default method only (not single precision, FISTA and the "

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Mapping
 
 from ..plumbing.errors import InputError, ValidationError
+from ..specs.vocabulary import PERIPHERY_DESCRIPTIONS, Periphery, names
 from ..runtime.layer_build import CFG, LIBRARY, MARK, SOURCE_DIR, build_layer, manifest_text, packaged_library, \
     stale_sources, write_cfg
 from ..runtime.xrlayer import DISABLE_ENV, LAYER_NAME, OFF_ENV, config_path, log_path, off_file, read_config
@@ -218,14 +219,13 @@ def status_lines(env: Mapping[str, str] | None = None, tail: int = 10) -> list[s
                                                             "follows the light)"))
         fovea = config.options.get("fovea_deg")
         gaze = config.options.get("gaze_deg", (0, 0))
+        periphery = config.options.get("fovea_periphery", Periphery.QUARTER)
         lines.append("fovea: " + ("off, the whole view corrected (layer install --fovea DEG corrects a window around "
                                   "the gaze)" if fovea is None else
                                   f"a window of radius {fovea:g} deg around the gaze at ({gaze[0]:g}, {gaze[1]:g}) deg "
                                   "from the view's centre; outside it "
-                                  + {"target": "the view as the application drew it",
-                                     "half": "a correction of the whole view at half the resolution",
-                                     "quarter": "a correction of the whole view at a quarter of the resolution"}.get(
-                                      config.options.get("fovea_periphery", "quarter"), "?")))
+                                  + ("the view as the application drew it"
+                                     if periphery == Periphery.TARGET else PERIPHERY_DESCRIPTIONS.get(periphery, "?"))))
     log = log_path(env)
     if log.exists():
         last = log.read_text(encoding="utf-8", errors="replace").splitlines()[-tail:]
@@ -269,7 +269,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     i.add_argument("--gaze", default=None, metavar="X,Y",
                    help="with --fovea: where the window stands, degrees from the view's centre, x right and y up "
                         "(default 0,0)")
-    i.add_argument("--periphery", choices=("quarter", "half", "target"), default=None,
+    i.add_argument("--periphery", choices=names(Periphery), default=None,
                    help="with --fovea: what the view shows outside the window (default quarter: a correction of the "
                         "whole view at a quarter of the resolution; half; target: the application's picture)")
     i.add_argument("--force", action="store_true", help="replace files vrcorrect did not write")

@@ -10,7 +10,8 @@ from typing import Any, Sequence
 from ..plumbing.errors import ValidationError
 from ..runtime.eye_model import DEFAULT_COLD_ITERATIONS, DEFAULT_ITERATIONS
 from ..runtime.model_path import model_for_backend
-from ..specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, MAX_ITERATIONS_PER_FRAME, Backend, Filter, names
+from ..specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, MAX_ITERATIONS_PER_FRAME, Backend, Filter, Periphery, \
+    names
 
 __all__ = ["FILTER_CHOICES", "parse_frames", "parse_whole_number", "parse_iterations_per_frame", "add_backend_option",
            "add_rx_option", "add_filter_options", "add_pupil_choice", "pupil_options", "add_fovea_choice",
@@ -108,7 +109,7 @@ def add_fovea_choice(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("where the eye looks")
     g.add_argument("--fovea", default="off", metavar="DEG|off", help="with --filter admm: " + FOVEA_HELP)
     g.add_argument("--gaze", default="0,0", metavar="X,Y", help="with --fovea: " + GAZE_HELP)
-    g.add_argument("--periphery", choices=("quarter", "half", "target"), default=None,
+    g.add_argument("--periphery", choices=names(Periphery), default=None,
                    help="with --fovea: " + PERIPHERY_HELP)
 
 

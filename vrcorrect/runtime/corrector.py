@@ -59,7 +59,6 @@ from .gl import check_gl_errors, release
 from .onnx_backend import OnnxModel
 from .pupil_bank import PupilBank, PupilFollower
 from .strategies import Decoder, Encoder, Preview, Strategy, make_strategy
-from .strategies.foveated import FoveatedStrategy, gaze_pixels
 from .strategies.base import LuminanceMeter, float_texture
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -504,8 +503,7 @@ class Corrector:
         return fft_grid(*size, self.model.margin), self.model.margin
 
     def _decode_source(self, src: "moderngl.Texture") -> "moderngl.Texture":
-        if isinstance(self.strategy, FoveatedStrategy):
-            self.strategy.gaze_px = gaze_pixels(self.gaze_deg, tuple(src.size), self.display.pixels_per_degree)
+        self.strategy.look(self.gaze_deg, tuple(src.size), self.display.pixels_per_degree)
         self.gpu.begin("decode")
         return self.strategy.decode(src, self._motion_gl)
 

@@ -35,7 +35,8 @@ from ..plumbing.fileio import package_data
 from ..plumbing.imageio import read_image
 from ..specs.display import DisplayProfile, decode
 from ..specs.prescription import EyeRx
-from ..specs.vocabulary import MAX_ITERATIONS_PER_FRAME, Backend, Filter, Precision, names, one_of
+from ..specs.vocabulary import MAX_ITERATIONS_PER_FRAME, Backend, Filter, Periphery, Precision, \
+    either, names, one_of
 from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -272,7 +273,7 @@ class CorrectorOptions:
     robust: bool = False
     age_years: float | None = None
     fovea_deg: float | None = None
-    fovea_periphery: str = "quarter"
+    fovea_periphery: str = Periphery.QUARTER
     gaze_deg: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
@@ -322,8 +323,8 @@ class CorrectorOptions:
             if self.filter != Filter.ADMM or self.backend != Backend.GLSL or self.cold_start_model is not None:
                 raise ValidationError("fovea_deg", self.fovea_deg, "only with filter 'admm' on the glsl backend "
                                       "(no cold_start_model)")
-        if self.fovea_periphery not in ("target", "half", "quarter"):
-            raise ValidationError("fovea_periphery", self.fovea_periphery, "'target', 'half' or 'quarter'")
+        if self.fovea_periphery not in names(Periphery):
+            raise ValidationError("fovea_periphery", self.fovea_periphery, either(Periphery))
         gaze = self.gaze_deg
         if not (isinstance(gaze, (tuple, list)) and len(gaze) == 2 and
                 all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and -90 <= v <= 90

@@ -44,18 +44,17 @@ import numpy as np
 
 from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
-from ..specs.vocabulary import Precision
+from ..specs.vocabulary import PERIPHERY_LEVELS, Precision, names
 from .realtime import (ADMM_BALANCE, ADMM_RELAXATION, ADMM_RHO, AdmmFrame, AdmmFrames, _frame_target, admm_grid,
                        coarse_eye_kernel, pool_half, upsample_double)
 
 __all__ = ["FoveaWindow", "fovea_window", "blend_ramp", "FoveatedFrames", "FoveatedFrame", "foveated_grid",
            "PERIPHERIES"]
 
-PERIPHERIES = ("target", "half", "quarter")
+PERIPHERIES: tuple[str, ...] = names(PERIPHERY_LEVELS)
 """What the view shows outside the window: the target itself, or a half- or quarter-resolution
 correction of the whole view (the real-time frame on the target's 2x2 or 4x4 block means, its change
 upsampled)."""
-_LEVELS = {"target": 0, "half": 1, "quarter": 2}
 
 
 @dataclass(frozen=True)
@@ -206,7 +205,7 @@ class FoveatedFrames:
         self.periphery = periphery
         self.periphery_iterations = periphery_iterations
         self.coarse = None
-        self.levels = _LEVELS[periphery]
+        self.levels = PERIPHERY_LEVELS[periphery]
         if self.levels:
             k, ref, shape = kernel, reference, (H, W)
             self._shapes = [shape]

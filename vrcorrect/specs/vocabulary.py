@@ -11,6 +11,8 @@ options and the reports share, each written once here (issue 26).
   iterate over frames.
 * :class:`Precision`: the storage precision of the ADMM iterations (GPU and CPU twin).
 * :class:`Method`: the offline correction methods (``vrcorrect.solvers``).
+* :class:`Periphery`: what a foveated view shows outside its window, the default first;
+  :data:`PERIPHERY_LEVELS` the 2x2 poolings each takes and :data:`PERIPHERY_DESCRIPTIONS` their words.
 * :data:`ITERATIONS_PER_FRAME`: the range of the iterations-per-frame knob on the command line and the
   windows' keys; :data:`MAX_ITERATIONS_PER_FRAME` its (wider) range in the API.
 
@@ -28,7 +30,8 @@ from __future__ import annotations
 from enum import StrEnum
 from typing import Iterable, NamedTuple
 
-__all__ = ["Eye", "VIEW_ORDER", "Backend", "Filter", "ITERATIVE_FILTERS", "Precision", "Method", "IterationRange",
+__all__ = ["Eye", "VIEW_ORDER", "Backend", "Filter", "ITERATIVE_FILTERS", "Precision", "Method", "Periphery", "PERIPHERY_LEVELS",
+           "PERIPHERY_DESCRIPTIONS", "IterationRange",
            "ITERATIONS_PER_FRAME", "MAX_ITERATIONS_PER_FRAME", "names", "one_of", "either"]
 
 
@@ -87,6 +90,28 @@ class Method(StrEnum):
     PAPER = "paper"
     CONVENTIONAL = "conventional"
     LEARNED = "learned"
+
+
+class Periphery(StrEnum):
+    """What a foveated view shows outside its window (``fovea_periphery=``, ``--periphery``), the
+    default first."""
+
+    QUARTER = "quarter"
+    """A correction of the whole view at a quarter of the resolution (the default)."""
+    HALF = "half"
+    """A correction of the whole view at half the resolution."""
+    TARGET = "target"
+    """The target itself, uncorrected."""
+
+
+PERIPHERY_LEVELS: dict[Periphery, int] = {Periphery.TARGET: 0, Periphery.HALF: 1, Periphery.QUARTER: 2}
+"""How many 2x2 poolings of the view each periphery's correction is solved on (0: none solved)."""
+
+PERIPHERY_DESCRIPTIONS: dict[Periphery, str] = {
+    Periphery.QUARTER: "a correction of the whole view at a quarter of the resolution",
+    Periphery.HALF: "a correction of the whole view at half the resolution",
+    Periphery.TARGET: "the target, uncorrected"}
+"""Each periphery in words, for reports (``layer status``)."""
 
 
 class IterationRange(NamedTuple):

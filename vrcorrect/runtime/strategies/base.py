@@ -151,6 +151,10 @@ class Strategy:
         """What :meth:`correct` returned as a texture of linear light (for the preview)."""
         return shown
 
+    def look(self, gaze_deg: tuple[float, float], size: Size, ppd: float) -> None:
+        """Where the eye looks, ``gaze_deg`` from the view's centre (x right, y up), for the next frame
+        of ``size`` at ``ppd`` pixels a degree: only a foveated strategy uses it."""
+
     def reset(self) -> None:
         """Make the next frame a cold start (iterative strategies)."""
 

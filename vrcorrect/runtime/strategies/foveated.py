@@ -33,6 +33,7 @@ import math
 from typing import TYPE_CHECKING, Any
 
 from ...plumbing.errors import ValidationError
+from ...specs.vocabulary import PERIPHERY_LEVELS, Periphery, names
 from ..gl import fullscreen_triangle, release
 from ..shaders import compile_compute, compile_program
 from .admm import AdmmStrategy
@@ -50,16 +51,15 @@ MIN_FOVEA_DEG = 0.5
 """The smallest window radius (degrees) taken: about the foveola's."""
 MAX_FOVEA_DEG = 90.0
 """The largest window radius (degrees) taken; past the view, the window is the view."""
-PERIPHERY_ITERATIONS = {"half": 1, "quarter": 2}
+PERIPHERY_ITERATIONS = {Periphery.HALF: 1, Periphery.QUARTER: 2}
 """The periphery's ADMM iterations a frame (``vrcorrect bench fovea`` measures what they keep)."""
-DEFAULT_PERIPHERY = "quarter"
+DEFAULT_PERIPHERY = Periphery.QUARTER
 """Outside the window: a quarter-resolution correction of the whole view.  The target alone there
 loses nearly all of the full field's gain to FovVideoVDP on a Quest 2 (``bench fovea``): at 19 px
 a degree the display carries at most 9.4 cycles a degree, and an eye 15-20 degrees from the fovea
 still resolves about 6-8, so the periphery sees the blur.  A half-resolution periphery keeps nearly
 all of the gain but costs a Quest 2 eye 0.67 GB a frame at a 15 degree window; a quarter-resolution
 one 0.45 GB, inside issue 45's 0.5 GB (``bench cost --fovea 15``)."""
-_LEVELS = {"target": 0, "half": 1, "quarter": 2}
 
 
 def gaze_pixels(gaze_deg: tuple[float, float], size: Size, ppd: float) -> tuple[float, float]:
@@ -84,13 +84,13 @@ class FoveatedStrategy(AdmmStrategy):
         if not (isinstance(radius_px, (int, float)) and math.isfinite(radius_px) and radius_px >= 1):
             raise ValidationError("fovea radius", radius_px, "at least 1 pixel (a radius in degrees times the "
                                   "display's pixels per degree)")
-        if periphery not in _LEVELS:
-            raise ValidationError("fovea_periphery", periphery, " or ".join(_LEVELS))
+        if periphery not in PERIPHERY_LEVELS:
+            raise ValidationError("fovea_periphery", periphery, " or ".join(names(PERIPHERY_LEVELS)))
         self.radius_px = int(round(radius_px))
         self.band_px = min(max(self.radius_px // 4, 4), self.radius_px) if band_px is None else int(band_px)
         self.ring = self.model.margin // 2
         self.periphery = periphery
-        self.levels = _LEVELS[periphery]
+        self.levels = PERIPHERY_LEVELS[periphery]
         self.outer: AdmmStrategy | None = None
         """The periphery's ADMM strategy (its own guard) at ``levels`` halvings of the view."""
         if self.levels:
@@ -154,6 +154,9 @@ class FoveatedStrategy(AdmmStrategy):
         return False if self.outer is not None else super().swap_model(model)
 
     # ------------------------------------------------------------------ frames
+
+    def look(self, gaze_deg: tuple[float, float], size: Size, ppd: float) -> None:
+        self.gaze_px = gaze_pixels(gaze_deg, size, ppd)
 
     def decode(self, src: "moderngl.Texture", motion_gl: tuple[int, int]) -> "moderngl.Texture":
         """Decode the whole view (for the pupil's light, the periphery and the compose), place the

@@ -87,8 +87,8 @@ def _gl_costs(radius: float | None, k: int, periphery: str, view: tuple[int, int
     the frame's wall time at ``view`` on this machine's renderer (the median of :data:`TIMED_FRAMES`
     after one untimed)."""
     from ...runtime.corrector import Corrector
-    from ...runtime.dispatch import CostLedger
     from ...runtime.gl import headless_context, release, render_target, upload_texture, write_texture
+    from .cost import eye_frame_cost
 
     ctx = headless_context(require=430)
     rng = np.random.default_rng(5)
@@ -97,32 +97,25 @@ def _gl_costs(radius: float | None, k: int, periphery: str, view: tuple[int, int
                **({} if radius is None else {"fovea_deg": radius, "fovea_periphery": periphery})}
     result: dict[str, Any] = {"renderer": ctx.info.get("GL_RENDERER", "?"), "ms": None}
     try:
-        for size, dry in ((counted, True), (view, False))[:2 if timed else 1]:
-            W, H = size
+        result["bytes"] = eye_frame_cost(ctx, rx, "quest2", "right", counted, options, dry_run=True).changing.bytes
+        if timed:
+            W, H = view
             c = Corrector(ctx, rx, "quest2", "right", **options)
             pictures = [rng.integers(0, 256, (H, W, 3), dtype=np.uint8) for _ in range(2)]
             src = upload_texture(ctx, pictures[0])
             tex, fbo = render_target(ctx, width=W, height=H)
             try:
-                c.gpu.dry_run = dry
-                for i in range(2 if dry else 1):
-                    write_texture(src, pictures[(i + 1) % 2])
+                write_texture(src, pictures[1])
+                c.apply(src, fbo)                           # the cold frame, untimed
+                times = []
+                for i in range(TIMED_FRAMES):
+                    write_texture(src, pictures[i % 2])
+                    ctx.finish()
+                    t0 = time.perf_counter()
                     c.apply(src, fbo)
-                if dry:
-                    c.ledger = ledger = CostLedger()
-                    write_texture(src, pictures[0])
-                    c.apply(src, fbo)
-                    result["bytes"] = ledger.bytes
-                else:
-                    times = []
-                    for i in range(TIMED_FRAMES):
-                        write_texture(src, pictures[i % 2])
-                        ctx.finish()
-                        t0 = time.perf_counter()
-                        c.apply(src, fbo)
-                        ctx.finish()
-                        times.append(1e3 * (time.perf_counter() - t0))
-                    result["ms"] = statistics.median(times)
+                    ctx.finish()
+                    times.append(1e3 * (time.perf_counter() - t0))
+                result["ms"] = statistics.median(times)
             finally:
                 c.release()
                 release(fbo, tex, src)
