@@ -7,7 +7,7 @@ runs) and by ``vrcorrect/runtime/layer_build.py`` (the fallback of ``vrcorrect l
 source checkout without a built library, and the layer tests' own build).
 """
 
-SOURCES = ("vrcorrect_layer.c", "vrcorrect_vulkan.c")
+SOURCES = ("vrcorrect_layer.c", "vrcorrect_vulkan.c", "vrcorrect_gaze.c")
 HEADERS = ("vrcorrect_layer.h",)
 # -Werror: warnings are errors on every route (the wheel, the install fallback, CI)
 CFLAGS = ("-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", "-fvisibility=hidden")

@@ -484,6 +484,7 @@ static void forget_chain(Chain *c) {
 }
 
 static XrResult XRAPI_CALL layer_DestroySession(XrSession session) {
+    gaze_session_end(session);
     if (session == L.session) {
         for (int i = 0; i < MAX_SWAPCHAINS; i++)   /* the application should have destroyed its swapchains */
             if (L.chains[i].app != XR_NULL_HANDLE && L.chains[i].session == session) forget_chain(&L.chains[i]);
@@ -738,6 +739,7 @@ static int correct_frame(const XrFrameEndInfo *info, XrCompositionLayerProjectio
     Py_XDECREF(go);
     PyErr_Clear();
     int ok = mode == 1 || mode == 3;             /* 3: correct, ordered by external semaphores (Vulkan) */
+    if (ok) gaze_views(info, views, nviews);     /* where each view's fovea goes this frame */
     if (mode == 2) {            /* the engine prepares its correction on this frame's views, off this thread */
         if (L.api == API_GL) gl_capture_views(views, nviews);
         else vk_capture_views(views, nviews);
@@ -808,6 +810,7 @@ static XrResult XRAPI_CALL layer_GetInstanceProcAddr(XrInstance instance, const 
         HOOK(DestroyInstance) HOOK(CreateSession) HOOK(DestroySession) HOOK(CreateSwapchain) HOOK(DestroySwapchain)
         HOOK(AcquireSwapchainImage) HOOK(ReleaseSwapchainImage) HOOK(EndFrame)
         PFN_xrVoidFunction hook = vk_hook(name);          /* NULL unless the application enabled the extension */
+        if (!hook) hook = gaze_hook(name);                /* NULL unless the layer asked for the eye tracker */
         if (hook) {
             *function = hook;
             return XR_SUCCESS;
@@ -818,6 +821,14 @@ static XrResult XRAPI_CALL layer_GetInstanceProcAddr(XrInstance instance, const 
     return L.next_gipa(instance, name, function);
 }
 
+/* xrCreateInstance down the chain (vrcorrect_gaze.c may call it twice: with the eye tracker, then without) */
+struct Down { LayerApiLayerNextInfo *mine; LayerApiLayerCreateInfo *down; XrInstance *instance; };
+
+static XrResult create_down(const XrInstanceCreateInfo *info, void *context) {
+    struct Down *d = context;
+    return d->mine->nextCreateApiLayerInstance(info, d->down, d->instance);
+}
+
 static XrResult XRAPI_CALL layer_CreateApiLayerInstance(const XrInstanceCreateInfo *info,
                                                         const LayerApiLayerCreateInfo *layer_info, XrInstance *instance) {
     if (!layer_info || !layer_info->nextInfo || strcmp(layer_info->nextInfo->layerName, LAYER_NAME) != 0)
@@ -825,7 +836,8 @@ static XrResult XRAPI_CALL layer_CreateApiLayerInstance(const XrInstanceCreateIn
     LayerApiLayerNextInfo *mine = layer_info->nextInfo;
     LayerApiLayerCreateInfo down = *layer_info;
     down.nextInfo = mine->next;
-    XrResult r = mine->nextCreateApiLayerInstance(info, &down, instance);
+    struct Down context = {mine, &down, instance};
+    XrResult r = gaze_create_instance(info, create_down, &context);   /* with the eye tracker, when a fovea asks */
     if (XR_FAILED(r)) return r;
     memset(&L, 0, sizeof L);
     L.next_gipa = mine->nextGetInstanceProcAddr;
@@ -836,6 +848,7 @@ static XrResult XRAPI_CALL layer_CreateApiLayerInstance(const XrInstanceCreateIn
     NEXT(EndFrame) NEXT(EnumerateViewConfigurationViews)
 #undef NEXT
     vk_fetch_next(*instance);
+    gaze_start(*instance);
     return r;
 }
 

@@ -109,4 +109,11 @@ int vk_correct_views(const FrameView *views, uint32_t nviews, Chain **acquired, 
 void vk_session_semaphores(void);                  /* exports the external semaphores (if any) to the engine */
 void vk_capture_views(const FrameView *views, uint32_t nviews);   /* the rects into `input`, for the engine */
 
+/* vrcorrect_gaze.c: the eye tracker (XR_EXT_eye_gaze_interaction) for a foveated correction */
+XrResult gaze_create_instance(const XrInstanceCreateInfo *info,
+                              XrResult (*down)(const XrInstanceCreateInfo *, void *), void *context);
+void gaze_start(XrInstance instance);              /* after the instance is made and L.next_gipa set */
+PFN_xrVoidFunction gaze_hook(const char *name);    /* NULL unless the layer asked for the eye tracker */
+void gaze_views(const XrFrameEndInfo *info, const FrameView *views, uint32_t nviews);   /* under the GIL */
+void gaze_session_end(XrSession session);
 #endif

@@ -327,6 +327,58 @@ def test_a_head_turn_reprojects_the_warm_start_by_the_tracked_pose(x_display, xr
     assert 0 < medians["reprojected"]["right"] < 1.05 * medians["plain"]["right"], medians
 
 
+GAZE_POINTS = ((-20.0, 15.0), (20.0, -15.0))        # the simulated eye tracker's path: these in turn, 2 frames each
+
+
+def _gaze_window(point: tuple[float, float], eye: str, radius: int) -> np.ndarray:
+    """The pixels within ``radius`` + 1 of where ``point`` (degrees from the head's forward, x right,
+    y up) crosses ``eye``'s view (its field of view in FOVS; the eyes look ahead), rows top first."""
+    left, right, up, down = (math.tan(a) for a in FOVS[eye])
+    tx, ty = (math.tan(math.radians(a)) for a in point)
+    x, y = int((tx - left) / (right - left) * VIEW[0]), int((up - ty) / (up - down) * VIEW[1])
+    mask = np.zeros(VIEW[::-1], bool)
+    mask[max(y - radius - 1, 0):y + radius + 2, max(x - radius - 1, 0):x + radius + 2] = True
+    return mask
+
+
+def test_the_fovea_follows_the_eye_tracker_where_the_runtime_offers_one(x_display, xr_runtime, rx_file, tmp_path):
+    """``--fovea`` with a runtime offering XR_EXT_eye_gaze_interaction (the test runtime's simulated
+    tracker, XRTEST_GAZE_DEG): xr enables it, binds its own pose action, and each frame's window
+    stands where that frame's gaze crosses each eye's view; with ``--periphery target`` a still
+    picture changes between two frames only inside their two windows.  Without a tracker the run
+    says so and the window stays at ``--gaze``."""
+    from vrcorrect.specs.display import get_display
+
+    radius = 12                                               # px
+    fovea = f"{radius / get_display('quest2').pixels_per_degree:.6f}"
+    path = [GAZE_POINTS[(i // 2) % 2] for i in range(64)]
+    args = ("--rx", str(rx_file), "--source", str(SAMPLE), "--frames", "8", "--fovea", fovea, "--periphery", "target",
+            "--pupil", "rx", "--robust", "off")
+    out = tmp_path / "tracked"
+    result = _run(xr_runtime, out, *args, XRTEST_GAZE_DEG=";".join(f"{x:g},{y:g}" for x, y in path))
+    assert result.returncode == 0, result.stderr + result.stdout
+    _assert_validation_clean(result.stdout)
+    assert "gaze: following the eye tracker (XR_EXT_eye_gaze_interaction)" in result.stdout, result.stdout
+    assert "fovea: 8 of 8 frame(s) placed at the eye tracker's gaze" in result.stdout, result.stdout
+    assert "actions attach 1" in _log(out)
+    rendered = _frames(out)
+    moved = 0
+    for a, b in zip(rendered[1:], rendered[2:]):              # after the first frame (cold), pairs of frames
+        for view, eye in enumerate(("left", "right")):
+            diff = np.abs(_submitted(out, a, view).astype(int) - _submitted(out, b, view).astype(int)).max(axis=-1) > 0
+            inside = _gaze_window(path[a], eye, radius) | _gaze_window(path[b], eye, radius)
+            assert not diff[~inside].any(), (a, b, eye, np.argwhere(diff & ~inside)[:5])
+            moved += path[a] != path[b] and diff.any()
+    assert moved >= 4                                         # the window moved with the gaze, in both eyes
+    _assert_clean_teardown(out)
+    out = tmp_path / "untracked"
+    result = _run(xr_runtime, out, *args, "--gaze", "3,-2")
+    assert result.returncode == 0, result.stderr + result.stdout
+    assert "gaze: the runtime offers no eye tracker (XR_EXT_eye_gaze_interaction): the fovea's window stays at " \
+           "--gaze 3,-2" in result.stdout, result.stdout
+    assert not any(line.startswith("actions") for line in _log(out))
+
+
 # --------------------------------------------------------------------------
 # Endings: runtime-initiated stop, loss pending, Ctrl-C
 # --------------------------------------------------------------------------

@@ -180,9 +180,9 @@ def test_a_sub_rect_is_corrected_and_the_applications_gl_state_comes_back(x_disp
 
 
 def test_a_foveated_layer_corrects_only_the_window_around_the_configured_gaze(x_display, kit, tmp_path):
-    """``layer install --fovea DEG --gaze X,Y --periphery target``'s configuration: each view is
-    corrected inside the window around the gaze (degrees from the view's centre, y up) and is the
-    application's picture, code for code, outside it."""
+    """``layer install --fovea DEG --gaze X,Y --periphery target``'s configuration, on a runtime
+    without an eye tracker: each view is corrected inside the window around the configured gaze
+    (degrees from the view's centre, y up) and is the application's picture, code for code, outside it."""
     from vrcorrect.specs.display import get_display
 
     ppd = get_display("quest2").pixels_per_degree
@@ -204,6 +204,8 @@ def test_a_foveated_layer_corrects_only_the_window_around_the_configured_gaze(x_
         assert np.array_equal(got[outside], picture[outside]), eye
         inner = np.abs(got[y0 + 3:y1 - 3, x0 + 3:x1 - 3].astype(int) - picture[y0 + 3:y1 - 3, x0 + 3:x1 - 3])
         assert inner.max() >= 8, eye                                      # the window is corrected
+    # the test runtime offers no eye tracker unless told to (XRTEST_GAZE_DEG): the configured gaze, said once
+    assert sum("the runtime offers no eye tracker" in line for line in layer_log(out)) == 1, layer_log(out)
 
 
 def test_both_eyes_in_one_side_by_side_swapchain_are_each_corrected(x_display, kit, gl, tmp_path):
@@ -477,8 +479,8 @@ def test_install_status_uninstall_and_never_overwriting_a_users_file(kit, tmp_pa
     assert "fovea: off, the whole view corrected" in "\n".join(layer.status_lines(environ))
     assert layer.cmd_install(parser.parse_args(["layer", "install", "--fovea", "12", "--gaze", "2,-1"]),
                              env=environ) == 0
-    assert "fovea: a window of radius 12 deg around the gaze at (2, -1) deg from the view's centre; outside it " \
-           "a correction of the whole view at a quarter of the resolution" in "\n".join(layer.status_lines(environ))
+    assert "fovea: a window of radius 12 deg around the gaze: the eye tracker's where the runtime offers " \
+           "XR_EXT_eye_gaze_interaction, else (2, -1) deg from the view's centre; outside it a correction of the whole view at a quarter of the resolution" in "\n".join(layer.status_lines(environ))
     assert layer.cmd_install(parser.parse_args(["layer", "install", "--fovea", "12", "--periphery", "target"]),
                              env=environ) == 0
     assert "outside it the view as the application drew it" in "\n".join(layer.status_lines(environ))

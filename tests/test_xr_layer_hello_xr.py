@@ -157,3 +157,74 @@ def test_disable_vrcorrect_layer_leaves_hello_xrs_frames_as_it_drew_them(kit, xo
     for frame in received_frames:
         for view in (0, 1):
             assert np.array_equal(received(out, frame, view), _app_image(out, frame, view))
+
+
+# the simulated eye tracker's path (XRTEST_GAZE_DEG): the corners of a rectangle, each held 3 frames
+GAZE_CORNERS = ((-20.0, 15.0), (20.0, 15.0), (20.0, -15.0), (-20.0, -15.0))
+GAZE_PATH = [GAZE_CORNERS[(i // 3) % 4] for i in range(4096)]    # the runtime takes at most 4096; the last holds
+FOVEA_PX = 15                                       # the window's half-side, px
+
+
+def _gaze_pixel(point: tuple[float, float], view: int) -> tuple[float, float]:
+    """Where the test runtime's gaze (degrees from the head's forward, x right, y up) crosses view
+    ``view`` (the runtime's fields of view; its eyes look ahead): ``(x, y)`` px, rows top first."""
+    from xr_layer_kit import VIEW
+
+    left, right, up, down = (np.tan(a) for a in ((-0.80, 0.70, 0.75, -0.78), (-0.70, 0.80, 0.75, -0.78))[view])
+    tx, ty = (np.tan(np.radians(a)) for a in point)
+    return (tx - left) / (right - left) * VIEW[0], (up - ty) / (up - down) * VIEW[1]
+
+
+def _codes(raw: np.ndarray, fmt: str) -> np.ndarray:
+    """A stored view's RGB as sRGB code values 0..255 (float formats: their light in [0, 1], encoded)."""
+    from vrcorrect.specs.display import linear_to_srgb
+    from xr_layer_kit import ENCODING, light_or_codes
+
+    rgb = light_or_codes(raw, fmt)
+    return 255.0 * (rgb if ENCODING[fmt] == "srgb" else linear_to_srgb(np.clip(rgb, 0, 1)))
+
+
+@pytest.mark.parametrize("api", APIS)
+def test_hello_xr_gets_a_foveated_correction_that_follows_a_simulated_eye_tracker(kit, xorg_display, tmp_path, api):
+    """``layer install --fovea DEG --periphery target``: the layer asks the runtime for the eye
+    tracker (XR_EXT_eye_gaze_interaction), adds its own action set beside hello_xr's and its action
+    set to hello_xr's syncs; every corrected frame is hello_xr's image, code for code, outside a window
+    around that frame's gaze (the runtime's path, moving every 3 frames), and corrected inside it."""
+    from vrcorrect.specs.display import get_display
+
+    config = tmp_path / "layer.json"
+    config.write_text(json.dumps({"rx": str(kit.rx), "display": "quest2",
+                                  "options": {"fovea_deg": FOVEA_PX / get_display("quest2").pixels_per_degree,
+                                              "fovea_periphery": "target"}}))
+    out = tmp_path / api
+    fmt = APIS[api][0]
+    gaze = ";".join(f"{x:g},{y:g}" for x, y in GAZE_PATH)
+    _run(kit, out, api, xorg_display, corrected=12, validation=True, VRCORRECT_LAYER_CONFIG=str(config),
+         XRTEST_GAZE_DEG=gaze)
+    log = runtime_log(out)
+    assert "actions attach 2" in log, log                      # hello_xr's set and the layer's
+    layer = layer_log(out)
+    assert any("asked the runtime for the eye tracker" in line for line in layer), layer
+    assert any("following the eye tracker" in line for line in layer), layer
+    views = submitted(out)
+    received_frames = frames(out)
+    apps = views[received_frames[0]]
+    corrected = [f for f in received_frames if views[f] != apps]
+    assert len(corrected) >= 12
+    places = set()
+    for frame in corrected:
+        for view in (0, 1):
+            got, drawn = (_codes(image, fmt) for image in (received(out, frame, view),
+                                                           _app_image(out, frame, apps[view])))
+            point = GAZE_PATH[min(frame, len(GAZE_PATH) - 1)]
+            gx, gy = _gaze_pixel(point, view)
+            inside = np.zeros(got.shape[:2], bool)
+            y0, x0 = max(int(gy) - FOVEA_PX - 1, 0), max(int(gx) - FOVEA_PX - 1, 0)
+            inside[y0:int(gy) + FOVEA_PX + 2, x0:int(gx) + FOVEA_PX + 2] = True
+            changed = np.abs(got - drawn).max(axis=-1) > 2      # the layer's round trip: within 2/255 (kit)
+            assert not changed[~inside].any(), (api, frame, view, np.argwhere(changed & ~inside)[:5])
+            if changed.any():
+                places.add((point, view))
+    # the window was corrected at several of the path's corners, in both views
+    assert len({p for p, _ in places}) >= 3 and {v for _, v in places} == {0, 1}, places
+    assert_life_cycle(out, swapchains=4)

@@ -13,9 +13,10 @@
  * formats: float and 10-bit first, as Monado offers them), reference spaces (VIEW, LOCAL, STAGE)
  * and their locations, the action system (action sets, actions, paths, suggested bindings, attach,
  * sync, states, action spaces; no controller is ever connected: every action is inactive and every
- * action space unlocated; haptics are no-ops), the event queue with the session state machine,
- * and the frame loop. At xrEndFrame it reads each projection view's submitted image back (GL:
- * glGetTexImage; Vulkan: a copy to a host-visible buffer on the application's queue, waited for)
+ * action space unlocated; haptics are no-ops; with XRTEST_GAZE_DEG, a simulated eye tracker,
+ * XR_EXT_eye_gaze_interaction, is the one input that can be live), the event queue with the session
+ * state machine, and the frame loop. At xrEndFrame it reads each projection view's submitted image
+ * back (GL: glGetTexImage; Vulkan: a copy to a host-visible buffer on the application's queue, waited for)
  * and writes it as a .npy file.
  *
  * Types come from the Khronos headers (Debian libopenxr-dev, libvulkan-dev, libgl-dev, libx11-dev);
@@ -56,6 +57,17 @@
  *   XRTEST_YAW_MRAD        the head turns left about the vertical axis through its centre by this many
  *                          milliradians per xrEndFrame call (default 0: a still head)
  *   XRTEST_NO_HMD          "1": xrGetSystem answers XR_ERROR_FORM_FACTOR_UNAVAILABLE
+ *   XRTEST_GAZE_DEG        a simulated eye tracker: the gaze path "x,y;x,y;...", at most 4096 points, x to the
+ *                          right and y up in degrees (|x|, |y| <= 80) from the head's forward direction (-z of
+ *                          VIEW); point i is the gaze while i xrEndFrame calls have completed (the frame written
+ *                          as frame_i), the last point holds after the end. Only with it is
+ *                          XR_EXT_eye_gaze_interaction offered: /interaction_profiles/ext/eye_gaze_interaction
+ *                          takes /user/eyes_ext/input/gaze_ext/pose bindings of pose actions; such an action is
+ *                          active, and its action spaces located, after an xrSyncActions in FOCUSED that named
+ *                          its set: the head's pose turned so that -z points along normalize(tan x, tan y, -1)
+ *                          in VIEW (yaw about +y, then pitch about the new +x), at the head's centre. Malformed
+ *                          (an empty value too): the extension is not offered (so the loader refuses it) and
+ *                          xrCreateInstance fails with XR_ERROR_INITIALIZATION_FAILED and one line in runtime.log
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
@@ -139,11 +151,19 @@ static const struct { const char *name; int64_t gl; int64_t vk; int kind; } FORM
 static const char *DEFAULT_FORMATS = "rgba16f,rgb10a2,srgb,bgra8srgb,rgba8,bgra8";
 static const char *STATE_NAMES[] = {"UNKNOWN", "IDLE", "READY", "SYNCHRONIZED", "VISIBLE", "FOCUSED",
                                     "STOPPING", "LOSS_PENDING", "EXITING"};
-static const char *EXTENSIONS[] = {XR_KHR_OPENGL_ENABLE_EXTENSION_NAME, XR_KHR_VULKAN_ENABLE_EXTENSION_NAME,
-                                   XR_KHR_VULKAN_ENABLE2_EXTENSION_NAME};
-static const uint32_t EXTENSION_VERSIONS[] = {XR_KHR_opengl_enable_SPEC_VERSION, XR_KHR_vulkan_enable_SPEC_VERSION,
-                                              XR_KHR_vulkan_enable2_SPEC_VERSION};
-#define NEXTENSIONS 3
+/* the extensions: XR_EXT_eye_gaze_interaction is offered only with a valid XRTEST_GAZE_DEG (gaze_configured) */
+enum { EXT_GL, EXT_VK1, EXT_VK2, EXT_EYE_GAZE, NEXTENSIONS };
+static const struct { const char *name; uint32_t version; } EXTENSIONS[NEXTENSIONS] = {
+    [EXT_GL] = {XR_KHR_OPENGL_ENABLE_EXTENSION_NAME, XR_KHR_opengl_enable_SPEC_VERSION},
+    [EXT_VK1] = {XR_KHR_VULKAN_ENABLE_EXTENSION_NAME, XR_KHR_vulkan_enable_SPEC_VERSION},
+    [EXT_VK2] = {XR_KHR_VULKAN_ENABLE2_EXTENSION_NAME, XR_KHR_vulkan_enable2_SPEC_VERSION},
+    [EXT_EYE_GAZE] = {XR_EXT_EYE_GAZE_INTERACTION_EXTENSION_NAME, XR_EXT_eye_gaze_interaction_SPEC_VERSION},
+};
+/* XR_EXT_eye_gaze_interaction's paths */
+#define EYE_GAZE_PROFILE "/interaction_profiles/ext/eye_gaze_interaction"
+#define EYE_GAZE_USER "/user/eyes_ext"
+#define EYE_GAZE_POSE "/user/eyes_ext/input/gaze_ext/pose"
+#define MAX_GAZE_POINTS 4096
 static const XrDuration DEFAULT_PERIOD_NS = 11111111; /* 90 Hz */
 
 /* ------------------------------------------------------------------ GL through libGL.so.1 */
@@ -254,8 +274,14 @@ typedef struct {                       /* a reference space (action < 0) or an a
     XrPath subaction;
     XrPosef pose;
 } Space;
-typedef struct { int used, attached; char name[XR_MAX_ACTION_SET_NAME_SIZE]; } ActionSet;
-typedef struct { int used, set; XrActionType type; char name[XR_MAX_ACTION_NAME_SIZE]; } Action;
+typedef struct {
+    int used, attached; char name[XR_MAX_ACTION_SET_NAME_SIZE];
+    int synced;                        /* active for /user/eyes_ext in the latest xrSyncActions */
+} ActionSet;
+typedef struct {
+    int used, set; XrActionType type; char name[XR_MAX_ACTION_NAME_SIZE];
+    int gaze;                          /* bound to the gaze pose by the latest eye-gaze suggestion */
+} Action;
 typedef struct { XrEventDataBuffer buffer; } Event;
 
 static struct {
@@ -275,6 +301,9 @@ static struct {
     ActionSet sets[MAX_ACTION_SETS];
     Action actions[MAX_ACTIONS];
     int actions_attached;
+    int synced_focused;                /* the latest xrSyncActions found the session FOCUSED */
+    int ngaze;                         /* XRTEST_GAZE_DEG's points (0: no eye tracker) */
+    double gaze_deg[MAX_GAZE_POINTS][2];
     Event queue[QUEUE];
     int qhead, qtail;
     char out_dir[1024], stop_file[1024];
@@ -316,6 +345,35 @@ static void logf_(const char *fmt, ...) {
 static long env_long(const char *name, long fallback) {
     const char *v = getenv(name);
     return v && *v ? strtol(v, NULL, 10) : fallback;
+}
+
+/* XRTEST_GAZE_DEG's text ("x,y;x,y;...") into points of (x, y) degrees, when out is not NULL: the number of
+ * points, or -1 when the text is malformed (then *bad is the 1-based point where it went wrong) */
+static int parse_gaze(const char *text, double (*out)[2], int *bad) {
+    const char *p = text;
+    for (int n = 0;; ) {
+        double v[2];
+        *bad = n + 1;
+        for (int c = 0; c < 2; c++) {              /* a number, then ',' after x */
+            char *end;
+            v[c] = strtod(p, &end);
+            if (end == p || !(fabs(v[c]) <= 80.0)) return -1;
+            p = end + strspn(end, " \t");
+            if (c == 0 && *p++ != ',') return -1;
+        }
+        if (n == MAX_GAZE_POINTS) return -1;
+        if (out) out[n][0] = v[0], out[n][1] = v[1];
+        n++;
+        if (*p == 0) return n;
+        if (*p++ != ';') return -1;
+    }
+}
+
+/* XRTEST_GAZE_DEG is set and well formed */
+static int gaze_configured(void) {
+    const char *text = getenv("XRTEST_GAZE_DEG");
+    int bad;
+    return text && parse_gaze(text, NULL, &bad) > 0;
 }
 
 static void push_event(const void *event, size_t size) {
@@ -389,6 +447,18 @@ static XrPosef head_pose(void) {
     return (XrPosef){{0, (float)sin(0.5 * yaw), 0, (float)cos(0.5 * yaw)}, {0, 0, 0}};
 }
 
+/* The eye tracker's gaze relative to the head, for the frame under way (XRTEST_GAZE_DEG's point
+ * rt.end_frames, the last one after the end): a yaw about +y, then a pitch about the new +x, turning
+ * -z to normalize(tan x, tan y, -1). */
+static XrQuaternionf gaze_rotation(void) {
+    const double *g = rt.gaze_deg[rt.end_frames < rt.ngaze ? rt.end_frames : rt.ngaze - 1];
+    double tx = tan(g[0] * M_PI / 180.0), ty = tan(g[1] * M_PI / 180.0);
+    double yaw = atan2(-tx, 1.0), pitch = atan2(ty, sqrt(tx * tx + 1.0));
+    XrQuaternionf turn = {0, (float)sin(0.5 * yaw), 0, (float)cos(0.5 * yaw)};
+    XrQuaternionf tilt = {(float)sin(0.5 * pitch), 0, 0, (float)cos(0.5 * pitch)};
+    return quat_mul(turn, tilt);
+}
+
 static XrPosef reference_pose(XrReferenceSpaceType type) {
     if (type == XR_REFERENCE_SPACE_TYPE_VIEW) return head_pose();
     if (type == XR_REFERENCE_SPACE_TYPE_STAGE) return (XrPosef){{0, 0, 0, 1}, {0, -1.6f, 0}};
@@ -399,9 +469,12 @@ static XrPosef reference_pose(XrReferenceSpaceType type) {
 static XrResult enumerate_instance_extension_properties(const char *layer, uint32_t cap, uint32_t *count,
                                                         XrExtensionProperties *props) {
     if (layer && *layer) return XR_ERROR_API_LAYER_NOT_PRESENT;
-    ENUMERATE(cap, count, NEXTENSIONS, {
-        snprintf(props[i].extensionName, XR_MAX_EXTENSION_NAME_SIZE, "%s", EXTENSIONS[i]);
-        props[i].extensionVersion = EXTENSION_VERSIONS[i];
+    int offered[NEXTENSIONS], n = 0;
+    for (int k = 0; k < NEXTENSIONS; k++)
+        if (k != EXT_EYE_GAZE || gaze_configured()) offered[n++] = k;
+    ENUMERATE(cap, count, n, {
+        snprintf(props[i].extensionName, XR_MAX_EXTENSION_NAME_SIZE, "%s", EXTENSIONS[offered[i]].name);
+        props[i].extensionVersion = EXTENSIONS[offered[i]].version;
     });
 }
 
@@ -428,15 +501,7 @@ static XrResult create_instance(const XrInstanceCreateInfo *info, XrInstance *in
     if (rt.instance) return XR_ERROR_LIMIT_REACHED;
     XrVersion v = info->applicationInfo.apiVersion;
     if (XR_VERSION_MAJOR(v) != 1 || XR_VERSION_MINOR(v) > 1) return XR_ERROR_API_VERSION_UNSUPPORTED;
-    int enabled[NEXTENSIONS] = {0};
-    for (uint32_t i = 0; i < info->enabledExtensionCount; i++) {
-        int found = 0;
-        for (int k = 0; k < NEXTENSIONS; k++)
-            if (strcmp(info->enabledExtensionNames[i], EXTENSIONS[k]) == 0) found = enabled[k] = 1;
-        if (!found) return XR_ERROR_EXTENSION_NOT_PRESENT;
-    }
     memset(&rt, 0, sizeof rt);
-    memcpy(rt.enabled, enabled, sizeof enabled);
     const char *out = getenv("XRTEST_OUT_DIR");
     if (out) {                                   /* made, with its parents, when missing */
         snprintf(rt.out_dir, sizeof rt.out_dir, "%s", out);
@@ -445,6 +510,21 @@ static XrResult create_instance(const XrInstanceCreateInfo *info, XrInstance *in
         for (char *p = dir + 1; *p; p++)
             if (*p == '/') { *p = 0; mkdir(dir, 0755); *p = '/'; }
         mkdir(dir, 0755);
+    }
+    const char *gaze = getenv("XRTEST_GAZE_DEG");   /* malformed: refused whatever the application enables */
+    int bad = 0;
+    if (gaze && (rt.ngaze = parse_gaze(gaze, rt.gaze_deg, &bad)) < 0) {
+        logf_("XRTEST_GAZE_DEG=\"%s\" is malformed at point %d: expected \"x,y;x,y;...\" (the gaze in degrees, "
+              "x right, y up, |x| and |y| at most 80; at most %d points)", gaze, bad, MAX_GAZE_POINTS);
+        rt.ngaze = 0;
+        return XR_ERROR_INITIALIZATION_FAILED;
+    }
+    for (uint32_t i = 0; i < info->enabledExtensionCount; i++) {
+        int found = 0;
+        for (int k = 0; k < NEXTENSIONS; k++)
+            if (strcmp(info->enabledExtensionNames[i], EXTENSIONS[k].name) == 0 && (k != EXT_EYE_GAZE || rt.ngaze > 0))
+                found = rt.enabled[k] = 1;
+        if (!found) return XR_ERROR_EXTENSION_NOT_PRESENT;
     }
     const char *stop = getenv("XRTEST_STOP_FILE");
     if (stop) snprintf(rt.stop_file, sizeof rt.stop_file, "%s", stop);
@@ -464,6 +544,9 @@ static XrResult create_instance(const XrInstanceCreateInfo *info, XrInstance *in
     *instance = H(XrInstance, INSTANCE_ID);
     logf_("create_instance app=%s api=%u.%u ext=%u", info->applicationInfo.applicationName, XR_VERSION_MAJOR(v),
           XR_VERSION_MINOR(v), info->enabledExtensionCount);
+    if (rt.ngaze)
+        logf_("gaze path %d points%s", rt.ngaze,
+              rt.enabled[EXT_EYE_GAZE] ? "" : " (XR_EXT_eye_gaze_interaction not enabled)");
     return XR_SUCCESS;
 }
 
@@ -511,6 +594,10 @@ static XrResult get_system_properties(XrInstance instance, XrSystemId id, XrSyst
     p->graphicsProperties.maxSwapchainImageWidth = p->graphicsProperties.maxSwapchainImageHeight = 4096;
     p->graphicsProperties.maxLayerCount = 16;
     p->trackingProperties.orientationTracking = p->trackingProperties.positionTracking = XR_TRUE;
+    for (XrBaseOutStructure *n = (XrBaseOutStructure *)p->next; n; n = n->next)
+        if (n->type == XR_TYPE_SYSTEM_EYE_GAZE_INTERACTION_PROPERTIES_EXT)
+            ((XrSystemEyeGazeInteractionPropertiesEXT *)n)->supportsEyeGazeInteraction =
+                rt.enabled[EXT_EYE_GAZE] ? XR_TRUE : XR_FALSE;
     return XR_SUCCESS;
 }
 
@@ -745,7 +832,7 @@ static XrResult create_session(XrInstance instance, const XrSessionCreateInfo *i
         if (b->type == XR_TYPE_GRAPHICS_BINDING_VULKAN_KHR) vulkan = (const XrGraphicsBindingVulkanKHR *)b;
     }
     if (glx) {
-        if (!rt.enabled[0]) return XR_ERROR_VALIDATION_FAILURE;
+        if (!rt.enabled[EXT_GL]) return XR_ERROR_VALIDATION_FAILURE;
         if (!rt.gl_reqs) return XR_ERROR_GRAPHICS_REQUIREMENTS_CALL_MISSING;
         if (!glx->xDisplay || !glx->glxContext || !glx->glxDrawable) return XR_ERROR_GRAPHICS_DEVICE_INVALID;
         if (!load_gl()) return XR_ERROR_RUNTIME_FAILURE;
@@ -755,7 +842,7 @@ static XrResult create_session(XrInstance instance, const XrSessionCreateInfo *i
         }
         rt.api = API_GL;
     } else if (vulkan) {
-        if (!rt.enabled[1] && !rt.enabled[2]) return XR_ERROR_VALIDATION_FAILURE;
+        if (!rt.enabled[EXT_VK1] && !rt.enabled[EXT_VK2]) return XR_ERROR_VALIDATION_FAILURE;
         if (!rt.vk_reqs) return XR_ERROR_GRAPHICS_REQUIREMENTS_CALL_MISSING;
         if (!vulkan->instance || !vulkan->device || !vulkan->physicalDevice ||
             vulkan->physicalDevice != rt.vk_physical) {
@@ -786,7 +873,8 @@ static XrResult destroy_session(XrSession session) {
     if (rt.api == API_VULKAN) vk_session_stop();
     for (int i = 0; i < MAX_SPACES; i++) rt.spaces[i].used = 0;
     rt.session = rt.running = 0;
-    rt.actions_attached = 0;
+    rt.actions_attached = rt.synced_focused = 0;
+    for (int i = 0; i < MAX_ACTION_SETS; i++) rt.sets[i].synced = 0;
     logf_("destroy_session");
     return XR_SUCCESS;
 }
@@ -838,21 +926,41 @@ static XrResult poll_event(XrInstance instance, XrEventDataBuffer *buffer) {
 }
 
 /* ------------------------------------------------------------------ paths */
+/* the path of a well-formed text, made when new; XR_NULL_PATH when the table is full */
+static XrPath path_of(const char *text) {
+    for (int i = 0; i < rt.npaths; i++)
+        if (strcmp(rt.paths[i], text) == 0) return (XrPath)(i + 1);
+    if (rt.npaths >= MAX_PATHS) return XR_NULL_PATH;
+    snprintf(rt.paths[rt.npaths], XR_MAX_PATH_LENGTH, "%s", text);
+    return (XrPath)(++rt.npaths);
+}
+
 static XrResult string_to_path(XrInstance instance, const char *text, XrPath *path) {
     CHECK_INSTANCE(instance);
     if (!text || !path) return XR_ERROR_VALIDATION_FAILURE;
     size_t n = strlen(text);
     if (n == 0 || text[0] != '/' || text[n - 1] == '/' || n >= XR_MAX_PATH_LENGTH) return XR_ERROR_PATH_FORMAT_INVALID;
-    for (int i = 0; i < rt.npaths; i++)
-        if (strcmp(rt.paths[i], text) == 0) { *path = (XrPath)(i + 1); return XR_SUCCESS; }
-    if (rt.npaths >= MAX_PATHS) return XR_ERROR_PATH_COUNT_EXCEEDED;
-    snprintf(rt.paths[rt.npaths], XR_MAX_PATH_LENGTH, "%s", text);
-    *path = (XrPath)(++rt.npaths);
-    return XR_SUCCESS;
+    *path = path_of(text);
+    return *path == XR_NULL_PATH ? XR_ERROR_PATH_COUNT_EXCEEDED : XR_SUCCESS;
 }
 
 static const char *path_text(XrPath path) {
     return path >= 1 && path <= (XrPath)rt.npaths ? rt.paths[path - 1] : NULL;
+}
+
+/* a subaction path (or none) under which the gaze is seen: none or /user/eyes_ext */
+static int gaze_subaction(XrPath path) {
+    return path == XR_NULL_PATH || (path_text(path) && strcmp(path_text(path), EYE_GAZE_USER) == 0);
+}
+
+/* The action (an index into rt.actions) follows the eye tracker: the extension is enabled (so XRTEST_GAZE_DEG
+ * parsed), the latest eye-gaze suggestion bound it to the gaze pose, its set is attached and was active in
+ * the latest xrSyncActions, and that sync found the session FOCUSED. */
+static int gaze_live(int action) {
+    if (action < 0 || action >= MAX_ACTIONS || !rt.enabled[EXT_EYE_GAZE] || rt.ngaze <= 0) return 0;
+    const Action *a = &rt.actions[action];
+    const ActionSet *s = &rt.sets[a->set];
+    return a->used && a->gaze && s->used && s->attached && s->synced && rt.synced_focused;
 }
 
 static XrResult path_to_string(XrInstance instance, XrPath path, uint32_t cap, uint32_t *count, char *buffer) {
@@ -909,20 +1017,33 @@ static XrResult destroy_space(XrSpace space) {
     return XR_SUCCESS;
 }
 
+/* A space's pose in LOCAL space, now; 0 when it has none: an action space that does not follow the eye tracker
+ * (no controller is connected). A gaze space: the head turned by the gaze, at the head's centre, then the
+ * space's poseInActionSpace. */
+static int world_pose(const Space *s, XrPosef *pose) {
+    if (s->action < 0) {
+        *pose = compose(reference_pose((XrReferenceSpaceType)s->type), s->pose);
+        return 1;
+    }
+    if (!gaze_live(s->action) || !gaze_subaction(s->subaction)) return 0;
+    *pose = compose(compose(head_pose(), (XrPosef){gaze_rotation(), {0, 0, 0}}), s->pose);
+    return 1;
+}
+
 static XrResult locate_space(XrSpace space, XrSpace base, XrTime time, XrSpaceLocation *location) {
     Space *s = space_of(space), *b = space_of(base);
     if (!s || !b) return XR_ERROR_HANDLE_INVALID;
     if (time <= 0) return XR_ERROR_TIME_INVALID;
-    if (s->action >= 0 || b->action >= 0) {          /* no controller is connected: not located */
-        location->locationFlags = 0;
-        location->pose = IDENTITY;
-        return XR_SUCCESS;
-    }
-    XrPosef world_s = compose(reference_pose((XrReferenceSpaceType)s->type), s->pose);
-    XrPosef world_b = compose(reference_pose((XrReferenceSpaceType)b->type), b->pose);
-    location->pose = compose(invert(world_b), world_s);
-    location->locationFlags = XR_SPACE_LOCATION_ORIENTATION_VALID_BIT | XR_SPACE_LOCATION_POSITION_VALID_BIT |
-                              XR_SPACE_LOCATION_ORIENTATION_TRACKED_BIT | XR_SPACE_LOCATION_POSITION_TRACKED_BIT;
+    XrPosef world_s, world_b;
+    int located = world_pose(s, &world_s) && world_pose(b, &world_b);
+    location->pose = located ? compose(invert(world_b), world_s) : IDENTITY;
+    location->locationFlags = 0;
+    if (located)
+        location->locationFlags = XR_SPACE_LOCATION_ORIENTATION_VALID_BIT | XR_SPACE_LOCATION_POSITION_VALID_BIT |
+                                  XR_SPACE_LOCATION_ORIENTATION_TRACKED_BIT | XR_SPACE_LOCATION_POSITION_TRACKED_BIT;
+    int gaze = located && (s->action >= 0 || b->action >= 0);      /* a sample of the eye tracker */
+    for (XrBaseOutStructure *n = (XrBaseOutStructure *)location->next; n; n = n->next)
+        if (n->type == XR_TYPE_EYE_GAZE_SAMPLE_TIME_EXT) ((XrEyeGazeSampleTimeEXT *)n)->time = gaze ? time : 0;
     return XR_SUCCESS;
 }
 
@@ -944,7 +1065,7 @@ static XrResult create_action_set(XrInstance instance, const XrActionSetCreateIn
         if (rt.sets[i].used && strcmp(rt.sets[i].name, info->actionSetName) == 0) return XR_ERROR_NAME_DUPLICATED;
     for (int i = 0; i < MAX_ACTION_SETS; i++)
         if (!rt.sets[i].used) {
-            rt.sets[i] = (ActionSet){1, 0, ""};
+            rt.sets[i] = (ActionSet){1, 0, "", 0};
             snprintf(rt.sets[i].name, sizeof rt.sets[i].name, "%s", info->actionSetName);
             *set = H(XrActionSet, ACTION_SET_BASE + i);
             logf_("actions create_set %s", info->actionSetName);
@@ -974,7 +1095,7 @@ static XrResult create_action(XrActionSet set, const XrActionCreateInfo *info, X
     int index = (int)(ID(set) - ACTION_SET_BASE);
     for (int i = 0; i < MAX_ACTIONS; i++)
         if (!rt.actions[i].used) {
-            rt.actions[i] = (Action){1, index, info->actionType, ""};
+            rt.actions[i] = (Action){1, index, info->actionType, "", 0};
             snprintf(rt.actions[i].name, sizeof rt.actions[i].name, "%s", info->actionName);
             *action = H(XrAction, ACTION_BASE + i);
             logf_("actions create_action %s type=%d", info->actionName, info->actionType);
@@ -995,14 +1116,33 @@ static XrResult suggest_bindings(XrInstance instance, const XrInteractionProfile
     const char *profile = path_text(info->interactionProfile);
     if (!profile) return XR_ERROR_PATH_INVALID;
     if (strncmp(profile, "/interaction_profiles/", 22) != 0) return XR_ERROR_PATH_UNSUPPORTED;
+    /* XR_EXT_eye_gaze_interaction's profile: only when enabled, only its gaze pose, only pose actions */
+    int eyes = strcmp(profile, EYE_GAZE_PROFILE) == 0;
+    if (eyes && !rt.enabled[EXT_EYE_GAZE]) return XR_ERROR_PATH_UNSUPPORTED;
     for (uint32_t k = 0; k < info->countSuggestedBindings; k++) {
         Action *a = action_of(info->suggestedBindings[k].action);
         if (!a) return XR_ERROR_HANDLE_INVALID;
         if (rt.sets[a->set].attached) return XR_ERROR_ACTIONSETS_ALREADY_ATTACHED;
-        if (!path_text(info->suggestedBindings[k].binding)) return XR_ERROR_PATH_INVALID;
+        const char *binding = path_text(info->suggestedBindings[k].binding);
+        if (!binding) return XR_ERROR_PATH_INVALID;
+        if (eyes && (strcmp(binding, EYE_GAZE_POSE) != 0 || a->type != XR_ACTION_TYPE_POSE_INPUT))
+            return XR_ERROR_PATH_UNSUPPORTED;
+    }
+    if (eyes) {                                    /* replaces the previous suggestion for this profile */
+        for (int i = 0; i < MAX_ACTIONS; i++) rt.actions[i].gaze = 0;
+        for (uint32_t k = 0; k < info->countSuggestedBindings; k++)
+            action_of(info->suggestedBindings[k].action)->gaze = 1;
     }
     logf_("actions suggest %s %u", profile, info->countSuggestedBindings);
     return XR_SUCCESS;
+}
+
+/* an action of an attached set is bound to the gaze (the eye-gaze profile is the current one for /user/eyes_ext) */
+static int gaze_bound(void) {
+    if (!rt.enabled[EXT_EYE_GAZE]) return 0;
+    for (int i = 0; i < MAX_ACTIONS; i++)
+        if (rt.actions[i].used && rt.actions[i].gaze && rt.sets[rt.actions[i].set].attached) return 1;
+    return 0;
 }
 
 static XrResult attach_action_sets(XrSession session, const XrSessionActionSetsAttachInfo *info) {
@@ -1013,6 +1153,12 @@ static XrResult attach_action_sets(XrSession session, const XrSessionActionSetsA
     for (uint32_t k = 0; k < info->countActionSets; k++) set_of(info->actionSets[k])->attached = 1;
     rt.actions_attached = 1;
     logf_("actions attach %u", info->countActionSets);
+    if (gaze_bound()) {                            /* /user/eyes_ext now has the eye-gaze profile */
+        XrEventDataInteractionProfileChanged e = {XR_TYPE_EVENT_DATA_INTERACTION_PROFILE_CHANGED, NULL,
+                                                  H(XrSession, SESSION_ID)};
+        push_event(&e, sizeof e);
+        logf_("gaze profile current");
+    }
     return XR_SUCCESS;
 }
 
@@ -1021,6 +1167,8 @@ static XrResult get_current_interaction_profile(XrSession session, XrPath top, X
     if (!rt.actions_attached) return XR_ERROR_ACTIONSET_NOT_ATTACHED;
     if (!path_text(top)) return XR_ERROR_PATH_INVALID;
     state->interactionProfile = XR_NULL_PATH;      /* no controller */
+    if (strcmp(path_text(top), EYE_GAZE_USER) == 0 && gaze_bound())
+        state->interactionProfile = path_of(EYE_GAZE_PROFILE);
     return XR_SUCCESS;
 }
 
@@ -1030,11 +1178,18 @@ static XrResult sync_actions(XrSession session, const XrActionsSyncInfo *info) {
         ActionSet *s = set_of(info->activeActionSets[k].actionSet);
         if (!s) return XR_ERROR_HANDLE_INVALID;
         if (!s->attached) return XR_ERROR_ACTIONSET_NOT_ATTACHED;
+        XrPath sub = info->activeActionSets[k].subactionPath;
+        if (sub != XR_NULL_PATH && !path_text(sub)) return XR_ERROR_PATH_INVALID;
     }
-    return rt.state == XR_SESSION_STATE_FOCUSED ? XR_SUCCESS : XR_SESSION_NOT_FOCUSED;
+    /* this sync's sets replace the previous ones: the gaze follows those active for /user/eyes_ext */
+    for (int i = 0; i < MAX_ACTION_SETS; i++) rt.sets[i].synced = 0;
+    for (uint32_t k = 0; k < info->countActiveActionSets; k++)
+        set_of(info->activeActionSets[k].actionSet)->synced |= gaze_subaction(info->activeActionSets[k].subactionPath);
+    rt.synced_focused = rt.state == XR_SESSION_STATE_FOCUSED;
+    return rt.synced_focused ? XR_SUCCESS : XR_SESSION_NOT_FOCUSED;
 }
 
-/* every action state: inactive (no controller is connected) */
+/* every action state: inactive (no controller is connected), but a pose that follows the eye tracker */
 static XrResult action_state(XrSession session, const XrActionStateGetInfo *info, XrActionType want) {
     CHECK_SESSION(session);
     Action *a = action_of(info->action);
@@ -1067,19 +1222,19 @@ static XrResult get_action_state_vector2f(XrSession session, const XrActionState
 
 static XrResult get_action_state_pose(XrSession session, const XrActionStateGetInfo *info, XrActionStatePose *s) {
     XrResult r = action_state(session, info, XR_ACTION_TYPE_POSE_INPUT);
-    if (r == XR_SUCCESS) s->isActive = XR_FALSE;
+    if (r == XR_SUCCESS)
+        s->isActive = gaze_live((int)(ID(info->action) - ACTION_BASE)) && gaze_subaction(info->subactionPath);
     return r;
 }
 
 static XrResult enumerate_bound_sources(XrSession session, const XrBoundSourcesForActionEnumerateInfo *info,
                                         uint32_t cap, uint32_t *count, XrPath *sources) {
     CHECK_SESSION(session);
-    if (!action_of(info->action)) return XR_ERROR_HANDLE_INVALID;
-    (void)cap;
-    (void)sources;
-    if (!count) return XR_ERROR_VALIDATION_FAILURE;
-    *count = 0;                                    /* no controller: nothing is bound */
-    return XR_SUCCESS;
+    Action *a = action_of(info->action);
+    if (!a) return XR_ERROR_HANDLE_INVALID;
+    /* no controller: nothing is bound, but the gaze pose to what the eye-gaze profile binds */
+    int n = rt.enabled[EXT_EYE_GAZE] && a->gaze && rt.sets[a->set].attached;
+    ENUMERATE(cap, count, n, sources[i] = path_of(EYE_GAZE_POSE));
 }
 
 static XrResult get_input_source_localized_name(XrSession session, const XrInputSourceLocalizedNameGetInfo *info,
@@ -1518,8 +1673,9 @@ static XrResult locate_views(XrSession session, const XrViewLocateInfo *info, Xr
     if (!base) return XR_ERROR_HANDLE_INVALID;
     state->viewStateFlags = XR_VIEW_STATE_ORIENTATION_VALID_BIT | XR_VIEW_STATE_POSITION_VALID_BIT |
                             XR_VIEW_STATE_ORIENTATION_TRACKED_BIT | XR_VIEW_STATE_POSITION_TRACKED_BIT;
-    int located = base->action < 0;
-    XrPosef to_base = located ? invert(compose(reference_pose((XrReferenceSpaceType)base->type), base->pose)) : IDENTITY;
+    XrPosef world_base;
+    int located = world_pose(base, &world_base);
+    XrPosef to_base = located ? invert(world_base) : IDENTITY;
     if (!located) state->viewStateFlags = 0;
     XrPosef head = head_pose();
     ENUMERATE(cap, count, 2, {
@@ -1531,7 +1687,7 @@ static XrResult locate_views(XrSession session, const XrViewLocateInfo *info, Xr
 }
 
 /* ------------------------------------------------------------------ dispatch */
-enum { ALWAYS = -1, GL_EXT = 0, VK1_EXT = 1, VK2_EXT = 2 };
+enum { ALWAYS = -1 };                 /* or the extension (EXT_*) that provides the function */
 static const struct { const char *name; PFN_xrVoidFunction fn; int extension; } FUNCTIONS[] = {
 #define F(name, fn) {name, (PFN_xrVoidFunction)fn, ALWAYS}
 #define E(name, fn, ext) {name, (PFN_xrVoidFunction)fn, ext}
@@ -1544,15 +1700,15 @@ static const struct { const char *name; PFN_xrVoidFunction fn; int extension; } 
     F("xrGetViewConfigurationProperties", get_view_configuration_properties),
     F("xrEnumerateViewConfigurationViews", enumerate_view_configuration_views),
     F("xrEnumerateEnvironmentBlendModes", enumerate_environment_blend_modes),
-    E("xrGetOpenGLGraphicsRequirementsKHR", get_opengl_graphics_requirements, GL_EXT),
-    E("xrGetVulkanGraphicsRequirementsKHR", get_vulkan_graphics_requirements, VK1_EXT),
-    E("xrGetVulkanInstanceExtensionsKHR", get_vulkan_instance_extensions, VK1_EXT),
-    E("xrGetVulkanDeviceExtensionsKHR", get_vulkan_device_extensions, VK1_EXT),
-    E("xrGetVulkanGraphicsDeviceKHR", get_vulkan_graphics_device, VK1_EXT),
-    E("xrGetVulkanGraphicsRequirements2KHR", get_vulkan_graphics_requirements, VK2_EXT),
-    E("xrGetVulkanGraphicsDevice2KHR", get_vulkan_graphics_device2, VK2_EXT),
-    E("xrCreateVulkanInstanceKHR", create_vulkan_instance, VK2_EXT),
-    E("xrCreateVulkanDeviceKHR", create_vulkan_device, VK2_EXT),
+    E("xrGetOpenGLGraphicsRequirementsKHR", get_opengl_graphics_requirements, EXT_GL),
+    E("xrGetVulkanGraphicsRequirementsKHR", get_vulkan_graphics_requirements, EXT_VK1),
+    E("xrGetVulkanInstanceExtensionsKHR", get_vulkan_instance_extensions, EXT_VK1),
+    E("xrGetVulkanDeviceExtensionsKHR", get_vulkan_device_extensions, EXT_VK1),
+    E("xrGetVulkanGraphicsDeviceKHR", get_vulkan_graphics_device, EXT_VK1),
+    E("xrGetVulkanGraphicsRequirements2KHR", get_vulkan_graphics_requirements, EXT_VK2),
+    E("xrGetVulkanGraphicsDevice2KHR", get_vulkan_graphics_device2, EXT_VK2),
+    E("xrCreateVulkanInstanceKHR", create_vulkan_instance, EXT_VK2),
+    E("xrCreateVulkanDeviceKHR", create_vulkan_device, EXT_VK2),
     F("xrCreateSession", create_session), F("xrDestroySession", destroy_session),
     F("xrEnumerateReferenceSpaces", enumerate_reference_spaces), F("xrCreateReferenceSpace", create_reference_space),
     F("xrGetReferenceSpaceBoundsRect", get_reference_space_bounds_rect),

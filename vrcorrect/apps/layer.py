@@ -222,8 +222,9 @@ def status_lines(env: Mapping[str, str] | None = None, tail: int = 10) -> list[s
         periphery = config.options.get("fovea_periphery", Periphery.QUARTER)
         lines.append("fovea: " + ("off, the whole view corrected (layer install --fovea DEG corrects a window around "
                                   "the gaze)" if fovea is None else
-                                  f"a window of radius {fovea:g} deg around the gaze at ({gaze[0]:g}, {gaze[1]:g}) deg "
-                                  "from the view's centre; outside it "
+                                  f"a window of radius {fovea:g} deg around the gaze: the eye tracker's where the "
+                                  "runtime offers XR_EXT_eye_gaze_interaction, else "
+                                  f"({gaze[0]:g}, {gaze[1]:g}) deg from the view's centre; outside it "
                                   + ("the view as the application drew it"
                                      if periphery == Periphery.TARGET else PERIPHERY_DESCRIPTIONS.get(periphery, "?"))))
     log = log_path(env)
@@ -267,8 +268,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="correct only a window of this radius in degrees around the gaze (default: off, the whole "
                         "view)")
     i.add_argument("--gaze", default=None, metavar="X,Y",
-                   help="with --fovea: where the window stands, degrees from the view's centre, x right and y up "
-                        "(default 0,0)")
+                   help="with --fovea: where the window stands when the runtime offers no eye tracker "
+                        "(XR_EXT_eye_gaze_interaction; with one, the window follows the gaze), degrees from the "
+                        "view's centre, x right and y up (default 0,0)")
     i.add_argument("--periphery", choices=names(Periphery), default=None,
                    help="with --fovea: what the view shows outside the window (default quarter: a correction of the "
                         "whole view at a quarter of the resolution; half; target: the application's picture)")

@@ -56,7 +56,7 @@ def add_rx_option(p: argparse.ArgumentParser) -> None:
                                                    "changes on disk")
 
 
-def add_filter_options(p: argparse.ArgumentParser) -> None:
+def add_filter_options(p: argparse.ArgumentParser, eye_tracker: bool = False) -> None:
     """``--filter``, ``--iterations-per-frame`` and ``--cold-iterations`` (``render``, ``mirror``,
     ``overlay``, ``xr``)."""
     low, high = ITERATIONS_PER_FRAME
@@ -77,7 +77,7 @@ def add_filter_options(p: argparse.ArgumentParser) -> None:
                         f"{DEFAULT_COLD_ITERATIONS}, fast's own coarse-to-fine start; 0: from the target, cheaper "
                         "but a shot then starts blurred)")
     add_pupil_choice(p)
-    add_fovea_choice(p)
+    add_fovea_choice(p, eye_tracker)
     p.add_argument("--cold-start", metavar="MODEL.onnx", nargs="?", const="default",
                    help="with --filter admm: what starts a shot's first frame (the first, after a cut, after a "
                         "prescription change). A model file: that unrolled model's pass (vrcorrect unroll -o RUN "
@@ -102,13 +102,17 @@ def add_pupil_choice(p: argparse.ArgumentParser) -> None:
     g.add_argument("--robust", choices=("on", "off"), default="on", help=ROBUST_HELP)
 
 
-def add_fovea_choice(p: argparse.ArgumentParser) -> None:
-    """``--fovea`` and ``--gaze`` (``render``, ``mirror``, ``overlay``, ``xr``): correct where the eye looks."""
+def add_fovea_choice(p: argparse.ArgumentParser, eye_tracker: bool = False) -> None:
+    """``--fovea`` and ``--gaze`` (``render``, ``mirror``, ``overlay``, ``xr``): correct where the eye looks
+    (``eye_tracker``: the command follows an OpenXR eye tracker, and ``--gaze`` is its fallback)."""
     from .common import FOVEA_HELP, GAZE_HELP, PERIPHERY_HELP
 
     g = p.add_argument_group("where the eye looks")
     g.add_argument("--fovea", default="off", metavar="DEG|off", help="with --filter admm: " + FOVEA_HELP)
-    g.add_argument("--gaze", default="0,0", metavar="X,Y", help="with --fovea: " + GAZE_HELP)
+    g.add_argument("--gaze", default="0,0", metavar="X,Y",
+                   help="with --fovea: " + ("the window follows the eye tracker where the runtime offers one "
+                                            "(XR_EXT_eye_gaze_interaction); without one, " if eye_tracker else "")
+                        + GAZE_HELP)
     g.add_argument("--periphery", choices=names(Periphery), default=None,
                    help="with --fovea: " + PERIPHERY_HELP)
 

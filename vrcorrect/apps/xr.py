@@ -51,7 +51,7 @@ def add_parser(subparsers: "argparse._SubParsersAction[argparse.ArgumentParser]"
                    help="insert Khronos' core validation layer (bundled with pyopenxr; messages on stdout)")
     add_backend_option(p)
     p.add_argument("--model", metavar="MODEL.onnx", help="ONNX model for --backend onnx")
-    add_filter_options(p)
+    add_filter_options(p, eye_tracker=True)
     add_reprojection_option(p)
     p.set_defaults(func=cmd_xr)
     return p
@@ -96,6 +96,9 @@ def cmd_xr(args: argparse.Namespace) -> int:
         print(f"  {summary.method}, {summary.iterations_per_frame} iteration(s) per frame at the end; objective as a fraction "
               "of uncorrected (median over frames): "
               + ", ".join(f"{eye} {statistics.median(v):.3f}" for eye, v in summary.objective.items()))
+    if summary.gaze:
+        print(f"  fovea: {summary.tracked_frames} of {n} frame(s) placed at the eye tracker's gaze"
+              if summary.tracked_frames else f"  fovea: {summary.gaze}")
     if summary.reason == "session lost":
         print(f"vrcorrect xr: the runtime lost the session (LOSS_PENDING); exit status {EXIT_SESSION_LOST}",
               file=sys.stderr)

@@ -58,6 +58,7 @@ from ..plumbing.errors import ValidationError, VrcorrectError
 from ..specs.vocabulary import VIEW_ORDER, Backend, either, names
 from .corrector import Corrector
 from .eye_model import CorrectorOptions, as_options
+from .gaze import gaze_deg_of, gaze_in_view
 from .gl import check_gl_errors, fullscreen_triangle, release
 from .motion import view_shift
 from .scene import DemoScene, open_source
@@ -78,6 +79,8 @@ from .window import (
     require_xr,
     runs_iterations,
 )
+from .xr_gaze import EXTENSION as GAZE_EXTENSION
+from .xr_gaze import EyeTracker, tracker_offered
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
@@ -347,6 +350,12 @@ class XrRunSummary:
     """Iterative methods: the iterations per frame at the end (the keys may change them)."""
     method: str = ""
     """The correction's method (``filter``)."""
+    gaze: str = ""
+    """With a fovea: where its window stood (the eye tracker's gaze, or why the configured one)."""
+    tracked_frames: int = 0
+    """Frames whose window followed the eye tracker."""
+    gazes: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+    """Each eye's tracked gaze (degrees from its view's centre), per tracked frame."""
 
     @property
     def exit_code(self) -> int:
@@ -423,6 +432,8 @@ class XrApp(WindowApp):
         # a session or instance on its way out: pyopenxr raises the qualified success too
         self._lost_errors = (xr.SessionLostError, xr.InstanceLostError, xr.SessionLossPending)
         self.tracker = SessionTracker()
+        self.eye_tracker: EyeTracker | None = None      # with --fovea, where the runtime offers one
+        self._gaze_extension = False
         self.summary = XrRunSummary()
         self.instance = self.system_id = self.session = self.space = None
         self.swapchains: list[dict[str, Any]] = []
@@ -442,6 +453,7 @@ class XrApp(WindowApp):
             self._create_instance()
             self._open_gl_window()
             self._create_session()
+            self._start_eye_tracker()
             self._build()
         except BaseException:
             self.close()
@@ -467,7 +479,7 @@ class XrApp(WindowApp):
             application_info=xr.ApplicationInfo(application_name=cfg.application_name, application_version=1,
                                                 engine_name="vrcorrect", engine_version=1,
                                                 api_version=xr.Version(1, 0, 0)),
-            enabled_extension_names=["XR_KHR_opengl_enable"])
+            enabled_extension_names=["XR_KHR_opengl_enable"] + ([GAZE_EXTENSION] if self._wants_gaze() else []))
         with _CapturedStderr() as captured:
             try:
                 self.instance = xr.create_instance(info)
@@ -515,6 +527,43 @@ class XrApp(WindowApp):
         result = xr.check_result(xr.Result(pfn(self.instance, self.system_id, ctypes.byref(self.gl_requirements))))
         if result.is_exception():
             raise XrSessionError(f"xrGetOpenGLGraphicsRequirementsKHR failed: {result}")
+
+    def _wants_gaze(self) -> bool:
+        """A fovea asks for the eye tracker where the runtime offers one."""
+        self._gaze_extension = self.config.corrector_options.fovea_deg is not None and tracker_offered(self.xr)
+        return self._gaze_extension
+
+    def _start_eye_tracker(self) -> None:
+        """With ``--fovea``: the eye tracker's action, or one line on why the window stays at ``--gaze``."""
+        if self.config.corrector_options.fovea_deg is None:
+            return
+        at = "the fovea's window stays at --gaze {0:g},{1:g}".format(*self.config.corrector_options.gaze_deg)
+        if not self._gaze_extension:
+            self.summary.gaze = f"the runtime offers no eye tracker ({GAZE_EXTENSION}): {at}"
+        else:
+            try:
+                self.eye_tracker = EyeTracker(self.xr, self.instance, self.system_id, self.session)
+            except self.xr.XrException as exc:
+                self.summary.gaze = f"the eye tracker's action failed ({type(exc).__name__}): {at}"
+            else:
+                self.summary.gaze = (f"{self.eye_tracker.why_not}: {at}" if self.eye_tracker.why_not else
+                                     f"following the eye tracker ({GAZE_EXTENSION}); frames without a gaze: --gaze")
+        self.say("gaze: " + self.summary.gaze)
+
+    def _aim(self, views: Sequence[Any], display_time: int) -> None:
+        """Place each eye's fovea where the tracked gaze crosses its view (or at ``--gaze``)."""
+        gaze = self.eye_tracker.locate(self.space, display_time) if self.eye_tracker is not None else None
+        for eye, v in zip(VIEW_ORDER, views):
+            corrector = self.correctors[eye]
+            o = v.pose.orientation
+            uv = None if gaze is None else gaze_in_view(
+                gaze, (o.x, o.y, o.z, o.w), (v.fov.angle_left, v.fov.angle_right, v.fov.angle_up, v.fov.angle_down))
+            corrector.gaze_deg = (corrector.options.gaze_deg if uv is None else
+                                  gaze_deg_of(uv, self.eye_size, corrector.display.pixels_per_degree))
+            if uv is not None:
+                self.summary.gazes.setdefault(eye, []).append(corrector.gaze_deg)
+        if gaze is not None:
+            self.summary.tracked_frames += 1
 
     def _open_gl_window(self) -> None:
         cfg = self.config
@@ -679,6 +728,8 @@ class XrApp(WindowApp):
         if frame_state.should_render:
             with times.stage("locate"):
                 views = self._views(frame_state.predicted_display_time)
+                if views is not None and self.config.corrector_options.fovea_deg is not None:
+                    self._aim(views, frame_state.predicted_display_time)      # the eye tracker's gaze
         if views is not None:
             t_s = self._scene_time(frame_state.predicted_display_time)
             motions: dict[str, tuple[int, int] | None] = {}
@@ -881,6 +932,9 @@ class XrApp(WindowApp):
             self._mirror_vao = self._mirror_prog = self._sampler = None
             for chain in self.swapchains:
                 release(*chain["framebuffers"])  # the textures are the runtime's: not deleted here
+        if self.eye_tracker is not None:
+            self.eye_tracker.close()
+            self.eye_tracker = None
         if xr is not None:
             for chain in self.swapchains:
                 _quietly(xr.destroy_swapchain, chain["handle"])

@@ -89,6 +89,7 @@ import numpy as np
 from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.fileio import file_stamp
 from ..specs.vocabulary import VIEW_ORDER, Backend
+from .gaze import gaze_deg_of
 from .gl import fullscreen_triangle, release
 from .shaders import compile_program
 
@@ -1164,6 +1165,8 @@ class Engine:
         self._sync_ms: list[tuple[float, float, float]] = []
         self._frame_ms: list[float] = []
         self._last_report = time.monotonic()
+        self._gaze_uv: dict[str, tuple[float, float]] = {}   # the eye tracker's gaze this frame, per eye
+        self._gaze_said: str | None = None
         self.frames = 0
         self.log.line(f"loaded ({api} session, runtime view size {view_width}x{view_height}, "
                       f"Python {sys.version.split()[0]}, vrcorrect from {Path(__file__).resolve().parents[1]})")
@@ -1516,6 +1519,31 @@ class Engine:
             self._gpu_ms.setdefault(eye, []).append(previous)    # type: ignore[arg-type]
         return query
 
+    def look(self, view_in_layer: int, u: float, v: float) -> None:
+        """The eye tracker's gaze for this frame's view (``vrcorrect_gaze.c``): ``(u, v)`` its place in
+        the view's rect, 0..1 from the left and top edges; NaN when the tracker gives none (the
+        configured gaze then applies)."""
+        eye = eye_of_view(view_in_layer)
+        tracked = math.isfinite(u) and math.isfinite(v)
+        if tracked:
+            self._gaze_uv[eye] = (float(u), float(v))
+        else:
+            self._gaze_uv.pop(eye, None)
+        said = "tracked" if tracked else "untracked"
+        if said != self._gaze_said:
+            self.log.line("gaze: following the eye tracker (XR_EXT_eye_gaze_interaction)" if tracked else
+                          "gaze: the eye tracker gives no gaze; the fovea's window is at the configured gaze")
+            self._gaze_said = said
+
+    def _aim(self, pipeline: "_Pipeline", eye: str, width: int, height: int) -> None:
+        """Place ``eye``'s fovea at the tracked gaze of this frame, or at the configured one."""
+        corrector = pipeline.correctors[eye]
+        uv = self._gaze_uv.get(eye)
+        if uv is None:
+            corrector.gaze_deg = corrector.options.gaze_deg
+            return
+        corrector.gaze_deg = gaze_deg_of(uv, (width, height), corrector.display.pixels_per_degree)
+
     def correct(self, view_index: int, src_texture: int, src_format: int, src_width: int, src_height: int,
                 x: int, y: int, width: int, height: int, dst_texture: int, view_in_layer: int = -1) -> bool:
         """OpenGL: correct GL texture ``src_texture`` (an application swapchain image, ``src_format``,
@@ -1537,6 +1565,7 @@ class Engine:
             if self.capture is not None and not self.capture.ready.is_set():    # a rebuild primes on this frame
                 self.capture_gl(view_index, src_texture, src_format, src_width, src_height, x, y, width, height,
                                 view_in_layer)
+            self._aim(p, eye, width, height)
             with self._current(p):
                 src = p.application_texture(src_texture, src_width, src_height, fmt)
                 dst = p.application_texture(dst_texture, src_width, src_height, fmt)
@@ -1622,6 +1651,7 @@ class Engine:
             self._announce(shared.format)
             if self.capture is not None and not self.capture.ready.is_set():    # a rebuild primes on this frame
                 self.capture_vulkan(view_index, chain, x, y, width, height, view_in_layer)
+            self._aim(p, eye, width, height)
             with self._current(p):
                 if p.semaphores is not None and not self._waited_ready:       # the shim's copy in, on the GPU
                     p.semaphores.wait_ready([c.input for c in p.chains.values()])

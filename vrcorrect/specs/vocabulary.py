@@ -32,7 +32,7 @@ from typing import Iterable, NamedTuple
 
 __all__ = ["Eye", "VIEW_ORDER", "Backend", "Filter", "ITERATIVE_FILTERS", "Precision", "Method", "Periphery", "PERIPHERY_LEVELS",
            "PERIPHERY_DESCRIPTIONS", "IterationRange",
-           "ITERATIONS_PER_FRAME", "MAX_ITERATIONS_PER_FRAME", "names", "one_of", "either"]
+           "ITERATIONS_PER_FRAME", "MAX_ITERATIONS_PER_FRAME", "MAX_GAZE_DEG", "names", "one_of", "either"]
 
 
 class Eye(StrEnum):
@@ -126,6 +126,9 @@ ITERATIONS_PER_FRAME = IterationRange(1, 64)
 windows' keys (``[``, ``]``)."""
 MAX_ITERATIONS_PER_FRAME = 256
 """The knob's range in the API is 0 (keep the start; the guard still applies) to this."""
+MAX_GAZE_DEG = 90.0
+"""The gaze's largest offset from the view's centre, degrees on each axis (``gaze_deg``, ``--gaze``,
+an eye tracker's gaze)."""
 
 
 def names(members: Iterable[StrEnum]) -> tuple[str, ...]:
