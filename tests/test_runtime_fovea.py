@@ -180,3 +180,20 @@ def test_render_with_a_window_says_where_and_keeps_the_codes_outside_it(tmp_path
     outside[y0:y1, x0:x1] = False
     np.testing.assert_array_equal(out[outside], clip[0][outside])
     assert np.abs(out[y0:y1, x0:x1].astype(int) - clip[0][y0:y1, x0:x1]).max() >= 16
+
+
+def test_render_with_a_budget_says_what_it_chose(tmp_path, capsys, clip):
+    """``vrcorrect render --budget-ms``: the summary gives the budget's last choice (iterations a frame,
+    the window's radius with --fovea) and the time it measured on this renderer."""
+    from PIL import Image
+
+    from vrcorrect.apps import cli
+
+    Image.fromarray(clip[0]).save(tmp_path / "in.png")
+    code = cli.main(["render", str(tmp_path / "in.png"), "-o", str(tmp_path / "out.png"), "--budget-ms", "10000",
+                     "--fovea", f"{RADIUS / PPD}", "--frames", "4"])
+    text = capsys.readouterr().out
+    assert code == 0
+    line = next(line for line in text.splitlines() if "frame budget" in line)
+    assert "budget 10000 ms:" in line and "iterations a frame" in line and f"fovea {RADIUS / PPD:.3g} deg" in line
+    assert "(last " in line                                   # a frame was timed (two frames late)

@@ -1030,3 +1030,23 @@ def test_an_edit_during_start_up_is_one_state_for_both_eyes_and_the_panel(x_disp
         assert status_words in m.status, m.status
         assert m.correctors["left"].eye_rx.sphere_D == -2.5
 
+
+
+def test_the_panel_shows_what_the_frame_budget_chose(x_display, mirror_image, tmp_path):
+    """``vrcorrect mirror --budget-ms``: the panel's knob line gives the budget, the iterations a frame
+    it chose for each eye (their mean) and the time it measured (two frames late)."""
+    path, _ = mirror_image
+    rx = tmp_path / "rx.json"
+    rx.write_text(SAMPLE_RX)
+    config = MirrorConfig(rx=rx, source=str(path), eye_size=(EYE_W, EYE_H), visible=False, vsync=False,
+                          platform="x11", time_step_s=0.0, panel=True,
+                          corrector_options={"filter": "admm", "budget_ms": 5000.0})
+    with Mirror(config, echo=None) as m:
+        for _ in range(4):
+            m.render()
+        line = next(line for line in m.panel_lines() if line.startswith("admm k"))
+        assert "budget 5000 ms: k " in line and " ms)" in line, line
+        assert all(c.budget is not None and c.budget.last_ms is not None for c in m.correctors.values())
+        press(m, KEY_RIGHT_BRACKET)                              # the keys do not fight the budget
+        m.render()
+        assert "chosen by the frame budget (5000 ms, --budget-ms)" in m.status, m.status

@@ -208,6 +208,25 @@ def test_a_foveated_layer_corrects_only_the_window_around_the_configured_gaze(x_
     assert sum("the runtime offers no eye tracker" in line for line in layer_log(out)) == 1, layer_log(out)
 
 
+def test_a_layer_with_a_frame_budget_logs_its_choice_and_status_shows_it(x_display, kit, tmp_path):
+    """``layer install --budget-ms``'s configuration: each eye's Corrector holds its frames at the
+    budget; the log reports what the budget chose beside the frame times, and ``layer status`` shows
+    the latest choice."""
+    from vrcorrect.apps import layer
+
+    config = tmp_path / "layer.json"
+    config.write_text(json.dumps({"rx": str(kit.rx), "display": "quest2", "options": {"budget_ms": 5000}}))
+    out = tmp_path / "budget"
+    _run(kit, out, corrected=40, VRCORRECT_LAYER_CONFIG=str(config))
+    chose = [line for line in layer_log(out) if "budget: " in line]
+    assert chose, layer_log(out)
+    assert "left budget 5000 ms:" in chose[-1] and "right budget 5000 ms:" in chose[-1], chose[-1]
+    assert "iterations a frame (last " in chose[-1]            # frames were timed by the Corrector
+    status = "\n".join(layer.status_lines({"HOME": str(tmp_path), "VRCORRECT_LAYER_CONFIG": str(config),
+                                            "VRCORRECT_LAYER_LOG": str(out / "layer.log")}))
+    assert "budget: 5000 ms of GPU time a frame per eye; its latest choice: left budget 5000 ms:" in status, status
+
+
 def test_both_eyes_in_one_side_by_side_swapchain_are_each_corrected(x_display, kit, gl, tmp_path):
     """One swapchain twice as wide, each eye's view a rect in its half: one output swapchain,
     acquired once per frame, each half corrected for its own eye."""

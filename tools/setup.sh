@@ -12,7 +12,7 @@ fi
 
 # Debian packages: the venv module; for the real-time renderer's tests, Mesa's EGL and GL with
 # the llvmpipe software rasteriser (moderngl's headless context: libEGL.so.1 + libEGL_mesa,
-# libGL.so.1 + libGLX_mesa, swrast_dri.so), and Xvfb with the X libraries the glfw wheel's
+# libGL.so.1 + libGLX_mesa, swrast_dri.so; libOpenGL.so.0: the frame budget's GL timestamps), and Xvfb with the X libraries the glfw wheel's
 # libglfw.so loads at run time (X11, X11-xcb, Xext, Xrender, Xrandr, Xinerama, Xcursor, Xi,
 # Xxf86vm); gcc and libc6-dev: the headset tests compile a small OpenXR runtime (tests/xr_runtime/);
 # libopenxr-dev (OpenXR headers), libx11-dev, libgl-dev, libglx-dev, libvulkan-dev (Vulkan headers):
@@ -28,7 +28,7 @@ need_apt=()
 # the OpenXR layer embeds this Python: its headers and shared libpython (Debian's python3-dev)
 "$PY" -c 'import os, sys, sysconfig; sys.exit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")))' \
   2>/dev/null || need_apt+=(python3-dev)
-gl_debs=(libegl1 libegl-mesa0 libgl1 libglx-mesa0 libgl1-mesa-dri xvfb
+gl_debs=(libegl1 libegl-mesa0 libgl1 libopengl0 libglx-mesa0 libgl1-mesa-dri xvfb
          libx11-6 libx11-xcb1 libxext6 libxrender1 libxrandr2 libxinerama1 libxcursor1 libxi6 libxxf86vm1
          gcc libc6-dev libopenxr-dev libx11-dev libgl-dev libglx-dev libvulkan-dev
          libvulkan1 mesa-vulkan-drivers vulkan-validationlayers libopenxr-utils xserver-xorg-core

@@ -90,6 +90,7 @@ def cmd_install(args: argparse.Namespace, env: Mapping[str, str] | None = None) 
     from ..specs.display import get_display
     from ..specs.prescription import load_prescription
     from .common import parse_fovea, parse_gaze, parse_pupil
+    from .realtime_options import parse_budget
 
     env = _env(env)
     rx = Path(args.rx).expanduser().resolve() if args.rx else None
@@ -109,7 +110,9 @@ def cmd_install(args: argparse.Namespace, env: Mapping[str, str] | None = None) 
         raise ValidationError("--periphery", args.periphery, "only with --fovea DEG (outside its window)")
     options = {k: v for k, v in (("iterations_per_frame", args.iterations), ("pupil", pupil), ("robust", robust),
                                  ("fovea_deg", fovea), ("gaze_deg", None if gaze is None else list(gaze)),
-                                 ("fovea_periphery", args.periphery))
+                                 ("fovea_periphery", args.periphery),
+                                 ("budget_ms", None if args.budget_ms is None else
+                                  parse_budget(args.budget_ms, "admm")))
                if v is not None}
     manifest = manifest_dir(env) / MANIFEST
     config = config_path(env)
@@ -228,6 +231,12 @@ def status_lines(env: Mapping[str, str] | None = None, tail: int = 10) -> list[s
                                   + ("the view as the application drew it"
                                      if periphery == Periphery.TARGET else PERIPHERY_DESCRIPTIONS.get(periphery, "?"))))
     log = log_path(env)
+    if config is not None and config.options.get("budget_ms") is not None:
+        chose = [line for line in (log.read_text(encoding="utf-8", errors="replace").splitlines()
+                                   if log.exists() else []) if "budget: " in line]
+        lines.append(f"budget: {config.options['budget_ms']:g} ms of GPU time a frame per eye; "
+                     + (f"its latest choice: {chose[-1].split('budget: ', 1)[1]}" if chose else
+                        "no choice logged yet (the log reports it every few seconds of corrected frames)"))
     if log.exists():
         last = log.read_text(encoding="utf-8", errors="replace").splitlines()[-tail:]
         lines.append(f"log: {log} (last {len(last)} lines)")
@@ -274,6 +283,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     i.add_argument("--periphery", choices=names(Periphery), default=None,
                    help="with --fovea: what the view shows outside the window (default quarter: a correction of the "
                         "whole view at a quarter of the resolution; half; target: the application's picture)")
+    i.add_argument("--budget-ms", default=None, metavar="MS",
+                   help="hold each eye's correction at this much GPU time a frame: the iterations a frame chosen "
+                        "to fit, and with --fovea the window's radius shrunk when one iteration overruns (layer "
+                        "status and the log say what it chose; default: none, the fixed settings)")
     i.add_argument("--force", action="store_true", help="replace files vrcorrect did not write")
     i.set_defaults(func=cmd_layer)
     u = actions.add_parser("uninstall", help="remove the manifest (and a layer the fallback built)")

@@ -76,6 +76,12 @@ def add_filter_options(p: argparse.ArgumentParser, eye_tracker: bool = False) ->
                         f"first, after a cut, after a prescription change), 0 to {MAX_ITERATIONS_PER_FRAME} (default "
                         f"{DEFAULT_COLD_ITERATIONS}, fast's own coarse-to-fine start; 0: from the target, cheaper "
                         "but a shot then starts blurred)")
+    p.add_argument("--budget-ms", metavar="MS",
+                   help=f"with --filter {_ITERATIVE}: hold each eye's frame at this much GPU time, measured by "
+                        "its own timer queries (two frames late): the iterations a frame are chosen to fit (their "
+                        "mean time is the budget) and, with --fovea, the window's radius shrinks from DEG when even "
+                        "one iteration overruns it by 15 %% (and grows back, with hysteresis); default: none, the "
+                        "fixed settings")
     add_pupil_choice(p)
     add_fovea_choice(p, eye_tracker)
     p.add_argument("--cold-start", metavar="MODEL.onnx", nargs="?", const="default",
@@ -175,7 +181,24 @@ def filter_options(args: argparse.Namespace) -> dict[str, Any]:
         model, args.cold_start_note = None, "the target (--fovea: a window's frames start from the target)"
     if model is not None:
         options["cold_start_model"] = model
+    if getattr(args, "budget_ms", None) is not None:
+        options["budget_ms"] = parse_budget(args.budget_ms, args.filter)
     return options
+
+
+def parse_budget(text: Any, filter: str, field: str = "--budget-ms") -> float:
+    """``--budget-ms``: milliseconds a frame, with an iterative filter."""
+    from ..runtime.budget import MAX_BUDGET_MS, MIN_BUDGET_MS  # on use: start-up time
+
+    if filter not in ITERATIVE_FILTERS:
+        raise ValidationError(field, text, f"only with --filter {_ITERATIVE}")
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        value = None
+    if value is None or not (MIN_BUDGET_MS <= value <= MAX_BUDGET_MS):
+        raise ValidationError(field, text, f"milliseconds a frame from {MIN_BUDGET_MS:g} to {MAX_BUDGET_MS:g}")
+    return value
 
 
 def cold_start_choice(value: str | None, filter: str, backend: str,

@@ -197,7 +197,10 @@ def _print_eye(args: argparse.Namespace, info: dict) -> None:
 
 
 def _print_fovea(info: dict) -> None:
-    """The foveated window, where the correction was solved (nothing without ``--fovea``)."""
+    """The frame budget's last choice (with ``--budget-ms``) and the foveated window, where the
+    correction was solved (nothing without ``--fovea``)."""
+    if info.get("budget"):
+        print(f"  frame {info['budget']} (the iterations chosen frame by frame, timed on this renderer)")
     if info.get("fovea_deg") is None:
         return
     x, y = info["gaze_deg"]

@@ -45,7 +45,8 @@ from ..plumbing.errors import ValidationError, VrcorrectError
 from ..plumbing.fileio import file_stamp
 from ..specs.display import DisplayProfile, get_display
 from ..specs.prescription import EyeRx, Prescription, load_prescription
-from ..specs.vocabulary import Backend, Eye, either, names, one_of
+from ..specs.vocabulary import ITERATIONS_PER_FRAME, Backend, Eye, either, names, one_of
+from .budget import FrameBudget, GpuTimer, radius_ladder
 from .dispatch import CostLedger, Gpu
 from .eye_model import (  # noqa: F401  (re-exported)
     CorrectorOptions,
@@ -60,6 +61,7 @@ from .onnx_backend import OnnxModel
 from .pupil_bank import PupilBank, PupilFollower
 from .strategies import Decoder, Encoder, Preview, Strategy, make_strategy
 from .strategies.base import LuminanceMeter, float_texture
+from .strategies.foveated import MIN_FOVEA_DEG
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
@@ -282,6 +284,13 @@ class Corrector:
         """Where the eye looks, degrees from the view's centre ``(x, y)``, x right, y up (OpenXR's view
         space): the window's centre with ``fovea_deg`` (set it before each :meth:`apply`)."""
         self._iterations = self.options.iterations_per_frame
+        self.budget: FrameBudget | None = None
+        """With ``budget_ms``: what holds the frame's GPU time at the budget (its choice: ``describe()``)."""
+        self._timer: GpuTimer | None = None
+        if self.options.budget_ms is not None:
+            self._timer = GpuTimer()
+            self.budget = FrameBudget(self.options.budget_ms, radius_ladder(self.options.fovea_deg, MIN_FOVEA_DEG),
+                                      ITERATIONS_PER_FRAME, start=max(self._iterations, 1))
         self.decoder = Decoder(self.gpu)
         self.encoder = Encoder(self.gpu)
         self._seen: dict[tuple[int, int], "moderngl.Texture"] = {}
@@ -562,6 +571,8 @@ class Corrector:
         ``None`` or ``(0, 0)``: the plain warm start.  Other methods ignore it.  On a scene cut call
         :meth:`reset` instead."""
         t0 = time.perf_counter()
+        if self.budget is not None:
+            self._budget_frame()
         self._set_motion(motion_px)
         linear = self._decode_source(src_texture)
         if self._pupil is not None:
@@ -574,7 +585,24 @@ class Corrector:
             self.gpu.begin("present")
             self.encoder.present(linear, dst_framebuffer, viewport)
         self.gpu.end()
+        if self._timer is not None:
+            self._timer.end()
         self.timings_ms = {"correct": 1e3 * (time.perf_counter() - t0)}
+
+    def _budget_frame(self) -> None:
+        """The budget's choice for this frame (the frame two before, timed, feeds it first)."""
+        budget, timer = self.budget, self._timer
+        done = timer.take()
+        if done is not None:
+            budget.observe(*done)
+        choice = budget.choose()
+        if choice.fovea_deg != self.options.fovea_deg:       # a move of the radius: a new window, cold
+            self.options = replace(self.options, fovea_deg=choice.fovea_deg)
+            self.install(self.model)
+            log.info("%s eye: the budget moved the fovea to %.3g deg", self.eye_name, choice.fovea_deg)
+        if choice.iterations != self._iterations:
+            self.iterations_per_frame = choice.iterations
+        timer.begin(choice)
 
     def simulate(self, src_texture: "moderngl.Texture", dst_framebuffer: "moderngl.Framebuffer",
                  viewport: tuple[int, int, int, int] | None = None, corrected: bool = True,
@@ -610,11 +638,16 @@ class Corrector:
                 "mu_rel": m.mu_rel, "beta": m.beta, "identity": m.identity, "margin": m.margin,
                 "build_seconds": m.build_seconds, "notes": list(m.notes)}
         info.update(self.strategy.describe())
+        if self.budget is not None:
+            info["budget"] = self.budget.describe()
         if m.simulation is not None:
             info.update(simulation_size=m.simulation.size, simulation_ranks=list(m.simulation.ranks))
         return info
 
     def release(self) -> None:
+        if self._timer is not None:
+            self._timer.release()
+            self._timer = None
         if self._pupil is not None:
             self._pupil.release()
         release(self.strategy, self.preview, self.encoder, self.decoder, *self._seen.values())

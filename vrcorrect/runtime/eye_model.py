@@ -35,8 +35,8 @@ from ..plumbing.fileio import package_data
 from ..plumbing.imageio import read_image
 from ..specs.display import DisplayProfile, decode
 from ..specs.prescription import EyeRx
-from ..specs.vocabulary import MAX_ITERATIONS_PER_FRAME, Backend, Filter, Periphery, Precision, \
-    either, names, one_of
+from ..specs.vocabulary import ITERATIVE_FILTERS, MAX_GAZE_DEG, MAX_ITERATIONS_PER_FRAME, Backend, Filter, Periphery, \
+    Precision, either, names, one_of
 from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -250,6 +250,10 @@ class CorrectorOptions:
     gaze_deg
         With ``fovea_deg``: where the eye looks at first, ``(x, y)`` degrees from the view's centre, x
         right, y up (:attr:`Corrector.gaze_deg` follows an eye tracker from there).
+    budget_ms
+        An iterative filter (``admm``, ``fista``): hold each frame's GPU time at this many ms, the
+        Corrector choosing the iterations a frame and, with ``fovea_deg``, the window's radius from
+        ``fovea_deg`` down (:mod:`vrcorrect.runtime.budget`); ``None`` (default): the fixed settings.
     """
 
     regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
@@ -275,8 +279,16 @@ class CorrectorOptions:
     fovea_deg: float | None = None
     fovea_periphery: str = Periphery.QUARTER
     gaze_deg: tuple[float, float] = (0.0, 0.0)
+    budget_ms: float | None = None
 
     def __post_init__(self) -> None:
+        if self.budget_ms is not None:
+            from .budget import check_budget_ms
+
+            object.__setattr__(self, "budget_ms", check_budget_ms(self.budget_ms))
+            if self.filter not in ITERATIVE_FILTERS or self.backend != Backend.GLSL:
+                raise ValidationError("budget_ms", self.budget_ms, "only with an iterative filter ("
+                                      + either(ITERATIVE_FILTERS) + ") on the glsl backend")
         if self.pupil not in ("rx", "auto"):
             from ..physics.pupil import check_pupil_mm  # start-up time: the optics load with the first eye
 
@@ -327,10 +339,10 @@ class CorrectorOptions:
             raise ValidationError("fovea_periphery", self.fovea_periphery, either(Periphery))
         gaze = self.gaze_deg
         if not (isinstance(gaze, (tuple, list)) and len(gaze) == 2 and
-                all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and -90 <= v <= 90
-                    for v in gaze)):
+                all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and
+                    -MAX_GAZE_DEG <= v <= MAX_GAZE_DEG for v in gaze)):
             raise ValidationError("gaze_deg", gaze, "(x, y): two numbers of degrees from the view's centre, each "
-                                  "from -90 to 90")
+                                  f"from {-MAX_GAZE_DEG:g} to {MAX_GAZE_DEG:g}")
         object.__setattr__(self, "gaze_deg", (float(gaze[0]), float(gaze[1])))
         if self.cold_start_model is not None:
             if not isinstance(self.cold_start_model, str) or not self.cold_start_model:

@@ -337,6 +337,10 @@ def change_iterations(correctors: Iterable["Corrector"], up: bool) -> str:
     iterating = [c for c in correctors if runs_iterations(c)]
     if not iterating:
         return f"iterations per frame: only with --filter {' or '.join(names(ITERATIVE_FILTERS))}"
+    budgeted = [c.budget for c in iterating if getattr(c, "budget", None) is not None]
+    if budgeted:
+        return (f"iterations per frame: chosen by the frame budget ({budgeted[0].budget_ms:g} ms, --budget-ms); "
+                "run without it to set them by hand")
     k = next_iterations(iterating[0].iterations_per_frame, up)
     for c in iterating:
         c.iterations_per_frame = k
@@ -357,7 +361,15 @@ def knob_text(correctors: Mapping[str, "Corrector"], size: tuple[int, int], runn
     for eye, c in iterating.items():
         value = c.previous_objective_fraction(size) if running and c.enabled else None
         parts.append(f"{eye} {'-' if value is None else f'{value:.3f}'}")
-    return f"{methods} k {'/'.join(map(str, ks))}   objective {' '.join(parts)} of uncorrected"
+    text = f"{methods} k {'/'.join(map(str, ks))}   objective {' '.join(parts)} of uncorrected"
+    budgets = [c.budget for c in iterating.values() if getattr(c, "budget", None) is not None]
+    if budgets:                                 # what the frame budget chose: iterations (mean) and window
+        b = budgets[0]
+        window = "" if b.fovea_deg is None else f", fovea {b.fovea_deg:.3g} deg"
+        text += (f"   budget {b.budget_ms:g} ms: k " + "/".join(f"{x.q:.1f}" for x in budgets) + window
+                 + ("" if b.last_ms is None else " (" + "/".join(
+                     "-" if x.last_ms is None else f"{x.last_ms:.1f}" for x in budgets) + " ms)"))
+    return text
 
 
 # --------------------------------------------------------------------------

@@ -1519,6 +1519,14 @@ class Engine:
             self._gpu_ms.setdefault(eye, []).append(previous)    # type: ignore[arg-type]
         return query
 
+    def _budget_words(self) -> str:
+        """``budget: left ...; right ...``: what each eye's frame budget chose (empty without one)."""
+        p = self.pipeline
+        if p is None:
+            return ""
+        parts = [f"{eye} {c.budget.describe()}" for eye, c in sorted(p.correctors.items()) if c.budget is not None]
+        return ("budget: " + "; ".join(parts)) if parts else ""
+
     def look(self, view_in_layer: int, u: float, v: float) -> None:
         """The eye tracker's gaze for this frame's view (``vrcorrect_gaze.c``): ``(u, v)`` its place in
         the view's rect, 0..1 from the left and top edges; NaN when the tracker gives none (the
@@ -1723,6 +1731,9 @@ class Engine:
                     line += (f"; per frame, Vulkan copy in and wait {mean[0]:.2f} ms, glFinish {mean[1]:.2f} ms, "
                              f"copy out {mean[2]:.2f} ms")
                 self.log.line(line)
+                budgets = self._budget_words()
+                if budgets:
+                    self.log.line(budgets)
                 self._cpu_ms.clear()
                 self._gpu_ms.clear()
                 self._sync_ms.clear()

@@ -1,0 +1,117 @@
+"""The frame budget's controller (``vrcorrect.runtime.budget.FrameBudget``) on synthetic renderers whose
+frame time is a known function of the work: it settles at the budget, follows a change of load,
+moves the fovea's radius only past the band and for long enough, and refuses bad budgets.  (On the
+real renderer: ``tests/test_runtime_budget.py``.)"""
+
+from __future__ import annotations
+
+import random
+import statistics
+
+import pytest
+
+from vrcorrect.plumbing.errors import ValidationError
+from vrcorrect.runtime.budget import (BAND, DWELL_FRAMES, BudgetChoice, FrameBudget, check_budget_ms,
+                                      radius_ladder)
+
+
+class Plant:
+    """A renderer: ``fixed + per_iteration * k`` ms, scaled by the window's area, with noise; timings
+    arrive two frames late, as the GPU's do."""
+
+    def __init__(self, fixed: float, per_iteration: float, noise: float = 0.03, radius: float | None = None,
+                 seed: int = 0):
+        self.fixed, self.per, self.noise, self.radius = fixed, per_iteration, noise, radius
+        self.rng = random.Random(seed)
+        self.pending: list[tuple[BudgetChoice, float]] = []
+
+    def ms(self, choice: BudgetChoice) -> float:
+        area = 1.0 if choice.fovea_deg is None else (choice.fovea_deg / self.radius) ** 2
+        return (self.fixed + self.per * choice.iterations) * area * (1 + self.rng.gauss(0, self.noise))
+
+    def run(self, budget: FrameBudget, frames: int) -> list[tuple[BudgetChoice, float]]:
+        out = []
+        for _ in range(frames):
+            if len(self.pending) >= 2:
+                budget.observe(*self.pending.pop(0))
+            choice = budget.choose()
+            t = self.ms(choice)
+            self.pending.append((choice, t))
+            out.append((choice, t))
+        return out
+
+
+def _mean_ms(frames) -> float:
+    return statistics.mean(t for _, t in frames)
+
+
+@pytest.mark.parametrize("budget_ms", [5.0, 9.0, 14.0])
+def test_the_mean_frame_time_settles_at_the_budget(budget_ms):
+    plant = Plant(fixed=2.0, per_iteration=1.5)
+    budget = FrameBudget(budget_ms, iterations=(1, 64), start=2)
+    plant.run(budget, 40)                                   # settling
+    tail = plant.run(budget, 40)
+    assert _mean_ms(tail) == pytest.approx(budget_ms, rel=0.05)
+    ks = {c.iterations for c, _ in tail}
+    assert max(ks) - min(ks) <= 2                           # floor(q) and one more, not a wide swing
+    expected = (budget_ms - 2.0) / 1.5
+    assert budget.q == pytest.approx(expected, abs=0.35)
+
+
+def test_a_change_of_load_is_followed_back_to_the_budget():
+    plant = Plant(fixed=2.0, per_iteration=1.5)
+    budget = FrameBudget(10.0, iterations=(1, 64), start=2)
+    plant.run(budget, 40)
+    q_before = budget.q
+    plant.fixed, plant.per = 3.0, 2.4                       # a bigger picture: every part costs more
+    first = plant.run(budget, 40)
+    tail = plant.run(budget, 40)
+    assert _mean_ms(first[:3]) > 10.0 * (1 + BAND)          # the change was felt ...
+    assert _mean_ms(tail) == pytest.approx(10.0, rel=0.05)  # ... and undone
+    assert budget.q < q_before
+
+
+def test_the_radius_shrinks_only_when_the_fewest_iterations_overrun_and_grows_back_with_hysteresis():
+    ladder = radius_ladder(20.0, 0.5)
+    assert ladder == (20.0, 15.0, 10.0, 7.0, 5.0)
+    plant = Plant(fixed=6.0, per_iteration=2.0, radius=20.0)   # at 20 deg: 8 ms with 1 iteration
+    budget = FrameBudget(10.0, radii=ladder, iterations=(1, 64), start=1)
+    plant.run(budget, 60)
+    assert budget.fovea_deg == 20.0 and budget.moves == 0  # 1 iteration fits: the window stays whole
+    plant.fixed = 16.0                                      # now even 1 iteration takes 18 ms at 20 deg
+    plant.run(budget, 120)
+    assert budget.fovea_deg in (15.0, 10.0)                 # 18 * (15/20)^2 = 10.1: 15 overruns a little
+    settled = budget.moves
+    tail = plant.run(budget, 80)
+    assert budget.moves == settled                          # no hunting between rungs
+    assert _mean_ms(tail) <= 10.0 * (1 + BAND)
+    plant.fixed = 6.0                                       # the load goes away: the window grows back
+    plant.run(budget, 150)
+    assert budget.fovea_deg == 20.0
+
+
+def test_frames_timed_at_an_old_radius_do_not_feed_the_new_one():
+    budget = FrameBudget(10.0, radii=(20.0, 10.0), iterations=(1, 8), start=1)
+    for _ in range(DWELL_FRAMES + 2):
+        budget.choose()
+        budget.observe(BudgetChoice(1, 20.0), 30.0)
+    assert budget.fovea_deg == 10.0
+    q = budget.q
+    budget.observe(BudgetChoice(1, 20.0), 1000.0)          # late, from the old window
+    assert budget.q == q and budget.history[-1] == (BudgetChoice(1, 20.0), 1000.0)
+
+
+@pytest.mark.parametrize("value", [0, -1, float("nan"), float("inf"), True, "3", 1e9])
+def test_a_bad_budget_is_refused_with_its_field(value):
+    with pytest.raises(ValidationError, match="budget_ms"):
+        check_budget_ms(value)
+    with pytest.raises(ValidationError, match="budget_ms"):
+        FrameBudget(value)
+
+
+def test_no_fovea_is_one_rung_and_the_iterations_range_is_checked():
+    assert radius_ladder(None, 0.5) == (None,)
+    assert radius_ladder(1.0, 0.5) == (1.0, 0.75, 0.5)
+    with pytest.raises(ValidationError, match="iterations"):
+        FrameBudget(5.0, iterations=(0, 4))
+    assert "budget 5 ms" in FrameBudget(5.0).describe()
