@@ -1,5 +1,8 @@
 """Shared fixtures: an X display for GLFW windows (a private Xvfb when none is set) and the
-headless OpenGL context of the real-time tests.
+headless OpenGL context of the real-time tests; and the markers that sort the tests by what they
+need (``pytest_collection_modifyitems``): ``gl``, ``x`` and ``xr`` from the fixtures a test asks for
+or its module uses, ``torch`` and ``cvvdp`` from its module's imports, ``slow`` by hand.
+``bash tools/test.sh --fast`` runs what needs none of them.
 
 These tests must run, not skip, wherever tools/setup.sh has run (it installs xvfb and Mesa):
 a missing piece fails with what to install.
@@ -9,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import select
 import shutil
 import subprocess
@@ -19,6 +23,47 @@ from typing import Iterator
 import pytest
 
 XVFB_START_TIMEOUT_S = 30.0
+
+FIXTURE_MARKS = {"gl": ("gl", "headless_gl"), "x": ("x_display", "xorg_display"),
+                 "xr": ("xr_runtime", "kit", "installed")}
+"""Markers a test gets from the fixtures it asks for (directly or through other fixtures)."""
+MODULE_MARKS = {
+    "torch": re.compile(r"^\s*(import torch|from torch\b)|vrcorrect\.learn|vrcorrect\.solvers\.(iterative|paper)",
+                        re.M),
+    "cvvdp": re.compile(r"cvvdp|pyfvvdp|\bjod\b|_jod\(|video_jod|foveated_jod|with_jod=True"),
+    "gl": re.compile(r"headless_context|\bmoderngl\b|\bglfw\b|\bgl\.finish\b|main\(\[\s*\"(render|mirror|overlay|bench)\""),
+    "x": re.compile(r"\bXvfb\b|DISPLAY"),
+    "xr": re.compile(r"xr_layer_kit|^\s*import xr\b|XR_RUNTIME_JSON|hello_xr", re.M),
+}
+"""Markers every test of a module gets when the module's text matches (what its tests run inside
+functions that the fixtures do not show: a command that opens a context, a metric)."""
+SLOW_MODULES = ("test_cli_correct.py", "test_first_hour.py", "test_cli_signals.py", "test_fail_before_work.py",
+                "test_bench_robust.py", "test_bench_halfres.py", "test_bench_realtime.py", "test_clips.py",
+                "test_default_model.py", "test_solvers.py", "test_evaluate.py")
+"""Modules whose tests each take seconds (commands end to end, solvers to convergence): ``slow``."""
+SLOW_TESTS = ("test_unusual_but_valid_images_are_corrected", "test_closing_a_bank_stops_the_design",
+              "test_every_accepted_prescription_is_modelled_on_every_display_preset")
+"""Tests (name prefixes) that take seconds each in modules of quick ones: ``slow``."""
+
+
+def pytest_collection_modifyitems(config, items):
+    texts: dict[str, str] = {}
+    for item in items:
+        path = str(item.path)
+        if path not in texts:
+            try:
+                texts[path] = item.path.read_text(encoding="utf-8")
+            except OSError:
+                texts[path] = ""
+        names = set(getattr(item, "fixturenames", ()))
+        for mark, fixtures in FIXTURE_MARKS.items():
+            if names.intersection(fixtures):
+                item.add_marker(mark)
+        for mark, pattern in MODULE_MARKS.items():
+            if pattern.search(texts[path]):
+                item.add_marker(mark)
+        if item.path.name in SLOW_MODULES or item.name.startswith(SLOW_TESTS):
+            item.add_marker("slow")
 
 
 @pytest.fixture(scope="session")

@@ -7,8 +7,6 @@ Corrector warmed up and reset starting cold again, as a fresh one does."""
 from __future__ import annotations
 
 import json
-import threading
-import time
 
 import numpy as np
 import pytest

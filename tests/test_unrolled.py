@@ -166,7 +166,9 @@ def test_from_fasts_start_the_twin_continues_fasts_admm_with_its_duals():
     assert np.abs(d1).max() > 0 and np.abs(z0 - target).max() > 0.05          # the coarse level ran
     expected = _admm(kernel.kernel, t_lms, z0, FAST_RHO, FAST_RELAXATION, 1.0, 3, 0.0, duals=(d1, d2), track=False)[0]
     spectra = kernel_spectra([kernel.kernel], (64, 64), power_of_two=False)
-    T = lambda a: torch.from_numpy(a)[None]
+    def T(a):
+        return torch.from_numpy(a)[None]
+
     with torch.no_grad():
         warm = twin(3)(T(t_lms), T(z0), *spectra, d1=T(d1), d2=T(d2))
         cold = twin(3)(T(t_lms), T(target), *spectra)

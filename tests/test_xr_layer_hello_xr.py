@@ -114,7 +114,7 @@ def test_hello_xr_with_the_installed_layer_arrives_corrected_for_each_eye(kit, g
     assert_life_cycle(out, swapchains=4)
     fmt, code = APIS[api]
     log = runtime_log(out)
-    assert len([line for line in log if line.startswith(f"create_swapchain") and f"format={code} 96x64" in line]) == 4
+    assert len([line for line in log if line.startswith("create_swapchain") and f"format={code} 96x64" in line]) == 4
     views = submitted(out)
     received_frames = frames(out)
     first = next(i for i, f in enumerate(received_frames) if views[f] != views[received_frames[0]])

@@ -2,7 +2,12 @@
 depend on the values). Standalone: it loads vrcorrect/learn/unrolled.py with its few imports stubbed, so it
 runs where only torch is installed (the lent GPU machine). Run from the checkout's root:
 `python3 tools/gpu_time_unrolled.py` (CPU_CHECK=1: a tiny CPU run); writes $OUT/gpu_time.json."""
-import importlib.util, json, os, sys, time, types
+import importlib.util
+import json
+import os
+import sys
+import time
+import types
 import torch
 for name in ("vrcorrect", "vrcorrect.learn", "vrcorrect.plumbing", "vrcorrect.solvers"):
     m = types.ModuleType(name); m.__path__ = []; sys.modules[name] = m

@@ -79,7 +79,7 @@ def input_clip(args: argparse.Namespace, *, still_options: tuple[str, ...] = ())
     for name in still_options:
         value = getattr(args, name.replace("-", "_"), None)
         if value is not None:
-            raise ValidationError(f"--{name}", value, f"only with a still image; a clip's frames come from the clip "
+            raise ValidationError(f"--{name}", value, "only with a still image; a clip's frames come from the clip "
                                   "(and --fps)")
     for name, value in rates:
         _rate(value, f"--{name}")

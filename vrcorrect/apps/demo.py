@@ -74,10 +74,10 @@ def run_demo(out: Path, display_name: str = "quest2", force: bool = False) -> It
         write_png(out / f"{eye_name}_eye_sees.png", seen[eye_name], force=force)
         yield (f"wrote {out / (eye_name + '_eye_sees.png')}: {eye_name} eye {eye.sphere_D:+.2f} / "
                f"{eye.cylinder_D:+.2f} x {eye.axis_deg:g} on {display.title} ({kernel.size} px kernel)")
-    r, l = rx.eye(Eye.RIGHT), rx.eye(Eye.LEFT)
+    r, left = rx.eye(Eye.RIGHT), rx.eye(Eye.LEFT)
     panel = _row([_label(image, "displayed image"),
                   _label(seen[Eye.RIGHT], f"right eye {r.sphere_D:+.2f}/{r.cylinder_D:+.2f}x{r.axis_deg:g}"),
-                  _label(seen[Eye.LEFT], f"left eye {l.sphere_D:+.2f}/{l.cylinder_D:+.2f}x{l.axis_deg:g}")])
+                  _label(seen[Eye.LEFT], f"left eye {left.sphere_D:+.2f}/{left.cylinder_D:+.2f}x{left.axis_deg:g}")])
     write_png(out / "demo_panel.png", panel, force=force)
     yield f"wrote {out / 'demo_panel.png'}: displayed image | right eye sees | left eye sees"
 

@@ -165,7 +165,6 @@ class Progress:
             if self.closed:
                 return
             self.closed = True
-        now = self.clock()
         if self.terminal:
             self._write("")
             try:

@@ -116,7 +116,7 @@ def sheared_disc_masses(l11: float, l21: float, l22: float,
     l22 = abs(l22)
     h1 = int(math.ceil(l11 + 0.5))
     h2 = int(math.ceil(math.hypot(l21, l22) + 0.5))
-    n1, n2 = 2 * h1 + 1, 2 * h2 + 1
+    n1 = 2 * h1 + 1
     n_pieces = max(64, int(math.ceil(math.pi / 2 * pieces_per_px * 2.0 * l11)))
     v = np.sin(np.linspace(-math.pi / 2, math.pi / 2, n_pieces + 1))
     cuts = (np.arange(-h1, h1 + 1) + 0.5) / l11          # pixel boundaries a1 = i + 1/2

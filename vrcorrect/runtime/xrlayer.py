@@ -98,7 +98,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
     from ..specs.display import DisplayProfile
     from .corrector import Corrector
-    from .eye_source import EyeSource, EyeUpdate
+    from .eye_source import EyeSource
 
 __all__ = ["LAYER_NAME", "DISABLE_ENV", "OFF_ENV", "LayerConfig", "Engine", "SwapchainFormat", "GL_FORMATS",
            "VK_FORMATS", "config_path", "log_path", "off_file", "eye_of_view", "read_config"]
