@@ -15,7 +15,7 @@ from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector, CorrectorOptions
 from vrcorrect.runtime.dispatch import CostLedger
 from vrcorrect.runtime.strategies.foveated import PERIPHERY_ITERATIONS
-from vrcorrect.solvers.foveated import FoveatedFrames
+from vrcorrect.solvers.foveated import FoveatedFrames, fovea_pixels
 from vrcorrect.specs.display import decode, get_display
 from vrcorrect.specs.prescription import EyeRx, Prescription
 
@@ -24,7 +24,8 @@ PPD = QUEST2.pixels_per_degree
 EYE = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=120.0, pupil_diameter_mm=4.0)
 RX = Prescription(right=EYE, left=EYE)
 W, H = 128, 96
-RADIUS = 16                                   # px: the window's half-side
+RADIUS = 16                                   # px: the fovea's radius (the window's half-side less its band)
+SOLVED, BAND = fovea_pixels(RADIUS / PPD, PPD)  # the window solved: the radius and the band beyond it
 
 
 @pytest.fixture(scope="module")
@@ -56,13 +57,13 @@ def test_the_gl_foveated_frame_equals_its_cpu_twin_as_the_gaze_and_content_move(
     twin's to 2e-5, frame by frame."""
     c = Corrector(gl, RX, QUEST2, "right", precision="single", iterations_per_frame=2, fovea_deg=RADIUS / PPD,
                   fovea_periphery=periphery)
-    twin = FoveatedFrames(build_kernel(EYE, QUEST2), build_reference_kernel(EYE, QUEST2), (H, W), radius_px=RADIUS,
-                          precision="single", periphery=periphery,
+    twin = FoveatedFrames(build_kernel(EYE, QUEST2), build_reference_kernel(EYE, QUEST2), (H, W), radius_px=SOLVED,
+                          band_px=BAND, precision="single", periphery=periphery,
                           periphery_iterations=PERIPHERY_ITERATIONS.get(periphery))
     src = G.upload_texture(gl, np.zeros((H, W, 3), np.uint8))
     tex, fbo = G.render_target(gl, width=W, height=H)
     try:
-        assert c.describe()["fovea_radius_px"] == RADIUS
+        assert (c.describe()["fovea_radius_px"], c.describe()["fovea_band_px"]) == (SOLVED, BAND) == (20, 4)
         for f, ((gaze, motion), image) in enumerate(zip(FRAMES, clip)):
             G.write_texture(src, image)
             c.gaze_deg = gaze_deg(gaze)
@@ -90,7 +91,7 @@ def test_outside_the_window_the_codes_are_the_applications_and_inside_they_chang
             c.apply(src, fbo)
         out = G.read_framebuffer(fbo)
         y0, y1, x0, x1 = c.describe()["fovea_window"]
-        assert (y0, y1, x0, x1) == (60 - RADIUS, 60 + RADIUS, 40 - RADIUS, 40 + RADIUS)
+        assert (y0, y1, x0, x1) == (60 - SOLVED, 60 + SOLVED, 40 - SOLVED, 40 + SOLVED)
         outside = np.ones((H, W), bool)
         outside[y0:y1, x0:x1] = False
         np.testing.assert_array_equal(out[outside], clip[0][outside])
@@ -174,7 +175,7 @@ def test_render_with_a_window_says_where_and_keeps_the_codes_outside_it(tmp_path
     rows, cols = line.split("rows ")[1].split(", columns ")
     y0, y1 = (int(v) for v in rows.split("-"))
     x0, x1 = (int(v) for v in cols.split(")")[0].split("-"))
-    assert (y1 - y0, x1 - x0) == (2 * RADIUS, 2 * RADIUS)
+    assert (y1 - y0, x1 - x0) == (2 * SOLVED, 2 * SOLVED)
     out = np.asarray(Image.open(tmp_path / "out.png").convert("RGB"))
     outside = np.ones((H, W), bool)
     outside[y0:y1, x0:x1] = False

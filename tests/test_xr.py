@@ -349,8 +349,11 @@ def test_the_fovea_follows_the_eye_tracker_where_the_runtime_offers_one(x_displa
     says so and the window stays at ``--gaze``."""
     from vrcorrect.specs.display import get_display
 
-    radius = 12                                               # px
-    fovea = f"{radius / get_display('quest2').pixels_per_degree:.6f}"
+    from vrcorrect.solvers.foveated import fovea_pixels
+
+    ppd = get_display("quest2").pixels_per_degree
+    fovea = f"{12 / ppd:.6f}"                                 # 12 px
+    radius = fovea_pixels(float(fovea), ppd)[0]               # the window: the radius and its blend band
     path = [GAZE_POINTS[(i // 2) % 2] for i in range(64)]
     args = ("--rx", str(rx_file), "--source", str(SAMPLE), "--frames", "8", "--fovea", fovea, "--periphery", "target",
             "--pupil", "rx", "--robust", "off")

@@ -186,6 +186,8 @@ def test_a_foveated_layer_corrects_only_the_window_around_the_configured_gaze(x_
     from vrcorrect.specs.display import get_display
 
     ppd = get_display("quest2").pixels_per_degree
+    from vrcorrect.solvers.foveated import fovea_pixels
+
     radius, (gx, gy) = 12, (60, 30)                          # px; the gaze's pixel (x, y rows top first)
     gaze_deg = [(gx + 0.5 - VIEW[0] / 2) / ppd, (VIEW[1] / 2 - gy - 0.5) / ppd]
     config = tmp_path / "layer.json"
@@ -196,7 +198,8 @@ def test_a_foveated_layer_corrects_only_the_window_around_the_configured_gaze(x_
     _run(kit, out, corrected=1, VRCORRECT_LAYER_CONFIG=str(config), APP_FRAMES="1")
     frame = _corrected_frames(out, 1)[0]
     pics = _pictures()
-    y0, y1, x0, x1 = gy - radius, gy + radius, gx - radius, gx + radius
+    solved = fovea_pixels(radius / ppd, ppd)[0]              # the window: the radius and its blend band
+    y0, y1, x0, x1 = gy - solved, gy + solved, gx - solved, gx + solved
     outside = np.ones(VIEW[::-1], bool)
     outside[y0:y1, x0:x1] = False
     for view, eye in enumerate(EYES):

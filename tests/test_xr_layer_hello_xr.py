@@ -162,7 +162,7 @@ def test_disable_vrcorrect_layer_leaves_hello_xrs_frames_as_it_drew_them(kit, xo
 # the simulated eye tracker's path (XRTEST_GAZE_DEG): the corners of a rectangle, each held 3 frames
 GAZE_CORNERS = ((-20.0, 15.0), (20.0, 15.0), (20.0, -15.0), (-20.0, -15.0))
 GAZE_PATH = [GAZE_CORNERS[(i // 3) % 4] for i in range(4096)]    # the runtime takes at most 4096; the last holds
-FOVEA_PX = 15                                       # the window's half-side, px
+FOVEA_PX = 15                                       # the fovea's radius, px (the window adds its blend band)
 
 
 def _gaze_pixel(point: tuple[float, float], view: int) -> tuple[float, float]:
@@ -190,11 +190,14 @@ def test_hello_xr_gets_a_foveated_correction_that_follows_a_simulated_eye_tracke
     tracker (XR_EXT_eye_gaze_interaction), adds its own action set beside hello_xr's and its action
     set to hello_xr's syncs; every corrected frame is hello_xr's image, code for code, outside a window
     around that frame's gaze (the runtime's path, moving every 3 frames), and corrected inside it."""
+    from vrcorrect.solvers.foveated import fovea_pixels
     from vrcorrect.specs.display import get_display
 
+    ppd = get_display("quest2").pixels_per_degree
+    half_side = fovea_pixels(FOVEA_PX / ppd, ppd)[0]         # the window: the radius and its blend band
     config = tmp_path / "layer.json"
     config.write_text(json.dumps({"rx": str(kit.rx), "display": "quest2",
-                                  "options": {"fovea_deg": FOVEA_PX / get_display("quest2").pixels_per_degree,
+                                  "options": {"fovea_deg": FOVEA_PX / ppd,
                                               "fovea_periphery": "target"}}))
     out = tmp_path / api
     fmt = APIS[api][0]
@@ -219,8 +222,8 @@ def test_hello_xr_gets_a_foveated_correction_that_follows_a_simulated_eye_tracke
             point = GAZE_PATH[min(frame, len(GAZE_PATH) - 1)]
             gx, gy = _gaze_pixel(point, view)
             inside = np.zeros(got.shape[:2], bool)
-            y0, x0 = max(int(gy) - FOVEA_PX - 1, 0), max(int(gx) - FOVEA_PX - 1, 0)
-            inside[y0:int(gy) + FOVEA_PX + 2, x0:int(gx) + FOVEA_PX + 2] = True
+            y0, x0 = max(int(gy) - half_side - 1, 0), max(int(gx) - half_side - 1, 0)
+            inside[y0:int(gy) + half_side + 2, x0:int(gx) + half_side + 2] = True
             changed = np.abs(got - drawn).max(axis=-1) > 2      # the layer's round trip: within 2/255 (kit)
             assert not changed[~inside].any(), (api, frame, view, np.argwhere(changed & ~inside)[:5])
             if changed.any():

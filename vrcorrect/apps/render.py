@@ -205,15 +205,16 @@ def _print_fovea(info: dict) -> None:
         return
     x, y = info["gaze_deg"]
     window = info.get("fovea_window")
-    where = "" if window is None else (f" (the last frame's window: rows {window[0]}-{window[1]}, columns "
-                                       f"{window[2]}-{window[3]})")
+    where = "" if window is None else (f" (the last frame's window with its band: rows {window[0]}-{window[1]}, "
+                                       f"columns {window[2]}-{window[3]})")
     periphery = info.get("fovea_periphery", "target")
     outside = ("the rest of the view as it is" if periphery == "target" else
                f"outside it a correction of the whole view at {'half' if periphery == 'half' else 'a quarter of'} the "
                f"resolution ({info.get('fovea_periphery_iterations')} iteration(s) a frame)")
-    print(f"  foveated: corrected on a window of radius {info['fovea_deg']:g} deg ({info['fovea_radius_px']} px) around "
-          f"the gaze at ({x:g}, {y:g}) deg{where}, faded over {info['fovea_band_px']} px; {outside}; the objective "
-          "is the window's sub-image's")
+    band = info["fovea_band_px"]
+    print(f"  foveated: corrected on a window of radius {info['fovea_deg']:g} deg ({info['fovea_radius_px'] - band} px) "
+          f"around the gaze at ({x:g}, {y:g}) deg and faded over {band} px beyond it{where}; {outside}; the "
+          "objective is the window's sub-image's")
 
 
 def _median(values) -> float | None:

@@ -62,6 +62,9 @@ def make_strategy(gpu: "Gpu", model: "EyeModel", options: "CorrectorOptions", en
     if options.fovea_deg is not None and options.filter == Filter.ADMM:
         if ppd is None:
             raise ValidationError("ppd", ppd, "the display's pixels per degree (for fovea_deg)")
-        return FoveatedStrategy(gpu, model, options, encoder, decoder, radius_px=options.fovea_deg * ppd,
+        from ...solvers.foveated import fovea_pixels  # start-up time: scipy with the first eye
+
+        radius_px, band_px = fovea_pixels(options.fovea_deg, ppd)
+        return FoveatedStrategy(gpu, model, options, encoder, decoder, radius_px=radius_px, band_px=band_px,
                                 periphery=options.fovea_periphery)
     return STRATEGIES[options.filter](gpu, model, options, encoder, decoder)

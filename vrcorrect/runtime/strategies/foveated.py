@@ -58,8 +58,8 @@ DEFAULT_PERIPHERY = Periphery.QUARTER
 loses nearly all of the full field's gain to FovVideoVDP on a Quest 2 (``bench fovea``): at 19 px
 a degree the display carries at most 9.4 cycles a degree, and an eye 15-20 degrees from the fovea
 still resolves about 6-8, so the periphery sees the blur.  A half-resolution periphery keeps nearly
-all of the gain but costs a Quest 2 eye 0.67 GB a frame at a 15 degree window; a quarter-resolution
-one 0.45 GB, inside issue 45's 0.5 GB (``bench cost --fovea 15``)."""
+all of the gain but costs a Quest 2 eye 0.70 GB a frame at a 15 degree window; a quarter-resolution
+one 0.48 GB, inside issue 45's 0.5 GB (``bench cost --fovea 15``)."""
 
 
 def gaze_pixels(gaze_deg: tuple[float, float], size: Size, ppd: float) -> tuple[float, float]:
@@ -72,9 +72,10 @@ def gaze_pixels(gaze_deg: tuple[float, float], size: Size, ppd: float) -> tuple[
 class FoveatedStrategy(AdmmStrategy):
     """The ADMM strategy on a window around :attr:`gaze_px` (module docstring).
 
-    ``radius_px``: the window's half-side in view pixels (the radius in degrees times the display's
-    pixels per degree); ``band_px``: the blend band (default: a quarter of the radius, at least 4,
-    at most the radius, as the twin's); ``periphery``: ``"target"``, ``"half"`` or ``"quarter"``."""
+    ``radius_px``: the half-side of the window solved, in view pixels; ``band_px``: the blend band
+    along its edges (default: a quarter of it, at least 4, at most all of it, as the twin's).
+    :func:`~vrcorrect.solvers.foveated.fovea_pixels` gives both for a fovea in degrees: the radius
+    plus a band beyond it (what :func:`~vrcorrect.runtime.strategies.make_strategy` passes); ``periphery``: ``"target"``, ``"half"`` or ``"quarter"``."""
 
     name = "admm"
 

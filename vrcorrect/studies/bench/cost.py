@@ -55,6 +55,7 @@ from ...plumbing.errors import ValidationError
 from ...runtime.corrector import Corrector, CorrectorOptions
 from ...runtime.dispatch import BANDWIDTHS, CostLedger, project_ms
 from ...runtime.gl import format_ms, headless_context, release, render_target, software_renderer, upload_texture, write_texture
+from ...solvers.foveated import fovea_pixels
 from ...specs.display import get_display
 from ...specs.prescription import Prescription, bundled_sample_path, load_prescription
 from ...specs.vocabulary import VIEW_ORDER
@@ -371,6 +372,7 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
         "methods": [r.row(projection["efficiency"]) for r in results],
         "gaze_deg": list(gaze_deg),
         "fovea": [{"radius_deg": r, "radius_px": int(round(r * display.pixels_per_degree)),
+                   "band_px": fovea_pixels(r, display.pixels_per_degree)[1],
                    "periphery": fovea_method(r, periphery)[1]["fovea_periphery"],
                    "bytes_per_eye_frame": max(m.changing.bytes for m in results
                                               if m.label == fovea_method(r, periphery)[0]),
@@ -394,8 +396,9 @@ def _fovea_section(report: dict[str, Any], gpus: list[str], efficiency: float) -
         b = f["bytes_per_eye_frame"]
         both = ", ".join(f"{2 * project_ms(b, BANDWIDTHS[g][0] * efficiency):.1f} ms on {g}" for g in gpus)
         grid = "x".join(str(v) for v in f["grid"][::-1])
-        lines.append(f"- radius {f['radius_deg']:g} deg ({f['radius_px']} px, a window of {2 * f['radius_px']} px a side "
-                     f"and its ring, FFT grid {grid}; periphery: {f['periphery']}): {_gb(b)} GB per eye per changing "
+        solved = 2 * (f["radius_px"] + f["band_px"])
+        lines.append(f"- radius {f['radius_deg']:g} deg ({f['radius_px']} px, and a blend band of {f['band_px']} px "
+                     f"beyond it: a window of {solved} px a side and its ring, FFT grid {grid}; periphery: {f['periphery']}): {_gb(b)} GB per eye per changing "
                      f"frame, {100 * b / d:.0f} % of "
                      f"the full field's; both eyes projected at {both}"
                      + (f" (issue 45's target at 15 deg: at most {FOVEA_TARGET_BYTES / 1e9:.1f} GB: "

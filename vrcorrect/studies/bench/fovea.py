@@ -4,7 +4,8 @@ The real-time default's frame (ADMM over frames) solved on the whole view agains
 solved on a window around the gaze (:mod:`vrcorrect.solvers.foveated`, the CPU twin the GPU's
 foveated frame equals, ``tests/test_runtime_fovea.py``), for window radii :data:`RADII_DEG` and
 iterations per frame :data:`ITERATIONS`, on images the foveation was never tuned on (nothing in it
-was tuned on an image: the blend band is a quarter of the radius, the ring the kernel's radius):
+was tuned on an image: the ring is the kernel's radius; the blend band lies beyond the fovea's
+radius, a tenth of it, set by the bytes of a Quest 2 eye at 15 degrees, not by a score):
 scikit-image's stereo_motorcycle and rocket (colour photographs) and page (a scanned page of text,
 grey paper), each centre-cropped and scaled to the view.  The view is :data:`VIEW` px square on ``quest2`` (18.9 px a degree:
 51 degrees); the eye is the issue's (right, -2.00/-1.00 x 120) through a 3 mm pupil, a headset's
@@ -16,7 +17,8 @@ What the eye sees of each is scored against the glasses-on view:
 * **FovVideoVDP** (:func:`~vrcorrect.vision.metrics.foveated_jod`, foveated mode) with the eye
   fixating the window's centre, and fixating :data:`OFF_DEG` degrees to its right (the tracker's
   error, or a fixed window and a wandering eye), each against no correction and the full field;
-* **ColorVideoVDP** (:func:`~vrcorrect.vision.metrics.jod`) on the window's crop (foveated against
+* **ColorVideoVDP** (:func:`~vrcorrect.vision.metrics.jod`) on the window's crop (the fovea's
+  radius, without the band beyond it; foveated against
   the full field there) and on the view's strips left and right of the window (foveated against no
   correction there: the view outside the window is the target, only the light the window spills
   changes it).
@@ -39,7 +41,7 @@ from tqdm import tqdm
 
 from ...physics.kernel import build_kernel, build_reference_kernel
 from ...runtime.strategies.foveated import DEFAULT_PERIPHERY, PERIPHERY_ITERATIONS
-from ...solvers.foveated import PERIPHERIES, FoveatedFrames
+from ...solvers.foveated import PERIPHERIES, FoveatedFrames, fovea_pixels
 from ...solvers.realtime import AdmmFrames
 from ...specs.display import decode, get_display
 from ...specs.prescription import EyeRx, Prescription
@@ -124,6 +126,13 @@ def _gl_costs(radius: float | None, k: int, periphery: str, view: tuple[int, int
     return result
 
 
+def _inset(win: tuple[int, int, int, int], band: int, view: int) -> tuple[int, int, int, int]:
+    """The window solved, less its blend band along the edges inside the view: the fovea's radius."""
+    y0, y1, x0, x1 = win
+    return (y0 + band if y0 > 0 else 0, y1 - band if y1 < view else view,
+            x0 + band if x0 > 0 else 0, x1 - band if x1 < view else view)
+
+
 def settings_of(radii: Sequence[float], iterations: Sequence[int]) -> list[tuple[int, float | None, str]]:
     """The settings run per image, ``(iterations a frame, radius or None for the full field,
     periphery)``: every radius with every periphery at the default iterations; the full field and
@@ -173,10 +182,11 @@ def run_fovea_bench(out: Path, write: bool = True, plot: Path | None = None, jso
                     shown, _ = _frames(AdmmFrames(K, R, shape), target, k, frames)
                     window = (0, view, 0, view)
                 else:
-                    twin = FoveatedFrames(K, R, shape, radius_px=r * ppd, periphery=p,
+                    radius_px, band_px = fovea_pixels(r, ppd)
+                    twin = FoveatedFrames(K, R, shape, radius_px=radius_px, band_px=band_px, periphery=p,
                                           periphery_iterations=PERIPHERY_ITERATIONS.get(p))
                     shown, last = _frames(twin, target, k, frames, gaze_px=centre)
-                    window = last.window.win
+                    window = _inset(last.window.win, band_px, view)        # the fovea's radius: no band
                 s = seen(shown)
                 c = costs[(k, r, p)]
                 row = {"radius_deg": r, "iterations": k, "periphery": p, "window": list(window),
