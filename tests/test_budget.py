@@ -71,6 +71,29 @@ def test_a_change_of_load_is_followed_back_to_the_budget():
     assert budget.q < q_before
 
 
+def test_a_jump_of_load_is_refitted_within_a_few_frames_not_a_whole_window():
+    """Forty frames at one load, then about twice the cost: the line is fitted anew from the
+    first slow frame, so the frames are back near the budget within a handful, not after the
+    frames of the old load have left the fit."""
+    plant = Plant(fixed=1.0, per_iteration=0.5, noise=0.01)
+    budget = FrameBudget(4.0, iterations=(1, 64), start=2)
+    plant.run(budget, 40)
+    assert budget.q == pytest.approx(6.0, abs=0.3)
+    plant.fixed, plant.per = 1.5, 1.0                       # twice the cost: 2.5 iterations fit now
+    after = plant.run(budget, 12)
+    assert after[0][1] > 4.0 * 1.5                          # felt (two frames late) ...
+    times = [round(t, 2) for _, t in after]
+    assert max(times[2:]) < 4.0 * 1.5, times                 # ... and mended from the next frame timed on,
+    assert _mean_ms(after[4:]) == pytest.approx(4.0, rel=BAND), times   # dithered about the budget
+
+
+def test_a_budget_turns_the_early_stop_off():
+    from vrcorrect.runtime.eye_model import CorrectorOptions
+
+    assert CorrectorOptions().early_stop is True
+    assert CorrectorOptions(budget_ms=3.0).early_stop is False
+
+
 def test_the_radius_shrinks_only_when_the_fewest_iterations_overrun_and_grows_back_with_hysteresis():
     ladder = radius_ladder(20.0, 0.5)
     assert ladder == (20.0, 15.0, 10.0, 7.0, 5.0)

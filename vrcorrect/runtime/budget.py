@@ -7,7 +7,8 @@ budget.
   - The iterations: a straight line ``ms = a + b k`` fitted to the recent frames' times (the
     timings come two frames late) gives the real number of iterations ``q`` that fits the budget.
     The frames run ``floor(q)`` or ``floor(q) + 1`` iterations, dithered by error diffusion, so that
-    their mean time is the budget: single frames lie within one iteration's time of it.
+    their mean time is the budget: single frames lie within one iteration's time of it. A frame far
+    from the line (:data:`JUMP`) starts a new fit: the load changed.
   - The radius (hysteresis): a smaller one only when even the fewest iterations have overrun the
     budget by more than :data:`BAND` for :data:`DWELL_FRAMES` frames in a row; the larger one again
     only when its fewest iterations would fit with :data:`BAND` to spare for as long (their time
@@ -17,7 +18,10 @@ budget.
 * :class:`GpuTimer`: ``GL_TIMESTAMP`` queries in a ring, read two frames late so that nothing
   waits for the GPU.
 
-Without a budget the fixed settings apply, and nothing here runs.
+Under a budget the early stop is off (``CorrectorOptions.budget_ms``): a converged still view would
+time as nearly free and teach the fit that iterations cost nothing, and the first changing frame
+after it would then run far too many.  Without a budget the fixed settings apply, and nothing here
+runs.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ from typing import Any, Sequence
 
 from ..plumbing.errors import ValidationError
 
-__all__ = ["MIN_BUDGET_MS", "MAX_BUDGET_MS", "BAND", "DWELL_FRAMES", "FIT_FRAMES", "RADIUS_STEPS", "BudgetChoice",
+__all__ = ["MIN_BUDGET_MS", "MAX_BUDGET_MS", "BAND", "DWELL_FRAMES", "FIT_FRAMES", "JUMP", "RADIUS_STEPS", "BudgetChoice",
            "FrameBudget", "GpuTimer", "radius_ladder", "check_budget_ms"]
 
 MIN_BUDGET_MS = 0.05
@@ -42,6 +46,9 @@ DWELL_FRAMES = 8
 """Frames in a row past the band before the radius moves, and the least between two moves."""
 FIT_FRAMES = 24
 """The recent frames the line ``ms = a + b k`` is fitted to."""
+JUMP = 1.5
+"""A frame this many times slower (or faster) than the line predicts is a change of load: the line is
+fitted anew from it."""
 RADIUS_STEPS = (1.0, 0.75, 0.5, 0.35, 0.25)
 """The radius ladder, as fractions of the configured radius."""
 
@@ -126,6 +133,11 @@ class FrameBudget:
         self.history.append((choice, ms))
         if choice.fovea_deg != self.fovea_deg:
             return
+        if len(self._samples) >= 4:              # a change of load (a new picture size, a new scene): refit
+            a, b = self._fit()
+            predicted = a + b * choice.iterations
+            if not predicted / JUMP <= ms <= predicted * JUMP:
+                self._samples.clear()
         self._samples.append((choice.iterations, ms))
         a, b = self._fit()
         self.q = min(max((self.budget_ms - a) / b, self.low), self.high)

@@ -254,6 +254,7 @@ class CorrectorOptions:
         An iterative filter (``admm``, ``fista``): hold each frame's GPU time at this many ms, the
         Corrector choosing the iterations a frame and, with ``fovea_deg``, the window's radius from
         ``fovea_deg`` down (:mod:`vrcorrect.runtime.budget`); ``None`` (default): the fixed settings.
+        A budget turns ``early_stop`` off.
     """
 
     regularisation: tuple[float, ...] = (0.03, 0.1, 0.3)
@@ -289,6 +290,7 @@ class CorrectorOptions:
             if self.filter not in ITERATIVE_FILTERS or self.backend != Backend.GLSL:
                 raise ValidationError("budget_ms", self.budget_ms, "only with an iterative filter ("
                                       + either(ITERATIVE_FILTERS) + ") on the glsl backend")
+            object.__setattr__(self, "early_stop", False)   # runtime.budget: a still view must not time as free
         if self.pupil not in ("rx", "auto"):
             from ..physics.pupil import check_pupil_mm  # start-up time: the optics load with the first eye
 
