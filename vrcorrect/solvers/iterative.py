@@ -77,13 +77,13 @@ def paper(problem: Problem, iterations: int = 100, learning_rate: float = 0.01, 
     t = _chw(problem.target_lms)
     x = _chw(problem.target).clone().requires_grad_(True)
     opt = torch.optim.Adam([x], lr=learning_rate)
-    opponent = torch.tensor(np.array(OPPONENT_MATRIX), dtype=torch.float32)
+    to_opponent = torch.tensor(np.array(OPPONENT_MATRIX), dtype=torch.float32)
     history = []
     for it in range(iterations):
         opt.zero_grad()
         sim = op.forward(x)
         if opponent:
-            loss = torch.mean((torch.einsum("ok,kyx->oyx", opponent, sim - t)) ** 2)
+            loss = torch.mean((torch.einsum("ok,kyx->oyx", to_opponent, sim - t)) ** 2)
         else:
             loss = torch.mean((sim - t) ** 2)
         if float(loss.detach()) < 1e-10:      # already optimal: Adam's normalised steps would only add noise
