@@ -90,7 +90,8 @@ def test_the_budget_holds_the_frame_time_while_the_content_changes_and_cuts(gl, 
         ks = [choice.iterations for choice, _ in c.budget.history]
         assert len(measured) >= 50                            # the timestamps were read, two frames late
         tail = measured[-16:]
-        assert abs(statistics.mean(tail) / budget_ms - 1) <= BAND, (budget_ms, tail, ks[-16:])
+        # the median: this machine's scheduler may stall one frame for a second (CI once did)
+        assert abs(statistics.median(tail) / budget_ms - 1) <= BAND, (budget_ms, tail, ks[-16:])
         assert 1 <= min(ks[-16:]) and max(ks[-16:]) <= 5 and len(set(ks[-16:])) <= 3, ks[-16:]
         assert "budget" in c.describe()["budget"]
     finally:
@@ -109,14 +110,14 @@ def test_a_budget_the_window_cannot_meet_shrinks_the_fovea(gl, frame):
     budget_ms = 0.55 * t1                                     # one iteration at the full window overruns it
     c = Corrector(gl, rx, "quest2", "right", budget_ms=budget_ms, **options)
     try:
-        for i in range(70):
+        for i in range(120):                                  # time to settle: each move waits DWELL_FRAMES
             G.write_texture(src, pictures[i % len(pictures)])
             c.gaze_deg = (0.0, 0.0)
             c.apply(src, fbo)
         gl.finish()
         assert c.budget.fovea_deg < radius and c.options.fovea_deg == c.budget.fovea_deg
         assert c.budget.moves >= 1
-        tail = [ms for choice, ms in list(c.budget.history)[-8:] if choice.fovea_deg == c.budget.fovea_deg]
-        assert tail and statistics.mean(tail) <= budget_ms * (1 + BAND), (budget_ms, tail)
+        tail = [ms for choice, ms in list(c.budget.history)[-16:] if choice.fovea_deg == c.budget.fovea_deg]
+        assert len(tail) >= 8 and statistics.median(tail) <= budget_ms * (1 + BAND), (budget_ms, tail)
     finally:
         c.release()

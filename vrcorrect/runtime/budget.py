@@ -7,8 +7,9 @@ budget.
   - The iterations: a straight line ``ms = a + b k`` fitted to the recent frames' times (the
     timings come two frames late) gives the real number of iterations ``q`` that fits the budget.
     The frames run ``floor(q)`` or ``floor(q) + 1`` iterations, dithered by error diffusion, so that
-    their mean time is the budget: single frames lie within one iteration's time of it. A frame far
-    from the line (:data:`JUMP`) starts a new fit: the load changed.
+    their mean time is the budget: single frames lie within one iteration's time of it. Two frames
+    in a row far from the line (:data:`JUMP`) start a new fit: the load changed. One such frame
+    alone (a hitch: the system stalled the process, a driver compiled a shader) is left out.
   - The radius (hysteresis): a smaller one only when even the fewest iterations have overrun the
     budget by more than :data:`BAND` for :data:`DWELL_FRAMES` frames in a row; the larger one again
     only when its fewest iterations would fit with :data:`BAND` to spare for as long (their time
@@ -47,8 +48,8 @@ DWELL_FRAMES = 8
 FIT_FRAMES = 24
 """The recent frames the line ``ms = a + b k`` is fitted to."""
 JUMP = 1.5
-"""A frame this many times slower (or faster) than the line predicts is a change of load: the line is
-fitted anew from it."""
+"""Two frames in a row this many times slower (or faster) than the line predicts are a change of
+load: the line is fitted anew from them. One alone is a hitch, left out of the fit."""
 RADIUS_STEPS = (1.0, 0.75, 0.5, 0.35, 0.25)
 """The radius ladder, as fractions of the configured radius."""
 
@@ -104,6 +105,10 @@ class FrameBudget:
         self.q = float(min(max(start, low), high))
         self._carry = 0.0
         self._samples: deque[tuple[int, float]] = deque(maxlen=FIT_FRAMES)
+        self._line: tuple[float, float] | None = None      # the fit to _samples, kept until they change
+        self._hitch: tuple[int, float] | None = None       # a frame far off the line, not yet believed
+        self.hitches = 0
+        """Frames left out of the fit as hitches (one frame far off the line, the next back on it)."""
         self._over = self._under = 0
         self._since_move = DWELL_FRAMES
         self.last_ms: float | None = None
@@ -134,12 +139,19 @@ class FrameBudget:
         if choice.fovea_deg != self.fovea_deg:
             return
         if len(self._samples) >= 4:              # a change of load (a new picture size, a new scene): refit
-            a, b = self._fit()
+            a, b = self._line or self._fit()
             predicted = a + b * choice.iterations
             if not predicted / JUMP <= ms <= predicted * JUMP:
-                self._samples.clear()
+                if self._hitch is None:           # one frame alone may be a hitch: wait for the next
+                    self._hitch = (choice.iterations, ms)
+                    return
+                self._samples.clear()             # two in a row: the load changed; both start the fit
+                self._samples.append(self._hitch)
+            elif self._hitch is not None:
+                self.hitches += 1
+            self._hitch = None
         self._samples.append((choice.iterations, ms))
-        a, b = self._fit()
+        self._line = a, b = self._fit()
         self.q = min(max((self.budget_ms - a) / b, self.low), self.high)
         fewest = a + b * self.low
         self._over = self._over + 1 if fewest > self.budget_ms * (1 + BAND) else 0
@@ -174,6 +186,7 @@ class FrameBudget:
     def _move(self, step: int) -> None:
         self.level += step
         self._samples.clear()
+        self._line = self._hitch = None
         self._over = self._under = 0
         self._since_move = 0
         self._carry = 0.0
