@@ -1,7 +1,8 @@
 """Shared fixtures: an X display for GLFW windows (a private Xvfb when none is set) and the
 headless OpenGL context of the real-time tests; and the markers that sort the tests by what they
 need (``pytest_collection_modifyitems``): ``gl``, ``x`` and ``xr`` from the fixtures a test asks for
-or its module uses, ``torch`` and ``cvvdp`` from its module's imports, ``slow`` by hand.
+or its module uses, ``torch`` and ``cvvdp`` from its module's imports, ``slow`` and ``serial`` (reads
+a clock: run alone) by hand.
 ``bash tools/test.sh --fast`` runs what needs none of them.
 
 These tests must run, not skip, wherever tools/setup.sh has run (it installs xvfb and Mesa):
@@ -44,6 +45,11 @@ SLOW_MODULES = ("test_cli_correct.py", "test_first_hour.py", "test_cli_signals.p
 SLOW_TESTS = ("test_unusual_but_valid_images_are_corrected", "test_closing_a_bank_stops_the_design",
               "test_every_accepted_prescription_is_modelled_on_every_display_preset")
 """Tests (name prefixes) that take seconds each in modules of quick ones: ``slow``."""
+SERIAL_MODULES = ("test_runtime_budget.py", "test_cli_signals.py", "test_xr_layer_wheel.py")
+SERIAL_TESTS = ("test_a_long_gl_call_lets_other_python_threads_run", "test_progress_says_it_is_still_working")
+"""Tests whose assertions read a clock (a frame budget held, a signal sent at a fraction of a timed
+run, a launch within seconds, a thread's ticks): ``serial``. ``tools/test.sh`` runs them alone, after
+the rest has run in parallel, so that a neighbour's load does not move their times."""
 
 
 def pytest_collection_modifyitems(config, items):
@@ -64,6 +70,8 @@ def pytest_collection_modifyitems(config, items):
                 item.add_marker(mark)
         if item.path.name in SLOW_MODULES or item.name.startswith(SLOW_TESTS):
             item.add_marker("slow")
+        if item.path.name in SERIAL_MODULES or item.name.startswith(SERIAL_TESTS):
+            item.add_marker("serial")
 
 
 @pytest.fixture(scope="session")

@@ -1,7 +1,10 @@
 #!/usr/bin/env bash
 # Installs what the tests need (tools/setup.sh), then runs them:
 #
-#   bash tools/test.sh           ruff check, then the whole test suite (what CI runs: .ci/run)
+#   bash tools/test.sh           ruff check, then the whole test suite (what CI runs: .ci/run): every
+#                                test not marked serial on every core (pytest-xdist, a test file to a
+#                                worker, so that a file's session fixtures are built once), then the
+#                                serial ones (they read a clock) alone
 #   bash tools/test.sh --fast    the developer's loop: the tests that need no OpenGL, X display, OpenXR,
 #                                torch or ColorVideoVDP and are not marked slow (tests/conftest.py marks
 #                                them), on every core (pytest-xdist); about 550 tests in under 2 minutes
@@ -16,5 +19,9 @@ if [ "${1:-}" = "--fast" ]; then
 fi
 if [ $# -eq 0 ]; then
   .venv/bin/ruff check .
+  status=0
+  .venv/bin/python -m pytest -q -p no:cacheprovider -n auto --dist loadfile -m "not serial" || status=$?
+  .venv/bin/python -m pytest -q -p no:cacheprovider -m serial || status=$?
+  exit "$status"
 fi
 exec .venv/bin/python -m pytest -q -p no:cacheprovider "$@"
