@@ -27,9 +27,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vrcorrect.plumbing.errors import ValidationError
+from vrcorrect.plumbing.errors import ValidationError, XrSessionError
 from vrcorrect.runtime.xr import (
-    EXIT_NO_RUNTIME, EXIT_SESSION_LOST, GL_RGBA8, GL_SRGB8_ALPHA8, SessionTracker, XrSessionError,
+    EXIT_NO_RUNTIME, EXIT_SESSION_LOST, GL_RGBA8, GL_SRGB8_ALPHA8, SessionTracker,
     choose_swapchain_format, pose_matrix, projection_from_fov, view_matrix,
 )
 

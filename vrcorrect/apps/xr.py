@@ -11,7 +11,7 @@ import time
 from ..plumbing.errors import ValidationError
 from ..runtime.model_path import model_for_backend
 from ..runtime.sources import parse_source
-from ..runtime.window import XrUnavailableError
+from ..plumbing.errors import XrUnavailableError
 from ..runtime.xr import EXIT_NO_RUNTIME, EXIT_SESSION_LOST, XrApp, XrConfig
 from .common import rx_path
 from .realtime_options import (

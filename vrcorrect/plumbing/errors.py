@@ -113,6 +113,14 @@ class GLUnavailableError(GLError):
     """No OpenGL context could be created (library missing, no display, version too old)."""
 
 
+class XrUnavailableError(VrcorrectError, RuntimeError):
+    """No OpenXR runtime, or no headset: the message is the paragraph shown to the user."""
+
+
+class XrSessionError(VrcorrectError, RuntimeError):
+    """An OpenXR call failed while the session ran (names the call and the runtime's result)."""
+
+
 def json_error_location(exc) -> str:
     """Where a ``json.JSONDecodeError`` really is, in words: ``"line L, column C: message"``.
 

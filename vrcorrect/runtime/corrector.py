@@ -45,7 +45,7 @@ from ..plumbing.errors import ValidationError, VrcorrectError
 from ..plumbing.fileio import file_stamp
 from ..specs.display import DisplayProfile, get_display
 from ..specs.prescription import EyeRx, Prescription, load_prescription
-from ..specs.vocabulary import ITERATIONS_PER_FRAME, Backend, Eye, either, names, one_of
+from ..specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, Backend, Eye, either, names, one_of
 from .budget import FrameBudget, GpuTimer, radius_ladder
 from .dispatch import CostLedger, Gpu
 from .eye_model import (  # noqa: F401  (re-exported)
@@ -69,7 +69,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from .learned import LearnedModel
     from .unrolled import UnrolledModel
 
-__all__ = ["CorrectorOptions", "EyeModel", "Corrector", "RxSnapshot", "build_eye_model", "file_stamp"]
+__all__ = ["CorrectorOptions", "EyeModel", "Corrector", "RxSnapshot", "build_eye_model", "file_stamp", "runs_iterations"]
 
 log = logging.getLogger(__name__)
 
@@ -654,3 +654,9 @@ class Corrector:
         self._seen.clear()
         if self._onnx is not None:
             self._onnx.release()
+
+
+def runs_iterations(corrector: Corrector) -> bool:
+    """True if ``corrector`` runs iterations spread over frames (GLSL, ``filter`` ``"admm"`` or
+    ``"fista"``)."""
+    return corrector.backend == Backend.GLSL and corrector.options.filter in ITERATIVE_FILTERS

@@ -34,7 +34,7 @@ from .gl import check_gl_errors, release, upload_texture
 from .shaders import compile_program
 from .sources import EyeSource, EyeTarget, SourceSpec, open_picture_source
 from .text import default_font
-from .window import require_moderngl
+from .optional import require_moderngl
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl

@@ -52,7 +52,8 @@ from ..plumbing.images import IMAGE_SUFFIXES
 from .gl import Rect, draw_fullscreen, fullscreen_triangle, release, render_target, upload_texture, write_texture
 from .motion import MotionTracker
 from .shaders import compile_program
-from .window import import_optional, runs_iterations
+from .corrector import runs_iterations
+from .optional import import_optional
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl

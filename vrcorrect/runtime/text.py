@@ -21,7 +21,7 @@ from PIL import Image, ImageDraw, ImageFont
 from ..plumbing.errors import ValidationError
 from .gl import release, upload_texture
 from .shaders import compile_program
-from .window import require_moderngl
+from .optional import require_moderngl
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl

@@ -1,8 +1,5 @@
 """The window shell the real-time applications share (the mirror, the overlay, the headset app).
 
-* Optional dependencies, imported when first needed, with one message naming the extra to
-  install (:func:`import_optional`, :func:`require_moderngl`, :func:`require_glfw`,
-  :func:`require_xr`).
 * :func:`srgb_display`: the display profile of an application, refused unless its transfer is
   sRGB (the real-time path encodes sRGB only).
 * :class:`GlfwSession`: GLFW with one window and its OpenGL 4.3 core context (moderngl).
@@ -20,7 +17,6 @@ Layer 5: numpy, Pillow, moderngl, glfw (pyopenxr for the headset); never torch.
 
 from __future__ import annotations
 
-import importlib
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -34,11 +30,12 @@ from ..plumbing.errors import GLUnavailableError, InputError, ValidationError, V
 from ..plumbing.imageio import write_png
 from ..specs.display import get_display
 from ..specs.prescription import EyeRx, bundled_sample_path
-from ..specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, Backend, names
-from .corrector import Corrector, RxSnapshot
+from ..specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, names
+from .corrector import Corrector, RxSnapshot, runs_iterations
 from .eye_model import CorrectorOptions
 from .eye_source import EyeSource, EyeUpdate
 from .gl import read_framebuffer, timer_query_ms
+from .optional import require_glfw, require_moderngl
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
@@ -46,54 +43,12 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from ..specs.display import DisplayProfile
 
 __all__ = [
-    "REALTIME_EXTRA", "XrUnavailableError", "import_optional", "require_moderngl", "require_glfw", "require_xr",
     "srgb_display", "GlfwSession", "StageTimes", "write_screenshot",
     "GLFW_PRESS", "KEY_ESCAPE", "KEY_LEFT_BRACKET", "KEY_RIGHT_BRACKET", "MOD_SHIFT", "MOD_CONTROL", "MOD_ALT",
     "MOD_SUPER", "key_letter", "key_map_text", "Screenshot", "Iterations", "ITERATION_KEYS",
-    "iteration_key", "next_iterations", "runs_iterations", "change_iterations", "knob_text", "WindowApp", "KeyState",
+    "iteration_key", "next_iterations", "change_iterations", "knob_text", "WindowApp", "KeyState",
     "FrameConfig", "KeyedWindowApp",
 ]
-
-# --------------------------------------------------------------------------
-# Optional dependencies
-# --------------------------------------------------------------------------
-
-REALTIME_EXTRA = "pip install -e '.[realtime]' (tools/setup.sh does)"
-"""How to install the real-time path's optional dependencies."""
-
-
-class XrUnavailableError(VrcorrectError, RuntimeError):
-    """No OpenXR runtime, or no headset: the message is the paragraph shown to the user."""
-
-
-def import_optional(module: str, *, package: str | None = None, error: type[VrcorrectError] = GLUnavailableError,
-                    needed_by: str | None = None) -> ModuleType:
-    """``module`` imported, or ``error`` saying which package is missing (``package``, default the
-    module's name), who needs it and how to install it (the realtime extra)."""
-    try:
-        return importlib.import_module(module)
-    except ImportError as exc:  # pragma: no cover - the realtime extra is installed in CI
-        who = f"{needed_by} needs {package or module}, which" if needed_by else package or module
-        raise error(f"{who} is not installed ({exc}); install the realtime extra: {REALTIME_EXTRA}") from None
-
-
-def require_moderngl() -> ModuleType:
-    """moderngl, or :class:`~vrcorrect.plumbing.errors.GLUnavailableError`."""
-    # lazy: importing the runtime (and building the CLI's parser) must not need moderngl
-    return import_optional("moderngl")
-
-
-def require_glfw() -> ModuleType:
-    """pyGLFW, or :class:`~vrcorrect.plumbing.errors.GLUnavailableError`."""
-    # lazy: glfw loads the native GLFW library, needed only once a window opens
-    return import_optional("glfw")
-
-
-def require_xr() -> ModuleType:
-    """pyopenxr, or :class:`XrUnavailableError`."""
-    # lazy: pyopenxr loads the OpenXR loader, needed only by the headset app
-    return import_optional("xr", package="pyopenxr", error=XrUnavailableError)
-
 
 def srgb_display(name_or_path: str | Path) -> "DisplayProfile":
     """The display preset or profile ``name_or_path``, which must have the sRGB transfer.
@@ -322,12 +277,6 @@ def next_iterations(k: int, up: bool) -> int:
     :data:`~vrcorrect.specs.vocabulary.ITERATIONS_PER_FRAME`."""
     low, high = ITERATIONS_PER_FRAME
     return min(high, max(low, 2 * k if up else k // 2))
-
-
-def runs_iterations(corrector: "Corrector") -> bool:
-    """True if ``corrector`` runs iterations spread over frames (GLSL, ``filter`` ``"admm"`` or
-    ``"fista"``)."""
-    return corrector.backend == Backend.GLSL and corrector.options.filter in ITERATIVE_FILTERS
 
 
 def change_iterations(correctors: Iterable["Corrector"], up: bool) -> str:

@@ -54,12 +54,13 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..plumbing.errors import ValidationError, VrcorrectError
+from ..plumbing.errors import ValidationError, XrSessionError, XrUnavailableError
 from ..specs.vocabulary import VIEW_ORDER, Backend, either, names
-from .corrector import Corrector
+from .corrector import Corrector, runs_iterations
 from .eye_model import CorrectorOptions, as_options
 from .gaze import gaze_deg_of, gaze_in_view
 from .gl import check_gl_errors, fullscreen_triangle, release
+from .optional import require_moderngl, require_xr
 from .motion import view_shift
 from .scene import DemoScene, open_source
 from .shaders import compile_program
@@ -71,13 +72,9 @@ from .window import (
     MOD_SUPER,
     StageTimes,
     WindowApp,
-    XrUnavailableError,
     change_iterations,
     iteration_key,
     knob_text,
-    require_moderngl,
-    require_xr,
-    runs_iterations,
 )
 from .xr_gaze import EXTENSION as GAZE_EXTENSION
 from .xr_gaze import EyeTracker, tracker_offered
@@ -88,7 +85,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 __all__ = [
     "EXIT_NO_RUNTIME", "EXIT_SESSION_LOST", "EXIT_GRACE_S", "GL_SRGB8_ALPHA8", "GL_RGBA8", "XR_STAGES",
     "XR_CPU_ONLY_STAGES",
-    "XrUnavailableError", "XrSessionError", "XrConfig", "SessionTracker", "choose_swapchain_format",
+    "XrConfig", "SessionTracker", "choose_swapchain_format",
     "pose_matrix", "view_matrix", "projection_from_fov", "no_runtime_message", "XrApp", "XrRunSummary",
 ]
 
@@ -113,10 +110,6 @@ display), ``begin``, ``locate``, ``acquire`` (acquire + wait for both swapchain 
 ``convert`` runs only with ``GL_RGBA8`` swapchains; ``mirror`` only with ``--mirror``."""
 XR_CPU_ONLY_STAGES = ("wait", "begin", "locate", "acquire", "release", "end")
 """The stages of :data:`XR_STAGES` timed on the CPU only (the OpenXR calls)."""
-
-
-class XrSessionError(VrcorrectError, RuntimeError):
-    """An OpenXR call failed while the session ran (names the call and the runtime's result)."""
 
 
 # --------------------------------------------------------------------------
