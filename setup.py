@@ -9,11 +9,11 @@ build dependency (no CMake, no Ninja, nothing fetched for the build beyond setup
 
 The library is not a Python extension module (nothing imports it: the OpenXR loader ``dlopen``s it
 and it embeds the interpreter), so it keeps the plain name the loader's manifest names,
-``vrcorrect/runtime/libvrcorrect_layer.so``, and links the shared libpython of the Python that builds
+``vrcorrect/runtime/layer/libvrcorrect_layer.so``, and links the shared libpython of the Python that builds
 it; the wheel is tagged for that Python and platform.  Linux only (the layer corrects OpenGL/Xlib and
 Vulkan sessions on Linux).  ``VRCORRECT_NO_LAYER=1`` builds vrcorrect without it (then ``layer
 install`` can build it from a source checkout, and says so).  The flags come from
-``layer/build_flags.py``, shared with the fallback build (``vrcorrect/runtime/layer_build.py``).
+``layer/build_flags.py``, shared with the fallback build (``vrcorrect/runtime/layer/build.py``).
 """
 
 from __future__ import annotations

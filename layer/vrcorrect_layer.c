@@ -1,4 +1,4 @@
-/* vrcorrect's OpenXR API layer: a thin C shim around vrcorrect.runtime.xrlayer (Python).
+/* vrcorrect's OpenXR API layer: a thin C shim around vrcorrect.runtime.layer.engine (Python).
  *
  * Loaded by the OpenXR loader from a layer manifest (implicit: `vrcorrect layer install`;
  * explicit for tests: XR_API_LAYER_PATH + XR_ENABLE_API_LAYERS). For OpenGL sessions
@@ -34,7 +34,7 @@
  * Environment: DISABLE_VRCORRECT_LAYER (the manifest's disable_environment: the loader skips the
  * layer), VRCORRECT_LAYER_LOG (log file), VRCORRECT_LAYER_FORMATS (comma-separated hex swapchain
  * formats the layer corrects, a subset of the lists above; default all); the engine reads the
- * others (vrcorrect/runtime/xrlayer.py).
+ * others (vrcorrect/runtime/layer/engine.py).
  *
  * Limits: one session per instance is corrected; a projection view must use imageArrayIndex 0 of a
  * 2D, single-sample, single-mip swapchain; views beyond two and other composition layers pass
@@ -323,9 +323,9 @@ PyObject *engine_call(const char *method, const char *format, ...) {
 static void engine_start(uint32_t view_w, uint32_t view_h, const char *vendor) {
     if (L.engine || L.engine_failed || !python_start()) return;
     PyGILState_STATE g = PyGILState_Ensure();
-    PyObject *module = PyImport_ImportModule("vrcorrect.runtime.xrlayer");
+    PyObject *module = PyImport_ImportModule("vrcorrect.runtime.layer.engine");
     if (!module) {
-        python_error("cannot import vrcorrect.runtime.xrlayer");
+        python_error("cannot import vrcorrect.runtime.layer.engine");
         L.engine_failed = 1;
     } else {
         PyObject *cls = PyObject_GetAttrString(module, "Engine");

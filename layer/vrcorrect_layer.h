@@ -79,7 +79,7 @@ typedef struct {
     int api;                         /* API_GL or API_VULKAN while a session is corrected */
     GLXContext context;              /* OpenGL: the session's context */
     Chain chains[MAX_SWAPCHAINS];
-    PyObject *engine;                /* vrcorrect.runtime.xrlayer.Engine, or NULL */
+    PyObject *engine;                /* vrcorrect.runtime.layer.engine.Engine, or NULL */
     int python_failed, engine_failed;
     int we_initialised;
     char last_reason[256];

@@ -1,5 +1,5 @@
 #version 330 core
-// The OpenXR layer's two passes around the Corrector (vrcorrect/runtime/xrlayer.py), each drawn with
+// The OpenXR layer's two passes around the Corrector (vrcorrect/runtime/layer/engine.py), each drawn with
 // the fullscreen triangle over a viewport. Defines (switches):
 //   DECODE  the application's submitted rect, texel for texel from u_source, into the layer's staging
 //           texture (viewport: the rect's size at 0, 0): sRGB code values when u_stage_codes (an 8-bit

@@ -1,5 +1,5 @@
 #version 330 core
-// The demo scene of `vrcorrect mirror` (vrcorrect.runtime.scene.DemoScene): textured, lit
+// The demo scene of `vrcorrect mirror` (vrcorrect.runtime.shell.scene.DemoScene): textured, lit
 // geometry drawn once per eye into an RGBA8 target that holds sRGB code values.
 // u_texture is an sRGB texture (GL_SRGB8_ALPHA8), so samples, filtering and mipmaps are in
 // linear light; lighting and fog are computed in linear light and the result is encoded to

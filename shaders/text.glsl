@@ -1,5 +1,5 @@
 #version 330 core
-// Screen-space text and panels of `vrcorrect mirror` (vrcorrect.runtime.mirror.TextOverlay):
+// Screen-space text and panels of `vrcorrect mirror` (vrcorrect.runtime.shell.mirror.TextOverlay):
 // one instanced quad per glyph, drawn as a 4-vertex triangle strip with positions from
 // gl_VertexID. Per instance: in_rect = (x, y, width, height) in target pixels with the
 // origin at the target's top-left (image terms); in_uv = (u_left, v_top, u_right, v_bottom)

@@ -10,7 +10,7 @@ import pytest
 from vrcorrect.studies.bench.realtime import (
     Run, floor_and_ceiling, frames_to_within, make_case, run_clip, run_realtime_bench, score_clip, still_convergence,
 )
-from vrcorrect.studies.bench.sequences import SEQUENCES, Clip, held_out, suite
+from vrcorrect.studies.bench.sequences import SEQUENCES, BenchClip, held_out, suite
 from vrcorrect.solvers.realtime import frames_twin
 
 SIZE, FRAMES = 48, 8
@@ -68,7 +68,7 @@ def test_the_default_converges_on_a_still_view(case, clips):
 
 
 def test_scores_are_shares_of_fasts_gain(case, clips):
-    clip = Clip("x", clips["sprite"].frames[:3])
+    clip = BenchClip("x", clips["sprite"].frames[:3])
     none, fast = floor_and_ceiling(case, clip, keep_shown=False)
     half = Run([(n + f) / 2 for n, f in zip(none.objective, fast.objective)])
     s = score_clip(case, clip, {"none": none, "fast": fast, "half way": half}, with_jod=False)

@@ -267,7 +267,7 @@ class LayerHeldInABuild:
     """A layer engine (logging to ``log``) whose eye source is held inside a design (``held``)."""
 
     def __init__(self, rx, monkeypatch, tmp_path):
-        from vrcorrect.runtime import xrlayer
+        from vrcorrect.runtime.layer import engine as xrlayer
 
         self.held = Held(monkeypatch)
         self.log = tmp_path / "layer.log"
@@ -304,7 +304,7 @@ def test_the_layers_end_waits_for_a_build_it_let_go(rx, monkeypatch, tmp_path):
 
 
 def test_the_layers_end_gives_up_waiting_after_its_limit(rx, monkeypatch, tmp_path):
-    from vrcorrect.runtime import xrlayer
+    from vrcorrect.runtime.layer import engine as xrlayer
 
     monkeypatch.setattr(xrlayer, "CLOSE_WAIT_S", 0.3)
     layer = LayerHeldInABuild(rx, monkeypatch, tmp_path)

@@ -94,7 +94,7 @@ def test_render_frame_refuses_bad_codes_before_any_gl(label, bad, words, monkeyp
     """render_frame takes display code values (float in [0, 1], or uint8); the check comes before
     a GL context is made (a context would fail the test here)."""
     from vrcorrect.runtime import gl
-    from vrcorrect.runtime.render import render_frame
+    from vrcorrect.runtime.shell.render import render_frame
 
     def no_context(*args, **kwargs):
         raise AssertionError("a GL context was made before the input was checked")

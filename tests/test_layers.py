@@ -145,25 +145,69 @@ RUNTIME_FORBIDDEN = ("torch", "vrcorrect.solvers.iterative")
 
 
 def _runtime_modules() -> list[str]:
-    return sorted(p.stem for p in RUNTIME.glob("*.py"))
+    """Every module of the runtime, its packages' included, as a dotted path below ``runtime``."""
+    return sorted(".".join(p.relative_to(RUNTIME).with_suffix("").parts)
+                  for p in RUNTIME.rglob("*.py") if "__pycache__" not in p.parts)
 
 
 @pytest.mark.parametrize("module", _runtime_modules())
 def test_runtime_never_imports_torch(module):
-    for name in _absolute_imports(RUNTIME / f"{module}.py"):
+    for name in _absolute_imports(RUNTIME.joinpath(*module.split(".")).with_suffix(".py")):
         assert not any(name == f or name.startswith(f + ".") for f in RUNTIME_FORBIDDEN), \
             f"runtime/{module} imports {name} (the real-time path must not import torch)"
 
 
 def test_runtime_imports_no_torch_at_run_time():
     """Importing the sub-package and every module in it, in a fresh interpreter."""
-    modules = ["vrcorrect.runtime"] + [f"vrcorrect.runtime.{m}" for m in _runtime_modules() if m != "__init__"]
+    modules = ["vrcorrect.runtime"] + [f"vrcorrect.runtime.{m}".removesuffix(".__init__")
+                                       for m in _runtime_modules() if m != "__init__"]
     code = ("import importlib, sys\n"
             f"for m in {modules!r}: importlib.import_module(m)\n"
             f"bad = [m for m in {RUNTIME_FORBIDDEN!r} if m in sys.modules]\n"
             "print(' '.join(bad)); sys.exit(1 if bad else 0)")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 0, f"importing {modules} imported: {result.stdout}{result.stderr}"
+
+
+# --------------------------------------------------------------------------
+# Inside the runtime: the plugin, the shells and the API layer (runtime/__init__.py)
+# --------------------------------------------------------------------------
+
+RUNTIME_PACKAGES = ("shell", "layer")
+"""The runtime's packages above the plugin (the runtime folder's own modules and ``strategies``)."""
+
+
+def _runtime_part(module: str) -> str:
+    head = module.split(".")[0]
+    return head if head in RUNTIME_PACKAGES else "plugin"
+
+
+def _runtime_part_of_import(name: str) -> str | None:
+    parts = name.split(".")
+    if parts[:2] != ["vrcorrect", "runtime"] or len(parts) < 3:
+        return None
+    return parts[2] if parts[2] in RUNTIME_PACKAGES else "plugin"
+
+
+def test_the_runtime_has_its_three_parts():
+    parts = {_runtime_part(m) for m in _runtime_modules()}
+    assert parts == {"plugin", "shell", "layer"}, parts
+    assert {"corrector", "strategies.admm", "shell.mirror", "shell.xr", "layer.engine", "layer.build"} <= \
+        set(_runtime_modules())
+
+
+@pytest.mark.parametrize("module", _runtime_modules())
+def test_the_shells_and_the_layer_never_import_each_other_and_the_plugin_neither(module):
+    """The plugin imports neither the shells nor the layer; a shell never imports the layer, nor the
+    layer a shell (lazy imports count)."""
+    own = _runtime_part(module)
+    for name in _absolute_imports(RUNTIME.joinpath(*module.split(".")).with_suffix(".py")):
+        dep = _runtime_part_of_import(name)
+        if dep is None or dep == own or dep == "plugin":
+            continue
+        raise AssertionError(f"runtime/{module} ({own}) imports {name} ({dep}): "
+                             + ("the plugin imports no shell and no layer" if own == "plugin"
+                                else "the shells and the API layer never import each other"))
 
 
 def test_learn_conditioning_is_torch_free():

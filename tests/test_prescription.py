@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vrcorrect.plumbing.errors import InputError, Problem, ValidationError, ValidationErrors
+from vrcorrect.plumbing.errors import InputError, FieldProblem, ValidationError, ValidationErrors
 from vrcorrect.specs.prescription import (
     MISSING,
     SCHEMA,
@@ -50,7 +50,7 @@ def eye(S: float = 0.0, C: float = 0.0, axis: float = 0.0, pupil: float = 4.0, *
     return EyeRx(sphere_D=S, cylinder_D=C, axis_deg=axis, pupil_diameter_mm=pupil, **kw)
 
 
-def fields_of(problems: list[Problem]) -> list[str]:
+def fields_of(problems: list[FieldProblem]) -> list[str]:
     return [p.field for p in problems]
 
 
@@ -417,7 +417,7 @@ def test_each_rule_rejects_with_field_name(path, value, field, words):
 
 def test_missing_required_value_reported_as_missing():
     problems = problems_in(set_path(valid_doc(), "right.sphere_D", MISSING))
-    assert problems == [Problem("right.sphere_D", MISSING, problems[0].allowed)]
+    assert problems == [FieldProblem("right.sphere_D", MISSING, problems[0].allowed)]
     assert "<missing>" in str(problems[0])
 
 

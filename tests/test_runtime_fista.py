@@ -17,7 +17,7 @@ from vrcorrect.plumbing.images import bundled_images
 from vrcorrect.specs.prescription import EyeRx, Prescription
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector
-from vrcorrect.runtime.render import render_frame
+from vrcorrect.runtime.shell.render import render_frame
 from vrcorrect.solvers import make_problem, objective, solve
 from vrcorrect.solvers.fista import projected_gradient
 
@@ -268,7 +268,7 @@ def test_a_saturated_or_invalid_timer_query_is_never_a_time():
 
 
 def test_stage_times_drop_a_saturated_query(gl):
-    from vrcorrect.runtime.window import StageTimes
+    from vrcorrect.runtime.shell.window import StageTimes
 
     class FakeQuery:
         def __init__(self, elapsed):

@@ -21,16 +21,16 @@ from vrcorrect.plumbing.errors import InputError, ValidationError
 from vrcorrect.runtime import eye_source as eye_source_module
 from vrcorrect.runtime import gl as G
 from vrcorrect.apps.realtime_options import parse_iterations_per_frame
-from vrcorrect.runtime.mirror import (
+from vrcorrect.runtime.shell.mirror import (
     KEY_MAP, STAGES, VIEWS, Adjust, Mirror, MirrorConfig, MirrorState, eye_viewports, next_state,
 )
-from vrcorrect.runtime.scene import DemoScene, SceneConfig, cube_mesh, open_source, perspective, scene_transforms
-from vrcorrect.runtime.sources import (
+from vrcorrect.runtime.shell.scene import DemoScene, SceneConfig, cube_mesh, open_source, perspective, scene_transforms
+from vrcorrect.runtime.shell.sources import (
     AnimatedImageSource, FolderSource, SourceSpec, StillSource, VideoSource, fit_rect, frame_at, frame_index,
     parse_size, parse_source,
 )
-from vrcorrect.runtime.text import build_font_atlas, layout_text, panel_instances, text_width
-from vrcorrect.runtime.window import (
+from vrcorrect.runtime.shell.text import build_font_atlas, layout_text, panel_instances, text_width
+from vrcorrect.runtime.shell.window import (
     KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET, MOD_ALT, MOD_CONTROL, MOD_SHIFT, MOD_SUPER,
     Iterations, Screenshot, key_map_text, next_iterations,
 )
@@ -221,7 +221,7 @@ def test_parse_source_errors_name_what_is_supported(tmp_path):
 
 
 def test_video_without_ffmpeg_is_a_clear_error(tmp_path, monkeypatch):
-    import vrcorrect.runtime.sources as sources
+    import vrcorrect.runtime.shell.sources as sources
 
     monkeypatch.setattr(sources, "_ffmpeg_available", lambda: False)
     (tmp_path / "clip.mkv").write_bytes(b"")
@@ -847,7 +847,7 @@ def test_slow_frames_step_the_scene_clock_and_the_panel_says_so(mirror, monkeypa
     the clock."""
     import dataclasses
 
-    from vrcorrect.runtime import mirror as M
+    from vrcorrect.runtime.shell import mirror as M
 
     clock = iter([100.0, 102.0, 104.0, 104.010, 104.020])
     monkeypatch.setattr(M.time, "perf_counter", lambda: next(clock))

@@ -18,8 +18,8 @@ from vrcorrect.specs.prescription import EyeRx, Prescription
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector
 from vrcorrect.runtime.motion import CUT_CONFIDENCE, MotionTracker, estimate_shift, motion_for
-from vrcorrect.runtime.scene import open_source
-from vrcorrect.runtime.sources import FolderSource, SourceSpec, start_motion, take_motion
+from vrcorrect.runtime.shell.scene import open_source
+from vrcorrect.runtime.shell.sources import FolderSource, SourceSpec, start_motion, take_motion
 from vrcorrect.solvers import make_problem, objective, solve
 from vrcorrect.solvers.fista import FistaState, projected_gradient
 
@@ -230,7 +230,7 @@ def test_a_folder_pan_reprojects_and_a_cut_starts_cold(gl, images, tmp_path):
 
 def _camera_yaw_pitch(yaw_deg: float, pitch_deg: float = 0.0) -> np.ndarray:
     """World-to-eye matrix of an eye at the origin turned left by ``yaw_deg`` and up by ``pitch_deg``."""
-    from vrcorrect.runtime.scene import rotation_x, rotation_y
+    from vrcorrect.runtime.shell.scene import rotation_x, rotation_y
 
     return np.linalg.inv(rotation_y(np.radians(yaw_deg)) @ rotation_x(np.radians(pitch_deg)))
 
@@ -239,7 +239,7 @@ def test_view_shift_of_a_turn_is_the_projected_angle():
     """Turning left moves distant content right by f tan(angle) pixels (f: the focal length in
     pixels); looking up moves it down; a symmetric frustum's centre is the image centre."""
     from vrcorrect.runtime.motion import view_shift
-    from vrcorrect.runtime.scene import perspective
+    from vrcorrect.runtime.shell.scene import perspective
 
     width, height, fov_y = 320, 200, 50.0
     p = perspective(fov_y, width / height, 0.05, 60.0)
@@ -259,7 +259,7 @@ def test_view_shift_follows_the_old_centre_in_an_asymmetric_field():
     """A headset's field is wider on the outer side: the old image centre is off the axis, and the
     shift is where that ray lands in the turned view, relative to the centre."""
     from vrcorrect.runtime.motion import view_shift
-    from vrcorrect.runtime.xr import projection_from_fov
+    from vrcorrect.runtime.shell.xr import projection_from_fov
 
     p = projection_from_fov(-0.80, 0.70, 0.75, -0.78)
     size = (400, 400)
@@ -275,7 +275,7 @@ def test_view_shift_follows_the_old_centre_in_an_asymmetric_field():
 def test_view_shift_turns_that_lose_the_view_and_bad_matrices():
     from vrcorrect.plumbing.errors import ValidationError
     from vrcorrect.runtime.motion import view_shift
-    from vrcorrect.runtime.scene import perspective
+    from vrcorrect.runtime.shell.scene import perspective
 
     p = perspective(60.0, 1.0, 0.05, 60.0)
     assert view_shift(np.eye(4), _camera_yaw_pitch(120.0), p, (64, 64)) is None     # behind the eye now

@@ -20,12 +20,12 @@ from vrcorrect.specs.display import get_display
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.gl import Rect
-from vrcorrect.runtime.overlay import (
+from vrcorrect.runtime.shell.overlay import (
     KEY_MAP, Overlay, OverlayConfig, OverlayState, default_display, default_region, full_screen_region,
     next_state, place_window, rects_overlap,
 )
-from vrcorrect.runtime.sources import parse_region
-from vrcorrect.runtime.window import KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET, MOD_CONTROL, Iterations, Screenshot
+from vrcorrect.runtime.shell.sources import parse_region
+from vrcorrect.runtime.shell.window import KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET, MOD_CONTROL, Iterations, Screenshot
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE_RX = (REPO / "vrcorrect" / "data" / "sample_rx.json").read_text()
@@ -363,7 +363,7 @@ def test_screen_source_grabs_the_picture_and_not_itself(x_display, picture_on_sc
 
 
 def test_region_outside_the_screen_is_refused(x_display):
-    from vrcorrect.runtime.sources import screen_bounds
+    from vrcorrect.runtime.shell.sources import screen_bounds
 
     screen = screen_bounds()     # conftest's Xvfb is 1024x768; xvfb-run's default is 1280x1024
     config = OverlayConfig(source="screen", region=Rect(screen.width - 24, 0, 100, 100), window=(W, H),
@@ -390,7 +390,7 @@ def test_a_refused_x_connection_is_tried_again(x_display, monkeypatch):
     import mss
 
     from vrcorrect.plumbing.errors import InputError
-    from vrcorrect.runtime import sources
+    from vrcorrect.runtime.shell import sources
 
     monkeypatch.setattr(sources.ScreenGrabber, "RETRY_DELAYS_S", (0.01, 0.01, 0.01))
     flaky = _FlakyMss(mss, failures=2)
@@ -464,7 +464,7 @@ def test_fista_reprojects_the_pictures_motion_unless_told_not_to(x_display, gl, 
     """With ``--filter fista`` the folder's pictures are tracked for the reprojected warm start (the
     test folder's pictures are unrelated: each change is a cut, a cold start); ``--no-reprojection``
     turns it off."""
-    from vrcorrect.runtime.sources import FolderSource, start_motion
+    from vrcorrect.runtime.shell.sources import FolderSource, start_motion
 
     d, _ = folder
     env = dict(os.environ, DISPLAY=x_display, PYTHONPATH=str(REPO))

@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 
 from vrcorrect.plumbing.errors import ValidationError, XrSessionError
-from vrcorrect.runtime.xr import (
+from vrcorrect.runtime.shell.xr import (
     EXIT_NO_RUNTIME, EXIT_SESSION_LOST, GL_RGBA8, GL_SRGB8_ALPHA8, SessionTracker,
     choose_swapchain_format, pose_matrix, projection_from_fov, view_matrix,
 )
@@ -78,7 +78,7 @@ def test_swapchain_format_prefers_srgb_then_rgba8_and_names_what_was_offered():
 
 
 def test_view_matrix_inverts_the_pose_and_projection_matches_a_symmetric_perspective():
-    from vrcorrect.runtime.scene import perspective
+    from vrcorrect.runtime.shell.scene import perspective
 
     q = (0.1, -0.3, 0.2, 0.9)
     pose = pose_matrix(q, (0.5, -1.0, 2.0))
@@ -230,7 +230,7 @@ def test_frames_run_ends_cleanly_through_every_state(srgb_run):
 
 def test_submitted_images_are_each_eyes_own_correction(srgb_run, gl, rx_file):
     from vrcorrect.runtime.gl import download_texture
-    from vrcorrect.runtime.sources import StillSource
+    from vrcorrect.runtime.shell.sources import StillSource
 
     _, out = srgb_run
     frames = _frames(out)
@@ -270,7 +270,7 @@ def test_submitted_images_are_each_eyes_own_correction(srgb_run, gl, rx_file):
 def test_rgba8_swapchains_get_linear_light_of_each_eyes_view_of_the_demo_scene(x_display, xr_runtime, rx_file,
                                                                                tmp_path, gl):
     from vrcorrect.specs.display import srgb_to_linear
-    from vrcorrect.runtime.scene import DemoScene
+    from vrcorrect.runtime.shell.scene import DemoScene
 
     out = tmp_path / "xr"
     result = _run(xr_runtime, out, "--rx", str(rx_file), "--source", "demo", "--frames", "2", "--pupil", "rx",
@@ -457,7 +457,7 @@ def _runtime_in_this_process(xr_runtime: Path, tmp_path: Path, monkeypatch) -> P
 def test_mirror_shows_what_is_sent_and_closing_it_ends_the_session(x_display, xr_runtime, rx_file, tmp_path,
                                                                    monkeypatch):
     from vrcorrect.runtime.gl import read_framebuffer
-    from vrcorrect.runtime.xr import XrApp, XrConfig
+    from vrcorrect.runtime.shell.xr import XrApp, XrConfig
 
     out = _runtime_in_this_process(xr_runtime, tmp_path, monkeypatch)
     shown = []
@@ -490,8 +490,8 @@ def test_mirror_keys_change_the_iterations_and_the_run_reports_the_objective(x_d
     is collected a frame late for the summary."""
     import glfw
 
-    from vrcorrect.runtime.window import KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET
-    from vrcorrect.runtime.xr import XrApp, XrConfig
+    from vrcorrect.runtime.shell.window import KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET
+    from vrcorrect.runtime.shell.xr import XrApp, XrConfig
 
     _runtime_in_this_process(xr_runtime, tmp_path, monkeypatch)
     said = []
@@ -564,7 +564,7 @@ def test_a_prescription_edit_never_stalls_the_headset_loop(x_display, xr_runtime
     import threading
 
     from vrcorrect.runtime import eye_source as ES
-    from vrcorrect.runtime.xr import XrApp, XrConfig
+    from vrcorrect.runtime.shell.xr import XrApp, XrConfig
 
     _runtime_in_this_process(xr_runtime, tmp_path, monkeypatch)
     monkeypatch.setattr(ES, "POLL_INTERVAL_S", 0.0)

@@ -1,4 +1,4 @@
-"""vrcorrect as an OpenXR API layer (``layer/`` + :mod:`vrcorrect.runtime.xrlayer`) in OpenGL sessions,
+"""vrcorrect as an OpenXR API layer (``layer/`` + :mod:`vrcorrect.runtime.layer.engine`) in OpenGL sessions,
 between a separate OpenXR OpenGL application in C that knows nothing of vrcorrect
 (``tests/xr_gl_app/xr_gl_app.c``) and the project's test runtime (``tests/xr_runtime``), all loaded
 by pyopenxr's real OpenXR loader, under Xvfb (``x_display``).  The equipment is
@@ -548,7 +548,7 @@ def test_the_priming_budget_reads_seconds_or_converge_and_names_a_bad_value():
     import math
 
     from vrcorrect.plumbing.errors import ValidationError
-    from vrcorrect.runtime.xrlayer import PRIME_BUDGET_S, PRIME_ENV, prime_budget
+    from vrcorrect.runtime.layer.engine import PRIME_BUDGET_S, PRIME_ENV, prime_budget
 
     assert prime_budget({}) == PRIME_BUDGET_S == 1.0
     assert prime_budget({PRIME_ENV: " 2.5 "}) == 2.5 and prime_budget({PRIME_ENV: "0"}) == 0.0

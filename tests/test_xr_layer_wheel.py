@@ -87,7 +87,7 @@ def test_pip_wheel_builds_the_layer_into_the_wheel_with_warnings_as_errors(built
     with zipfile.ZipFile(wheel) as z:
         names = z.namelist()
         tag = z.read(next(n for n in names if n.endswith(".dist-info/WHEEL"))).decode()
-        library = z.read("vrcorrect/runtime/libvrcorrect_layer.so")
+        library = z.read("vrcorrect/runtime/layer/libvrcorrect_layer.so")
     assert "Root-Is-Purelib: false" in tag and "linux" in wheel.name, (tag, wheel.name)   # a platform wheel
     assert any(n.endswith("shaders/layer_copy.glsl") for n in names)
     compiles = [line for line in log.splitlines() if " -c layer/vrcorrect_" in line]
@@ -102,7 +102,7 @@ def test_pip_wheel_builds_the_layer_into_the_wheel_with_warnings_as_errors(built
 def test_a_warning_fails_the_layers_build(tmp_path):
     """-Werror on the fallback route too: a source with a warning (an unused variable) is refused."""
     from vrcorrect.plumbing.errors import InputError
-    from vrcorrect.runtime import layer_build
+    from vrcorrect.runtime.layer import build as layer_build
 
     copy = tmp_path / "layer"
     shutil.copytree(ROOT / "layer", copy)

@@ -170,7 +170,7 @@ def _address(handle: Any) -> int:
 @contextlib.contextmanager
 def _session(instance, system) -> Iterator[Any]:
     """A session bound to a hidden GLFW window's GLX context (XR_KHR_opengl_enable, as vrcorrect xr)."""
-    from vrcorrect.runtime.window import GlfwSession
+    from vrcorrect.runtime.shell.window import GlfwSession
 
     pfn = ctypes.cast(xr.get_instance_proc_addr(instance, "xrGetOpenGLGraphicsRequirementsKHR"),
                       xr.PFN_xrGetOpenGLGraphicsRequirementsKHR)

@@ -99,7 +99,7 @@ class Kit:
 def build_kit(folder: Path) -> Kit:
     """Build everything into ``folder`` (the runtime through ``tools/xr_test_runtime.sh``, whose last
     line of output must be the manifest)."""
-    from vrcorrect.runtime.layer_build import build_layer, manifest_text
+    from vrcorrect.runtime.layer.build import build_layer, manifest_text
 
     compiler = cc()
     script = subprocess.run(["bash", str(RUNTIME_SCRIPT), str(folder / "runtime")], capture_output=True, text=True,

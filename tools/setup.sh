@@ -72,8 +72,8 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   PYTHONWARNINGS="ignore:Editable installation" \
     .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[solve,learn,metrics,test,realtime,ray]" 2>&1 \
     | grep -v -e "^WARNING: Location" || true
-  [ -f vrcorrect/runtime/libvrcorrect_layer.so ] \
-    || { echo "installation failed: the OpenXR layer (vrcorrect/runtime/libvrcorrect_layer.so) was not built" >&2; exit 1; }
+  [ -f vrcorrect/runtime/layer/libvrcorrect_layer.so ] \
+    || { echo "installation failed: the OpenXR layer (vrcorrect/runtime/layer/libvrcorrect_layer.so) was not built" >&2; exit 1; }
   .venv/bin/python -c "import vrcorrect, numpy, scipy, colour, PIL, torch, pytest, hypothesis, moderngl, glfw, onnxruntime, onnx, onnxscript, imageio_ffmpeg, mss, xr, ray" \
     || { echo "installation failed" >&2; exit 1; }
   # ColorVideoVDP (the primary perceptual score) must import beside the CPU build of torch.

@@ -1,7 +1,7 @@
 """``vrcorrect layer install | uninstall | status``: vrcorrect as an implicit OpenXR API layer.
 
 The layer's library (``layer/``: ``vrcorrect_layer.c`` and ``vrcorrect_vulkan.c``, the C shim that
-embeds this Python and runs :mod:`vrcorrect.runtime.xrlayer`) is compiled when vrcorrect is built
+embeds this Python and runs :mod:`vrcorrect.runtime.layer.engine`) is compiled when vrcorrect is built
 (``pip install``, ``pip wheel``) and ships inside the package.  ``install`` writes the
 implicit-layer manifest naming it to ``$XDG_DATA_HOME/openxr/1/api_layers/implicit.d/`` (default
 ``~/.local/share``: where the OpenXR loader looks for a user's layers), which the loader reads for
@@ -27,9 +27,9 @@ from typing import Mapping
 
 from ..plumbing.errors import InputError, ValidationError
 from ..specs.vocabulary import PERIPHERY_DESCRIPTIONS, Periphery, names
-from ..runtime.layer_build import CFG, LIBRARY, MARK, SOURCE_DIR, build_layer, manifest_text, packaged_library, \
+from ..runtime.layer.build import CFG, LIBRARY, MARK, SOURCE_DIR, build_layer, manifest_text, packaged_library, \
     stale_sources, write_cfg
-from ..runtime.xrlayer import DISABLE_ENV, LAYER_NAME, OFF_ENV, config_path, log_path, off_file, read_config
+from ..runtime.layer.engine import DISABLE_ENV, LAYER_NAME, OFF_ENV, config_path, log_path, off_file, read_config
 
 MANIFEST = "vrcorrect_layer.json"
 

@@ -1,5 +1,5 @@
 """``vrcorrect mirror``: both eyes side by side in a window, corrected live
-(:class:`~vrcorrect.runtime.mirror.Mirror`): the command's options and its run."""
+(:class:`~vrcorrect.runtime.shell.mirror.Mirror`): the command's options and its run."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import argparse
 import time
 
 from ..runtime.gl import format_ms
-from ..runtime.mirror import KEY_MAP, Mirror, MirrorConfig
-from ..runtime.sources import parse_size, parse_source
-from ..runtime.window import key_map_text, knob_text
+from ..runtime.shell.mirror import KEY_MAP, Mirror, MirrorConfig
+from ..runtime.shell.sources import parse_size, parse_source
+from ..runtime.shell.window import key_map_text, knob_text
 from .common import rx_path, say_sample_rx
 from .realtime_options import (
     add_backend_option,

@@ -1,5 +1,5 @@
 """``vrcorrect overlay``: frames from a video, images or the screen, corrected for one eye and
-shown full-screen or in a window (:class:`~vrcorrect.runtime.overlay.Overlay`): the command's
+shown full-screen or in a window (:class:`~vrcorrect.runtime.shell.overlay.Overlay`): the command's
 options and its run."""
 
 from __future__ import annotations
@@ -7,9 +7,9 @@ from __future__ import annotations
 import argparse
 import time
 
-from ..runtime.overlay import KEY_MAP, Overlay, OverlayConfig
-from ..runtime.sources import parse_region, parse_size
-from ..runtime.window import key_map_text
+from ..runtime.shell.overlay import KEY_MAP, Overlay, OverlayConfig
+from ..runtime.shell.sources import parse_region, parse_size
+from ..runtime.shell.window import key_map_text
 from ..specs.vocabulary import Eye, names
 from .common import rx_path, say_sample_rx
 from .realtime_options import (

@@ -77,7 +77,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     clip = clips.input_clip(args, still_options=("frames",))  # before the heavy imports: a bad clip is told at once
     if clip is not None:
         return _render_clip(args, clips.plan_frames(clip, args, DEFAULT_FPS))
-    from ..runtime.render import MAX_FRAMES, SETTLED_FRAMES, render_frame  # on use: start-up time (apps/__init__)
+    from ..runtime.shell.render import MAX_FRAMES, SETTLED_FRAMES, render_frame  # on use: start-up time (apps/__init__)
 
     out = Path(args.output)
     if out.suffix.lower() != ".png":
@@ -143,7 +143,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 def _render_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     """A clip through one Corrector, every frame to the output folder."""
-    from ..runtime.render import render_clip  # on use: start-up time (apps/__init__)
+    from ..runtime.shell.render import render_clip  # on use: start-up time (apps/__init__)
 
     options = {"kernel_options": kernel_options(args), **filter_options(args)}
     folder = clips.output_folder(args, plan)        # checked before any work

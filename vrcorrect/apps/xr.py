@@ -1,5 +1,5 @@
 """``vrcorrect xr``: the headset, an OpenXR session with each eye corrected before it is submitted
-(:class:`~vrcorrect.runtime.xr.XrApp`): the command's options, its run and its exit statuses."""
+(:class:`~vrcorrect.runtime.shell.xr.XrApp`): the command's options, its run and its exit statuses."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import time
 
 from ..plumbing.errors import ValidationError
 from ..runtime.model_path import model_for_backend
-from ..runtime.sources import parse_source
+from ..runtime.shell.sources import parse_source
 from ..plumbing.errors import XrUnavailableError
-from ..runtime.xr import EXIT_NO_RUNTIME, EXIT_SESSION_LOST, XrApp, XrConfig
+from ..runtime.shell.xr import EXIT_NO_RUNTIME, EXIT_SESSION_LOST, XrApp, XrConfig
 from .common import rx_path
 from .realtime_options import (
     add_backend_option,

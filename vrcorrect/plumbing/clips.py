@@ -12,7 +12,7 @@ none (the caller states a rate).  :func:`resample_indices` plays a clip at anoth
 source frame shown at each displayed frame's time (frames repeated or dropped).
 
 :class:`AnimatedImage` and :class:`VideoReader` are the decoders; the real-time picture sources
-(:mod:`vrcorrect.runtime.sources`) play the same files through them.  :class:`FrameFolder`
+(:mod:`vrcorrect.runtime.shell.sources`) play the same files through them.  :class:`FrameFolder`
 writes ``frame_00000.png``, ... into a temporary sibling folder and renames it into place at the
 end, so an error or a signal leaves no partial output.
 

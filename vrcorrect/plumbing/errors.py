@@ -45,7 +45,7 @@ class ValidationError(VrcorrectError, ValueError):
 
 
 @dataclass(frozen=True)
-class Problem:
+class FieldProblem:
     """One problem found while validating a document (kept to report all at once)."""
 
     field: str
@@ -59,7 +59,7 @@ class Problem:
 class ValidationErrors(VrcorrectError, ValueError):
     """Several problems in one document, reported together."""
 
-    def __init__(self, problems: Iterable[Problem], source: str | None = None):
+    def __init__(self, problems: Iterable[FieldProblem], source: str | None = None):
         self.problems = list(problems)
         self.source = source
         head = f"{source}: " if source else ""

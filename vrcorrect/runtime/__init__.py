@@ -6,6 +6,14 @@ Modules here may import layers 0-4 but never torch (docs/architecture.md, 'Layer
 loop needs numpy, moderngl, glfw, onnxruntime, pyopenxr), and never
 :mod:`vrcorrect.solvers.iterative`; ``tests/test_layers.py`` enforces both.
 
+Three packages, with a rule between them (``tests/test_layers.py``):
+  * the plugin, this folder's own modules (below): the correction, GL and its caches. It imports
+    neither of the others.
+  * ``shell`` - the applications' loops: the window, the mirror, the overlay, the headset app, the
+    picture feeds, the demo scene, the text, headless rendering.
+  * ``layer`` - the OpenXR API layer's engine and its build.
+  The shell and the layer never import each other.
+
 The correction
   * ``corrector`` - :class:`Corrector`, the one owner of an eye's state: prescription (read once,
     hot-reloaded), live offsets, the per-size GPU resources and the warm start.
@@ -14,7 +22,10 @@ The correction
   * ``learned``, ``onnx_backend``, ``model_path`` - the learned model on onnxruntime; ``unrolled`` -
     the unrolled model on onnxruntime.
   * ``motion`` - reprojection of the warm start (head pose, phase correlation).
-  * ``render`` - one image through the pipeline, headless (``vrcorrect render``).
+  * ``strategies`` - one frame's passes per backend and filter (ADMM, FISTA, one pass, foveated,
+    ONNX); ``dispatch`` - the GPU's passes and their costs; ``budget`` - the frame budget;
+    ``pupil_bank`` - the kernel banks of pupils and the pupil that follows the light;
+    ``eye_source`` - the prescription's worker (file, stamp, offsets).
 GL and shaders
   * ``gl`` - contexts (headless EGL), GL error checks, textures with the one place that handles
     OpenGL's bottom-up rows; ``shaders`` - the GLSL loader (``shaders/``), text only.
@@ -22,14 +33,8 @@ GL and shaders
     compiled programs between runs (``glGetProgramBinary``) and lets other threads run during long
     GL calls; the layer's EGL contexts and GLX contexts shared with an application's.
   * ``eye_cache`` - designed eye models kept between runs (the layer's second launch).
-What is shown and where
-  * ``sources`` - picture sources (still, folder, animated, video, screen grab); ``scene`` - the
-    3D demo scene; ``text`` - font atlas and text layout.
-  * ``window`` - the window shell the apps share (optional imports, GLFW, sRGB check, stage
-    times, screenshots); ``mirror``, ``overlay``, ``xr`` - the desktop mirror, the screen overlay
-    and the OpenXR headset loop; ``xrlayer`` - the OpenXR API layer's engine, ``layer_build`` - its
-    C shim (built into the package by ``setup.py``; compiled here only as a source checkout's
-    fallback), its Python configuration and its loader manifest.
-
+  * ``optional`` - the optional dependencies (moderngl, glfw, pyopenxr, mss), imported on first
+    use with one message naming the extra to install.
+  * ``gaze`` - the gaze's direction in a view (the headset app's and the layer's eye tracker).
 Importing this package imports neither moderngl nor glfw; the submodules that need them do.
 """

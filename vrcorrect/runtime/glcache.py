@@ -23,7 +23,7 @@ functions, trampolines of its own:
   dispatches, draws, ``glFinish``/``glFlush``, read-backs, uploads, waits) go through a ctypes
   trampoline, and ctypes releases the GIL for the length of the real call.
 
-Used by the OpenXR layer's engine (:mod:`vrcorrect.runtime.xrlayer`), which builds its Correctors
+Used by the OpenXR layer's engine (:mod:`vrcorrect.runtime.layer.engine`), which builds its Correctors
 on a worker thread, each build on a context of its own (:func:`egl_context`, or for an OpenGL
 session :class:`GlxSharedContext`, a GLX context on its own X connection that shares the
 application's textures), and hands the context to the application's thread when it is ready.

@@ -126,7 +126,7 @@ def view_shift(view_before: npt.ArrayLike, view_after: npt.ArrayLike, projection
 
 
 class MotionTracker:
-    """A source's motion from frame to frame (what :class:`~vrcorrect.runtime.sources.PictureSource`
+    """A source's motion from frame to frame (what :class:`~vrcorrect.runtime.shell.sources.PictureSource`
     keeps): :meth:`new_frame` with each new picture; :meth:`take` once per displayed frame returns
     ``(0, 0)`` (nothing new), ``(dx, dy)`` or ``"cut"`` and clears it."""
 

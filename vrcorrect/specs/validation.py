@@ -3,7 +3,7 @@ range, and unknown keys with a suggestion.
 
 The prescription (:mod:`vrcorrect.specs.prescription`) and the display profile
 (:mod:`vrcorrect.specs.display`) validators both collect every
-:class:`~vrcorrect.plumbing.errors.Problem` in a document before raising
+:class:`~vrcorrect.plumbing.errors.FieldProblem` in a document before raising
 :class:`~vrcorrect.plumbing.errors.ValidationErrors`; the pieces below are the checks they have
 in common. Each caller keeps its own wording: the messages name that caller's fields and files.
 """
@@ -18,7 +18,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from ..plumbing.errors import InputError, Problem, ValidationError
+from ..plumbing.errors import InputError, FieldProblem, ValidationError
 
 __all__ = [
     "Range", "FileWording", "is_number", "check_number", "positive_finite", "unknown_key_problem",
@@ -60,30 +60,30 @@ class Range:
         return above and below
 
 
-def check_number(problems: list[Problem], field: str, value: Any, rule: Range) -> float | None:
+def check_number(problems: list[FieldProblem], field: str, value: Any, rule: Range) -> float | None:
     """Validate one finite number within ``rule``.
 
-    Appends a :class:`Problem` (``field``, ``value``, ``rule.allowed``) and returns ``None`` when
+    Appends a :class:`FieldProblem` (``field``, ``value``, ``rule.allowed``) and returns ``None`` when
     the value is not a number (bool is not), not finite or out of range; returns it as a float
     otherwise.
     """
     if not is_number(value):
-        problems.append(Problem(field, value, rule.allowed))
+        problems.append(FieldProblem(field, value, rule.allowed))
         return None
     if isinstance(value, (int, np.integer)):
         # Compare before converting: a huge JSON integer would overflow float().
         if not rule.holds(int(value)):
-            problems.append(Problem(field, value, rule.allowed))
+            problems.append(FieldProblem(field, value, rule.allowed))
             return None
         return float(value)
     number = float(value)
     if not math.isfinite(number) or not rule.holds(number):
-        problems.append(Problem(field, value, rule.allowed))
+        problems.append(FieldProblem(field, value, rule.allowed))
         return None
     return number
 
 
-def unknown_key_problem(field: str, key: Any, value: Any, known: Iterable[str]) -> Problem:
+def unknown_key_problem(field: str, key: Any, value: Any, known: Iterable[str]) -> FieldProblem:
     """The problem of a key that is not a field here, with the closest known one as a hint.
 
     The hint is the nearest known field by :func:`difflib.get_close_matches` (cutoff 0.6), or
@@ -99,7 +99,7 @@ def unknown_key_problem(field: str, key: Any, value: Any, known: Iterable[str]) 
                 close = [lowered[key.lower()]]
         if close:
             hint = f" (did you mean {close[0]!r}?)"
-    return Problem(field, value, f"no such field{hint}; known fields here: {', '.join(known)}")
+    return FieldProblem(field, value, f"no such field{hint}; known fields here: {', '.join(known)}")
 
 
 @dataclass(frozen=True)

@@ -52,7 +52,7 @@ def check_image(image: np.ndarray, name: str = "image", *, unit_range: bool = Tr
     ``image`` must be ``(H, W, 3)`` with at least one pixel, of a float dtype (float16 is
     converted to float32; float32 and float64 are kept) and finite.  Integer and boolean arrays are
     refused, naming the likely mistake (8-bit code values where linear light is expected), except
-    that ``codes=True`` (display code values, e.g. ``runtime.render.render_frame``) also accepts
+    that ``codes=True`` (display code values, e.g. ``runtime.shell.render.render_frame``) also accepts
     uint8 as 0-255 and returns it unchanged.  With ``unit_range`` the values must lie in [0, 1];
     excursions up to :data:`UNIT_TOLERANCE` are clipped.  Every refusal is a
     :class:`~vrcorrect.plumbing.errors.ValidationError` naming ``name``, the value and what is allowed.

@@ -19,7 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ...plumbing.errors import Problem, ValidationError
+from ...plumbing.errors import FieldProblem, ValidationError
 from ..validation import Range, check_number, is_number, positive_finite
 from .spectra import RGB_LABELS, Spectra
 
@@ -198,9 +198,9 @@ def default_photometry(kind: str) -> Photometry:
         f"{ambient:g} lux (ColorVideoVDP's standard_{'fhd' if kind == 'monitor' else 'hmd'} display)"))
 
 
-def photometry_problems(values: dict[str, Any], prefix: str = "") -> list[Problem]:
+def photometry_problems(values: dict[str, Any], prefix: str = "") -> list[FieldProblem]:
     """Every problem with the four :class:`Photometry` figures in ``values`` (empty when valid)."""
-    problems: list[Problem] = []
+    problems: list[FieldProblem] = []
     for key, rule in PHOTOMETRY_RULES.items():
         check_number(problems, prefix + key, values[key], rule)
     return problems
@@ -230,12 +230,12 @@ FIELD_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
 }
 
 
-def check_field(problems: list[Problem], field: str, value: Any) -> bool:
+def check_field(problems: list[FieldProblem], field: str, value: Any) -> bool:
     """Check ``value`` by :data:`FIELD_RULES` [``field``]; append a problem and return False if bad."""
     test, allowed = FIELD_RULES[field]
     if test(value):
         return True
-    problems.append(Problem(field, value, allowed))
+    problems.append(FieldProblem(field, value, allowed))
     return False
 
 
@@ -250,27 +250,27 @@ def _profile_problems(
     resolution_px: Any,
     sources: Any,
     photometry: Any = None,
-) -> list[Problem]:
+) -> list[FieldProblem]:
     """Every problem with the fields of a :class:`DisplayProfile` (empty when valid)."""
-    problems: list[Problem] = []
+    problems: list[FieldProblem] = []
     check_field(problems, "name", name)
     check_field(problems, "title", title)
     check_field(problems, "kind", kind)
     if not isinstance(primaries, Spectra):
-        problems.append(Problem("primaries", type(primaries).__name__, "a Spectra object"))
+        problems.append(FieldProblem("primaries", type(primaries).__name__, "a Spectra object"))
     elif primaries.labels != RGB_LABELS:
-        problems.append(Problem("primaries.labels", primaries.labels, "('red', 'green', 'blue')"))
+        problems.append(FieldProblem("primaries.labels", primaries.labels, "('red', 'green', 'blue')"))
     elif np.any(primaries.values.max(axis=0) <= 0):
-        problems.append(Problem("primaries.values", "a channel that is zero everywhere", "each primary emitting somewhere"))
+        problems.append(FieldProblem("primaries.values", "a channel that is zero everywhere", "each primary emitting somewhere"))
     check_number(problems, "pixels_per_degree", pixels_per_degree, PPD_RULE)
     if not distance_ok(distance_m):
-        problems.append(Problem("distance_m", distance_m, "a distance > 0 m (inf for a collimated image)"))
+        problems.append(FieldProblem("distance_m", distance_m, "a distance > 0 m (inf for a collimated image)"))
     check_field(problems, "transfer", transfer)
     if resolution_px is not None:
         check_field(problems, "resolution_px", resolution_px)
     check_field(problems, "sources", sources)
     if photometry is not None and not isinstance(photometry, Photometry):
-        problems.append(Problem("photometry", type(photometry).__name__, "a Photometry object or None"))
+        problems.append(FieldProblem("photometry", type(photometry).__name__, "a Photometry object or None"))
     return problems
 
 

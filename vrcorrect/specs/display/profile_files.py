@@ -18,7 +18,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ...plumbing.errors import InputError, Problem, ValidationError, ValidationErrors, json_error_location
+from ...plumbing.errors import InputError, FieldProblem, ValidationError, ValidationErrors, json_error_location
 from ...plumbing.fileio import package_data
 from ..validation import FileWording, Range, check_number, read_utf8_text, unknown_key_problem
 from .profile import (
@@ -104,11 +104,11 @@ def _colour_primaries(table: str) -> Spectra:
     )
 
 
-def _gaussian_bands(raw: Any, problems: list[Problem]) -> dict[str, tuple[tuple[float, float, float], ...]] | None:
+def _gaussian_bands(raw: Any, problems: list[FieldProblem]) -> dict[str, tuple[tuple[float, float, float], ...]] | None:
     """The bands of a ``gaussian_primaries`` object, ``{label: ((centre, fwhm, height), ...)}``, if valid."""
     field = "gaussian_primaries"
     if not isinstance(raw, dict):
-        problems.append(Problem(field, raw, "an object with red, green and blue: each " + _BANDS_ALLOWED
+        problems.append(FieldProblem(field, raw, "an object with red, green and blue: each " + _BANDS_ALLOWED
                                 + ", and optionally source (a string)"))
         return None
     n_before = len(problems)
@@ -117,36 +117,36 @@ def _gaussian_bands(raw: Any, problems: list[Problem]) -> dict[str, tuple[tuple[
         where = f"{field}.{label}"
         value = raw.get(label)
         if not isinstance(value, list) or not value:
-            problems.append(Problem(where, value, _BANDS_ALLOWED))
+            problems.append(FieldProblem(where, value, _BANDS_ALLOWED))
             continue
         out = []
         for k, band in enumerate(value):
             if not isinstance(band, list) or len(band) != 3:
-                problems.append(Problem(f"{where}[{k}]", band, "a band [centre_nm, fwhm_nm, peak_height]"))
+                problems.append(FieldProblem(f"{where}[{k}]", band, "a band [centre_nm, fwhm_nm, peak_height]"))
                 continue
             numbers = [check_number(problems, f"{where}[{k}]", v, rule) for v, rule in zip(band, _BAND_RULES)]
             if None not in numbers:
                 out.append((numbers[0], numbers[1], numbers[2]))
         bands[label] = tuple(out)
     if "source" in raw and not isinstance(raw["source"], str):
-        problems.append(Problem(f"{field}.source", raw["source"], "a string naming where the bands come from"))
+        problems.append(FieldProblem(f"{field}.source", raw["source"], "a string naming where the bands come from"))
     for key in raw:
         if key not in _GAUSSIAN_KEYS:
             problems.append(unknown_key_problem(f"{field}.{key}", key, raw[key], _GAUSSIAN_KEYS))
     return bands if len(problems) == n_before else None
 
 
-def _primaries(doc: Mapping[str, Any], path: Path, problems: list[Problem]) -> Spectra | None:
+def _primaries(doc: Mapping[str, Any], path: Path, problems: list[FieldProblem]) -> Spectra | None:
     """The primaries a profile names (exactly one of :data:`_PRIMARIES_KEYS`), if valid."""
     given = [k for k in _PRIMARIES_KEYS if k in doc]
     if len(given) != 1:
-        problems.append(Problem("spectra_csv", doc.get("spectra_csv"), _PRIMARIES_ALLOWED))
+        problems.append(FieldProblem("spectra_csv", doc.get("spectra_csv"), _PRIMARIES_ALLOWED))
         return None
     key = given[0]
     value = doc[key]
     if key == "spectra_csv":
         if not isinstance(value, str) or not value.strip():
-            problems.append(Problem("spectra_csv", value, "a path to a spectra CSV file"))
+            problems.append(FieldProblem("spectra_csv", value, "a path to a spectra CSV file"))
             return None
         csv_path = Path(value)
         if not csv_path.is_absolute():
@@ -154,16 +154,16 @@ def _primaries(doc: Mapping[str, Any], path: Path, problems: list[Problem]) -> S
         try:
             return read_spectra_csv(csv_path)
         except InputError as exc:
-            problems.append(Problem("spectra_csv", value, f"a readable spectra CSV ({exc})"))
+            problems.append(FieldProblem("spectra_csv", value, f"a readable spectra CSV ({exc})"))
             return None
     if key == "preset_primaries":
         if not isinstance(value, str) or value.strip().lower() not in _PRESET_ORDER:
-            problems.append(Problem("preset_primaries", value, "one of: " + ", ".join(_PRESET_ORDER)))
+            problems.append(FieldProblem("preset_primaries", value, "one of: " + ", ".join(_PRESET_ORDER)))
             return None
         return _preset(value.strip().lower()).primaries
     if key == "colour_primaries":
         if not isinstance(value, str) or value not in _colour_tables():
-            problems.append(Problem("colour_primaries", value, "one of colour-science's MSDS_DISPLAY_PRIMARIES: "
+            problems.append(FieldProblem("colour_primaries", value, "one of colour-science's MSDS_DISPLAY_PRIMARIES: "
                                     + ", ".join(_colour_tables())))
             return None
         return _colour_primaries(value)
@@ -180,21 +180,21 @@ def _primaries(doc: Mapping[str, Any], path: Path, problems: list[Problem]) -> S
 # --------------------------------------------------------------------------
 
 
-def _distance(doc: Mapping[str, Any], problems: list[Problem]) -> float | None:
+def _distance(doc: Mapping[str, Any], problems: list[FieldProblem]) -> float | None:
     if "distance_m" not in doc:
-        problems.append(Problem("distance_m", None, "a distance > 0 m, or \"inf\" (required)"))
+        problems.append(FieldProblem("distance_m", None, "a distance > 0 m, or \"inf\" (required)"))
         return None
     raw = doc["distance_m"]
     if isinstance(raw, str) and raw.strip().lower() in ("inf", "infinity"):
         return math.inf
     if distance_ok(raw):
         return float(raw)
-    problems.append(Problem("distance_m", raw, "a distance > 0 m, or \"inf\""))
+    problems.append(FieldProblem("distance_m", raw, "a distance > 0 m, or \"inf\""))
     return None
 
 
 def _pixels_per_degree(doc: Mapping[str, Any], kind: Any, distance: float | None,
-                       resolution: tuple[int, int] | None, problems: list[Problem]) -> float | None:
+                       resolution: tuple[int, int] | None, problems: list[FieldProblem]) -> float | None:
     """The angular resolution, from exactly one of pixels_per_degree, pixel_pitch_mm or fov_deg."""
     ppd: float | None = None
     lo, hi = PPD_RANGE
@@ -202,7 +202,7 @@ def _pixels_per_degree(doc: Mapping[str, Any], kind: Any, distance: float | None
     ppd_allowed = ("pixels_per_degree, or pixel_pitch_mm with distance_m (monitor), "
                    "or resolution_px with fov_deg (headset)")
     if len(ways) != 1:
-        problems.append(Problem(
+        problems.append(FieldProblem(
             "pixels_per_degree", {k: doc[k] for k in ways} if ways else None, f"exactly one of: {ppd_allowed}",
         ))
     elif ways[0] == "pixels_per_degree":
@@ -211,11 +211,11 @@ def _pixels_per_degree(doc: Mapping[str, Any], kind: Any, distance: float | None
         pitch = check_number(problems, "pixel_pitch_mm", doc["pixel_pitch_mm"],
                              Range(0.0, math.inf, "a pixel pitch > 0 mm", lo_open=True))
         if kind == "headset":
-            problems.append(Problem("pixel_pitch_mm", doc["pixel_pitch_mm"],
+            problems.append(FieldProblem("pixel_pitch_mm", doc["pixel_pitch_mm"],
                                     "not for a headset: give pixels_per_degree or resolution_px with fov_deg"))
         elif pitch is not None and distance is not None:
             if math.isinf(distance):
-                problems.append(Problem("distance_m", "inf", "a finite distance when pixel_pitch_mm is given"))
+                problems.append(FieldProblem("distance_m", "inf", "a finite distance when pixel_pitch_mm is given"))
             else:
                 ppd = ppd_from_pitch(pitch, distance)
     else:  # fov_deg
@@ -223,24 +223,24 @@ def _pixels_per_degree(doc: Mapping[str, Any], kind: Any, distance: float | None
                            Range(0.0, 180.0, "a per-eye field of view between 0 and 180 degrees",
                                  lo_open=True, hi_open=True))
         if kind == "monitor":
-            problems.append(Problem("fov_deg", doc["fov_deg"],
+            problems.append(FieldProblem("fov_deg", doc["fov_deg"],
                                     "not for a monitor: give pixels_per_degree or pixel_pitch_mm"))
         elif "resolution_px" not in doc:
-            problems.append(Problem("resolution_px", None, "[width, height] per eye, required with fov_deg"))
+            problems.append(FieldProblem("resolution_px", None, "[width, height] per eye, required with fov_deg"))
         elif fov is not None and resolution is not None:
             ppd = ppd_from_fov(resolution[0], fov)
     if ppd is not None and not (lo <= ppd <= hi):
-        problems.append(Problem("pixels_per_degree", round(ppd, 3),
+        problems.append(FieldProblem("pixels_per_degree", round(ppd, 3),
                                 f"a computed pixel density from {lo:g} to {hi:g} per degree"))
         ppd = None
     return ppd
 
 
-def _photometry(doc: Mapping[str, Any], kind: Any, problems: list[Problem]) -> Photometry | None:
+def _photometry(doc: Mapping[str, Any], kind: Any, problems: list[FieldProblem]) -> Photometry | None:
     """What the profile states, the kind's default for the rest; sources from the profile or a note."""
     given_sources = doc.get("photometry_sources")
     if "photometry_sources" in doc and not isinstance(given_sources, str):
-        problems.append(Problem("photometry_sources", given_sources,
+        problems.append(FieldProblem("photometry_sources", given_sources,
                                 "a string naming where the photometry figures come from"))
     if kind not in KINDS:
         return None
@@ -306,11 +306,11 @@ def load_display_profile(path: str | os.PathLike[str]) -> DisplayProfile:
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a JSON object, found {type(doc).__name__}")
 
-    problems: list[Problem] = []
+    problems: list[FieldProblem] = []
     for key in sorted(set(doc) - _PROFILE_KEYS):
-        problems.append(Problem(key, doc[key], "no such key; allowed keys: " + ", ".join(sorted(_PROFILE_KEYS))))
+        problems.append(FieldProblem(key, doc[key], "no such key; allowed keys: " + ", ".join(sorted(_PROFILE_KEYS))))
     if doc.get("schema") != PROFILE_SCHEMA:
-        problems.append(Problem("schema", doc.get("schema"), repr(PROFILE_SCHEMA)))
+        problems.append(FieldProblem("schema", doc.get("schema"), repr(PROFILE_SCHEMA)))
     name = doc.get("name")
     title = doc.get("title", name if isinstance(name, str) else "")
     sources = doc.get("sources", "")
@@ -336,7 +336,7 @@ def load_display_profile(path: str | os.PathLike[str]) -> DisplayProfile:
             transfer=transfer, resolution_px=resolution, sources=sources, photometry=photometry,
         )
     except ValidationError as exc:  # e.g. primaries with a dead channel
-        raise ValidationErrors([Problem(exc.field, exc.value, exc.allowed)], source=str(path)) from None
+        raise ValidationErrors([FieldProblem(exc.field, exc.value, exc.allowed)], source=str(path)) from None
 
 
 # --------------------------------------------------------------------------

@@ -17,7 +17,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ...plumbing.errors import InputError, Problem, ValidationError
+from ...plumbing.errors import InputError, FieldProblem, ValidationError
 from ..validation import FileWording, positive_finite, read_utf8_text
 
 __all__ = [
@@ -48,20 +48,20 @@ def _frozen_copy(array: np.ndarray) -> np.ndarray:
     return out
 
 
-def _wavelength_problem(wavelength_nm: Any, name: str) -> tuple[np.ndarray | None, Problem | None]:
+def _wavelength_problem(wavelength_nm: Any, name: str) -> tuple[np.ndarray | None, FieldProblem | None]:
     """Check a wavelength grid: 1-D, at least 2 samples, finite, strictly increasing."""
     try:
         wl = np.asarray(wavelength_nm, dtype=np.float64)
     except (TypeError, ValueError):
-        return None, Problem(name, wavelength_nm, "a 1-D array of wavelengths in nm")
+        return None, FieldProblem(name, wavelength_nm, "a 1-D array of wavelengths in nm")
     if wl.ndim != 1 or wl.size < 2:
-        return None, Problem(name, f"array of shape {wl.shape}", "a 1-D array of at least 2 wavelengths in nm")
+        return None, FieldProblem(name, f"array of shape {wl.shape}", "a 1-D array of at least 2 wavelengths in nm")
     if not np.all(np.isfinite(wl)):
-        return None, Problem(name, "array containing NaN or inf", "finite wavelengths in nm")
+        return None, FieldProblem(name, "array containing NaN or inf", "finite wavelengths in nm")
     steps = np.diff(wl)
     if np.any(steps <= 0):
         i = int(np.argmax(steps <= 0))
-        return None, Problem(
+        return None, FieldProblem(
             name,
             f"{wl[i]:g} nm followed by {wl[i + 1]:g} nm at index {i + 1}",
             "strictly increasing wavelengths in nm",

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from ...plumbing.errors import Problem, ValidationErrors
+from ...plumbing.errors import FieldProblem, ValidationErrors
 from ..validation import check_number, unknown_key_problem
 from ..vocabulary import Eye, names
 from .model import (
@@ -48,7 +48,7 @@ class _Missing:
         return "MISSING"
 
 
-#: The ``value`` of a :class:`Problem` reporting a required field that is absent.
+#: The ``value`` of a :class:`FieldProblem` reporting a required field that is absent.
 MISSING: Any = _Missing()
 
 _EYE_KEYS = tuple(EYE_FIELDS) + ("higher_order",)
@@ -65,19 +65,19 @@ _HO_ALLOWED = (
 )
 
 
-def _eye_doc_problems(doc: Any, prefix: str, problems: list[Problem]) -> None:
+def _eye_doc_problems(doc: Any, prefix: str, problems: list[FieldProblem]) -> None:
     if doc is MISSING:
-        problems.append(Problem(prefix, MISSING, _EYE_ALLOWED))
+        problems.append(FieldProblem(prefix, MISSING, _EYE_ALLOWED))
         return
     if not isinstance(doc, Mapping):
-        problems.append(Problem(prefix, doc, _EYE_ALLOWED))
+        problems.append(FieldProblem(prefix, doc, _EYE_ALLOWED))
         return
     pupil: float | None = None
     for name, (rule, required) in EYE_FIELDS.items():
         field = join_field(prefix, name)
         if name not in doc:
             if required:
-                problems.append(Problem(field, MISSING, rule.allowed))
+                problems.append(FieldProblem(field, MISSING, rule.allowed))
             continue
         number = check_number(problems, field, doc[name], rule)
         if name == "pupil_diameter_mm":
@@ -86,29 +86,29 @@ def _eye_doc_problems(doc: Any, prefix: str, problems: list[Problem]) -> None:
     if "higher_order" in doc:
         ho_pupil = _ho_doc_problems(doc["higher_order"], join_field(prefix, "higher_order"), problems)
     if pupil is not None and ho_pupil is not None and pupil > ho_pupil:
-        problems.append(Problem(join_field(prefix, "pupil_diameter_mm"), doc["pupil_diameter_mm"],
+        problems.append(FieldProblem(join_field(prefix, "pupil_diameter_mm"), doc["pupil_diameter_mm"],
                                 pupil_vs_measured_allowed(ho_pupil)))
     for key in doc:
         if key not in _EYE_KEYS:
             problems.append(unknown_key_problem(join_field(prefix, str(key)), key, doc[key], _EYE_KEYS))
 
 
-def _ho_doc_problems(doc: Any, prefix: str, problems: list[Problem]) -> float | None:
+def _ho_doc_problems(doc: Any, prefix: str, problems: list[FieldProblem]) -> float | None:
     """Check a higher_order object; return its pupil when that is valid."""
     if not isinstance(doc, Mapping):
-        problems.append(Problem(prefix, doc, _HO_ALLOWED))
+        problems.append(FieldProblem(prefix, doc, _HO_ALLOWED))
         return None
     pupil: float | None = None
     pfield = join_field(prefix, "pupil_diameter_mm")
     if "pupil_diameter_mm" not in doc:
-        problems.append(Problem(pfield, MISSING, HO_PUPIL.allowed))
+        problems.append(FieldProblem(pfield, MISSING, HO_PUPIL.allowed))
     else:
         pupil = check_number(problems, pfield, doc["pupil_diameter_mm"], HO_PUPIL)
     cfield = join_field(prefix, "coefficients_um")
     if "coefficients_um" not in doc:
-        problems.append(Problem(cfield, MISSING, COEFFS_ALLOWED))
+        problems.append(FieldProblem(cfield, MISSING, COEFFS_ALLOWED))
     elif not isinstance(doc["coefficients_um"], Mapping):
-        problems.append(Problem(cfield, doc["coefficients_um"], COEFFS_ALLOWED))
+        problems.append(FieldProblem(cfield, doc["coefficients_um"], COEFFS_ALLOWED))
     else:
         seen: set[int] = set()
         for key, value in doc["coefficients_um"].items():
@@ -117,7 +117,7 @@ def _ho_doc_problems(doc: Any, prefix: str, problems: list[Problem]) -> float | 
             check_number(problems, field, value, COEFFICIENT)
             if j is not None:
                 if j in seen:  # only possible for programmatic dicts mixing "7" and 7
-                    problems.append(Problem(field, value, "each index j given once"))
+                    problems.append(FieldProblem(field, value, "each index j given once"))
                 seen.add(j)
     for key in doc:
         if key not in _HO_KEYS:
@@ -125,7 +125,7 @@ def _ho_doc_problems(doc: Any, prefix: str, problems: list[Problem]) -> float | 
     return pupil
 
 
-def problems_in(doc: object) -> list[Problem]:
+def problems_in(doc: object) -> list[FieldProblem]:
     """Every problem in a parsed prescription document, in document order.
 
     Parameters
@@ -135,20 +135,20 @@ def problems_in(doc: object) -> list[Problem]:
 
     Returns
     -------
-    list of Problem
+    list of FieldProblem
         Empty when the document is a valid prescription. Field names are
         dotted paths such as ``"right.sphere_D"``; a missing field has the
         value :data:`MISSING`.
     """
-    problems: list[Problem] = []
+    problems: list[FieldProblem] = []
     if not isinstance(doc, Mapping):
-        problems.append(Problem("(top level)", doc, "a JSON object with schema, right and left"))
+        problems.append(FieldProblem("(top level)", doc, "a JSON object with schema, right and left"))
         return problems
     schema = doc.get("schema", MISSING)
     if not isinstance(schema, str) or schema != SCHEMA:
-        problems.append(Problem("schema", schema, f"the string {SCHEMA!r}"))
+        problems.append(FieldProblem("schema", schema, f"the string {SCHEMA!r}"))
     if "notes" in doc and not isinstance(doc["notes"], str):
-        problems.append(Problem("notes", doc["notes"], "a string (free text)"))
+        problems.append(FieldProblem("notes", doc["notes"], "a string (free text)"))
     if "age_years" in doc:
         check_number(problems, "age_years", doc["age_years"], AGE)
     for name in names(Eye):

@@ -14,7 +14,7 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
-from ...plumbing.errors import InputError, Problem, json_error_location
+from ...plumbing.errors import InputError, FieldProblem, json_error_location
 from ...plumbing.fileio import package_data, write_text_atomic
 from ..validation import FileWording, read_utf8_text
 from .document import parse_prescription, problems_in
@@ -115,7 +115,7 @@ def load_prescription(path: str | PathLike[str]) -> Prescription:
     return parse_prescription(doc, source=str(path))
 
 
-def validate_file(path: str | PathLike[str]) -> list[Problem]:
+def validate_file(path: str | PathLike[str]) -> list[FieldProblem]:
     """Problems in a prescription file's content; ``[]`` when it is valid.
 
     Raises

@@ -15,7 +15,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from ...plumbing.errors import Problem, ValidationError, ValidationErrors
+from ...plumbing.errors import FieldProblem, ValidationError, ValidationErrors
 from ..validation import Range, check_number, unknown_key_problem
 from ..vocabulary import Eye, either, names
 
@@ -76,10 +76,10 @@ def parse_j(key: Any) -> int | None:
     return None
 
 
-def check_j(problems: list[Problem], field: str, key: Any) -> int | None:
+def check_j(problems: list[FieldProblem], field: str, key: Any) -> int | None:
     j = parse_j(key)
     if j is None or not (J_MIN <= j <= J_MAX):
-        problems.append(Problem(field, key, J_ALLOWED))
+        problems.append(FieldProblem(field, key, J_ALLOWED))
         return None
     return j
 
@@ -116,14 +116,14 @@ class PowerVector:
 
 
 def _check_ho_fields(pupil_diameter_mm: Any, coefficients: Any, prefix: str,
-                     problems: list[Problem]) -> tuple[float | None, tuple[tuple[int, float], ...] | None]:
+                     problems: list[FieldProblem]) -> tuple[float | None, tuple[tuple[int, float], ...] | None]:
     """Validate programmatic HigherOrder fields (coefficients: mapping or pairs)."""
     pupil = check_number(problems, join_field(prefix, "pupil_diameter_mm"), pupil_diameter_mm, HO_PUPIL)
     cfield = join_field(prefix, "coefficients_um")
     if isinstance(coefficients, Mapping):
         pairs: list[Any] = list(coefficients.items())
     elif isinstance(coefficients, (str, bytes)) or not isinstance(coefficients, Iterable):
-        problems.append(Problem(cfield, coefficients, COEFFS_ALLOWED + " (or a sequence of (j, coefficient) pairs)"))
+        problems.append(FieldProblem(cfield, coefficients, COEFFS_ALLOWED + " (or a sequence of (j, coefficient) pairs)"))
         return pupil, None
     else:
         pairs = list(coefficients)
@@ -131,7 +131,7 @@ def _check_ho_fields(pupil_diameter_mm: Any, coefficients: Any, prefix: str,
     ok = True
     for pair in pairs:
         if not (isinstance(pair, tuple) or isinstance(pair, list)) or len(pair) != 2:
-            problems.append(Problem(cfield, pair, "(j, coefficient_um) pairs"))
+            problems.append(FieldProblem(cfield, pair, "(j, coefficient_um) pairs"))
             ok = False
             continue
         key, value = pair
@@ -141,7 +141,7 @@ def _check_ho_fields(pupil_diameter_mm: Any, coefficients: Any, prefix: str,
             ok = False
             continue
         if j in out:
-            problems.append(Problem(join_field(cfield, str(j)), value, "each index j given once"))
+            problems.append(FieldProblem(join_field(cfield, str(j)), value, "each index j given once"))
             ok = False
             continue
         out[j] = c
@@ -172,7 +172,7 @@ class HigherOrder:
     coefficients_um: tuple[tuple[int, float], ...] = ()
 
     def __post_init__(self) -> None:
-        problems: list[Problem] = []
+        problems: list[FieldProblem] = []
         pupil, coeffs = _check_ho_fields(self.pupil_diameter_mm, self.coefficients_um, "", problems)
         if problems:
             raise ValidationErrors(problems)
@@ -253,7 +253,7 @@ class EyeRx:
     higher_order: HigherOrder | None = None
 
     def __post_init__(self) -> None:
-        problems: list[Problem] = []
+        problems: list[FieldProblem] = []
         values: dict[str, float] = {}
         for name, (rule, _required) in EYE_FIELDS.items():
             number = check_number(problems, name, getattr(self, name), rule)
@@ -261,9 +261,9 @@ class EyeRx:
                 values[name] = number
         ho = self.higher_order
         if ho is not None and not isinstance(ho, HigherOrder):
-            problems.append(Problem("higher_order", ho, "a HigherOrder or None"))
+            problems.append(FieldProblem("higher_order", ho, "a HigherOrder or None"))
         elif ho is not None and "pupil_diameter_mm" in values and values["pupil_diameter_mm"] > ho.pupil_diameter_mm:
-            problems.append(Problem("pupil_diameter_mm", self.pupil_diameter_mm,
+            problems.append(FieldProblem("pupil_diameter_mm", self.pupil_diameter_mm,
                                     pupil_vs_measured_allowed(ho.pupil_diameter_mm)))
         if problems:
             raise ValidationErrors(problems)
@@ -354,7 +354,7 @@ class EyeRx:
         """
         if not isinstance(pv, PowerVector):
             raise ValidationError("pv", pv, "a PowerVector")
-        problems: list[Problem] = []
+        problems: list[FieldProblem] = []
         m = check_number(problems, "M_D", pv.M_D, Range(-math.inf, math.inf, "a finite number (dioptres)"))
         j0 = check_number(problems, "J0_D", pv.J0_D, Range(-math.inf, math.inf, "a finite number (dioptres)"))
         j45 = check_number(problems, "J45_D", pv.J45_D, Range(-math.inf, math.inf, "a finite number (dioptres)"))
@@ -392,12 +392,12 @@ class Prescription:
     age_years: float | None = None
 
     def __post_init__(self) -> None:
-        problems: list[Problem] = []
+        problems: list[FieldProblem] = []
         for name in names(Eye):
             if not isinstance(getattr(self, name), EyeRx):
-                problems.append(Problem(name, getattr(self, name), "an EyeRx"))
+                problems.append(FieldProblem(name, getattr(self, name), "an EyeRx"))
         if not isinstance(self.notes, str):
-            problems.append(Problem("notes", self.notes, "a string"))
+            problems.append(FieldProblem("notes", self.notes, "a string"))
         if self.age_years is not None:
             age = check_number(problems, "age_years", self.age_years, AGE)
             if age is not None:

@@ -28,7 +28,7 @@ import numpy as np
 from ...plumbing.errors import InputError, ValidationError, VrcorrectError
 from ...plumbing.fileio import package_data
 from ...plumbing.imageio import read_image
-from ...runtime.layer_build import build_layer, manifest_text
+from ...runtime.layer.build import build_layer, manifest_text
 from . import machine_description, markdown_table, write_section
 from .xr import x_display, build_test_runtime
 

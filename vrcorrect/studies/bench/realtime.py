@@ -59,7 +59,7 @@ from ...vision.forward import lms_to_display, simulate_lms
 from ..plots import pyplot, save_figure
 from ...specs.vocabulary import Method
 from . import machine_description, markdown_table, write_section
-from .sequences import Clip, held_out, photo, save_clip, suite
+from .sequences import BenchClip, held_out, photo, save_clip, suite
 
 __all__ = ["METHODS", "EYE", "DISPLAY", "Case", "make_case", "Run", "run_clip", "still_convergence",
            "frames_to_within", "score_clip", "gpu_check", "stage_ms", "held_out_renders", "run_realtime_bench"]
@@ -133,7 +133,7 @@ def _motions(frames: Sequence[np.ndarray]) -> list[tuple[int, int] | str]:
     return out
 
 
-def run_clip(case: Case, clip: Clip, method: str, k: int, motions: Sequence[Any] | None = None,
+def run_clip(case: Case, clip: BenchClip, method: str, k: int, motions: Sequence[Any] | None = None,
              keep_shown: bool = True, options: dict[str, Any] | None = None,
              first_guess: Callable[[np.ndarray], np.ndarray] | None = None) -> Run:
     """``method`` (``admm`` or ``fista``) at ``k`` iterations a frame over the clip, frame after frame
@@ -155,7 +155,7 @@ def run_clip(case: Case, clip: Clip, method: str, k: int, motions: Sequence[Any]
     return run
 
 
-def floor_and_ceiling(case: Case, clip: Clip, keep_shown: bool = True) -> tuple[Run, Run]:
+def floor_and_ceiling(case: Case, clip: BenchClip, keep_shown: bool = True) -> tuple[Run, Run]:
     """No correction and ``fast`` solved on every frame."""
     none, fast = Run(), Run()
     for frame in clip.frames:
@@ -185,13 +185,13 @@ def seen_frames(case: Case, shown: Sequence[np.ndarray]) -> np.ndarray:
     return np.stack([encode("srgb", lms_to_display(simulate_lms(x, case.kernel)[0], case.kernel)) for x in shown])
 
 
-def reference_frames(case: Case, clip: Clip) -> np.ndarray:
+def reference_frames(case: Case, clip: BenchClip) -> np.ndarray:
     """What the eye sees of each target frame with its glasses, in display sRGB."""
     return np.stack([encode("srgb", lms_to_display(simulate_lms(linear(f), case.reference)[0], case.kernel))
                      for f in clip.frames])
 
 
-def score_clip(case: Case, clip: Clip, runs: dict[str, Run], with_jod: bool = True) -> dict[str, Any]:
+def score_clip(case: Case, clip: BenchClip, runs: dict[str, Run], with_jod: bool = True) -> dict[str, Any]:
     """Each run's video JOD (``None`` without), its share of ``fast``'s gain over no correction in JOD
     and in the objective (whole clip, first third of a second), and after a cut the frames to
     within 5 % of ``fast``."""
@@ -217,20 +217,20 @@ def score_clip(case: Case, clip: Clip, runs: dict[str, Run], with_jod: bool = Tr
     return out
 
 
-def still_convergence(case: Case, clip: Clip, frames: int,
+def still_convergence(case: Case, clip: BenchClip, frames: int,
                       methods: dict[str, tuple[str, int, dict[str, Any]]] = STILL_METHODS) -> dict[str, Any]:
     """The still photograph frame after frame: each method's objective relative to ``fast``'s."""
     image = clip.frames[0]
     p = case.problem(image)
     fast = solve(p, Method.FAST).objective
-    still = Clip("still", [image] * frames)
-    none = floor_and_ceiling(case, Clip("still", [image]), keep_shown=False)[0].objective[0]
+    still = BenchClip("still", [image] * frames)
+    none = floor_and_ceiling(case, BenchClip("still", [image]), keep_shown=False)[0].objective[0]
     series = {label: [o / fast for o in run_clip(case, still, m, k, [(0, 0)] * (frames - 1), False, o).objective]
               for label, (m, k, o) in methods.items()}
     return {"fast": fast, "none_ratio": none / fast, "series": series}
 
 
-def gpu_check(ctx: Any, case: Case, clip: Clip, frames: int = 6) -> dict[str, float]:
+def gpu_check(ctx: Any, case: Case, clip: BenchClip, frames: int = 6) -> dict[str, float]:
     """The default through the GPU Corrector on the clip's first frames against its twin: the
     largest difference of the solutions and of the frames' objective fractions."""
     H, W = clip.frames[0].shape[:2]
@@ -299,7 +299,7 @@ def stage_ms(ctx: Any, case: Case, image: np.ndarray, options: dict[str, Any], r
     return {stage: statistics.median(v) for stage, v in per.items()}
 
 
-def held_out_renders(case: Case, clips: Sequence[Clip], workdir: Path) -> dict[str, dict[str, Any]]:
+def held_out_renders(case: Case, clips: Sequence[BenchClip], workdir: Path) -> dict[str, dict[str, Any]]:
     """Each held-out clip written to a folder and rendered by ``vrcorrect render`` with default
     settings (the right eye of a prescription file of the bench's eye, ``--display desktop``) in a
     process where torch cannot be imported, then scored as video (what the eye sees of the rendered

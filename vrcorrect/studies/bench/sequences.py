@@ -26,7 +26,7 @@ import numpy as np
 from ...plumbing.images import prepare_image
 from ...specs.vocabulary import VIEW_ORDER, Eye
 
-__all__ = ["SEQUENCES", "HELD_OUT", "Clip", "photo", "suite", "held_out", "text_page", "save_clip"]
+__all__ = ["SEQUENCES", "HELD_OUT", "BenchClip", "photo", "suite", "held_out", "text_page", "save_clip"]
 
 SEQUENCES = ("still", "sprite", "text", "cut", "zoom", "head turn")
 HELD_OUT = ("sprite", "text", "cut")
@@ -39,7 +39,7 @@ HELD_OUT_WORDS = ("pack my box with five dozen liquor jugs then sphinx of black 
 
 
 @dataclass
-class Clip:
+class BenchClip:
     """One sequence: its frames and where it cuts (the first frame of the new shot, or ``None``)."""
 
     name: str
@@ -62,7 +62,7 @@ def text_page(width: int, height: int, words: tuple[str, ...] | list[str] = WORD
     """A page of dark text on light paper, ``height`` x ``width`` 8-bit RGB (Pillow's default font)."""
     from PIL import Image, ImageDraw
 
-    from ...runtime.text import default_font
+    from ...runtime.shell.text import default_font
 
     img = Image.new("RGB", (width, height), paper)
     draw, font = ImageDraw.Draw(img), default_font(font_px)
@@ -110,7 +110,7 @@ def head_turn(ctx: Any, size: int, frames: int, deg_per_frame: float = TURN_DEG,
     """The mirror's demo scene seen by the right eye while the head turns left ``deg_per_frame``
     degrees a frame (rendered on ``ctx``)."""
     from ...runtime.gl import download_texture
-    from ...runtime.scene import DemoScene, SceneConfig, eye_position, perspective, rotation_y, translation
+    from ...runtime.shell.scene import DemoScene, SceneConfig, eye_position, perspective, rotation_y, translation
 
     config = SceneConfig()
     projection = perspective(config.fov_y_deg, 1.0, 0.05, 60.0)
@@ -127,7 +127,7 @@ def head_turn(ctx: Any, size: int, frames: int, deg_per_frame: float = TURN_DEG,
     return images
 
 
-def suite(size: int = 256, frames: int = 90, ctx: Any = None, names: tuple[str, ...] = SEQUENCES) -> list[Clip]:
+def suite(size: int = 256, frames: int = 90, ctx: Any = None, names: tuple[str, ...] = SEQUENCES) -> list[BenchClip]:
     """The motion suite (module docstring); ``ctx``: a GL context for the head turn (without one it
     is left out)."""
     pad = STEP_PX * frames
@@ -137,28 +137,28 @@ def suite(size: int = 256, frames: int = 90, ctx: Any = None, names: tuple[str, 
     for name in names:
         if name == "still":
             still = base[top:top + size, top:top + size]
-            clips.append(Clip(name, [still] * frames, what="a photograph held still"))
+            clips.append(BenchClip(name, [still] * frames, what="a photograph held still"))
         elif name == "sprite":
-            clips.append(Clip(name, _sprite(base[top:top + size, top:top + size], photo("chelsea", max(16, size // 4)), size,
+            clips.append(BenchClip(name, _sprite(base[top:top + size, top:top + size], photo("chelsea", max(16, size // 4)), size,
                                             frames), what=f"a picture sliding {STEP_PX} px a frame over a photograph"))
         elif name == "text":
             page = text_page(size, size + pad)
-            clips.append(Clip(name, [page[STEP_PX * f:STEP_PX * f + size] for f in range(frames)],
+            clips.append(BenchClip(name, [page[STEP_PX * f:STEP_PX * f + size] for f in range(frames)],
                               what=f"text scrolling {STEP_PX} px a frame"))
         elif name == "cut":
             half = frames // 2
             other = photo("coffee", size + pad)
-            clips.append(Clip(name, _pan(base, size, half, top) + _pan(other, size, frames - half, top), cut_at=half,
+            clips.append(BenchClip(name, _pan(base, size, half, top) + _pan(other, size, frames - half, top), cut_at=half,
                               what=f"a pan of {STEP_PX} px a frame, cut half-way to another"))
         elif name == "zoom":
-            clips.append(Clip(name, _zoom(base, size, frames), what="zooming into the photograph's centre"))
+            clips.append(BenchClip(name, _zoom(base, size, frames), what="zooming into the photograph's centre"))
         elif name == "head turn" and ctx is not None:
-            clips.append(Clip(name, head_turn(ctx, size, frames),
+            clips.append(BenchClip(name, head_turn(ctx, size, frames),
                               what=f"the demo scene, the head turning {TURN_DEG:g} deg a frame"))
     return clips
 
 
-def held_out(size: int = 256, frames: int = 90) -> list[Clip]:
+def held_out(size: int = 256, frames: int = 90) -> list[BenchClip]:
     """Clips of the sprite, text and cut kinds from pictures and words the project never tuned on."""
     pad = STEP_PX * frames
     rocket = photo("rocket", size + pad)
@@ -166,16 +166,16 @@ def held_out(size: int = 256, frames: int = 90) -> list[Clip]:
     half = frames // 2
     page = text_page(size, size + pad, HELD_OUT_WORDS, font_px=18, ink=(240, 240, 235), paper=(30, 40, 70))
     return [
-        Clip("sprite", _sprite(rocket[top:top + size, top:top + size], photo("colorwheel", max(16, size // 4)), size, frames),
+        BenchClip("sprite", _sprite(rocket[top:top + size, top:top + size], photo("colorwheel", max(16, size // 4)), size, frames),
              what="a colour wheel sliding over the rocket"),
-        Clip("text", [page[STEP_PX * f:STEP_PX * f + size] for f in range(frames)],
+        BenchClip("text", [page[STEP_PX * f:STEP_PX * f + size] for f in range(frames)],
              what="light text on dark blue, 18 px, scrolling"),
-        Clip("cut", _pan(rocket, size, half, top) + _pan(photo("immunohistochemistry", size + pad), size, frames - half,
+        BenchClip("cut", _pan(rocket, size, half, top) + _pan(photo("immunohistochemistry", size + pad), size, frames - half,
                                                           top), cut_at=half, what="a pan across the rocket, cut to a slide"),
     ]
 
 
-def save_clip(clip: Clip, folder: Any) -> None:
+def save_clip(clip: BenchClip, folder: Any) -> None:
     """Write ``clip``'s frames as ``frame_00000.png``... into ``folder`` (made)."""
     from pathlib import Path
 

@@ -1,6 +1,6 @@
 """``vrcorrect bench xr``: milliseconds per stage of the headset loop (``vrcorrect xr``).
 
-Runs :class:`~vrcorrect.runtime.xr.XrApp` against the test OpenXR runtime of the repository
+Runs :class:`~vrcorrect.runtime.shell.xr.XrApp` against the test OpenXR runtime of the repository
 (``tests/xr_runtime/xr_test_runtime.c``, compiled here with the machine's C compiler and loaded
 by pyopenxr's OpenXR loader through ``XR_RUNTIME_JSON``), on an X display (``DISPLAY``, or a
 private Xvfb started here): the GL context is a GLFW/GLX one, Mesa llvmpipe under Xvfb. The
@@ -27,8 +27,8 @@ from pathlib import Path
 from typing import Iterator
 
 from ...plumbing.errors import InputError, ValidationError, VrcorrectError
-from ...runtime.xr import XR_CPU_ONLY_STAGES as CPU_ONLY_STAGES
-from ...runtime.xr import XR_STAGES, XrApp, XrConfig
+from ...runtime.shell.xr import XR_CPU_ONLY_STAGES as CPU_ONLY_STAGES
+from ...runtime.shell.xr import XR_STAGES, XrApp, XrConfig
 from . import machine_description, markdown_table, write_section
 
 EYE_SIZES = ((1832, 1920), (512, 512))          # a Quest 2 eye, and a small one for the loop's overhead

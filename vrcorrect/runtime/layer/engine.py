@@ -86,19 +86,19 @@ from typing import TYPE_CHECKING, Any, Iterator, Mapping
 
 import numpy as np
 
-from ..plumbing.errors import InputError, ValidationError
-from ..plumbing.fileio import file_stamp
-from ..specs.vocabulary import VIEW_ORDER, Backend
-from .gaze import gaze_deg_of
-from .gl import fullscreen_triangle, release
-from .shaders import compile_program
+from ...plumbing.errors import InputError, ValidationError
+from ...plumbing.fileio import file_stamp
+from ...specs.vocabulary import VIEW_ORDER, Backend
+from ..gaze import gaze_deg_of
+from ..gl import fullscreen_triangle, release
+from ..shaders import compile_program
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
-    from ..specs.display import DisplayProfile
-    from .corrector import Corrector
-    from .eye_source import EyeSource
+    from ...specs.display import DisplayProfile
+    from ..corrector import Corrector
+    from ..eye_source import EyeSource
 
 __all__ = ["LAYER_NAME", "DISABLE_ENV", "OFF_ENV", "LayerConfig", "Engine", "SwapchainFormat", "GL_FORMATS",
            "VK_FORMATS", "config_path", "log_path", "off_file", "eye_of_view", "read_config"]
@@ -338,7 +338,7 @@ def _off(env: Mapping[str, str]) -> str | None:
 def choose_display(name: str | None, view_size: tuple[int, int]) -> tuple[DisplayProfile, str]:
     """The display profile and why it was chosen: the user's, else the preset whose per-eye
     resolution equals the runtime's recommended view size, else ``quest2``."""
-    from ..specs.display import get_display, preset_names
+    from ...specs.display import get_display, preset_names
 
     if name:
         return get_display(name), "configured"
@@ -595,7 +595,7 @@ class _Pipeline:
         the Correctors keep that state (a fresh Corrector given the same number of frames reaches the
         same one).  :attr:`primed_frames` counts each eye's frames, :attr:`prime_converged` says
         whether they converged."""
-        from .strategies.admm import EARLY_STOP_TOLERANCE
+        from ..strategies.admm import EARLY_STOP_TOLERANCE
 
         share = budget_s / max(len(copies), 1)
         for c in copies:
@@ -951,8 +951,8 @@ class _Builder:
         """The eye source (the prescription read, the options checked, with the options a
         :class:`~vrcorrect.runtime.corrector.Corrector` makes of the same configuration: the
         correction is the one it would design itself)."""
-        from .eye_model import CorrectorOptions
-        from .eye_source import EyeSource
+        from ..eye_model import CorrectorOptions
+        from ..eye_source import EyeSource
 
         config, holder = self.config, self.display_holder
         try:
@@ -975,7 +975,7 @@ class _Builder:
         return not self._stopped
 
     def _loop(self) -> None:
-        from . import eye_cache
+        from .. import eye_cache
 
         source, config = self.source, self.config
         assert source is not None
@@ -1054,8 +1054,8 @@ class _Builder:
     def _build(self, models: dict[str, tuple[Any, Any]], targets: set[Target]) -> tuple["_Pipeline | None", float]:
         """A pipeline for ``models`` warmed up for ``targets``, on a new context current on this thread
         only while it is built; ``None`` when the builder was stopped meanwhile."""
-        from .corrector import Corrector
-        from .glcache import egl_context, glx_context
+        from ..corrector import Corrector
+        from ..glcache import egl_context, glx_context
 
         t0 = time.perf_counter()
         engine = self.engine
@@ -1169,7 +1169,7 @@ class Engine:
         self._gaze_said: str | None = None
         self.frames = 0
         self.log.line(f"loaded ({api} session, runtime view size {view_width}x{view_height}, "
-                      f"Python {sys.version.split()[0]}, vrcorrect from {Path(__file__).resolve().parents[1]})")
+                      f"Python {sys.version.split()[0]}, vrcorrect from {Path(__file__).resolve().parents[2]})")
 
     # ------------------------------------------------------------ what the shim tells
 

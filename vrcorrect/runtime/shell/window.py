@@ -26,21 +26,21 @@ from typing import TYPE_CHECKING, Any, Callable, Generic, Iterable, Iterator, Ma
 
 import numpy as np
 
-from ..plumbing.errors import GLUnavailableError, InputError, ValidationError, VrcorrectError
-from ..plumbing.imageio import write_png
-from ..specs.display import get_display
-from ..specs.prescription import EyeRx, bundled_sample_path
-from ..specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, names
-from .corrector import Corrector, RxSnapshot, runs_iterations
-from .eye_model import CorrectorOptions
-from .eye_source import EyeSource, EyeUpdate
-from .gl import read_framebuffer, timer_query_ms
-from .optional import require_glfw, require_moderngl
+from ...plumbing.errors import GLUnavailableError, InputError, ValidationError, VrcorrectError
+from ...plumbing.imageio import write_png
+from ...specs.display import get_display
+from ...specs.prescription import EyeRx, bundled_sample_path
+from ...specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, names
+from ..corrector import Corrector, RxSnapshot, runs_iterations
+from ..eye_model import CorrectorOptions
+from ..eye_source import EyeSource, EyeUpdate
+from ..gl import read_framebuffer, timer_query_ms
+from ..optional import require_glfw, require_moderngl
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
-    from ..specs.display import DisplayProfile
+    from ...specs.display import DisplayProfile
 
 __all__ = [
     "srgb_display", "GlfwSession", "StageTimes", "write_screenshot",

@@ -54,17 +54,17 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..plumbing.errors import ValidationError, XrSessionError, XrUnavailableError
-from ..specs.vocabulary import VIEW_ORDER, Backend, either, names
-from .corrector import Corrector, runs_iterations
-from .eye_model import CorrectorOptions, as_options
-from .gaze import gaze_deg_of, gaze_in_view
-from .gl import check_gl_errors, fullscreen_triangle, release
-from .optional import require_moderngl, require_xr
-from .motion import view_shift
+from ...plumbing.errors import ValidationError, XrSessionError, XrUnavailableError
+from ...specs.vocabulary import VIEW_ORDER, Backend, either, names
+from ..corrector import Corrector, runs_iterations
+from ..eye_model import CorrectorOptions, as_options
+from ..gaze import gaze_deg_of, gaze_in_view
+from ..gl import check_gl_errors, fullscreen_triangle, release
+from ..motion import view_shift
+from ..optional import require_moderngl, require_xr
+from ..shaders import compile_program
 from .scene import DemoScene, open_source
-from .shaders import compile_program
-from .sources import EyeSource, ScreenSource, parse_region, parse_source, screen_bounds, start_motion, take_motion
+from .sources import PictureFeed, ScreenSource, parse_region, parse_source, screen_bounds, start_motion, take_motion
 from .window import (
     GLFW_PRESS,
     MOD_ALT,
@@ -431,7 +431,7 @@ class XrApp(WindowApp):
         self.instance = self.system_id = self.session = self.space = None
         self.swapchains: list[dict[str, Any]] = []
         self.correctors: dict[str, Corrector] = {}
-        self.source: EyeSource | None = None
+        self.source: PictureFeed | None = None
         self._times: StageTimes | None = None
         self._mirror_prog = self._mirror_vao = self._convert_prog = self._convert_vao = None
         self._sampler = None

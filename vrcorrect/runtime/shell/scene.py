@@ -1,6 +1,6 @@
 """The built-in 3D demo scene the mirror and the headset show each eye, and :func:`open_source`,
 the eye source a ``--source`` names (this scene, or a picture source of
-:mod:`vrcorrect.runtime.sources`).
+:mod:`vrcorrect.runtime.shell.sources`).
 
 :class:`DemoScene` renders, per frame, one RGBA8 texture per eye at the eye size, holding sRGB
 code values in OpenGL's orientation (what :class:`~vrcorrect.runtime.corrector.Corrector`
@@ -27,14 +27,14 @@ from typing import TYPE_CHECKING, Any, Mapping
 import numpy as np
 from PIL import Image, ImageDraw
 
-from ..plumbing.charts import colour_bars, siemens_star, text_chart
-from ..plumbing.errors import ValidationError
-from ..specs.vocabulary import VIEW_ORDER, Eye, either, names
-from .gl import check_gl_errors, release, upload_texture
-from .shaders import compile_program
-from .sources import EyeSource, EyeTarget, SourceSpec, open_picture_source
+from ...plumbing.charts import colour_bars, siemens_star, text_chart
+from ...plumbing.errors import ValidationError
+from ...specs.vocabulary import VIEW_ORDER, Eye, either, names
+from ..gl import check_gl_errors, release, upload_texture
+from ..optional import require_moderngl
+from ..shaders import compile_program
+from .sources import PictureFeed, EyeTarget, SourceSpec, open_picture_source
 from .text import default_font
-from .optional import require_moderngl
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
@@ -286,7 +286,7 @@ class DemoScene:
     label = "demo scene"
 
     def __init__(self, ctx: "moderngl.Context", width: int, height: int, config: SceneConfig = SceneConfig()):
-        from ..specs.display import srgb_to_linear  # lazy: colour-science's tables, not needed to import the runtime
+        from ...specs.display import srgb_to_linear  # lazy: colour-science's tables, not needed to import the runtime
 
         self.ctx, self.size, self.config = ctx, (int(width), int(height)), config
         self._objects: list[Any] = []
@@ -340,7 +340,7 @@ class DemoScene:
         """Draw the scene at time ``t_s`` for both eyes; ``(left, right)`` RGBA8 textures of sRGB codes.
 
         ``views``: each eye's ``(view_projection (4, 4), camera position (3,) m)``, e.g. from a
-        headset's tracked poses and fields of view (:mod:`vrcorrect.runtime.xr`); by default the
+        headset's tracked poses and fields of view (:mod:`vrcorrect.runtime.shell.xr`); by default the
         fixed eyes of :func:`scene_transforms` (``ipd_m`` apart, ``fov_y_deg``)."""
         moderngl = require_moderngl()
         ctx, p = self.ctx, self.program
@@ -381,10 +381,10 @@ class DemoScene:
 
 
 def open_source(ctx: "moderngl.Context", spec: SourceSpec, width: int, height: int, *,
-                scene_config: SceneConfig = SceneConfig(), folder_interval_s: float = 3.0) -> EyeSource:
-    """The source ``spec`` (see :func:`~vrcorrect.runtime.sources.parse_source`) rendering
+                scene_config: SceneConfig = SceneConfig(), folder_interval_s: float = 3.0) -> PictureFeed:
+    """The source ``spec`` (see :func:`~vrcorrect.runtime.shell.sources.parse_source`) rendering
     ``width`` x ``height`` eye textures: :class:`DemoScene`, or a picture source
-    (:func:`~vrcorrect.runtime.sources.open_picture_source`). Each has
+    (:func:`~vrcorrect.runtime.shell.sources.open_picture_source`). Each has
     ``render(t_s) -> (left, right)``, ``label``, ``size`` and ``release()``."""
     if spec.kind == "demo":
         return DemoScene(ctx, width, height, scene_config)

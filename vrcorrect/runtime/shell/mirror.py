@@ -1,7 +1,7 @@
 """The desktop mirror: both eyes side by side in a GLFW window (``vrcorrect mirror``, whose
 command line is :mod:`vrcorrect.apps.mirror`).
 
-Each frame a source (:func:`vrcorrect.runtime.scene.open_source`: the 3D demo scene, an image, a
+Each frame a source (:func:`vrcorrect.runtime.shell.scene.open_source`: the 3D demo scene, an image, a
 folder, a video) renders one RGBA8 texture of sRGB code values per eye; each eye's
 :class:`~vrcorrect.runtime.corrector.Corrector` then writes, straight into its half of the
 window (left eye on the left), the displayed (corrected) image, or what that eye sees of the
@@ -12,15 +12,15 @@ live changes: :attr:`Corrector.live_offset <vrcorrect.runtime.corrector.Correcto
 
 Keys are handled by a pure state machine, :func:`next_state` on a frozen
 :class:`MirrorState`, which returns the new state and the side effects to perform
-(:class:`Adjust`, :class:`~vrcorrect.runtime.window.Screenshot`,
-:class:`~vrcorrect.runtime.window.Iterations`); :meth:`Mirror.key_callback` is the GLFW key
+(:class:`Adjust`, :class:`~vrcorrect.runtime.shell.window.Screenshot`,
+:class:`~vrcorrect.runtime.shell.window.Iterations`); :meth:`Mirror.key_callback` is the GLFW key
 callback that feeds it. :data:`KEY_MAP` lists the keys.
 
 With an iterative method (``--filter admm``, the default, or ``fista``) the correction is
 iterations spread over frames, and ``[`` / ``]`` halve / double the iterations per frame live (the
 speed-accuracy knob, 1 to 64); the panel shows it with each eye's objective as a fraction of
 uncorrected, read back a frame late so the panel never waits for the GPU
-(:func:`~vrcorrect.runtime.window.knob_text`).
+(:func:`~vrcorrect.runtime.shell.window.knob_text`).
 
 A prescription edit (the file, or the keys' live changes) is designed off the render thread
 (:class:`~vrcorrect.runtime.eye_source.EyeSource`): the frames go on with the current correction
@@ -28,7 +28,7 @@ until the new one is ready, then it is installed between two frames.
 
 GPU objects are made when the mirror opens (the correctors make theirs on the first frame of
 a size); rendering frames allocates none. Text is drawn from a glyph atlas
-(:mod:`vrcorrect.runtime.text`); the window shell is :mod:`vrcorrect.runtime.window`.
+(:mod:`vrcorrect.runtime.shell.text`); the window shell is :mod:`vrcorrect.runtime.shell.window`.
 
 Layer 5: numpy, Pillow, moderngl, glfw; never torch. One :class:`Mirror` per process at a
 time (GLFW is initialised and terminated with it).
@@ -44,13 +44,13 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
 
-from ..plumbing.errors import ValidationError, VrcorrectError
-from ..specs.vocabulary import VIEW_ORDER, Backend, Eye, either, names
-from .corrector import Corrector
-from .eye_model import CorrectorOptions, as_options
-from .gl import check_gl_errors, format_ms, release
+from ...plumbing.errors import ValidationError, VrcorrectError
+from ...specs.vocabulary import VIEW_ORDER, Backend, Eye, either, names
+from ..corrector import Corrector
+from ..eye_model import CorrectorOptions, as_options
+from ..gl import check_gl_errors, format_ms, release
 from .scene import open_source
-from .sources import EyeSource, parse_source, start_motion, take_motion
+from .sources import PictureFeed, parse_source, start_motion, take_motion
 from .text import TextOverlay, build_font_atlas, key_map_panel, panel_instances, text_width
 from .window import (
     ITERATION_KEYS,
@@ -70,7 +70,7 @@ from .window import (
 )
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
-    from ..specs.prescription import EyeRx
+    from ...specs.prescription import EyeRx
 
 __all__ = [
     "VIEWS", "VIEW_TITLES", "KEY_MAP", "STEP_SPHERE_D", "STEP_CYLINDER_D", "STEP_AXIS_DEG", "STAGES",
@@ -227,7 +227,7 @@ class MirrorConfig:
         Display preset name or profile path (the correction is designed for it).
     source
         ``"demo"``, an image or video file, or a folder of images (see
-        :func:`~vrcorrect.runtime.sources.parse_source`).
+        :func:`~vrcorrect.runtime.shell.sources.parse_source`).
     eye_size
         Each eye's ``(width, height)`` in pixels; the window is twice as wide.
     frames
@@ -248,7 +248,7 @@ class MirrorConfig:
     reprojection
         With ``filter="fista"`` and a CPU source (image, folder, video): estimate the pictures'
         motion (:mod:`vrcorrect.runtime.motion`) and reproject the warm start by it, starting cold
-        on a scene cut (:func:`~vrcorrect.runtime.sources.start_motion`).  The demo scene is not estimated.
+        on a scene cut (:func:`~vrcorrect.runtime.shell.sources.start_motion`).  The demo scene is not estimated.
     """
 
     rx: str | Path | None = None
@@ -322,7 +322,7 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
         ``{"left": Corrector, "right": Corrector}``: each eye's state (its prescription, the
         live changes) is its corrector's.
     source
-        The eye source (:func:`~vrcorrect.runtime.scene.open_source`).
+        The eye source (:func:`~vrcorrect.runtime.shell.scene.open_source`).
     status
         The last status message ("" if none).
     timings_ms
@@ -344,7 +344,7 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
         self.state = MirrorState(show_panel=config.panel)
         self.timings_ms: dict[str, tuple[float | None, float]] = {}
         self.correctors: dict[str, Corrector] = {}
-        self.source: EyeSource | None = None
+        self.source: PictureFeed | None = None
         self.overlay: TextOverlay | None = None
         self._times: StageTimes | None = None
         self._frame_ms: float | None = None

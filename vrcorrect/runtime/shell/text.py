@@ -18,10 +18,10 @@ from typing import TYPE_CHECKING, Mapping, Sequence
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from ..plumbing.errors import ValidationError
-from .gl import release, upload_texture
-from .shaders import compile_program
-from .optional import require_moderngl
+from ...plumbing.errors import ValidationError
+from ..gl import release, upload_texture
+from ..optional import require_moderngl
+from ..shaders import compile_program
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl

@@ -1,5 +1,5 @@
 """The OpenXR API layer's library: the C shim in ``layer/`` (``vrcorrect_layer.c`` and
-``vrcorrect_vulkan.c``, which embed this Python and run :mod:`vrcorrect.runtime.xrlayer`), the file
+``vrcorrect_vulkan.c``, which embed this Python and run :mod:`vrcorrect.runtime.layer.engine`), the file
 that tells it which Python to start (``vrcorrect_layer.cfg``), and the loader's manifest that names it.
 
 The library is compiled when vrcorrect is built (``setup.py``: ``pip install .``, ``pip wheel .``, the
@@ -22,10 +22,10 @@ import sysconfig
 from pathlib import Path
 from typing import Any
 
-from ..plumbing.errors import InputError
-from .xrlayer import DISABLE_ENV, LAYER_NAME
+from ...plumbing.errors import InputError
+from .engine import DISABLE_ENV, LAYER_NAME
 
-PACKAGE = Path(__file__).resolve().parents[1]          # vrcorrect/
+PACKAGE = Path(__file__).resolve().parents[2]          # vrcorrect/
 ROOT = PACKAGE.parent                                   # a checkout (layer/ beside vrcorrect/), or site-packages
 SOURCE_DIR = ROOT / "layer"
 LIBRARY = "libvrcorrect_layer.so"
@@ -44,7 +44,7 @@ def build_flags() -> dict[str, Any]:
 
 
 def packaged_library() -> Path | None:
-    """The library built into the package (``vrcorrect/runtime/libvrcorrect_layer.so``), or ``None``."""
+    """The library built into the package (``vrcorrect/runtime/layer/libvrcorrect_layer.so``), or ``None``."""
     path = Path(__file__).resolve().parent / LIBRARY
     return path if path.is_file() else None
 

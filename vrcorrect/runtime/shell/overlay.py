@@ -2,8 +2,8 @@
 for applications that cannot call the library.
 
 It takes frames from an external source - a video file, a folder of images, a still image
-(:mod:`vrcorrect.runtime.sources`), or a region of the X11 screen
-(:class:`~vrcorrect.runtime.sources.ScreenSource`) - corrects each one with one
+(:mod:`vrcorrect.runtime.shell.sources`), or a region of the X11 screen
+(:class:`~vrcorrect.runtime.shell.sources.ScreenSource`) - corrects each one with one
 :class:`~vrcorrect.runtime.corrector.Corrector` (a monitor is seen by both eyes, so one eye's
 prescription: the right eye's unless told), and presents it full-screen on the primary monitor,
 or in a window of a given size. Each frame the source is fitted (aspect kept, centred on black)
@@ -25,7 +25,7 @@ per frame live, and the report line gives them with the objective as a fraction 
 (:class:`~vrcorrect.runtime.eye_source.EyeSource`): an edit is designed off the render thread and
 takes effect when ready, an invalid file keeps the last good prescription and says why (on stdout
 and in the window). Frames per second and milliseconds per stage are printed once per
-second and on exit. The window shell is :mod:`vrcorrect.runtime.window`.
+second and on exit. The window shell is :mod:`vrcorrect.runtime.shell.window`.
 
 Layer 5: numpy, Pillow, moderngl, glfw, mss; never torch.
 """
@@ -40,11 +40,11 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..plumbing.errors import ValidationError
-from ..specs.vocabulary import Backend, Eye, either, names
-from .corrector import Corrector
-from .eye_model import CorrectorOptions, as_options
-from .gl import Rect, check_gl_errors, format_ms, release
+from ...plumbing.errors import ValidationError
+from ...specs.vocabulary import Backend, Eye, either, names
+from ..corrector import Corrector
+from ..eye_model import CorrectorOptions, as_options
+from ..gl import Rect, check_gl_errors, format_ms, release
 from .sources import (
     PictureSource,
     ScreenSource,

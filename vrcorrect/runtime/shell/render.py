@@ -24,12 +24,12 @@ from typing import TYPE_CHECKING, Any, Callable, Hashable, Iterable, Iterator
 
 import numpy as np
 
-from ..plumbing.errors import ValidationError
-from ..specs.display import DisplayProfile
-from ..specs.vocabulary import Backend, Eye
-from ..vision.forward import check_image
-from .corrector import Corrector, RxSource, runs_iterations
-from .gl import (
+from ...plumbing.errors import ValidationError
+from ...specs.display import DisplayProfile
+from ...specs.vocabulary import Backend, Eye
+from ...vision.forward import check_image
+from ..corrector import Corrector, RxSource, runs_iterations
+from ..gl import (
     check_gl_errors,
     headless_context,
     read_framebuffer,
@@ -38,7 +38,7 @@ from .gl import (
     upload_texture,
     write_texture,
 )
-from .motion import MotionTracker
+from ..motion import MotionTracker
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
@@ -112,8 +112,8 @@ def _with_first_light(options: dict[str, Any], first_codes: np.ndarray, display:
     follows the light, so that the first design is for it."""
     if options.get("pupil") != "auto":
         return options
-    from ..specs.display import decode, get_display
-    from .pupil_bank import relative_luminance_of
+    from ...specs.display import decode, get_display
+    from ..pupil_bank import relative_luminance_of
 
     profile = display if isinstance(display, DisplayProfile) else get_display(display)
     linear = decode(profile, first_codes.astype(np.float32) / 255.0)

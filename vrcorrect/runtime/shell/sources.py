@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any, Callable, Hashable, Iterable, Protocol, S
 
 import numpy as np
 
-from ..plumbing.clips import (
+from ...plumbing.clips import (
     ANIMATED_SUFFIXES,
     FFMPEG_HINT,
     VIDEO_SUFFIXES,
@@ -46,24 +46,24 @@ from ..plumbing.clips import (
     index_at,
     is_animated,
 )
-from ..plumbing.errors import InputError, ValidationError
-from ..plumbing.imageio import read_image
-from ..plumbing.images import IMAGE_SUFFIXES
-from .gl import Rect, draw_fullscreen, fullscreen_triangle, release, render_target, upload_texture, write_texture
-from .motion import MotionTracker
-from .shaders import compile_program
-from .corrector import runs_iterations
-from .optional import import_optional
+from ...plumbing.errors import InputError, ValidationError
+from ...plumbing.imageio import read_image
+from ...plumbing.images import IMAGE_SUFFIXES
+from ..corrector import runs_iterations
+from ..gl import Rect, draw_fullscreen, fullscreen_triangle, release, render_target, upload_texture, write_texture
+from ..motion import MotionTracker
+from ..optional import import_optional
+from ..shaders import compile_program
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
-    from .corrector import Corrector
+    from ..corrector import Corrector
 
 __all__ = [
     "IMAGE_SUFFIXES", "ANIMATED_SUFFIXES", "VIDEO_SUFFIXES", "MAX_EYE_SIZE",
     "SourceSpec", "parse_size", "parse_source", "parse_region", "fit_rect", "frame_index", "frame_at",
-    "folder_images", "EyeSource", "EyeTarget", "FittedImage", "PictureSource", "StillSource", "FolderSource",
+    "folder_images", "PictureFeed", "EyeTarget", "FittedImage", "PictureSource", "StillSource", "FolderSource",
     "AnimatedImageSource", "VideoSource", "ScreenGrabber", "screen_bounds", "ScreenSource", "open_picture_source",
     "start_motion", "take_motion",
 ]
@@ -214,8 +214,8 @@ def frame_at(t_s: float, durations_s: Sequence[float]) -> int:
 # --------------------------------------------------------------------------
 
 
-class EyeSource(Protocol):
-    """What the applications take as an eye source: :class:`PictureSource` or the demo scene."""
+class PictureFeed(Protocol):
+    """What the applications take as a view's pictures: :class:`PictureSource` or the demo scene."""
 
     label: str
     size: tuple[int, int]
@@ -624,7 +624,7 @@ def open_picture_source(ctx: "moderngl.Context", spec: SourceSpec, width: int, h
     :class:`FolderSource` or :class:`VideoSource`."""
     if spec.kind == "demo":
         raise ValidationError("source", "demo", "an image, a folder of images or a video (the demo scene is "
-                              "opened by vrcorrect.runtime.scene.open_source)")
+                              "opened by vrcorrect.runtime.shell.scene.open_source)")
     if spec.kind == "folder":
         return FolderSource(ctx, width, height, spec.path, folder_interval_s)
     if spec.kind == "video":
@@ -634,7 +634,7 @@ def open_picture_source(ctx: "moderngl.Context", spec: SourceSpec, width: int, h
     return StillSource(ctx, width, height, spec.path, label=f"image {spec.path.name}")
 
 
-def start_motion(source: EyeSource, correctors: Iterable["Corrector"], reprojection: bool = True) -> bool:
+def start_motion(source: PictureFeed, correctors: Iterable["Corrector"], reprojection: bool = True) -> bool:
     """Have a CPU source (one with ``track_motion``: image, folder, video, screen) estimate its
     pictures' motion when ``reprojection`` is on and a corrector runs projected gradient; returns
     whether it does.  The demo scene is rendered on the GPU and its motion (a 3D camera and objects)
@@ -645,7 +645,7 @@ def start_motion(source: EyeSource, correctors: Iterable["Corrector"], reproject
     return False
 
 
-def take_motion(source: EyeSource, correctors: Iterable["Corrector"]) -> tuple[int, int] | None:
+def take_motion(source: PictureFeed, correctors: Iterable["Corrector"]) -> tuple[int, int] | None:
     """The ``motion_px`` for this frame's ``Corrector.apply`` from ``source`` (:func:`start_motion`),
     after its ``render``; on a scene cut the projected-gradient correctors are reset (cold start)
     and ``None`` is returned."""

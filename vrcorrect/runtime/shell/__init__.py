@@ -1,0 +1,13 @@
+"""The shells: the applications' side of the real-time library, each a loop around the plugin's
+:class:`~vrcorrect.runtime.corrector.Corrector` (layer 5, like the plugin).
+
+* ``window`` - the window shell the apps share (GLFW, the sRGB check, stage times, screenshots,
+  keys); ``mirror``, ``overlay``, ``xr`` - the desktop mirror, the screen overlay and the OpenXR
+  headset loop (``xr_gaze``: its eye tracker).
+* ``sources`` - picture feeds (still, folder, animated, video, screen grab); ``scene`` - the 3D demo
+  scene; ``text`` - font atlas and text layout.
+* ``render`` - one image through the pipeline, headless (``vrcorrect render``).
+
+The shells import the plugin (``vrcorrect.runtime``) and never the API layer
+(``vrcorrect.runtime.layer``), which never imports them: ``tests/test_layers.py`` checks both.
+"""
