@@ -192,7 +192,7 @@ def _runtime_part_of_import(name: str) -> str | None:
 def test_the_runtime_has_its_three_parts():
     parts = {_runtime_part(m) for m in _runtime_modules()}
     assert parts == {"plugin", "shell", "layer"}, parts
-    assert {"corrector", "strategies.admm", "shell.mirror", "shell.xr", "layer.engine", "layer.build"} <= \
+    assert {"corrector", "strategies.admm", "shell.mirror", "shell.xr.app", "layer.engine", "layer.build"} <= \
         set(_runtime_modules())
 
 
@@ -214,3 +214,29 @@ def test_learn_conditioning_is_torch_free():
     code = ("import sys; import vrcorrect.learn, vrcorrect.learn.conditioning, vrcorrect.learn.dataset; "
             "sys.exit(1 if 'torch' in sys.modules else 0)")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+# --------------------------------------------------------------------------
+# The house's sizes and names (issue 47)
+# --------------------------------------------------------------------------
+
+MAX_MODULE_LINES = 600
+
+
+@pytest.mark.parametrize("path", sorted(p for p in PKG.rglob("*.py") if "__pycache__" not in p.parts), ids=_rel)
+def test_no_module_is_over_600_lines_unless_its_first_line_says_why(path):
+    lines = path.read_text().splitlines()
+    if len(lines) > MAX_MODULE_LINES:
+        assert "lines" in lines[0] and ("because" in lines[0] or "on purpose" in lines[0]), \
+            f"{_rel(path)}: {len(lines)} lines (> {MAX_MODULE_LINES}) and its first line does not say why"
+
+
+def test_no_two_classes_share_a_name():
+    """One name, one class: a reader who meets a class's name knows which one it is."""
+    where: dict[str, list[str]] = {}
+    for path in sorted(p for p in PKG.rglob("*.py") if "__pycache__" not in p.parts):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef):
+                where.setdefault(node.name, []).append(_rel(path))
+    shared = {name: paths for name, paths in where.items() if len(paths) > 1}
+    assert not shared, shared

@@ -13,7 +13,8 @@ import skimage.data
 from vrcorrect.specs.display import decode, get_display
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.physics.kernel import KernelOptions, build_kernel
-from vrcorrect.vision.metrics import ImageMetrics, evaluate_seen, flip, foveated_jod, jod, lms_objective, psnr, ssim
+from vrcorrect.vision.metrics import ImageMetrics, evaluate_seen, flip, lms_objective, psnr, ssim
+from vrcorrect.vision.vdp import foveated_jod, jod
 from vrcorrect.physics.options import OpticsOptions
 from vrcorrect.specs.prescription import EyeRx
 

@@ -213,7 +213,8 @@ def test_live_adjust_and_its_limits(gl, tmp_path):
 def test_a_prebuilt_eye_model_gives_the_same_correction_and_a_wrong_eye_is_refused(gl, tmp_path, images):
     """``eye_model=``: designed elsewhere (a worker thread), uploaded by the constructor; the same
     frames as a corrector that designs its own.  A model of another eye is refused."""
-    from vrcorrect.runtime.corrector import CorrectorOptions, RxSnapshot, build_eye_model
+    from vrcorrect.runtime.corrector import CorrectorOptions, build_eye_model
+    from vrcorrect.runtime.rx_snapshot import RxSnapshot
 
     path = tmp_path / "rx.json"
     doc = rx_doc(-1.5, -0.5, 180)                   # axis 180: the corrector's own build wraps it to 0

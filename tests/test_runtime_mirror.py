@@ -25,10 +25,8 @@ from vrcorrect.runtime.shell.mirror import (
     KEY_MAP, STAGES, VIEWS, Adjust, Mirror, MirrorConfig, MirrorState, eye_viewports, next_state,
 )
 from vrcorrect.runtime.shell.scene import DemoScene, SceneConfig, cube_mesh, open_source, perspective, scene_transforms
-from vrcorrect.runtime.shell.sources import (
-    AnimatedImageSource, FolderSource, SourceSpec, StillSource, VideoSource, fit_rect, frame_at, frame_index,
-    parse_size, parse_source,
-)
+from vrcorrect.runtime.shell.sources import AnimatedImageSource, FolderSource, StillSource, VideoSource
+from vrcorrect.runtime.shell.source_spec import SourceSpec, fit_rect, frame_at, frame_index, parse_size, parse_source
 from vrcorrect.runtime.shell.text import build_font_atlas, layout_text, panel_instances, text_width
 from vrcorrect.runtime.shell.window import (
     KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET, MOD_ALT, MOD_CONTROL, MOD_SHIFT, MOD_SUPER,

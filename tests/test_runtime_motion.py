@@ -19,7 +19,8 @@ from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector
 from vrcorrect.runtime.motion import CUT_CONFIDENCE, MotionTracker, estimate_shift, motion_for
 from vrcorrect.runtime.shell.scene import open_source
-from vrcorrect.runtime.shell.sources import FolderSource, SourceSpec, start_motion, take_motion
+from vrcorrect.runtime.shell.sources import FolderSource, start_motion, take_motion
+from vrcorrect.runtime.shell.source_spec import SourceSpec
 from vrcorrect.solvers import make_problem, objective, solve
 from vrcorrect.solvers.fista import FistaState, projected_gradient
 

@@ -24,7 +24,7 @@ from vrcorrect.runtime.shell.overlay import (
     KEY_MAP, Overlay, OverlayConfig, OverlayState, default_display, default_region, full_screen_region,
     next_state, place_window, rects_overlap,
 )
-from vrcorrect.runtime.shell.sources import parse_region
+from vrcorrect.runtime.shell.source_spec import parse_region
 from vrcorrect.runtime.shell.window import KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET, MOD_CONTROL, Iterations, Screenshot
 
 REPO = Path(__file__).resolve().parents[1]

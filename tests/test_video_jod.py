@@ -15,7 +15,7 @@ import scipy.ndimage
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.plumbing.images import bundled_images
 from vrcorrect.specs.display import get_display
-from vrcorrect.vision.metrics import VIDEO_JOD_MAX_FPS, jod, video_jod
+from vrcorrect.vision.vdp import VIDEO_JOD_MAX_FPS, jod, video_jod
 
 SIZE = 48
 

@@ -270,13 +270,13 @@ def _clip_report(args, plan: clips.ClipPlan, rx_path, display, result, reference
     fps = plan.frames_per_s or VIDEO_JOD_DEFAULT_FPS
     metrics: dict = {"video_jod": None, "video_jod_uncorrected": None, "frames_per_s": fps}
     if seen is not None:
-        from ..vision.metrics import video_jod  # on use: torch and ColorVideoVDP
+        from ..vision.vdp import video_jod  # on use: torch and ColorVideoVDP
 
         metrics["video_jod"] = video_jod(seen["target"], seen["corrected"], display, fps)
         metrics["video_jod_uncorrected"] = video_jod(seen["target"], seen["uncorrected"], display, fps)
     else:
         metrics["why_not_scored"] = (f"the clip has more than {VIDEO_JOD_MAX_PIXELS} frame pixels; score parts of it "
-                                     "with vrcorrect.vision.metrics.video_jod")
+                                     "with vrcorrect.vision.vdp.video_jod")
     return {
         "input": str(args.input), "output": str(args.output), "prescription": str(rx_path), "eye": args.eye,
         "display": display.name, "method": result.method, "reference": "glasses" if reference is not None else "ideal",

@@ -8,7 +8,7 @@ import argparse
 import time
 
 from ..runtime.shell.overlay import KEY_MAP, Overlay, OverlayConfig
-from ..runtime.shell.sources import parse_region, parse_size
+from ..runtime.shell.source_spec import parse_region, parse_size
 from ..runtime.shell.window import key_map_text
 from ..specs.vocabulary import Eye, names
 from .common import rx_path, say_sample_rx

@@ -8,10 +8,9 @@ import statistics
 import sys
 import time
 
-from ..plumbing.errors import ValidationError
+from ..plumbing.errors import ValidationError, XrUnavailableError
 from ..runtime.model_path import model_for_backend
-from ..runtime.shell.sources import parse_source
-from ..plumbing.errors import XrUnavailableError
+from ..runtime.shell.source_spec import parse_source
 from ..runtime.shell.xr import EXIT_NO_RUNTIME, EXIT_SESSION_LOST, XrApp, XrConfig
 from .common import rx_path
 from .realtime_options import (

@@ -35,9 +35,8 @@ import logging
 import math
 import os
 import time
-from dataclasses import dataclass, replace
-from pathlib import Path
-from typing import TYPE_CHECKING, Any, Union
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -48,19 +47,14 @@ from ..specs.prescription import EyeRx, Prescription, load_prescription
 from ..specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, Backend, Eye, either, names, one_of
 from .budget import FrameBudget, GpuTimer, radius_ladder
 from .dispatch import CostLedger, Gpu
-from .eye_model import (  # noqa: F401  (re-exported)
-    CorrectorOptions,
-    EyeModel,
-    as_options,
-    build_eye_model,
-    check_iterations,
-)
+from .eye_model import CorrectorOptions, EyeModel, as_options, build_eye_model, check_iterations  # noqa: F401  (re-exported)
 from .fft import fft_grid
 from .gl import check_gl_errors, release
 from .onnx_backend import OnnxModel
-from .pupil_bank import PupilBank, PupilFollower
+from .pupil_state import PupilState
+from .rx_snapshot import RxSource, eye_text, load_rx, with_offset
 from .strategies import Decoder, Encoder, Preview, Strategy, make_strategy
-from .strategies.base import LuminanceMeter, float_texture
+from .strategies.base import float_texture
 from .strategies.foveated import MIN_FOVEA_DEG
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -69,44 +63,9 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from .learned import LearnedModel
     from .unrolled import UnrolledModel
 
-__all__ = ["CorrectorOptions", "EyeModel", "Corrector", "RxSnapshot", "build_eye_model", "file_stamp", "runs_iterations"]
+__all__ = ["CorrectorOptions", "EyeModel", "Corrector", "build_eye_model", "runs_iterations"]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True, eq=False)
-class RxSnapshot:
-    """A prescription file read once: what it held, and the file's stamp (modification time and
-    size) taken just before the read.  An application that corrects several eyes reads the file
-    once and gives this to every eye's :class:`Corrector`, so all are built from one parse however
-    long the builds take; each corrector's :meth:`Corrector.poll` then sees any later change
-    (an edit made during the builds included) and handles it as hot reload does, keeping the
-    last good prescription when the new file is invalid."""
-
-    prescription: Prescription
-    path: Path | None          # None: not from a file (nothing to watch)
-    stamp: tuple[int, int] | None
-
-    @classmethod
-    def read(cls, path: str | os.PathLike[str]) -> "RxSnapshot":
-        path = Path(path)
-        stamp = file_stamp(path)
-        return cls(load_prescription(path), path, stamp)
-
-
-RxSource = Union[str, "os.PathLike[str]", Prescription, RxSnapshot]
-"""What :class:`Corrector` takes as ``rx``: a prescription JSON path, a prescription, or a snapshot."""
-
-
-def load_rx(rx: RxSource) -> RxSnapshot:
-    """``rx`` as a snapshot (a path is read now)."""
-    if isinstance(rx, RxSnapshot):
-        return rx
-    if isinstance(rx, Prescription):
-        return RxSnapshot(rx, None, None)
-    if isinstance(rx, (str, os.PathLike)):
-        return RxSnapshot.read(rx)
-    raise ValidationError("rx", type(rx).__name__, "a prescription JSON path, a Prescription or an RxSnapshot")
 
 
 def check_eye_model(model: EyeModel, base: EyeRx, side: str) -> None:
@@ -119,111 +78,6 @@ def check_eye_model(model: EyeModel, base: EyeRx, side: str) -> None:
                               f"a model of this prescription's {side} eye ({eye_text(base)})")
 
 
-def eye_text(e: EyeRx) -> str:
-    return (f"sphere {e.sphere_D:+g} D, cylinder {e.cylinder_D:+g} D, axis {e.axis_deg:g} deg, "
-            f"pupil {e.pupil_diameter_mm:g} mm" + (", higher order" if e.higher_order is not None else ""))
-
-
-def with_offset(base: EyeRx, offset: tuple[float, float, float]) -> EyeRx:
-    """``base`` changed by live ``(sphere_D, cylinder_D, axis_deg)`` amounts (axis wrapped into [0, 180))."""
-    ds, dc, da = offset
-    return base.with_changes(sphere_D=base.sphere_D + ds, cylinder_D=base.cylinder_D + dc,
-                             axis_deg=(base.axis_deg + da) % 180.0)
-
-
-class PupilState:
-    """A corrector's viewing pupil with ``pupil="auto"`` (:mod:`vrcorrect.runtime.pupil_bank`): the GPU's
-    luminance of each frame, the pupil following it, and the bank of designs it switches between."""
-
-    def __init__(self, corrector: "Corrector", first_luminance: float | None):
-        from ..physics.perception import luminance_weights  # start-up time: the optics load with the first eye
-
-        self.c = corrector
-        self.first_luminance = first_luminance
-        self.meter = LuminanceMeter(corrector.gpu, luminance_weights(corrector.display))
-        self.kernels: dict = {}                         # shared by every design of this eye (the bank's)
-        self.follower: PupilFollower | None = None
-        self.bank: PupilBank | None = None
-        self.current: float | None = None
-        self.switches = 0
-        self._last_time: float | None = None
-
-    def _upper(self, eye: EyeRx) -> float | None:
-        return eye.higher_order.pupil_diameter_mm if eye.higher_order is not None else None
-
-    def first_entry(self, eye: EyeRx) -> float:
-        """The bank entry the first model is designed for (the first frame's light where given)."""
-        from .eye_model import initial_pupil_mm
-
-        return initial_pupil_mm(eye, self.c.display, self.c.options, self.first_luminance, self.c.age_years)
-
-    def installed(self, model: EyeModel, switched: bool = False) -> None:
-        """A model is in use: a new eye (a new bank, the follower kept) or a bank's switch."""
-        upper = self._upper(model.eye)
-        if not switched:
-            if self.bank is None or self.bank.eye != model.eye:
-                if self.bank is not None:
-                    self.bank.close()
-                    self.kernels = {}                   # a new eye: its own kernels
-                self.bank = PupilBank(model.eye, self.c.display, self.c.options, self.c.age_years, self._build,
-                                      self.kernels)
-            self.bank.put(model.pupil_mm, model)
-            if self.follower is None:
-                self.follower = PupilFollower(self.c.display, self.c.age_years, upper, model.pupil_mm)
-            self.follower.upper_mm = upper
-        else:
-            self.switches += 1
-        self.current = model.pupil_mm
-        if self.follower is not None:
-            self.follower.entry_mm = model.pupil_mm
-
-    def _build(self, pupil_mm: float, kernels: dict, grids: tuple, progress=None) -> EyeModel:
-        """A bank's design (on its worker): the model and its spectra on the strategy's grids."""
-        from .strategies.admm import bank_spectra
-
-        base = self.c.model
-        model = build_eye_model(base.eye, self.c.display, self.c.options, pupil_mm=pupil_mm,
-                                age_years=self.c.age_years, kernels=kernels, grid_kernel_size=base.grid_kernel_size,
-                                progress=progress)
-        self.c.check_eye(model.eye)
-        return replace(model, spectra=bank_spectra(model, grids)) if grids else model
-
-    def frame(self, linear: "moderngl.Texture") -> None:
-        """Measure this frame's light; follow the pupil with the frame two back; switch or ask."""
-        self.meter.measure(linear)
-        lum = self.meter.latest()
-        now = time.monotonic()
-        dt = self.c.frame_time_s if self.c.frame_time_s is not None else \
-            (0.0 if self._last_time is None else now - self._last_time)
-        self._last_time = now
-        if lum is None or self.follower is None or self.bank is None:
-            return
-        entry = self.follower.update(lum, dt)
-        if entry == self.current:
-            return
-        model = self.bank.get(entry)
-        grids = self.c.strategy.spectra_grids() if hasattr(self.c.strategy, "spectra_grids") else ()
-        if model is None:
-            if self.c.frame_time_s is not None:           # a batch render: deterministic, so wait for it
-                model = self.bank.build_now(entry, grids)
-            else:
-                self.bank.request(entry, grids)
-                return
-        self.c.switch_design(model)
-
-    def status(self) -> str:
-        f = self.follower
-        if f is None or f.pupil_mm is None or f.estimate is None:
-            return f"pupil auto: {self.current:.2f} mm design, no frame measured yet" if self.current else "pupil auto"
-        return (f"pupil {f.pupil_mm:.2f} mm (auto: {f.estimate.luminance_cd_m2:.3g} cd/m^2), design "
-                f"{self.current:.2f} mm, {self.switches} switch(es)")
-
-    def release(self) -> None:
-        self.meter.release()
-        if self.bank is not None:
-            self.bank.close()
-
-
 class Corrector:
     """Corrects one eye's texture for its prescription (see the module docstring).
 
@@ -233,7 +87,7 @@ class Corrector:
         A moderngl context with OpenGL >= 4.3 (compute shaders).
     rx
         Prescription JSON path (watched by :meth:`poll`), a :class:`~vrcorrect.specs.prescription.Prescription`,
-        or an :class:`RxSnapshot` (a file read once for several eyes; watched from the moment it was
+        or an :class:`~vrcorrect.runtime.rx_snapshot.RxSnapshot` (a file read once for several eyes; watched from the moment it was
         read).
     display
         Display preset name, profile path or :class:`~vrcorrect.specs.display.DisplayProfile`.

@@ -40,8 +40,8 @@ from ..plumbing.errors import VrcorrectError
 from ..specs.display import DisplayProfile
 from ..specs.prescription import EyeRx, Prescription, load_prescription
 from ..specs.vocabulary import VIEW_ORDER
-from .corrector import RxSnapshot, RxSource, file_stamp, load_rx, with_offset
 from .eye_model import CorrectorOptions, EyeModel, build_eye_model
+from .rx_snapshot import RxSnapshot, RxSource, file_stamp, load_rx, with_offset
 
 __all__ = ["POLL_INTERVAL_S", "EyeUpdate", "EyeSource"]
 
@@ -78,7 +78,7 @@ class EyeSource:
     ----------
     rx
         Prescription JSON path, :class:`~vrcorrect.specs.prescription.Prescription` or
-        :class:`~vrcorrect.runtime.corrector.RxSnapshot` (read once; watched from then on).
+        :class:`~vrcorrect.runtime.rx_snapshot.RxSnapshot` (read once; watched from then on).
     display, options
         What every eye is designed for; ``display`` may be a function that returns the profile,
         called once on first use (on the worker for :meth:`design_all`; a failure there refuses

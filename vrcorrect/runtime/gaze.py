@@ -8,7 +8,7 @@ as ``XR_EXT_eye_gaze_interaction`` gives it) projected through a view's pose and
   takes (degrees from the view's centre at the display's pixels per degree, x right, y up), so that
   the window lands on the pixel the tracker names.
 
-Plain numbers, no OpenXR: both ``vrcorrect xr`` (:mod:`vrcorrect.runtime.shell.xr_gaze`) and the API
+Plain numbers, no OpenXR: both ``vrcorrect xr`` (:mod:`vrcorrect.runtime.shell.xr.gaze`) and the API
 layer's engine use it.
 """
 

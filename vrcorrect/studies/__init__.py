@@ -1,6 +1,6 @@
 """Layer 6, studies: what the project measures about its corrections, as a library the commands
 call and the tests import. The paper's evaluation of every method on five refractive problems
-(``evaluation``), simulated eye-chart acuity with each correction (``acuity_chart``), the benches,
+(``evaluation``, its panels ``eval_panels``), simulated eye-chart acuity with each correction (``acuity_chart``), the benches,
 each measuring one thing and writing its section of ``docs/benchmarks.md`` (``bench/``), and the
 figures they draw (``plots``).
 

@@ -3,7 +3,7 @@
 
 * ``window`` - the window shell the apps share (GLFW, the sRGB check, stage times, screenshots,
   keys); ``mirror``, ``overlay``, ``xr`` - the desktop mirror, the screen overlay and the OpenXR
-  headset loop (``xr_gaze``: its eye tracker).
+  headset loop (a package: its session, views, instance, eye tracker and app).
 * ``sources`` - picture feeds (still, folder, animated, video, screen grab); ``scene`` - the 3D demo
   scene; ``text`` - font atlas and text layout.
 * ``render`` - one image through the pipeline, headless (``vrcorrect render``).

@@ -50,7 +50,8 @@ from ..corrector import Corrector
 from ..eye_model import CorrectorOptions, as_options
 from ..gl import check_gl_errors, format_ms, release
 from .scene import open_source
-from .sources import PictureFeed, parse_source, start_motion, take_motion
+from .source_spec import parse_source
+from .sources import PictureFeed, start_motion, take_motion
 from .text import TextOverlay, build_font_atlas, key_map_panel, panel_instances, text_width
 from .window import (
     ITERATION_KEYS,

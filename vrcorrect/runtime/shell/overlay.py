@@ -45,15 +45,8 @@ from ...specs.vocabulary import Backend, Eye, either, names
 from ..corrector import Corrector
 from ..eye_model import CorrectorOptions, as_options
 from ..gl import Rect, check_gl_errors, format_ms, release
-from .sources import (
-    PictureSource,
-    ScreenSource,
-    open_picture_source,
-    parse_source,
-    screen_bounds,
-    start_motion,
-    take_motion,
-)
+from .source_spec import parse_source
+from .sources import PictureSource, ScreenSource, open_picture_source, screen_bounds, start_motion, take_motion
 from .text import TextOverlay, build_font_atlas, key_map_panel, panel_instances
 from .window import (
     ITERATION_KEYS,

@@ -28,7 +28,7 @@ from ...plumbing.errors import ValidationError
 from ...specs.display import DisplayProfile
 from ...specs.vocabulary import Backend, Eye
 from ...vision.forward import check_image
-from ..corrector import Corrector, RxSource, runs_iterations
+from ..corrector import Corrector, runs_iterations
 from ..gl import (
     check_gl_errors,
     headless_context,
@@ -39,6 +39,7 @@ from ..gl import (
     write_texture,
 )
 from ..motion import MotionTracker
+from ..rx_snapshot import RxSource
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl

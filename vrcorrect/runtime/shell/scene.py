@@ -33,7 +33,8 @@ from ...specs.vocabulary import VIEW_ORDER, Eye, either, names
 from ..gl import check_gl_errors, release, upload_texture
 from ..optional import require_moderngl
 from ..shaders import compile_program
-from .sources import PictureFeed, EyeTarget, SourceSpec, open_picture_source
+from .source_spec import SourceSpec
+from .sources import EyeTarget, PictureFeed, open_picture_source
 from .text import default_font
 
 if TYPE_CHECKING:  # pragma: no cover - typing only

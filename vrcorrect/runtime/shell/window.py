@@ -31,11 +31,12 @@ from ...plumbing.imageio import write_png
 from ...specs.display import get_display
 from ...specs.prescription import EyeRx, bundled_sample_path
 from ...specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, names
-from ..corrector import Corrector, RxSnapshot, runs_iterations
+from ..corrector import Corrector, runs_iterations
 from ..eye_model import CorrectorOptions
 from ..eye_source import EyeSource, EyeUpdate
 from ..gl import read_framebuffer, timer_query_ms
 from ..optional import require_glfw, require_moderngl
+from ..rx_snapshot import RxSnapshot
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl

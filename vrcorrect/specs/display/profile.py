@@ -129,7 +129,7 @@ def ppd_from_fov(pixels: int, fov_deg: float) -> float:
 class Photometry:
     """How bright the display is and the light around it: what a perceptual metric needs.
 
-    ColorVideoVDP (:func:`vrcorrect.vision.metrics.jod`) turns code values into
+    ColorVideoVDP (:func:`vrcorrect.vision.vdp.jod`) turns code values into
     absolute luminance with these, after Mantiuk's gain-gamma-offset display
     model: ``L = (peak - black) * linear(V) + black + reflectivity * ambient / pi``
     with ``black = peak / contrast``.

@@ -14,10 +14,10 @@ fixation) from a cold start, as after a saccade or a cut.
 
 What the eye sees of each is scored against the glasses-on view:
 
-* **FovVideoVDP** (:func:`~vrcorrect.vision.metrics.foveated_jod`, foveated mode) with the eye
+* **FovVideoVDP** (:func:`~vrcorrect.vision.vdp.foveated_jod`, foveated mode) with the eye
   fixating the window's centre, and fixating :data:`OFF_DEG` degrees to its right (the tracker's
   error, or a fixed window and a wandering eye), each against no correction and the full field;
-* **ColorVideoVDP** (:func:`~vrcorrect.vision.metrics.jod`) on the window's crop (the fovea's
+* **ColorVideoVDP** (:func:`~vrcorrect.vision.vdp.jod`) on the window's crop (the fovea's
   radius, without the band beyond it; foveated against
   the full field there) and on the view's strips left and right of the window (foveated against no
   correction there: the view outside the window is the target, only the light the window spills
@@ -45,7 +45,8 @@ from ...solvers.foveated import PERIPHERIES, FoveatedFrames, fovea_pixels
 from ...solvers.realtime import AdmmFrames
 from ...specs.display import decode, get_display
 from ...specs.prescription import EyeRx, Prescription
-from ...vision.metrics import evaluate_seen, foveated_jod, jod
+from ...vision.metrics import evaluate_seen
+from ...vision.vdp import foveated_jod, jod
 from . import machine_description, markdown_table, publish
 
 __all__ = ["RADII_DEG", "ITERATIONS", "VIEW", "FRAMES", "OFF_DEG", "EYE", "IMAGES", "run_fovea_bench"]

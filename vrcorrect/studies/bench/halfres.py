@@ -180,7 +180,7 @@ def run_halfres_bench(displays: Sequence[str] = DISPLAYS, spheres: Sequence[floa
     (:func:`run_halfres_video`), the markdown; writes the ``halfres`` section of ``out`` and, with
     ``json_out``, the JSON."""
     from .sequences import photo                       # scikit-image's photographs
-    from ...vision.metrics import jod                  # the judge (torch), on use
+    from ...vision.vdp import jod                  # the judge (torch), on use
 
     picture = photo(image, size)
     cases = list(itertools.product(displays, spheres, cylinders))

@@ -15,7 +15,7 @@ Every frame is guarded as the GPU guards it.
    and the frames to within 5 % of it.
 2. **Motion suite, as video** (:mod:`.sequences`: a still photograph, a sprite sliding over it,
    scrolling text, a cut, a zoom, the demo scene's head turn; about a second at 90 Hz each):
-   ColorVideoVDP in video mode (:func:`vrcorrect.vision.metrics.video_jod`) of what the eye sees
+   ColorVideoVDP in video mode (:func:`vrcorrect.vision.vdp.video_jod`) of what the eye sees
    against what it sees of the target with its glasses, each method's share of ``fast``'s gain
    over no correction (in JOD and in the objective, over the whole clip and over its first third of
    a second), and, after a cut, the frames until a frame is within 5 % of ``fast``.  The warm start
@@ -195,7 +195,7 @@ def score_clip(case: Case, clip: BenchClip, runs: dict[str, Run], with_jod: bool
     """Each run's video JOD (``None`` without), its share of ``fast``'s gain over no correction in JOD
     and in the objective (whole clip, first third of a second), and after a cut the frames to
     within 5 % of ``fast``."""
-    from ...vision.metrics import video_jod  # the judge: ColorVideoVDP (torch), on use
+    from ...vision.vdp import video_jod  # the judge: ColorVideoVDP (torch), on use
 
     reference = reference_frames(case, clip) if with_jod else None
     jods = {name: video_jod(reference, seen_frames(case, run.shown), case.display, FPS) if with_jod else None
@@ -453,7 +453,7 @@ def _markdown(case: Case, size: int, frames: int, still: dict, motion: dict, che
         + f"\n\n![still image]({plot_still.name})\n\n"
         "### The motion suite, as video\n\n"
         f"{clips}. The warm start follows the motion `vrcorrect render` estimates (phase correlation; a cold start "
-        "at a detected cut). Video JOD is ColorVideoVDP in video mode (`vision.metrics.video_jod`, 90 frames a second, "
+        "at a detected cut). Video JOD is ColorVideoVDP in video mode (`vision.vdp.video_jod`, 90 frames a second, "
         "the display's viewing conditions) of what the eye sees against what it sees of the target with its glasses; "
         "the shares are of `fast`'s gain (solved on every frame) over no correction. `admm k=2, no edge band` is the "
         "default with its whole warm start moved with the content, the window's edges too.\n\n"

@@ -211,7 +211,7 @@ def motion_suite(kernels: dict, size: int = VIDEO_SIZE, frames: int = 90) -> lis
     """The real-time default's share of per-frame ``fast``'s video JOD gain on the motion suite, the
     robust design and the one eye's at the same pupil (what the eye as modelled sees, against its view
     with glasses)."""
-    from ...vision.metrics import video_jod
+    from ...vision.vdp import video_jod
     from .realtime import _motions, linear
     from .sequences import suite
 
@@ -254,7 +254,7 @@ def dark_to_bright(kernels: dict, size: int = VIDEO_SIZE, dark_frames: int = 30,
     from ...physics.pupil import PupilDynamics
     from ...runtime.pupil_bank import PupilFollower, nearest_bank_pupil
     from ...specs.display import encode
-    from ...vision.metrics import video_jod
+    from ...vision.vdp import video_jod
     from .realtime import linear
     from .sequences import photo
 

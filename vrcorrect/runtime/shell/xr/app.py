@@ -4,24 +4,21 @@ submitted (``vrcorrect xr``, whose command line is :mod:`vrcorrect.apps.xr`).
 The OpenXR instance enables ``XR_KHR_opengl_enable``; the OpenGL context is a GLFW window's
 (X11/GLX: the session is bound with ``XrGraphicsBindingOpenGLXlibKHR``; the window is hidden
 unless ``--mirror`` shows both eyes in it). One swapchain per view, in ``GL_SRGB8_ALPHA8``
-when the runtime offers it (else ``GL_RGBA8``, see :func:`choose_swapchain_format`). Each
-frame: ``xrWaitFrame``, ``xrBeginFrame``, and when the runtime says the frame should be
+when the runtime offers it (else ``GL_RGBA8``, see
+:func:`~vrcorrect.runtime.shell.xr.session.choose_swapchain_format`). Each frame: ``xrWaitFrame``, ``xrBeginFrame``, and when the runtime says the frame should be
 rendered, ``xrLocateViews``, the source renders each eye (the demo scene from that eye's
 tracked pose and field of view, or a picture source: image, animated image, folder, video,
 screen region), each eye's :class:`~vrcorrect.runtime.corrector.Corrector` writes the
 corrected image straight into the acquired swapchain image (a framebuffer around the
 runtime's GL texture), and ``xrEndFrame`` submits one projection layer.
 
-Session life cycle (:class:`SessionTracker`, pure): ``READY`` -> ``xrBeginSession``;
-``SYNCHRONIZED`` / ``VISIBLE`` / ``FOCUSED`` -> frames (rendered when the runtime says so);
-``STOPPING`` -> ``xrEndSession``; ``EXITING`` -> done; ``LOSS_PENDING`` (or an instance loss)
--> the session is destroyed and :data:`EXIT_SESSION_LOST` returned. Ctrl-C, closing the
-mirror window, or ``--frames N`` reached ask the runtime to end the session
-(``xrRequestExitSession``) and the loop runs until ``EXITING``; a second Ctrl-C, or a runtime
-that does not get there within :data:`EXIT_GRACE_S`, ends it at once.
+The session's life cycle is :class:`~vrcorrect.runtime.shell.xr.session.SessionTracker`'s
+(pure, in :mod:`~vrcorrect.runtime.shell.xr.session`, with the configuration and the summary).
 
-No OpenXR runtime installed: :class:`XrUnavailableError`, one paragraph saying what is missing
-and how to get one (``vrcorrect mirror`` works without), exit status :data:`EXIT_NO_RUNTIME`.
+No OpenXR runtime installed: :class:`~vrcorrect.plumbing.errors.XrUnavailableError`, one
+paragraph saying what is missing and how to get one (``vrcorrect mirror`` works without), exit
+status :data:`~vrcorrect.runtime.shell.xr.session.EXIT_NO_RUNTIME` (the instance's creation:
+:mod:`~vrcorrect.runtime.shell.xr.instance`).
 
 With an iterative method (``--filter admm``, the default, or ``fista``) each eye runs its iterations
 spread over frames; in the
@@ -31,41 +28,31 @@ wait for the GPU); the run's summary gives the median objective per eye.
 
 Tests drive it against a small runtime compiled from ``tests/xr_runtime/`` (no headset).
 Layer 5: numpy, moderngl, glfw, pyopenxr; never torch.
-
-Longer than 700 lines on purpose: one OpenXR session's life (instance, GL binding, swapchains,
-frame loop, tear-down) is one object whose steps share its handles, beside the pure parts it needs.
 """
 
 from __future__ import annotations
 
 import ctypes
-import math
-import os
 import signal
-import statistics
-import sys
-import tempfile
 import threading
 import time
-from dataclasses import dataclass, field
-from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
-from ...plumbing.errors import ValidationError, XrSessionError, XrUnavailableError
-from ...specs.vocabulary import VIEW_ORDER, Backend, either, names
-from ..corrector import Corrector, runs_iterations
-from ..eye_model import CorrectorOptions, as_options
-from ..gaze import gaze_deg_of, gaze_in_view
-from ..gl import check_gl_errors, fullscreen_triangle, release
-from ..motion import view_shift
-from ..optional import require_moderngl, require_xr
-from ..shaders import compile_program
-from .scene import DemoScene, open_source
-from .sources import PictureFeed, ScreenSource, parse_region, parse_source, screen_bounds, start_motion, take_motion
-from .window import (
+from ....plumbing.errors import XrSessionError
+from ....specs.vocabulary import VIEW_ORDER
+from ...corrector import Corrector, runs_iterations
+from ...gaze import gaze_deg_of, gaze_in_view
+from ...gl import check_gl_errors, fullscreen_triangle, release
+from ...motion import view_shift
+from ...optional import require_moderngl, require_xr
+from ...shaders import compile_program
+from ..scene import DemoScene, open_source
+from ..source_spec import parse_region, parse_source
+from ..sources import PictureFeed, ScreenSource, screen_bounds, start_motion, take_motion
+from ..window import (
     GLFW_PRESS,
     MOD_ALT,
     MOD_CONTROL,
@@ -76,327 +63,31 @@ from .window import (
     iteration_key,
     knob_text,
 )
-from .xr_gaze import EXTENSION as GAZE_EXTENSION
-from .xr_gaze import EyeTracker, tracker_offered
+from .gaze import EXTENSION as GAZE_EXTENSION
+from .gaze import EyeTracker, tracker_offered
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
-__all__ = [
-    "EXIT_NO_RUNTIME", "EXIT_SESSION_LOST", "EXIT_GRACE_S", "GL_SRGB8_ALPHA8", "GL_RGBA8", "XR_STAGES",
-    "XR_CPU_ONLY_STAGES",
-    "XrConfig", "SessionTracker", "choose_swapchain_format",
-    "pose_matrix", "view_matrix", "projection_from_fov", "no_runtime_message", "XrApp", "XrRunSummary",
-]
+from .instance import address, create_instance, find_system, quietly
+from .session import (
+    EXIT_GRACE_S,
+    FORMAT_NAMES,
+    GL_RGBA8,
+    GL_SRGB8_ALPHA8,
+    SESSION_STATES,
+    XR_CPU_ONLY_STAGES,
+    XR_STAGES,
+    SessionTracker,
+    XrConfig,
+    XrRunSummary,
+    choose_swapchain_format,
+)
+from .views import projection_from_fov, view_matrix
 
-EXIT_NO_RUNTIME = 69
-"""Exit status when no OpenXR runtime (or no headset) is available (sysexits' EX_UNAVAILABLE)."""
-EXIT_SESSION_LOST = 75
-"""Exit status when the runtime lost the session (``LOSS_PENDING``; sysexits' EX_TEMPFAIL: try
-again once the runtime is back)."""
-EXIT_GRACE_S = 5.0
-"""Seconds the runtime gets to reach ``EXITING`` after ``xrRequestExitSession``."""
+__all__ = ["XrApp"]
 
-GL_SRGB8_ALPHA8 = 0x8C43
-GL_RGBA8 = 0x8058
 _GL_FRAMEBUFFER_SRGB = 0x8DB9
-_FORMAT_NAMES = {GL_SRGB8_ALPHA8: "GL_SRGB8_ALPHA8", GL_RGBA8: "GL_RGBA8"}
-
-XR_STAGES = ("wait", "begin", "locate", "scene", "acquire", "correct left", "correct right", "convert",
-             "mirror", "release", "end")
-"""Timed stages of a frame, in order. ``wait`` (``xrWaitFrame``, which paces the loop to the
-display), ``begin``, ``locate``, ``acquire`` (acquire + wait for both swapchain images),
-``release`` and ``end`` (``xrEndFrame``) are CPU time; the others have GPU time too.
-``convert`` runs only with ``GL_RGBA8`` swapchains; ``mirror`` only with ``--mirror``."""
-XR_CPU_ONLY_STAGES = ("wait", "begin", "locate", "acquire", "release", "end")
-"""The stages of :data:`XR_STAGES` timed on the CPU only (the OpenXR calls)."""
-
-
-# --------------------------------------------------------------------------
-# Pure parts: messages, format choice, poses, the session state machine
-# --------------------------------------------------------------------------
-
-
-def no_runtime_message(detail: str = "") -> str:
-    """The paragraph shown when the OpenXR loader finds no runtime (``detail``: what the
-    loader said, if anything)."""
-    runtime_json = os.environ.get("XR_RUNTIME_JSON")
-    where = (f"XR_RUNTIME_JSON points to {runtime_json}, which the loader could not use" if runtime_json else
-             "no active_runtime.json in ~/.config/openxr/1/ or /etc/xdg/openxr/1/ and XR_RUNTIME_JSON is not set")
-    said = f" (the loader said: {detail.strip()})" if detail.strip() else ""
-    return (f"no OpenXR runtime is installed or active: {where}{said}. vrcorrect xr needs one to reach a headset. "
-            "Install one and make it the active runtime: Monado (open source; Debian/Ubuntu: apt-get install "
-            "monado-service, then run monado-service; https://monado.freedesktop.org) or SteamVR (Steam on Linux; "
-            "start SteamVR and choose it as the OpenXR runtime in its settings). Without a headset, vrcorrect "
-            "mirror shows both corrected eyes in a window and needs no runtime.")
-
-
-def no_headset_message(runtime: str) -> str:
-    return (f"the OpenXR runtime ({runtime}) found no head-mounted display: connect and switch on the headset, "
-            "check that the runtime sees it (Monado: monado-service's log; SteamVR: its status window), then try "
-            "again. Without a headset, vrcorrect mirror shows both corrected eyes in a window.")
-
-
-def choose_swapchain_format(offered: Sequence[int]) -> int:
-    """The swapchain format to use from the runtime's list (in its order of preference):
-    ``GL_SRGB8_ALPHA8`` if offered (the corrector's sRGB code values are stored as they are and
-    the compositor decodes them), else ``GL_RGBA8`` (linear: the codes are decoded by a
-    conversion pass).
-
-    Raises
-    ------
-    XrSessionError
-        Neither is offered (names the offered formats).
-    """
-    formats = [int(f) for f in offered]
-    for wanted in (GL_SRGB8_ALPHA8, GL_RGBA8):
-        if wanted in formats:
-            return wanted
-    raise XrSessionError("swapchain format = none usable; the runtime offers "
-                         + (", ".join(f"0x{f:04X}" for f in formats) or "no formats")
-                         + ", vrcorrect needs GL_SRGB8_ALPHA8 (0x8C43) or GL_RGBA8 (0x8058)")
-
-
-def pose_matrix(orientation: Sequence[float], position: Sequence[float]) -> np.ndarray:
-    """The 4x4 matrix of a pose: unit quaternion ``(x, y, z, w)`` then translation (m)."""
-    x, y, z, w = (float(v) for v in orientation)
-    n = math.sqrt(x * x + y * y + z * z + w * w)
-    if not math.isfinite(n) or n < 1e-6:
-        raise ValidationError("pose.orientation", (x, y, z, w), "a non-zero quaternion (x, y, z, w)")
-    x, y, z, w = x / n, y / n, z / n, w / n
-    m = np.eye(4)
-    m[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
-    m[:3, 3] = [float(v) for v in position]
-    return m
-
-
-def view_matrix(orientation: Sequence[float], position: Sequence[float]) -> np.ndarray:
-    """World-to-eye matrix of an eye at a pose (the inverse of :func:`pose_matrix`)."""
-    m = pose_matrix(orientation, position)
-    inv = np.eye(4)
-    inv[:3, :3] = m[:3, :3].T
-    inv[:3, 3] = -m[:3, :3].T @ m[:3, 3]
-    return inv
-
-
-def projection_from_fov(angle_left: float, angle_right: float, angle_up: float, angle_down: float,
-                        near_m: float = 0.05, far_m: float = 60.0) -> np.ndarray:
-    """OpenGL projection (clip z in [-1, 1]) of an OpenXR field of view: four angles in radians
-    (left and down negative for a view that contains the forward axis); may be asymmetric."""
-    angles = (angle_left, angle_right, angle_up, angle_down)
-    if not all(math.isfinite(a) and abs(a) < math.pi / 2 for a in angles) or angle_right <= angle_left \
-            or angle_up <= angle_down:
-        raise ValidationError("fov", angles, "angles in (-pi/2, pi/2) rad with left < right and down < up")
-    if not 0 < near_m < far_m:
-        raise ValidationError("near_m, far_m", (near_m, far_m), "0 < near_m < far_m")
-    left, right = math.tan(angle_left), math.tan(angle_right)
-    up, down = math.tan(angle_up), math.tan(angle_down)
-    p = np.zeros((4, 4))
-    p[0, 0] = 2 / (right - left)
-    p[0, 2] = (right + left) / (right - left)
-    p[1, 1] = 2 / (up - down)
-    p[1, 2] = (up + down) / (up - down)
-    p[2, 2] = -(far_m + near_m) / (far_m - near_m)
-    p[2, 3] = -2 * far_m * near_m / (far_m - near_m)
-    p[3, 2] = -1.0
-    return p
-
-
-SESSION_STATES = ("UNKNOWN", "IDLE", "READY", "SYNCHRONIZED", "VISIBLE", "FOCUSED", "STOPPING", "LOSS_PENDING",
-                  "EXITING")
-"""``XrSessionState`` names by value."""
-
-
-@dataclass
-class SessionTracker:
-    """The application's side of the session state machine (pure: no OpenXR calls).
-
-    :meth:`on_state` takes each state the runtime reports and returns what to do:
-    ``"begin"`` (READY: ``xrBeginSession``), ``"end"`` (STOPPING: ``xrEndSession``), ``"exit"``
-    (EXITING: leave the loop), ``"lost"`` (LOSS_PENDING: destroy the session, leave), or
-    ``None``. :attr:`running` is True between a begin and an end; :attr:`history` lists the
-    states seen.
-    """
-
-    state: str = "UNKNOWN"
-    running: bool = False
-    history: list[str] = field(default_factory=list)
-
-    def on_state(self, state: str) -> str | None:
-        if state not in SESSION_STATES:
-            raise ValidationError("session state", state, "one of " + ", ".join(SESSION_STATES))
-        self.state = state
-        self.history.append(state)
-        if state == "READY" and not self.running:
-            return "begin"
-        if state == "STOPPING" and self.running:
-            return "end"
-        if state == "EXITING":
-            return "exit"
-        if state == "LOSS_PENDING":
-            return "lost"
-        return None
-
-    def began(self) -> None:
-        self.running = True
-
-    def ended(self) -> None:
-        self.running = False
-
-    @property
-    def visible(self) -> bool:
-        return self.state in ("VISIBLE", "FOCUSED")
-
-
-# --------------------------------------------------------------------------
-# Configuration
-# --------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class XrConfig:
-    """How ``vrcorrect xr`` runs.
-
-    Attributes
-    ----------
-    rx
-        Prescription JSON (watched for changes); ``None``: the bundled sample.
-    display
-        Display preset or profile path the correction is designed for (the headset's panel).
-    source
-        ``"demo"`` (the 3D scene from the tracked eyes), an image, animated image or video
-        file, a folder of images, or ``"screen"`` (an X11 screen region, ``region``).
-    region
-        ``"X,Y,W,H"`` of the screen for ``source="screen"`` (default: the whole screen).
-    frames
-        Leave (via ``xrRequestExitSession``) after this many rendered frames; ``None``: run
-        until Ctrl-C, the mirror window closes, or the runtime ends the session.
-    mirror
-        Show what is submitted, both eyes side by side, in a window ``mirror_height`` px tall.
-    validation
-        Insert pyopenxr's bundled Khronos core validation layer (messages on stdout).
-    backend, corrector_options
-        Passed to each :class:`~vrcorrect.runtime.corrector.Corrector`.
-    time_step_s
-        Fixed scene time per rendered frame; ``None``: the runtime's predicted display times.
-    reprojection
-        With an iterative method (``admm``, ``fista``): start each frame's iterations from the previous solution moved by
-        the motion since the last frame: in the demo scene the change of each eye's tracked
-        orientation (:func:`~vrcorrect.runtime.motion.view_shift`), for a picture source (head-locked)
-        the pictures' estimated shift, with a cold start on a scene cut.  ``False``: the plain warm
-        start.
-    """
-
-    rx: str | Path | None = None
-    display: str = "quest2"
-    source: str = "demo"
-    region: str | None = None
-    frames: int | None = None
-    mirror: bool = False
-    mirror_height: int = 480
-    validation: bool = False
-    backend: str = Backend.GLSL
-    corrector_options: CorrectorOptions | Mapping[str, Any] = field(default_factory=dict)
-    time_step_s: float | None = None
-    folder_interval_s: float = 3.0
-    application_name: str = "vrcorrect"
-    reprojection: bool = True
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "corrector_options", as_options(self.backend, self.corrector_options))
-        if self.frames is not None and not (isinstance(self.frames, int) and 1 <= self.frames <= 10_000_000):
-            raise ValidationError("frames", self.frames, "None or a whole number of frames from 1 to 10000000")
-        if not (isinstance(self.mirror_height, int) and 16 <= self.mirror_height <= 4096):
-            raise ValidationError("mirror_height", self.mirror_height, "a whole number of pixels from 16 to 4096")
-        if self.time_step_s is not None and not (math.isfinite(self.time_step_s) and self.time_step_s >= 0):
-            raise ValidationError("time_step_s", self.time_step_s, "None or a number of seconds >= 0")
-        if self.backend not in names(Backend):
-            raise ValidationError("backend", self.backend, either(Backend))
-        if self.region is not None and self.source != "screen":
-            raise ValidationError("--region", self.region, "only with --source screen")
-
-
-@dataclass
-class XrRunSummary:
-    """What a run did: ``frames`` rendered (submitted with a layer), ``frames_total`` (all
-    ``xrEndFrame`` calls), why it stopped (``reason``: ``frames``, ``interrupted``, ``window
-    closed``, ``runtime``, ``session lost``, ``no exit``), the states seen, per-frame stage times
-    ``stage -> [(gpu_ms or None, cpu_ms), ...]`` and frame wall times (ms)."""
-
-    frames: int = 0
-    frames_total: int = 0
-    reason: str = ""
-    states: list[str] = field(default_factory=list)
-    stage_ms: dict[str, list[tuple[float | None, float]]] = field(default_factory=dict)
-    frame_ms: list[float] = field(default_factory=list)
-    runtime: str = ""
-    system: str = ""
-    swapchain_format: str = ""
-    eye_size: tuple[int, int] = (0, 0)
-    renderer: str = ""
-    objective: dict[str, list[float]] = field(default_factory=dict)
-    """Iterative methods: each eye's objective as a fraction of uncorrected, per rendered frame
-    (read a frame late)."""
-    iterations_per_frame: int | None = None
-    """Iterative methods: the iterations per frame at the end (the keys may change them)."""
-    method: str = ""
-    """The correction's method (``filter``)."""
-    gaze: str = ""
-    """With a fovea: where its window stood (the eye tracker's gaze, or why the configured one)."""
-    tracked_frames: int = 0
-    """Frames whose window followed the eye tracker."""
-    gazes: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
-    """Each eye's tracked gaze (degrees from its view's centre), per tracked frame."""
-
-    @property
-    def exit_code(self) -> int:
-        return EXIT_SESSION_LOST if self.reason == "session lost" else 0
-
-    def medians(self, skip: int = 1) -> dict[str, tuple[float | None, float]]:
-        """Median ``(gpu_ms, cpu_ms)`` per stage over the rendered frames after the first ``skip``."""
-        out = {}
-        for name in XR_STAGES:
-            values = self.stage_ms.get(name, [])
-            values = values[skip:] if len(values) > skip else values
-            if not values:
-                continue
-            gpus = [g for g, _ in values if g is not None]
-            out[name] = (statistics.median(gpus) if gpus else None, statistics.median(c for _, c in values))
-        return out
-
-
-# --------------------------------------------------------------------------
-# pyopenxr
-# --------------------------------------------------------------------------
-
-
-class _CapturedStderr:
-    """Collects what C code (the OpenXR loader) writes to file descriptor 2 while active."""
-
-    def __enter__(self) -> "_CapturedStderr":
-        sys.stderr.flush()
-        self._file = tempfile.TemporaryFile()
-        self._saved = os.dup(2)
-        os.dup2(self._file.fileno(), 2)
-        self.text = ""
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        os.dup2(self._saved, 2)
-        os.close(self._saved)
-        self._file.seek(0)
-        self.text = self._file.read().decode(errors="replace")
-        self._file.close()
-
-
-def _loader_detail(text: str) -> str:
-    """The loader's first error line, without its ``Error [GENERAL | ...] :`` prefix."""
-    for line in text.splitlines():
-        if "Error" in line and ":" in line:
-            return line.split("] :", 1)[-1].strip().rstrip(".") or line.strip()
-    return ""
 
 
 class XrApp(WindowApp):
@@ -465,61 +156,11 @@ class XrApp(WindowApp):
             raise XrSessionError(f"{what} failed: {type(exc).__name__}: {exc}") from None
 
     def _create_instance(self) -> None:
-        xr, cfg = self.xr, self.config
-        if cfg.validation:
-            xr.api_layer.activate_core_validation_layer()
-        info = xr.InstanceCreateInfo(
-            application_info=xr.ApplicationInfo(application_name=cfg.application_name, application_version=1,
-                                                engine_name="vrcorrect", engine_version=1,
-                                                api_version=xr.Version(1, 0, 0)),
-            enabled_extension_names=["XR_KHR_opengl_enable"] + ([GAZE_EXTENSION] if self._wants_gaze() else []))
-        with _CapturedStderr() as captured:
-            try:
-                self.instance = xr.create_instance(info)
-                error = None
-            except (xr.RuntimeUnavailableError, xr.RuntimeFailureError, xr.InitializationFailedError) as exc:
-                error = exc
-            except xr.ExtensionNotPresentError:
-                error = "extension"
-        if captured.text and os.environ.get("VRCORRECT_DEBUG"):
-            self.say(captured.text.rstrip())
-        if error == "extension":
-            raise XrUnavailableError("the active OpenXR runtime does not offer XR_KHR_opengl_enable (OpenGL), which "
-                                     "vrcorrect xr needs; Monado and SteamVR do. Without a headset, vrcorrect mirror "
-                                     "shows both corrected eyes in a window.")
-        if error is not None:
-            raise XrUnavailableError(no_runtime_message(_loader_detail(captured.text)))
-        props = xr.get_instance_properties(self.instance)
-        self.summary.runtime = props.runtime_name.decode(errors="replace")
-        try:
-            self.system_id = xr.get_system(self.instance, xr.SystemGetInfo(
-                form_factor=xr.FormFactor.HEAD_MOUNTED_DISPLAY))
-        except xr.FormFactorUnavailableError:
-            raise XrUnavailableError(no_headset_message(self.summary.runtime)) from None
-        except xr.XrException as exc:
-            raise XrSessionError(f"xrGetSystem failed: {type(exc).__name__}: {exc}") from None
-        sp = xr.get_system_properties(self.instance, self.system_id)
-        self.summary.system = sp.system_name.decode(errors="replace")
-        views = self._call("xrEnumerateViewConfigurationViews", xr.enumerate_view_configuration_views,
-                           self.instance, self.system_id, xr.ViewConfigurationType.PRIMARY_STEREO)
-        if len(views) != 2:
-            raise XrSessionError(f"stereo view configuration = {len(views)} views; vrcorrect xr needs 2")
-        sizes = {(v.recommended_image_rect_width, v.recommended_image_rect_height) for v in views}
-        if len(sizes) != 1:
-            raise XrSessionError(f"recommended view sizes = {sorted(sizes)}; vrcorrect xr needs both eyes the same")
-        self.eye_size = sizes.pop()
-        self.summary.eye_size = self.eye_size
-        blend = self._call("xrEnumerateEnvironmentBlendModes", xr.enumerate_environment_blend_modes,
-                           self.instance, self.system_id, xr.ViewConfigurationType.PRIMARY_STEREO)
-        if xr.EnvironmentBlendMode.OPAQUE not in [xr.EnvironmentBlendMode(int(b)) for b in blend]:
-            raise XrSessionError("environment blend modes lack OPAQUE, which a VR projection layer needs")
-        # XR_KHR_opengl_enable: the requirements call must come before xrCreateSession
-        pfn = ctypes.cast(xr.get_instance_proc_addr(self.instance, "xrGetOpenGLGraphicsRequirementsKHR"),
-                          xr.PFN_xrGetOpenGLGraphicsRequirementsKHR)
-        self.gl_requirements = xr.GraphicsRequirementsOpenGLKHR()
-        result = xr.check_result(xr.Result(pfn(self.instance, self.system_id, ctypes.byref(self.gl_requirements))))
-        if result.is_exception():
-            raise XrSessionError(f"xrGetOpenGLGraphicsRequirementsKHR failed: {result}")
+        extensions = ["XR_KHR_opengl_enable"] + ([GAZE_EXTENSION] if self._wants_gaze() else [])
+        self.instance, self.summary.runtime = create_instance(self.xr, self.config, extensions, self.say)
+        found = find_system(self.xr, self.instance, self.summary.runtime, self._call)
+        self.system_id, self.summary.system, self.gl_requirements = found.system_id, found.name, found.gl_requirements
+        self.eye_size = self.summary.eye_size = found.eye_size
 
     def _wants_gaze(self) -> bool:
         """A fovea asks for the eye tracker where the runtime offers one."""
@@ -583,8 +224,8 @@ class XrApp(WindowApp):
         drawable = glfw.get_glx_window(self.window)
         binding = xr.GraphicsBindingOpenGLXlibKHR()
         fields = dict(binding._fields_)
-        binding.x_display = ctypes.cast(ctypes.c_void_p(_address(display)), fields["x_display"])
-        binding.glx_context = ctypes.cast(ctypes.c_void_p(_address(context)), fields["glx_context"])
+        binding.x_display = ctypes.cast(ctypes.c_void_p(address(display)), fields["x_display"])
+        binding.glx_context = ctypes.cast(ctypes.c_void_p(address(context)), fields["glx_context"])
         binding.glx_drawable = int(drawable)
         self._binding = binding  # kept alive for the session
         info = xr.SessionCreateInfo(system_id=self.system_id,
@@ -594,7 +235,7 @@ class XrApp(WindowApp):
                                 xr.ReferenceSpaceCreateInfo(reference_space_type=xr.ReferenceSpaceType.LOCAL))
         formats = self._call("xrEnumerateSwapchainFormats", xr.enumerate_swapchain_formats, self.session)
         self.format = choose_swapchain_format(formats)
-        self.summary.swapchain_format = _FORMAT_NAMES[self.format]
+        self.summary.swapchain_format = FORMAT_NAMES[self.format]
         w, h = self.eye_size
         for eye in VIEW_ORDER:  # view 0 is the left eye in PRIMARY_STEREO
             handle = self._call("xrCreateSwapchain", xr.create_swapchain, self.session, xr.SwapchainCreateInfo(
@@ -930,33 +571,15 @@ class XrApp(WindowApp):
             self.eye_tracker = None
         if xr is not None:
             for chain in self.swapchains:
-                _quietly(xr.destroy_swapchain, chain["handle"])
+                quietly(xr.destroy_swapchain, chain["handle"])
             self.swapchains = []
             if self.space is not None:
-                _quietly(xr.destroy_space, self.space)
+                quietly(xr.destroy_space, self.space)
                 self.space = None
             if self.session is not None:
-                _quietly(xr.destroy_session, self.session)
+                quietly(xr.destroy_session, self.session)
                 self.session = None
             if self.instance is not None:
-                _quietly(xr.destroy_instance, self.instance)
+                quietly(xr.destroy_instance, self.instance)
                 self.instance = None
         self._close_window()
-
-
-def _address(handle: Any) -> int:
-    """An integer address from what pyGLFW returns for native handles (int, c_void_p, pointer)."""
-    if handle is None:
-        return 0
-    if isinstance(handle, int):
-        return handle
-    if isinstance(handle, ctypes.c_void_p):
-        return handle.value or 0
-    return ctypes.cast(handle, ctypes.c_void_p).value or 0
-
-
-def _quietly(fn: Callable[..., Any], *args: Any) -> None:
-    try:
-        fn(*args)
-    except Exception:  # tear-down: a lost session's handles may already be gone
-        pass
