@@ -268,7 +268,7 @@ def test_a_saturated_or_invalid_timer_query_is_never_a_time():
 
 
 def test_stage_times_drop_a_saturated_query(gl):
-    from vrcorrect.runtime.shell.window import StageTimes
+    from vrcorrect.runtime.shell.timing import StageTimes
 
     class FakeQuery:
         def __init__(self, elapsed):

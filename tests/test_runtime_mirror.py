@@ -28,10 +28,7 @@ from vrcorrect.runtime.shell.scene import DemoScene, SceneConfig, cube_mesh, ope
 from vrcorrect.runtime.shell.sources import AnimatedImageSource, FolderSource, StillSource, VideoSource
 from vrcorrect.runtime.shell.source_spec import SourceSpec, fit_rect, frame_at, frame_index, parse_size, parse_source
 from vrcorrect.runtime.shell.text import build_font_atlas, layout_text, panel_instances, text_width
-from vrcorrect.runtime.shell.window import (
-    KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET, MOD_ALT, MOD_CONTROL, MOD_SHIFT, MOD_SUPER,
-    Iterations, Screenshot, key_map_text, next_iterations,
-)
+from vrcorrect.runtime.shell.keys import KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET, MOD_ALT, MOD_CONTROL, MOD_SHIFT, MOD_SUPER, Iterations, Screenshot, key_map_text, next_iterations
 from vrcorrect.specs.vocabulary import ITERATIONS_PER_FRAME, VIEW_ORDER
 
 REPO = Path(__file__).resolve().parents[1]

@@ -25,7 +25,7 @@ from vrcorrect.runtime.shell.overlay import (
     next_state, place_window, rects_overlap,
 )
 from vrcorrect.runtime.shell.source_spec import parse_region
-from vrcorrect.runtime.shell.window import KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET, MOD_CONTROL, Iterations, Screenshot
+from vrcorrect.runtime.shell.keys import KEY_ESCAPE, KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET, MOD_CONTROL, Iterations, Screenshot
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE_RX = (REPO / "vrcorrect" / "data" / "sample_rx.json").read_text()

@@ -490,7 +490,7 @@ def test_mirror_keys_change_the_iterations_and_the_run_reports_the_objective(x_d
     is collected a frame late for the summary."""
     import glfw
 
-    from vrcorrect.runtime.shell.window import KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET
+    from vrcorrect.runtime.shell.keys import KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET
     from vrcorrect.runtime.shell.xr import XrApp, XrConfig
 
     _runtime_in_this_process(xr_runtime, tmp_path, monkeypatch)

@@ -9,7 +9,7 @@ import time
 from ..runtime.gl import format_ms
 from ..runtime.shell.mirror import KEY_MAP, Mirror, MirrorConfig
 from ..runtime.shell.source_spec import parse_size, parse_source
-from ..runtime.shell.window import key_map_text, knob_text
+from ..runtime.shell.keys import key_map_text, knob_text
 from .common import rx_path, say_sample_rx
 from .realtime_options import (
     add_backend_option,

@@ -9,7 +9,7 @@ import time
 
 from ..runtime.shell.overlay import KEY_MAP, Overlay, OverlayConfig
 from ..runtime.shell.source_spec import parse_region, parse_size
-from ..runtime.shell.window import key_map_text
+from ..runtime.shell.keys import key_map_text
 from ..specs.vocabulary import Eye, names
 from .common import rx_path, say_sample_rx
 from .realtime_options import (

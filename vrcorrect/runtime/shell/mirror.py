@@ -12,15 +12,15 @@ live changes: :attr:`Corrector.live_offset <vrcorrect.runtime.corrector.Correcto
 
 Keys are handled by a pure state machine, :func:`next_state` on a frozen
 :class:`MirrorState`, which returns the new state and the side effects to perform
-(:class:`Adjust`, :class:`~vrcorrect.runtime.shell.window.Screenshot`,
-:class:`~vrcorrect.runtime.shell.window.Iterations`); :meth:`Mirror.key_callback` is the GLFW key
+(:class:`Adjust`, :class:`~vrcorrect.runtime.shell.keys.Screenshot`,
+:class:`~vrcorrect.runtime.shell.keys.Iterations`); :meth:`Mirror.key_callback` is the GLFW key
 callback that feeds it. :data:`KEY_MAP` lists the keys.
 
 With an iterative method (``--filter admm``, the default, or ``fista``) the correction is
 iterations spread over frames, and ``[`` / ``]`` halve / double the iterations per frame live (the
 speed-accuracy knob, 1 to 64); the panel shows it with each eye's objective as a fraction of
 uncorrected, read back a frame late so the panel never waits for the GPU
-(:func:`~vrcorrect.runtime.shell.window.knob_text`).
+(:func:`~vrcorrect.runtime.shell.keys.knob_text`).
 
 A prescription edit (the file, or the keys' live changes) is designed off the render thread
 (:class:`~vrcorrect.runtime.eye_source.EyeSource`): the frames go on with the current correction
@@ -49,11 +49,7 @@ from ...specs.vocabulary import VIEW_ORDER, Backend, Eye, either, names
 from ..corrector import Corrector
 from ..eye_model import CorrectorOptions, as_options
 from ..gl import check_gl_errors, format_ms, release
-from .scene import open_source
-from .source_spec import parse_source
-from .sources import PictureFeed, start_motion, take_motion
-from .text import TextOverlay, build_font_atlas, key_map_panel, panel_instances, text_width
-from .window import (
+from .keys import (
     ITERATION_KEYS,
     KEY_ESCAPE,
     MOD_ALT,
@@ -61,14 +57,18 @@ from .window import (
     MOD_SHIFT,
     MOD_SUPER,
     Iterations,
-    KeyedWindowApp,
     Screenshot,
-    StageTimes,
     change_iterations,
     iteration_key,
     key_letter,
     knob_text,
 )
+from .scene import open_source
+from .source_spec import parse_source
+from .sources import PictureFeed, start_motion, take_motion
+from .text import TextOverlay, build_font_atlas, key_map_panel, panel_instances, text_width
+from .timing import StageTimes
+from .window import KeyedWindowApp
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from ...specs.prescription import EyeRx

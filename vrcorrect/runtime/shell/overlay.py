@@ -45,24 +45,24 @@ from ...specs.vocabulary import Backend, Eye, either, names
 from ..corrector import Corrector
 from ..eye_model import CorrectorOptions, as_options
 from ..gl import Rect, check_gl_errors, format_ms, release
-from .source_spec import parse_source
-from .sources import PictureSource, ScreenSource, open_picture_source, screen_bounds, start_motion, take_motion
-from .text import TextOverlay, build_font_atlas, key_map_panel, panel_instances
-from .window import (
+from .keys import (
     ITERATION_KEYS,
     KEY_ESCAPE,
     MOD_ALT,
     MOD_CONTROL,
     MOD_SUPER,
     Iterations,
-    KeyedWindowApp,
     Screenshot,
-    StageTimes,
     change_iterations,
     iteration_key,
     key_letter,
     knob_text,
 )
+from .source_spec import parse_source
+from .sources import PictureSource, ScreenSource, open_picture_source, screen_bounds, start_motion, take_motion
+from .text import TextOverlay, build_font_atlas, key_map_panel, panel_instances
+from .timing import StageTimes
+from .window import KeyedWindowApp
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from types import ModuleType

@@ -3,14 +3,13 @@
 * :func:`srgb_display`: the display profile of an application, refused unless its transfer is
   sRGB (the real-time path encodes sRGB only).
 * :class:`GlfwSession`: GLFW with one window and its OpenGL 4.3 core context (moderngl).
-* :class:`StageTimes`: GPU timer queries and CPU clocks per stage of a frame, read a frame late.
 * :func:`write_screenshot`: a PNG of what a window shows.
-* Keys shared by the windows: GLFW key codes and modifier bits, :func:`key_map_text`, the
-  :class:`Screenshot` and :class:`Iterations` actions and the iterations-per-frame knob of
-  projected gradient (:func:`change_iterations`, :func:`knob_text`).
 * :class:`WindowApp`: where an application's messages go, its status line, its inputs (the
   prescription read once, the display) and its window; :class:`KeyedWindowApp` adds what the
   mirror and the overlay share: keys through a pure state machine, screenshots, frames until quit.
+
+The keys the windows share are in :mod:`~vrcorrect.runtime.shell.keys`, the stage times of a frame
+in :mod:`~vrcorrect.runtime.shell.timing`.
 
 Layer 5: numpy, Pillow, moderngl, glfw (pyopenxr for the headset); never torch.
 """
@@ -18,11 +17,9 @@ Layer 5: numpy, Pillow, moderngl, glfw (pyopenxr for the headset); never torch.
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING, Any, Callable, Generic, Iterable, Iterator, Mapping, Protocol, Self, Sequence, TypeVar
+from typing import TYPE_CHECKING, Any, Callable, Generic, Protocol, Self, Sequence, TypeVar
 
 import numpy as np
 
@@ -30,13 +27,14 @@ from ...plumbing.errors import GLUnavailableError, InputError, ValidationError, 
 from ...plumbing.imageio import write_png
 from ...specs.display import get_display
 from ...specs.prescription import EyeRx, bundled_sample_path
-from ...specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, names
-from ..corrector import Corrector, runs_iterations
+from ..corrector import Corrector
 from ..eye_model import CorrectorOptions
 from ..eye_source import EyeSource, EyeUpdate
-from ..gl import read_framebuffer, timer_query_ms
+from ..gl import read_framebuffer
 from ..optional import require_glfw, require_moderngl
 from ..rx_snapshot import RxSnapshot
+from .keys import GLFW_PRESS, key_map_text
+from .timing import StageTimes
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
@@ -44,11 +42,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from ...specs.display import DisplayProfile
 
 __all__ = [
-    "srgb_display", "GlfwSession", "StageTimes", "write_screenshot",
-    "GLFW_PRESS", "KEY_ESCAPE", "KEY_LEFT_BRACKET", "KEY_RIGHT_BRACKET", "MOD_SHIFT", "MOD_CONTROL", "MOD_ALT",
-    "MOD_SUPER", "key_letter", "key_map_text", "Screenshot", "Iterations", "ITERATION_KEYS",
-    "iteration_key", "next_iterations", "change_iterations", "knob_text", "WindowApp", "KeyState",
-    "FrameConfig", "KeyedWindowApp",
+    "srgb_display", "GlfwSession", "write_screenshot", "WindowApp", "KeyState", "FrameConfig", "KeyedWindowApp",
 ]
 
 def srgb_display(name_or_path: str | Path) -> "DisplayProfile":
@@ -163,54 +157,6 @@ class GlfwSession:
         self.close()
 
 
-class StageTimes:
-    """GPU timer queries and CPU clocks per stage (``stages``; those in ``cpu_only`` get no
-    GPU query). A frame's GPU times are read at the start of the next frame (:meth:`collect`),
-    when they are ready, so nothing waits for the GPU."""
-
-    def __init__(self, ctx: "moderngl.Context", stages: Sequence[str], cpu_only: Sequence[str] = ("present",)):
-        self.queries: dict[str, moderngl.Query] = {name: ctx.query(time=True) for name in stages
-                                                   if name not in cpu_only}
-        self._cpu: dict[str, float] = {}
-        self._pending: list[str] = []
-        self.last: dict[str, tuple[float | None, float]] = {}
-        self.smoothed: dict[str, tuple[float | None, float]] = {}
-
-    @contextmanager
-    def stage(self, name: str) -> Iterator[None]:
-        query = self.queries.get(name)
-        t0 = time.perf_counter()
-        if query is None:
-            yield
-        else:
-            with query:
-                yield
-            self._pending.append(name)
-        self._cpu[name] = 1e3 * (time.perf_counter() - t0)
-
-    def collect(self) -> dict[str, tuple[float | None, float]]:
-        """The last frame's ``stage -> (gpu_ms or None, cpu_ms)``; updates :attr:`smoothed`."""
-        out: dict[str, tuple[float | None, float]] = {name: (None, cpu) for name, cpu in self._cpu.items()}
-        for name in self._pending:
-            out[name] = (timer_query_ms(self.queries[name].elapsed), self._cpu[name])
-        self._pending, self._cpu = [], {}
-        for name, (gpu, cpu) in out.items():
-            old = self.smoothed.get(name)
-            if old is None or (old[0] is None) != (gpu is None):
-                self.smoothed[name] = (gpu, cpu)
-            else:
-                k = 0.1
-                self.smoothed[name] = (None if gpu is None else old[0] + k * (gpu - old[0]), old[1] + k * (cpu - old[1]))
-        for name in list(self.smoothed):
-            if name not in out:
-                del self.smoothed[name]
-        self.last = out
-        return out
-
-    def release(self) -> None:
-        self.queries = {}  # moderngl queries have no release(): the context frees them
-
-
 def write_screenshot(folder: str | Path, prefix: str, pixels: np.ndarray) -> Path:
     """Write ``pixels`` (``(H, W, 3)`` uint8) to a new ``PREFIX-DATE-TIME-NNN.png`` in
     ``folder`` (made if needed); returns its path."""
@@ -226,100 +172,6 @@ def write_screenshot(folder: str | Path, prefix: str, pixels: np.ndarray) -> Pat
             write_png(path, pixels.astype(np.float32) / 255.0)
             return path
     raise InputError(f"{folder}: too many screenshots this second")
-
-
-# --------------------------------------------------------------------------
-# Keys (pure)
-# --------------------------------------------------------------------------
-
-# GLFW key codes (glfw3.h: printable keys are their upper-case ASCII code) and modifier bits.
-GLFW_PRESS = 1
-KEY_ESCAPE = 256
-KEY_LEFT_BRACKET, KEY_RIGHT_BRACKET = 91, 93      # GLFW_KEY_LEFT_BRACKET, GLFW_KEY_RIGHT_BRACKET ('[', ']')
-MOD_SHIFT, MOD_CONTROL, MOD_ALT, MOD_SUPER = 0x1, 0x2, 0x4, 0x8
-
-ITERATION_KEYS: tuple[tuple[str, str], ...] = (
-    ("[ / ]", f"iterations per frame /2, x2 ({ITERATIONS_PER_FRAME.low}-{ITERATIONS_PER_FRAME.high}; "
-              f"--filter {' or '.join(names(ITERATIVE_FILTERS))})"),
-)
-"""The knob's keys, in the mirror's, the overlay's and the headset mirror's key maps."""
-
-
-@dataclass(frozen=True)
-class Screenshot:
-    """Write the window's picture, as shown, to a PNG."""
-
-
-@dataclass(frozen=True)
-class Iterations:
-    """Double (``up``) or halve the projected-gradient iterations per frame (:func:`next_iterations`)."""
-
-    up: bool
-
-
-def key_letter(key: int) -> str | None:
-    """The lower-case letter of a GLFW key code, or None for keys that are not letters."""
-    return chr(key).lower() if ord("A") <= key <= ord("Z") else None
-
-
-def key_map_text(keys: Sequence[tuple[str, str]]) -> str:
-    """A key map (``(key, what)`` pairs) as printed at start: one key a line."""
-    width = max(len(k) for k, _ in keys)
-    return "\n".join(["keys:"] + [f"  {k:<{width}}  {what}" for k, what in keys])
-
-
-def iteration_key(key: int) -> Iterations | None:
-    """The knob's action for ``key`` (``[`` halves, ``]`` doubles), or None."""
-    return {KEY_LEFT_BRACKET: Iterations(False), KEY_RIGHT_BRACKET: Iterations(True)}.get(key)
-
-
-def next_iterations(k: int, up: bool) -> int:
-    """``k`` doubled (``up``) or halved, within
-    :data:`~vrcorrect.specs.vocabulary.ITERATIONS_PER_FRAME`."""
-    low, high = ITERATIONS_PER_FRAME
-    return min(high, max(low, 2 * k if up else k // 2))
-
-
-def change_iterations(correctors: Iterable["Corrector"], up: bool) -> str:
-    """Double (``up``) or halve the iterations per frame of every corrector that iterates over
-    frames (:func:`runs_iterations`), all to one value (:func:`next_iterations` of the first's);
-    returns the status message."""
-    iterating = [c for c in correctors if runs_iterations(c)]
-    if not iterating:
-        return f"iterations per frame: only with --filter {' or '.join(names(ITERATIVE_FILTERS))}"
-    budgeted = [c.budget for c in iterating if getattr(c, "budget", None) is not None]
-    if budgeted:
-        return (f"iterations per frame: chosen by the frame budget ({budgeted[0].budget_ms:g} ms, --budget-ms); "
-                "run without it to set them by hand")
-    k = next_iterations(iterating[0].iterations_per_frame, up)
-    for c in iterating:
-        c.iterations_per_frame = k
-    return f"iterations per frame: {k}"
-
-
-def knob_text(correctors: Mapping[str, "Corrector"], size: tuple[int, int], running: bool = True) -> str | None:
-    """``"admm k 2   objective left 0.41 right 0.43 of uncorrected"`` for the correctors (by eye)
-    that iterate over frames, or None when none does.  The objectives are the frame before the
-    last one's (:meth:`~vrcorrect.runtime.corrector.Corrector.previous_objective_fraction`: no
-    wait for the GPU); ``running`` False (correction off, or not shown) prints ``-``."""
-    iterating = {eye: c for eye, c in correctors.items() if runs_iterations(c)}
-    if not iterating:
-        return None
-    ks = sorted({c.iterations_per_frame for c in iterating.values()})
-    methods = "/".join(sorted({c.options.filter for c in iterating.values()}))
-    parts = []
-    for eye, c in iterating.items():
-        value = c.previous_objective_fraction(size) if running and c.enabled else None
-        parts.append(f"{eye} {'-' if value is None else f'{value:.3f}'}")
-    text = f"{methods} k {'/'.join(map(str, ks))}   objective {' '.join(parts)} of uncorrected"
-    budgets = [c.budget for c in iterating.values() if getattr(c, "budget", None) is not None]
-    if budgets:                                 # what the frame budget chose: iterations (mean) and window
-        b = budgets[0]
-        window = "" if b.fovea_deg is None else f", fovea {b.fovea_deg:.3g} deg"
-        text += (f"   budget {b.budget_ms:g} ms: k " + "/".join(f"{x.q:.1f}" for x in budgets) + window
-                 + ("" if b.last_ms is None else " (" + "/".join(
-                     "-" if x.last_ms is None else f"{x.last_ms:.1f}" for x in budgets) + " ms)"))
-    return text
 
 
 # --------------------------------------------------------------------------

@@ -49,20 +49,12 @@ from ...gl import check_gl_errors, fullscreen_triangle, release
 from ...motion import view_shift
 from ...optional import require_moderngl, require_xr
 from ...shaders import compile_program
+from ..keys import GLFW_PRESS, MOD_ALT, MOD_CONTROL, MOD_SUPER, change_iterations, iteration_key, knob_text
 from ..scene import DemoScene, open_source
 from ..source_spec import parse_region, parse_source
 from ..sources import PictureFeed, ScreenSource, screen_bounds, start_motion, take_motion
-from ..window import (
-    GLFW_PRESS,
-    MOD_ALT,
-    MOD_CONTROL,
-    MOD_SUPER,
-    StageTimes,
-    WindowApp,
-    change_iterations,
-    iteration_key,
-    knob_text,
-)
+from ..timing import StageTimes
+from ..window import WindowApp
 from .gaze import EXTENSION as GAZE_EXTENSION
 from .gaze import EyeTracker, tracker_offered
 
