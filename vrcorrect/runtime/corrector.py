@@ -137,14 +137,13 @@ class Corrector:
         self.gaze_deg: tuple[float, float] = self.options.gaze_deg
         """Where the eye looks, degrees from the view's centre ``(x, y)``, x right, y up (OpenXR's view
         space): the window's centre with ``fovea_deg`` (set it before each :meth:`apply`)."""
-        self._iterations = self.options.iterations_per_frame
         self.budget: FrameBudget | None = None
         """With ``budget_ms``: what holds the frame's GPU time at the budget (its choice: ``describe()``)."""
         self._timer: GpuTimer | None = None
         if self.options.budget_ms is not None:
             self._timer = GpuTimer()
             self.budget = FrameBudget(self.options.budget_ms, radius_ladder(self.options.fovea_deg, MIN_FOVEA_DEG),
-                                      ITERATIONS_PER_FRAME, start=max(self._iterations, 1))
+                                      ITERATIONS_PER_FRAME, start=max(self.options.iterations_per_frame, 1))
         self.decoder = Decoder(self.gpu)
         self.encoder = Encoder(self.gpu)
         self._seen: dict[tuple[int, int], "moderngl.Texture"] = {}
@@ -224,13 +223,15 @@ class Corrector:
     @property
     def iterations_per_frame(self) -> int:
         """The iterative methods' iterations per frame (live; 0 to 256)."""
-        return self._iterations
+        return self.options.iterations_per_frame
 
     @iterations_per_frame.setter
     def iterations_per_frame(self, value: int) -> None:
-        self._iterations = check_iterations(value)
+        value = check_iterations(value)
+        if value != self.options.iterations_per_frame:
+            self.options = replace(self.options, iterations_per_frame=value)   # the count's one place
         if self.strategy is not None and self.strategy.iterative:
-            self.strategy.iterations_per_frame = self._iterations
+            self.strategy.iterations_per_frame = value
 
     def reset(self) -> None:
         """Make the next frame a cold start (the iterative methods: from the target), as a scene cut
@@ -271,9 +272,7 @@ class Corrector:
         elif self._onnx is not None:
             slot = self._onnx
         old = (self.strategy, self.preview)
-        options = self.options if self._iterations == self.options.iterations_per_frame else \
-            replace(self.options, iterations_per_frame=self._iterations)
-        self.strategy = make_strategy(self.gpu, model, options, self.encoder, self.decoder, slot,
+        self.strategy = make_strategy(self.gpu, model, self.options, self.encoder, self.decoder, slot,
                                       ppd=self.display.pixels_per_degree)
         if self._cold_model is not None and not model.identity and hasattr(self.strategy, "use_first_guess"):
             self.strategy.use_first_guess(self._cold_model.for_eye(model.eye, self.display, model.kernel,
@@ -454,7 +453,7 @@ class Corrector:
             self.options = replace(self.options, fovea_deg=choice.fovea_deg)
             self.install(self.model)
             log.info("%s eye: the budget moved the fovea to %.3g deg", self.eye_name, choice.fovea_deg)
-        if choice.iterations != self._iterations:
+        if choice.iterations != self.options.iterations_per_frame:
             self.iterations_per_frame = choice.iterations
         timer.begin(choice)
 

@@ -358,7 +358,7 @@ class AdmmStrategy(IterativeStrategy):
         t_prev = b.t[b.last_t]
         twiddle = {"u_twiddle": b.twiddle_x}            # the row passes' table; the column passes': col_tw
         col_tw = {"u_twiddle": b.twiddle_y}
-        k = self._iterations
+        k = self.iterations_per_frame
         if b.compared:
             self._begin("plan")
             groups = {"rows_target": H, "cols_target": cols, "rows_start": ny, "cols_admm": cols, "rows_update": ny,
@@ -533,8 +533,8 @@ class AdmmStrategy(IterativeStrategy):
         return True
 
     def describe(self) -> dict[str, Any]:
-        rt = self._iterations + 1 + (self.model.reference is not None)
-        return {"iterations_per_frame": self._iterations, "precision": self.options.precision,
+        rt = self.iterations_per_frame + 1 + (self.model.reference is not None)
+        return {"iterations_per_frame": self.iterations_per_frame, "precision": self.options.precision,
                 "fft_round_trips_per_frame": rt, "early_stop": self.options.early_stop,
                 "cold_iterations": self.options.cold_iterations}
 

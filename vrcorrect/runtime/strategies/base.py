@@ -18,6 +18,7 @@ Layer 5: numpy, moderngl; never torch.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -190,23 +191,22 @@ class Strategy:
 
 
 class IterativeStrategy(Strategy):
-    """A strategy that runs a number of iterations each frame: :attr:`iterations_per_frame`, set
-    from the options and changed live (checked against the one range,
-    :data:`~vrcorrect.specs.vocabulary.MAX_ITERATIONS_PER_FRAME`)."""
+    """A strategy that runs a number of iterations each frame: :attr:`iterations_per_frame`, its
+    options' count, changed live (checked against the one range,
+    :data:`~vrcorrect.specs.vocabulary.MAX_ITERATIONS_PER_FRAME`; the options are replaced, so the
+    count lives in one place)."""
 
     iterative = True
 
-    def __init__(self, *args: Any, **kwargs: Any):
-        super().__init__(*args, **kwargs)
-        self._iterations = self.options.iterations_per_frame
-
     @property
     def iterations_per_frame(self) -> int:
-        return self._iterations
+        return self.options.iterations_per_frame
 
     @iterations_per_frame.setter
     def iterations_per_frame(self, value: int) -> None:
-        self._iterations = check_iterations(value)
+        value = check_iterations(value)
+        if value != self.options.iterations_per_frame:
+            self.options = replace(self.options, iterations_per_frame=value)
 
 
 class GuardResult:

@@ -131,7 +131,7 @@ class FistaStrategy(IterativeStrategy):
         self._warm_size = size
         b.fft_target.run(gpu, linear, b.target)
         gpu.begin("iterations")
-        for _ in range(self._iterations):
+        for _ in range(self.iterations_per_frame):
             b.fft_k.run(gpu, b.y, b.r, combine="residual", other=b.target)                    # K y - T
             self._momentum, weight = self._next_momentum(self._momentum)
             b.fft_k.run(gpu, b.r, b.y, combine="fista", adjoint=True, solution=b.x,            # x, y updated
@@ -155,7 +155,7 @@ class FistaStrategy(IterativeStrategy):
         return None if b is None else download_texture(b.x)[..., :3].copy()
 
     def describe(self) -> dict[str, Any]:
-        return {"iterations_per_frame": self._iterations, "fft_round_trips_per_frame": 2 * self._iterations + 3}
+        return {"iterations_per_frame": self.iterations_per_frame, "fft_round_trips_per_frame": 2 * self.iterations_per_frame + 3}
 
     def release(self) -> None:
         for b in self._sized.values():
