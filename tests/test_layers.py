@@ -240,3 +240,22 @@ def test_no_two_classes_share_a_name():
                 where.setdefault(node.name, []).append(_rel(path))
     shared = {name: paths for name, paths in where.items() if len(paths) > 1}
     assert not shared, shared
+
+
+def _imports_inside_functions(path: Path):
+    lines = path.read_text().splitlines()
+    for fn in ast.walk(ast.parse("\n".join(lines))):
+        if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            for node in ast.walk(fn):
+                if isinstance(node, (ast.Import, ast.ImportFrom)):
+                    yield node.lineno, lines[node.lineno - 1:node.end_lineno]
+
+
+@pytest.mark.parametrize("path", sorted(p for p in PKG.rglob("*.py") if "__pycache__" not in p.parts), ids=_rel)
+def test_an_import_inside_a_function_says_why_on_its_line(path):
+    """Imports sit at the top of a module, except where an optional dependency, a measured start-up
+    cost (the CLI's parser and the runtime load no heavy stack: the tests above) or an import cycle
+    needs them inside a function; the reason is then written on the import."""
+    silent = [f"{_rel(path)}:{n}: {text[0].strip()}" for n, text in _imports_inside_functions(path)
+              if not any("#" in line for line in text)]
+    assert not silent, "imports inside functions without their reason:\n" + "\n".join(silent)

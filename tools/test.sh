@@ -3,8 +3,9 @@
 #
 #   bash tools/test.sh           ruff check, then the whole test suite (what CI runs: .ci/run): every
 #                                test not marked serial on every core (pytest-xdist, a test file to a
-#                                worker, so that a file's session fixtures are built once), then the
-#                                serial ones (they read a clock) alone
+#                                worker, so that a file's session fixtures are built once; a crashed
+#                                worker ends the run rather than being replaced), then the serial
+#                                ones (they read a clock) alone
 #   bash tools/test.sh --fast    the developer's loop: the tests that need no OpenGL, X display, OpenXR,
 #                                torch or ColorVideoVDP and are not marked slow (tests/conftest.py marks
 #                                them), on every core (pytest-xdist); about 550 tests in under 2 minutes
@@ -20,7 +21,7 @@ fi
 if [ $# -eq 0 ]; then
   .venv/bin/ruff check .
   status=0
-  .venv/bin/python -m pytest -q -p no:cacheprovider -n auto --dist loadfile -m "not serial" || status=$?
+  .venv/bin/python -m pytest -q -p no:cacheprovider -n auto --dist loadfile --max-worker-restart=0 -m "not serial" || status=$?
   .venv/bin/python -m pytest -q -p no:cacheprovider -m serial || status=$?
   exit "$status"
 fi

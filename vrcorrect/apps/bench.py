@@ -36,11 +36,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if not args.no_write:
         check_writable(Path(args.out), force=True)                             # the section is replaced
     if args.what == "kernel":
-        from ..studies.bench.kernel import run_kernel_bench
+        from ..studies.bench.kernel import (
+            run_kernel_bench,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        )
 
         print(run_kernel_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     elif args.what == "solvers":
-        from ..studies.bench.solvers import RESOLUTIONS, run_solver_bench
+        from ..studies.bench.solvers import (  # on use: start-up time (apps/__init__: the parser loads no layer below)
+            RESOLUTIONS,
+            run_solver_bench,
+        )
 
         res = args.resolutions or list(RESOLUTIONS)
         for r in res:
@@ -49,16 +54,27 @@ def cmd_bench(args: argparse.Namespace) -> int:
         print(run_solver_bench(out=Path(args.out), plot=Path(args.out).with_name("solver_tradeoff.png"),
                                resolutions=res, repeats=args.repeats, write=not args.no_write))
     elif args.what == "render":
-        from ..studies.bench.render import run_render_bench
+        from ..studies.bench.render import (
+            run_render_bench,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        )
 
         print(run_render_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     elif args.what == "xr":
-        from ..studies.bench.xr import run_xr_bench
+        from ..studies.bench.xr import (
+            run_xr_bench,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        )
 
         print(run_xr_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     elif args.what == "cost":
-        from ..studies.bench.cost import METHODS, parse_size, run_cost_bench
-        from ..studies.bench.peer import NO_DEVICE, PEERS
+        from ..studies.bench.cost import (  # on use: start-up time (apps/__init__: the parser loads no layer below)
+            METHODS,
+            parse_size,
+            run_cost_bench,
+        )
+        from ..studies.bench.peer import (  # on use: start-up time (apps/__init__: the parser loads no layer below)
+            NO_DEVICE,
+            PEERS,
+        )
 
         size = parse_size(args.size)
         fovea = [] if args.fovea is None else [r for r in (parse_fovea(v) for v in args.fovea.split(",")) if r is not None]
@@ -73,8 +89,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if report.get("peer", {}).get("status") == NO_DEVICE:
             print(NO_DEVICE)
     elif args.what == "workgroups":
-        from ..studies.bench.cost import parse_size
-        from ..studies.bench.workgroups import run_workgroup_bench
+        from ..studies.bench.cost import (
+            parse_size,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        )
+        from ..studies.bench.workgroups import (
+            run_workgroup_bench,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        )
 
         size = parse_size(args.size)
         report = run_workgroup_bench(size, args.display, str(rx_path(args)), frames=20 if args.frames is None else args.frames,
@@ -82,20 +102,26 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                      force=args.force)
         print(report["markdown"])
     elif args.what == "halfres":
-        from ..studies.bench.halfres import run_halfres_bench
+        from ..studies.bench.halfres import (
+            run_halfres_bench,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        )
 
         report = run_halfres_bench(video=args.video, out=Path(args.out), write=not args.no_write,
                                    json_out=_json_out(args), force=args.force)
         print(report["markdown"])
     elif args.what == "robust":
-        from ..studies.bench.robust import run_robust_bench
+        from ..studies.bench.robust import (
+            run_robust_bench,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        )
 
         report = run_robust_bench(out=Path(args.out), write=not args.no_write,
                                   plot=Path(args.out).with_name("robust_sweep.png"), json_out=_json_out(args),
                                   force=args.force, video=args.video)
         print(report["markdown"])
     elif args.what == "fovea":
-        from ..studies.bench.fovea import run_fovea_bench
+        from ..studies.bench.fovea import (
+            run_fovea_bench,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        )
 
         quick = {"images": ("rocket",), "iterations": (2,), "radii": (15.0,), "view": 640} if args.quick else {}
         report = run_fovea_bench(out=Path(args.out), write=not args.no_write,
@@ -103,23 +129,33 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                  force=args.force, **quick)
         print(report["markdown"])
     elif args.what == "layer":
-        from ..studies.bench.layer import run_layer_bench
+        from ..studies.bench.layer import (
+            run_layer_bench,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        )
 
         print(run_layer_bench(repeats=args.repeats, out=Path(args.out), write=not args.no_write))
     elif args.what == "realtime":
-        from ..studies.bench.realtime import run_realtime_bench
+        from ..studies.bench.realtime import (
+            run_realtime_bench,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        )
 
         print(run_realtime_bench(out=Path(args.out), write=not args.no_write, quick=args.quick))
     elif args.what in ("learned", "unrolled"):
-        from ..runtime.learned import model_metadata
-        from ..runtime.unrolled import UNROLLED_FORMAT
+        from ..runtime.learned import (
+            model_metadata,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        )
+        from ..runtime.unrolled import (
+            UNROLLED_FORMAT,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        )
 
         path = Path(args.model) if args.model else DEFAULT_MODEL
         if not path.is_file():
             raise InputError(f"{path}: no such model; pass --model PATH (an unrolled model: vrcorrect unroll -o RUN "
                              "writes RUN/unrolled.onnx)")
         if model_metadata(path).get("vrcorrect.format") == UNROLLED_FORMAT:
-            from ..studies.bench.unrolled import run_unrolled_bench
+            from ..studies.bench.unrolled import (
+                run_unrolled_bench,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+            )
 
             args.eyes = 2 if args.eyes is None else args.eyes
             if args.eyes < 1:
@@ -129,7 +165,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
             return 0
         if args.what == "unrolled":
             raise InputError(f"{path}: not an unrolled model (vrcorrect unroll -o RUN writes RUN/unrolled.onnx)")
-        from ..studies.bench.learned import run_learned_bench
+        from ..studies.bench.learned import (
+            run_learned_bench,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        )
 
         args.eyes = 6 if args.eyes is None else args.eyes
         if args.eyes < 1:

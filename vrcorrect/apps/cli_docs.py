@@ -133,7 +133,7 @@ def render_cli_markdown(parser: argparse.ArgumentParser | None = None) -> str:
 # ---------------------------------------------------------------- python -m vrcorrect.apps.cli_docs
 
 def _checkout_doc() -> Path | None:
-    from ..studies.bench import checkout_root
+    from ..studies.bench import checkout_root  # on use: start-up time (apps/__init__: the parser loads no layer below)
 
     root = checkout_root()
     return None if root is None else root / CLI_DOC

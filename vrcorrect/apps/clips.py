@@ -18,6 +18,7 @@ import numpy as np
 
 from ..plumbing.clips import MAX_CLIP_FRAMES, Clip, FrameFolder, clip_kind, open_clip, resample_indices
 from ..plumbing.errors import ValidationError
+from .progress import Progress
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from .progress import Progress
@@ -144,7 +145,6 @@ def output_folder(args: argparse.Namespace, plan: ClipPlan) -> FrameFolder:
 def frames_bar(desc: str, total: int) -> "Progress":
     """Progress over frames (:class:`~vrcorrect.apps.progress.Progress`: a line redrawn on a terminal,
     a line every few seconds otherwise)."""
-    from .progress import Progress
 
     return Progress(desc, "frame", total)
 

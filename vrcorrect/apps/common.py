@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
@@ -54,7 +55,7 @@ def say_sample_rx(args: argparse.Namespace) -> None:
     """The line saying the bundled sample prescription is modelled (nothing when ``--rx`` was given)."""
     if getattr(args, "rx", None):
         return
-    from ..specs.vocabulary import Eye
+    from ..specs.vocabulary import Eye  # on use: start-up time (apps/__init__: the parser loads no layer below)
 
     path = bundled_sample_path()
     try:
@@ -110,7 +111,9 @@ def load_eye_and_age(args: argparse.Namespace) -> tuple[Path, "EyeRx", float | N
 
 def kernel_options(args: argparse.Namespace) -> KernelOptions:
     from ..physics.kernel import KernelOptions  # noqa: F811  (the run-time class; the one above is for hints)
-    from ..physics.options import OpticsOptions
+    from ..physics.options import (
+        OpticsOptions,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+    )
 
     distance = None
     if getattr(args, "distance_m", None) is not None:
@@ -249,11 +252,15 @@ def viewing_pupil(args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfi
                                                      "higher-order terms were measured at")
         return float(choice), lines
     from ..physics.perception import luminance_weights  # on use: start-up time (module docstring)
-    from ..physics.pupil import pupil_from_light
+    from ..physics.pupil import (
+        pupil_from_light,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+    )
 
     h, w = image_linear.shape[:2]
     mean = float(np.mean(np.asarray(image_linear, np.float64) @ luminance_weights(display)))
-    from ..runtime.pupil_bank import nearest_bank_pupil
+    from ..runtime.pupil_bank import (
+        nearest_bank_pupil,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+    )
 
     estimate = pupil_from_light(mean, display, age_years, image_size=(w, h), upper_mm=upper,
                                 upper_why="the pupil the higher-order terms were measured at")
@@ -278,7 +285,6 @@ class PupilPerFrame:
         self.seconds = 0.0
 
     def __call__(self, image_linear: np.ndarray, where: str = "") -> tuple[float, Any]:
-        import time
 
         pupil, lines = viewing_pupil(self.args, self.eye, self.display, image_linear, self.age_years,
                                      design=self.design)

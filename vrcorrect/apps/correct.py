@@ -50,8 +50,10 @@ def cmd_correct(args: argparse.Namespace) -> int:
     _check_options(args)
     check_readable(args.input)                      # before the heavy imports: a typo is told at once
     from ..solvers import make_problem, objective, solve  # on use: start-up time (apps/__init__)
-    from ..solvers.problem import make_design_problem
-    from ..vision.metrics import evaluate_seen
+    from ..solvers.problem import (
+        make_design_problem,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+    )
+    from ..vision.metrics import evaluate_seen  # on use: start-up time (apps/__init__: the parser loads no layer below)
 
     notes: list[str] = []
     image = read_image(args.input, notes)           # a broken input is the one line, before any other
@@ -196,8 +198,13 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     folder = clips.output_folder(args, plan)        # checked before any work
     _check_options(args)
     from ..solvers import objective, solve  # on use: start-up time (apps/__init__)
-    from ..solvers.problem import make_design_problem
-    from ..vision.forward import lms_to_display, simulate_lms
+    from ..solvers.problem import (
+        make_design_problem,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+    )
+    from ..vision.forward import (  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        lms_to_display,
+        simulate_lms,
+    )
 
     learned, rx_path, eye, display, age = _eye_and_model(args)
     clip = plan.clip
@@ -299,7 +306,10 @@ def _clip_report(args, plan: clips.ClipPlan, rx_path, display, result, reference
 def _learned_model(args: argparse.Namespace):
     """The learned model of ``--model`` (default: the shipped one), its reference checked."""
     from ..runtime.learned import LearnedModel, model_metadata  # on use: start-up time (apps/__init__)
-    from ..runtime.unrolled import UNROLLED_FORMAT, UnrolledModel
+    from ..runtime.unrolled import (  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        UNROLLED_FORMAT,
+        UnrolledModel,
+    )
 
     path = Path(args.model) if args.model else DEFAULT_MODEL
     if args.model is None and not path.is_file():

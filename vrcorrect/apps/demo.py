@@ -50,9 +50,16 @@ def _row(images: list[np.ndarray], gap: int = 6) -> np.ndarray:
 def run_demo(out: Path, display_name: str = "quest2", force: bool = False) -> Iterator[str]:
     """Write the demo pictures into ``out``; yields one line per file."""
     # the physics is imported here, not above: every vrcorrect run imports this module to build its parser
-    from ..physics.kernel import KernelOptions, build_kernel
-    from ..physics.options import OpticsOptions
-    from ..vision.forward import what_the_eye_sees
+    from ..physics.kernel import (  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        KernelOptions,
+        build_kernel,
+    )
+    from ..physics.options import (
+        OpticsOptions,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+    )
+    from ..vision.forward import (
+        what_the_eye_sees,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+    )
 
     out = Path(out)
     names = ["right_eye_sees.png", "left_eye_sees.png", "demo_panel.png", "dioptre_sweep.png"]

@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import argparse
 import os
+import pickle
 from pathlib import Path
 
 from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.images import bundled_images, folder_images
+from .progress import Progress
 
 
 def _presets() -> tuple[str, ...]:
@@ -30,7 +32,12 @@ def _pair(field: str, values: list[float] | None, default: tuple[float, float]) 
 
 def cmd_dataset(args: argparse.Namespace) -> int:
     from ..learn.conditioning import SamplingRanges  # on use: start-up time (apps/__init__)
-    from ..learn.dataset import HELD_OUT_IMAGES, DatasetConfig, build_dataset, check_ray
+    from ..learn.dataset import (  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        HELD_OUT_IMAGES,
+        DatasetConfig,
+        build_dataset,
+        check_ray,
+    )
 
     d = SamplingRanges()
     ranges = SamplingRanges(sphere_D=_pair("--sphere-D", args.sphere_D, d.sphere_D),
@@ -58,7 +65,10 @@ def cmd_dataset(args: argparse.Namespace) -> int:
 
 def cmd_train(args: argparse.Namespace) -> int:
     from ..learn.model import UNetConfig  # on use: start-up time (apps/__init__)
-    from ..learn.train import TrainConfig, train
+    from ..learn.train import (  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        TrainConfig,
+        train,
+    )
 
     config = TrainConfig(steps=args.steps, batch_size=args.batch_size, learning_rate=args.learning_rate,
                          target_weight=args.target_weight, lr_schedule=args.lr_schedule, seed=args.seed,
@@ -75,11 +85,19 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_train_unrolled(args: argparse.Namespace) -> int:
     from ..learn.dataset import HELD_OUT_IMAGES, check_ray  # on use: start-up time (apps/__init__)
-    from ..learn.unrolled_export import export_unrolled
-    from ..learn.unrolled_train import (CHECKPOINT, UnrolledTrainConfig, build_fast_bank, build_pool,
-                                        train_unrolled)
-    from ..plumbing.fileio import check_writable
-    from .progress import Progress
+    from ..learn.unrolled_export import (
+        export_unrolled,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+    )
+    from ..learn.unrolled_train import (  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        CHECKPOINT,
+        UnrolledTrainConfig,
+        build_fast_bank,
+        build_pool,
+        train_unrolled,
+    )
+    from ..plumbing.fileio import (
+        check_writable,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+    )
 
     check_ray(args.ray)                                             # Ray installed? before any work
     config = UnrolledTrainConfig(stages=args.stages, prior_width=args.prior_width, displays=tuple(args.displays),
@@ -122,7 +140,9 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
             with Progress("unroll: fast's solutions", "crop", config.fast_bank) as bar:
                 bank = build_fast_bank(config, pool, train_images, workers=workers, progress=bar.update)
             _save_pickle(saved_bank, bank)
-    from ..studies.bench import machine_description
+    from ..studies.bench import (
+        machine_description,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+    )
 
     about = {"image_px": args.image_px, "images": sorted(n for n in images if n not in HELD_OUT_IMAGES),
              "machine": machine_description()}
@@ -145,7 +165,6 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
 
 def _load_pickle(path: Path):
     """What :func:`_save_pickle` wrote for a run (its own kernels or bank), or None."""
-    import pickle
 
     try:
         with open(path, "rb") as f:
@@ -155,7 +174,6 @@ def _load_pickle(path: Path):
 
 
 def _save_pickle(path: Path, value) -> None:
-    import pickle
 
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:

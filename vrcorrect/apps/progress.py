@@ -9,6 +9,7 @@ use it.  Layer 6 (an application's output); no heavy import.
 from __future__ import annotations
 
 import math
+import os
 import sys
 import threading
 import time
@@ -23,7 +24,6 @@ INTERVAL_ENV = "VRCORRECT_PROGRESS_S"
 
 
 def _interval() -> float:
-    import os
 
     try:
         value = float(os.environ.get(INTERVAL_ENV, INTERVAL_S))

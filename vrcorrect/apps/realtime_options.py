@@ -5,13 +5,22 @@ options they make, each checked with a one-line error naming the option."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any, Sequence
 
 from ..plumbing.errors import ValidationError
 from ..runtime.eye_model import DEFAULT_COLD_ITERATIONS, DEFAULT_ITERATIONS
 from ..runtime.model_path import model_for_backend
-from ..specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, MAX_ITERATIONS_PER_FRAME, Backend, Filter, Periphery, \
-    names
+from ..specs.vocabulary import (
+    ITERATIONS_PER_FRAME,
+    ITERATIVE_FILTERS,
+    MAX_ITERATIONS_PER_FRAME,
+    Backend,
+    Filter,
+    Periphery,
+    names,
+)
+from .common import FOVEA_HELP, GAZE_HELP, PERIPHERY_HELP, PUPIL_HELP, ROBUST_HELP, parse_fovea, parse_gaze, parse_pupil
 
 __all__ = ["FILTER_CHOICES", "parse_frames", "parse_whole_number", "parse_iterations_per_frame", "add_backend_option",
            "add_rx_option", "add_filter_options", "add_pupil_choice", "pupil_options", "add_fovea_choice",
@@ -97,7 +106,6 @@ def add_pupil_choice(p: argparse.ArgumentParser) -> None:
     """``--pupil`` and ``--robust`` (``render``, ``mirror``, ``overlay``, ``xr``): the eye as it is.
     With ``auto`` the pupil follows each frame's light (measured on the GPU, with the pupil's own
     dynamics) and the correction switches between designs built off the render thread."""
-    from .common import PUPIL_HELP, ROBUST_HELP
 
     g = p.add_argument_group("the eye as it is")
     g.add_argument("--pupil", default="auto", metavar="auto|rx|MM",
@@ -111,7 +119,6 @@ def add_pupil_choice(p: argparse.ArgumentParser) -> None:
 def add_fovea_choice(p: argparse.ArgumentParser, eye_tracker: bool = False) -> None:
     """``--fovea`` and ``--gaze`` (``render``, ``mirror``, ``overlay``, ``xr``): correct where the eye looks
     (``eye_tracker``: the command follows an OpenXR eye tracker, and ``--gaze`` is its fallback)."""
-    from .common import FOVEA_HELP, GAZE_HELP, PERIPHERY_HELP
 
     g = p.add_argument_group("where the eye looks")
     g.add_argument("--fovea", default="off", metavar="DEG|off", help="with --filter admm: " + FOVEA_HELP)
@@ -126,7 +133,6 @@ def add_fovea_choice(p: argparse.ArgumentParser, eye_tracker: bool = False) -> N
 def fovea_options(args: argparse.Namespace) -> dict[str, Any]:
     """The :class:`~vrcorrect.runtime.eye_model.CorrectorOptions` fields of ``--fovea`` and ``--gaze``
     (none when the window is off; ``--gaze`` without a window is refused)."""
-    from .common import parse_fovea, parse_gaze
 
     fovea = parse_fovea(getattr(args, "fovea", "off"))
     gaze = parse_gaze(getattr(args, "gaze", "0,0"))
@@ -144,7 +150,6 @@ def fovea_options(args: argparse.Namespace) -> dict[str, Any]:
 
 def pupil_options(args: argparse.Namespace) -> dict[str, Any]:
     """The :class:`~vrcorrect.runtime.eye_model.CorrectorOptions` fields of ``--pupil`` and ``--robust``."""
-    from .common import parse_pupil
 
     return {"pupil": parse_pupil(getattr(args, "pupil", "auto")), "robust": getattr(args, "robust", "on") == "on"}
 
@@ -207,9 +212,10 @@ def cold_start_choice(value: str | None, filter: str, backend: str,
     shot and why (empty where nothing iterates). ``value``: a path, ``default`` (the shipped
     model), ``none``, or ``auto``/``None`` (not given): the shipped model where onnxruntime offers a
     GPU execution provider (``available``: its providers, asked when not given), else the level."""
-    from pathlib import Path
 
-    from ..runtime.model_path import DEFAULT_MODEL
+    from ..runtime.model_path import (
+        DEFAULT_MODEL,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+    )
 
     iterating = filter == Filter.ADMM and backend == Backend.GLSL
     if value in (None, "auto"):

@@ -55,7 +55,7 @@ def _software_seconds(size: tuple[int, int], kernel_px: int = 27) -> float:
 def estimate_text(renderer: str, size: tuple[int, int], frames: int, options: dict[str, Any]) -> str:
     """What ``render`` says at its start about the time it will take on ``renderer``."""
     from ..runtime.eye_model import DEFAULT_ITERATIONS  # light
-    from ..runtime.gl import software_renderer
+    from ..runtime.gl import software_renderer  # on use: start-up time (apps/__init__: the parser loads no layer below)
 
     name = renderer.split(" (")[0]
     if not software_renderer(renderer):
@@ -95,7 +95,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     print_notes(notes)
     if model:
         options["model"] = model
-    from ..runtime.gl import headless_context
+    from ..runtime.gl import headless_context  # on use: start-up time (apps/__init__: the parser loads no layer below)
 
     ctx = headless_context(require=430)
     try:
@@ -152,7 +152,7 @@ def _render_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
         options["model"] = model
     rx = load_prescription(rx_path(args))
     print_notes(plan.clip.notes)
-    from ..runtime.gl import headless_context
+    from ..runtime.gl import headless_context  # on use: start-up time (apps/__init__: the parser loads no layer below)
 
     print(f"render: {plan.text}" + _rate_note(args, plan), flush=True)
     ctx = headless_context(require=430)

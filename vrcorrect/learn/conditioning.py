@@ -29,6 +29,8 @@ from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
 from ..solvers import make_problem
 from ..solvers.fista import gradient_plan, gradient_step, projected_gradient
+from ..solvers.realtime import power_of_two_grid
+from ..solvers.spectral import gram, kernel_spectrum, padded_shape, spectral_norm_squared
 from ..solvers.wiener import apply_filters, correction_filters
 from ..specs.prescription import EyeRx
 
@@ -210,8 +212,6 @@ def unrolled_spectra(kernel: np.ndarray, shape: tuple[int, int], grid_kernel_siz
     real-time path's before its mixed-radix grids), on which onnxruntime's DFT is a radix-2 FFT
     (other lengths run a direct DFT, slower and with float32 errors near 1e-4 after four stages);
     otherwise ``fast``'s (:func:`~vrcorrect.solvers.spectral.padded_shape`)."""
-    from ..solvers.realtime import power_of_two_grid
-    from ..solvers.spectral import gram, kernel_spectrum, padded_shape, spectral_norm_squared
 
     k = np.asarray(kernel, np.float64)
     size = grid_kernel_size or k.shape[-1]

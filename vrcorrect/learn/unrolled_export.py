@@ -30,6 +30,7 @@ from ..plumbing.fileio import check_writable
 from .conditioning import N_UNROLLED_FEATURES
 from .export import stamp_and_write
 from .unrolled import UnrolledADMM, kernel_spectra
+from .unrolled_train import load_unrolled
 
 FORMAT = "vrcorrect-unrolled-v3"      # v2: starts from fast_start (the duals d1, d2 added); v3: box weight per stage
 OPSET = 18
@@ -60,7 +61,7 @@ def _case(H: int, W: int, kernel_size: int, seed: int) -> tuple[torch.Tensor, ..
 
 def onnx_bytes(model: UnrolledADMM) -> bytes:
     """The model as ONNX (dynamic image and grid sizes; no metadata)."""
-    from torch.export import Dim
+    from torch.export import Dim  # on use: torch (the learn extra; heavy)
 
     h, w = Dim("H", min=8, max=8192), Dim("W", min=8, max=8192)
     p0, f1 = Dim("P0", min=8, max=16384), Dim("F1", min=5, max=8193)
@@ -94,7 +95,6 @@ def export_unrolled(checkpoint: str | Path, out: str | Path, force: bool = False
     ``out``, checked against torch; nothing is written when the check fails."""
     import onnx  # optional: the learn extra
 
-    from .unrolled_train import load_unrolled
 
     out = Path(out)
     if out.suffix.lower() != ".onnx":

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -37,7 +38,9 @@ import torch
 
 from ..plumbing.errors import ValidationError
 from ..plumbing.fileio import write_text_atomic
+from ..solvers import solve
 from ..solvers.admm import fast_start
+from ..solvers.problem import Problem
 from ..specs.display import decode, get_display, preset_names
 from ..specs.vocabulary import Method
 from .conditioning import N_UNROLLED_FEATURES, SamplingRanges, unrolled_features
@@ -222,8 +225,6 @@ def evaluate(model: UnrolledADMM, cases: Sequence[tuple[PoolEntry, np.ndarray]],
 def fast_solution(entry: PoolEntry, crop: np.ndarray, batch: dict[str, torch.Tensor] | None = None) -> np.ndarray:
     """``fast``'s displayed image for ``crop`` seen by ``entry``'s eye, ``(3, h, w)`` float32 linear RGB,
     in the training's own forward model (``batch``: :func:`make_batch` of them, when already made)."""
-    from ..solvers import solve
-    from ..solvers.problem import Problem
 
     b = batch if batch is not None else make_batch([entry], [crop])
     problem = Problem(target=b["target"][0].numpy().transpose(1, 2, 0).copy(), kernel=entry.eye_kernel,
@@ -299,7 +300,6 @@ def train_unrolled(run_dir: str | Path, config: UnrolledTrainConfig, train_image
     ``run_dir/checkpoint.pt`` every ``checkpoint_every_s`` seconds of training and at its end;
     ``resume`` continues from it (the same configuration; the time budget counts the time already
     trained), as if the run had not stopped.  Returns the report."""
-    import json
 
     run = Path(run_dir)
     run.mkdir(parents=True, exist_ok=True)

@@ -59,8 +59,8 @@ def prepare_image(image: np.ndarray, size: int, name: str = "image") -> np.ndarr
         float32 ``(size, size, 3)`` in [0, 1].
     """
     # optional: scikit-image (the metrics and test extras)
-    from skimage.transform import resize
-    from skimage.util import img_as_float32
+    from skimage.transform import resize  # on use: scikit-image (heavy)
+    from skimage.util import img_as_float32  # on use: scikit-image (heavy)
 
     size = check_size(size)
     a = np.asarray(image)

@@ -151,7 +151,7 @@ class Corrector:
         self._learned: LearnedModel | UnrolledModel | None = None
         if backend == Backend.ONNX:
             from .learned import LEARNED_FORMAT, LearnedModel, model_metadata  # start-up time: optics, solvers
-            from .unrolled import UNROLLED_FORMAT, UnrolledModel
+            from .unrolled import UNROLLED_FORMAT, UnrolledModel  # start-up time: optics, solvers
 
             if not self.options.model:
                 raise ValidationError("model", None, "an ONNX model path for backend 'onnx'")

@@ -30,14 +30,27 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
 
+from ..physics.pupil import pupil_from_light
 from ..plumbing.errors import ValidationError
 from ..plumbing.fileio import package_data
 from ..plumbing.imageio import read_image
 from ..specs.display import DisplayProfile, decode
 from ..specs.prescription import EyeRx
-from ..specs.vocabulary import ITERATIVE_FILTERS, MAX_GAZE_DEG, MAX_ITERATIONS_PER_FRAME, Backend, Filter, Periphery, \
-    Precision, either, names, one_of
+from ..specs.vocabulary import (
+    ITERATIVE_FILTERS,
+    MAX_GAZE_DEG,
+    MAX_ITERATIONS_PER_FRAME,
+    Backend,
+    Filter,
+    Periphery,
+    Precision,
+    either,
+    names,
+    one_of,
+)
+from .budget import check_budget_ms
 from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
+from .pupil_bank import bank_grid_kernel_size, nearest_bank_pupil
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from ..physics.kernel import EyeKernel, KernelOptions
@@ -284,7 +297,6 @@ class CorrectorOptions:
 
     def __post_init__(self) -> None:
         if self.budget_ms is not None:
-            from .budget import check_budget_ms
 
             object.__setattr__(self, "budget_ms", check_budget_ms(self.budget_ms))
             if self.filter not in ITERATIVE_FILTERS or self.backend != Backend.GLSL:
@@ -328,7 +340,7 @@ class CorrectorOptions:
                                   "a WorkGroups, or a mapping with 'full' and/or 'coarse' tables of values per thread "
                                   "(and 'column_lines')")
         if self.fovea_deg is not None:
-            from .strategies.foveated import MAX_FOVEA_DEG, MIN_FOVEA_DEG
+            from .strategies.foveated import MAX_FOVEA_DEG, MIN_FOVEA_DEG  # circular: strategies import this module
 
             if isinstance(self.fovea_deg, bool) or not isinstance(self.fovea_deg, (int, float)) or \
                     not MIN_FOVEA_DEG <= self.fovea_deg <= MAX_FOVEA_DEG:
@@ -424,8 +436,6 @@ def initial_pupil_mm(eye_rx: EyeRx, display: DisplayProfile, options: "Corrector
         return eye_rx.pupil_diameter_mm
     if options.pupil != "auto":
         return float(options.pupil)
-    from ..physics.pupil import pupil_from_light
-    from .pupil_bank import nearest_bank_pupil
 
     lum = NEUTRAL_LUMINANCE if mean_relative_luminance is None else mean_relative_luminance
     age = options.age_years if options.age_years is not None else age_years
@@ -451,11 +461,12 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
     (:func:`~vrcorrect.physics.robust.design_eye`); ``kernels`` caches kernels between designs (a
     pupil bank's), ``grid_kernel_size`` makes the grids hold a larger kernel than this design's;
     ``progress(done, total)`` after each kernel (a bank's worker stops a design from it)."""
-    # start-up time: optics and solvers (scipy) load with the first eye, not with the CLI's imports
-    from ..physics.kernel import KernelOptions
-    from ..physics.robust import design_eye
-    from ..solvers import make_problem
-    from ..solvers.wiener import correction_filters, wiener
+    # start-up time, each below: scipy, the optics and the solvers load with the first eye (importing the
+    # runtime loads none of them)
+    from ..physics.kernel import KernelOptions  # start-up time (above)
+    from ..physics.robust import design_eye  # start-up time (above)
+    from ..solvers import make_problem  # start-up time (above)
+    from ..solvers.wiener import correction_filters, wiener  # start-up time (above)
 
     t0 = time.perf_counter()
     separable = options.filter == Filter.SEPARABLE
@@ -466,7 +477,6 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
                         kernels=kernels, progress=progress)
     kernel, reference, seen = design.kernel, design.reference, design.nominal
     if options.pupil == "auto" and grid_kernel_size is None:          # the grids hold every design of the bank
-        from .pupil_bank import bank_grid_kernel_size
 
         grid_kernel_size = bank_grid_kernel_size(design)
     notes: list[str] = []

@@ -41,6 +41,9 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping
 
+from ..plumbing.errors import GLUnavailableError
+from .gl import MESA_DEBIAN_PACKAGES
+
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
@@ -386,11 +389,9 @@ def egl_context(require: int = 430, cache: Path | None | bool = None) -> "modern
     current on the calling thread, with a :class:`CachingLoader` (``cache``: its folder, ``None``
     the default, ``False`` none).  ``with ctx:`` makes it current on a thread, leaving makes no
     context current."""
-    import glcontext
-    import moderngl
+    import glcontext  # on use: glcontext (optional: the realtime extra)
+    import moderngl  # on use: moderngl (optional: the realtime extra)
 
-    from ..plumbing.errors import GLUnavailableError
-    from .gl import MESA_DEBIAN_PACKAGES
 
     _egl_initialize()
     try:
@@ -534,7 +535,7 @@ def glx_context(display: int, fbconfig: int, context: int, require: int = 430,
                 cache: Path | None | bool = None) -> "moderngl.Context":
     """A :class:`GlxSharedContext` as a moderngl context with a :class:`CachingLoader`, current on
     the calling thread (leave with ``ctx.extra.__exit__()`` or ``ctx.__exit__()``)."""
-    import moderngl
+    import moderngl  # on use: moderngl (optional: the realtime extra)
 
     inner = GlxSharedContext(display, fbconfig, context, require)
     try:

@@ -29,6 +29,7 @@ import logging
 import math
 import queue
 import threading
+import time
 from dataclasses import dataclass
 from typing import Callable
 
@@ -226,7 +227,6 @@ class PupilBank:
 
     def wait_idle(self, timeout_s: float = 600.0) -> None:
         """Wait until every queued design is built (tests, batch renders)."""
-        import time
 
         end = time.monotonic() + timeout_s
         while True:

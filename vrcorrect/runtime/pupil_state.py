@@ -13,8 +13,9 @@ from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from ..specs.prescription import EyeRx
-from .eye_model import EyeModel, build_eye_model
+from .eye_model import EyeModel, build_eye_model, initial_pupil_mm
 from .pupil_bank import PupilBank, PupilFollower
+from .strategies.admm import bank_spectra
 from .strategies.base import LuminanceMeter
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -47,7 +48,6 @@ class PupilState:
 
     def first_entry(self, eye: EyeRx) -> float:
         """The bank entry the first model is designed for (the first frame's light where given)."""
-        from .eye_model import initial_pupil_mm
 
         return initial_pupil_mm(eye, self.c.display, self.c.options, self.first_luminance, self.c.age_years)
 
@@ -73,7 +73,6 @@ class PupilState:
 
     def _build(self, pupil_mm: float, kernels: dict, grids: tuple, progress=None) -> EyeModel:
         """A bank's design (on its worker): the model and its spectra on the strategy's grids."""
-        from .strategies.admm import bank_spectra
 
         base = self.c.model
         model = build_eye_model(base.eye, self.c.display, self.c.options, pupil_mm=pupil_mm,

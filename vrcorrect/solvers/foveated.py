@@ -45,8 +45,19 @@ import numpy as np
 from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
 from ..specs.vocabulary import PERIPHERY_LEVELS, Precision, names
-from .realtime import (ADMM_BALANCE, ADMM_RELAXATION, ADMM_RHO, AdmmFrame, AdmmFrames, _frame_target, admm_grid,
-                       coarse_eye_kernel, pool_half, upsample_double)
+from .realtime import (
+    ADMM_BALANCE,
+    ADMM_RELAXATION,
+    ADMM_RHO,
+    AdmmFrame,
+    AdmmFrames,
+    _frame_target,
+    _store,
+    admm_grid,
+    coarse_eye_kernel,
+    pool_half,
+    upsample_double,
+)
 
 __all__ = ["FoveaWindow", "fovea_window", "blend_ramp", "FoveatedFrames", "FoveatedFrame", "foveated_grid",
            "PERIPHERIES", "BAND_FRACTION", "MIN_BAND_PX", "fovea_pixels"]
@@ -300,6 +311,5 @@ class FoveatedFrames:
 
 def _store_like(a: np.ndarray, twin: AdmmFrames) -> np.ndarray:
     """``a`` as ``twin`` stores its state (16-bit floats, rounded to nearest, where it is half)."""
-    from .realtime import _store
 
     return _store(a, twin.half)

@@ -151,8 +151,12 @@ def measure_acuity(eye: EyeRx, display: DisplayProfile, methods: Sequence[str] =
     AcuityResult
     """
     from ..physics.kernel import build_kernel, build_reference_kernel  # on use: start-up time (apps/__init__)
-    from ..solvers import make_problem, solve
-    from ..vision.acuity import Observer, build_chart, score_acuity
+    from ..solvers import make_problem, solve  # on use: start-up time (the CLI imports the studies to build its parser)
+    from ..vision.acuity import (  # on use: start-up time (the CLI imports the studies to build its parser)
+        Observer,
+        build_chart,
+        score_acuity,
+    )
 
     chosen = check_methods(methods)
     if not (isinstance(contrast, (int, float)) and 0.0 < contrast <= 1.0):

@@ -466,9 +466,13 @@ def run_evaluation(out_dir: str | Path, images: Sequence[tuple[str, np.ndarray]]
         An output exists (without ``force``) or cannot be written.
     """
     from ..physics.kernel import KernelOptions, build_kernel  # on use: start-up time (apps/__init__)
-    from ..physics.options import OpticsOptions
-    from ..solvers import make_problem, solve
-    from ..vision.metrics import evaluate_seen
+    from ..physics.options import (
+        OpticsOptions,  # on use: start-up time (the CLI imports the studies to build its parser)
+    )
+    from ..solvers import make_problem, solve  # on use: start-up time (the CLI imports the studies to build its parser)
+    from ..vision.metrics import (
+        evaluate_seen,  # on use: start-up time (the CLI imports the studies to build its parser)
+    )
 
     t_start = time.perf_counter()
     methods = check_methods(methods)

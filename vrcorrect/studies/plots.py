@@ -14,7 +14,7 @@ def pyplot():
     import matplotlib  # on use: start-up time (apps/__init__)
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # on use: matplotlib (heavy)
 
     return plt
 

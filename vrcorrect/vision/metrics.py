@@ -61,14 +61,7 @@ from ..physics.perception import apply_matrix
 from ..plumbing.errors import ValidationError
 from ..specs.display import DisplayProfile, encode
 from .forward import check_image, lms_to_display, simulate_lms
-from .metric_checks import (
-    RANGE_TOLERANCE,
-    as_float_array,
-    check_finite,
-    check_pair,
-    check_positive,
-    check_unit_range,
-)
+from .metric_checks import RANGE_TOLERANCE, as_float_array, check_finite, check_pair, check_positive, check_unit_range
 from .vdp import foveated_jod, jod, video_jod
 
 __all__ = [
@@ -126,7 +119,7 @@ def psnr(reference: np.ndarray, test: np.ndarray, data_range: float = 1.0) -> fl
     if mse == 0.0:
         return math.inf
     # optional: scikit-image (the metrics extra)
-    from skimage.metrics import peak_signal_noise_ratio
+    from skimage.metrics import peak_signal_noise_ratio  # on use: scikit-image (heavy)
 
     return float(peak_signal_noise_ratio(a, b, data_range=dr))
 
@@ -187,7 +180,7 @@ def ssim(reference: np.ndarray, test: np.ndarray, data_range: float = 1.0) -> fl
         return _global_ssim(a, b, dr)
     win = min(SSIM_WIN_SIZE, side if side % 2 == 1 else side - 1)
     # optional: scikit-image (the metrics extra)
-    from skimage.metrics import structural_similarity
+    from skimage.metrics import structural_similarity  # on use: scikit-image (heavy)
 
     return float(structural_similarity(a, b, data_range=dr, channel_axis=-1, win_size=win))
 

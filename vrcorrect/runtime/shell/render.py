@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Callable, Hashable, Iterable, Iterator
 import numpy as np
 
 from ...plumbing.errors import ValidationError
-from ...specs.display import DisplayProfile
+from ...specs.display import DisplayProfile, decode, get_display
 from ...specs.vocabulary import Backend, Eye
 from ...vision.forward import check_image
 from ..corrector import Corrector, runs_iterations
@@ -39,6 +39,7 @@ from ..gl import (
     write_texture,
 )
 from ..motion import MotionTracker
+from ..pupil_bank import relative_luminance_of
 from ..rx_snapshot import RxSource
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -113,8 +114,6 @@ def _with_first_light(options: dict[str, Any], first_codes: np.ndarray, display:
     follows the light, so that the first design is for it."""
     if options.get("pupil") != "auto":
         return options
-    from ...specs.display import decode, get_display
-    from ..pupil_bank import relative_luminance_of
 
     profile = display if isinstance(display, DisplayProfile) else get_display(display)
     linear = decode(profile, first_codes.astype(np.float32) / 255.0)

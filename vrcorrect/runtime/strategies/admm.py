@@ -39,7 +39,7 @@ Layer 5: numpy, moderngl; never torch.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
@@ -313,7 +313,6 @@ class AdmmStrategy(IterativeStrategy):
     def _coarse_start(self, linear: "moderngl.Texture") -> AdmmBuffers:
         """A cold frame's coarse level: the target's block means into the coarse strategy, its
         ``cold_iterations`` iterations from a cold start; returns its buffers (``w``, ``q`` current)."""
-        from dataclasses import replace
 
         if self.coarse is None:
             model = coarse_model(self.model)
@@ -557,7 +556,6 @@ MAX_ADMM_GRID = 4096
 
 def coarse_model(m: "EyeModel") -> "EyeModel":
     """The model a cold frame's half-resolution level runs: the kernels 2x2 pixel blocks see."""
-    from dataclasses import replace
 
     from ...solvers.realtime import coarse_eye_kernel, coarse_kernel_size  # start-up time (as above)
 

@@ -30,13 +30,16 @@ Layer 5: numpy, moderngl; never torch.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from ...plumbing.errors import ValidationError
 from ...specs.vocabulary import PERIPHERY_LEVELS, Periphery, names
 from ..gl import fullscreen_triangle, release
 from ..shaders import compile_compute, compile_program
-from .admm import AdmmStrategy
+from .admm import AdmmStrategy, coarse_model
 from .base import Size, float_texture, groups_2d
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -95,9 +98,7 @@ class FoveatedStrategy(AdmmStrategy):
         self.outer: AdmmStrategy | None = None
         """The periphery's ADMM strategy (its own guard) at ``levels`` halvings of the view."""
         if self.levels:
-            from dataclasses import replace
 
-            from .admm import coarse_model
 
             model = self.model
             for _ in range(self.levels):
@@ -288,7 +289,6 @@ class FoveatedStrategy(AdmmStrategy):
 
     def solution(self, size: Size) -> Any:
         """The view shown (linear, ``(H, W, 3)`` rows top first): the composed frame, read back."""
-        import numpy as np
 
         full = self._textures.get(("full", tuple(size)))
         if full is None or self.window is None:

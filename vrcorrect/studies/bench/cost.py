@@ -54,7 +54,15 @@ from tqdm import tqdm
 from ...plumbing.errors import ValidationError
 from ...runtime.corrector import Corrector, CorrectorOptions
 from ...runtime.dispatch import BANDWIDTHS, CostLedger, project_ms
-from ...runtime.gl import format_ms, headless_context, release, render_target, software_renderer, upload_texture, write_texture
+from ...runtime.gl import (
+    format_ms,
+    headless_context,
+    release,
+    render_target,
+    software_renderer,
+    upload_texture,
+    write_texture,
+)
 from ...solvers.foveated import fovea_pixels
 from ...specs.display import get_display
 from ...specs.prescription import Prescription, bundled_sample_path, load_prescription
@@ -129,7 +137,9 @@ FOVEA_TARGET_BYTES = 0.5e9
 def fovea_method(radius_deg: float, periphery: str | None = None) -> tuple[str, dict[str, Any]]:
     """The foveated default frame at ``radius_deg`` (``periphery``: None, the default's), as a method
     row: label and Corrector options."""
-    from ...runtime.strategies.foveated import DEFAULT_PERIPHERY
+    from ...runtime.strategies.foveated import (
+        DEFAULT_PERIPHERY,  # on use: start-up time (the CLI imports the studies to build its parser)
+    )
 
     p = periphery or DEFAULT_PERIPHERY
     return f"admm (default), fovea {radius_deg:g} deg, periphery {p}", {"fovea_deg": float(radius_deg),
@@ -291,7 +301,13 @@ def run_peer(peer: str, results: Sequence[MethodCost], size: tuple[int, int], fr
     """The peer's frame (:mod:`~vrcorrect.studies.bench.peer`) for each eye of the default, timed
     on the CUDA device torch sees, after a check against the CPU twin there; or why it did not run
     (exactly :data:`~vrcorrect.studies.bench.peer.NO_DEVICE` where torch sees no CUDA device)."""
-    from .peer import NO_DEVICE, PEERS, peer_against_twin, peer_device, time_torch_peer
+    from .peer import (  # on use: start-up time (the CLI imports the studies to build its parser)
+        NO_DEVICE,
+        PEERS,
+        peer_against_twin,
+        peer_device,
+        time_torch_peer,
+    )
 
     if peer not in PEERS:
         raise ValidationError("--peer", peer, "one of " + ", ".join(PEERS))
@@ -328,7 +344,7 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
     check_frames(frames)
     methods = list(methods) + [fovea_method(r, periphery) for r in fovea]
     if peer is not None:
-        from .peer import PEERS
+        from .peer import PEERS  # on use: start-up time (the CLI imports the studies to build its parser)
 
         if peer not in PEERS:
             raise ValidationError("--peer", peer, "one of " + ", ".join(PEERS))

@@ -68,11 +68,15 @@ CHECK_RADIUS_DEG = 15.0
 def bench_image(name: str, size: int) -> np.ndarray:
     """A bench image, sRGB code values ``(size, size, 3)``."""
     if name == "chart":
-        from ...plumbing.charts import text_chart
-        from ...plumbing.images import prepare_image
+        from ...plumbing.charts import (
+            text_chart,  # on use: start-up time (the CLI imports the studies to build its parser)
+        )
+        from ...plumbing.images import (
+            prepare_image,  # on use: start-up time (the CLI imports the studies to build its parser)
+        )
 
         return prepare_image(text_chart(size, size), size, "chart")
-    from .robust import held_out_image
+    from .robust import held_out_image  # on use: start-up time (the CLI imports the studies to build its parser)
 
     return held_out_image(name, size)
 
@@ -89,9 +93,17 @@ def _gl_costs(radius: float | None, k: int, periphery: str, view: tuple[int, int
     """The bytes of a changing frame of ``counted`` size (a dry run: nothing runs) and, when ``timed``,
     the frame's wall time at ``view`` on this machine's renderer (the median of :data:`TIMED_FRAMES`
     after one untimed)."""
-    from ...runtime.corrector import Corrector
-    from ...runtime.gl import headless_context, release, render_target, upload_texture, write_texture
-    from .cost import eye_frame_cost
+    from ...runtime.corrector import (
+        Corrector,  # on use: start-up time (the CLI imports the studies to build its parser)
+    )
+    from ...runtime.gl import (  # on use: start-up time (the CLI imports the studies to build its parser)
+        headless_context,
+        release,
+        render_target,
+        upload_texture,
+        write_texture,
+    )
+    from .cost import eye_frame_cost  # on use: start-up time (the CLI imports the studies to build its parser)
 
     ctx = headless_context(require=430)
     rng = np.random.default_rng(5)
@@ -313,7 +325,7 @@ def _markdown(report: dict) -> str:
 
 
 def _plot(report: dict, path: Path) -> None:
-    from ..plots import pyplot, save_figure
+    from ..plots import pyplot, save_figure  # on use: start-up time (the CLI imports the studies to build its parser)
 
     plt = pyplot()
     cases = report["cases"]

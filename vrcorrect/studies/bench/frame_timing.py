@@ -64,7 +64,7 @@ def time_frames(ctx: Any, subjects: Sequence[Subject], frames: int, warm_up_s: f
     """Time ``frames`` changing and ``frames`` cold frames of each subject (module docstring);
     returns, per subject, ``{"changing": KindTimes, "cold": KindTimes}``.  ``progress`` is called
     after each run of one subject's frames of one kind."""
-    from ...runtime.gl import timer_query_ms
+    from ...runtime.gl import timer_query_ms  # on use: start-up time (the CLI imports the studies to build its parser)
 
     query = ctx.query(time=True)
     shown = [0]

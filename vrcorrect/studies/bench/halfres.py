@@ -105,7 +105,10 @@ class HalfResolutionFrames:
     blended with the target by the coarse guard's weight."""
 
     def __init__(self, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int]):
-        from ...solvers.realtime import AdmmFrames, coarse_eye_kernel
+        from ...solvers.realtime import (  # on use: start-up time (the CLI imports the studies to build its parser)
+            AdmmFrames,
+            coarse_eye_kernel,
+        )
 
         H, W = shape
         self.shape = (H, W)
@@ -137,8 +140,8 @@ def run_halfres_video(size: int = 256, frames: int = 90, display_name: str = VID
     """The held-out clips (:func:`~vrcorrect.studies.bench.sequences.held_out`) for ``eye`` on
     ``display_name``: none, ``fast`` per frame, the real-time default and :class:`HalfResolutionFrames`,
     scored as video (the real-time bench's ``score_clip``): a row per clip."""
-    from . import realtime as rt
-    from .sequences import held_out
+    from . import realtime as rt  # on use: start-up time (the CLI imports the studies to build its parser)
+    from .sequences import held_out  # on use: start-up time (the CLI imports the studies to build its parser)
 
     case = rt.make_case(display_name, dict(eye))
     rows = []
@@ -179,8 +182,8 @@ def run_halfres_bench(displays: Sequence[str] = DISPLAYS, spheres: Sequence[floa
     (module docstring), a summary by band, with ``video`` the held-out clips as video
     (:func:`run_halfres_video`), the markdown; writes the ``halfres`` section of ``out`` and, with
     ``json_out``, the JSON."""
-    from .sequences import photo                       # scikit-image's photographs
-    from ...vision.vdp import jod                  # the judge (torch), on use
+    from ...vision.vdp import jod  # the judge (torch), on use
+    from .sequences import photo  # scikit-image's photographs
 
     picture = photo(image, size)
     cases = list(itertools.product(displays, spheres, cylinders))

@@ -39,9 +39,9 @@ from ...runtime.onnx_backend import small_onnx_model
 from ...solvers import make_problem, objective, solve
 from ...solvers.fista import gradient_plan, projected_gradient
 from ...specs.display import decode, get_display
+from ...specs.vocabulary import Method
 from ...vision.metrics import evaluate_seen
 from ..plots import pyplot, save_figure
-from ...specs.vocabulary import Method
 from . import machine_description, markdown_table, median_seconds, write_section
 
 EYE_SEED = 20261123
@@ -103,8 +103,13 @@ def speed_floor(size: tuple[int, int] = (512, 512), repeats: int = 5,
         ("one 3x3 convolution, 6 to 3 channels", _median_ms(lambda: session.run(None, feeds), repeats))]
     try:
         # torch: only this bench's model export needs it
-        from ...learn.export import onnx_bytes
-        from ...learn.model import ConditionedUNet, UNetConfig
+        from ...learn.export import (
+            onnx_bytes,  # on use: start-up time (the CLI imports the studies to build its parser)
+        )
+        from ...learn.model import (  # on use: start-up time (the CLI imports the studies to build its parser)
+            ConditionedUNet,
+            UNetConfig,
+        )
     except ImportError:                                    # torch: the learn extra
         return out + [(f"U-Net width {w}, depth {d} (untrained)", None) for w, d in unets]
     image = {"image": rng.random((1, 3, H, W), dtype=np.float32),

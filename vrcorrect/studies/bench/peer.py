@@ -20,6 +20,7 @@ torch is imported only here, inside the functions (layer 6; the real-time path n
 from __future__ import annotations
 
 import statistics
+import time
 from typing import Any
 
 import numpy as np
@@ -35,7 +36,7 @@ PEERS = ("torch",)
 def peer_device() -> tuple[Any, str]:
     """``(torch.device("cuda"), name)`` where torch sees a CUDA device, else ``(None, why)``."""
     try:
-        import torch
+        import torch  # on use: torch (the learn extra; heavy)
     except ImportError:
         return None, "torch is not installed"
     if not torch.cuda.is_available():
@@ -55,10 +56,17 @@ class TorchAdmmPeer:
 
     def __init__(self, kernel: Any, reference: Any, shape: tuple[int, int], device: Any,
                  grid_kernel_size: int | None = None):
-        import torch
+        import torch  # on use: torch (the learn extra; heavy)
 
-        from ...solvers.realtime import ADMM_RELAXATION, admm_grid, admm_weights
-        from ...solvers.spectral import hermitian_inverse, kernel_spectrum
+        from ...solvers.realtime import (  # on use: start-up time (the CLI imports the studies to build its parser)
+            ADMM_RELAXATION,
+            admm_grid,
+            admm_weights,
+        )
+        from ...solvers.spectral import (  # on use: start-up time (the CLI imports the studies to build its parser)
+            hermitian_inverse,
+            kernel_spectrum,
+        )
 
         H, W = (int(v) for v in shape)
         self.shape, self.device = (H, W), device
@@ -87,23 +95,23 @@ class TorchAdmmPeer:
     # ------------------------------------------------------------------ the pieces
 
     def _fft(self, a: Any) -> Any:
-        import torch
+        import torch  # on use: torch (the learn extra; heavy)
 
         return torch.fft.rfft2(a, s=self.grid)
 
     def _ifft(self, A: Any) -> Any:
-        import torch
+        import torch  # on use: torch (the learn extra; heavy)
 
         return torch.fft.irfft2(A, s=self.grid)
 
     @staticmethod
     def _apply3(M: Any, X: Any) -> Any:
-        import torch
+        import torch  # on use: torch (the learn extra; heavy)
 
         return torch.einsum("ijyx,jyx->iyx", M, X)
 
     def _on_grid(self, image: Any) -> Any:
-        import torch
+        import torch  # on use: torch (the learn extra; heavy)
 
         H, W = self.shape
         g = torch.zeros((3,) + self.grid, dtype=torch.float32, device=self.device)
@@ -111,12 +119,12 @@ class TorchAdmmPeer:
         return g
 
     def _prox(self, w: Any, T: Any) -> Any:
-        import torch
+        import torch  # on use: torch (the learn extra; heavy)
 
         return torch.where(self.inside, self.keep * w + (1.0 - self.keep) * T, w)
 
     def _proj(self, q: Any) -> Any:
-        import torch
+        import torch  # on use: torch (the learn extra; heavy)
 
         return torch.where(self.inside, q.clamp(0.0, 1.0), torch.zeros_like(q))
 
@@ -127,7 +135,7 @@ class TorchAdmmPeer:
     def frame(self, t: Any, iterations: int) -> tuple[Any, Any, Any]:
         """One frame for a ``(3, H, W)`` float32 target on the device: ``(shown (3, H, W), beta,
         objective)``, the last two 0-d tensors (no read-back: nothing waits for the GPU)."""
-        import torch
+        import torch  # on use: torch (the learn extra; heavy)
 
         H, W = self.shape
         tg = self._on_grid(t)
@@ -173,12 +181,11 @@ def time_torch_peer(kernel: Any, reference: Any, size: tuple[int, int], iteratio
     """Time the peer's changing-content frames for one eye at ``size`` (``W, H``) on the CUDA device:
     ``{"status": "run", "device", "gpu_ms" (median), "frames_ms", "graph" (captured or not)}``, or
     ``{"status": NO_DEVICE, "reason"}`` where there is none."""
-    import time
 
     device, name = peer_device()
     if device is None:
         return {"status": NO_DEVICE, "reason": name}
-    import torch
+    import torch  # on use: torch (the learn extra; heavy)
 
     W, H = size
     peer = TorchAdmmPeer(kernel, reference, (H, W), device, grid_kernel_size)
@@ -229,9 +236,11 @@ def peer_against_twin(kernel: Any, reference: Any, device: Any, shape: tuple[int
     """The peer against :class:`~vrcorrect.solvers.realtime.AdmmFrames` (single precision, no
     half-resolution cold start) on ``frames`` random ``shape`` frames, the first cold: the largest
     difference of the frames shown, of the guard's weights and of the objectives (relative)."""
-    import torch
+    import torch  # on use: torch (the learn extra; heavy)
 
-    from ...solvers.realtime import AdmmFrames
+    from ...solvers.realtime import (
+        AdmmFrames,  # on use: start-up time (the CLI imports the studies to build its parser)
+    )
 
     H, W = shape
     twin = AdmmFrames(kernel, reference, (H, W), precision="single", cold_iterations=0)

@@ -34,6 +34,7 @@ shrinks everything (48 px, a few frames, no JOD, no held-out renders) for tests.
 
 from __future__ import annotations
 
+import json
 import os
 import statistics
 import subprocess
@@ -55,9 +56,9 @@ from ...solvers import Problem, make_problem, solve
 from ...solvers.realtime import frames_twin
 from ...specs.display import decode, encode, get_display
 from ...specs.prescription import EyeRx, Prescription
+from ...specs.vocabulary import Method
 from ...vision.forward import lms_to_display, simulate_lms
 from ..plots import pyplot, save_figure
-from ...specs.vocabulary import Method
 from . import machine_description, markdown_table, write_section
 from .sequences import BenchClip, held_out, photo, save_clip, suite
 
@@ -304,7 +305,6 @@ def held_out_renders(case: Case, clips: Sequence[BenchClip], workdir: Path) -> d
     settings (the right eye of a prescription file of the bench's eye, ``--display desktop``) in a
     process where torch cannot be imported, then scored as video (what the eye sees of the rendered
     frames) against no correction and ``fast`` per frame."""
-    import json
 
     from ...plumbing.clips import read_clip  # the same reader the command uses
 

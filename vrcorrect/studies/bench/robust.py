@@ -75,7 +75,9 @@ def held_out_image(name: str, size: int = SIZE) -> np.ndarray:
     """A held-out image, sRGB code values ``(size, size, 3)`` float32."""
     from skimage import data  # optional: scikit-image (the metrics and test extras)
 
-    from ...plumbing.images import prepare_image
+    from ...plumbing.images import (
+        prepare_image,  # on use: start-up time (the CLI imports the studies to build its parser)
+    )
 
     if name == "motorcycle":
         raw = data.stereo_motorcycle()[0][..., :3]
@@ -97,8 +99,12 @@ def _realtime(design, target: np.ndarray, frames: int = REALTIME_FRAMES) -> np.n
 
 def _learned(design, display, target: np.ndarray, problem) -> np.ndarray:
     """The shipped learned model (``models/default.onnx``) on the same design (its effective kernel)."""
-    from ...runtime.model_path import DEFAULT_MODEL
-    from ...runtime.unrolled import UnrolledModel
+    from ...runtime.model_path import (
+        DEFAULT_MODEL,  # on use: start-up time (the CLI imports the studies to build its parser)
+    )
+    from ...runtime.unrolled import (
+        UnrolledModel,  # on use: start-up time (the CLI imports the studies to build its parser)
+    )
 
     bound = UnrolledModel(DEFAULT_MODEL).for_eye(EYE.with_changes(pupil_diameter_mm=design.pupil_mm), display,
                                                  design.kernel, design.reference)
@@ -113,7 +119,9 @@ def _case(display_name: str, image_name: str, bar, kernels: dict, size: int = SI
     target = decode(display, codes).astype(np.float32)
     estimate = pupil_from_light(float(np.mean(target.astype(np.float64) @ luminance_weights(display))), display)
     p = estimate.diameter_mm                      # the eye as it is sees through this pupil
-    from ...runtime.pupil_bank import nearest_bank_pupil
+    from ...runtime.pupil_bank import (
+        nearest_bank_pupil,  # on use: start-up time (the CLI imports the studies to build its parser)
+    )
 
     entry = nearest_bank_pupil(p)                 # the default designs for the pupil bank's nearest entry
     shown: dict[str, np.ndarray] = {"none": target}
@@ -201,8 +209,11 @@ def _twin_run(design, frames: Sequence[np.ndarray], motions: Sequence[Any]) -> l
 
 
 def _seen(kernel, shown: Sequence[np.ndarray]) -> np.ndarray:
-    from ...specs.display import encode
-    from ...vision.forward import lms_to_display, simulate_lms
+    from ...specs.display import encode  # on use: start-up time (the CLI imports the studies to build its parser)
+    from ...vision.forward import (  # on use: start-up time (the CLI imports the studies to build its parser)
+        lms_to_display,
+        simulate_lms,
+    )
 
     return np.stack([encode("srgb", lms_to_display(simulate_lms(x, kernel)[0], kernel)) for x in shown])
 
@@ -211,9 +222,9 @@ def motion_suite(kernels: dict, size: int = VIDEO_SIZE, frames: int = 90) -> lis
     """The real-time default's share of per-frame ``fast``'s video JOD gain on the motion suite, the
     robust design and the one eye's at the same pupil (what the eye as modelled sees, against its view
     with glasses)."""
-    from ...vision.vdp import video_jod
-    from .realtime import _motions, linear
-    from .sequences import suite
+    from ...vision.vdp import video_jod  # on use: start-up time (the CLI imports the studies to build its parser)
+    from .realtime import _motions, linear  # on use: start-up time (the CLI imports the studies to build its parser)
+    from .sequences import suite  # on use: start-up time (the CLI imports the studies to build its parser)
 
     display = get_display(VIDEO_DISPLAY)
     designs = {"robust": design_eye(EYE, display, VIDEO_PUPIL_MM, kernels=kernels),
@@ -236,8 +247,11 @@ def motion_suite(kernels: dict, size: int = VIDEO_SIZE, frames: int = 90) -> lis
 
 
 def _ref_frame(kernel, reference, x: np.ndarray) -> np.ndarray:
-    from ...specs.display import encode
-    from ...vision.forward import lms_to_display, simulate_lms
+    from ...specs.display import encode  # on use: start-up time (the CLI imports the studies to build its parser)
+    from ...vision.forward import (  # on use: start-up time (the CLI imports the studies to build its parser)
+        lms_to_display,
+        simulate_lms,
+    )
 
     return encode("srgb", lms_to_display(simulate_lms(x, reference)[0], kernel))
 
@@ -251,12 +265,17 @@ def dark_to_bright(kernels: dict, size: int = VIDEO_SIZE, dark_frames: int = 30,
     frame through its pupil of the moment (the nearest bank entry's kernel).  Judged as video after
     the cut (ColorVideoVDP against its glasses-on view), with each frame's largest change of code
     values from the last: at the switches and elsewhere after the cut."""
-    from ...physics.pupil import PupilDynamics
-    from ...runtime.pupil_bank import PupilFollower, nearest_bank_pupil
-    from ...specs.display import encode
-    from ...vision.vdp import video_jod
-    from .realtime import linear
-    from .sequences import photo
+    from ...physics.pupil import (
+        PupilDynamics,  # on use: start-up time (the CLI imports the studies to build its parser)
+    )
+    from ...runtime.pupil_bank import (  # on use: start-up time (the CLI imports the studies to build its parser)
+        PupilFollower,
+        nearest_bank_pupil,
+    )
+    from ...specs.display import encode  # on use: start-up time (the CLI imports the studies to build its parser)
+    from ...vision.vdp import video_jod  # on use: start-up time (the CLI imports the studies to build its parser)
+    from .realtime import linear  # on use: start-up time (the CLI imports the studies to build its parser)
+    from .sequences import photo  # on use: start-up time (the CLI imports the studies to build its parser)
 
     display = get_display(VIDEO_DISPLAY)
     bright = photo("astronaut", size)
@@ -323,7 +342,7 @@ def dark_to_bright(kernels: dict, size: int = VIDEO_SIZE, dark_frames: int = 30,
 
 
 def _plot(cases: list[dict], path: Path) -> None:
-    from ..plots import pyplot, save_figure
+    from ..plots import pyplot, save_figure  # on use: start-up time (the CLI imports the studies to build its parser)
 
     plt = pyplot()
     fig, axes = plt.subplots(1, len(cases), figsize=(4.2 * len(cases), 3.6), squeeze=False)

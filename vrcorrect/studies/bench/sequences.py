@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -60,9 +61,11 @@ def photo(name: str, side: int) -> np.ndarray:
 def text_page(width: int, height: int, words: tuple[str, ...] | list[str] = WORDS, font_px: int = 14,
               ink: tuple[int, int, int] = (20, 20, 30), paper: tuple[int, int, int] = (245, 245, 240)) -> np.ndarray:
     """A page of dark text on light paper, ``height`` x ``width`` 8-bit RGB (Pillow's default font)."""
-    from PIL import Image, ImageDraw
+    from PIL import Image, ImageDraw  # on use: Pillow (start-up time)
 
-    from ...runtime.shell.text import default_font
+    from ...runtime.shell.text import (
+        default_font,  # on use: start-up time (the CLI imports the studies to build its parser)
+    )
 
     img = Image.new("RGB", (width, height), paper)
     draw, font = ImageDraw.Draw(img), default_font(font_px)
@@ -109,8 +112,17 @@ def head_turn(ctx: Any, size: int, frames: int, deg_per_frame: float = TURN_DEG,
               frame_s: float = 1 / 90) -> list[np.ndarray]:
     """The mirror's demo scene seen by the right eye while the head turns left ``deg_per_frame``
     degrees a frame (rendered on ``ctx``)."""
-    from ...runtime.gl import download_texture
-    from ...runtime.shell.scene import DemoScene, SceneConfig, eye_position, perspective, rotation_y, translation
+    from ...runtime.gl import (
+        download_texture,  # on use: start-up time (the CLI imports the studies to build its parser)
+    )
+    from ...runtime.shell.scene import (  # on use: start-up time (the CLI imports the studies to build its parser)
+        DemoScene,
+        SceneConfig,
+        eye_position,
+        perspective,
+        rotation_y,
+        translation,
+    )
 
     config = SceneConfig()
     projection = perspective(config.fov_y_deg, 1.0, 0.05, 60.0)
@@ -177,9 +189,8 @@ def held_out(size: int = 256, frames: int = 90) -> list[BenchClip]:
 
 def save_clip(clip: BenchClip, folder: Any) -> None:
     """Write ``clip``'s frames as ``frame_00000.png``... into ``folder`` (made)."""
-    from pathlib import Path
 
-    from PIL import Image
+    from PIL import Image  # on use: Pillow (start-up time)
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

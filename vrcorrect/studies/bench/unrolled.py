@@ -25,6 +25,7 @@ nothing here trains: JOD and FLIP are the judges, the objective is what the mode
 
 from __future__ import annotations
 
+import json
 import statistics
 import sys
 import time
@@ -159,7 +160,6 @@ def run_unrolled_bench(model_path: str | Path, out: Path = Path("docs/benchmarks
 def card_text(model: UnrolledModel, path: Path, bench_md: str) -> str:
     """The model card of an unrolled model: what it is, its ranges and displays, its training as
     the metadata states it, and the held-out figures of :func:`run_unrolled_bench` (``bench_md``)."""
-    import json
 
     train = json.loads(model.metadata.get("vrcorrect.train") or "{}")
     cfg = train.get("config") or {}
@@ -225,8 +225,8 @@ def after_a_cut(model: UnrolledModel, size: int = 256, frames: int = 90, display
     unlearned twin's stages (what the learning adds), judged as
     video against no correction and ``fast`` on every frame (:func:`~vrcorrect.studies.bench.realtime.score_clip`),
     on the real-time bench's eye and display (``display_name``: another)."""
-    from . import realtime as R
-    from .sequences import held_out
+    from . import realtime as R  # on use: start-up time (the CLI imports the studies to build its parser)
+    from .sequences import held_out  # on use: start-up time (the CLI imports the studies to build its parser)
 
     clip = next(c for c in held_out(size, frames) if c.name == "cut")
     display_name = display_name or R.DISPLAY
