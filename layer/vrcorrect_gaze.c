@@ -57,7 +57,7 @@ static struct {
     PFN_xrGetActionStatePose GetActionStatePose;
 } G;
 
-/* The layer configuration file, as vrcorrect.runtime.layer.engine.config_path finds it. */
+/* The layer configuration file, as vrcorrect.runtime.layer.config.config_path finds it. */
 static void config_file(char *out, size_t size) {
     const char *named = getenv("VRCORRECT_LAYER_CONFIG");
     const char *xdg = getenv("XDG_CONFIG_HOME");

@@ -268,10 +268,11 @@ class LayerHeldInABuild:
 
     def __init__(self, rx, monkeypatch, tmp_path):
         from vrcorrect.runtime.layer import engine as xrlayer
+        from vrcorrect.runtime.layer.config import LOG_ENV
 
         self.held = Held(monkeypatch)
         self.log = tmp_path / "layer.log"
-        self.engine = xrlayer.Engine(env={xrlayer.LOG_ENV: str(self.log)})
+        self.engine = xrlayer.Engine(env={LOG_ENV: str(self.log)})
         self.source = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",))
         self.engine._source = self.source
         self.source.adjust("right", (0.25, 0.0, 0.0))

@@ -19,7 +19,7 @@ from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.runtime.eye_model import DEFAULT_ITERATIONS, CorrectorOptions
 from vrcorrect.runtime.strategies import STRATEGIES
 from vrcorrect.runtime.shell.keys import ITERATION_KEYS, next_iterations
-from vrcorrect.runtime.layer.engine import eye_of_view
+from vrcorrect.runtime.layer.config import eye_of_view
 from vrcorrect.solvers import LEARNED, METHODS
 from vrcorrect.solvers.realtime import AdmmFrames
 from vrcorrect.specs.prescription import problems_in, template_text

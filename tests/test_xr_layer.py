@@ -538,17 +538,19 @@ def test_install_refuses_a_bad_prescription_or_display_before_writing(kit, tmp_p
 def test_the_engine_never_imports_torch_or_the_apps():
     import ast
 
-    tree = ast.parse((ROOT / "vrcorrect" / "runtime" / "xrlayer.py").read_text())
-    names = {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
-    names |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
-    assert not any("torch" in n or "apps" in n for n in names), names
+    names = set()
+    for path in sorted((ROOT / "vrcorrect" / "runtime" / "layer").glob("*.py")):
+        tree = ast.parse(path.read_text())
+        names |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+        names |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    assert "corrector" in names and not any("torch" in n or "apps" in n for n in names), names
 
 
 def test_the_priming_budget_reads_seconds_or_converge_and_names_a_bad_value():
     import math
 
     from vrcorrect.plumbing.errors import ValidationError
-    from vrcorrect.runtime.layer.engine import PRIME_BUDGET_S, PRIME_ENV, prime_budget
+    from vrcorrect.runtime.layer.config import PRIME_BUDGET_S, PRIME_ENV, prime_budget
 
     assert prime_budget({}) == PRIME_BUDGET_S == 1.0
     assert prime_budget({PRIME_ENV: " 2.5 "}) == 2.5 and prime_budget({PRIME_ENV: "0"}) == 0.0

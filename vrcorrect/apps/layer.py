@@ -26,10 +26,21 @@ from pathlib import Path
 from typing import Mapping
 
 from ..plumbing.errors import InputError, ValidationError
+from ..runtime.layer.build import (
+    CFG,
+    LIBRARY,
+    MARK,
+    SOURCE_DIR,
+    build_layer,
+    manifest_text,
+    packaged_library,
+    stale_sources,
+    write_cfg,
+)
+from ..runtime.layer.config import DISABLE_ENV, LAYER_NAME, OFF_ENV, config_path, log_path, off_file, read_config
 from ..specs.vocabulary import PERIPHERY_DESCRIPTIONS, Periphery, names
-from ..runtime.layer.build import CFG, LIBRARY, MARK, SOURCE_DIR, build_layer, manifest_text, packaged_library, \
-    stale_sources, write_cfg
-from ..runtime.layer.engine import DISABLE_ENV, LAYER_NAME, OFF_ENV, config_path, log_path, off_file, read_config
+from .common import parse_fovea, parse_gaze, parse_pupil
+from .realtime_options import parse_budget
 
 MANIFEST = "vrcorrect_layer.json"
 
@@ -87,10 +98,10 @@ def layer_library(env: Mapping[str, str] | None = None) -> tuple[Path, str]:
 
 
 def cmd_install(args: argparse.Namespace, env: Mapping[str, str] | None = None) -> int:
-    from ..specs.display import get_display
-    from ..specs.prescription import load_prescription
-    from .common import parse_fovea, parse_gaze, parse_pupil
-    from .realtime_options import parse_budget
+    from ..specs.display import get_display  # on use: start-up time (apps/__init__: the parser loads no layer below)
+    from ..specs.prescription import (
+        load_prescription,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+    )
 
     env = _env(env)
     rx = Path(args.rx).expanduser().resolve() if args.rx else None
@@ -199,8 +210,12 @@ def status_lines(env: Mapping[str, str] | None = None, tail: int = 10) -> list[s
         if config.rx is None:
             lines.append("prescription: none (frames pass through until one is set)")
         else:
-            from ..plumbing.errors import VrcorrectError
-            from ..specs.prescription import load_prescription
+            from ..plumbing.errors import (
+                VrcorrectError,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+            )
+            from ..specs.prescription import (
+                load_prescription,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+            )
 
             try:
                 load_prescription(config.rx)
@@ -210,7 +225,9 @@ def status_lines(env: Mapping[str, str] | None = None, tail: int = 10) -> list[s
         lines.append(f"display: {config.display or 'the preset matching the runtime view size, else quest2'}")
         # the Corrector's own defaults where the configuration does not say (rx, robust off): the layer's
         # corrections are pinned to a Corrector's of the same options by its tests
-        from ..runtime.eye_model import CorrectorOptions
+        from ..runtime.eye_model import (
+            CorrectorOptions,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+        )
 
         pupil = config.options.get("pupil", CorrectorOptions.pupil)
         robust = config.options.get("robust", CorrectorOptions.robust)

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from ...plumbing.errors import InputError
-from .engine import DISABLE_ENV, LAYER_NAME
+from .config import DISABLE_ENV, LAYER_NAME
 
 PACKAGE = Path(__file__).resolve().parents[2]          # vrcorrect/
 ROOT = PACKAGE.parent                                   # a checkout (layer/ beside vrcorrect/), or site-packages

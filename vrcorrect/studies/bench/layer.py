@@ -30,7 +30,7 @@ from ...plumbing.fileio import package_data
 from ...plumbing.imageio import read_image
 from ...runtime.layer.build import build_layer, manifest_text
 from . import machine_description, markdown_table, write_section
-from .xr import x_display, build_test_runtime
+from .xr import build_test_runtime, x_display
 
 TESTS = Path(__file__).resolve().parents[3] / "tests"
 APPS = {"OpenGL": (TESTS / "xr_gl_app" / "xr_gl_app.c", ["-lGL", "-lX11"]),
@@ -62,7 +62,7 @@ def _compile(api: str, folder: Path) -> Path:
 def _picture(width: int, height: int, folder: Path) -> dict[str, Path]:
     """The sample image, cropped to the view's aspect and resized, as each application reads it
     (RGBA8; GL rows bottom first, Vulkan rows top first)."""
-    from PIL import Image
+    from PIL import Image  # on use: Pillow (start-up time)
 
     rgb = np.round(read_image(package_data("sample.png")) * 255).astype(np.uint8)      # (H, W, 3) codes
     h, w = rgb.shape[:2]
@@ -80,7 +80,7 @@ def _picture(width: int, height: int, folder: Path) -> dict[str, Path]:
 def _measure(api: str, app: Path, manifest: Path, layer_dir: Path, picture: Path, size: tuple[int, int],
              lines: int, folder: Path) -> list[tuple[float | None, ...]]:
     """Run ``app`` with the layer until ``lines`` + 1 timing lines were logged; their values (the first left out)."""
-    import xr
+    import xr  # on use: pyopenxr (optional: the realtime extra)
 
     out = folder / f"{api}_{size[0]}x{size[1]}"
     out.mkdir()
@@ -150,7 +150,9 @@ def run_layer_bench(repeats: int = 3, out: Path = Path("docs/benchmarks.md"), wr
             for api, app in apps.items():
                 values = _measure(api, app, manifest, layer_dir, pictures[api], size, repeats, folder)
                 rows.append([f"{size[0]}x{size[1]}", api, *(_median(values, i) for i in range(len(COLUMNS)))])
-    from ...runtime.eye_model import CorrectorOptions
+    from ...runtime.eye_model import (
+        CorrectorOptions,  # on use: start-up time (the CLI imports the studies to build its parser)
+    )
 
     options = CorrectorOptions()
     steps = []

@@ -1,0 +1,230 @@
+"""The OpenXR API layer's configuration and environment: the layer's names, the variables it reads
+(``VRCORRECT_LAYER_CONFIG``, ``VRCORRECT_RX``, ``VRCORRECT_LAYER_OFF``, ``VRCORRECT_LAYER_LOG``,
+``VRCORRECT_LAYER_PRIME_S``), where its configuration, off switch and log lie, the configuration
+itself (:class:`LayerConfig`, :func:`read_config`), its log (one line a reason) and the display
+chosen for the runtime's view size.
+
+Configuration (:class:`LayerConfig`): ``$XDG_CONFIG_HOME/vrcorrect/layer.json`` (or the file named by
+``VRCORRECT_LAYER_CONFIG``) with ``rx`` (prescription path), ``display`` (preset or profile path;
+absent: the preset whose per-eye resolution equals the runtime's recommended view size, else
+``quest2``), ``options`` (:class:`~vrcorrect.runtime.eye_model.CorrectorOptions` fields).
+``VRCORRECT_RX`` overrides ``rx``.  Off switch: ``VRCORRECT_LAYER_OFF=1`` or the file
+``layer.off`` beside the configuration (checked every quarter second: on and off live).
+Log: ``VRCORRECT_LAYER_LOG``, else ``$XDG_STATE_HOME/vrcorrect/layer.log`` (``~/.local/state``).
+
+Layer 5: plain Python; never torch, never :mod:`vrcorrect.apps`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Mapping
+
+from ...plumbing.errors import InputError, ValidationError
+from ...specs.display import get_display, preset_names
+from ...specs.vocabulary import VIEW_ORDER
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+
+    from ...specs.display import DisplayProfile
+
+__all__ = ["BUILD_NICE", "CAPTURE_WAIT_S", "CLOSE_WAIT_S", "CONFIG_ENV", "DISABLE_ENV", "LAYER_NAME", "LOG_ENV",
+           "LayerConfig", "OFF_ENV", "PRIME_BUDGET_S", "PRIME_ENV", "PRIME_MAX_FRAMES", "RX_ENV",
+           "choose_display", "config_path", "eye_of_view", "log_path", "off_file", "prime_budget",
+           "read_config"]
+
+LAYER_NAME = "XR_APILAYER_VRCORRECT_correction"
+DISABLE_ENV = "DISABLE_VRCORRECT_LAYER"      # the manifest's disable_environment: the loader skips the layer
+OFF_ENV = "VRCORRECT_LAYER_OFF"              # the engine's live off switch (the layer stays loaded)
+CONFIG_ENV = "VRCORRECT_LAYER_CONFIG"
+RX_ENV = "VRCORRECT_RX"
+LOG_ENV = "VRCORRECT_LAYER_LOG"
+_CHECK_INTERVAL_S = 0.25
+_REPORT_INTERVAL_S = 1.0
+CAPTURE_WAIT_S = 2.0
+PRIME_MAX_FRAMES = 40
+PRIME_ENV = "VRCORRECT_LAYER_PRIME_S"
+PRIME_BUDGET_S = 1.0
+BUILD_NICE = 10
+CLOSE_WAIT_S = 30.0
+_NEVER = object()
+
+
+def _config_home(env: Mapping[str, str]) -> Path:
+    base = env.get("XDG_CONFIG_HOME") or str(Path(env.get("HOME") or Path.home()) / ".config")
+    return Path(base)
+
+
+def config_path(env: Mapping[str, str] | None = None) -> Path:
+    """The layer configuration file (``VRCORRECT_LAYER_CONFIG`` or ``$XDG_CONFIG_HOME/vrcorrect/layer.json``)."""
+    env = os.environ if env is None else env
+    named = env.get(CONFIG_ENV)
+    return Path(named) if named else _config_home(env) / "vrcorrect" / "layer.json"
+
+
+def off_file(env: Mapping[str, str] | None = None) -> Path:
+    """The off switch file: while it exists the layer passes every frame through."""
+    return config_path(env).with_name("layer.off")
+
+
+def log_path(env: Mapping[str, str] | None = None) -> Path:
+    """Where the layer (C shim and engine) appends its log lines."""
+    env = os.environ if env is None else env
+    if env.get(LOG_ENV):
+        return Path(env[LOG_ENV])
+    state = env.get("XDG_STATE_HOME") or str(Path(env.get("HOME") or Path.home()) / ".local" / "state")
+    return Path(state) / "vrcorrect" / "layer.log"
+
+
+def prime_budget(env: Mapping[str, str] | None = None) -> float:
+    """The priming budget in seconds (:data:`PRIME_BUDGET_S`; ``VRCORRECT_LAYER_PRIME_S``: seconds,
+    or ``converge`` for no budget but :data:`PRIME_MAX_FRAMES`).
+
+    Raises
+    ------
+    ValidationError
+        The variable is neither a number of seconds from 0 to 60 nor ``converge``.
+    """
+    env = os.environ if env is None else env
+    text = env.get(PRIME_ENV, "").strip()
+    if not text:
+        return PRIME_BUDGET_S
+    if text == "converge":
+        return math.inf
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 <= value <= 60.0:
+        raise ValidationError(PRIME_ENV, text, "seconds from 0 to 60, or 'converge'")
+    return value
+
+
+def eye_of_view(view: int) -> str:
+    """``"left"`` for view 0, ``"right"`` for view 1 (``PRIMARY_STEREO``,
+    :data:`~vrcorrect.specs.vocabulary.VIEW_ORDER`); other views are refused."""
+    if view in (0, 1):
+        return VIEW_ORDER[int(view)]
+    raise ValidationError("view", view, "0 (left eye) or 1 (right eye): stereo projection views only")
+
+
+@dataclass(frozen=True)
+class LayerConfig:
+    """What the layer corrects with: read from the configuration file and the environment."""
+
+    rx: Path | None = None
+    display: str | None = None
+    options: Mapping[str, Any] = field(default_factory=dict)
+    source: Path | None = None              # the configuration file it came from (None: none found)
+
+
+def read_config(env: Mapping[str, str] | None = None) -> LayerConfig:
+    """The configuration (file, then ``VRCORRECT_RX``).  A missing file is an empty configuration.
+
+    Raises
+    ------
+    InputError
+        The file exists but cannot be read or is not a JSON object.
+    ValidationError
+        A field of the wrong type.
+    """
+    env = os.environ if env is None else env
+    path = config_path(env)
+    doc: dict[str, Any] = {}
+    source = None
+    if path.exists():
+        try:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"{path}: cannot read the layer configuration: {exc}") from None
+        if not isinstance(doc, dict):
+            raise InputError(f"{path}: the layer configuration must be a JSON object")
+        source = path
+    rx = doc.get("rx")
+    if rx is not None and not isinstance(rx, str):
+        raise ValidationError("rx", rx, "a prescription JSON path", source=str(path))
+    display = doc.get("display")
+    if display is not None and not isinstance(display, str):
+        raise ValidationError("display", display, "a display preset name or profile path", source=str(path))
+    options = doc.get("options", {})
+    if not isinstance(options, dict):
+        raise ValidationError("options", options, "an object of corrector options", source=str(path))
+    if env.get(RX_ENV):
+        rx = env[RX_ENV]
+    rx_path = None
+    if rx:
+        rx_path = Path(rx).expanduser()
+        if not rx_path.is_absolute() and source is not None:
+            rx_path = source.parent / rx_path
+    return LayerConfig(rx=rx_path, display=display, options=dict(options), source=source)
+
+
+class _Log:
+    """One line per event, to the log file and stderr; pass-through reasons only when they change."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.last_reason: str | None = None
+
+    def line(self, text: str) -> None:
+        stamp = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            with open(self.path, "a", encoding="utf-8") as f:
+                f.write(f"{stamp} {text}\n")
+        except OSError:
+            pass
+        try:
+            sys.stderr.write(f"vrcorrect layer: {text}\n")
+        except Exception:  # noqa: BLE001  (a closed stderr must not break the frame)
+            pass
+
+    def reason(self, text: str) -> None:
+        if text != self.last_reason:
+            self.last_reason = text
+            self.line(f"pass-through: {text}")
+
+    def corrected(self) -> None:
+        self.last_reason = None
+
+
+def _off(env: Mapping[str, str]) -> str | None:
+    value = env.get(OFF_ENV, "").strip().lower()
+    if value and value not in ("0", "false", "no", "off"):
+        return f"switched off ({OFF_ENV}={env[OFF_ENV]})"
+    switch = off_file(env)
+    if switch.exists():
+        return f"switched off (the file {switch} exists)"
+    return None
+
+
+def choose_display(name: str | None, view_size: tuple[int, int]) -> tuple[DisplayProfile, str]:
+    """The display profile and why it was chosen: the user's, else the preset whose per-eye
+    resolution equals the runtime's recommended view size, else ``quest2``."""
+
+    if name:
+        return get_display(name), "configured"
+    for key in preset_names():
+        try:
+            profile = get_display(key)
+        except Exception:  # noqa: BLE001
+            continue
+        if profile.kind == "headset" and profile.resolution_px == tuple(view_size):
+            return profile, f"matches the runtime's view size {view_size[0]}x{view_size[1]}"
+    return get_display("quest2"), (f"no preset has the runtime's view size {view_size[0]}x{view_size[1]}; "
+                                   "set display in the layer configuration")
+
+
+def _one_line(exc: BaseException) -> str:
+    text = _one_line_text(str(exc))
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _one_line_text(text: str) -> str:
+    return " ".join(text.split())
