@@ -48,11 +48,25 @@ LOG_ENV = "VRCORRECT_LAYER_LOG"
 _CHECK_INTERVAL_S = 0.25
 _REPORT_INTERVAL_S = 1.0
 CAPTURE_WAIT_S = 2.0
+"""How long a build waits for the application's next frame to prime its correction on (no frame: it
+is handed over unprimed, warmed up only)."""
 PRIME_MAX_FRAMES = 40
+"""Frames a build corrects a captured view for at most before handing over (converged sooner)."""
 PRIME_ENV = "VRCORRECT_LAYER_PRIME_S"
 PRIME_BUDGET_S = 1.0
+"""Seconds a build primes its correction for at most (all eyes together; ``VRCORRECT_LAYER_PRIME_S``
+sets another, ``converge`` none).  On a GPU priming converges well inside it (a frame's iterations
+take milliseconds); on a software renderer, where a frame of both eyes at 96x64 takes 0.1-0.2 s and
+a still scene needs some 35 frames, the correction is handed over after the budget and goes on
+converging on the application's frames, as it does after any cut, instead of keeping the
+application uncorrected for seconds more."""
 BUILD_NICE = 10
+"""The build worker's CPU priority (Linux nice value, per thread): the application's threads come first.
+Not the lowest: the worker holds Python's lock between its GL calls, and a worker the scheduler leaves
+waiting while it holds it keeps the application's ``xrEndFrame`` waiting too (nice 19 on a busy machine
+held passed-through frames up to 0.54 s on the lock; nice 10, 0.12 s)."""
 CLOSE_WAIT_S = 30.0
+"""How long the instance's end waits for an eye-model build still running (:meth:`Engine.close`)."""
 _NEVER = object()
 
 

@@ -65,23 +65,6 @@ from .vulkan import VulkanFrames
 
 __all__ = ["Engine"]
 
-"""How long a build waits for the application's next frame to prime its correction on (no frame: it
-is handed over unprimed, warmed up only)."""
-"""Frames a build corrects a captured view for at most before handing over (converged sooner)."""
-"""Seconds a build primes its correction for at most (all eyes together; ``VRCORRECT_LAYER_PRIME_S``
-sets another, ``converge`` none).  On a GPU priming converges well inside it (a frame's iterations
-take milliseconds); on a software renderer, where a frame of both eyes at 96x64 takes 0.1-0.2 s and
-a still scene needs some 35 frames, the correction is handed over after the budget and goes on
-converging on the application's frames, as it does after any cut, instead of keeping the
-application uncorrected for seconds more."""
-"""The build worker's CPU priority (Linux nice value, per thread): the application's threads come first.
-Not the lowest: the worker holds Python's lock between its GL calls, and a worker the scheduler leaves
-waiting while it holds it keeps the application's ``xrEndFrame`` waiting too (nice 19 on a busy machine
-held passed-through frames up to 0.54 s on the lock; nice 10, 0.12 s)."""
-"""How long the instance's end waits for an eye-model build still running (:meth:`Engine.close`)."""
-"""The OpenGL swapchain formats the layer corrects (``GLenum`` -> meaning)."""
-"""The Vulkan swapchain formats the layer corrects (``VkFormat`` -> meaning)."""
-"""What a pipeline is prepared for: (swapchain format code, rect width, rect height)."""
 
 
 class Engine(VulkanFrames):

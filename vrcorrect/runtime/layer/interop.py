@@ -65,6 +65,7 @@ GL_FORMATS = {
     GL_SRGB8_ALPHA8: SwapchainFormat("GL_SRGB8_ALPHA8", "srgb", 8),
     GL_RGBA8: SwapchainFormat("GL_RGBA8", "linear", 8),
 }
+"""The OpenGL swapchain formats the layer corrects (``GLenum`` -> meaning)."""
 
 VK_FORMATS = {
     97: SwapchainFormat("VK_FORMAT_R16G16B16A16_SFLOAT", "float", 16),
@@ -74,6 +75,7 @@ VK_FORMATS = {
     37: SwapchainFormat("VK_FORMAT_R8G8B8A8_UNORM", "linear", 8, "rgba8"),
     44: SwapchainFormat("VK_FORMAT_B8G8R8A8_UNORM", "linear", 8, "bgra8"),
 }
+"""The Vulkan swapchain formats the layer corrects (``VkFormat`` -> meaning)."""
 
 
 class _MemoryObjects:
@@ -208,6 +210,7 @@ class _SharedChain:
 
 
 Target = tuple[int, int, int]
+"""What a pipeline is prepared for: (swapchain format code, rect width, rect height)."""
 
 
 class _AppGlx:
