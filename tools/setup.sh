@@ -77,7 +77,7 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   .venv/bin/python -c "import vrcorrect, numpy, scipy, colour, PIL, torch, pytest, hypothesis, moderngl, glfw, onnxruntime, onnx, onnxscript, imageio_ffmpeg, mss, xr, ray" \
     || { echo "installation failed" >&2; exit 1; }
   # ColorVideoVDP (the primary perceptual score) must import beside the CPU build of torch.
-  .venv/bin/python -c "from vrcorrect.vision.metrics import _import_cvvdp; _import_cvvdp()" \
+  .venv/bin/python -c "from vrcorrect.vision.vdp import _import_cvvdp; _import_cvvdp()" \
     || { echo "installation failed: ColorVideoVDP (cvvdp) does not import" >&2; exit 1; }
   echo "$want" > "$stamp"
 fi

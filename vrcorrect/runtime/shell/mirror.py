@@ -228,7 +228,7 @@ class MirrorConfig:
         Display preset name or profile path (the correction is designed for it).
     source
         ``"demo"``, an image or video file, or a folder of images (see
-        :func:`~vrcorrect.runtime.shell.sources.parse_source`).
+        :func:`~vrcorrect.runtime.shell.source_spec.parse_source`).
     eye_size
         Each eye's ``(width, height)`` in pixels; the window is twice as wide.
     frames

@@ -383,7 +383,7 @@ class DemoScene:
 
 def open_source(ctx: "moderngl.Context", spec: SourceSpec, width: int, height: int, *,
                 scene_config: SceneConfig = SceneConfig(), folder_interval_s: float = 3.0) -> PictureFeed:
-    """The source ``spec`` (see :func:`~vrcorrect.runtime.shell.sources.parse_source`) rendering
+    """The source ``spec`` (see :func:`~vrcorrect.runtime.shell.source_spec.parse_source`) rendering
     ``width`` x ``height`` eye textures: :class:`DemoScene`, or a picture source
     (:func:`~vrcorrect.runtime.shell.sources.open_picture_source`). Each has
     ``render(t_s) -> (left, right)``, ``label``, ``size`` and ``release()``."""
