@@ -216,9 +216,9 @@ def test_parse_source_errors_name_what_is_supported(tmp_path):
 
 
 def test_video_without_ffmpeg_is_a_clear_error(tmp_path, monkeypatch):
-    import vrcorrect.runtime.shell.sources as sources
+    import vrcorrect.runtime.shell.source_spec as source_spec
 
-    monkeypatch.setattr(sources, "_ffmpeg_available", lambda: False)
+    monkeypatch.setattr(source_spec, "_ffmpeg_available", lambda: False)
     (tmp_path / "clip.mkv").write_bytes(b"")
     with pytest.raises(InputError, match="imageio-ffmpeg.*animated GIF"):
         parse_source(str(tmp_path / "clip.mkv"))
