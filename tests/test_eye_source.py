@@ -53,13 +53,13 @@ class Held:
         self.threads: list[str] = []
         real = ES.build_eye_model
 
-        def held(eye, display, options):
+        def held(eye, display, options, **kw):
             self.designed.append(eye.sphere_D)
             self.threads.append(threading.current_thread().name)
             if len(self.designed) >= hold_from:
                 self.entered.set()
                 assert self.release.wait(60)
-            return real(eye, display, options)
+            return real(eye, display, options, **kw)
 
         monkeypatch.setattr(ES, "build_eye_model", held)
 
@@ -107,6 +107,73 @@ def test_a_live_change_is_refused_at_once_or_designed_on_the_worker(rx):
         assert next(u for u in updates if u.eye == "right").model.eye.sphere_D == -1.5
     finally:
         source.close()
+
+
+def test_a_synchronous_source_designs_on_the_callers_thread_and_hands_over_at_once(rx, monkeypatch):
+    """``worker=False`` (a library user's, and a corrector's own): no thread; a live change and a
+    reload are designed inside the call and handed over by the next ``take``/``poll``; the offsets
+    asked for and those handed over are told apart."""
+    held = Held(monkeypatch, hold_from=10**6)                # records, never holds
+    source = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",), worker=False)
+    try:
+        assert source.synchronous and not source.busy and source.wait(0) and source.join(0)
+        assert source.handed_offset("right") == (0.0, 0.0, 0.0)
+        source.adjust("right", (0.25, 0.0, 0.0))
+        assert held.threads == [threading.current_thread().name]
+        assert source.offsets["right"] == (0.25, 0.0, 0.0) and source.handed_offset("right") == (0.0, 0.0, 0.0)
+        updates, messages = source.take()
+        assert messages == [] and [u.model.eye.sphere_D for u in updates] == [-1.75]
+        assert source.handed_offset("right") == (0.25, 0.0, 0.0)
+        doc = json.loads(json.dumps(RX))
+        doc["right"]["sphere_D"] = -3.0
+        edit(rx, doc)
+        updates, messages = source.poll()                    # read and designed within the call
+        assert messages == [] and [(u.reason, u.model.eye.sphere_D) for u in updates] == [("reload", -2.75)]
+        assert source.prescription.right.sphere_D == -3.0 and held.threads[-1] == threading.current_thread().name
+    finally:
+        source.close()
+
+
+def test_a_change_whose_design_fails_is_not_kept_for_the_next_reload(rx):
+    """A live change in range whose design then fails leaves the offsets as they were, so that a
+    later reload does not design the refused eye after all."""
+    def design(eye, eye_rx, prescription):
+        if eye_rx.sphere_D < -2.0:
+            raise VrcorrectError(f"no design below -2 D (asked {eye_rx.sphere_D})")
+        return ES.build_eye_model(eye_rx, get_display("quest2"), OPTIONS)
+
+    source = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",), design=design, worker=False)
+    try:
+        source.adjust("right", (-0.5, 0.0, 0.0))
+        updates, messages = source.take()
+        assert updates == [] and messages == ["right eye unchanged: no design below -2 D (asked -2.5)"]
+        assert source.offsets["right"] == (0.0, 0.0, 0.0)
+    finally:
+        source.close()
+
+
+def test_the_wearers_age_comes_from_the_prescription_unless_the_options_give_it(rx, monkeypatch):
+    """The default design passes the prescription's ``age_years`` (the pupil's formula), the
+    options' when they give one: a reload and the start design what a corrector's own build does."""
+    ages = []
+    real = ES.build_eye_model
+
+    def recording(eye, display, options, **kw):
+        ages.append(kw.get("age_years"))
+        return real(eye, display, options, **kw)
+
+    monkeypatch.setattr(ES, "build_eye_model", recording)
+    doc = json.loads(json.dumps(RX))
+    doc["age_years"] = 63
+    edit(rx, doc)
+    for options, expected in ((OPTIONS, 63), (CorrectorOptions(filter="admm", age_years=30), 30)):
+        source = EyeSource(rx, get_display("quest2"), options, eyes=("right",), worker=False)
+        try:
+            source.build("right")
+            source.adjust("right", (0.25, 0.0, 0.0))
+            assert ages[-2:] == [expected, expected]
+        finally:
+            source.close()
 
 
 def test_designs_run_off_the_callers_thread_and_polling_never_waits(rx, monkeypatch):

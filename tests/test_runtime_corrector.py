@@ -210,6 +210,47 @@ def test_live_adjust_and_its_limits(gl, tmp_path):
         c.release()
 
 
+def test_correctors_of_a_shared_eye_source_read_the_prescription_from_it(gl, tmp_path):
+    """One owner: correctors given the application's EyeSource hold no prescription, file stamp or
+    offsets of their own.  They read the source's, install what it designs, and refuse to poll or
+    adjust behind its back (ValidationError naming the call)."""
+    from vrcorrect.runtime.eye_model import CorrectorOptions
+    from vrcorrect.runtime.eye_source import EyeSource
+
+    path = tmp_path / "rx.json"
+    path.write_text(json.dumps(rx_doc(-1.0)))
+    options = CorrectorOptions(filter="fft", beta=0.5)
+    source = EyeSource(path, get_display("quest2"), options)
+    right = Corrector(gl, source, "quest2", "right", options=options)
+    left = Corrector(gl, source, "quest2", "left", options=options)
+    try:
+        assert right.source is source and right.prescription is source.prescription and right.rx_path == path
+        for name in ("_offset", "_stamp", "_last_poll"):
+            assert not hasattr(right, name)
+        for call in (right.poll, lambda: right.adjust(sphere_D=0.25)):
+            with pytest.raises(ValidationError, match="Corrector"):
+                call()
+        source.adjust("right", (0.5, 0.0, 0.0))
+        assert right.live_offset == (0.0, 0.0, 0.0)          # asked for, not yet designed
+        assert source.wait(120)
+        updates, messages = source.poll()
+        assert messages == [] and [u.eye for u in updates] == ["right"]
+        right.install(updates[0].model)
+        assert right.eye_rx.sphere_D == -0.5 and right.live_offset == (0.5, 0.0, 0.0)
+        assert left.eye_rx.sphere_D == -1.0 and left.live_offset == (0.0, 0.0, 0.0)
+        with pytest.raises(ValidationError, match="shared EyeSource"):
+            Corrector(gl, EyeSource(path, get_display("quest2"), options, eyes=("left",), worker=False),
+                      "quest2", "right", options=options)
+        right.release()
+        left.release()
+        source.adjust("left", (0.25, 0.0, 0.0))              # the application's to close, not a corrector's
+        assert source.wait(120) and [u.eye for u in source.poll()[0]] == ["left"]
+    finally:
+        right.release()
+        left.release()
+        source.close()
+
+
 def test_a_prebuilt_eye_model_gives_the_same_correction_and_a_wrong_eye_is_refused(gl, tmp_path, images):
     """``eye_model=``: designed elsewhere (a worker thread), uploaded by the constructor; the same
     frames as a corrector that designs its own.  A model of another eye is refused."""
@@ -251,7 +292,7 @@ def test_hot_reload_and_invalid_file_mid_run(gl, tmp_path, images):
     # a filter without memory, so that a frame can be compared with an earlier one (fista's reset
     # on a prescription change: tests/test_runtime_fista.py)
     c = Corrector(gl, path, "quest2", "right", beta=0.5, filter="fft")
-    c.POLL_INTERVAL_S = 0.0
+    c.source.poll_interval_s = 0.0
     try:
         img = images[0][1]
         first = run(gl, c, img)

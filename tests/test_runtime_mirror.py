@@ -810,10 +810,10 @@ def test_an_edit_never_stalls_the_render_thread(mirror, mirror_image, monkeypatc
     entered, release = threading.Event(), threading.Event()
     real = eye_source_module.build_eye_model
 
-    def held(eye, display, options):
+    def held(eye, display, options, **kw):
         entered.set()
         assert release.wait(120)
-        return real(eye, display, options)
+        return real(eye, display, options, **kw)
 
     monkeypatch.setattr(eye_source_module, "build_eye_model", held)
     mirror.render()

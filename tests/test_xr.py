@@ -571,10 +571,10 @@ def test_a_prescription_edit_never_stalls_the_headset_loop(x_display, xr_runtime
     entered, release = threading.Event(), threading.Event()
     real = ES.build_eye_model
 
-    def held(eye, display, options):
+    def held(eye, display, options, **kw):
         entered.set()
         assert release.wait(120)
-        return real(eye, display, options)
+        return real(eye, display, options, **kw)
 
     monkeypatch.setattr(ES, "build_eye_model", held)
     rx = tmp_path / "rx.json"

@@ -19,9 +19,11 @@ cost``).
 
 What is designed on the CPU per eye (the kernel; for the one-pass methods the regulariser, the
 blend and the filters) is an :class:`~vrcorrect.runtime.eye_model.EyeModel`; the corrector turns a
-model into a strategy on the GL thread (:meth:`Corrector.install`).  The models themselves can be
-built off the render thread (:class:`~vrcorrect.runtime.eye_source.EyeSource`, which the mirror,
-the overlay, ``xr`` and the OpenXR layer use; :meth:`Corrector.poll` uses one of its own).
+model into a strategy on the GL thread (:meth:`Corrector.install`).  The prescription (the file,
+its stamp, the live changes) has one owner, an :class:`~vrcorrect.runtime.eye_source.EyeSource`:
+the application's, shared by its correctors and designing off the render thread (the mirror, the
+overlay, ``xr``; give it as ``rx``), or the corrector's own synchronous one, which
+:meth:`Corrector.poll` and :meth:`Corrector.adjust` drive for a library user.
 
 ``simulate()`` runs the eye's forward model (the bank ``A^-1 K``, black outside the image): what
 the eye sees of the displayed image, for previews.
@@ -41,18 +43,18 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..plumbing.errors import ValidationError, VrcorrectError
-from ..plumbing.fileio import file_stamp
 from ..specs.display import DisplayProfile, get_display
-from ..specs.prescription import EyeRx, Prescription, load_prescription
+from ..specs.prescription import EyeRx, Prescription
 from ..specs.vocabulary import ITERATIONS_PER_FRAME, ITERATIVE_FILTERS, Backend, Eye, either, names, one_of
 from .budget import FrameBudget, GpuTimer, radius_ladder
 from .dispatch import CostLedger, Gpu
 from .eye_model import CorrectorOptions, EyeModel, as_options, build_eye_model, check_iterations  # noqa: F401  (re-exported)
+from .eye_source import EyeSource
 from .fft import fft_grid
 from .gl import check_gl_errors, release
 from .onnx_backend import OnnxModel
 from .pupil_state import PupilState
-from .rx_snapshot import RxSource, eye_text, load_rx, with_offset
+from .rx_snapshot import RxSource, eye_text
 from .strategies import Decoder, Encoder, Preview, Strategy, make_strategy
 from .strategies.base import float_texture
 from .strategies.foveated import MIN_FOVEA_DEG
@@ -86,9 +88,13 @@ class Corrector:
     ctx
         A moderngl context with OpenGL >= 4.3 (compute shaders).
     rx
-        Prescription JSON path (watched by :meth:`poll`), a :class:`~vrcorrect.specs.prescription.Prescription`,
-        or an :class:`~vrcorrect.runtime.rx_snapshot.RxSnapshot` (a file read once for several eyes; watched from the moment it was
-        read).
+        The application's :class:`~vrcorrect.runtime.eye_source.EyeSource` (shared by its correctors:
+        it owns the prescription, and the application polls it and :meth:`install`\\ s what it
+        designs); or, for a corrector with a synchronous source of its own (:meth:`poll`,
+        :meth:`adjust`), a prescription JSON path (watched by :meth:`poll`), a
+        :class:`~vrcorrect.specs.prescription.Prescription`, or an
+        :class:`~vrcorrect.runtime.rx_snapshot.RxSnapshot` (a file read once; watched from the moment
+        it was read).
     display
         Display preset name, profile path or :class:`~vrcorrect.specs.display.DisplayProfile`.
     eye
@@ -105,9 +111,7 @@ class Corrector:
         The :class:`CorrectorOptions`, made or as their fields (not both).
     """
 
-    POLL_INTERVAL_S = 0.25
-
-    def __init__(self, ctx: "moderngl.Context", rx: RxSource, display: str | os.PathLike[str] | DisplayProfile,
+    def __init__(self, ctx: "moderngl.Context", rx: RxSource | EyeSource, display: str | os.PathLike[str] | DisplayProfile,
                  eye: str, backend: str = Backend.GLSL, *, eye_model: EyeModel | None = None,
                  options: CorrectorOptions | None = None, first_luminance: float | None = None, **fields: Any):
         if backend not in names(Backend):
@@ -124,16 +128,20 @@ class Corrector:
         if self.display.transfer != "srgb":
             raise ValidationError("display transfer", f"{self.display.transfer} ({self.display.name})",
                                   "srgb (the real-time path encodes sRGB only so far)")
-        snapshot = load_rx(rx)
-        self.prescription, self.rx_path, self._stamp = snapshot.prescription, snapshot.path, snapshot.stamp
+        self._owns_source = not isinstance(rx, EyeSource)
+        self.source: EyeSource = rx if isinstance(rx, EyeSource) else \
+            EyeSource(rx, self.display, self.options, eyes=(eye,), check=self.check_eye, design=self._design,
+                      worker=False)
+        """The prescription's owner (module docstring)."""
+        if eye not in self.source.eyes:
+            raise ValidationError("eye", eye, f"an eye of the shared EyeSource ({', '.join(self.source.eyes)})")
         if eye_model is not None:                           # refused before any GL object is made
-            check_eye_model(eye_model, self.prescription.eye(eye), eye)
-        self._last_poll = time.monotonic()
+            check_eye_model(eye_model, self.source.eye_rx(eye) if eye in self.source.offsets
+                            else self.prescription.eye(eye), eye)
         self.enabled = True
         self.status = ""
         self.timings_ms: dict[str, float] = {}
         self.gpu = Gpu(ctx)
-        self._offset = (0.0, 0.0, 0.0)                      # live sphere, cylinder, axis changes
         self.gaze_deg: tuple[float, float] = self.options.gaze_deg
         """Where the eye looks, degrees from the view's centre ``(x, y)``, x right, y up (OpenXR's view
         space): the window's centre with ``fovea_deg`` (set it before each :meth:`apply`)."""
@@ -171,7 +179,7 @@ class Corrector:
             from .unrolled import UnrolledModel  # start-up time: onnxruntime, only when asked for
 
             self._cold_model = UnrolledModel(self.options.cold_start_model)
-        eye_rx = self._with_offset(self.prescription.eye(eye))
+        eye_rx = self.source.eye_rx(eye)
         if self._learned is not None:                       # an eye outside the trained range: refused first
             self._learned.check(eye_rx, self.display)
         if self._cold_model is not None:
@@ -188,6 +196,16 @@ class Corrector:
                                         kernels=None if self._pupil is None else self._pupil.kernels)
         self.install(eye_model)
         check_gl_errors(ctx, "Corrector build")
+
+    @property
+    def prescription(self) -> Prescription:
+        """The last good prescription (its owner's, :attr:`source`)."""
+        return self.source.prescription
+
+    @property
+    def rx_path(self) -> "os.PathLike[str] | None":
+        """The prescription file the source watches (``None``: not from a file)."""
+        return self.source.path
 
     @property
     def age_years(self) -> float | None:
@@ -246,11 +264,9 @@ class Corrector:
 
     @property
     def live_offset(self) -> tuple[float, float, float]:
-        """The live changes :meth:`adjust` made, ``(sphere_D, cylinder_D, axis_deg)``, on top of the file's."""
-        return self._offset
-
-    def _with_offset(self, base: EyeRx) -> EyeRx:
-        return with_offset(base, self._offset)
+        """The live changes in the model corrected with now, ``(sphere_D, cylinder_D, axis_deg)`` on
+        top of the file's (:meth:`EyeSource.handed_offset <vrcorrect.runtime.eye_source.EyeSource.handed_offset>`)."""
+        return self.source.handed_offset(self.eye_name)
 
     def check_eye(self, eye: EyeRx) -> None:
         """Refuse (``ValidationError``) an eye this corrector cannot correct: outside the learned
@@ -260,10 +276,10 @@ class Corrector:
         if self._cold_model is not None:
             self._cold_model.check(eye, self.display)
 
-    def install(self, model: EyeModel, prescription: Prescription | None = None) -> None:
+    def install(self, model: EyeModel) -> None:
         """Correct with ``model`` from the next frame on (GL work only: what the CPU designs is in
-        the model); ``prescription``: the file's new content the model was built from.  The old
-        strategy is released and the next frame starts cold."""
+        the model; the prescription it is from is the source's).  The old strategy is released and
+        the next frame starts cold."""
         if not isinstance(model, EyeModel):
             raise ValidationError("eye_model", type(model).__name__, "an EyeModel (build_eye_model)")
         slot = None
@@ -279,8 +295,6 @@ class Corrector:
                                                                    model.reference))
         self.preview = Preview(self.gpu, model)
         self.model = model
-        if prescription is not None:
-            self.prescription = prescription
         if self._pupil is not None:
             self._pupil.installed(model)
         release(*old)
@@ -300,63 +314,60 @@ class Corrector:
         self.install(model)
 
     def adjust(self, sphere_D: float = 0.0, cylinder_D: float = 0.0, axis_deg: float = 0.0) -> None:
-        """Change this eye's prescription live by these amounts and rebuild now (the file is
-        unchanged; an application that must not stall builds the model with an
-        :class:`~vrcorrect.runtime.eye_source.EyeSource` instead and :meth:`install`\\ s it).
+        """Change this eye's prescription live by these amounts and rebuild now, on this thread (the
+        file is unchanged).  A corrector with its own source only: with a shared
+        :class:`~vrcorrect.runtime.eye_source.EyeSource` the application asks the source
+        (:meth:`EyeSource.adjust <vrcorrect.runtime.eye_source.EyeSource.adjust>`, designed off the
+        render thread) and installs what it hands over.
 
         Raises ``ValidationError`` (and keeps the current state) when the result is out of range.
         """
-        previous = self._offset
-        self._offset = (previous[0] + sphere_D, previous[1] + cylinder_D, previous[2] + axis_deg)
-        try:
-            eye = self._with_offset(self.prescription.eye(self.eye_name))
-            self.check_eye(eye)
-            self.install(build_eye_model(eye, self.display, self.options, pupil_mm=self._design_pupil(),
-                                         age_years=self.age_years))
-        except VrcorrectError:
-            self._offset = previous
-            raise
+        self._own_source("adjust")
+        ds, dc, da = self.source.offsets.get(self.eye_name, (0.0, 0.0, 0.0))
+        self.source.adjust(self.eye_name, (ds + sphere_D, dc + cylinder_D, da + axis_deg))
+        updates, messages = self.source.take()
+        self._install_updates(updates)
+        if messages:
+            raise VrcorrectError(messages[0])
+
+    def poll(self) -> bool:
+        """Reload the prescription if its file changed (checked at most every 0.25 s), now, on this
+        thread (a corrector with its own source only, as :meth:`adjust`).
+
+        Returns True when a new prescription was loaded.  An unreadable or invalid file leaves
+        the last good state in place and says why in :attr:`status`.
+        """
+        self._own_source("poll")
+        updates, messages = self.source.poll()
+        self._install_updates(updates)
+        if messages:
+            self.status = messages[-1]
+            return False
+        if updates:
+            self.status = ""
+            log.info("%s: reloaded (%s eye)", self.rx_path, self.eye_name)
+        return bool(updates)
+
+    def _own_source(self, what: str) -> None:
+        if not self._owns_source:
+            raise ValidationError(f"Corrector.{what}", "a corrector of a shared EyeSource",
+                                  f"a corrector with its own source (the application calls EyeSource.{what} "
+                                  "and installs what it hands over)")
+
+    def _install_updates(self, updates) -> None:
+        for u in updates:
+            if u.eye == self.eye_name:
+                self.install(u.model)
+
+    def _design(self, eye: str, eye_rx: EyeRx, rx: Prescription) -> EyeModel:
+        """How its own source designs this eye: for the pupil it sees now (``pupil="auto"``), with
+        the options as they are now."""
+        age = self.options.age_years if self.options.age_years is not None else rx.age_years
+        return build_eye_model(eye_rx, self.display, self.options, pupil_mm=self._design_pupil(), age_years=age)
 
     def _design_pupil(self) -> float | None:
         """The pupil a rebuilt model is designed for: the current one with ``pupil="auto"``."""
         return self._pupil.current if self._pupil is not None else None
-
-    def set_offset(self, offset: tuple[float, float, float]) -> None:
-        """Record live changes whose model was built elsewhere (:meth:`install` it too)."""
-        self._offset = tuple(float(v) for v in offset)          # type: ignore[assignment]
-
-    def poll(self) -> bool:
-        """Reload the prescription if its file changed (checked at most every 0.25 s), now.
-
-        Returns True when a new prescription was loaded.  An unreadable or invalid file leaves
-        the last good state in place and says why in :attr:`status`.  (The applications watch the
-        file through :class:`~vrcorrect.runtime.eye_source.EyeSource`, which builds off the render
-        thread.)
-        """
-        if self.rx_path is None:
-            return False
-        now = time.monotonic()
-        if now - self._last_poll < self.POLL_INTERVAL_S:
-            return False
-        self._last_poll = now
-        stamp = file_stamp(self.rx_path)
-        if stamp == self._stamp:
-            return False
-        self._stamp = stamp
-        try:
-            rx = load_prescription(self.rx_path)
-            eye = self._with_offset(rx.eye(self.eye_name))
-            self.check_eye(eye)
-            self.install(build_eye_model(eye, self.display, self.options, pupil_mm=self._design_pupil(),
-                                         age_years=rx.age_years if self.options.age_years is None
-                                         else self.options.age_years), rx)
-        except VrcorrectError as exc:
-            self.status = f"{self.rx_path}: not reloaded, keeping the last good prescription: {exc}"
-            log.warning(self.status)
-            return False
-        self.status = ""
-        log.info("%s: reloaded (%s eye)", self.rx_path, self.eye_name)
-        return True
 
     # ------------------------------------------------------------------ frames
 
@@ -505,6 +516,8 @@ class Corrector:
             self._pupil.release()
         release(self.strategy, self.preview, self.encoder, self.decoder, *self._seen.values())
         self._seen.clear()
+        if self._owns_source:
+            self.source.close()
         if self._onnx is not None:
             self._onnx.release()
 

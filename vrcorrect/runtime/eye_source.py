@@ -23,7 +23,17 @@ of CPU) never runs on the render thread after start:
 
 One worker thread, jobs in order; a newer edit of the file supersedes a queued one, and a changed
 file is read once its stamp has settled (:data:`SETTLE_S`).  The eyes of one reload (or start)
-arrive in the same :meth:`~EyeSource.poll`, every eye or none.  Layer 5: numpy; never torch.
+arrive in the same :meth:`~EyeSource.poll`, every eye or none.
+
+The source is the prescription's one owner: the file, its stamp, the last good content and each
+eye's live changes (:attr:`EyeSource.offsets`, as asked for; :meth:`EyeSource.handed_offset`, as
+in the last model handed over).  A :class:`~vrcorrect.runtime.corrector.Corrector` only installs
+the models and applies them.  ``worker=False`` makes a synchronous source, for library users and
+for a corrector built without one (its :meth:`~vrcorrect.runtime.corrector.Corrector.poll` and
+:meth:`~vrcorrect.runtime.corrector.Corrector.adjust`): every job then runs at once on the
+caller's thread, and :meth:`~EyeSource.take` hands its result over.
+
+Layer 5: numpy; never torch.
 """
 
 from __future__ import annotations
@@ -43,7 +53,7 @@ from ..specs.vocabulary import VIEW_ORDER
 from .eye_model import CorrectorOptions, EyeModel, build_eye_model
 from .rx_snapshot import RxSnapshot, RxSource, file_stamp, load_rx, with_offset
 
-__all__ = ["POLL_INTERVAL_S", "EyeUpdate", "EyeSource"]
+__all__ = ["POLL_INTERVAL_S", "EyeUpdate", "EyeSource", "Designer"]
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +66,11 @@ when written, not also while empty."""
 SETTLE_TRIES = 20
 
 Offset = tuple[float, float, float]
+NO_OFFSET: Offset = (0.0, 0.0, 0.0)
+
+Designer = Callable[[str, EyeRx, Prescription], EyeModel]
+"""How an eye is designed: ``design(eye, eye_rx, prescription)`` (the eye's name, its prescription
+with the live changes, the whole prescription it is from) returns the model."""
 
 
 @dataclass(frozen=True)
@@ -88,18 +103,27 @@ class EyeSource:
     check
         Called with each eye before it is designed (e.g. a learned model's range); raising a
         :class:`~vrcorrect.plumbing.errors.VrcorrectError` refuses it.
+    design
+        How an eye is designed (:data:`Designer`); ``None``: :func:`~vrcorrect.runtime.eye_model.build_eye_model`
+        with ``options``, the wearer's age from the options or else the prescription.
+    worker
+        ``False``: a synchronous source, no thread (module docstring).
     """
 
     def __init__(self, rx: RxSource, display: DisplayProfile | Callable[[], DisplayProfile],
                  options: CorrectorOptions = CorrectorOptions(), eyes: tuple[str, ...] = VIEW_ORDER,
-                 check: Callable[[EyeRx], object] | None = None):
+                 check: Callable[[EyeRx], object] | None = None, design: Designer | None = None,
+                 worker: bool = True):
         snapshot = load_rx(rx)
         self.snapshot: RxSnapshot = snapshot
         self.eyes = tuple(eyes)
         self._display = display
         self._display_lock = threading.Lock()
-        self.options, self.check = options, check
+        self.options, self.check, self.design = options, check, design
         self.offsets: dict[str, Offset] = {}         # each eye's live changes, as last asked for
+        self._handed: dict[str, Offset] = {}         # ... as in the last model of each eye handed over
+        self.poll_interval_s: float | None = None
+        """How often :meth:`poll` looks at the file's stamp; ``None``: :data:`POLL_INTERVAL_S`."""
         self._stamp = snapshot.stamp
         self._last_poll = time.monotonic()
         self._jobs: queue.Queue[tuple[str, object] | None] = queue.Queue()
@@ -109,8 +133,15 @@ class EyeSource:
         self._lock = threading.Lock()
         self._idle = threading.Condition(self._lock)
         self._file_generation = 0
-        self._worker = threading.Thread(target=self._run, name="vrcorrect-eye-source", daemon=True)
-        self._worker.start()
+        self._worker: threading.Thread | None = None
+        if worker:
+            self._worker = threading.Thread(target=self._run, name="vrcorrect-eye-source", daemon=True)
+            self._worker.start()
+
+    @property
+    def synchronous(self) -> bool:
+        """Jobs run at once on the caller's thread (``worker=False``)."""
+        return self._worker is None
 
     @property
     def display(self) -> DisplayProfile:
@@ -137,17 +168,29 @@ class EyeSource:
 
     def eye_rx(self, eye: str, offset: Offset | None = None) -> EyeRx:
         """``eye`` of the last good prescription with its live changes (or ``offset``)."""
-        return with_offset(self.prescription.eye(eye), self.offsets.get(eye, (0.0, 0.0, 0.0)) if offset is None
+        return with_offset(self.prescription.eye(eye), self.offsets.get(eye, NO_OFFSET) if offset is None
                            else offset)
+
+    def handed_offset(self, eye: str) -> Offset:
+        """The live changes in the last model of ``eye`` that :meth:`poll` or :meth:`take` handed over
+        (before any: none).  :attr:`offsets` holds those asked for, which a design may not have reached yet."""
+        return self._handed.get(eye, NO_OFFSET)
+
+    def design_eye(self, eye: str, eye_rx: EyeRx, rx: Prescription) -> EyeModel:
+        """Design ``eye_rx`` (``eye`` of ``rx`` with its live changes) as this source does: ``check``
+        first, then ``design`` (default: module docstring)."""
+        if self.check is not None:
+            self.check(eye_rx)
+        if self.design is not None:
+            return self.design(eye, eye_rx, rx)
+        age = self.options.age_years if self.options.age_years is not None else rx.age_years
+        return build_eye_model(eye_rx, self.display, self.options, age_years=age)
 
     # ------------------------------------------------------------------ on the caller's thread
 
     def build(self, eye: str) -> EyeModel:
         """Design ``eye`` now, on this thread (the start)."""
-        e = self.eye_rx(eye)
-        if self.check is not None:
-            self.check(e)
-        return build_eye_model(e, self.display, self.options)
+        return self.design_eye(eye, self.eye_rx(eye), self.prescription)
 
     def design_all(self) -> None:
         """Design every eye of the last good prescription (with its live changes) on the worker:
@@ -164,17 +207,19 @@ class EyeSource:
         if self.check is not None:
             self.check(e)
         offset = tuple(float(v) for v in offset)
+        previous = self.offsets.get(eye, NO_OFFSET)
         self.offsets[eye] = offset                  # a reload from now on keeps it
-        self._queue(("adjust", (eye, offset)))
+        self._queue(("adjust", (eye, offset, previous)))
         return e
 
     def poll(self, now: float | None = None) -> tuple[list[EyeUpdate], list[str]]:
         """What is ready: designed eyes and messages (a refused edit).  Also starts a reload when
-        the file's stamp changed (looked at no more often than :data:`POLL_INTERVAL_S`).  Never
-        waits."""
+        the file's stamp changed (looked at no more often than :attr:`poll_interval_s`).  Never
+        waits (a synchronous source designs the reload first)."""
         now = time.monotonic() if now is None else now
         path = self.snapshot.path
-        if path is not None and now - self._last_poll >= POLL_INTERVAL_S:
+        interval = POLL_INTERVAL_S if self.poll_interval_s is None else self.poll_interval_s
+        if path is not None and now - self._last_poll >= interval:
             self._last_poll = now
             stamp = file_stamp(path)
             with self._lock:
@@ -185,6 +230,10 @@ class EyeSource:
                     generation = self._file_generation
             if changed:
                 self._queue(("file", generation))
+        return self.take()
+
+    def take(self) -> tuple[list[EyeUpdate], list[str]]:
+        """What is ready, as :meth:`poll` gives it, without looking at the file."""
         updates: list[EyeUpdate] = []
         messages: list[str] = []
         while True:
@@ -198,6 +247,7 @@ class EyeSource:
             for update in item:
                 if update.reason == "reload":
                     self.snapshot = RxSnapshot(update.prescription, self.snapshot.path, self.snapshot.stamp)
+                self._handed[update.eye] = update.offset
                 updates.append(update)
         return updates, messages
 
@@ -209,7 +259,7 @@ class EyeSource:
 
     def wait(self, timeout: float | None = None) -> bool:
         """Block until nothing is queued or running (tests, and callers that may wait); False on
-        timeout."""
+        timeout.  (A synchronous source is never busy between calls.)"""
         with self._idle:
             return self._idle.wait_for(lambda: self._pending == 0, timeout)
 
@@ -217,13 +267,17 @@ class EyeSource:
         """Stop the worker: designs still queued are dropped; with ``wait``, wait (at most 5 s) for
         the one running, else return at once (it finishes in the background, unused)."""
         self._closed = True
+        if self._worker is None:
+            return
         self._jobs.put(None)
         if wait:
             self.join(5.0)
 
     def join(self, timeout: float) -> bool:
         """After :meth:`close`: wait at most ``timeout`` s for the worker to end (a design it is running
-        finishes first); True when it has ended."""
+        finishes first); True when it has ended (a synchronous source has none: True)."""
+        if self._worker is None:
+            return True
         self._worker.join(timeout=timeout)
         return not self._worker.is_alive()
 
@@ -232,7 +286,10 @@ class EyeSource:
     def _queue(self, job: tuple[str, object]) -> None:
         with self._lock:
             self._pending += 1
-        self._jobs.put(job)
+        if self._worker is None:
+            self._do(job)                                     # synchronous: now, on the caller's thread
+        else:
+            self._jobs.put(job)
 
     def _finish(self) -> None:
         with self._idle:
@@ -244,22 +301,25 @@ class EyeSource:
             job = self._jobs.get()
             if job is None:
                 return
-            try:
-                kind, arg = job
-                if self._closed:
-                    pass                                      # dropped: nobody will take it
-                elif kind == "file":
-                    self._reload(int(arg))                    # type: ignore[arg-type]
-                elif kind == "start":
-                    self._start()
-                else:
-                    eye, offset = arg                         # type: ignore[misc]
-                    self._adjust(eye, offset)
-            except Exception as exc:                          # the worker must outlive any one job
-                self._done.put(f"eye design failed: {type(exc).__name__}: {exc}")
-                log.exception("eye source job failed")
-            finally:
-                self._finish()
+            self._do(job)
+
+    def _do(self, job: tuple[str, object]) -> None:
+        try:
+            kind, arg = job
+            if self._closed:
+                pass                                          # dropped: nobody will take it
+            elif kind == "file":
+                self._reload(int(arg))                        # type: ignore[arg-type]
+            elif kind == "start":
+                self._start()
+            else:
+                eye, offset, previous = arg                   # type: ignore[misc]
+                self._adjust(eye, offset, previous)
+        except Exception as exc:                              # the worker must outlive any one job
+            self._done.put(f"eye design failed: {type(exc).__name__}: {exc}")
+            log.exception("eye source job failed")
+        finally:
+            self._finish()
 
     def _reload(self, generation: int) -> None:
         path = self.snapshot.path
@@ -267,7 +327,7 @@ class EyeSource:
             if generation != self._file_generation:         # a newer edit is queued: it will be read
                 return
         stamp = file_stamp(path)
-        for _ in range(SETTLE_TRIES):                       # wait for the writer to finish
+        for _ in range(SETTLE_TRIES if self._worker is not None else 0):     # wait for the writer to finish
             time.sleep(SETTLE_S)
             now = file_stamp(path)
             if now == stamp:
@@ -288,7 +348,7 @@ class EyeSource:
         none, and one message (``refused``, then why): one state for all the eyes."""
         try:
             rx = read()
-            updates = [self._design(eye, self.offsets.get(eye, (0.0, 0.0, 0.0)), rx, reason) for eye in self.eyes]
+            updates = [self._design(eye, self.offsets.get(eye, NO_OFFSET), rx, reason) for eye in self.eyes]
         except VrcorrectError as exc:
             message = f"{refused}: {exc}"
             log.warning(message)
@@ -296,16 +356,15 @@ class EyeSource:
             return
         self._done.put(updates)
 
-    def _adjust(self, eye: str, offset: Offset) -> None:
+    def _adjust(self, eye: str, offset: Offset, previous: Offset) -> None:
         try:
             self._done.put([self._design(eye, offset, self.prescription, "adjust")])
         except VrcorrectError as exc:
+            if self.offsets.get(eye) == offset:       # not asked again meanwhile: a reload keeps the previous
+                self.offsets[eye] = previous
             self._done.put(f"{eye} eye unchanged: {' '.join(str(exc).split())}")
 
     def _design(self, eye: str, offset: Offset, rx: Prescription, reason: str) -> EyeUpdate:
         t0 = time.perf_counter()
-        e = with_offset(rx.eye(eye), offset)
-        if self.check is not None:
-            self.check(e)
-        model = build_eye_model(e, self.display, self.options)
+        model = self.design_eye(eye, with_offset(rx.eye(eye), offset), rx)
         return EyeUpdate(eye, model, rx, offset, time.perf_counter() - t0, reason)

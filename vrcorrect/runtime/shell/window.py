@@ -190,7 +190,7 @@ class WindowApp:
     status
         The last status message (``""`` if none).
     rx_path, display
-        The prescription file (watched by the correctors) and the display profile.
+        The prescription file (watched by the eye source, :attr:`eye_source`) and the display profile.
     window, ctx
         The GLFW window and its moderngl context (None until opened, and after :meth:`close`).
     """
@@ -206,18 +206,18 @@ class WindowApp:
         self.eye_source: EyeSource | None = None
 
     def _start_eyes(self, ctx: "moderngl.Context", eyes: Sequence[str], options: CorrectorOptions) -> None:
-        """Each eye's :class:`~vrcorrect.runtime.corrector.Corrector`, designed now (the start: the
-        window says "building"), from the one read of the prescription; then the
-        :class:`~vrcorrect.runtime.eye_source.EyeSource` that watches the file and designs later
-        changes off the render thread (:meth:`_poll_eyes`)."""
+        """The :class:`~vrcorrect.runtime.eye_source.EyeSource` that owns the prescription (from its
+        one read), watches the file and designs later changes off the render thread
+        (:meth:`_poll_eyes`); then each eye's :class:`~vrcorrect.runtime.corrector.Corrector` of that
+        source, designed now (the start: the window says "building")."""
+        self.eye_source = EyeSource(self._rx, self.display, options, eyes=tuple(eyes))
         for eye in eyes:
             self.say(f"building the {eye} eye's correction ({_eye_words(self._rx.prescription.eye(eye))} on "
                      f"{self.display.name})...")
             t0 = time.perf_counter()
-            self.correctors[eye] = Corrector(ctx, self._rx, self.display, eye, options.backend, options=options)
+            self.correctors[eye] = Corrector(ctx, self.eye_source, self.display, eye, options.backend, options=options)
             self.say(f"  built in {time.perf_counter() - t0:.1f} s")
-        first = self.correctors[eyes[0]]
-        self.eye_source = EyeSource(self._rx, self.display, first.options, eyes=tuple(eyes), check=first.check_eye)
+        self.eye_source.check = self.correctors[eyes[0]].check_eye      # a learned model's range, before each design
 
     def _poll_eyes(self) -> tuple[list[EyeUpdate], list[str]]:
         """Install the eyes the :class:`~vrcorrect.runtime.eye_source.EyeSource` has designed since
@@ -226,15 +226,13 @@ class WindowApp:
             return [], []
         updates, messages = self.eye_source.poll()
         for u in updates:
-            corrector = self.correctors[u.eye]
-            corrector.install(u.model, u.prescription)
-            corrector.set_offset(u.offset)
+            self.correctors[u.eye].install(u.model)
         return updates, messages
 
     def _adjust_eye(self, eye: str, sphere_D: float = 0.0, cylinder_D: float = 0.0, axis_deg: float = 0.0) -> EyeRx:
-        """Have ``eye`` redesigned with these live changes on top of its current ones, off the render
-        thread; returns the eye it will be (``ValidationError`` at once when out of range)."""
-        ds, dc, da = self.correctors[eye].live_offset
+        """Have ``eye`` redesigned with these live changes on top of those asked for so far, off the
+        render thread; returns the eye it will be (``ValidationError`` at once when out of range)."""
+        ds, dc, da = self.eye_source.offsets.get(eye, (0.0, 0.0, 0.0))
         return self.eye_source.adjust(eye, (ds + sphere_D, dc + cylinder_D, da + axis_deg))
 
     def say(self, text: str) -> None:
