@@ -32,17 +32,18 @@ from .config import (
     CAPTURE_WAIT_S,
     PRIME_BUDGET_S,
     LayerConfig,
-    _one_line,
-    _one_line_text,
     choose_display,
+    one_line,
+    one_line_text,
     prime_budget,
 )
-from .interop import Target, _MemoryObjects
-from .pipeline import _Pipeline
+from .interop import MemoryObjects, Target
+from .pipeline import Pipeline
 
-__all__ = []
+__all__ = ["Builder", "CaptureRequest"]
 
-class _CaptureRequest:
+
+class CaptureRequest:
     """The builder's request for a frame's content to prepare its pipeline on (priming, off the
     application's thread): the application's thread adds each view of the next frame it sees
     (OpenGL: the application's texture, with a fence after its rendering; Vulkan: the shared
@@ -53,10 +54,10 @@ class _CaptureRequest:
         self.ready = threading.Event()
 
 
-class _Builder:
+class Builder:
     """The engine's build worker (one per configuration): it takes the eye models (from the cache, or
     from the eye source's worker, which designs them) and makes from them, off the application's
-    thread, a :class:`_Pipeline` on a GL context of its own (compiled, from the program cache where
+    thread, a :class:`Pipeline` on a GL context of its own (compiled, from the program cache where
     it can, and warmed up for the swapchains the application made); the application's thread takes
     it from :attr:`events` when it is ready.  It does the same for a prescription edit (the eye
     source's reload: the current pipeline corrects meanwhile) and for a view size or format the
@@ -106,7 +107,7 @@ class _Builder:
                 self._loop()
         except Exception as exc:  # noqa: BLE001  (every failure is a pass-through with its reason)
             stamp = self.source.snapshot.stamp if self.source is not None else self.stamp
-            self._post("failed", stamp, f"the layer's build worker failed: {_one_line(exc)}")
+            self._post("failed", stamp, f"the layer's build worker failed: {one_line(exc)}")
         finally:
             if self._stopped and self.source is not None:
                 self.source.close(wait=False)
@@ -130,7 +131,7 @@ class _Builder:
 
             self.source = EyeSource(config.rx, display, CorrectorOptions(backend=backend, **options))
         except Exception as exc:  # noqa: BLE001
-            self._post("failed", self.stamp, _one_line(exc))
+            self._post("failed", self.stamp, one_line(exc))
             return False
         if not self._stopped:
             self.engine._source = self.source
@@ -152,7 +153,7 @@ class _Builder:
             self._post("log", f"the eye models for {config.rx} came from the cache ({eye_cache.cache_dir(self.engine.env)})")
         else:
             source.design_all()
-        built: _Pipeline | None = None                    # the last pipeline handed over (its Correctors' check)
+        built: Pipeline | None = None                    # the last pipeline handed over (its Correctors' check)
         pending = models is not None                      # models not yet built into a pipeline
         first = True
         while not self._stopped:
@@ -165,7 +166,7 @@ class _Builder:
                 start = [u for u in updates if u.reason == "start"]
                 if not start:
                     if messages:                              # the worker's first word: its start was refused
-                        self._post("failed", source.snapshot.stamp, _one_line_text(messages[0]))
+                        self._post("failed", source.snapshot.stamp, one_line_text(messages[0]))
                         return
                 else:
                     models = {u.eye: (u.model, u.prescription) for u in start}
@@ -183,7 +184,7 @@ class _Builder:
                                 {eye: m for eye, (m, _) in models.items()}, self.engine.env)
             if models is not None:
                 for message in messages:
-                    self._post("log", _one_line_text(message))
+                    self._post("log", one_line_text(message))
             targets = self.engine.targets()
             if models is not None and (pending or self._rebuild) and targets:
                 self._rebuild = False
@@ -192,9 +193,9 @@ class _Builder:
                     pipeline, seconds = self._build(models, targets)
                 except Exception as exc:  # noqa: BLE001
                     if first:
-                        self._post("failed", source.snapshot.stamp, _one_line(exc))
+                        self._post("failed", source.snapshot.stamp, one_line(exc))
                         return
-                    self._post("log", f"{config.rx}: not rebuilt, keeping the current correction: {_one_line(exc)}")
+                    self._post("log", f"{config.rx}: not rebuilt, keeping the current correction: {one_line(exc)}")
                     pending = False
                     continue
                 if pipeline is None:                          # stopped meanwhile
@@ -212,13 +213,13 @@ class _Builder:
             self._wake.clear()
         del built
 
-    def _build(self, models: dict[str, tuple[Any, Any]], targets: set[Target]) -> tuple["_Pipeline | None", float]:
+    def _build(self, models: dict[str, tuple[Any, Any]], targets: set[Target]) -> tuple["Pipeline | None", float]:
         """A pipeline for ``models`` warmed up for ``targets``, on a new context current on this thread
         only while it is built; ``None`` when the builder was stopped meanwhile."""
 
         t0 = time.perf_counter()
         engine = self.engine
-        request = _CaptureRequest()
+        request = CaptureRequest()
         engine.capture = request                     # the next frame's views, taken while this builds
         if engine.api == "OpenGL":
             if engine.glx_binding is None:
@@ -232,7 +233,7 @@ class _Builder:
             if ctx.version_code < 430:
                 raise ValidationError("OpenGL version", ctx.version_code, "4.3 or newer (compute shaders)")
             if engine.api == "Vulkan":
-                _MemoryObjects(ctx)                              # refuses a GL without GL_EXT_memory_object_fd now
+                MemoryObjects(ctx)                              # refuses a GL without GL_EXT_memory_object_fd now
             assert self.source is not None
             display = self.source.display
             correctors: dict[str, Corrector] = {}
@@ -246,7 +247,7 @@ class _Builder:
                 for c in correctors.values():
                     c.release()
                 raise
-            pipeline = _Pipeline(ctx, engine.api, correctors, display, self.config.rx)
+            pipeline = Pipeline(ctx, engine.api, correctors, display, self.config.rx)
             if engine.api == "Vulkan":
                 pipeline.sync = engine.attach_semaphores(pipeline)
             steps = pipeline.steps

@@ -31,13 +31,13 @@ from ...specs.display import get_display, preset_names
 from ...specs.vocabulary import VIEW_ORDER
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
-
     from ...specs.display import DisplayProfile
 
 __all__ = ["BUILD_NICE", "CAPTURE_WAIT_S", "CLOSE_WAIT_S", "CONFIG_ENV", "DISABLE_ENV", "LAYER_NAME", "LOG_ENV",
-           "LayerConfig", "OFF_ENV", "PRIME_BUDGET_S", "PRIME_ENV", "PRIME_MAX_FRAMES", "RX_ENV",
-           "choose_display", "config_path", "eye_of_view", "log_path", "off_file", "prime_budget",
-           "read_config"]
+           "LayerConfig", "LayerLog", "OFF_ENV", "PRIME_BUDGET_S", "PRIME_ENV", "PRIME_MAX_FRAMES", "RX_ENV",
+           "choose_display", "config_path", "eye_of_view", "log_path", "off_file", "one_line",
+           "one_line_text", "prime_budget", "read_config"]
+
 
 LAYER_NAME = "XR_APILAYER_VRCORRECT_correction"
 DISABLE_ENV = "DISABLE_VRCORRECT_LAYER"      # the manifest's disable_environment: the loader skips the layer
@@ -179,7 +179,7 @@ def read_config(env: Mapping[str, str] | None = None) -> LayerConfig:
     return LayerConfig(rx=rx_path, display=display, options=dict(options), source=source)
 
 
-class _Log:
+class LayerLog:
     """One line per event, to the log file and stderr; pass-through reasons only when they change."""
 
     def __init__(self, path: Path):
@@ -235,10 +235,10 @@ def choose_display(name: str | None, view_size: tuple[int, int]) -> tuple[Displa
                                    "set display in the layer configuration")
 
 
-def _one_line(exc: BaseException) -> str:
-    text = _one_line_text(str(exc))
+def one_line(exc: BaseException) -> str:
+    text = one_line_text(str(exc))
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-def _one_line_text(text: str) -> str:
+def one_line_text(text: str) -> str:
     return " ".join(text.split())

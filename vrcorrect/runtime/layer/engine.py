@@ -42,7 +42,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
     from ...specs.display import DisplayProfile
     from ..eye_source import EyeSource
-from .builder import _Builder, _CaptureRequest
+from .builder import Builder, CaptureRequest
 from .config import (
     _CHECK_INTERVAL_S,
     _NEVER,
@@ -51,20 +51,19 @@ from .config import (
     PRIME_MAX_FRAMES,
     RX_ENV,
     LayerConfig,
-    _Log,
+    LayerLog,
     _off,
-    _one_line,
     config_path,
     eye_of_view,
     log_path,
+    one_line,
     read_config,
 )
-from .interop import _QUERY_MAX_MS, GL_FORMATS, VK_FORMATS, SwapchainFormat, Target, _AppGlx, _ChainMemory, _check_rect
-from .pipeline import _Pipeline
+from .interop import GL_FORMATS, QUERY_MAX_MS, VK_FORMATS, AppGlx, ChainMemory, SwapchainFormat, Target, check_rect
+from .pipeline import Pipeline
 from .vulkan import VulkanFrames
 
 __all__ = ["Engine"]
-
 
 
 class Engine(VulkanFrames):
@@ -76,10 +75,10 @@ class Engine(VulkanFrames):
     def __init__(self, view_width: int = 0, view_height: int = 0, api: str = "OpenGL",
                  env: Mapping[str, str] | None = None):
         self.env = os.environ if env is None else env
-        self.log = _Log(log_path(self.env))
+        self.log = LayerLog(log_path(self.env))
         self.view_size = (int(view_width), int(view_height))
         self.api = api
-        self.pipeline: _Pipeline | None = None
+        self.pipeline: Pipeline | None = None
         self.glx_binding: tuple[int, int, int] | None = None   # OpenGL: the application's Display*, FBConfig, context
         self.program_cache: Path | None | bool = None            # the program cache's folder (None: the default)
         self.display: DisplayProfile | None = None
@@ -87,18 +86,18 @@ class Engine(VulkanFrames):
         self._rx_failed_stamp: Any = _NEVER          # the stamp of the prescription file that failed to build
         self._build_error: str | None = None
         self._source: EyeSource | None = None        # watches the prescription, designs the eye models
-        self._builder: _Builder | None = None        # builds the pipelines off the application's thread
+        self._builder: Builder | None = None        # builds the pipelines off the application's thread
         self._let_go: list[Any] = []                 # sources and builders let go without waiting; joined by close()
         self._last_check = -1.0
         self._off_reason: str | None = None
         self._config: LayerConfig | None = None
         self._config_error: str | None = None
-        self._app_glx: _AppGlx | None = None
+        self._app_glx: AppGlx | None = None
         self._targets: dict[Any, set[Target]] = {}  # per swapchain (and the rects seen): what a pipeline prepares
         self._targets_lock = threading.Lock()
         self._asked: set[Target] = set()             # targets a rebuild was asked for
-        self._chains: dict[int, _ChainMemory] = {}
-        self.capture: _CaptureRequest | None = None  # set by the builder: the next frame's views, please
+        self._chains: dict[int, ChainMemory] = {}
+        self.capture: CaptureRequest | None = None  # set by the builder: the next frame's views, please
         self._semaphore_fds: tuple[int, int] | None = None   # Vulkan: the shim's external semaphores (ours to close)
         self._semaphore_note = "the Vulkan session's semaphores were not offered"
         self._waited_ready = False                   # Vulkan, with semaphores: GL waited for this frame's copy in
@@ -204,14 +203,14 @@ class Engine(VulkanFrames):
             self._open_source(config)
 
     def _open_source(self, config: LayerConfig) -> None:
-        """A :class:`_Builder` for ``config``: on its own thread it opens the
+        """A :class:`Builder` for ``config``: on its own thread it opens the
         :class:`~vrcorrect.runtime.eye_source.EyeSource` (the modules it needs are imported there, not
         on the application's thread) and takes its models, or the cached ones; frames pass through
         meanwhile."""
         self.log.line(f"building the eye models for {config.rx} ...")
         self._build_error = None
         self._t0 = time.perf_counter()
-        self._builder = _Builder(self, config, file_stamp(config.rx))
+        self._builder = Builder(self, config, file_stamp(config.rx))
 
     def _take_events(self) -> None:
         """On the application's thread, every frame: what the builder has ready: log lines, a failure,
@@ -232,7 +231,7 @@ class Engine(VulkanFrames):
             elif event[0] == "pipeline":
                 self._install(event[1], event[2])
 
-    def _install(self, pipeline: _Pipeline, info: Mapping[str, Any]) -> None:
+    def _install(self, pipeline: Pipeline, info: Mapping[str, Any]) -> None:
         """Correct with ``pipeline`` from now on (Vulkan: it imports the swapchains' shared images
         first); the old one is released."""
         try:
@@ -245,7 +244,7 @@ class Engine(VulkanFrames):
                             pipeline.import_chain(chain, memory)
         except Exception as exc:  # noqa: BLE001
             self._release(pipeline)
-            text = f"the Vulkan application's images cannot be shared with the engine's GL: {_one_line(exc)}"
+            text = f"the Vulkan application's images cannot be shared with the engine's GL: {one_line(exc)}"
             if self.pipeline is None and self._source is not None:
                 self._failed(self._source.snapshot.stamp, text)
             else:
@@ -290,7 +289,7 @@ class Engine(VulkanFrames):
         self._close_source()
         self._rx_failed_stamp = stamp
         assert self._config is not None
-        text = _one_line(error) if isinstance(error, BaseException) else error
+        text = one_line(error) if isinstance(error, BaseException) else error
         self._build_error = f"prescription {self._config.rx}: {text}"
 
     def _close_source(self) -> None:
@@ -306,7 +305,7 @@ class Engine(VulkanFrames):
             self._let_go = [s for s in self._let_go if not s.join(0.0)] + [self._source]   # the ones still running
             self._source = None
 
-    def _drop_events(self, builder: _Builder) -> None:
+    def _drop_events(self, builder: Builder) -> None:
         """Release the pipelines a builder posted that were not taken."""
         while True:
             try:
@@ -317,25 +316,25 @@ class Engine(VulkanFrames):
                 self._release(event[1])
 
     @contextlib.contextmanager
-    def _current(self, pipeline: _Pipeline) -> Iterator["moderngl.Context"]:
+    def _current(self, pipeline: Pipeline) -> Iterator["moderngl.Context"]:
         """``pipeline``'s context current on this thread for the block; what was current before comes
         back after (OpenGL: the application's context)."""
         if self.api == "OpenGL":
             if self._app_glx is None:
-                self._app_glx = _AppGlx()
+                self._app_glx = AppGlx()
             with self._app_glx.engine_current(pipeline.loader.inner):
                 yield pipeline.ctx
         else:
             with pipeline.ctx:
                 yield pipeline.ctx
 
-    def _release(self, pipeline: _Pipeline) -> None:
+    def _release(self, pipeline: Pipeline) -> None:
         """Release ``pipeline`` with its context current on this thread (what was current comes back)."""
         loader = pipeline.loader
         try:
             if self.api == "OpenGL":
                 if self._app_glx is None:
-                    self._app_glx = _AppGlx()
+                    self._app_glx = AppGlx()
                 with self._app_glx.engine_current(loader.inner):
                     pipeline.release()
             else:
@@ -345,7 +344,7 @@ class Engine(VulkanFrames):
                 finally:
                     loader.inner.__exit__()          # (the moderngl context is gone: its loader's context)
         except Exception as exc:  # noqa: BLE001
-            self.log.line(f"releasing a pipeline: {_one_line(exc)}")
+            self.log.line(f"releasing a pipeline: {one_line(exc)}")
 
     def _release_pipeline(self) -> None:
         if self.pipeline is not None:
@@ -361,7 +360,7 @@ class Engine(VulkanFrames):
         try:
             reason = self._check()
         except Exception as exc:  # noqa: BLE001
-            reason = f"the engine could not start: {_one_line(exc)}"
+            reason = f"the engine could not start: {one_line(exc)}"
         if reason:
             self.log.reason(reason)
             return 0
@@ -384,14 +383,14 @@ class Engine(VulkanFrames):
             eye = eye_of_view(view_in_layer if view_in_layer >= 0 else view_index)
             if src_format not in GL_FORMATS:
                 return False
-            _check_rect(x, y, width, height, src_width, src_height)
+            check_rect(x, y, width, height, src_width, src_height)
             if self._app_glx is None:
-                self._app_glx = _AppGlx()
+                self._app_glx = AppGlx()
             self._add_capture({"eye": eye, "code": int(src_format), "texture": int(src_texture),
                                "rect": (int(x), int(y), int(width), int(height)), "fence": self._app_glx._fence()})
             return True
         except Exception as exc:  # noqa: BLE001
-            self.log.reason(f"view {view_index}: {_one_line(exc)}")
+            self.log.reason(f"view {view_index}: {one_line(exc)}")
             return False
 
     def _announce(self, fmt: SwapchainFormat) -> None:
@@ -400,7 +399,7 @@ class Engine(VulkanFrames):
             self.log.line(f"{fmt.name} swapchain (linear light): the correction works on values in [0, 1]; the "
                           "part of each value outside [0, 1] is carried through uncorrected")
 
-    def _timed(self, pipeline: _Pipeline, eye: str) -> Any:
+    def _timed(self, pipeline: Pipeline, eye: str) -> Any:
         query, previous = pipeline.query(eye, self.frames)
         if previous is not False:
             self._gpu_ms.setdefault(eye, []).append(previous)    # type: ignore[arg-type]
@@ -430,7 +429,7 @@ class Engine(VulkanFrames):
                           "gaze: the eye tracker gives no gaze; the fovea's window is at the configured gaze")
             self._gaze_said = said
 
-    def _aim(self, pipeline: "_Pipeline", eye: str, width: int, height: int) -> None:
+    def _aim(self, pipeline: "Pipeline", eye: str, width: int, height: int) -> None:
         """Place ``eye``'s fovea at the tracked gaze of this frame, or at the configured one."""
         corrector = pipeline.correctors[eye]
         uv = self._gaze_uv.get(eye)
@@ -452,7 +451,7 @@ class Engine(VulkanFrames):
             if fmt is None:
                 raise ValidationError("swapchain format", hex(src_format),
                                       ", ".join(f"{f.name} {hex(code)}" for code, f in GL_FORMATS.items()))
-            _check_rect(x, y, width, height, src_width, src_height)
+            check_rect(x, y, width, height, src_width, src_height)
             p = self.pipeline
             if p is None or not self._covered((int(src_format), int(width), int(height))):
                 return False
@@ -468,7 +467,7 @@ class Engine(VulkanFrames):
             self._cpu_ms.setdefault(eye, []).append(ms)
             return True
         except Exception as exc:  # noqa: BLE001
-            self.log.reason(f"view {view_index}: {_one_line(exc)}")
+            self.log.reason(f"view {view_index}: {one_line(exc)}")
             return False
 
     def forget_textures(self, names: list[int], current: bool = True) -> None:
@@ -480,7 +479,7 @@ class Engine(VulkanFrames):
                 with self._current(self.pipeline):
                     self.pipeline.forget_textures([int(n) for n in names])
         except Exception as exc:  # noqa: BLE001
-            self.log.reason(f"forgetting a swapchain's textures: {_one_line(exc)}")
+            self.log.reason(f"forgetting a swapchain's textures: {one_line(exc)}")
 
     def end_frame(self, corrected: bool, timings_ms: tuple[float, float, float, float] = (-1.0, -1.0, -1.0, -1.0)
                   ) -> None:
@@ -511,7 +510,7 @@ class Engine(VulkanFrames):
                     cpu = self._cpu_ms[eye]
                     gpu = [v for v in self._gpu_ms.get(eye, []) if v is not None]
                     saturated = any(v is None for v in self._gpu_ms.get(eye, []))
-                    gpu_text = (f">{_QUERY_MAX_MS:.0f}" if saturated else
+                    gpu_text = (f">{QUERY_MAX_MS:.0f}" if saturated else
                                 f"{sum(gpu) / len(gpu):.1f}" if gpu else "-")
                     parts.append(f"{eye} GPU {gpu_text} ms, CPU {sum(cpu) / len(cpu):.1f} ms")
                 count = max(len(v) for v in self._cpu_ms.values())
@@ -532,7 +531,7 @@ class Engine(VulkanFrames):
                 self._frame_ms.clear()
                 self._last_report = now
         except Exception as exc:  # noqa: BLE001
-            self.log.reason(f"timing: {_one_line(exc)}")
+            self.log.reason(f"timing: {one_line(exc)}")
 
     # ------------------------------------------------------------ the end
 

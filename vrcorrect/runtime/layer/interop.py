@@ -20,8 +20,10 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
 
-__all__ = ["GL_FORMATS", "GL_RGB10_A2", "GL_RGBA16F", "GL_RGBA8", "GL_SRGB8_ALPHA8", "SwapchainFormat", "Target",
-           "VK_FORMATS"]
+__all__ = ["GL_FORMATS", "GL_RGB10_A2", "GL_RGBA16F", "GL_RGBA8", "GL_SRGB8_ALPHA8", "QUERY_MAX_MS", "AppGlx",
+           "ChainMemory", "MemoryObjects", "Semaphores", "SwapchainFormat", "Target", "VK_FORMATS", "check_rect",
+           "flush_gl"]
+
 
 _GL_FRAMEBUFFER_SRGB = 0x8DB9
 _GL_TEXTURE_2D = 0x0DE1
@@ -29,7 +31,7 @@ _GL_TEXTURE_BINDING_2D = 0x8069
 _GL_R32UI = 0x8236
 _GL_RGBA16F = 0x881A
 _GL_HANDLE_TYPE_OPAQUE_FD_EXT = 0x9586
-_QUERY_MAX_MS = 0xFFFFFFFF / 1e6
+QUERY_MAX_MS = 0xFFFFFFFF / 1e6
 # shaders/layer_copy.glsl's codes
 _ENCODINGS = {"srgb": 0, "linear": 1, "float": 2}
 _PACKINGS = {"rgba8": 0, "bgra8": 1, "a2b10g10r10": 2}
@@ -78,7 +80,7 @@ VK_FORMATS = {
 """The Vulkan swapchain formats the layer corrects (``VkFormat`` -> meaning)."""
 
 
-class _MemoryObjects:
+class MemoryObjects:
     """``GL_EXT_memory_object_fd`` through ctypes (moderngl has no wrapper): Vulkan memory, exported
     as a file descriptor by the shim, as the storage of a GL texture of the engine's own EGL context."""
 
@@ -134,7 +136,7 @@ class _MemoryObjects:
         self.delete_memory(1, ctypes.byref(ctypes.c_uint(memory)))
 
 
-class _Semaphores:
+class Semaphores:
     """Vulkan sessions, where the device has ``VK_KHR_external_semaphore_fd`` and the engine's GL
     ``GL_EXT_semaphore_fd``: the shim's two exported semaphores imported into a pipeline's context.
     ``ready`` (the shim's copy into the shared ``input`` images has finished) is waited on by GL before
@@ -178,7 +180,7 @@ class _Semaphores:
 
 
 @dataclass
-class _ChainMemory:
+class ChainMemory:
     """A Vulkan swapchain's two shared images as the shim exported them: the format, the size, and
     the memory of ``input`` (the submitted rects, copied there by the shim) and ``result`` (the
     correction, copied from there into the output image) as file descriptors the engine owns until
@@ -213,7 +215,7 @@ Target = tuple[int, int, int]
 """What a pipeline is prepared for: (swapchain format code, rect width, rect height)."""
 
 
-class _AppGlx:
+class AppGlx:
     """OpenGL sessions: the engine's own GLX context made current on the application's thread for a
     correction, and the application's put back after.  The engine's context shares the application's
     textures; the two are ordered by fences: the application's rendering is complete before the
@@ -281,7 +283,7 @@ class _AppGlx:
                 inner.__exit__()
 
 
-def _flush(loader: Any) -> None:
+def flush_gl(loader: Any) -> None:
     ctypes.CFUNCTYPE(None)(loader._address("glFlush"))()
 
 
@@ -297,7 +299,7 @@ def _wait_sync(loader: Any, fence: int | None) -> None:
     delete(fence)
 
 
-def _check_rect(x: int, y: int, width: int, height: int, image_width: int, image_height: int) -> None:
+def check_rect(x: int, y: int, width: int, height: int, image_width: int, image_height: int) -> None:
     if width < 1 or height < 1 or x < 0 or y < 0 or x + width > image_width or y + height > image_height:
         raise ValidationError("imageRect", (x, y, width, height), f"inside the {image_width}x{image_height} swapchain image")
 

@@ -83,23 +83,24 @@ from .interop import (
     _PACKINGS,
     GL_FORMATS,
     VK_FORMATS,
+    ChainMemory,
+    MemoryObjects,
+    Semaphores,
     SwapchainFormat,
     Target,
-    _ChainMemory,
-    _MemoryObjects,
-    _Semaphores,
     _set_uniforms,
     _SharedChain,
     _wait_sync,
 )
 
-__all__ = []
+__all__ = ["Pipeline"]
 
-class _Pipeline:
+
+class Pipeline:
     """Everything the engine corrects with, in a GL context of its own: the two Correctors, the passes
     of ``shaders/layer_copy.glsl``, the staging textures, and what it made of the application's
     images (OpenGL: wrappers of its textures; Vulkan: the imported shared images).  Built and warmed
-    up on the build worker (:class:`_Builder`: every program compiled and run once for each
+    up on the build worker (:class:`Builder`: every program compiled and run once for each
     :data:`Target`, then each Corrector reset, so that its first frame is a cold start as a fresh
     Corrector's is), then used on the application's thread only."""
 
@@ -117,9 +118,9 @@ class _Pipeline:
         self._framebuffers: dict[int, moderngl.Framebuffer] = {}             # by the texture's GL name
         self._programs: dict[tuple[str, bool], tuple[moderngl.Program, moderngl.VertexArray]] = {}
         self._sampler = ctx.sampler(filter=(moderngl.NEAREST, moderngl.NEAREST), repeat_x=False, repeat_y=False)
-        self._memory: _MemoryObjects | None = None
+        self._memory: MemoryObjects | None = None
         self.chains: dict[int, _SharedChain] = {}
-        self.semaphores: _Semaphores | None = None       # Vulkan: external semaphores, where GL has them
+        self.semaphores: Semaphores | None = None       # Vulkan: external semaphores, where GL has them
         self.sync = ""                                    # Vulkan: how it is ordered with the copies (for the log)
         self._queries: dict[str, list[moderngl.Query]] = {}
         self._query_used: dict[str, list[bool]] = {}
@@ -154,7 +155,7 @@ class _Pipeline:
             self.targets.add((code, width, height))
         self.ctx.finish()
 
-    def copy_views(self, views: list[dict[str, Any]], chains: Mapping[int, _ChainMemory]) -> list[dict[str, Any]]:
+    def copy_views(self, views: list[dict[str, Any]], chains: Mapping[int, ChainMemory]) -> list[dict[str, Any]]:
         """The captured views' rects copied into textures of this context (OpenGL: from the
         application's texture once its fence has passed; Vulkan: from the shared ``input`` image,
         imported here), one per eye: what :meth:`prime` corrects."""
@@ -293,10 +294,10 @@ class _Pipeline:
                 del self._external[key]
             release(self._framebuffers.pop(name, None))
 
-    def import_chain(self, chain: int, memory: _ChainMemory) -> None:
+    def import_chain(self, chain: int, memory: ChainMemory) -> None:
         """Vulkan: import duplicates of a swapchain's shared images into this context."""
         if self._memory is None:
-            self._memory = _MemoryObjects(self.ctx)
+            self._memory = MemoryObjects(self.ctx)
         packed = memory.format.packing is not None
         internal, components, dtype = (_GL_R32UI, 1, "u4") if packed else (_GL_RGBA16F, 4, "f2")
         names: list[tuple[int, int]] = []

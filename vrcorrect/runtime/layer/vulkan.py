@@ -8,18 +8,14 @@ Layer 5: numpy, moderngl; never torch.
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING
 
 from ...plumbing.errors import ValidationError
-
-if TYPE_CHECKING:  # pragma: no cover - typing only
-
-    pass
-from .config import _one_line, eye_of_view
-from .interop import VK_FORMATS, _ChainMemory, _check_rect, _flush, _Semaphores
-from .pipeline import _Pipeline
+from .config import eye_of_view, one_line
+from .interop import VK_FORMATS, ChainMemory, Semaphores, check_rect, flush_gl
+from .pipeline import Pipeline
 
 __all__ = ["VulkanFrames"]
+
 
 class VulkanFrames:
     """The Vulkan half of the :class:`~vrcorrect.runtime.layer.engine.Engine`'s frame protocol (the
@@ -35,7 +31,7 @@ class VulkanFrames:
         self._semaphore_fds = (int(ready_fd), int(done_fd))
         return True
 
-    def attach_semaphores(self, pipeline: _Pipeline) -> str:
+    def attach_semaphores(self, pipeline: Pipeline) -> str:
         """(The builder, on the pipeline's context.)  Import the external semaphores into ``pipeline``
         where its GL can; returns how the pipeline is synchronised with the shim's copies."""
         if self._semaphore_fds is None:
@@ -44,7 +40,7 @@ class VulkanFrames:
         if missing:
             renderer = pipeline.ctx.info.get("GL_RENDERER", "?")
             return f"a fence and glFinish (the engine's GL, {renderer}, lacks {' and '.join(missing)})"
-        pipeline.semaphores = _Semaphores(pipeline.loader, self._semaphore_fds)
+        pipeline.semaphores = Semaphores(pipeline.loader, self._semaphore_fds)
         return "external semaphores (VK_KHR_external_semaphore_fd, GL_EXT_semaphore_fd): no CPU wait"
 
     def drain(self) -> bool:
@@ -58,10 +54,10 @@ class VulkanFrames:
                 self._waited_ready = True
             return True
         except Exception as exc:  # noqa: BLE001
-            self.log.reason(f"waiting for the Vulkan copy: {_one_line(exc)}")
+            self.log.reason(f"waiting for the Vulkan copy: {one_line(exc)}")
             return False
 
-    def chain_memory(self) -> dict[int, _ChainMemory]:
+    def chain_memory(self) -> dict[int, ChainMemory]:
         """The Vulkan swapchains' shared images now (any thread)."""
         return dict(self._chains)
 
@@ -74,12 +70,12 @@ class VulkanFrames:
             memory = self._chains.get(chain)
             if memory is None:
                 return False
-            _check_rect(x, y, width, height, memory.width, memory.height)
+            check_rect(x, y, width, height, memory.width, memory.height)
             self._add_capture({"eye": eye, "code": memory.code, "chain": int(chain),
                                "rect": (int(x), int(y), int(width), int(height))})
             return True
         except Exception as exc:  # noqa: BLE001
-            self.log.reason(f"view {view_index}: {_one_line(exc)}")
+            self.log.reason(f"view {view_index}: {one_line(exc)}")
             return False
 
     def import_images(self, chain: int, vk_format: int, width: int, height: int, input_fd: int, input_size: int,
@@ -94,7 +90,7 @@ class VulkanFrames:
                 raise ValidationError("swapchain format", hex(vk_format),
                                       ", ".join(f"{f.name} {hex(code)}" for code, f in VK_FORMATS.items()))
             self.release_images(chain)
-            memory = _ChainMemory(fmt, int(vk_format), int(width), int(height), fds, (int(input_size), int(result_size)))
+            memory = ChainMemory(fmt, int(vk_format), int(width), int(height), fds, (int(input_size), int(result_size)))
             self._chains[chain] = memory
             fds = ()
             self._add_targets(("chain", chain), self._chain_targets(int(vk_format), int(width), int(height)))
@@ -108,7 +104,7 @@ class VulkanFrames:
                 if fd >= 0:
                     os.close(fd)
             self.release_images(chain)
-            self.log.reason(f"the Vulkan application's images cannot be shared with the engine's GL: {_one_line(exc)}")
+            self.log.reason(f"the Vulkan application's images cannot be shared with the engine's GL: {one_line(exc)}")
             return False
 
     def release_images(self, chain: int) -> None:
@@ -121,7 +117,7 @@ class VulkanFrames:
                 with self._current(self.pipeline):
                     self.pipeline.release_chain(chain)
         except Exception as exc:  # noqa: BLE001
-            self.log.reason(f"Vulkan swapchain {chain}: releasing its images: {_one_line(exc)}")
+            self.log.reason(f"Vulkan swapchain {chain}: releasing its images: {one_line(exc)}")
         finally:
             if memory is not None:
                 memory.close()
@@ -136,7 +132,7 @@ class VulkanFrames:
             memory = self._chains.get(chain)
             if memory is None:
                 raise ValidationError("swapchain", chain, "one whose images the engine imported")
-            _check_rect(x, y, width, height, memory.width, memory.height)
+            check_rect(x, y, width, height, memory.width, memory.height)
             p = self.pipeline
             if p is None or not self._covered((memory.code, int(width), int(height))):
                 return False
@@ -156,7 +152,7 @@ class VulkanFrames:
             self._cpu_ms.setdefault(eye, []).append(ms)
             return True
         except Exception as exc:  # noqa: BLE001
-            self.log.reason(f"view {view_index}: {_one_line(exc)}")
+            self.log.reason(f"view {view_index}: {one_line(exc)}")
             return False
 
     def finish(self) -> bool:
@@ -169,10 +165,10 @@ class VulkanFrames:
             with self._current(p) as ctx:
                 if p.semaphores is not None:
                     p.semaphores.signal_done([c.result for c in p.chains.values()])
-                    _flush(p.loader)
+                    flush_gl(p.loader)
                 else:
                     ctx.finish()
             return True
         except Exception as exc:  # noqa: BLE001
-            self.log.reason(f"glFinish: {_one_line(exc)}")
+            self.log.reason(f"glFinish: {one_line(exc)}")
             return False
