@@ -102,12 +102,13 @@ def test_sighup_is_handled_like_sigterm(tmp_path):
 
 def test_report_of_an_identical_image_is_valid_json_with_null_and_a_note(tmp_path):
     """A black image is its own best correction: PSNR is infinite, which JSON cannot hold; the
-    report writes null and says why."""
+    report writes null and says why.  (The pupil is fixed: from a black image's light it would be
+    7.5 mm, a minute of kernels that this test is not about.)"""
     from vrcorrect.apps.cli import main
 
     Image.fromarray(np.zeros((32, 32, 3), np.uint8)).save(tmp_path / "black.png")
     assert main(["correct", str(tmp_path / "black.png"), "-o", str(tmp_path / "out.png"), "--report",
-                 str(tmp_path / "r.json"), "--method", "wiener", "--display", "desktop"]) == 0
+                 str(tmp_path / "r.json"), "--method", "wiener", "--display", "desktop", "--pupil", "4"]) == 0
     report = _strict_json(tmp_path / "r.json")
     assert report["metrics"]["psnr"] is None
     assert any(note.startswith("metrics.psnr: null (inf") for note in report["notes"]), report["notes"]
