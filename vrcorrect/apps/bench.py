@@ -123,10 +123,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
             run_fovea_bench,  # on use: start-up time (apps/__init__: the parser loads no layer below)
         )
 
-        quick = {"images": ("rocket",), "iterations": (2,), "radii": (15.0,), "view": 640} if args.quick else {}
+        quick = {"images": ("rocket",), "iterations": (2,), "radii": (15.0,), "view": 640,
+                 "video_clips": ("text",), "video_frames": 10} if args.quick else {}
         report = run_fovea_bench(out=Path(args.out), write=not args.no_write,
                                  plot=Path(args.out).with_name("fovea_tradeoff.png"), json_out=_json_out(args),
-                                 force=args.force, **quick)
+                                 force=args.force, video=args.video, **quick)
         print(report["markdown"])
     elif args.what == "layer":
         from ..studies.bench.layer import (
@@ -208,12 +209,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--eyes", type=int, help="learned, unrolled: held-out eyes (the U-Net bench: default 6; an "
                    "unrolled model: on each display, default 2)")
     p.add_argument("--quick", action="store_true", help="realtime: fewer frames and sizes (a smoke run); fovea: the "
-                   "rocket only, at 15 degrees and 2 iterations, on a 640 px view")
+                   "rocket only, at 15 degrees and 2 iterations, on a 640 px view (with --video, the text clip, 10 "
+                   "frames)")
     p.add_argument("--video", action="store_true",
                    help="halfres: also play the held-out clips through a half-resolution real-time twin for one "
                         "strong eye, judged as video (some 15 minutes more on 2 cores); robust: also the motion suite's "
                         "video shares with the robust design and a dark clip cut to a bright one with the pupil "
-                        "following the light")
+                        "following the light; fovea: also two of the motion suite's clips (text, cut) at a 15 degree window, "
+                        "judged as video (FovVideoVDP) and by FLIP")
     p.add_argument("--size", default="1832x1920", metavar="WxH",
                    help="cost, workgroups: each eye's image size (default 1832x1920, a Quest 2 eye)")
     p.add_argument("--json", metavar="OUT.json", help="cost, workgroups, halfres, robust: also write the figures as JSON "

@@ -1,6 +1,6 @@
 """ColorVideoVDP (Mantiuk et al. 2024) as this project's judge: :func:`jod` for images,
-:func:`video_jod` for clips (video mode), :func:`foveated_jod` (FovVideoVDP's foveated mode, a gaze
-point and the eye's falloff) for foveated corrections. Each is told the display's pixels per
+:func:`video_jod` for clips (video mode), :func:`foveated_jod` and :func:`foveated_video_jod`
+(FovVideoVDP's foveated mode, a gaze point and the eye's falloff) for foveated corrections. Each is told the display's pixels per
 degree, peak luminance, contrast and ambient light (:class:`~vrcorrect.specs.display.DisplayProfile`).
 10 JOD means identical; one JOD less means about 75 % of observers would pick the other image.
 
@@ -22,7 +22,7 @@ from ..plumbing.errors import InputError, ValidationError
 from ..specs.display import DisplayProfile
 from .metric_checks import as_float_array, check_finite, check_pair, check_unit_range
 
-__all__ = ["JOD_MIN_SIDE", "VIDEO_JOD_MAX_FPS", "jod", "foveated_jod", "video_jod"]
+__all__ = ["JOD_MIN_SIDE", "VIDEO_JOD_MAX_FPS", "jod", "foveated_jod", "foveated_video_jod", "video_jod"]
 
 #: Smallest image side ColorVideoVDP can score (its pyramid fails on a 1-pixel side).
 JOD_MIN_SIDE = 2
@@ -151,9 +151,54 @@ def foveated_jod(reference_srgb: np.ndarray, test_srgb: np.ndarray, display: Dis
     """
     a, b = _jod_pair(reference_srgb, test_srgb, display)
     H, W = a.shape[:2]
-    fx, fy = (float(v) for v in fixation_px)
-    if not (math.isfinite(fx) and math.isfinite(fy) and 0 <= fx < W and 0 <= fy < H):
-        raise ValidationError("fixation_px", fixation_px, f"a point inside the {W}x{H} image")
+    fixation = _fixation(fixation_px, W, H)
+    torch, metric = _fvvdp_for(display, W, H)
+    with torch.no_grad():
+        q, _stats = metric.predict(torch.from_numpy(b), torch.from_numpy(a), dim_order="HWC", fixation_point=fixation)
+    return float(q)
+
+
+def foveated_video_jod(reference_frames: Any, test_frames: Any, display: DisplayProfile,
+                       fixation_px: tuple[float, float], fps: float) -> float:
+    """FovVideoVDP's quality of the clip ``test_frames`` against ``reference_frames`` for an eye
+    fixating ``fixation_px`` throughout, in JOD: :func:`foveated_jod` in video mode (its temporal
+    channels see flicker and frame-to-frame changes), with the frames and ``fps`` checked as for
+    :func:`video_jod`.  Luminance only, on the CPU; time grows with ``F H W``.
+
+    Raises ``ValidationError`` as :func:`video_jod` and :func:`foveated_jod` (naming the field), and
+    ``InputError`` when FovVideoVDP or torch is not installed."""
+    if not isinstance(display, DisplayProfile):
+        raise ValidationError("display", type(display).__name__,
+                              "a DisplayProfile (vrcorrect.specs.display.get_display)")
+    _check_fps(fps)
+    a = _frames_array(reference_frames, "reference_frames")
+    b = _frames_array(test_frames, "test_frames")
+    if a.shape != b.shape:
+        raise ValidationError("test_frames.shape", b.shape, f"the shape of reference_frames, {a.shape}")
+    H, W = a.shape[1:3]
+    fixation = _fixation(fixation_px, W, H)
+    torch, metric = _fvvdp_for(display, W, H)
+    with torch.no_grad():
+        q, _stats = metric.predict(torch.from_numpy(b), torch.from_numpy(a), dim_order="FHWC",
+                                   frames_per_second=float(fps), fixation_point=fixation)
+    return float(q)
+
+
+def _fixation(fixation_px: Any, width: int, height: int) -> Any:
+    """``fixation_px`` checked to lie inside the image, as FovVideoVDP takes it (a torch tensor)."""
+    try:
+        fx, fy = (float(v) for v in fixation_px)
+    except (TypeError, ValueError):
+        raise ValidationError("fixation_px", fixation_px, "(x, y) in pixels") from None
+    if not (math.isfinite(fx) and math.isfinite(fy) and 0 <= fx < width and 0 <= fy < height):
+        raise ValidationError("fixation_px", fixation_px, f"a point inside the {width}x{height} image")
+    torch, _ = _import_cvvdp()
+    return torch.tensor([int(fx), int(fy)])
+
+
+def _fvvdp_for(display: DisplayProfile, W: int, H: int):
+    """FovVideoVDP, foveated, under ``display``'s viewing conditions for ``W`` x ``H`` images;
+    returns ``(torch, metric)``."""
     torch, _ = _import_cvvdp()             # torch and torchvision set up as ColorVideoVDP needs them
     try:
         import pyfvvdp  # optional: pyfvvdp (the metrics extra)
@@ -169,10 +214,7 @@ def foveated_jod(reference_srgb: np.ndarray, test_srgb: np.ndarray, display: Dis
         display_photometry=pyfvvdp.fvvdp_display_photo_eotf(ph.peak_luminance_cd_m2, contrast=ph.contrast, EOTF="sRGB",
                                                             E_ambient=ph.ambient_lux, k_refl=ph.reflectivity,
                                                             name=display.name))
-    with torch.no_grad():
-        q, _stats = metric.predict(torch.from_numpy(b), torch.from_numpy(a), dim_order="HWC",
-                                   fixation_point=torch.tensor([int(fx), int(fy)]))
-    return float(q)
+    return torch, metric
 
 
 #: Highest frame rate :func:`video_jod` accepts (Hz): ColorVideoVDP's temporal filters span a quarter
@@ -271,9 +313,7 @@ def video_jod(reference_frames: Any, test_frames: Any, display: DisplayProfile, 
     if not isinstance(display, DisplayProfile):
         raise ValidationError("display", type(display).__name__,
                               "a DisplayProfile (vrcorrect.specs.display.get_display)")
-    if isinstance(fps, bool) or not isinstance(fps, (int, float, np.integer, np.floating)) \
-            or not (math.isfinite(float(fps)) and 0.0 < float(fps) <= VIDEO_JOD_MAX_FPS):
-        raise ValidationError("fps", fps, f"a frame rate in (0, {VIDEO_JOD_MAX_FPS:g}] frames per second")
+    _check_fps(fps)
     a = _frames_array(reference_frames, "reference_frames")
     b = _frames_array(test_frames, "test_frames")
     if a.shape != b.shape:
@@ -283,6 +323,12 @@ def video_jod(reference_frames: Any, test_frames: Any, display: DisplayProfile, 
         q, _stats = metric.predict(torch.from_numpy(b), torch.from_numpy(a), dim_order="FHWC",
                                    frames_per_second=float(fps))
     return float(q)
+
+
+def _check_fps(fps: Any) -> None:
+    if isinstance(fps, bool) or not isinstance(fps, (int, float, np.integer, np.floating)) \
+            or not (math.isfinite(float(fps)) and 0.0 < float(fps) <= VIDEO_JOD_MAX_FPS):
+        raise ValidationError("fps", fps, f"a frame rate in (0, {VIDEO_JOD_MAX_FPS:g}] frames per second")
 
 
 def _cvvdp_for(display: DisplayProfile, width: int, height: int):

@@ -21,7 +21,18 @@ What the eye sees of each is scored against the glasses-on view:
   radius, without the band beyond it; foveated against
   the full field there) and on the view's strips left and right of the window (foveated against no
   correction there: the view outside the window is the target, only the light the window spills
-  changes it).
+  changes it);
+* beside them, on the whole view, **FLIP** (:func:`~vrcorrect.vision.metrics.flip`, lower is better) and
+  the **objective** (the cone images' error, as a fraction of no correction's): a metric's verdict
+  is read with the physics', never alone.
+
+With ``video``, two of the motion suite's clips (:mod:`~vrcorrect.studies.bench.sequences`: scrolling
+text, and a pan cut half-way to another photograph; :data:`VIDEO_CLIPS`), each
+:data:`VIDEO_FRAMES` frames at the same view, are played through the full field's and the
+:data:`CHECK_RADIUS_DEG` window's twins as ``vrcorrect render`` plays a clip (the content's motion
+reprojects the warm start; a cut starts cold) and judged as video: FovVideoVDP in video mode
+(:func:`~vrcorrect.vision.vdp.foveated_video_jod`) fixating the centre and :data:`OFF_DEG` off,
+and the frames' mean FLIP.
 
 Cost: the bytes of a changing frame counted from the GPU's dispatches (a dry run: nothing runs) at a
 Quest 2 eye, 1832x1920, and the frame's wall time on this machine's OpenGL renderer at the bench's
@@ -40,13 +51,14 @@ import numpy as np
 from tqdm import tqdm
 
 from ...physics.kernel import build_kernel, build_reference_kernel
+from ...plumbing.errors import ValidationError
 from ...runtime.strategies.foveated import DEFAULT_PERIPHERY, PERIPHERY_ITERATIONS
 from ...solvers.foveated import PERIPHERIES, FoveatedFrames, fovea_pixels
 from ...solvers.realtime import AdmmFrames
 from ...specs.display import decode, get_display
 from ...specs.prescription import EyeRx, Prescription
-from ...vision.metrics import evaluate_seen
-from ...vision.vdp import foveated_jod, jod
+from ...vision.metrics import evaluate_seen, flip
+from ...vision.vdp import foveated_jod, foveated_video_jod, jod
 from . import machine_description, markdown_table, publish
 
 __all__ = ["RADII_DEG", "ITERATIONS", "VIEW", "FRAMES", "OFF_DEG", "EYE", "IMAGES", "run_fovea_bench"]
@@ -63,6 +75,11 @@ QUEST2_EYE = (1832, 1920)
 EYE = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=120.0, pupil_diameter_mm=3.0)
 IMAGES = ("motorcycle", "rocket", "page")
 CHECK_RADIUS_DEG = 15.0
+VIDEO_CLIPS = ("text", "cut")
+"""The motion suite's clips played with ``video`` (:func:`video_cases`)."""
+VIDEO_FRAMES = 30
+"""Frames a clip (a third of a second at 90 Hz; the cut falls half-way)."""
+VIDEO_FPS = 90.0
 
 
 def bench_image(name: str, size: int) -> np.ndarray:
@@ -162,9 +179,11 @@ def settings_of(radii: Sequence[float], iterations: Sequence[int]) -> list[tuple
 
 def run_fovea_bench(out: Path, write: bool = True, plot: Path | None = None, json_out: Path | None = None,
                     force: bool = False, images: Sequence[str] = IMAGES, radii: Sequence[float] = RADII_DEG,
-                    iterations: Sequence[int] = ITERATIONS, view: int = VIEW, frames: int = FRAMES) -> dict[str, Any]:
-    """Run the bench (module docstring); returns the report (with ``markdown``), writes the ``fovea``
-    section of ``out``, the plot and, with ``json_out``, the JSON."""
+                    iterations: Sequence[int] = ITERATIONS, view: int = VIEW, frames: int = FRAMES,
+                    video: bool = False, video_clips: Sequence[str] = VIDEO_CLIPS,
+                    video_frames: int | None = None) -> dict[str, Any]:
+    """Run the bench (module docstring; ``video``: also the clips); returns the report (with
+    ``markdown``), writes the ``fovea`` section of ``out``, the plot and, with ``json_out``, the JSON."""
     display = get_display("quest2")
     ppd = float(display.pixels_per_degree)
     K, R = build_kernel(EYE, display), build_reference_kernel(EYE, display)
@@ -182,10 +201,7 @@ def run_fovea_bench(out: Path, write: bool = True, plot: Path | None = None, jso
         for name in images:
             target = decode(display, bench_image(name, view)).astype(np.float32)
 
-            def seen(shown: np.ndarray) -> dict[str, np.ndarray]:
-                return evaluate_seen(shown, target, K, display, reference_kernel=R, with_jod=False)[1]
-
-            none = seen(target)
+            none_metrics, none = evaluate_seen(target, target, K, display, reference_kernel=R, with_jod=False)
             base = {"centre": foveated_jod(none["target_srgb"], none["seen_srgb"], display, centre),
                     "off": foveated_jod(none["target_srgb"], none["seen_srgb"], display, off)}
             rows = []
@@ -200,11 +216,13 @@ def run_fovea_bench(out: Path, write: bool = True, plot: Path | None = None, jso
                                           periphery_iterations=PERIPHERY_ITERATIONS.get(p))
                     shown, last = _frames(twin, target, k, frames, gaze_px=centre)
                     window = _inset(last.window.win, band_px, view)        # the fovea's radius: no band
-                s = seen(shown)
+                metrics, s = evaluate_seen(shown, target, K, display, reference_kernel=R, with_jod=False)
                 c = costs[(k, r, p)]
                 row = {"radius_deg": r, "iterations": k, "periphery": p, "window": list(window),
                        "fov_jod_centre": foveated_jod(s["target_srgb"], s["seen_srgb"], display, centre),
                        "fov_jod_off": foveated_jod(s["target_srgb"], s["seen_srgb"], display, off),
+                       "flip": metrics.flip, "objective_fraction": metrics.objective / none_metrics.objective
+                       if none_metrics.objective > 0 else float("nan"),
                        "bytes_quest2_eye": c["bytes"], "ms_view": c["ms"]}
                 if r is None:
                     full_images[k] = s
@@ -220,14 +238,73 @@ def run_fovea_bench(out: Path, write: bool = True, plot: Path | None = None, jso
                                                for a, b in strips]
                 rows.append(row)
                 bar.update()
+            base["flip"] = none_metrics.flip
             cases.append({"image": name, "none": base, "rows": rows})
+    video_rows = video_cases(display, K, R, view, VIDEO_FRAMES if video_frames is None else video_frames,
+                             video_clips) if video else []
     report = {"machine": machine_description(), "renderer": costs[settings[0]]["renderer"],
               "view": view, "ppd": ppd, "frames": frames, "off_deg": OFF_DEG, "eye": "right, -2.00/-1.00 x 120",
-              "periphery_iterations": PERIPHERY_ITERATIONS, "seconds": time.perf_counter() - t_start, "cases": cases}
+              "periphery_iterations": PERIPHERY_ITERATIONS, "seconds": time.perf_counter() - t_start, "cases": cases,
+              "video": video_rows}
     report["markdown"] = _markdown(report)
     if plot is not None and write:
         _plot(report, plot)
     return publish(report, "fovea", out, write, json_out, force)
+
+
+def _play(twin: Any, frames: Sequence[np.ndarray], motions: Sequence[Any], k: int, **kwargs: Any) -> list[np.ndarray]:
+    """``frames`` (linear) through ``twin`` as ``vrcorrect render`` plays a clip: the estimated motion
+    reprojects the warm start, a cut starts cold; the frames shown."""
+    shown = []
+    for i, frame in enumerate(frames):
+        m = None if i == 0 else motions[i - 1]
+        cut = m == "cut"
+        out = twin.frame(frame, k, shift=None if (cut or m is None) else m, cold=cut, **kwargs)
+        shown.append(np.clip(out.shown, 0.0, 1.0))
+    return shown
+
+
+def video_cases(display: Any, K: Any, R: Any, view: int, frames: int, clips: Sequence[str] = VIDEO_CLIPS,
+                radius: float = CHECK_RADIUS_DEG, k: int = DEFAULT_ITERATIONS) -> list[dict[str, Any]]:
+    """The clips (module docstring): for each, no correction, the full field and the ``radius``
+    window (the default periphery), judged as video against the glasses-on view."""
+    from ...specs.display import encode  # on use: start-up time (the CLI imports the studies to build its parser)
+    from ...vision.forward import (  # on use: start-up time (the CLI imports the studies to build its parser)
+        lms_to_display,
+        simulate_lms,
+    )
+    from .realtime import _motions, linear  # on use: start-up time (the CLI imports the studies to build its parser)
+    from .sequences import SEQUENCES, suite  # on use: start-up time (the CLI imports the studies to build its parser)
+
+    for name in clips:
+        if name not in SEQUENCES or name == "head turn":             # the head turn needs a GL context
+            raise ValidationError("clips", name, "clips of the motion suite: " +
+                                  ", ".join(n for n in SEQUENCES if n != "head turn"))
+
+    def seen(kernel: Any, x: np.ndarray) -> np.ndarray:       # what the eye sees, in K's display RGB, sRGB
+        return np.clip(encode("srgb", lms_to_display(simulate_lms(x, kernel)[0], K)), 0.0, 1.0)
+
+    ppd = float(display.pixels_per_degree)
+    shape = (view, view)
+    centre, off = (view / 2.0, view / 2.0), (view / 2.0 + OFF_DEG * ppd, view / 2.0)
+    radius_px, band_px = fovea_pixels(radius, ppd)
+    rows = []
+    for clip in tqdm(suite(view, frames, names=tuple(clips)), desc="bench fovea: clips", unit="clip", leave=False):
+        lin = [linear(f) for f in clip.frames]
+        motions = _motions(clip.frames)
+        ref = [seen(R, x) for x in lin]
+        fov = FoveatedFrames(K, R, shape, radius_px=radius_px, band_px=band_px, periphery=DEFAULT_PERIPHERY,
+                             periphery_iterations=PERIPHERY_ITERATIONS.get(DEFAULT_PERIPHERY))
+        runs = {"none": lin, "full": _play(AdmmFrames(K, R, shape), lin, motions, k),
+                "foveated": _play(fov, lin, motions, k, gaze_px=centre)}
+        row: dict[str, Any] = {"clip": clip.name, "what": clip.what, "frames": len(lin)}
+        for name, shown in runs.items():
+            eye = [seen(K, x) for x in shown]
+            row[name] = {"centre": foveated_video_jod(ref, eye, display, centre, VIDEO_FPS),
+                         "off": foveated_video_jod(ref, eye, display, off, VIDEO_FPS),
+                         "flip": float(np.mean([flip(a, b, ppd)[0] for a, b in zip(ref, eye)]))}
+        rows.append(row)
+    return rows
 
 
 def _setting(r: float | None) -> str:
@@ -258,6 +335,7 @@ def checks(report: dict) -> list[dict[str, Any]]:
                         "outside_least": min((a - b for a, b in zip(row.get("outside_jod", []),
                                                                     row.get("outside_jod_none", []))),
                                              default=float("nan")),
+                        "flip_delta": row["flip"] - full["flip"],
                         "bytes": row["bytes_quest2_eye"]})
     return out
 
@@ -298,10 +376,11 @@ def _markdown(report: dict) -> str:
                      + markdown_table(["image", "periphery", "foveated - full, at the centre",
                                        f"share of the full field's gain, {report['off_deg']:g} deg off",
                                        "window crop: foveated - full", "outside: least foveated - none",
-                                       "GB a Quest 2 eye frame"],
+                                       "FLIP: foveated - full (lower is better)", "GB a Quest 2 eye frame"],
                                       [[c["image"], _periphery(c["periphery"], report), f"{c['delta_centre']:+.2f}",
                                         f"{100 * c['share_off']:.0f} %", f"{c['crop_delta']:+.2f}",
-                                        f"{c['outside_least']:+.2f}", f"{c['bytes'] / 1e9:.2f}"] for c in checked])
+                                        f"{c['outside_least']:+.2f}", f"{c['flip_delta']:+.3f}",
+                                        f"{c['bytes'] / 1e9:.2f}"] for c in checked])
                      + "\n")
     for case in report["cases"]:
         none = case["none"]
@@ -312,13 +391,36 @@ def _markdown(report: dict) -> str:
                          f"{r['bytes_quest2_eye'] / 1e9:.2f}",
                          "-" if r["ms_view"] is None else f"{r['ms_view']:.0f}", f"{r['fov_jod_centre']:.2f}",
                          f"{r['fov_jod_centre'] - none['centre']:+.2f}", f"{r['fov_jod_off']:.2f}",
-                         f"{100 * _share(r, f, none, 'off'):.0f} %"])
+                         f"{100 * _share(r, f, none, 'off'):.0f} %", f"{r['flip']:.3f}",
+                         f"{100 * r['objective_fraction']:.0f} %"])
         parts.append(f"\n### {case['image']}\n\nNo correction: FovVideoVDP {none['centre']:.2f} fixating the centre, "
-                     f"{none['off']:.2f} fixating {report['off_deg']:g} deg off.\n\n"
+                     f"{none['off']:.2f} fixating {report['off_deg']:g} deg off; FLIP {none['flip']:.3f}.\n\n"
                      + markdown_table(["fovea radius", "periphery", "iterations a frame", "GB a Quest 2 eye frame",
                                        f"ms a frame at {view} px (this renderer)", "FovVideoVDP, centre",
                                        "gain over none", f"FovVideoVDP, {report['off_deg']:g} deg off",
-                                       "share of the full field's gain, off"], rows) + "\n")
+                                       "share of the full field's gain, off", "FLIP",
+                                       "objective (of no correction's)"], rows) + "\n")
+    if report.get("video"):
+        rows = []
+        for v in report["video"]:
+            n, full, fov = v["none"], v["full"], v["foveated"]
+            gain_off = full["off"] - n["off"]
+            rows.append([v["clip"], f"{n['centre']:.2f}", f"{full['centre']:.2f}", f"{fov['centre']:.2f}",
+                         f"{fov['centre'] - full['centre']:+.2f}", f"{n['off']:.2f}", f"{full['off']:.2f}",
+                         f"{fov['off']:.2f}",
+                         f"{100 * (fov['off'] - n['off']) / gain_off:.0f} %" if gain_off > 1e-9 else "-",
+                         f"{n['flip']:.3f} / {full['flip']:.3f} / {fov['flip']:.3f}"])
+        frames = report["video"][0]["frames"]
+        parts.append(f"\n### As video: the motion suite at a {CHECK_RADIUS_DEG:g} degree window\n\n"
+                     f"Clips of {frames} frames at 90 Hz on the same view, played as `vrcorrect render` plays them "
+                     "(the content's motion reprojects the warm start, a cut starts cold), the window's periphery "
+                     f"{DEFAULT_PERIPHERY} resolution, {DEFAULT_ITERATIONS} iterations a frame. FovVideoVDP in video "
+                     f"mode fixating the window's centre and {report['off_deg']:g} degrees off; FLIP the frames' "
+                     "mean (lower is better).\n\n"
+                     + markdown_table(["clip", "none, centre", "full, centre", "foveated, centre",
+                                       "foveated - full, centre", f"none, {report['off_deg']:g} deg off",
+                                       "full, off", "foveated, off", "share of the full field's gain, off",
+                                       "FLIP: none / full / foveated"], rows) + "\n")
     parts.append("\n![Foveated JOD against the window's radius, by periphery](fovea_tradeoff.png)\n")
     parts.append(f"\n_Run on {time.strftime('%Y-%m-%d')}._\n")
     return "".join(parts)
