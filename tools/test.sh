@@ -7,9 +7,9 @@
 #                                (pytest-xdist, a test file to a worker, so that a file's session
 #                                fixtures are built once; a crashed worker ends the run rather than
 #                                being replaced), then the serial ones (they read a clock) alone.
-#                                Not yet CI's way: its one full run on 2 cores lost a worker (fixed
-#                                since: the test runtime's in-process tests are serial) and has not
-#                                been timed cleanly
+#                                Not yet CI's way: from a fresh clone on 2 idle cores it took 28.5 min
+#                                (set-up included; serial about 40), and a worker died in an in-process
+#                                GLFW window test (test_runtime_window.py) that passes in the serial run
 #   bash tools/test.sh --fast    the developer's loop: the tests that need no OpenGL, X display, OpenXR,
 #                                torch or ColorVideoVDP and are not marked slow (tests/conftest.py marks
 #                                them), on every core (pytest-xdist); about 550 tests in under 2 minutes
