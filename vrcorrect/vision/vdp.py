@@ -167,14 +167,7 @@ def foveated_video_jod(reference_frames: Any, test_frames: Any, display: Display
 
     Raises ``ValidationError`` as :func:`video_jod` and :func:`foveated_jod` (naming the field), and
     ``InputError`` when FovVideoVDP or torch is not installed."""
-    if not isinstance(display, DisplayProfile):
-        raise ValidationError("display", type(display).__name__,
-                              "a DisplayProfile (vrcorrect.specs.display.get_display)")
-    _check_fps(fps)
-    a = _frames_array(reference_frames, "reference_frames")
-    b = _frames_array(test_frames, "test_frames")
-    if a.shape != b.shape:
-        raise ValidationError("test_frames.shape", b.shape, f"the shape of reference_frames, {a.shape}")
+    a, b = _clip_pair(reference_frames, test_frames, display, fps)
     H, W = a.shape[1:3]
     fixation = _fixation(fixation_px, W, H)
     torch, metric = _fvvdp_for(display, W, H)
@@ -310,6 +303,17 @@ def video_jod(reference_frames: Any, test_frames: Any, display: DisplayProfile, 
     InputError
         When ColorVideoVDP or torch is not installed.
     """
+    a, b = _clip_pair(reference_frames, test_frames, display, fps)
+    torch, metric = _cvvdp_for(display, a.shape[2], a.shape[1])
+    with torch.no_grad():
+        q, _stats = metric.predict(torch.from_numpy(b), torch.from_numpy(a), dim_order="FHWC",
+                                   frames_per_second=float(fps))
+    return float(q)
+
+
+def _clip_pair(reference_frames: Any, test_frames: Any, display: Any, fps: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The checks :func:`video_jod` and :func:`foveated_video_jod` share: the display, the rate and
+    both clips (one shape), as float32 ``(F, H, W, 3)`` arrays."""
     if not isinstance(display, DisplayProfile):
         raise ValidationError("display", type(display).__name__,
                               "a DisplayProfile (vrcorrect.specs.display.get_display)")
@@ -318,11 +322,7 @@ def video_jod(reference_frames: Any, test_frames: Any, display: DisplayProfile, 
     b = _frames_array(test_frames, "test_frames")
     if a.shape != b.shape:
         raise ValidationError("test_frames.shape", b.shape, f"the shape of reference_frames, {a.shape}")
-    torch, metric = _cvvdp_for(display, a.shape[2], a.shape[1])
-    with torch.no_grad():
-        q, _stats = metric.predict(torch.from_numpy(b), torch.from_numpy(a), dim_order="FHWC",
-                                   frames_per_second=float(fps))
-    return float(q)
+    return a, b
 
 
 def _check_fps(fps: Any) -> None:
