@@ -64,3 +64,33 @@ def test_window_context_clears_and_reads_back(glfw_window):
     glfw.poll_events()
     G.check_gl_errors(ctx, "after swap")
     ctx.release()
+
+
+_AFTER_EGL = """
+import sys
+from vrcorrect.runtime.gl import headless_context
+from vrcorrect.runtime.glcache import egl_context
+for make in (lambda: headless_context(require=430), lambda: egl_context(430, cache=False)):
+    ctx = make()
+    ctx.release()
+from vrcorrect.runtime.shell.window import GlfwSession
+with GlfwSession(platform="x11") as window:
+    window.open(64, 48, "after EGL", visible=False, vsync=False)
+    print("window", window.ctx.version_code, flush=True)
+"""
+
+
+def test_a_window_opens_on_a_thread_whose_headless_contexts_were_released(x_display, tmp_path):
+    """A headless context (``headless_context``, ``egl_context``) released, then a GLFW window on
+    the same thread: glcontext leaves a released EGL context current, and libglvnd then refuses the
+    thread a GLX context (``BadAccess`` in ``glXMakeCurrent``, and Xlib ends the process).  Released
+    contexts are no longer current, so the window opens.  (A process of its own: the failure ends it.)"""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, DISPLAY=x_display)
+    result = subprocess.run([sys.executable, "-c", _AFTER_EGL], env=env, capture_output=True, text=True,
+                            timeout=120, cwd=tmp_path)
+    assert result.returncode == 0 and "window " in result.stdout, (result.returncode, result.stdout,
+                                                                   result.stderr[-2000:])

@@ -25,6 +25,7 @@ the one last used, and if that framebuffer was deleted the driver raises
 
 from __future__ import annotations
 
+import ctypes
 from dataclasses import dataclass
 from types import ModuleType
 from typing import TYPE_CHECKING, Mapping, Protocol
@@ -79,12 +80,50 @@ def headless_context(*, require: int = 330) -> "moderngl.Context":
         raise ValidationError("require", require, "an OpenGL version code from 200 to 460 (330 = 3.3)")
     moderngl = _moderngl()
     try:
-        return moderngl.create_standalone_context(backend="egl", require=require)
+        import glcontext  # on use: glcontext (moderngl's own dependency, with the realtime extra)
+
+        inner = EglStandalone(glcontext.get_backend_by_name("egl")(mode="standalone", glversion=require))
+        return moderngl.create_context(require=require, standalone=True, context=inner)
     except Exception as exc:  # glcontext raises bare Exception ('libEGL.so.1 not loaded', 'egl... failed')
         raise GLUnavailableError(
             f"no headless OpenGL {require // 100}.{require % 100 // 10} context through EGL ({exc}); "
             f"on Debian/Ubuntu install Mesa's EGL and software GL: apt-get install "
             f"{' '.join(MESA_DEBIAN_PACKAGES)} (tools/setup.sh does)") from None
+
+
+class EglStandalone:
+    """glcontext's standalone EGL context (``inner``), which is no longer current on its thread once
+    released.  glcontext destroys the context on release but leaves it current, and libglvnd then
+    refuses that thread any GLX context: GLFW's ``glXMakeCurrent`` fails with ``BadAccess`` and Xlib
+    ends the process (a headless corrector, then a window, on one thread).  A glcontext-like object:
+    ``load``, ``__enter__``, ``__exit__``, ``release``."""
+
+    def __init__(self, inner: object):
+        self.inner = inner
+        self._egl = egl = ctypes.CDLL("libEGL.so.1")
+        egl.eglGetCurrentContext.restype = ctypes.c_void_p
+        egl.eglGetCurrentDisplay.restype = ctypes.c_void_p
+        egl.eglMakeCurrent.argtypes = [ctypes.c_void_p] * 4
+        self.handle = egl.eglGetCurrentContext()        # glcontext leaves a new context current
+
+    def load(self, name: str) -> int:
+        return self.inner.load(name)                    # type: ignore[attr-defined]
+
+    def load_opengl_function(self, name: str) -> int:
+        loader = getattr(self.inner, "load_opengl_function", None) or self.inner.load  # type: ignore[attr-defined]
+        return loader(name)
+
+    def __enter__(self) -> object:
+        return self.inner.__enter__()                   # type: ignore[attr-defined]
+
+    def __exit__(self, *args: object) -> object:
+        return self.inner.__exit__(*args)               # type: ignore[attr-defined]
+
+    def release(self) -> None:
+        egl = self._egl
+        if self.handle and egl.eglGetCurrentContext() == self.handle:
+            egl.eglMakeCurrent(egl.eglGetCurrentDisplay(), None, None, None)
+        self.inner.release()                            # type: ignore[attr-defined]
 
 
 def check_gl_errors(ctx: "moderngl.Context", where: str) -> None:
