@@ -204,8 +204,11 @@ def test_eye_models_are_kept_under_a_key_of_everything_they_depend_on(setup, tmp
     others = [eye_cache.key(changed, None, (96, 64), CorrectorOptions()),
               eye_cache.key(eyes, "quest2", (96, 64), CorrectorOptions()),
               eye_cache.key(eyes, None, (128, 64), CorrectorOptions()),
-              eye_cache.key(eyes, None, (96, 64), replace(CorrectorOptions(), iterations_per_frame=3))]
-    assert len({key, *others}) == 5
+              eye_cache.key(eyes, None, (96, 64), replace(CorrectorOptions(), iterations_per_frame=3)),
+              # the wearer's age alone (the prescription's age_years: the pupil's formula takes it)
+              eye_cache.key(eyes, None, (96, 64), CorrectorOptions(), age_years=70),
+              eye_cache.key(eyes, None, (96, 64), CorrectorOptions(), age_years=25)]
+    assert len({key, *others}) == 7
     profile = tmp_path / "display.json"
     profile.write_text("{}")
     before = eye_cache.key(eyes, str(profile), (96, 64), CorrectorOptions())

@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import re
 import subprocess
 from pathlib import Path
 
@@ -214,20 +215,35 @@ def test_a_foveated_layer_corrects_only_the_window_around_the_configured_gaze(x_
 def test_a_layer_with_a_frame_budget_logs_its_choice_and_status_shows_it(x_display, kit, tmp_path):
     """``layer install --budget-ms``'s configuration: each eye's Corrector holds its frames at the
     budget; the log reports what the budget chose beside the frame times, and ``layer status`` shows
-    the latest choice."""
+    the latest choice.  (A budget of 1 ms, under llvmpipe's frame, keeps the frames at the fewest
+    iterations: one of 5 s took three minutes of the fewest frames at the most.)  With no pupil
+    configured, the layer's default: the pupil followed from the light."""
     from vrcorrect.apps import layer
+    from vrcorrect.runtime.pupil_bank import BANK_PUPILS_MM
 
     config = tmp_path / "layer.json"
-    config.write_text(json.dumps({"rx": str(kit.rx), "display": "quest2", "options": {"budget_ms": 5000}}))
+    config.write_text(json.dumps({"rx": str(kit.rx), "display": "quest2", "options": {"budget_ms": 1}}))
     out = tmp_path / "budget"
     _run(kit, out, corrected=40, VRCORRECT_LAYER_CONFIG=str(config))
     chose = [line for line in layer_log(out) if "budget: " in line]
     assert chose, layer_log(out)
-    assert "left budget 5000 ms:" in chose[-1] and "right budget 5000 ms:" in chose[-1], chose[-1]
+    assert "left budget 1 ms:" in chose[-1] and "right budget 1 ms:" in chose[-1], chose[-1]
     assert "iterations a frame (last " in chose[-1]            # frames were timed by the Corrector
     status = "\n".join(layer.status_lines({"HOME": str(tmp_path), "VRCORRECT_LAYER_CONFIG": str(config),
                                             "VRCORRECT_LAYER_LOG": str(out / "layer.log")}))
-    assert "budget: 5000 ms of GPU time a frame per eye; its latest choice: left budget 5000 ms:" in status, status
+    assert "budget: 1 ms of GPU time a frame per eye; its latest choice: left budget 1 ms:" in status, status
+    # no pupil configured: the layer's default, the pupil followed from each frame's light (measured on the
+    # GPU) with the robust design; the log reports each eye's pupil and its design (a bank entry), status the latest
+    pupils = [line.split("pupil: ", 1)[1] for line in layer_log(out) if "pupil: " in line and " pupil " in line]
+    assert pupils, layer_log(out)
+    for eye in EYES:
+        found = re.search(eye + r" pupil (\d+\.\d+) mm \(auto: [\d.e+-]+ cd/m\^2\), design (\d+\.\d+) mm", pupils[-1])
+        assert found, pupils[-1]
+        seen, design = float(found[1]), float(found[2])
+        assert 2.0 <= seen <= 7.5, pupils[-1]
+        assert min(abs(design - entry) for entry in BANK_PUPILS_MM) < 0.006, pupils[-1]      # the bank's entry
+    assert "pupil: followed from the light of the frames shown (auto); robust design" in status, status
+    assert "pupil now: " + pupils[-1] in status, status
 
 
 def test_both_eyes_in_one_side_by_side_swapchain_are_each_corrected(x_display, kit, gl, tmp_path):
@@ -285,11 +301,13 @@ def test_a_python_openxr_application_gets_the_layer_in_its_own_interpreter(x_dis
 
     out = tmp_path / "python_app"
     out.mkdir()
-    # small views and one iteration a frame for the application's own correction: its frames are
-    # cheaper on a software renderer (whose GL calls hold the GIL the layer's worker thread needs)
+    # small views, one iteration a frame and one design of one pupil for the application's own correction:
+    # its frames are cheaper on a software renderer (whose GL calls hold the GIL the layer's worker thread
+    # needs), and no pupil bank designs beside the layer's worker
     environ = env(kit, out, VRCORRECT_RX=str(kit.rx), XRTEST_VIEW_SIZE="32x32")
     with open(out / "stdout.txt", "w") as so, open(out / "stderr.txt", "w") as se:
         proc = subprocess.Popen([sys.executable, "-m", "vrcorrect.apps.cli", "xr", "--iterations-per-frame", "1",
+                                 "--pupil", "rx", "--robust", "off",
                                  "--source", str(ROOT / "vrcorrect" / "data" / "sample.png"), "--frames", "1000000"],
                                 stdout=so, stderr=se, text=True, cwd=ROOT, env=environ)
         try:
@@ -483,14 +501,16 @@ def test_install_status_uninstall_and_never_overwriting_a_users_file(kit, tmp_pa
     lines = "\n".join(layer.status_lines(environ))
     assert "the loader will find it" in lines and f"prescription: {kit.rx} (valid)" in lines, lines
     assert "display:" in lines and "nothing logged yet" in lines
-    # the prescription's pupil and the single-pupil design unless the configuration says otherwise
-    assert "pupil: the prescription's pupil_diameter_mm (rx); single-pupil design (robust off) (the default" \
-        in lines, lines
+    # the pupil followed from the light with the robust design unless the configuration says otherwise
+    assert "pupil: followed from the light of the frames shown (auto); robust design over the band of pupils " \
+           "and +-0.25 D (the default" in lines, lines
+    assert "pupil now: none logged yet" in lines, lines
     assert layer.cmd_install(parser.parse_args(["layer", "install", "--pupil", "3.5", "--robust", "off"]),
                              env=environ) == 0
     assert json.loads((home / "cfg" / "vrcorrect" / "layer.json").read_text())["options"] == \
         {"pupil": 3.5, "robust": False}
-    assert "pupil: 3.5 mm; single-pupil design (robust off)" in "\n".join(layer.status_lines(environ))
+    lines = "\n".join(layer.status_lines(environ))
+    assert "pupil: 3.5 mm; single-pupil design (robust off)" in lines and "pupil now" not in lines, lines
     assert layer.cmd_install(parser.parse_args(["layer", "install", "--pupil", "auto", "--robust", "on"]),
                              env=environ) == 0
     assert "pupil: followed from the light of the frames shown (auto); robust design over" in \

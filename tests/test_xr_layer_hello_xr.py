@@ -66,7 +66,9 @@ def _app_image(out: Path, frame: int, swapchain: int) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def installed(kit, tmp_path_factory) -> Path:
-    """A HOME where ``vrcorrect layer install --rx RX`` has run (the implicit layer and its configuration)."""
+    """A HOME where ``vrcorrect layer install --rx RX --pupil rx --robust off`` has run (the implicit layer
+    and its configuration; the design of the prescription's pupil, as the reference Corrector's that the
+    corrected views are compared with: ``xr_layer_kit.PINNED_OPTIONS``)."""
     from vrcorrect.apps import layer
 
     home = tmp_path_factory.mktemp("hello_xr_home")
@@ -74,7 +76,8 @@ def installed(kit, tmp_path_factory) -> Path:
                "XDG_DATA_HOME": str(home / ".local" / "share"), "XDG_STATE_HOME": str(home / ".local" / "state")}
     parser = argparse.ArgumentParser()
     layer.add_parser(parser.add_subparsers())
-    assert layer.cmd_install(parser.parse_args(["layer", "install", "--rx", str(kit.rx)]), env=environ) == 0
+    assert layer.cmd_install(parser.parse_args(["layer", "install", "--rx", str(kit.rx), "--pupil", "rx",
+                                                          "--robust", "off"]), env=environ) == 0
     manifest = home / ".local" / "share" / "openxr" / "1" / "api_layers" / "implicit.d" / "vrcorrect_layer.json"
     doc = json.loads(manifest.read_text())
     assert doc["api_layer"]["disable_environment"] == "DISABLE_VRCORRECT_LAYER"

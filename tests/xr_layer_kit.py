@@ -138,6 +138,14 @@ def kit(tmp_path_factory) -> Kit:
     return _KITS["kit"]
 
 
+PINNED_OPTIONS = {"pupil": "rx", "robust": False}
+"""The layer's options in the runs whose views are compared with :func:`converged_codes`: the design
+for the prescription's own pupil, as the reference Corrector's (:func:`eye_model`).  The layer's
+default (the pupil followed from the light, robust) designs for each frame's light as it comes, which
+a reference cannot replay code for code; the runs that configure the layer themselves, or install it,
+run that default."""
+
+
 def env(kit: Kit, out: Path, *, app: str = "gl", explicit: bool = True, validation: bool = False,
         vulkan_validation: bool = False, home: Path | None = None, prime: str | None = "converge",
         **extra: str) -> dict[str, str]:
@@ -145,7 +153,10 @@ def env(kit: Kit, out: Path, *, app: str = "gl", explicit: bool = True, validati
     the application's inputs; the layer explicit (``XR_API_LAYER_PATH``) unless ``explicit`` is False;
     Khronos core validation below it; Khronos Vulkan validation in the application's instance.
     ``prime``: the layer's ``VRCORRECT_LAYER_PRIME_S`` (``converge``, so that the first corrected frame
-    of a still picture is :func:`converged_codes`; ``None``: unset, the layer's default budget)."""
+    of a still picture is :func:`converged_codes`; ``None``: unset, the layer's default budget).  An
+    explicit layer without a ``VRCORRECT_LAYER_CONFIG`` of the test's gets a configuration of
+    :data:`PINNED_OPTIONS` where the layer looks for one (``$XDG_CONFIG_HOME/vrcorrect/layer.json``; the
+    prescription from ``VRCORRECT_RX``)."""
     out.mkdir(parents=True, exist_ok=True)
     environ = {k: v for k, v in os.environ.items()
                if not k.startswith(("XR_", "XRTEST_", "APP_", "VRCORRECT_", "XDG_", "DISABLE_VRCORRECT", "VK_"))}
@@ -175,6 +186,10 @@ def env(kit: Kit, out: Path, *, app: str = "gl", explicit: bool = True, validati
         environ["VK_LOADER_DEBUG"] = "layer"          # the Vulkan loader says when it inserts the layer
     if prime is not None:
         environ["VRCORRECT_LAYER_PRIME_S"] = prime
+    pinned = home / ".config" / "vrcorrect" / "layer.json"            # where the layer looks by default
+    if explicit and "VRCORRECT_LAYER_CONFIG" not in extra and not pinned.exists():
+        pinned.parent.mkdir(parents=True, exist_ok=True)
+        pinned.write_text(json.dumps({"options": PINNED_OPTIONS}))
     environ.update(extra)
     return environ
 

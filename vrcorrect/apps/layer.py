@@ -223,20 +223,15 @@ def status_lines(env: Mapping[str, str] | None = None, tail: int = 10) -> list[s
             except VrcorrectError as exc:
                 lines.append(f"prescription: {config.rx} is not usable, frames pass through: {exc}")
         lines.append(f"display: {config.display or 'the preset matching the runtime view size, else quest2'}")
-        # the Corrector's own defaults where the configuration does not say (rx, robust off): the layer's
-        # corrections are pinned to a Corrector's of the same options by its tests
-        from ..runtime.eye_model import (
-            CorrectorOptions,  # on use: start-up time (apps/__init__: the parser loads no layer below)
-        )
-
-        pupil = config.options.get("pupil", CorrectorOptions.pupil)
-        robust = config.options.get("robust", CorrectorOptions.robust)
+        # the layer's defaults where the configuration does not say (the pupil from the light, robust on)
+        options = config.corrector_options
+        pupil, robust = options["pupil"], options["robust"]
         lines.append("pupil: " + ("followed from the light of the frames shown (auto)" if pupil == "auto" else
                                   "the prescription's pupil_diameter_mm (rx)" if pupil == "rx" else f"{pupil} mm")
                      + ("; robust design over the band of pupils and +-0.25 D" if robust is True else
                         "; single-pupil design (robust off)" if robust is False else f"; robust {robust!r}")
-                     + ("" if "pupil" in config.options else " (the default; layer install --pupil auto --robust on "
-                                                            "follows the light)"))
+                     + ("" if "pupil" in config.options or "robust" in config.options else
+                        " (the default; layer install --pupil rx|MM --robust off designs for one pupil)"))
         fovea = config.options.get("fovea_deg")
         gaze = config.options.get("gaze_deg", (0, 0))
         periphery = config.options.get("fovea_periphery", Periphery.QUARTER)
@@ -248,14 +243,18 @@ def status_lines(env: Mapping[str, str] | None = None, tail: int = 10) -> list[s
                                   + ("the view as the application drew it"
                                      if periphery == Periphery.TARGET else PERIPHERY_DESCRIPTIONS.get(periphery, "?"))))
     log = log_path(env)
+    logged = log.read_text(encoding="utf-8", errors="replace").splitlines() if log.exists() else []
     if config is not None and config.options.get("budget_ms") is not None:
-        chose = [line for line in (log.read_text(encoding="utf-8", errors="replace").splitlines()
-                                   if log.exists() else []) if "budget: " in line]
+        chose = [line for line in logged if "budget: " in line]
         lines.append(f"budget: {config.options['budget_ms']:g} ms of GPU time a frame per eye; "
                      + (f"its latest choice: {chose[-1].split('budget: ', 1)[1]}" if chose else
                         "no choice logged yet (the log reports it every few seconds of corrected frames)"))
+    if config is not None and config.corrector_options["pupil"] == "auto":
+        seen = [line for line in logged if "pupil: " in line and " pupil " in line]
+        lines.append("pupil now: " + (seen[-1].split("pupil: ", 1)[1] if seen else
+                                      "none logged yet (the log reports it every few seconds of corrected frames)"))
     if log.exists():
-        last = log.read_text(encoding="utf-8", errors="replace").splitlines()[-tail:]
+        last = logged[-tail:]
         lines.append(f"log: {log} (last {len(last)} lines)")
         lines.extend(f"  {line}" for line in last)
     else:
@@ -287,9 +286,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "default: the method's own, 2 for ADMM)")
     i.add_argument("--pupil", default=None, metavar="auto|rx|MM",
                    help="the viewing pupil the layer designs for: auto (followed from the light of the frames "
-                        "shown), rx (the default: the prescription's pupil_diameter_mm) or a diameter in mm")
+                        "shown; the default), rx (the prescription's pupil_diameter_mm) or a diameter in mm")
     i.add_argument("--robust", choices=("on", "off"), default=None,
-                   help="the robust design over the band of pupils and +-0.25 D (default: off)")
+                   help="the robust design over the band of pupils and +-0.25 D (default: on)")
     i.add_argument("--fovea", default=None, metavar="DEG|off",
                    help="correct only a window of this radius in degrees around the gaze (default: off, the whole "
                         "view)")

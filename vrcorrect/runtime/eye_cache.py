@@ -6,7 +6,8 @@ kernel, the filters) takes seconds of CPU, and loading a display profile imports
 to three seconds more).  :func:`store` writes the designed models with the display profile they were
 designed for to ``<cache>/eyes/<key>.pickle`` (:func:`~vrcorrect.runtime.glcache.cache_dir`:
 ``$VRCORRECT_CACHE_DIR``, else ``$XDG_CACHE_HOME/vrcorrect``); :func:`load` reads them back.  The key
-(:func:`key`) is a SHA-256 of every eye's prescription as designed, the display as configured (a
+(:func:`key`) is a SHA-256 of every eye's prescription as designed, the wearer's age (the pupil's
+formula takes it), the display as configured (a
 preset's name, or the profile file's bytes), the runtime's view size (which picks the preset when
 none is configured), the corrector's options, and vrcorrect's own code and data (any change to the
 package, a physics fix included, misses the cache).  A file that does not load (damaged, written by
@@ -43,13 +44,16 @@ def code_fingerprint() -> str:
     return digest.hexdigest()
 
 
-def key(eyes: Mapping[str, Any], display: str | None, view_size: tuple[int, int], options: Any) -> str:
+def key(eyes: Mapping[str, Any], display: str | None, view_size: tuple[int, int], options: Any,
+        age_years: float | None = None) -> str:
     """The cache key of a design: each eye's :class:`~vrcorrect.specs.prescription.EyeRx` (as
-    designed), the configured display (a preset name, a profile path whose bytes are hashed, or
-    ``None``: chosen from ``view_size``), the options (their ``repr``), and the package."""
+    designed), the prescription's ``age_years`` (``pupil="auto"`` designs for the pupil of that age),
+    the configured display (a preset name, a profile path whose bytes are hashed, or ``None``: chosen
+    from ``view_size``), the options (their ``repr``), and the package."""
     digest = hashlib.sha256(code_fingerprint().encode())
     for eye in sorted(eyes):
         digest.update(f"\n{eye}={eyes[eye]!r}".encode())
+    digest.update(f"\nage={age_years!r}".encode())
     digest.update(f"\ndisplay={display!r}; view={tuple(view_size)!r}".encode())
     if display:
         path = Path(display).expanduser()

@@ -119,7 +119,7 @@ class Builder:
 
         config, holder = self.config, self.display_holder
         try:
-            options = dict(config.options)
+            options = config.corrector_options
             backend = options.pop("backend", Backend.GLSL)  # Corrector(backend=...) then CorrectorOptions(backend=...)
 
             def display() -> DisplayProfile:            # on a worker: loading a profile takes seconds
@@ -143,7 +143,8 @@ class Builder:
         assert source is not None
         t0 = time.perf_counter()
         eyes = {eye: source.eye_rx(eye) for eye in source.eyes}
-        cache_key = eye_cache.key(eyes, config.display, self.engine.view_size, source.options)
+        cache_key = eye_cache.key(eyes, config.display, self.engine.view_size, source.options,
+                                   source.prescription.age_years)
         cached = eye_cache.load(cache_key, self.engine.env)
         models: dict[str, tuple[Any, Any]] | None = None
         design_s = 0.0
@@ -242,7 +243,7 @@ class Builder:
                     if self._stopped:
                         break
                     correctors[eye] = Corrector(ctx, prescription, display, eye, eye_model=model,
-                                                **dict(self.config.options))
+                                                **self.config.corrector_options)
             except Exception:
                 for c in correctors.values():
                     c.release()

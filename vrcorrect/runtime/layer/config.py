@@ -7,7 +7,8 @@ chosen for the runtime's view size.
 Configuration (:class:`LayerConfig`): ``$XDG_CONFIG_HOME/vrcorrect/layer.json`` (or the file named by
 ``VRCORRECT_LAYER_CONFIG``) with ``rx`` (prescription path), ``display`` (preset or profile path;
 absent: the preset whose per-eye resolution equals the runtime's recommended view size, else
-``quest2``), ``options`` (:class:`~vrcorrect.runtime.eye_model.CorrectorOptions` fields).
+``quest2``), ``options`` (:class:`~vrcorrect.runtime.eye_model.CorrectorOptions` fields, over
+:data:`LAYER_DEFAULTS`: the pupil followed from the light, the robust design, as the commands).
 ``VRCORRECT_RX`` overrides ``rx``.  Off switch: ``VRCORRECT_LAYER_OFF=1`` or the file
 ``layer.off`` beside the configuration (checked every quarter second: on and off live).
 Log: ``VRCORRECT_LAYER_LOG``, else ``$XDG_STATE_HOME/vrcorrect/layer.log`` (``~/.local/state``).
@@ -34,7 +35,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from ...specs.display import DisplayProfile
 
 __all__ = ["BUILD_NICE", "CAPTURE_WAIT_S", "CLOSE_WAIT_S", "CONFIG_ENV", "DISABLE_ENV", "LAYER_NAME", "LOG_ENV",
-           "LayerConfig", "LayerLog", "OFF_ENV", "PRIME_BUDGET_S", "PRIME_ENV", "PRIME_MAX_FRAMES", "RX_ENV",
+           "LAYER_DEFAULTS", "LayerConfig", "LayerLog", "OFF_ENV", "PRIME_BUDGET_S", "PRIME_ENV", "PRIME_MAX_FRAMES", "RX_ENV",
            "choose_display", "config_path", "eye_of_view", "log_path", "off_file", "one_line",
            "one_line_text", "prime_budget", "read_config"]
 
@@ -45,6 +46,10 @@ OFF_ENV = "VRCORRECT_LAYER_OFF"              # the engine's live off switch (the
 CONFIG_ENV = "VRCORRECT_LAYER_CONFIG"
 RX_ENV = "VRCORRECT_RX"
 LOG_ENV = "VRCORRECT_LAYER_LOG"
+LAYER_DEFAULTS: Mapping[str, Any] = {"pupil": "auto", "robust": True}
+"""The corrector options the layer uses where its configuration's ``options`` do not say otherwise: the
+viewing pupil followed from the light of the frames shown and the robust design, as ``vrcorrect xr``,
+``mirror``, ``overlay`` and ``render`` do (``--pupil auto --robust on``)."""
 _CHECK_INTERVAL_S = 0.25
 _REPORT_INTERVAL_S = 1.0
 CAPTURE_WAIT_S = 2.0
@@ -136,6 +141,11 @@ class LayerConfig:
     display: str | None = None
     options: Mapping[str, Any] = field(default_factory=dict)
     source: Path | None = None              # the configuration file it came from (None: none found)
+
+    @property
+    def corrector_options(self) -> dict[str, Any]:
+        """The options a Corrector of this configuration takes: ``options`` over :data:`LAYER_DEFAULTS`."""
+        return {**LAYER_DEFAULTS, **self.options}
 
 
 def read_config(env: Mapping[str, str] | None = None) -> LayerConfig:

@@ -405,13 +405,17 @@ class Engine(VulkanFrames):
             self._gpu_ms.setdefault(eye, []).append(previous)    # type: ignore[arg-type]
         return query
 
-    def _budget_words(self) -> str:
-        """``budget: left ...; right ...``: what each eye's frame budget chose (empty without one)."""
+    def _state_lines(self) -> list[str]:
+        """``budget: left ...; right ...``: what each eye's frame budget chose, and ``pupil: left ...;
+        right ...``: each eye's viewing pupil with ``pupil="auto"`` (none where there is nothing to say)."""
         p = self.pipeline
         if p is None:
-            return ""
-        parts = [f"{eye} {c.budget.describe()}" for eye, c in sorted(p.correctors.items()) if c.budget is not None]
-        return ("budget: " + "; ".join(parts)) if parts else ""
+            return []
+        eyes = sorted(p.correctors.items())
+        budgets = [f"{eye} {c.budget.describe()}" for eye, c in eyes if c.budget is not None]
+        pupils = [f"{eye} {c.pupil_status}" for eye, c in eyes if c.pupil_status]
+        return ((["budget: " + "; ".join(budgets)] if budgets else []) +
+                (["pupil: " + "; ".join(pupils)] if pupils else []))
 
     def look(self, view_in_layer: int, u: float, v: float) -> None:
         """The eye tracker's gaze for this frame's view (``vrcorrect_gaze.c``): ``(u, v)`` its place in
@@ -522,9 +526,8 @@ class Engine(VulkanFrames):
                     line += (f"; per frame, Vulkan copy in and wait {mean[0]:.2f} ms, glFinish {mean[1]:.2f} ms, "
                              f"copy out {mean[2]:.2f} ms")
                 self.log.line(line)
-                budgets = self._budget_words()
-                if budgets:
-                    self.log.line(budgets)
+                for words in self._state_lines():
+                    self.log.line(words)
                 self._cpu_ms.clear()
                 self._gpu_ms.clear()
                 self._sync_ms.clear()
