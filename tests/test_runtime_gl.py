@@ -369,3 +369,19 @@ def test_compute_programs(gl, tmp_path):
     (tmp_path / "bad.glsl").write_text((tmp_path / "c.glsl").read_text().replace("SCALE", "NO_SUCH"))
     with pytest.raises(ShaderCompileError, match=r"compute stage:\n.*bad\.glsl:5\("):
         S.compile_compute(gl, "bad.glsl", root=tmp_path)
+
+
+def test_a_released_headless_context_gives_the_thread_back_its_previous_context(gl):
+    """A second headless context made and released inside a test (as ``vrcorrect render`` run in the
+    process does): the test's context is current again, its objects are there and new ones are made
+    in it.  (glcontext leaves a released context current: the GL calls that followed went to a
+    destroyed context; unbinding it alone left none current, and moderngl could not make a program.)"""
+    picture = np.arange(8 * 6 * 4, dtype=np.uint8).reshape(6, 8, 4)
+    before = G.upload_texture(gl, picture)
+    other = G.headless_context(require=430)
+    other.release()
+    program = S.compile_program(gl, "passthrough.glsl")           # made in the test's context
+    try:
+        assert np.array_equal(G.download_texture(before), picture)  # the test's texture, read in its context
+    finally:
+        G.release(program, before)

@@ -28,7 +28,7 @@ from __future__ import annotations
 import ctypes
 from dataclasses import dataclass
 from types import ModuleType
-from typing import TYPE_CHECKING, Mapping, Protocol
+from typing import TYPE_CHECKING, Callable, Mapping, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -82,7 +82,7 @@ def headless_context(*, require: int = 330) -> "moderngl.Context":
     try:
         import glcontext  # on use: glcontext (moderngl's own dependency, with the realtime extra)
 
-        inner = EglStandalone(glcontext.get_backend_by_name("egl")(mode="standalone", glversion=require))
+        inner = EglStandalone(lambda: glcontext.get_backend_by_name("egl")(mode="standalone", glversion=require))
         return moderngl.create_context(require=require, standalone=True, context=inner)
     except Exception as exc:  # glcontext raises bare Exception ('libEGL.so.1 not loaded', 'egl... failed')
         raise GLUnavailableError(
@@ -92,18 +92,25 @@ def headless_context(*, require: int = 330) -> "moderngl.Context":
 
 
 class EglStandalone:
-    """glcontext's standalone EGL context (``inner``), which is no longer current on its thread once
-    released.  glcontext destroys the context on release but leaves it current, and libglvnd then
-    refuses that thread any GLX context: GLFW's ``glXMakeCurrent`` fails with ``BadAccess`` and Xlib
-    ends the process (a headless corrector, then a window, on one thread).  A glcontext-like object:
+    """glcontext's standalone EGL context (made by ``make``), which stops being current on its thread
+    once released: the context that was current before it was made is current again (none if there
+    was none, or it is gone).  glcontext destroys the context on release but leaves it current: GL
+    calls then went to a destroyed context instead of the one the caller had, and libglvnd refused
+    that thread any GLX context (GLFW's ``glXMakeCurrent`` failed with ``BadAccess`` and Xlib ended
+    the process: a headless corrector, then a window, on one thread).  A glcontext-like object:
     ``load``, ``__enter__``, ``__exit__``, ``release``."""
 
-    def __init__(self, inner: object):
-        self.inner = inner
+    _EGL_DRAW, _EGL_READ = 0x3059, 0x305A
+
+    def __init__(self, make: Callable[[], object]):
         self._egl = egl = ctypes.CDLL("libEGL.so.1")
-        egl.eglGetCurrentContext.restype = ctypes.c_void_p
-        egl.eglGetCurrentDisplay.restype = ctypes.c_void_p
+        for name in ("eglGetCurrentContext", "eglGetCurrentDisplay", "eglGetCurrentSurface"):
+            getattr(egl, name).restype = ctypes.c_void_p
+        egl.eglGetCurrentSurface.argtypes = [ctypes.c_int32]
         egl.eglMakeCurrent.argtypes = [ctypes.c_void_p] * 4
+        self.previous = (egl.eglGetCurrentDisplay(), egl.eglGetCurrentSurface(self._EGL_DRAW),
+                         egl.eglGetCurrentSurface(self._EGL_READ), egl.eglGetCurrentContext())
+        self.inner = make()
         self.handle = egl.eglGetCurrentContext()        # glcontext leaves a new context current
 
     def load(self, name: str) -> int:
@@ -122,7 +129,9 @@ class EglStandalone:
     def release(self) -> None:
         egl = self._egl
         if self.handle and egl.eglGetCurrentContext() == self.handle:
-            egl.eglMakeCurrent(egl.eglGetCurrentDisplay(), None, None, None)
+            display, draw, read, context = self.previous
+            if not (context and context != self.handle and egl.eglMakeCurrent(display, draw, read, context)):
+                egl.eglMakeCurrent(egl.eglGetCurrentDisplay(), None, None, None)
         self.inner.release()                            # type: ignore[attr-defined]
 
 

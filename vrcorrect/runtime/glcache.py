@@ -395,7 +395,7 @@ def egl_context(require: int = 430, cache: Path | None | bool = None) -> "modern
 
     _egl_initialize()
     try:
-        inner = EglStandalone(glcontext.get_backend_by_name("egl")(mode="standalone", glversion=require))
+        inner = EglStandalone(lambda: glcontext.get_backend_by_name("egl")(mode="standalone", glversion=require))
     except Exception as exc:  # glcontext raises bare Exception
         raise GLUnavailableError(
             f"no headless OpenGL {require // 100}.{require % 100 // 10} context through EGL ({exc}); on Debian/Ubuntu "
