@@ -6,7 +6,7 @@
 #                                worker, so that a file's session fixtures are built once; a worker
 #                                that dies ends the run rather than being replaced), then the serial
 #                                ones (they read a clock, or load an OpenXR runtime in-process) alone.
-#                                About 22 minutes from a fresh clone on 2 cores, set-up included
+#                                About 21 minutes from a fresh clone on 2 cores, set-up included
 #   bash tools/test.sh --serial  ruff check, then the whole suite in one process (about 40 minutes on 2
 #                                cores): the order of a plain pytest run
 #   bash tools/test.sh --fast    the developer's loop: the tests that need no OpenGL, X display, OpenXR,

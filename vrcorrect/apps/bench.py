@@ -215,8 +215,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="halfres: also play the held-out clips through a half-resolution real-time twin for one "
                         "strong eye, judged as video (some 15 minutes more on 2 cores); robust: also the motion suite's "
                         "video shares with the robust design and a dark clip cut to a bright one with the pupil "
-                        "following the light; fovea: also two of the motion suite's clips (text, cut) at a 15 degree window, "
-                        "judged as video (FovVideoVDP) and by FLIP")
+                        "following the light; fovea: also two held-out clips (text, cut: pictures and words the project "
+                        "never tuned on) at a 15 degree window, judged as video (FovVideoVDP) and by FLIP")
     p.add_argument("--size", default="1832x1920", metavar="WxH",
                    help="cost, workgroups: each eye's image size (default 1832x1920, a Quest 2 eye)")
     p.add_argument("--json", metavar="OUT.json", help="cost, workgroups, halfres, robust: also write the figures as JSON "

@@ -26,8 +26,9 @@ What the eye sees of each is scored against the glasses-on view:
   the **objective** (the cone images' error, as a fraction of no correction's): a metric's verdict
   is read with the physics', never alone.
 
-With ``video``, two of the motion suite's clips (:mod:`~vrcorrect.studies.bench.sequences`: scrolling
-text, and a pan cut half-way to another photograph; :data:`VIDEO_CLIPS`), each
+With ``video``, two held-out clips (:func:`~vrcorrect.studies.bench.sequences.held_out`: pictures
+and words the project never tuned on; light text on dark blue scrolling, and a pan across the rocket
+cut half-way to a microscope slide; :data:`VIDEO_CLIPS`), each
 :data:`VIDEO_FRAMES` frames at the same view, are played through the full field's and the
 :data:`CHECK_RADIUS_DEG` window's twins as ``vrcorrect render`` plays a clip (the content's motion
 reprojects the warm start; a cut starts cold) and judged as video: FovVideoVDP in video mode
@@ -76,7 +77,8 @@ EYE = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=120.0, pupil_diameter_mm=3.
 IMAGES = ("motorcycle", "rocket", "page")
 CHECK_RADIUS_DEG = 15.0
 VIDEO_CLIPS = ("text", "cut")
-"""The motion suite's clips played with ``video`` (:func:`video_cases`)."""
+"""The held-out clips played with ``video`` (:func:`video_cases`; of
+:data:`~vrcorrect.studies.bench.sequences.HELD_OUT`)."""
 VIDEO_FRAMES = 30
 """Frames a clip (a third of a second at 90 Hz; the cut falls half-way)."""
 VIDEO_FPS = 90.0
@@ -274,12 +276,11 @@ def video_cases(display: Any, K: Any, R: Any, view: int, frames: int, clips: Seq
         simulate_lms,
     )
     from .realtime import _motions, linear  # on use: start-up time (the CLI imports the studies to build its parser)
-    from .sequences import SEQUENCES, suite  # on use: start-up time (the CLI imports the studies to build its parser)
+    from .sequences import HELD_OUT, held_out  # on use: start-up time (the CLI imports the studies to build its parser)
 
     for name in clips:
-        if name not in SEQUENCES or name == "head turn":             # the head turn needs a GL context
-            raise ValidationError("clips", name, "clips of the motion suite: " +
-                                  ", ".join(n for n in SEQUENCES if n != "head turn"))
+        if name not in HELD_OUT:
+            raise ValidationError("clips", name, "held-out clips: " + ", ".join(HELD_OUT))
 
     def seen(kernel: Any, x: np.ndarray) -> np.ndarray:       # what the eye sees, in K's display RGB, sRGB
         return np.clip(encode("srgb", lms_to_display(simulate_lms(x, kernel)[0], K)), 0.0, 1.0)
@@ -289,7 +290,9 @@ def video_cases(display: Any, K: Any, R: Any, view: int, frames: int, clips: Seq
     centre, off = (view / 2.0, view / 2.0), (view / 2.0 + OFF_DEG * ppd, view / 2.0)
     radius_px, band_px = fovea_pixels(radius, ppd)
     rows = []
-    for clip in tqdm(suite(view, frames, names=tuple(clips)), desc="bench fovea: clips", unit="clip", leave=False):
+    made = {c.name: c for c in held_out(view, frames)}
+    chosen = [made[name] for name in clips]
+    for clip in tqdm(chosen, desc="bench fovea: clips", unit="clip", leave=False):
         lin = [linear(f) for f in clip.frames]
         motions = _motions(clip.frames)
         ref = [seen(R, x) for x in lin]
@@ -411,8 +414,9 @@ def _markdown(report: dict) -> str:
                          f"{100 * (fov['off'] - n['off']) / gain_off:.0f} %" if gain_off > 1e-9 else "-",
                          f"{n['flip']:.3f} / {full['flip']:.3f} / {fov['flip']:.3f}"])
         frames = report["video"][0]["frames"]
-        parts.append(f"\n### As video: the motion suite at a {CHECK_RADIUS_DEG:g} degree window\n\n"
-                     f"Clips of {frames} frames at 90 Hz on the same view, played as `vrcorrect render` plays them "
+        parts.append(f"\n### As video: held-out clips at a {CHECK_RADIUS_DEG:g} degree window\n\n"
+                     f"Clips the project never tuned on (the held-out set: {'; '.join(v['what'] for v in report['video'])}), "
+                     f"{frames} frames each at 90 Hz on the same view, played as `vrcorrect render` plays them "
                      "(the content's motion reprojects the warm start, a cut starts cold), the window's periphery "
                      f"{DEFAULT_PERIPHERY} resolution, {DEFAULT_ITERATIONS} iterations a frame. FovVideoVDP in video "
                      f"mode fixating the window's centre and {report['off_deg']:g} degrees off; FLIP the frames' "
