@@ -7,6 +7,8 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
+
 from vrcorrect.studies.bench.robust import METHODS, run_robust_bench
 
 
@@ -26,3 +28,14 @@ def test_a_small_sweep_scores_every_method_and_writes_its_section(tmp_path):
     gain = {m: at[2.5][m]["jod"] - at[2.5]["none"]["jod"] for m in METHODS}
     assert gain["4 mm"] < gain["default"]
     assert json.loads((tmp_path / "r.json").read_text())["cases"][0]["checks"]["share_at_3mm"] is not None
+
+
+def test_the_held_out_images_include_light_text_on_a_dark_ground():
+    from vrcorrect.studies.bench.robust import IMAGES, held_out_image
+
+    assert "darktext" in IMAGES
+    codes = held_out_image("darktext", 64)
+    assert codes.shape == (64, 64, 3)
+    assert float(np.median(codes)) < 0.3                       # a dark ground
+    assert float(codes.max()) > 0.85                           # light strokes
+    assert float(np.mean(codes > 0.5)) < 0.3                   # strokes, not a light page

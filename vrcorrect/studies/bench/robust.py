@@ -1,8 +1,8 @@
 """``vrcorrect bench robust``: the eye as it is against the eye as modelled.
 
 A correction is designed for an eye as modelled (its pupil, its sphere), and seen by the eye as it
-is.  For each display and held-out image (never used to choose the robust band: a photograph and a
-page of text, :data:`IMAGES`), the correction is designed as each method designs it and seen through
+is.  For each display and held-out image (never used to choose the robust band: a photograph, a
+scanned page of text and light text on dark blue, :data:`IMAGES`), the correction is designed as each method designs it and seen through
 a sweep of eyes: pupils :data:`SEEN_PUPILS_MM` (2 to 7 mm) at the prescription's sphere, and spheres
 :data:`SEEN_SPHERES_D` (+-0.25 and +-0.5 D) off the prescription at the pupil the light gives.  What
 each method shows is scored as what that eye sees of it, against the target image itself (the
@@ -56,10 +56,11 @@ __all__ = ["EYE", "IMAGES", "DISPLAYS", "SEEN_PUPILS_MM", "SEEN_SPHERES_D", "run
 
 EYE = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=120.0, pupil_diameter_mm=4.0)
 """The issue's eye (right, -2.00/-1.00 x 120)."""
-IMAGES = ("motorcycle", "page")
+IMAGES = ("motorcycle", "page", "darktext")
 """Held out from choosing the band (it was chosen on scikit-image's astronaut, coffee and text and the
-project's text chart, ``tools/robust_band_choice.py``): scikit-image's stereo_motorcycle (its left view, a colour photograph) and page (a scanned
-page of text)."""
+project's text chart, ``tools/robust_band_choice.py``): scikit-image's stereo_motorcycle (its left view, a colour photograph), page (a scanned
+page of text) and darktext (light words on dark blue, 18 px: the held-out text clip's page, :func:`~.sequences.dark_text_page`;
+added after the band was chosen, 2026-11-29, when the clip showed the correction below none there)."""
 DISPLAYS = ("desktop", "quest2")
 SEEN_PUPILS_MM = (2.0, 2.5, 3.0, 4.0, 5.5, 7.0)
 SEEN_SPHERES_D = (-0.5, -0.25, 0.25, 0.5)
@@ -83,6 +84,10 @@ def held_out_image(name: str, size: int = SIZE) -> np.ndarray:
         raw = data.stereo_motorcycle()[0][..., :3]
     elif name == "page":
         raw = data.page()
+    elif name == "darktext":
+        from .sequences import dark_text_page  # on use: Pillow (start-up time)
+
+        raw = dark_text_page(size, size)
     else:
         raw = getattr(data, name)()
     return prepare_image(raw, size, name)
@@ -345,10 +350,14 @@ def _plot(cases: list[dict], path: Path) -> None:
     from ..plots import pyplot, save_figure  # on use: start-up time (the CLI imports the studies to build its parser)
 
     plt = pyplot()
-    fig, axes = plt.subplots(1, len(cases), figsize=(4.2 * len(cases), 3.6), squeeze=False)
+    displays = list(dict.fromkeys(c["display"] for c in cases))
+    images = list(dict.fromkeys(c["image"] for c in cases))
+    fig, axes = plt.subplots(len(displays), len(images), figsize=(4.2 * len(images), 3.4 * len(displays)),
+                             squeeze=False)
     styles = {"4 mm": ("tab:red", "--"), "default": ("tab:blue", "-"), "real time": ("tab:cyan", ":"),
               "ceiling": ("0.4", "-.")}
-    for ax, case in zip(axes[0], cases):
+    for case in cases:
+        ax = axes[displays.index(case["display"])][images.index(case["image"])]
         rows = [r for r in case["rows"] if r["sphere_offset_D"] == 0.0]
         x = [r["pupil_mm"] for r in rows]
         ax.axhline(0.0, color="k", lw=0.8)
@@ -389,8 +398,8 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
     lines = ["## The eye as it is: a correction against the eye it meets (`vrcorrect bench robust`)", "",
              f"Machine: {machine_description()}. {len(cases)} cases in {seconds / 60:.0f} min. The eye: right "
              f"{EYE.sphere_D:+.2f}/{EYE.cylinder_D:+.2f} x {EYE.axis_deg:g}; images at {size} px, held out from "
-             "choosing the robust band (scikit-image's stereo_motorcycle, a colour photograph, and page, a scanned "
-             "page of text). Each correction is seen by the eye as it is: pupils 2 to 7 mm at the prescription's "
+             "choosing the robust band (scikit-image's stereo_motorcycle, a colour photograph; page, a scanned "
+             "page of text; darktext, light words on dark blue, 18 px, added after the band was chosen). Each correction is seen by the eye as it is: pupils 2 to 7 mm at the prescription's "
              "sphere, and the sphere off by -0.5 to +0.5 D at the pupil the light gives. JOD (ColorVideoVDP) of "
              "what that eye sees against the target image; gains are over no correction. `4 mm`: designed for a "
              "4 mm pupil, as every correction was before; `default`: `--pupil auto --robust on` (`fast`); `real "

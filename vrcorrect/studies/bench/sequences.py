@@ -27,7 +27,7 @@ import numpy as np
 from ...plumbing.images import prepare_image
 from ...specs.vocabulary import VIEW_ORDER, Eye
 
-__all__ = ["SEQUENCES", "HELD_OUT", "BenchClip", "photo", "suite", "held_out", "text_page", "save_clip"]
+__all__ = ["SEQUENCES", "HELD_OUT", "BenchClip", "photo", "suite", "held_out", "text_page", "dark_text_page", "save_clip"]
 
 SEQUENCES = ("still", "sprite", "text", "cut", "zoom", "head turn")
 HELD_OUT = ("sprite", "text", "cut")
@@ -170,13 +170,19 @@ def suite(size: int = 256, frames: int = 90, ctx: Any = None, names: tuple[str, 
     return clips
 
 
+def dark_text_page(width: int, height: int) -> np.ndarray:
+    """The held-out words as light text on dark blue, 18 px (the held-out text clip's page; ``bench
+    robust``'s dark-mode still is its top)."""
+    return text_page(width, height, HELD_OUT_WORDS, font_px=18, ink=(240, 240, 235), paper=(30, 40, 70))
+
+
 def held_out(size: int = 256, frames: int = 90) -> list[BenchClip]:
     """Clips of the sprite, text and cut kinds from pictures and words the project never tuned on."""
     pad = STEP_PX * frames
     rocket = photo("rocket", size + pad)
     top = pad // 2
     half = frames // 2
-    page = text_page(size, size + pad, HELD_OUT_WORDS, font_px=18, ink=(240, 240, 235), paper=(30, 40, 70))
+    page = dark_text_page(size, size + pad)
     return [
         BenchClip("sprite", _sprite(rocket[top:top + size, top:top + size], photo("colorwheel", max(16, size // 4)), size, frames),
              what="a colour wheel sliding over the rocket"),
