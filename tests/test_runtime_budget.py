@@ -20,9 +20,12 @@ EYE = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=120.0, pupil_diameter_mm=4.
 SIZE = 128
 BAND = 0.15                                   # issue 45: within +-15 % of the budget (tests/test_budget.py)
 LLVMPIPE_BAND = 0.25
-"""The band the frames' mean is held to here: llvmpipe on two shared cores times the same frame 10-30 %
-apart from one frame to the next, and the 15 % bar failed about one run in four on frames that were
-right on average. The 15 % bar itself is held (to 5 %) on renderers of known cost: tests/test_budget.py."""
+"""The band of the shrunk window's frames (the second test): the smallest step of work there (one
+iteration at the next radius down) may itself leave the frame past the issue's band, and one run in
+ten on the dev machine ended 31 % over, where a further step down would have waited its dwell. The
+budget itself (the first test) is held to the issue's 15 % on llvmpipe: the test passed it in 18
+runs of 18 alone on the dev machine, its trimmed mean 0.6-1.4 % off the budget in the four runs
+printed (the test is ``serial``; on renderers of known cost to 5 %: tests/test_budget.py)."""
 
 
 def _trimmed_mean(times: list[float]) -> float:
@@ -107,7 +110,7 @@ def test_the_budget_holds_the_frame_time_while_the_content_changes_and_cuts(gl, 
         ks = [choice.iterations for choice, _ in c.budget.history]
         assert len(measured) >= 80                            # the timestamps were read, two frames late
         tail = measured[-24:]
-        assert abs(_trimmed_mean(tail) / budget_ms - 1) <= LLVMPIPE_BAND, (budget_ms, tail, ks[-24:])
+        assert abs(_trimmed_mean(tail) / budget_ms - 1) <= BAND, (budget_ms, tail, ks[-24:])
         assert 1 <= min(ks[-16:]) and max(ks[-16:]) <= 5 and len(set(ks[-16:])) <= 3, ks[-16:]
         assert "budget" in c.describe()["budget"]
     finally:
