@@ -25,7 +25,8 @@ LLVMPIPE_BAND = 0.25
 budget, two or three moves down the ladder, the last at 1 to 2.5 iterations a frame). The
 budget itself (the first test) is held to the issue's 15 % on llvmpipe: the test passed it in 18
 runs of 18 alone on the dev machine, its trimmed mean 0.6-1.4 % off the budget in the four runs
-printed (the test is ``serial``; on renderers of known cost to 5 %: tests/test_budget.py)."""
+printed (the test is ``serial``; on renderers of known cost to 5 %: tests/test_budget.py); a run in
+which the renderer's own speed changed is run once more (:func:`_renderer_slowed`)."""
 
 
 def _trimmed_mean(times: list[float]) -> float:
@@ -91,30 +92,63 @@ def frame(gl):
     G.release(fbo, tex, src)
 
 
+def _renderer_slowed(history: list, tail: int = 24, settled: int = 36, change: float = 0.25) -> bool:
+    """Whether the renderer itself changed speed between the settled frames and the tail: some count of
+    iterations whose median time moved by more than ``change`` (the controller cannot move a count's
+    cost; the shared machine can: a run on the dev machine saw the same two and three iterations cost
+    1.5 times as much for twenty frames)."""
+    def medians(frames):
+        by_k: dict[int, list[float]] = {}
+        for choice, ms in frames:
+            by_k.setdefault(choice.iterations, []).append(ms)
+        return {k: statistics.median(v) for k, v in by_k.items() if len(v) >= 3}
+
+    before, after = medians(history[settled:-tail]), medians(history[-tail:])
+    return any(abs(after[k] / before[k] - 1) > change for k in before.keys() & after.keys())
+
+
+def test_a_change_of_the_renderers_speed_is_told_from_a_steady_run():
+    from vrcorrect.runtime.budget import BudgetChoice
+
+    steady = [(BudgetChoice(2 + i % 2, None), 46.0 + 12.0 * (i % 2)) for i in range(90)]
+    slowed = steady[:66] + [(c, 1.5 * ms) for c, ms in steady[66:]]
+    dithered = steady[:66] + [(BudgetChoice(2, None), 46.0)] * 24      # other counts chosen, same costs
+    assert not _renderer_slowed(steady) and _renderer_slowed(slowed) and not _renderer_slowed(dithered)
+
+
 def test_the_budget_holds_the_frame_time_while_the_content_changes_and_cuts(gl, frame):
+    """Within the issue's 15 %. A run in which the renderer's own speed changed (:func:`_renderer_slowed`)
+    is run once more: the budget is scaled to the renderer measured before the run, and the controller's
+    following of a change of load is checked on renderers of known cost (tests/test_budget.py)."""
     src, fbo = frame
     rx = Prescription(right=EYE, left=EYE)
     pictures = _pictures()
-    t1, t4 = _scaled_budget(gl, rx, src, fbo, pictures)
-    assert t4 > 1.5 * t1                                     # iterations cost time on this renderer
-    budget_ms = t1 + 0.5 * (t4 - t1)                          # about two and a half iterations' worth
-    c = Corrector(gl, rx, "quest2", "right", budget_ms=budget_ms)
-    try:
-        for i in range(90):                                   # a cut at 30, then time to settle again
-            if i == 30:
-                c.reset()                                     # a scene cut: a cold frame, then warm again
-            G.write_texture(src, pictures[i % len(pictures)])
-            c.apply(src, fbo)
-        gl.finish()
-        measured = [ms for _, ms in c.budget.history]
-        ks = [choice.iterations for choice, _ in c.budget.history]
-        assert len(measured) >= 80                            # the timestamps were read, two frames late
-        tail = measured[-24:]
-        assert abs(_trimmed_mean(tail) / budget_ms - 1) <= BAND, (budget_ms, tail, ks[-24:])
-        assert 1 <= min(ks[-16:]) and max(ks[-16:]) <= 5 and len(set(ks[-16:])) <= 3, ks[-16:]
-        assert "budget" in c.describe()["budget"]
-    finally:
-        c.release()
+    for attempt in range(2):
+        t1, t4 = _scaled_budget(gl, rx, src, fbo, pictures)
+        assert t4 > 1.5 * t1                                 # iterations cost time on this renderer
+        budget_ms = t1 + 0.5 * (t4 - t1)                      # about two and a half iterations' worth
+        c = Corrector(gl, rx, "quest2", "right", budget_ms=budget_ms)
+        try:
+            for i in range(90):                               # a cut at 30, then time to settle again
+                if i == 30:
+                    c.reset()                                 # a scene cut: a cold frame, then warm again
+                G.write_texture(src, pictures[i % len(pictures)])
+                c.apply(src, fbo)
+            gl.finish()
+            history = list(c.budget.history)
+            measured = [ms for _, ms in history]
+            ks = [choice.iterations for choice, _ in history]
+            assert len(measured) >= 80                        # the timestamps were read, two frames late
+            tail = measured[-24:]
+            held = abs(_trimmed_mean(tail) / budget_ms - 1) <= BAND
+            if not held and attempt == 0 and _renderer_slowed(history):
+                continue
+            assert held, (budget_ms, tail, ks[-24:])
+            assert 1 <= min(ks[-16:]) and max(ks[-16:]) <= 5 and len(set(ks[-16:])) <= 3, ks[-16:]
+            assert "budget" in c.describe()["budget"]
+            break
+        finally:
+            c.release()
 
 
 def test_a_budget_the_window_cannot_meet_shrinks_the_fovea(gl, frame):
