@@ -19,14 +19,6 @@ from vrcorrect.specs.prescription import EyeRx, Prescription
 EYE = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=120.0, pupil_diameter_mm=4.0)
 SIZE = 128
 BAND = 0.15                                   # issue 45: within +-15 % of the budget (tests/test_budget.py)
-LLVMPIPE_BAND = 0.25
-"""The band of the shrunk window's frames (the second test): one run in ten on the dev machine ended
-31 % over the budget there (its cause not found; six runs printed after it ended 0.94-1.08 of the
-budget, two or three moves down the ladder, the last at 1 to 2.5 iterations a frame). The
-budget itself (the first test) is held to the issue's 15 % on llvmpipe: the test passed it in 18
-runs of 18 alone on the dev machine, its trimmed mean 0.6-1.4 % off the budget in the four runs
-printed (the test is ``serial``; on renderers of known cost to 5 %: tests/test_budget.py); a run in
-which the renderer's own speed changed is run once more (:func:`_renderer_slowed`)."""
 
 
 def _trimmed_mean(times: list[float]) -> float:
@@ -92,11 +84,12 @@ def frame(gl):
     G.release(fbo, tex, src)
 
 
-def _renderer_slowed(history: list, tail: int = 24, settled: int = 36, change: float = 0.25) -> bool:
+def _renderer_slowed(history: list, tail: int = 24, settled: int = 36, change: float = 0.10) -> bool:
     """Whether the renderer itself changed speed between the settled frames and the tail: some count of
     iterations whose median time moved by more than ``change`` (the controller cannot move a count's
-    cost; the shared machine can: a run on the dev machine saw the same two and three iterations cost
-    1.5 times as much for twenty frames)."""
+    cost; the shared machine can: on the dev machine one run saw the same two and three iterations
+    cost 1.5 times as much for twenty frames, another 11 and 18 % more in its last sixteen, which
+    carried their mean 21 % over the budget before the controller had followed)."""
     def medians(frames):
         by_k: dict[int, list[float]] = {}
         for choice, ms in frames:
@@ -117,7 +110,9 @@ def test_a_change_of_the_renderers_speed_is_told_from_a_steady_run():
 
 
 def test_the_budget_holds_the_frame_time_while_the_content_changes_and_cuts(gl, frame):
-    """Within the issue's 15 %. A run in which the renderer's own speed changed (:func:`_renderer_slowed`)
+    """Within the issue's 15 % (the test passed it in 18 runs of 18 alone on the dev machine, its trimmed
+    mean 0.6-1.4 % off the budget in the four runs printed; the test is ``serial``; on renderers of known
+    cost the controller holds 5 %: tests/test_budget.py). A run in which the renderer's own speed changed (:func:`_renderer_slowed`)
     is run once more: the budget is scaled to the renderer measured before the run, and the controller's
     following of a change of load is checked on renderers of known cost (tests/test_budget.py)."""
     src, fbo = frame
@@ -152,6 +147,10 @@ def test_the_budget_holds_the_frame_time_while_the_content_changes_and_cuts(gl, 
 
 
 def test_a_budget_the_window_cannot_meet_shrinks_the_fovea(gl, frame):
+    """The window shrinks and its frames come back under the budget, within the issue's 15 % (25 % until
+    2026-11-29: one run in ten had ended 31 % over; probing 25 more, 23 ended 0.85-1.10 of the budget
+    and two 1.21, both while the renderer's own speed changed). A run in which the renderer's own speed
+    changed is run once more, as above."""
     from vrcorrect.specs.display import get_display
 
     src, fbo = frame
@@ -159,18 +158,25 @@ def test_a_budget_the_window_cannot_meet_shrinks_the_fovea(gl, frame):
     pictures = _pictures()
     radius = 60 / get_display("quest2").pixels_per_degree        # a window of 120 px: nearly the whole view
     options = {"fovea_deg": radius, "fovea_periphery": "target"}
-    t1, t4 = _scaled_budget(gl, rx, src, fbo, pictures, **options)
-    budget_ms = 0.55 * t1                                     # one iteration at the full window overruns it
-    c = Corrector(gl, rx, "quest2", "right", budget_ms=budget_ms, **options)
-    try:
-        for i in range(120):                                  # time to settle: each move waits DWELL_FRAMES
-            G.write_texture(src, pictures[i % len(pictures)])
-            c.gaze_deg = (0.0, 0.0)
-            c.apply(src, fbo)
-        gl.finish()
-        assert c.budget.fovea_deg < radius and c.options.fovea_deg == c.budget.fovea_deg
-        assert c.budget.moves >= 1
-        tail = [ms for choice, ms in list(c.budget.history)[-16:] if choice.fovea_deg == c.budget.fovea_deg]
-        assert len(tail) >= 8 and _trimmed_mean(tail) <= budget_ms * (1 + LLVMPIPE_BAND), (budget_ms, tail)
-    finally:
-        c.release()
+    for attempt in range(2):
+        t1, t4 = _scaled_budget(gl, rx, src, fbo, pictures, **options)
+        budget_ms = 0.55 * t1                                 # one iteration at the full window overruns it
+        c = Corrector(gl, rx, "quest2", "right", budget_ms=budget_ms, **options)
+        try:
+            for i in range(120):                              # time to settle: each move waits DWELL_FRAMES
+                G.write_texture(src, pictures[i % len(pictures)])
+                c.gaze_deg = (0.0, 0.0)
+                c.apply(src, fbo)
+            gl.finish()
+            assert c.budget.fovea_deg < radius and c.options.fovea_deg == c.budget.fovea_deg
+            assert c.budget.moves >= 1
+            here = [(choice, ms) for choice, ms in c.budget.history if choice.fovea_deg == c.budget.fovea_deg]
+            tail = [ms for choice, ms in list(c.budget.history)[-16:] if choice.fovea_deg == c.budget.fovea_deg]
+            assert len(tail) >= 8
+            held = _trimmed_mean(tail) <= budget_ms * (1 + BAND)     # back under it (a smaller window may
+            if not held and attempt == 0 and _renderer_slowed(here, tail=len(tail), settled=16):  # leave room)
+                continue
+            assert held, (budget_ms, tail)
+            break
+        finally:
+            c.release()
