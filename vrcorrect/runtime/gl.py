@@ -80,9 +80,7 @@ def headless_context(*, require: int = 330) -> "moderngl.Context":
         raise ValidationError("require", require, "an OpenGL version code from 200 to 460 (330 = 3.3)")
     moderngl = _moderngl()
     try:
-        import glcontext  # on use: glcontext (moderngl's own dependency, with the realtime extra)
-
-        inner = EglStandalone(lambda: glcontext.get_backend_by_name("egl")(mode="standalone", glversion=require))
+        inner = EglStandalone.standalone(require)
         return moderngl.create_context(require=require, standalone=True, context=inner)
     except Exception as exc:  # glcontext raises bare Exception ('libEGL.so.1 not loaded', 'egl... failed')
         raise GLUnavailableError(
@@ -112,6 +110,13 @@ class EglStandalone:
                          egl.eglGetCurrentSurface(self._EGL_READ), egl.eglGetCurrentContext())
         self.inner = make()
         self.handle = egl.eglGetCurrentContext()        # glcontext leaves a new context current
+
+    @classmethod
+    def standalone(cls, require: int) -> "EglStandalone":
+        """glcontext's standalone EGL context of OpenGL ``require`` (330 = 3.3), made current."""
+        import glcontext  # on use: glcontext (moderngl's own dependency, with the realtime extra)
+
+        return cls(lambda: glcontext.get_backend_by_name("egl")(mode="standalone", glversion=require))
 
     def load(self, name: str) -> int:
         return self.inner.load(name)                    # type: ignore[attr-defined]

@@ -389,13 +389,11 @@ def egl_context(require: int = 430, cache: Path | None | bool = None) -> "modern
     current on the calling thread, with a :class:`CachingLoader` (``cache``: its folder, ``None``
     the default, ``False`` none).  ``with ctx:`` makes it current on a thread, leaving makes no
     context current."""
-    import glcontext  # on use: glcontext (optional: the realtime extra)
     import moderngl  # on use: moderngl (optional: the realtime extra)
-
 
     _egl_initialize()
     try:
-        inner = EglStandalone(lambda: glcontext.get_backend_by_name("egl")(mode="standalone", glversion=require))
+        inner = EglStandalone.standalone(require)
     except Exception as exc:  # glcontext raises bare Exception
         raise GLUnavailableError(
             f"no headless OpenGL {require // 100}.{require % 100 // 10} context through EGL ({exc}); on Debian/Ubuntu "
