@@ -10,13 +10,14 @@ correction:
 * ``half``: half of the correction shown, ``t + 0.5 (x - t)``;
 * ``cube root``: the design's expectation with each cone image encoded by ``cbrt(y + 0.01)`` (a
   perceptual, compressive encoding) instead of linear, minimised from ``fast``'s solution by
-  L-BFGS-B in [0, 1] with torch's gradient (float64; the forward model is checked against
-  :func:`vrcorrect.vision.forward.simulate_lms` first).
+  L-BFGS-B in [0, 1] with torch's gradient (float64; the forward model, the learned model's
+  :func:`vrcorrect.learn.train.retina`, is checked against :func:`vrcorrect.vision.forward.simulate_lms`
+  first).
 
     .venv/bin/python tools/dark_text_remedies.py                    # darktext, page, motorcycle on quest2 and desktop
     .venv/bin/python tools/dark_text_remedies.py quest2 darktext    # one case
 
-25-45 s a case, 3.6 min in all, on the dev machine (2-core AMD EPYC, 2026-11-29), which printed
+28-62 s a case, 4.6 min in all, on the dev machine (2-core AMD EPYC, 2026-11-29), which printed
 (the least JOD gain over the six eyes; the gain at 3 mm; quest2 / desktop):
 
 * darktext: ``fast`` -0.15 / -0.10, at 3 mm +0.14 / +0.21; ``half`` +0.00 / +0.05, at 3 mm +0.13 /
@@ -39,6 +40,7 @@ import numpy as np
 import scipy.optimize
 import torch
 
+from vrcorrect.learn.train import retina
 from vrcorrect.physics.perception import luminance_weights
 from vrcorrect.physics.pupil import pupil_from_light
 from vrcorrect.physics.robust import design_eye
@@ -55,19 +57,10 @@ Y0 = 0.01
 ITERATIONS = 300
 
 
-class Blur:
-    """A kernel's cone image in torch: the full linear convolution cropped to the image, as
-    ``simulate_lms`` by FFT (zero outside the image)."""
-
-    def __init__(self, kernel: np.ndarray, h: int, w: int):
-        s = kernel.shape[-1]
-        self.r, self.h, self.w, self.shape = s // 2, h, w, (h + s - 1, w + s - 1)
-        self.spectrum = torch.fft.rfft2(torch.as_tensor(kernel, dtype=torch.float64), s=self.shape)
-
-    def __call__(self, x: torch.Tensor) -> torch.Tensor:
-        full = torch.fft.irfft2(torch.einsum("kcyx,cyx->kyx", self.spectrum, torch.fft.rfft2(x, s=self.shape)),
-                                s=self.shape)
-        return full[:, self.r:self.r + self.h, self.r:self.r + self.w]
+def seen(x: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
+    """A kernel's ``(3, H, W)`` cone image of ``(3, H, W)`` linear RGB: the learned model's forward
+    model (:func:`vrcorrect.learn.train.retina`, which ``simulate_lms`` equals)."""
+    return retina(x[None], kernel[None])[0]
 
 
 def encode(y: torch.Tensor) -> torch.Tensor:
@@ -75,28 +68,30 @@ def encode(y: torch.Tensor) -> torch.Tensor:
 
 
 def check_forward(design) -> float:
-    """The largest difference between :class:`Blur` and ``simulate_lms`` on noise, over the design's kernels."""
+    """The largest difference between :func:`seen` and ``simulate_lms`` on noise, over the design's kernels."""
     x = np.random.default_rng(0).random((48, 40, 3), dtype=np.float32)
     worst = 0.0
     for m in design.members:
         for k in design.member_kernels(m):
             if k is None or k.size == 1:
                 continue
-            got = Blur(k.kernel, 48, 40)(torch.as_tensor(np.moveaxis(x, 2, 0).astype(np.float64))).numpy()
+            got = seen(torch.as_tensor(np.moveaxis(x, 2, 0).astype(np.float64)),
+                       torch.as_tensor(k.kernel, dtype=torch.float64)).numpy()
             worst = max(worst, float(np.max(np.abs(np.moveaxis(got, 0, 2) - simulate_lms(x, k)[0]))))
     return worst
 
 
 def cube_root_solution(problem, start: np.ndarray) -> np.ndarray:
     h, w, _ = start.shape
-    members = [(Blur(m.kernel.kernel, h, w), encode(torch.as_tensor(np.moveaxis(m.target_lms, 2, 0).astype(np.float64))),
-                m.weight) for m in problem.members]
+    members = [(torch.as_tensor(m.kernel.kernel, dtype=torch.float64),
+                encode(torch.as_tensor(np.moveaxis(m.target_lms, 2, 0).astype(np.float64))), m.weight)
+               for m in problem.members]
     total = sum(weight for _, _, weight in members)
     scale: list[float] = []
 
     def objective(v: np.ndarray) -> tuple[float, np.ndarray]:
         x = torch.as_tensor(v.reshape(3, h, w)).requires_grad_(True)
-        loss = sum(weight * torch.mean((encode(blur(x)) - target) ** 2) for blur, target, weight in members) / total
+        loss = sum(weight * torch.mean((encode(seen(x, kernel)) - target) ** 2) for kernel, target, weight in members) / total
         if not scale:                      # relative, so that L-BFGS-B's tolerance means the same on every image
             scale.append(float(loss.detach()))
         (loss / scale[0]).backward()
