@@ -17,8 +17,9 @@ from vrcorrect.physics.pupil import (FORMULA_AGE_RANGE, PUPIL_RANGE_MM, PupilDyn
 from vrcorrect.physics.robust import RobustBand, design_eye
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.plumbing.images import bundled_images
-from vrcorrect.runtime.pupil_bank import (BANK_PUPILS_MM, BANK_STEP, HYSTERESIS, PupilFollower, bank_pupils,
-                                          nearest_bank_pupil, relative_luminance_of)
+from vrcorrect.runtime.pupil_bank import (BANK_PUPILS_MM, BANK_REACH_STEPS, BANK_STEP, HYSTERESIS, PupilFollower,
+                                          bank_grid_kernel_size, bank_pupils, bank_reach_mm, nearest_bank_pupil,
+                                          relative_luminance_of)
 from vrcorrect.solvers import make_problem, objective, solve
 from vrcorrect.solvers.problem import make_design_problem
 from vrcorrect.specs.display import decode, get_display
@@ -170,6 +171,39 @@ def test_the_follower_switches_entries_with_hysteresis():
     assert f.update(lum, 1.0) == pytest.approx(3.125)
     lum = _luminance_for(mid * math.exp(1.5 * HYSTERESIS * step))
     assert f.update(lum, 1.0) == pytest.approx(3.3663)
+
+
+def test_the_reach_is_six_entries_above_the_first_design_and_ends_at_the_bank():
+    assert BANK_REACH_STEPS == 6
+    assert bank_reach_mm(3.125) == pytest.approx(4.8828)            # x1.25^2
+    assert bank_reach_mm(2.0) == pytest.approx(3.125)
+    assert bank_reach_mm(3.05) == pytest.approx(4.8828)             # 3.05 is nearest the 3.125 entry
+    assert bank_reach_mm(6.5748) == pytest.approx(7.5) and bank_reach_mm(7.5) == pytest.approx(7.5)
+
+
+def test_the_grids_hold_the_reach_and_less_than_the_whole_bank():
+    """A robust design at 3.125 mm: grids for its reach (4.88 mm) hold a smaller kernel than grids for
+    7.5 mm, and still the reach's own design (built, not extrapolated)."""
+    design = design_eye(EYE, QUEST2, 3.125, robust=True)
+    reach = bank_grid_kernel_size(design, bank_reach_mm(3.125))
+    whole = bank_grid_kernel_size(design)
+    assert reach < whole
+    top = design_eye(EYE, QUEST2, bank_reach_mm(3.125), robust=True)
+    assert top.kernel.size <= reach, (top.kernel.size, reach)
+
+
+def test_the_follower_stays_within_the_reach_and_says_so():
+    """A black frame asks for the 7.5 mm pupil; with the grids' reach at 4.88 mm the entry stops there
+    and the notes say the design is the reach's, not the pupil's; within the reach it is unchanged."""
+    f = PupilFollower(QUEST2, entry_mm=3.125, reach_mm=bank_reach_mm(3.125))
+    f.dynamics.constrict_s = f.dynamics.dilate_s = 1e-9
+    assert f.update(0.0, 1.0) == pytest.approx(4.8828)
+    assert any("the grids' reach" in n and "7.50 mm" in n for n in f.notes), f.notes
+    assert f.update(_luminance_for(3.9063), 1.0) == pytest.approx(3.9063)
+    assert not any("reach" in n for n in f.notes)
+    free = PupilFollower(QUEST2, entry_mm=3.125)
+    free.dynamics.constrict_s = free.dynamics.dilate_s = 1e-9
+    assert free.update(0.0, 1.0) == pytest.approx(7.5)
 
 
 def _luminance_for(pupil_mm: float) -> float:
@@ -377,6 +411,35 @@ def test_a_black_and_a_white_frame_are_corrected_and_the_pupil_follows(gl):
             c.apply(src, fbo)
         assert G.read_framebuffer(fbo)[10:-10, 10:-10].min() >= 250
         assert c._pupil.follower.estimate.diameter_mm < 3.0
+    finally:
+        c.release()
+        G.release(fbo, tex, src)
+
+
+def test_a_dark_scene_is_designed_at_the_reach_and_switched_without_a_cold_start(gl):
+    """A bright first frame, then black ones (the pupil following at once, the bank designing on this
+    thread as a batch render does): the design climbs to the grids' reach and no further, every switch
+    keeps the strategy (its grids and state), and the status reports a pupil above the design."""
+    from vrcorrect.runtime import gl as G
+    from vrcorrect.runtime.corrector import Corrector
+
+    _, bright = _frames()
+    c = Corrector(gl, Prescription(right=EYE, left=EYE), "quest2", "right", pupil="auto", robust=False,
+                  first_luminance=relative_luminance_of(decode("srgb", bright.astype(np.float32) / 255), QUEST2))
+    c.frame_time_s = 1 / 90
+    c._pupil.follower.dynamics.constrict_s = c._pupil.follower.dynamics.dilate_s = 1e-9
+    first, strategy = c.model.pupil_mm, c.strategy
+    assert c.model.reach_mm == pytest.approx(bank_reach_mm(first)) and c.model.reach_mm > first
+    src = G.upload_texture(gl, np.zeros((H, W, 3), np.uint8))
+    tex, fbo = G.render_target(gl, width=W, height=H)
+    try:
+        for _ in range(8):
+            c.apply(src, fbo)
+        assert c.model.pupil_mm == pytest.approx(c.model.reach_mm) and c._pupil.switches >= 1
+        assert c.strategy is strategy                               # switched, never installed anew
+        assert c._pupil.follower.pupil_mm > c.model.reach_mm + 1.0
+        assert np.isfinite(c.solution((W, H))).all()
+        assert f"design {c.model.reach_mm:.2f} mm" in c.pupil_status
     finally:
         c.release()
         G.release(fbo, tex, src)

@@ -12,8 +12,8 @@ is corrected, each API in a fresh ``HOME`` (empty caches: vrcorrect's and Mesa's
 * a second launch finds its eye models and every compiled program in the caches (vrcorrect's, under
   the fresh ``HOME``'s ``~/.cache``) and is corrected within 5 s of its first frame.  Before it
   corrects, the layer primes the correction on ``hello_xr``'s frame for its default budget
-  (``PRIME_BUDGET_S``, 1 s: on llvmpipe a still scene needs some 35 frames of both eyes at 96x64, about
-  0.1 s each, so it hands over unconverged and converges on ``hello_xr``'s frames; the gap bound
+  (``PRIME_BUDGET_S``, 1 s: on llvmpipe a still scene needs some 35 frames of both eyes at 96x64, 0.1-0.3 s
+  each with the default design, so it hands over unconverged and converges on ``hello_xr``'s frames; the gap bound
   above holds for those frames too).
 
 The fresh environment is ``python -m venv --without-pip`` with the wheel installed by pip (``--python``,

@@ -50,7 +50,7 @@ from ..specs.vocabulary import (
 )
 from .budget import check_budget_ms
 from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
-from .pupil_bank import bank_grid_kernel_size, nearest_bank_pupil
+from .pupil_bank import bank_grid_kernel_size, bank_reach_mm, nearest_bank_pupil
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from ..physics.kernel import EyeKernel, KernelOptions
@@ -397,6 +397,7 @@ class EyeModel:
     pupil_mm: float | None = None                # the viewing pupil designed for
     design: Any = None                           # the Design (vrcorrect.physics.robust) it came from
     grid_kernel_size: int | None = None          # the kernel size grids are made for (a pupil bank's largest)
+    reach_mm: float | None = None                # a pupil bank's largest entry its grids hold (bank_reach_mm)
     spectra: dict = field(default_factory=dict)  # precomputed half spectra by (grid, dtype, coarse): a bank's switch
 
     @property
@@ -451,7 +452,7 @@ a frame: a typical photograph's."""
 def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
                     options: CorrectorOptions = CorrectorOptions(), *, pupil_mm: float | None = None,
                     age_years: float | None = None, kernels: dict | None = None,
-                    grid_kernel_size: int | None = None,
+                    grid_kernel_size: int | None = None, reach_mm: float | None = None,
                     progress: Callable[[int, int], None] | None = None) -> EyeModel:
     """Kernel, regulariser, blend weight (and, for the separable strategy, both banks) for one
     eye (CPU, numpy); only what ``options.backend`` and ``options.filter`` use (module docstring).
@@ -459,7 +460,9 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
     The eye is designed for the viewing pupil ``pupil_mm`` (default :func:`initial_pupil_mm`), for
     that eye alone or, with ``options.robust``, over the band around it
     (:func:`~vrcorrect.physics.robust.design_eye`); ``kernels`` caches kernels between designs (a
-    pupil bank's), ``grid_kernel_size`` makes the grids hold a larger kernel than this design's;
+    pupil bank's), ``grid_kernel_size`` makes the grids hold a larger kernel than this design's (with
+    ``pupil="auto"`` and none given: the kernel of the bank's reach, ``reach_mm``, by default
+    :func:`~vrcorrect.runtime.pupil_bank.bank_reach_mm` of this design's pupil);
     ``progress(done, total)`` after each kernel (a bank's worker stops a design from it)."""
     # start-up time, each below: scipy, the optics and the solvers load with the first eye (importing the
     # runtime loads none of them)
@@ -476,9 +479,9 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
     design = design_eye(eye_rx, display, pupil, robust=options.robust, reference=options.reference, options=kopts,
                         kernels=kernels, progress=progress)
     kernel, reference, seen = design.kernel, design.reference, design.nominal
-    if options.pupil == "auto" and grid_kernel_size is None:          # the grids hold every design of the bank
-
-        grid_kernel_size = bank_grid_kernel_size(design)
+    if options.pupil == "auto" and grid_kernel_size is None:          # the grids hold the bank's reachable designs
+        reach_mm = bank_reach_mm(pupil) if reach_mm is None else reach_mm
+        grid_kernel_size = bank_grid_kernel_size(design, reach_mm)
     notes: list[str] = []
     if options.pupil != "rx" or options.robust:
         notes.append(f"designed for a {pupil:.2f} mm pupil" + (" (auto: from the light)" if options.pupil == "auto"
@@ -494,7 +497,7 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
                         simulation=simulation, mu_rel=mu_rel, beta=beta,
                         build_seconds=time.perf_counter() - t0, notes=tuple(notes),
                         seen=None if seen is kernel else seen, pupil_mm=pupil, design=design,
-                        grid_kernel_size=grid_kernel_size)
+                        grid_kernel_size=grid_kernel_size, reach_mm=reach_mm)
 
     def nothing_to_correct(why: str) -> EyeModel:
         notes.append(why + ": the correction is the identity")

@@ -18,7 +18,13 @@ switch between (``pupil="auto"``, :class:`~vrcorrect.runtime.eye_model.Corrector
   stays while the next is built, and the switch itself only uploads the new spectra: the iteration
   goes on from its state, so the picture moves to the new design over a few frames instead of
   jumping (``tests/test_pupil.py`` holds that).  Every design's grid holds the kernel of the bank's
-  largest pupil (:func:`bank_grid_kernel_size`), so a switch keeps the grids.
+  widest reachable design (:func:`bank_grid_kernel_size`), so a switch keeps the grids.
+* **The reach** (:func:`bank_reach_mm`): the grids hold designs up to :data:`BANK_REACH_STEPS` entries
+  above the first design, not up to 7.5 mm.  A pupil beyond the reach is designed for at the reach (a
+  smaller pupil than the eye's: less correction, never the over-correction a too-large design gives
+  through a smaller pupil), and the follower's notes say so.  Grids sized for 7.5 mm cost what the
+  kernel costs: at 96x64 views a robust design's grid was 3.4 times the pixels of its own (a kernel of
+  107 px against 49), and on llvmpipe the OpenXR layer's frame of both eyes took 0.37 s.
 
 Layer 5: numpy; never torch.
 """
@@ -39,8 +45,8 @@ from ..plumbing.errors import VrcorrectError
 from ..specs.display import DisplayProfile
 from ..specs.prescription import EyeRx
 
-__all__ = ["BANK_STEP", "BANK_PUPILS_MM", "HYSTERESIS", "GRID_MARGIN", "bank_pupils", "bank_grid_kernel_size",
-           "nearest_bank_pupil", "PupilFollower", "PupilBank"]
+__all__ = ["BANK_STEP", "BANK_PUPILS_MM", "BANK_REACH_STEPS", "HYSTERESIS", "GRID_MARGIN", "bank_pupils",
+           "bank_grid_kernel_size", "bank_reach_mm", "nearest_bank_pupil", "PupilFollower", "PupilBank"]
 
 log = logging.getLogger(__name__)
 
@@ -74,18 +80,33 @@ none, since the extrapolation over-estimates (measured from 3.9 to 8 mm pupils, 
 and desktop: the kernels grew 1.5 to 1.8 times for a 2.05 times larger pupil)."""
 
 
-def bank_grid_kernel_size(design) -> int:
+BANK_REACH_STEPS = 6
+"""How many bank entries above the first design the grids reach (``1.25^2``, about 1.56 times its
+pupil): a headset's light gives 2.7-3.4 mm (Watson & Yellott 2012), a range of three steps, so six
+reach it from any start within it, and a dark scene's 4.9 mm from a 3.1 mm start."""
+
+
+def bank_reach_mm(entry_mm: float) -> float:
+    """The largest bank entry the grids of a bank first designed at ``entry_mm`` hold
+    (:data:`BANK_REACH_STEPS` entries above it, at most the bank's last)."""
+    index = min(range(len(BANK_PUPILS_MM)), key=lambda i: abs(math.log(entry_mm / BANK_PUPILS_MM[i])))
+    return BANK_PUPILS_MM[min(index + BANK_REACH_STEPS, len(BANK_PUPILS_MM) - 1)]
+
+
+def bank_grid_kernel_size(design, reach_mm: float | None = None) -> int:
     """The kernel size every grid of a bank holds, so that a switch keeps the grids: the widest member
     kernel of ``design`` (:class:`~vrcorrect.physics.robust.Design`) extrapolated linearly in the pupil
-    (a defocus blur's width grows with it) to the bank's largest pupil, with :data:`GRID_MARGIN`
-    room, doubled for the effective kernels' window where the design is robust.  A later design that
-    still does not fit is installed anew (a cold start) instead of switched."""
+    (a defocus blur's width grows with it) to the design of the bank's reach ``reach_mm``
+    (:func:`bank_reach_mm`; None: the bank's largest pupil), with :data:`GRID_MARGIN` room, doubled
+    for the effective kernels' window where the design is robust.  A later design that still does not
+    fit is installed anew (a cold start) instead of switched."""
     from ..physics.robust import MAX_MEMBER_PUPIL_MM, RobustBand  # start-up time: the optics load with the first eye
 
     members = design.members or ()
     widest = max([m.kernel_size for m in members] + [design.nominal.size])
     pupil = max([m.pupil_mm for m in members] + [design.pupil_mm])
-    top = min(max(BANK_PUPILS_MM) * (max(RobustBand().pupil_factors) if design.robust else 1.0), MAX_MEMBER_PUPIL_MM)
+    reach = max(BANK_PUPILS_MM) if reach_mm is None else reach_mm
+    top = min(reach * (max(RobustBand().pupil_factors) if design.robust else 1.0), MAX_MEMBER_PUPIL_MM)
     size = int(math.ceil(widest * max(top / pupil, 1.0) * GRID_MARGIN)) | 1
     return 2 * size + 1 if design.robust else size
 
@@ -103,13 +124,14 @@ class PupilFollower:
     """The frames' light to a pupil (module docstring) and the bank entry it asks for.
 
     ``update(mean_relative_luminance, dt_s)`` returns the entry to design for: the current one until
-    the dynamic pupil is nearer another by :data:`HYSTERESIS` of a step."""
+    the dynamic pupil is nearer another by :data:`HYSTERESIS` of a step, and never above ``reach_mm``
+    (the grids' reach, :func:`bank_reach_mm`; None: no limit but ``upper_mm``)."""
 
     def __init__(self, display: DisplayProfile, age_years: float | None = None, upper_mm: float | None = None,
-                 entry_mm: float | None = None):
+                 entry_mm: float | None = None, reach_mm: float | None = None):
         from ..physics.pupil import PupilDynamics  # start-up time (as above)
 
-        self.display, self.age_years, self.upper_mm = display, age_years, upper_mm
+        self.display, self.age_years, self.upper_mm, self.reach_mm = display, age_years, upper_mm, reach_mm
         self.dynamics = PupilDynamics()
         self.entry_mm = entry_mm
         self.estimate = None
@@ -129,6 +151,10 @@ class PupilFollower:
         self.notes = self.estimate.notes
         pupil = self.dynamics.update(self.estimate.diameter_mm, dt_s)
         nearest = nearest_bank_pupil(pupil, self.upper_mm)
+        if self.reach_mm is not None and nearest > self.reach_mm + 1e-9:
+            nearest = self.reach_mm
+            self.notes += (f"designed for {self.reach_mm:.2f} mm, the grids' reach, not the {pupil:.2f} mm pupil "
+                           "(less correction, never an over-correction)",)
         if self.entry_mm is None:
             self.entry_mm = nearest
         elif nearest != self.entry_mm:

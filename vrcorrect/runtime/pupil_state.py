@@ -65,6 +65,7 @@ class PupilState:
             if self.follower is None:
                 self.follower = PupilFollower(self.c.display, self.c.age_years, upper, model.pupil_mm)
             self.follower.upper_mm = upper
+            self.follower.reach_mm = model.reach_mm          # the new grids' reach (a new eye: its own)
         else:
             self.switches += 1
         self.current = model.pupil_mm
@@ -77,6 +78,7 @@ class PupilState:
         base = self.c.model
         model = build_eye_model(base.eye, self.c.display, self.c.options, pupil_mm=pupil_mm,
                                 age_years=self.c.age_years, kernels=kernels, grid_kernel_size=base.grid_kernel_size,
+                                reach_mm=base.reach_mm,
                                 progress=progress)
         self.c.check_eye(model.eye)
         return replace(model, spectra=bank_spectra(model, grids)) if grids else model

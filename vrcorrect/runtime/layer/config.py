@@ -61,7 +61,7 @@ PRIME_ENV = "VRCORRECT_LAYER_PRIME_S"
 PRIME_BUDGET_S = 1.0
 """Seconds a build primes its correction for at most (all eyes together; ``VRCORRECT_LAYER_PRIME_S``
 sets another, ``converge`` none).  On a GPU priming converges well inside it (a frame's iterations
-take milliseconds); on a software renderer, where a frame of both eyes at 96x64 takes 0.1-0.2 s and
+take milliseconds); on a software renderer, where a frame of both eyes at 96x64 takes 0.1-0.3 s and
 a still scene needs some 35 frames, the correction is handed over after the budget and goes on
 converging on the application's frames, as it does after any cut, instead of keeping the
 application uncorrected for seconds more."""
