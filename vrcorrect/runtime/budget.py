@@ -10,6 +10,10 @@ budget.
     their mean time is the budget: single frames lie within one iteration's time of it. Two frames
     in a row far from the line (:data:`JUMP`) start a new fit: the load changed. One such frame
     alone (a hitch: the system stalled the process, a driver compiled a shader) is left out.
+    A smaller drift (:data:`DRIFT_FRAMES` frames in a row all more than :data:`DRIFT` slower, or all
+    faster, than the line: the renderer itself slowed, a clock fell, another process took a core)
+    rescales the older frames of the fit by the drifted frames' median ratio, so the line keeps its
+    slope and takes the new level at once, instead of when the old frames have left the window.
   - The radius (hysteresis): a smaller one only when even the fewest iterations have overrun the
     budget by more than :data:`BAND` for :data:`DWELL_FRAMES` frames in a row; the larger one again
     only when its fewest iterations would fit with :data:`BAND` to spare for as long (their time
@@ -35,8 +39,8 @@ from typing import Any, Sequence
 
 from ..plumbing.errors import ValidationError
 
-__all__ = ["MIN_BUDGET_MS", "MAX_BUDGET_MS", "BAND", "DWELL_FRAMES", "FIT_FRAMES", "JUMP", "RADIUS_STEPS", "BudgetChoice",
-           "FrameBudget", "GpuTimer", "radius_ladder", "check_budget_ms"]
+__all__ = ["MIN_BUDGET_MS", "MAX_BUDGET_MS", "BAND", "DRIFT", "DRIFT_FRAMES", "DWELL_FRAMES", "FIT_FRAMES", "JUMP",
+           "RADIUS_STEPS", "BudgetChoice", "FrameBudget", "GpuTimer", "radius_ladder", "check_budget_ms"]
 
 MIN_BUDGET_MS = 0.05
 MAX_BUDGET_MS = 10_000.0
@@ -50,6 +54,12 @@ FIT_FRAMES = 24
 JUMP = 1.5
 """Two frames in a row this many times slower (or faster) than the line predicts are a change of
 load: the line is fitted anew from them. One alone is a hitch, left out of the fit."""
+DRIFT = 0.06
+"""How far (as a fraction) every one of :data:`DRIFT_FRAMES` frames in a row must lie from the line, on
+the same side, to be a drift of the renderer's speed rather than noise: with frame-to-frame noise of
+3 %, four frames past 2 sigma on one side come about once in three million frames."""
+DRIFT_FRAMES = 4
+"""Frames in a row a drift needs (:data:`DRIFT`)."""
 RADIUS_STEPS = (1.0, 0.75, 0.5, 0.35, 0.25)
 """The radius ladder, as fractions of the configured radius."""
 
@@ -109,6 +119,9 @@ class FrameBudget:
         self._hitch: tuple[int, float] | None = None       # a frame far off the line, not yet believed
         self.hitches = 0
         """Frames left out of the fit as hitches (one frame far off the line, the next back on it)."""
+        self._ratios: deque[float] = deque(maxlen=DRIFT_FRAMES)   # the newest fitted frames' time / the line's
+        self.drifts = 0
+        """Drifts followed: the fit's older frames rescaled to the renderer's new speed."""
         self._over = self._under = 0
         self._since_move = DWELL_FRAMES
         self.last_ms: float | None = None
@@ -147,8 +160,11 @@ class FrameBudget:
                     return
                 self._samples.clear()             # two in a row: the load changed; both start the fit
                 self._samples.append(self._hitch)
-            elif self._hitch is not None:
-                self.hitches += 1
+                self._ratios.clear()
+            else:
+                if self._hitch is not None:
+                    self.hitches += 1
+                self._follow_drift(ms / predicted if predicted > 0 else 1.0)
             self._hitch = None
         self._samples.append((choice.iterations, ms))
         self._line = a, b = self._fit()
@@ -164,6 +180,24 @@ class FrameBudget:
             self._move(+1)
         elif self._under >= DWELL_FRAMES and self.level > 0:
             self._move(-1)
+
+    def _follow_drift(self, ratio: float) -> None:
+        """A frame on the line within :data:`JUMP`, ``ratio`` its time over the line's: after
+        :data:`DRIFT_FRAMES` of them in a row all past :data:`DRIFT` on one side, the fit's older
+        frames (all but the drifted ones, the newest not yet in it) are scaled by their median."""
+        self._ratios.append(ratio)
+        if len(self._ratios) < DRIFT_FRAMES:
+            return
+        if not (all(r > 1 + DRIFT for r in self._ratios) or all(r < 1 - DRIFT for r in self._ratios)):
+            return
+        scale = statistics.median(self._ratios)
+        keep = DRIFT_FRAMES - 1                   # the drifted frames already in the fit
+        older = list(self._samples)[:-keep] if keep else list(self._samples)
+        recent = list(self._samples)[len(older):]
+        self._samples.clear()
+        self._samples.extend([(k, t * scale) for k, t in older] + recent)
+        self._ratios.clear()
+        self.drifts += 1
 
     def _fit(self) -> tuple[float, float]:
         """``(a, b)`` of ``ms = a + b k`` through the median time of each count of iterations among
@@ -187,6 +221,7 @@ class FrameBudget:
         self.level += step
         self._samples.clear()
         self._line = self._hitch = None
+        self._ratios.clear()
         self._over = self._under = 0
         self._since_move = 0
         self._carry = 0.0

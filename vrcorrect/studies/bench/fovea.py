@@ -26,9 +26,9 @@ What the eye sees of each is scored against the glasses-on view:
   the **objective** (the cone images' error, as a fraction of no correction's): a metric's verdict
   is read with the physics', never alone.
 
-With ``video``, two held-out clips (:func:`~vrcorrect.studies.bench.sequences.held_out`: pictures
-and words the project never tuned on; light text on dark blue scrolling, and a pan across the rocket
-cut half-way to a microscope slide; :data:`VIDEO_CLIPS`), each
+With ``video``, the three held-out clips (:func:`~vrcorrect.studies.bench.sequences.held_out`:
+pictures and words the project never tuned on; a colour wheel sliding over the rocket, light text on
+dark blue scrolling, and a pan across the rocket cut half-way to a microscope slide; :data:`VIDEO_CLIPS`), each
 :data:`VIDEO_FRAMES` frames at the same view, are played through the full field's and the
 :data:`CHECK_RADIUS_DEG` window's twins as ``vrcorrect render`` plays a clip (the content's motion
 reprojects the warm start; a cut starts cold) and judged as video: FovVideoVDP in video mode
@@ -76,7 +76,7 @@ QUEST2_EYE = (1832, 1920)
 EYE = EyeRx(sphere_D=-2.0, cylinder_D=-1.0, axis_deg=120.0, pupil_diameter_mm=3.0)
 IMAGES = ("motorcycle", "rocket", "page")
 CHECK_RADIUS_DEG = 15.0
-VIDEO_CLIPS = ("text", "cut")
+VIDEO_CLIPS = ("sprite", "text", "cut")
 """The held-out clips played with ``video`` (:func:`video_cases`; of
 :data:`~vrcorrect.studies.bench.sequences.HELD_OUT`)."""
 VIDEO_FRAMES = 30
@@ -426,8 +426,7 @@ def _markdown(report: dict) -> str:
                                        "full, off", "foveated, off", "share of the full field's gain, off",
                                        "FLIP: none / full / foveated"], rows) + "\n")
     parts.append("\n![Foveated JOD against the window's radius, by periphery](fovea_tradeoff.png)\n")
-    parts.append(f"\n_Run on {time.strftime('%Y-%m-%d')}._\n")
-    return "".join(parts)
+    return "".join(parts)                      # the date: write_section's line
 
 
 def _plot(report: dict, path: Path) -> None:
