@@ -439,7 +439,7 @@ def test_a_dark_scene_is_designed_at_the_reach_and_switched_without_a_cold_start
         assert c.strategy is strategy                               # switched, never installed anew
         assert c._pupil.follower.pupil_mm > c.model.reach_mm + 1.0
         assert np.isfinite(c.solution((W, H))).all()
-        assert f"design {c.model.reach_mm:.2f} mm" in c.pupil_status
+        assert f"design {c.model.reach_mm:.2f} mm (the grids reach no further)" in c.pupil_status, c.pupil_status
     finally:
         c.release()
         G.release(fbo, tex, src)
