@@ -93,3 +93,10 @@ def test_the_bench_table_shows_the_clips_and_flip():
     md = F._markdown(report)
     line = next(x for x in md.splitlines() if x.startswith("| text"))
     assert "-0.10" in line and "50 %" in line and "0.300 / 0.200 / 0.220" in line, line
+
+
+def test_the_clips_refuse_an_unknown_periphery_before_any_work():
+    display = get_display("quest2")
+    K, R = build_kernel(F.EYE, display), build_reference_kernel(F.EYE, display)
+    with pytest.raises(ValidationError, match="periphery.*quarter, half or target"):
+        F.video_cases(display, K, R, view=448, frames=2, clips=("cut",), radius=3.0, periphery="eighth")

@@ -267,9 +267,10 @@ def _play(twin: Any, frames: Sequence[np.ndarray], motions: Sequence[Any], k: in
 
 
 def video_cases(display: Any, K: Any, R: Any, view: int, frames: int, clips: Sequence[str] = VIDEO_CLIPS,
-                radius: float = CHECK_RADIUS_DEG, k: int = DEFAULT_ITERATIONS) -> list[dict[str, Any]]:
+                radius: float = CHECK_RADIUS_DEG, k: int = DEFAULT_ITERATIONS,
+                periphery: str | None = None) -> list[dict[str, Any]]:
     """The clips (module docstring): for each, no correction, the full field and the ``radius``
-    window (the default periphery), judged as video against the glasses-on view."""
+    window (``periphery``; None: the default), judged as video against the glasses-on view."""
     from ...specs.display import encode  # on use: start-up time (the CLI imports the studies to build its parser)
     from ...vision.forward import (  # on use: start-up time (the CLI imports the studies to build its parser)
         lms_to_display,
@@ -281,6 +282,9 @@ def video_cases(display: Any, K: Any, R: Any, view: int, frames: int, clips: Seq
     for name in clips:
         if name not in HELD_OUT:
             raise ValidationError("clips", name, "held-out clips: " + ", ".join(HELD_OUT))
+    periphery = DEFAULT_PERIPHERY if periphery is None else periphery
+    if periphery not in ("quarter", "half", "target"):
+        raise ValidationError("periphery", periphery, "quarter, half or target")
 
     def seen(kernel: Any, x: np.ndarray) -> np.ndarray:       # what the eye sees, in K's display RGB, sRGB
         return np.clip(encode("srgb", lms_to_display(simulate_lms(x, kernel)[0], K)), 0.0, 1.0)
@@ -296,8 +300,8 @@ def video_cases(display: Any, K: Any, R: Any, view: int, frames: int, clips: Seq
         lin = [linear(f) for f in clip.frames]
         motions = _motions(clip.frames)
         ref = [seen(R, x) for x in lin]
-        fov = FoveatedFrames(K, R, shape, radius_px=radius_px, band_px=band_px, periphery=DEFAULT_PERIPHERY,
-                             periphery_iterations=PERIPHERY_ITERATIONS.get(DEFAULT_PERIPHERY))
+        fov = FoveatedFrames(K, R, shape, radius_px=radius_px, band_px=band_px, periphery=periphery,
+                             periphery_iterations=PERIPHERY_ITERATIONS.get(periphery))
         runs = {"none": lin, "full": _play(AdmmFrames(K, R, shape), lin, motions, k),
                 "foveated": _play(fov, lin, motions, k, gaze_px=centre)}
         row: dict[str, Any] = {"clip": clip.name, "what": clip.what, "frames": len(lin)}
