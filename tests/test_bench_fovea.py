@@ -98,5 +98,5 @@ def test_the_bench_table_shows_the_clips_and_flip():
 def test_the_clips_refuse_an_unknown_periphery_before_any_work():
     display = get_display("quest2")
     K, R = build_kernel(F.EYE, display), build_reference_kernel(F.EYE, display)
-    with pytest.raises(ValidationError, match="periphery.*quarter, half or target"):
+    with pytest.raises(ValidationError, match="periphery.*one of quarter, half, target"):
         F.video_cases(display, K, R, view=448, frames=2, clips=("cut",), radius=3.0, periphery="eighth")

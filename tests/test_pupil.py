@@ -199,11 +199,14 @@ def test_the_follower_stays_within_the_reach_and_says_so():
     f.dynamics.constrict_s = f.dynamics.dilate_s = 1e-9
     assert f.update(0.0, 1.0) == pytest.approx(4.8828)
     assert any("the grids' reach" in n and "7.50 mm" in n for n in f.notes), f.notes
+    assert f.held_at_reach
     assert f.update(_luminance_for(3.9063), 1.0) == pytest.approx(3.9063)
     assert not any("reach" in n for n in f.notes)
+    assert not f.held_at_reach
     free = PupilFollower(QUEST2, entry_mm=3.125)
     free.dynamics.constrict_s = free.dynamics.dilate_s = 1e-9
     assert free.update(0.0, 1.0) == pytest.approx(7.5)
+    assert not free.held_at_reach
 
 
 def _luminance_for(pupil_mm: float) -> float:

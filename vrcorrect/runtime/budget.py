@@ -191,9 +191,9 @@ class FrameBudget:
         if not (all(r > 1 + DRIFT for r in self._ratios) or all(r < 1 - DRIFT for r in self._ratios)):
             return
         scale = statistics.median(self._ratios)
-        keep = DRIFT_FRAMES - 1                   # the drifted frames already in the fit
-        older = list(self._samples)[:-keep] if keep else list(self._samples)
-        recent = list(self._samples)[len(older):]
+        samples = list(self._samples)
+        split = max(len(samples) - (DRIFT_FRAMES - 1), 0)   # the drifted frames already in the fit stay
+        older, recent = samples[:split], samples[split:]
         self._samples.clear()
         self._samples.extend([(k, t * scale) for k, t in older] + recent)
         self._ratios.clear()

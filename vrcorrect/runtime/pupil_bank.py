@@ -138,6 +138,8 @@ class PupilFollower:
         self.entry_mm = entry_mm
         self.estimate = None
         self.notes: tuple[str, ...] = ()
+        self.held_at_reach = False
+        """Whether the last update's pupil lay beyond the reach, so the entry asked for is the reach's."""
 
     @property
     def pupil_mm(self) -> float | None:
@@ -153,7 +155,8 @@ class PupilFollower:
         self.notes = self.estimate.notes
         pupil = self.dynamics.update(self.estimate.diameter_mm, dt_s)
         nearest = nearest_bank_pupil(pupil, self.upper_mm)
-        if self.reach_mm is not None and nearest > self.reach_mm + 1e-9:
+        self.held_at_reach = self.reach_mm is not None and nearest > self.reach_mm + 1e-9
+        if self.held_at_reach:
             nearest = self.reach_mm
             self.notes += (f"designed for {self.reach_mm:.2f} mm, the grids' reach, not the {pupil:.2f} mm pupil "
                            "(less correction, never an over-correction)",)

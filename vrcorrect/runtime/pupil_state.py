@@ -110,7 +110,7 @@ class PupilState:
         f = self.follower
         if f is None or f.pupil_mm is None or f.estimate is None:
             return f"pupil auto: {self.current:.2f} mm design, no frame measured yet" if self.current else "pupil auto"
-        held = any("the grids' reach" in n for n in f.notes)
+        held = f.held_at_reach
         return (f"pupil {f.pupil_mm:.2f} mm (auto: {f.estimate.luminance_cd_m2:.3g} cd/m^2), design "
                 f"{self.current:.2f} mm{' (the grids reach no further)' if held else ''}, {self.switches} switch(es)")
 

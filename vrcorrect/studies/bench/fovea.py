@@ -58,6 +58,7 @@ from ...solvers.foveated import PERIPHERIES, FoveatedFrames, fovea_pixels
 from ...solvers.realtime import AdmmFrames
 from ...specs.display import decode, get_display
 from ...specs.prescription import EyeRx, Prescription
+from ...specs.vocabulary import Periphery, names, one_of
 from ...vision.metrics import evaluate_seen, flip
 from ...vision.vdp import foveated_jod, foveated_video_jod, jod
 from . import machine_description, markdown_table, publish
@@ -283,8 +284,8 @@ def video_cases(display: Any, K: Any, R: Any, view: int, frames: int, clips: Seq
         if name not in HELD_OUT:
             raise ValidationError("clips", name, "held-out clips: " + ", ".join(HELD_OUT))
     periphery = DEFAULT_PERIPHERY if periphery is None else periphery
-    if periphery not in ("quarter", "half", "target"):
-        raise ValidationError("periphery", periphery, "quarter, half or target")
+    if periphery not in names(Periphery):
+        raise ValidationError("periphery", periphery, one_of(Periphery))
 
     def seen(kernel: Any, x: np.ndarray) -> np.ndarray:       # what the eye sees, in K's display RGB, sRGB
         return np.clip(encode("srgb", lms_to_display(simulate_lms(x, kernel)[0], K)), 0.0, 1.0)
