@@ -448,6 +448,51 @@ def test_a_dark_scene_is_designed_at_the_reach_and_switched_without_a_cold_start
         G.release(fbo, tex, src)
 
 
+def test_a_dark_first_frame_keeps_the_grids_of_a_mid_grey_start():
+    """A fade from black: the first frame's light asks for the largest pupil, but the first design and
+    the grids' reach stop at a mid-grey frame's reach (not 7.5 mm for the whole run); a bright first
+    frame keeps its own, smaller, reach."""
+    from vrcorrect.runtime.eye_model import CorrectorOptions, auto_reach_mm, initial_pupil_mm
+
+    auto = CorrectorOptions(pupil="auto")
+    neutral = initial_pupil_mm(EYE, QUEST2, auto)
+    assert neutral == pytest.approx(3.125)
+    dark = initial_pupil_mm(EYE, QUEST2, auto, 0.0)
+    assert dark == pytest.approx(bank_reach_mm(neutral)) and dark < max(BANK_PUPILS_MM)
+    assert auto_reach_mm(EYE, QUEST2, auto, dark) == pytest.approx(bank_reach_mm(neutral))
+    bright = initial_pupil_mm(EYE, QUEST2, auto, 1.0)
+    assert bright < neutral and auto_reach_mm(EYE, QUEST2, auto, bright) == pytest.approx(bank_reach_mm(bright))
+    assert initial_pupil_mm(EYE, QUEST2, CorrectorOptions(pupil="auto", age_years=10.0), 0.0) == pytest.approx(
+        bank_reach_mm(initial_pupil_mm(EYE, QUEST2, CorrectorOptions(pupil="auto", age_years=10.0))))
+
+
+def test_a_corrector_whose_first_frame_is_black_follows_within_the_mid_grey_reach(gl):
+    """``render`` of a clip that fades in from black: the first design is held at the reach and the
+    status says so from the first measured frame; its grids are those of a mid-grey start."""
+    from vrcorrect.runtime import gl as G
+    from vrcorrect.runtime.corrector import Corrector
+
+    c = Corrector(gl, Prescription(right=EYE, left=EYE), "quest2", "right", pupil="auto", robust=False,
+                  first_luminance=0.0)
+    grey = Corrector(gl, Prescription(right=EYE, left=EYE), "quest2", "right", pupil="auto", robust=False)
+    c.frame_time_s = 1 / 90
+    src = G.upload_texture(gl, np.zeros((H, W, 3), np.uint8))
+    tex, fbo = G.render_target(gl, width=W, height=H)
+    try:
+        assert c.model.pupil_mm == pytest.approx(bank_reach_mm(grey.model.pupil_mm))
+        assert c.model.reach_mm == pytest.approx(grey.model.reach_mm)
+        assert c.model.grid_kernel_size <= grey.model.grid_kernel_size * 1.02, \
+            (c.model.grid_kernel_size, grey.model.grid_kernel_size)
+        for _ in range(4):
+            c.apply(src, fbo)
+        assert "(the grids reach no further)" in c.pupil_status, c.pupil_status
+        assert c.model.pupil_mm == pytest.approx(c.model.reach_mm)
+    finally:
+        c.release()
+        grey.release()
+        G.release(fbo, tex, src)
+
+
 def test_the_gpu_equals_its_twin_across_pupil_switches(gl):
     """A dark clip cut to a bright one through the robust real-time default with the pupil from the
     light (single precision, the frame time of 90 Hz): the pupil constricts and the correction

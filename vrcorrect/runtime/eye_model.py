@@ -55,7 +55,7 @@ from .pupil_bank import bank_grid_kernel_size, bank_reach_mm, nearest_bank_pupil
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from ..physics.kernel import EyeKernel, KernelOptions
 
-__all__ = ["as_options", "initial_pupil_mm", "NEUTRAL_LUMINANCE", "DEFAULT_ITERATIONS", "DEFAULT_COLD_ITERATIONS", "WORK_GROUP_PASSES", "VALUES_PER_THREAD",
+__all__ = ["as_options", "initial_pupil_mm", "auto_reach_mm", "NEUTRAL_LUMINANCE", "DEFAULT_ITERATIONS", "DEFAULT_COLD_ITERATIONS", "WORK_GROUP_PASSES", "VALUES_PER_THREAD",
            "COARSE_VALUES_PER_THREAD", "COLUMN_LINES", "WorkGroups", "CorrectorOptions", "EyeModel", "build_eye_model",
            "check_iterations"]
 
@@ -432,16 +432,34 @@ def initial_pupil_mm(eye_rx: EyeRx, display: DisplayProfile, options: "Corrector
     """The pupil a model is first designed for: ``options.pupil``'s number, the eye's own for
     ``"rx"``, and for ``"auto"`` the light's (:func:`~vrcorrect.physics.pupil.pupil_from_light`) of
     ``mean_relative_luminance`` (None: a mid-grey frame, :data:`NEUTRAL_LUMINANCE`, until the GPU has
-    measured one), snapped to the pupil bank's nearest entry."""
+    measured one), snapped to the pupil bank's nearest entry, and at most the reach of a mid-grey
+    frame's grids (:func:`auto_reach_mm`: a first frame in the dark is not designed for its large pupil)."""
     if options.pupil == "rx":
         return eye_rx.pupil_diameter_mm
     if options.pupil != "auto":
         return float(options.pupil)
 
-    lum = NEUTRAL_LUMINANCE if mean_relative_luminance is None else mean_relative_luminance
+    if mean_relative_luminance is None:
+        return _light_entry(eye_rx, display, options, NEUTRAL_LUMINANCE, age_years)
+    entry = _light_entry(eye_rx, display, options, mean_relative_luminance, age_years)
+    return min(entry, bank_reach_mm(_light_entry(eye_rx, display, options, NEUTRAL_LUMINANCE, age_years)))
+
+
+def _light_entry(eye_rx: EyeRx, display: DisplayProfile, options: "CorrectorOptions", lum: float,
+                 age_years: float | None) -> float:
+    """The bank entry of the light-adapted pupil for a frame of mean relative luminance ``lum``."""
     age = options.age_years if options.age_years is not None else age_years
     upper = eye_rx.higher_order.pupil_diameter_mm if eye_rx.higher_order is not None else None
     return nearest_bank_pupil(pupil_from_light(lum, display, age, upper_mm=upper).diameter_mm, upper)
+
+
+def auto_reach_mm(eye_rx: EyeRx, display: DisplayProfile, options: "CorrectorOptions", pupil_mm: float,
+                  age_years: float | None = None) -> float:
+    """The grids' reach (:func:`~vrcorrect.runtime.pupil_bank.bank_reach_mm`) of a ``pupil="auto"`` bank
+    first designed at ``pupil_mm``: its own, or a mid-grey frame's where the first frame was darker.
+    A dark first frame (a fade from black, a loading screen) would otherwise size the grids for the
+    largest pupil for the whole run; :func:`initial_pupil_mm` holds its design at this reach."""
+    return bank_reach_mm(min(pupil_mm, _light_entry(eye_rx, display, options, NEUTRAL_LUMINANCE, age_years)))
 
 
 NEUTRAL_LUMINANCE = 0.2
@@ -462,7 +480,7 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
     (:func:`~vrcorrect.physics.robust.design_eye`); ``kernels`` caches kernels between designs (a
     pupil bank's), ``grid_kernel_size`` makes the grids hold a larger kernel than this design's (with
     ``pupil="auto"`` and none given: the kernel of the bank's reach, ``reach_mm``, by default
-    :func:`~vrcorrect.runtime.pupil_bank.bank_reach_mm` of this design's pupil);
+    :func:`auto_reach_mm` of this design's pupil);
     ``progress(done, total)`` after each kernel (a bank's worker stops a design from it)."""
     # start-up time, each below: scipy, the optics and the solvers load with the first eye (importing the
     # runtime loads none of them)
@@ -480,7 +498,7 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
                         kernels=kernels, progress=progress)
     kernel, reference, seen = design.kernel, design.reference, design.nominal
     if options.pupil == "auto" and grid_kernel_size is None:          # the grids hold the bank's reachable designs
-        reach_mm = bank_reach_mm(pupil) if reach_mm is None else reach_mm
+        reach_mm = auto_reach_mm(eye_rx, display, options, pupil, age_years) if reach_mm is None else reach_mm
         grid_kernel_size = bank_grid_kernel_size(design, reach_mm)
     notes: list[str] = []
     if options.pupil != "rx" or options.robust:
