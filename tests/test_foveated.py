@@ -12,7 +12,7 @@ from scipy.signal import fftconvolve
 from vrcorrect.physics.kernel import build_kernel, build_reference_kernel
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.plumbing.images import bundled_images
-from vrcorrect.solvers.foveated import FoveatedFrames, blend_ramp, fovea_window, foveated_grid
+from vrcorrect.solvers.foveated import COLD_WINDOW_ITERATIONS, FoveatedFrames, blend_ramp, fovea_window, foveated_grid
 from vrcorrect.solvers.realtime import AdmmFrames, admm_grid
 from vrcorrect.specs.display import decode, get_display
 from vrcorrect.specs.prescription import EyeRx
@@ -47,14 +47,41 @@ def _error(kernels, shown: np.ndarray, target: np.ndarray, rect) -> float:
 
 
 def test_a_window_as_large_as_the_view_is_the_full_field_twin(kernels, target):
+    """Its cold frame runs COLD_WINDOW_ITERATIONS beyond the frame's (the full-field twin given as
+    many), its warm frames the frame's own; a cut starts it cold again."""
     full = AdmmFrames(*kernels, (H, W), cold_iterations=0)
     fov = FoveatedFrames(*kernels, (H, W), radius_px=200)
-    for _ in range(3):
-        a = full.frame(target, 2)
-        b = fov.frame(target, 2, gaze_px=(W / 2, H / 2))
+    assert COLD_WINDOW_ITERATIONS > 0
+    for i in range(5):
+        cold = i in (0, 3)
+        a = full.frame(target, 2 + (COLD_WINDOW_ITERATIONS if cold else 0), cold=cold)
+        b = fov.frame(target, 2, gaze_px=(W / 2, H / 2), cold=cold)
         assert b.window.win == (0, H, 0, W) and b.window.sub == (0, H, 0, W)
         np.testing.assert_array_equal(b.shown, a.shown)
         assert b.sub.beta == a.beta
+    plain = FoveatedFrames(*kernels, (H, W), radius_px=200, cold_window_iterations=0)
+    first = AdmmFrames(*kernels, (H, W), cold_iterations=0).frame(target, 2)
+    np.testing.assert_array_equal(plain.frame(target, 2, gaze_px=(W / 2, H / 2)).shown, first.shown)
+
+
+def test_cold_frames_run_more_iterations_and_converge_sooner(kernels, target):
+    """The first frame of the window and of its periphery run their cold iterations: the window's
+    error there is lower than with the frame's own alone (the warm frames: the test above)."""
+    def window_error(fov):
+        f = fov.frame(target, 2, gaze_px=(48, 48))
+        y0, y1, x0, x1 = f.window.win
+        return _error(kernels, f.shown, target, (y0 + 6, y1 - 6, x0 + 6, x1 - 6)), f
+
+    with_cold = FoveatedFrames(*kernels, (H, W), radius_px=24, band_px=6, periphery="half")
+    without = FoveatedFrames(*kernels, (H, W), radius_px=24, band_px=6, periphery="half", cold_window_iterations=0,
+                             cold_periphery_iterations=0)
+    (e_cold, f_cold), (e_plain, _) = window_error(with_cold), window_error(without)
+    assert e_cold < 0.8 * e_plain, (e_cold, e_plain)
+    assert with_cold.coarse is not None and f_cold.periphery is not None
+    with pytest.raises(ValidationError, match="cold_window_iterations.*0 or more"):
+        FoveatedFrames(*kernels, (H, W), radius_px=24, cold_window_iterations=-1)
+    with pytest.raises(ValidationError, match="cold_periphery_iterations"):
+        FoveatedFrames(*kernels, (H, W), radius_px=24, cold_periphery_iterations=2.5)
 
 
 def test_outside_the_window_the_view_is_the_target_and_inside_it_is_corrected(kernels, target):
@@ -112,7 +139,8 @@ def test_a_moving_gaze_warm_starts_from_the_reprojected_state(kernels, target):
     for _ in range(10):
         warm.frame(target, 2, gaze_px=(60, 48))
     moved = warm.frame(target, 2, gaze_px=(66, 48))
-    cold = FoveatedFrames(*kernels, (H, W), radius_px=24, band_px=6).frame(target, 2, gaze_px=(66, 48))
+    cold = FoveatedFrames(*kernels, (H, W), radius_px=24, band_px=6,
+                          cold_window_iterations=0).frame(target, 2, gaze_px=(66, 48))
     assert moved.window == cold.window
     y0, y1, x0, x1 = moved.window.win
     inner = (y0 + 6, y1 - 6, x0 + 6, x1 - 6)

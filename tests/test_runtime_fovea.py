@@ -143,7 +143,8 @@ def test_bench_cost_counts_a_15_degree_fovea_at_a_quest_2_eye_under_half_a_gigab
     """Issue 45's bar, counted from the dispatches (a dry run: nothing runs): a Quest 2 eye
     (1832 x 1920) foveated at 15 degrees with the default periphery (a quarter-resolution correction
     of the whole view) moves at most 0.5 GB a changing frame, its window's FFT grid the window's
-    (625 x 625: 2 x 283 px and a 41 px kernel's ring, 5-smooth), not the view's; the report says so."""
+    (625 x 625: 2 x 283 px and a 41 px kernel's ring, 5-smooth), not the view's; the report says so,
+    and what a cold frame costs."""
     from vrcorrect.studies.bench.cost import METHODS, run_cost_bench
 
     report = run_cost_bench((1832, 1920), "quest2", methods=METHODS[:1], fovea=(15.0,), dry_run=True, write=False,
@@ -152,7 +153,12 @@ def test_bench_cost_counts_a_15_degree_fovea_at_a_quest_2_eye_under_half_a_gigab
     (f,) = report["fovea"]
     assert f["radius_px"] == round(15 * PPD) and f["grid"][0] < 700 and f["grid"][1] < 700
     assert f["bytes_per_eye_frame"] <= 0.5e9 < report["default"]["bytes_per_eye_frame"]
+    # a cold frame runs the window's and the periphery's cold iterations: more than a changing frame,
+    # less than the full field's cold frame (its half-resolution level)
+    assert f["bytes_per_eye_frame"] < f["cold_frame_bytes_per_eye_frame"] < \
+        report["default"]["cold_frame_bytes_per_eye_frame"]
     assert "radius 15 deg" in report["markdown"] and "at most 0.5 GB: met" in report["markdown"]
+    assert f"(a cold frame: {f['cold_frame_bytes_per_eye_frame'] / 1e9:.2f} GB" in report["markdown"]
     assert not (tmp_path / "benchmarks.md").exists()
 
 

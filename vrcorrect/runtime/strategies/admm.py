@@ -129,6 +129,7 @@ class AdmmBuffers:
 
 class AdmmStrategy(IterativeStrategy):
     name = Filter.ADMM
+    cold_extra_iterations = 0     # run beyond iterations_per_frame on a cold frame (a foveated window's, its periphery's)
 
     def __init__(self, *args: Any, coarse_level: bool = False, fovea: bool = False, **kwargs: Any):
         super().__init__(*args, **kwargs)
@@ -357,7 +358,7 @@ class AdmmStrategy(IterativeStrategy):
         t_prev = b.t[b.last_t]
         twiddle = {"u_twiddle": b.twiddle_x}            # the row passes' table; the column passes': col_tw
         col_tw = {"u_twiddle": b.twiddle_y}
-        k = self.iterations_per_frame
+        k = self.iterations_per_frame + (self.cold_extra_iterations if cold else 0)
         if b.compared:
             self._begin("plan")
             groups = {"rows_target": H, "cols_target": cols, "rows_start": ny, "cols_admm": cols, "rows_update": ny,

@@ -97,15 +97,18 @@ class FoveatedStrategy(AdmmStrategy):
         self.levels = PERIPHERY_LEVELS[periphery]
         self.outer: AdmmStrategy | None = None
         """The periphery's ADMM strategy (its own guard) at ``levels`` halvings of the view."""
+        # start-up time: scipy with the first eye (the twin's module states the cold frames' iterations)
+        from ...solvers.foveated import COLD_PERIPHERY_ITERATIONS, COLD_WINDOW_ITERATIONS
+
         if self.levels:
-
-
             model = self.model
             for _ in range(self.levels):
                 model = coarse_model(model)
             options = replace(self.options, iterations_per_frame=PERIPHERY_ITERATIONS[periphery], early_stop=False,
                               cold_iterations=0, fovea_deg=None, cold_start_model=None)
             self.outer = AdmmStrategy(self.gpu, model, options, self.encoder, self.decoder)
+            self.outer.cold_extra_iterations = max(COLD_PERIPHERY_ITERATIONS - PERIPHERY_ITERATIONS[periphery], 0)
+        self.cold_extra_iterations = COLD_WINDOW_ITERATIONS
         self.gaze_px: tuple[float, float] | None = None
         """Where the eye looks, view pixels ``(x, y)`` rows top first (None: the view's centre)."""
         self.window = None                  # the last frame's FoveaWindow

@@ -363,6 +363,7 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
     finally:
         ctx.release()
     default = [r for r in results if r.label == methods[0][0]]
+    fov = {r: [m for m in results if m.label == fovea_method(r, periphery)[0]] for r in fovea}   # each radius's eyes
     d_bytes, d_gpu = max(r.changing.bytes for r in default), _worst_ms(default, "gpu_ms")
     projection = efficiency_source(renderer, d_bytes, d_gpu)
     report = {
@@ -390,10 +391,9 @@ def run_cost_bench(size: tuple[int, int] = HEADSET_SIZE, display_name: str = "qu
         "fovea": [{"radius_deg": r, "radius_px": int(round(r * display.pixels_per_degree)),
                    "band_px": fovea_pixels(r, display.pixels_per_degree)[1],
                    "periphery": fovea_method(r, periphery)[1]["fovea_periphery"],
-                   "bytes_per_eye_frame": max(m.changing.bytes for m in results
-                                              if m.label == fovea_method(r, periphery)[0]),
-                   "grid": list(max((m for m in results if m.label == fovea_method(r, periphery)[0]),
-                                    key=lambda m: m.changing.bytes).grid or ())} for r in fovea],
+                   "bytes_per_eye_frame": max(m.changing.bytes for m in fov[r]),
+                   "cold_frame_bytes_per_eye_frame": max(m.cold.bytes for m in fov[r]),
+                   "grid": list(max(fov[r], key=lambda m: m.changing.bytes).grid or ())} for r in fovea],
     }
     if peer is not None:
         report["peer"] = run_peer(peer, results, size, frames, dry_run)
@@ -416,7 +416,8 @@ def _fovea_section(report: dict[str, Any], gpus: list[str], efficiency: float) -
         lines.append(f"- radius {f['radius_deg']:g} deg ({f['radius_px']} px, and a blend band of {f['band_px']} px "
                      f"beyond it: a window of {solved} px a side and its ring, FFT grid {grid}; periphery: {f['periphery']}): {_gb(b)} GB per eye per changing "
                      f"frame, {100 * b / d:.0f} % of "
-                     f"the full field's; both eyes projected at {both}"
+                     f"the full field's (a cold frame: {_gb(f['cold_frame_bytes_per_eye_frame'])} GB, with its cold "
+                     f"iterations); both eyes projected at {both}"
                      + (f" (issue 45's target at 15 deg: at most {FOVEA_TARGET_BYTES / 1e9:.1f} GB: "
                         f"{'met' if b <= FOVEA_TARGET_BYTES else 'not met'})" if f["radius_deg"] == 15 else ""))
     return (f"**Foveated** (`--fovea`; the default frame solved on a window around the gaze at ({x:g}, {y:g}) deg; "
