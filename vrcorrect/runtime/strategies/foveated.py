@@ -97,8 +97,7 @@ class FoveatedStrategy(AdmmStrategy):
         self.levels = PERIPHERY_LEVELS[periphery]
         self.outer: AdmmStrategy | None = None
         """The periphery's ADMM strategy (its own guard) at ``levels`` halvings of the view."""
-        # start-up time: scipy with the first eye (the twin's module states the cold frames' iterations)
-        from ...solvers.foveated import COLD_PERIPHERY_ITERATIONS, COLD_WINDOW_ITERATIONS
+        from ...solvers.foveated import COLD_PERIPHERY_ITERATIONS, COLD_WINDOW_ITERATIONS  # start-up time: scipy
 
         if self.levels:
             model = self.model
