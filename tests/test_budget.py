@@ -181,6 +181,28 @@ def test_frames_timed_at_an_old_radius_do_not_feed_the_new_one():
     assert budget.q == q and budget.history[-1] == (BudgetChoice(1, 20.0), 1000.0)
 
 
+def test_a_cold_frame_is_kept_in_the_history_but_not_fitted():
+    """A shot's first frame (or a new window's) runs its cold iterations too: five times the time of
+    its choice.  Left out of the fit, it moves nothing; fitted as that choice, it would have halved
+    the iterations of the frames after it."""
+    def settle(budget):
+        for _ in range(12):
+            c = budget.choose()
+            budget.observe(c, 2.0 + 1.0 * c.iterations)     # 1 ms an iteration, 2 ms fixed: 8 fit in 10 ms
+        return budget.q
+
+    budget = FrameBudget(10.0, radii=(None,), iterations=(1, 16), start=2)
+    q = settle(budget)
+    assert q == pytest.approx(8.0, abs=0.5)
+    budget.observe(BudgetChoice(8, None, cold=True), 50.0)
+    assert budget.q == q and budget.history[-1] == (BudgetChoice(8, None, cold=True), 50.0)
+    fitted = FrameBudget(10.0, radii=(None,), iterations=(1, 16), start=2)
+    settle(fitted)
+    fitted._samples.clear()                                 # as after a move: the fit starts anew
+    fitted.observe(BudgetChoice(8, None), 50.0)             # the same frame, fitted as its choice
+    assert fitted.q < q / 2
+
+
 @pytest.mark.parametrize("value", [0, -1, float("nan"), float("inf"), True, "3", 1e9])
 def test_a_bad_budget_is_refused_with_its_field(value):
     with pytest.raises(ValidationError, match="budget_ms"):

@@ -89,10 +89,13 @@ def radius_ladder(radius_deg: float | None, smallest_deg: float) -> tuple[float 
 
 @dataclass(frozen=True)
 class BudgetChoice:
-    """What a frame runs: its iterations, and its window's radius (degrees; ``None``: no fovea)."""
+    """What a frame runs: its iterations, and its window's radius (degrees; ``None``: no fovea);
+    ``cold``: it started cold and ran its cold work too (the first frame, a cut, a new window), so
+    its time is not on the line and the fit leaves it out."""
 
     iterations: int
     fovea_deg: float | None
+    cold: bool = False
 
 
 class FrameBudget:
@@ -144,12 +147,12 @@ class FrameBudget:
 
     def observe(self, choice: BudgetChoice, ms: float) -> None:
         """A frame's measured time (it ran ``choice``); frames of another radius than the current
-        one (timed before a move) are ignored."""
+        one (timed before a move) and cold frames are kept in :attr:`history` but not fitted."""
         if not math.isfinite(ms) or ms < 0:
             return
         self.last_ms = ms
         self.history.append((choice, ms))
-        if choice.fovea_deg != self.fovea_deg:
+        if choice.fovea_deg != self.fovea_deg or choice.cold:
             return
         if len(self._samples) >= 4:              # a change of load (a new picture size, a new scene): refit
             a, b = self._line or self._fit()
@@ -288,6 +291,15 @@ class GpuTimer:
         i = self._frame % 3
         self._tags[i] = tag
         self._counter(self._ids[2 * i], self._GL_TIMESTAMP)
+
+    @property
+    def tag(self) -> Any:
+        """The tag of the frame begun last."""
+        return self._tags[self._frame % 3]
+
+    def retag(self, tag: Any) -> None:
+        """Tag the frame begun last anew (what it turned out to run)."""
+        self._tags[self._frame % 3] = tag
 
     def end(self) -> None:
         """Stamp the end of the frame begun last."""

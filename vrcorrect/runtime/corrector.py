@@ -443,6 +443,8 @@ class Corrector:
             self._pupil.frame(linear)
         if self.enabled:
             shown = self._correct(linear)
+            if self._timer is not None and self.strategy.last_cold:        # its cold work: off the budget's line
+                self._timer.retag(replace(self._timer.tag, cold=True))
             self.gpu.begin("present")
             self.strategy.present(shown, dst_framebuffer, viewport)
         else:

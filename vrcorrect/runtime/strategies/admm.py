@@ -350,7 +350,7 @@ class AdmmStrategy(IterativeStrategy):
         cols = b.column_groups                  # a column pass's work groups
         if linear is not b.t[b.next_t]:
             raise ValidationError("linear", "a texture not from decode_target", "this strategy's decode target")
-        cold = not b.warm
+        cold = self.last_cold = not b.warm
         shifted = not cold and tuple(motion_gl) != (0, 0)
         # a shifted start reads the last state from the other textures of each pair; otherwise the
         # state is updated in place (and a frame the plan skips leaves it as it was)

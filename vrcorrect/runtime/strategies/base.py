@@ -115,6 +115,7 @@ class Strategy:
 
     name = ""
     iterative = False                   # has a per-frame iteration count (iterations_per_frame)
+    last_cold = False                   # the last frame started cold and ran its cold work (a budget skips its time)
 
     def __init__(self, gpu: Gpu, model: "EyeModel", options: "CorrectorOptions", encoder: Encoder,
                  decoder: Decoder | None = None):

@@ -54,7 +54,13 @@ from tqdm import tqdm
 from ...physics.kernel import build_kernel, build_reference_kernel
 from ...plumbing.errors import ValidationError
 from ...runtime.strategies.foveated import DEFAULT_PERIPHERY, PERIPHERY_ITERATIONS
-from ...solvers.foveated import PERIPHERIES, FoveatedFrames, fovea_pixels
+from ...solvers.foveated import (
+    COLD_PERIPHERY_ITERATIONS,
+    COLD_WINDOW_ITERATIONS,
+    PERIPHERIES,
+    FoveatedFrames,
+    fovea_pixels,
+)
 from ...solvers.realtime import AdmmFrames
 from ...specs.display import decode, get_display
 from ...specs.prescription import EyeRx, Prescription
@@ -423,7 +429,9 @@ def _markdown(report: dict) -> str:
                      f"Clips the project never tuned on (the held-out set: {'; '.join(v['what'] for v in report['video'])}), "
                      f"{frames} frames each at 90 Hz on the same view, played as `vrcorrect render` plays them "
                      "(the content's motion reprojects the warm start, a cut starts cold), the window's periphery "
-                     f"{DEFAULT_PERIPHERY} resolution, {DEFAULT_ITERATIONS} iterations a frame. FovVideoVDP in video "
+                     f"{DEFAULT_PERIPHERY} resolution, {DEFAULT_ITERATIONS} iterations a frame (a cold frame, the first "
+                     f"and after a cut: the window {COLD_WINDOW_ITERATIONS} more, the periphery "
+                     f"{COLD_PERIPHERY_ITERATIONS}). FovVideoVDP in video "
                      f"mode fixating the window's centre and {report['off_deg']:g} degrees off; FLIP the frames' "
                      "mean (lower is better).\n\n"
                      + markdown_table(["clip", "none, centre", "full, centre", "foveated, centre",
