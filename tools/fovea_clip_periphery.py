@@ -12,8 +12,9 @@ video table (FovVideoVDP fixating the window's centre and 10 deg off):
 About 7-12 min a clip on the dev machine (2-core AMD EPYC, 2026-11-29, beside a CI run), which printed
 for ``sprite`` with the periphery at half resolution (1 iteration a frame, 0.70 GB a Quest 2 eye
 frame): none 9.14, full 9.77, foveated 9.59 at the gaze (-0.18); 10 deg off 74 % of the full field's
-gain.  With the default quarter (the bench): -0.24 and 62 %.  So the periphery's resolution explains a
-quarter of the loss; the stills at half resolution lose at most 0.02, so the rest shows only as video.
+gain.  With the default quarter (the bench): -0.24 and 62 %.  Those runs predate the foveated cold
+frames' own iterations: most of the loss beyond a still's was the cold start's first five frames,
+which the periphery's resolution does not touch (``tools/fovea_cold_start.py``).
 """
 
 from __future__ import annotations

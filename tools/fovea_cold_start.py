@@ -10,12 +10,16 @@ cold iterations (``COLD_WINDOW_ITERATIONS``, ``COLD_PERIPHERY_ITERATIONS``) and 
     .venv/bin/python tools/fovea_cold_start.py            # sprite (3-4 min on the dev machine)
     .venv/bin/python tools/fovea_cold_start.py cut
 
-What it showed (dev machine, 2-core AMD EPYC, 2026-11-29), foveated less full field at the gaze, held
-still: without the cold iterations -0.21 over frames 0-29 and -0.135 over frames 30-59.  So most of
-the clip's video-only loss was the cold start, not the motion: the window and its quarter-resolution
-periphery, 2 iterations a frame each from the target, took about five frames to converge (the full
-field starts from its half-resolution level).  What remains once converged is the periphery's
-resolution (half resolution: -0.02 as a still).
+What it printed for ``sprite`` (dev machine, 2-core AMD EPYC, 2026-11-29, 10 min beside the bench),
+foveated less full field at the gaze, frames 0-29 from cold / 30-59 converged:
+
+    foveated, no cold iterations   -0.214 / -0.135
+    foveated (the default)         -0.076 / -0.135
+
+So most of the clip's loss beyond a still's was the cold start, not the motion: the window and its
+quarter-resolution periphery, 2 iterations a frame each from the target, took about five frames to
+converge (the full field starts from its half-resolution level).  What remains once converged is the
+periphery's resolution (at half resolution the same frame, judged as an image, is 0.02 under).
 """
 
 from __future__ import annotations
