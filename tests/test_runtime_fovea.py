@@ -15,7 +15,7 @@ from vrcorrect.runtime import gl as G
 from vrcorrect.runtime.corrector import Corrector, CorrectorOptions
 from vrcorrect.runtime.dispatch import CostLedger
 from vrcorrect.runtime.strategies.foveated import PERIPHERY_ITERATIONS
-from vrcorrect.solvers.foveated import FoveatedFrames, fovea_pixels
+from vrcorrect.solvers.foveated import COLD_WINDOW_ITERATIONS, FoveatedFrames, fovea_pixels
 from vrcorrect.specs.display import decode, get_display
 from vrcorrect.specs.prescription import EyeRx, Prescription
 
@@ -178,6 +178,7 @@ def test_render_with_a_window_says_where_and_keeps_the_codes_outside_it(tmp_path
     assert code == 0
     line = next(line for line in text.splitlines() if "foveated:" in line)
     assert "the rest of the view as it is" in line and "around the gaze at (1, 0.5) deg" in line
+    assert f"a cold frame runs {COLD_WINDOW_ITERATIONS} more on the window" in line
     rows, cols = line.split("rows ")[1].split(", columns ")
     y0, y1 = (int(v) for v in rows.split("-"))
     x0, x1 = (int(v) for v in cols.split(")")[0].split("-"))

@@ -213,8 +213,9 @@ def _print_fovea(info: dict) -> None:
                f"resolution ({info.get('fovea_periphery_iterations')} iteration(s) a frame)")
     band = info["fovea_band_px"]
     print(f"  foveated: corrected on a window of radius {info['fovea_deg']:g} deg ({info['fovea_radius_px'] - band} px) "
-          f"around the gaze at ({x:g}, {y:g}) deg and faded over {band} px beyond it{where}; {outside}; the "
-          "objective is the window's sub-image's")
+          f"around the gaze at ({x:g}, {y:g}) deg and faded over {band} px beyond it{where}; {outside}; a cold "
+          f"frame runs {info.get('fovea_cold_iterations')} more on the window; the objective is the window's "
+          "sub-image's")
 
 
 def _median(values) -> float | None:

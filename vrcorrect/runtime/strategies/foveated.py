@@ -143,6 +143,7 @@ class FoveatedStrategy(AdmmStrategy):
         info.update(fovea_deg=self.options.fovea_deg, gaze_deg=list(self.options.gaze_deg),
                     fovea_radius_px=self.radius_px, fovea_band_px=self.band_px, fovea_periphery=self.periphery,
                     fovea_periphery_iterations=PERIPHERY_ITERATIONS.get(self.periphery),
+                    fovea_cold_iterations=self.cold_extra_iterations,
                     fovea_window=None if self.window is None else list(self.window.win))
         return info
 
