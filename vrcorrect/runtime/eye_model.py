@@ -439,10 +439,9 @@ def initial_pupil_mm(eye_rx: EyeRx, display: DisplayProfile, options: "Corrector
     if options.pupil != "auto":
         return float(options.pupil)
 
-    if mean_relative_luminance is None:
-        return _light_entry(eye_rx, display, options, NEUTRAL_LUMINANCE, age_years)
-    entry = _light_entry(eye_rx, display, options, mean_relative_luminance, age_years)
-    return min(entry, bank_reach_mm(_light_entry(eye_rx, display, options, NEUTRAL_LUMINANCE, age_years)))
+    lum = NEUTRAL_LUMINANCE if mean_relative_luminance is None else mean_relative_luminance
+    entry = _light_entry(eye_rx, display, options, lum, age_years)
+    return min(entry, auto_reach_mm(eye_rx, display, options, entry, age_years))
 
 
 def _light_entry(eye_rx: EyeRx, display: DisplayProfile, options: "CorrectorOptions", lum: float,
