@@ -35,7 +35,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from ...specs.display import DisplayProfile
 
 __all__ = ["BUILD_NICE", "CAPTURE_WAIT_S", "CLOSE_WAIT_S", "CONFIG_ENV", "DISABLE_ENV", "LAYER_NAME", "LOG_ENV",
-           "LAYER_DEFAULTS", "LayerConfig", "LayerLog", "OFF_ENV", "PRIME_BUDGET_S", "PRIME_ENV", "PRIME_MAX_FRAMES", "RX_ENV",
+           "LAYER_DEFAULTS", "LayerConfig", "LayerLog", "OFF_ENV", "PRIME_BUDGET_S", "PRIME_ENV", "PRIME_MAX_FRAMES", "PRIME_MIN_FRAMES", "RX_ENV",
            "choose_display", "config_path", "eye_of_view", "log_path", "off_file", "one_line",
            "one_line_text", "prime_budget", "read_config"]
 
@@ -57,6 +57,12 @@ CAPTURE_WAIT_S = 2.0
 is handed over unprimed, warmed up only)."""
 PRIME_MAX_FRAMES = 40
 """Frames a build corrects a captured view for at most before handing over (converged sooner)."""
+PRIME_MIN_FRAMES = 3
+"""Frames a build corrects a captured view for at least, past the budget: a cold frame and two warm
+ones, so that every program a frame dispatches has run once off the application's thread (a software
+renderer such as llvmpipe compiles a program's code at its first dispatch: on a first launch at 96x64
+the application's first corrected frame took 1.3-1.6 s and the next few 0.2-0.5 s when the budget
+ended priming after the cold frame; ``vrcorrect bench layer``)."""
 PRIME_ENV = "VRCORRECT_LAYER_PRIME_S"
 PRIME_BUDGET_S = 1.0
 """Seconds a build primes its correction for at most (all eyes together; ``VRCORRECT_LAYER_PRIME_S``

@@ -73,7 +73,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 import moderngl
 
 from ..strategies.admm import EARLY_STOP_TOLERANCE
-from .config import PRIME_BUDGET_S, PRIME_MAX_FRAMES
+from .config import PRIME_BUDGET_S, PRIME_MAX_FRAMES, PRIME_MIN_FRAMES
 from .interop import (
     _ENCODINGS,
     _GL_FRAMEBUFFER_SRGB,
@@ -198,7 +198,12 @@ class Pipeline:
         """Correct each eye's captured view as frames would, from a cold start until the early stop
         would skip the next frame of the same content (the last two frames' objectives agree to its
         tolerance), so that the application's first corrected frames are already converged, or until
-        the eye's share of ``budget_s`` is spent (then the application's frames go on from there);
+        the eye's share of ``budget_s`` is spent after its first :data:`PRIME_MIN_FRAMES` frames (then
+        the application's frames go on from there).  With the pupil followed from the light, a design
+        the captured view's light asks for is made on this thread
+        (:attr:`~vrcorrect.runtime.corrector.Corrector.design_pupils_here`) and switched to at once, and
+        the budget starts again from the switch, so that the application's first frames do not wait
+        seconds for the bank's worker and then switch;
         the Correctors keep that state (a fresh Corrector given the same number of frames reaches the
         same one).  :attr:`primed_frames` counts each eye's frames, :attr:`prime_converged` says
         whether they converged."""
@@ -209,27 +214,34 @@ class Pipeline:
             scratch = self._private_texture(c["code"], c["format"], width, height)
             deadline = time.perf_counter() + share
             self.prime_converged[c["eye"]] = False
+            corrector = self.correctors[c["eye"]]
+            corrector.design_pupils_here = True        # the light's design now, on this thread
             try:
-                corrector = self.correctors[c["eye"]]
                 previous = None
                 for n in range(PRIME_MAX_FRAMES):
                     if stopped():
                         return
-                    if n > 0 and time.perf_counter() >= deadline:
+                    if n >= PRIME_MIN_FRAMES and time.perf_counter() >= deadline:
                         break
                     self.primed_frames[c["eye"]] = n + 1
+                    design = corrector.model.pupil_mm
                     self.correct_rect(c["eye"], c["format"], c["texture"], scratch, c["rect"],
                                       flip=self.api == "Vulkan")
+                    if corrector.model.pupil_mm != design:      # switched to the light's design: its own budget
+                        deadline, previous = time.perf_counter() + share, None
+                        continue
                     fraction = corrector.last_objective_fraction((width, height))
                     if fraction is None:                       # no guard: nothing to converge on
                         self.prime_converged[c["eye"]] = True
                         break
-                    if previous is not None and abs(fraction - previous) <= EARLY_STOP_TOLERANCE * max(previous, 1e-30):
+                    if (previous is not None and n + 1 >= PRIME_MIN_FRAMES
+                            and abs(fraction - previous) <= EARLY_STOP_TOLERANCE * max(previous, 1e-30)):
                         self.prime_converged[c["eye"]] = True
                         break
                     previous = fraction
                 self.targets.add((c["code"], width, height))
             finally:
+                corrector.design_pupils_here = False
                 for texture in (c["texture"], scratch):
                     release(self._framebuffers.pop(texture.glo, None))
                     texture.release()
