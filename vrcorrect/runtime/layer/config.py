@@ -59,10 +59,10 @@ PRIME_MAX_FRAMES = 40
 """Frames a build corrects a captured view for at most before handing over (converged sooner)."""
 PRIME_MIN_FRAMES = 3
 """Frames a build corrects a captured view for at least, past the budget: a cold frame and two warm
-ones, so that every program a frame dispatches has run once off the application's thread (a software
-renderer such as llvmpipe compiles a program's code at its first dispatch: on a first launch at 96x64
-the application's first corrected frame took 1.3-1.6 s and the next few 0.2-0.5 s when the budget
-ended priming after the cold frame; ``vrcorrect bench layer``)."""
+ones, so that the warm frames' programs have run once off the application's thread (a software
+renderer such as llvmpipe generates a program's code at its first dispatch).  Alone, on a first
+launch at 96x64, it took the application's first corrected frame from 1.5 to 1.2 s; the rest was
+the pupil's design and the eyes' order (:meth:`Pipeline.prime`; ``vrcorrect bench layer``)."""
 PRIME_ENV = "VRCORRECT_LAYER_PRIME_S"
 PRIME_BUDGET_S = 1.0
 """Seconds a build primes its correction for at most (all eyes together; ``VRCORRECT_LAYER_PRIME_S``
