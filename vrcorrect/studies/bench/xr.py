@@ -8,8 +8,8 @@ test runtime neither paces ``xrWaitFrame`` to a display nor reads the images bac
 ``XRTEST_OUT_DIR``), so ``wait`` and ``end`` are the loop's own overhead, not a compositor's.
 
 Each case renders the demo scene from the runtime's two eye poses, corrects both eyes into the
-sRGB swapchain images (the default ``Corrector``: projected gradient, k = 4 iterations a frame,
-warm-started from the tracked pose) and submits a projection
+sRGB swapchain images (the default ``Corrector``: ADMM, 2 iterations a frame, warm-started from
+the tracked pose) and submits a projection
 layer; the first rendered frame (per-size spectra and allocations) is left out of the medians.
 """
 
@@ -112,6 +112,12 @@ def run_xr_bench(repeats: int = 3, out: Path = Path("docs/benchmarks.md"), write
             renderer, runtime = summary.renderer, summary.runtime
             columns.append(f"{w}x{h} per eye")
             results.append((summary, build_s))
+    from ...runtime.eye_model import (  # on use: start-up time (the CLI imports the studies to build its parser)
+        DEFAULT_ITERATIONS,
+        CorrectorOptions,
+    )
+
+    options = CorrectorOptions()
     rows = []
     for name in XR_STAGES:
         cells = []
@@ -133,7 +139,10 @@ def run_xr_bench(repeats: int = 3, out: Path = Path("docs/benchmarks.md"), write
         f"Machine: {machine_description()}; OpenGL renderer: {renderer} (GLFW/GLX under Xvfb); "
         f"OpenXR runtime: {runtime} (tests/xr_runtime, loaded by pyopenxr's loader; it does not pace xrWaitFrame "
         "and reads nothing back here). Demo scene from each tracked eye, bundled sample prescription, Quest 2 "
-        f"profile, sRGB swapchains, default correction (projected gradient, k = 4 a frame). Median of {repeats} rendered "
+        f"profile, sRGB swapchains, the Corrector's default correction ({options.filter}, "
+        f"{options.iterations_per_frame or DEFAULT_ITERATIONS[options.filter]} iterations a frame, warm-started; the "
+        "prescription's pupil and one eye's design, not `vrcorrect xr`'s --pupil auto --robust on). Median of "
+        f"{repeats} rendered "
         "frames after the first. Cells: `GPU ms / CPU ms` (GPU from timer queries) or CPU ms alone for the "
         "OpenXR calls; `-` for a GPU time of 4.29 s or more, which moderngl's 32-bit timer query cannot hold.\n\n"
         + markdown_table(["stage", *columns], rows)
