@@ -393,39 +393,6 @@ def test_the_gpu_measures_the_frames_light_two_frames_late(gl):
         G.release(fbo, tex, src)
 
 
-def test_a_corrector_told_to_design_here_switches_in_the_frame_its_light_asks_for(gl):
-    """``design_pupils_here`` (the layer sets it while it primes off the application's thread): a
-    frame whose light asks for a design the bank lacks designs it on the calling thread and switches
-    in that frame (the second: the first frame's light is read then), with nothing asked of the bank's worker;
-    a fixed pupil has no bank, and the flag stays False."""
-    from vrcorrect.runtime import gl as G
-    from vrcorrect.runtime.corrector import Corrector
-
-    _, bright = _frames()
-    fixed = Corrector(gl, Prescription(right=EYE, left=EYE), "quest2", "right", pupil=3.0, robust=False)
-    fixed.design_pupils_here = True
-    assert fixed.design_pupils_here is False
-    fixed.release()
-    c = Corrector(gl, Prescription(right=EYE, left=EYE), "quest2", "right", pupil="auto", robust=False)
-    assert c.design_pupils_here is False
-    first = c.model.pupil_mm
-    c.design_pupils_here = True
-    src = G.upload_texture(gl, bright)
-    tex, fbo = G.render_target(gl, width=W, height=H)
-    try:
-        c.apply(src, fbo)
-        assert c.model.pupil_mm == first                      # no light measured yet
-        c.apply(src, fbo)                                     # the first frame's light
-        asked = c._pupil.follower.entry_mm
-        assert asked != first, (asked, first)                 # the bright frame asks for a smaller design
-        assert c.model.pupil_mm == asked and c._pupil.switches == 1
-        assert c._pupil.bank._worker is None                  # designed here, not on the worker
-        assert np.isfinite(G.read_framebuffer(fbo)).all()
-    finally:
-        c.release()
-        G.release(fbo, tex, src)
-
-
 def test_a_black_and_a_white_frame_are_corrected_and_the_pupil_follows(gl):
     """Extremes: a black frame holds the pupil at 7.5 mm (said in the status), a white one narrows it;
     every output is finite (the bank builds off the render thread; nothing here waits for it)."""

@@ -217,20 +217,6 @@ class Corrector:
         """The viewing pupil now, in words (``layer status``, the mirror's text): empty for a fixed pupil."""
         return "" if self._pupil is None else self._pupil.status()
 
-    @property
-    def design_pupils_here(self) -> bool:
-        """With ``pupil="auto"``: whether a frame whose light asks for a design the bank lacks designs it on
-        the calling thread and switches in that frame, instead of asking the bank's worker and switching
-        when it is done (the default; a batch render with ``frame_time_s`` always waits).  The layer sets
-        it while it primes a correction off the application's thread, so that the application's first
-        corrected frames already have the design their light asks for.  False for a fixed pupil."""
-        return self._pupil is not None and self._pupil.design_here
-
-    @design_pupils_here.setter
-    def design_pupils_here(self, value: bool) -> None:
-        if self._pupil is not None:
-            self._pupil.design_here = bool(value)
-
     # ------------------------------------------------------------------ the eye
 
     @property

@@ -42,9 +42,6 @@ class PupilState:
         self.current: float | None = None
         self.switches = 0
         self._last_time: float | None = None
-        self.design_here = False
-        """Design a bank entry the light asks for on this thread when it is missing, as a batch render
-        does, instead of asking the worker (:attr:`Corrector.design_pupils_here`)."""
 
     def _upper(self, eye: EyeRx) -> float | None:
         return eye.higher_order.pupil_diameter_mm if eye.higher_order is not None else None
@@ -102,7 +99,7 @@ class PupilState:
         model = self.bank.get(entry)
         grids = self.c.strategy.spectra_grids() if hasattr(self.c.strategy, "spectra_grids") else ()
         if model is None:
-            if self.c.frame_time_s is not None or self.design_here:   # a batch render or a priming: wait for it
+            if self.c.frame_time_s is not None:           # a batch render: deterministic, so wait for it
                 model = self.bank.build_now(entry, grids)
             else:
                 self.bank.request(entry, grids)

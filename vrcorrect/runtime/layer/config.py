@@ -35,7 +35,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from ...specs.display import DisplayProfile
 
 __all__ = ["BUILD_NICE", "CAPTURE_WAIT_S", "CLOSE_WAIT_S", "CONFIG_ENV", "DISABLE_ENV", "LAYER_NAME", "LOG_ENV",
-           "LAYER_DEFAULTS", "LayerConfig", "LayerLog", "OFF_ENV", "PRIME_BUDGET_S", "PRIME_ENV", "PRIME_MAX_FRAMES", "PRIME_MIN_FRAMES", "RX_ENV",
+           "LAYER_DEFAULTS", "LayerConfig", "LayerLog", "OFF_ENV", "PRIME_BUDGET_S", "PRIME_ENV", "PRIME_MAX_FRAMES", "RX_ENV",
            "choose_display", "config_path", "eye_of_view", "log_path", "off_file", "one_line",
            "one_line_text", "prime_budget", "read_config"]
 
@@ -57,12 +57,6 @@ CAPTURE_WAIT_S = 2.0
 is handed over unprimed, warmed up only)."""
 PRIME_MAX_FRAMES = 40
 """Frames a build corrects a captured view for at most before handing over (converged sooner)."""
-PRIME_MIN_FRAMES = 3
-"""Frames a build corrects a captured view for at least, past the budget: a cold frame and two warm
-ones, so that the warm frames' programs have run once off the application's thread (a software
-renderer such as llvmpipe generates a program's code at its first dispatch).  Alone, on a first
-launch at 96x64, it took the application's first corrected frame from 1.5 to 1.2 s; the rest was
-the pupil's design and the eyes' order (:meth:`Pipeline.prime`; ``vrcorrect bench layer``)."""
 PRIME_ENV = "VRCORRECT_LAYER_PRIME_S"
 PRIME_BUDGET_S = 1.0
 """Seconds a build primes its correction for at most (all eyes together; ``VRCORRECT_LAYER_PRIME_S``

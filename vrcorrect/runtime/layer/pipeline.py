@@ -73,7 +73,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 import moderngl
 
 from ..strategies.admm import EARLY_STOP_TOLERANCE
-from .config import PRIME_BUDGET_S, PRIME_MAX_FRAMES, PRIME_MIN_FRAMES
+from .config import PRIME_BUDGET_S, PRIME_MAX_FRAMES
 from .interop import (
     _ENCODINGS,
     _GL_FRAMEBUFFER_SRGB,
@@ -198,71 +198,42 @@ class Pipeline:
         """Correct each eye's captured view as frames would, from a cold start until the early stop
         would skip the next frame of the same content (the last two frames' objectives agree to its
         tolerance), so that the application's first corrected frames are already converged, or until
-        the eye's share of ``budget_s`` is spent after its first :data:`PRIME_MIN_FRAMES` frames (then
-        the application's frames go on from there).  With the pupil followed from the light, a design
-        the captured view's light asks for is made on this thread
-        (:attr:`~vrcorrect.runtime.corrector.Corrector.design_pupils_here`) and switched to at once, and
-        the budget starts again from the switch, so that the application's first frames do not wait
-        seconds for the bank's worker and then switch.  Then one more frame of every eye in turn, as the
-        application's frames run them: on llvmpipe the first frame of the second eye after a frame of
-        the first took 0.7 s at 96x64 even when converged (its indirect dispatches wait; not traced
-        further), in the application's first corrected frame until this round was added.
-        The Correctors keep that state (a fresh Corrector given the same number of frames reaches the
+        the eye's share of ``budget_s`` is spent (then the application's frames go on from there);
+        the Correctors keep that state (a fresh Corrector given the same number of frames reaches the
         same one).  :attr:`primed_frames` counts each eye's frames, :attr:`prime_converged` says
         whether they converged."""
 
         share = budget_s / max(len(copies), 1)
-        scratch = {c["eye"]: self._private_texture(c["code"], c["format"], c["rect"][2], c["rect"][3]) for c in copies}
-        try:
-            for c in copies:
-                if not self._prime_eye(c, scratch[c["eye"]], stopped, share):
-                    return
-            for c in copies:                  # a round of both eyes, in the order the application's frames run them
-                if stopped():
-                    return
-                self.primed_frames[c["eye"]] += 1
-                self.correct_rect(c["eye"], c["format"], c["texture"], scratch[c["eye"]], c["rect"],
-                                  flip=self.api == "Vulkan")
-        finally:
-            for c in copies:
-                if c["eye"] in self.correctors:
-                    self.correctors[c["eye"]].design_pupils_here = False
-                for texture in (c["texture"], scratch[c["eye"]]):
+        for c in copies:
+            x, y, width, height = c["rect"]
+            scratch = self._private_texture(c["code"], c["format"], width, height)
+            deadline = time.perf_counter() + share
+            self.prime_converged[c["eye"]] = False
+            try:
+                corrector = self.correctors[c["eye"]]
+                previous = None
+                for n in range(PRIME_MAX_FRAMES):
+                    if stopped():
+                        return
+                    if n > 0 and time.perf_counter() >= deadline:
+                        break
+                    self.primed_frames[c["eye"]] = n + 1
+                    self.correct_rect(c["eye"], c["format"], c["texture"], scratch, c["rect"],
+                                      flip=self.api == "Vulkan")
+                    fraction = corrector.last_objective_fraction((width, height))
+                    if fraction is None:                       # no guard: nothing to converge on
+                        self.prime_converged[c["eye"]] = True
+                        break
+                    if previous is not None and abs(fraction - previous) <= EARLY_STOP_TOLERANCE * max(previous, 1e-30):
+                        self.prime_converged[c["eye"]] = True
+                        break
+                    previous = fraction
+                self.targets.add((c["code"], width, height))
+            finally:
+                for texture in (c["texture"], scratch):
                     release(self._framebuffers.pop(texture.glo, None))
                     texture.release()
         self.ctx.finish()
-
-    def _prime_eye(self, c: dict[str, Any], scratch: "moderngl.Texture", stopped: Any, share: float) -> bool:
-        """:meth:`prime`'s frames of one eye; False when stopped."""
-        width, height = c["rect"][2], c["rect"][3]
-        deadline = time.perf_counter() + share
-        self.prime_converged[c["eye"]] = False
-        corrector = self.correctors[c["eye"]]
-        corrector.design_pupils_here = True        # the light's design now, on this thread
-        previous = None
-        for n in range(PRIME_MAX_FRAMES):
-            if stopped():
-                return False
-            if n >= PRIME_MIN_FRAMES and time.perf_counter() >= deadline:
-                break
-            self.primed_frames[c["eye"]] = n + 1
-            design = corrector.model.pupil_mm
-            self.correct_rect(c["eye"], c["format"], c["texture"], scratch, c["rect"], flip=self.api == "Vulkan")
-            if corrector.model.pupil_mm != design:      # switched to the light's design: its own budget
-                deadline, previous = time.perf_counter() + share, None
-                continue
-            fraction = corrector.last_objective_fraction((width, height))
-            if fraction is None:                       # no guard: nothing to converge on
-                self.prime_converged[c["eye"]] = True
-                break
-            if (previous is not None and n + 1 >= PRIME_MIN_FRAMES
-                    and abs(fraction - previous) <= EARLY_STOP_TOLERANCE * max(previous, 1e-30)):
-                self.prime_converged[c["eye"]] = True
-                break
-            previous = fraction
-        corrector.design_pupils_here = False
-        self.targets.add((c["code"], width, height))
-        return True
 
     def _private_texture(self, code: int, fmt: SwapchainFormat, width: int, height: int) -> "moderngl.Texture":
         """A texture of the engine's own as the application's images are stored (OpenGL: the swapchain's

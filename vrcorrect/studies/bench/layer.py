@@ -177,11 +177,8 @@ def run_layer_bench(repeats: int = 3, out: Path = Path("docs/benchmarks.md"), wr
         "VK_KHR_external_semaphore_fd on lavapipe, so the layer waits on a fence and calls glFinish), glFinish, and the copy of the result into the output image (not waited "
         "for). `first frame`: the layer's time in the first corrected frame's xrEndFrame (one run). The layer "
         "builds its correction off the application's thread (a GL context of its own, its programs compiled or "
-        "loaded from its cache, primed on the application's frame for at least three frames an eye, then until "
-        "converged or 1 s is spent, then one frame of each eye in turn, with the pupil's design for that frame's "
-        "light made while it primes). At 96x64 "
-        "priming converges; at 256x256, where llvmpipe takes about 0.5 s an eye a frame, it hands over unconverged and "
-        "the cells are frames still converging. Each run starts with an empty Mesa shader cache (MESA_SHADER_CACHE_DIR) and an "
+        "loaded from its cache, primed on the application's frame until converged), so that frame costs what a "
+        "converged frame costs. Each run starts with an empty Mesa shader cache (MESA_SHADER_CACHE_DIR) and an "
         "empty vrcorrect cache, as a first launch does. `-` where the figure does not exist.\n\n"
         + markdown_table(["view", "session", *COLUMNS], rows)
         + "\n\nThe Vulkan path's own steps (copy in and wait, glFinish, copy out) took "
