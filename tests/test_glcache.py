@@ -216,3 +216,36 @@ def test_eye_models_are_kept_under_a_key_of_everything_they_depend_on(setup, tmp
     assert eye_cache.key(eyes, str(profile), (96, 64), CorrectorOptions()) != before
     (tmp_path / "eyes" / f"{key}.pickle").write_bytes(b"damaged")
     assert eye_cache.load(key, env) is None
+
+
+def test_a_pupil_design_is_kept_under_its_display_by_content_and_everything_else_it_depends_on(setup, tmp_path):
+    """The pupil bank's designs (the layer's second launch): keyed by the display profile's content,
+    so a profile read back from the eye models' cache (its pickle's bytes differ) finds the design a
+    freshly loaded one kept; any other input is another key; a damaged file is a miss."""
+    import pickle
+    from dataclasses import replace
+
+    from vrcorrect.runtime import eye_cache
+    from vrcorrect.runtime.eye_model import CorrectorOptions
+    from vrcorrect.specs.display import get_display
+
+    prescription, display, model, _ = setup
+    env = {"VRCORRECT_CACHE_DIR": str(tmp_path)}
+    eye, options = prescription.eye("right"), CorrectorOptions()
+    args = (eye, display, options, None, 2.901, 41, 4.2079)
+    key = eye_cache.design_key(*args)
+    assert eye_cache.design_key(eye, pickle.loads(pickle.dumps(display)), *args[2:]) == key
+    others = {eye_cache.design_key(eye.with_changes(sphere_D=-3.25), *args[1:]),
+              eye_cache.design_key(eye, get_display("desktop" if display.name != "desktop" else "quest2"), *args[2:]),
+              eye_cache.design_key(eye, display, replace(options, iterations_per_frame=3), *args[3:]),
+              eye_cache.design_key(*args[:3], 70, *args[4:]),
+              eye_cache.design_key(*args[:4], 3.125, *args[5:]),
+              eye_cache.design_key(*args[:5], 43, args[6]),
+              eye_cache.design_key(*args[:6], 4.5328)}
+    assert len(others | {key}) == 8
+    assert eye_cache.load_design(key, env) is None
+    assert eye_cache.store_design(key, model, env) is not None
+    assert np.array_equal(eye_cache.load_design(key, env).kernel.kernel, model.kernel.kernel)
+    assert eye_cache.load_design(next(iter(others)), env) is None
+    (tmp_path / "designs" / f"{key}.pickle").write_bytes(b"damaged")
+    assert eye_cache.load_design(key, env) is None

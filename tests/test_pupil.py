@@ -528,3 +528,48 @@ def test_the_gpu_equals_its_twin_across_pupil_switches(gl):
     finally:
         c.release()
         G.release(fbo, tex, src)
+
+
+def test_priming_switches_to_the_lights_design_at_once_and_a_second_run_takes_it_from_the_cache(gl, tmp_path):
+    """The OpenXR layer's priming (``Corrector.follow_light_now``): the frame just corrected is read now,
+    not two frames late, and the design for its light is made on the bank's worker and switched to
+    before any application frame; kept in the design cache (``keep_pupil_designs``), a second
+    Corrector takes it from there instead of designing it again.  A fixed pupil has nothing to follow."""
+    from vrcorrect.runtime import gl as G
+    from vrcorrect.runtime.corrector import Corrector
+
+    light = np.full((H, W, 3), 230, np.uint8)            # brighter than the mid-grey frame designed for first
+    want = nearest_bank_pupil(pupil_from_light(
+        relative_luminance_of(decode("srgb", light.astype(np.float32) / 255), QUEST2), QUEST2).diameter_mm)
+    env = {"VRCORRECT_CACHE_DIR": str(tmp_path)}
+    src = G.upload_texture(gl, light)
+    tex, fbo = G.render_target(gl, width=W, height=H)
+    stamps = []
+    try:
+        for _ in range(2):
+            c = Corrector(gl, Prescription(right=EYE, left=EYE), "quest2", "right", pupil="auto", robust=False)
+            try:
+                c.keep_pupil_designs(env)
+                assert c._pupil.current != want              # a mid-grey frame's design to begin with
+                c.apply(src, fbo)
+                assert c._pupil.meter.latest() is None        # the frames' own reading is two frames late
+                assert c.follow_light_now(120.0) == pytest.approx(want)
+                assert c._pupil.current == pytest.approx(want) and c.model.pupil_mm == pytest.approx(want)
+                model = c.model
+                assert c.follow_light_now(120.0) == pytest.approx(want) and c.model is model   # already there
+                c.apply(src, fbo)
+                assert np.isfinite(G.read_framebuffer(fbo).astype(np.float32)).all()
+                kept = sorted((tmp_path / "designs").glob("*.pickle"))
+                assert len(kept) == 1, kept
+                stamps.append(kept[0].stat().st_mtime_ns)
+            finally:
+                c.release()
+        assert stamps[0] == stamps[1]                         # the second run designed nothing: it read the file
+        fixed = Corrector(gl, Prescription(right=EYE, left=EYE), "quest2", "right", pupil="rx", robust=False)
+        try:
+            fixed.apply(src, fbo)
+            assert fixed.follow_light_now(1.0) is None
+        finally:
+            fixed.release()
+    finally:
+        G.release(fbo, tex, src)

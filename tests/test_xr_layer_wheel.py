@@ -200,6 +200,8 @@ def _launch(kit, out: Path, venv: Path, home: Path, api: str, display: str) -> t
     assert len(ready) == 1, log
     priming = re.search(r"priming ([\d.]+) s", ready[0])
     assert priming, ready[0]
+    # the default follows the light: its design is in use from the first corrected frame, not seconds later
+    assert "designed for the light's pupil while priming" in ready[0], ready[0]
     return (arrival[first] - arrival[times[0][0]]) / 1e3, gap, float(priming.group(1))
 
 

@@ -38,7 +38,7 @@ import math
 import os
 import time
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
 
@@ -211,6 +211,20 @@ class Corrector:
     def age_years(self) -> float | None:
         """The wearer's age for the pupil's formula: the options', else the prescription's."""
         return self.options.age_years if self.options.age_years is not None else self.prescription.age_years
+
+    def keep_pupil_designs(self, env: Mapping[str, str] | None = None) -> None:
+        """Keep the pupil bank's designs (``pupil="auto"``) between runs in the cache folder of ``env``
+        (:mod:`~vrcorrect.runtime.eye_cache`; None: this process's environment), and use those kept:
+        an application started again follows the light without designing again (the OpenXR layer)."""
+        if self._pupil is not None:
+            self._pupil.cache_env = dict(os.environ if env is None else env)
+
+    def follow_light_now(self, wait_s: float, stopped: Callable[[], bool] = lambda: False) -> float | None:
+        """``pupil="auto"``: switch now to the design for the light of the frame just corrected, waiting at
+        most ``wait_s`` for the bank's worker to design it (:meth:`PupilState.follow_now
+        <vrcorrect.runtime.pupil_state.PupilState.follow_now>`; a build's priming, never an
+        application's frame).  Returns the light's design's pupil, now in use, or None (not in use)."""
+        return None if self._pupil is None else self._pupil.follow_now(wait_s, stopped)
 
     @property
     def pupil_status(self) -> str:

@@ -13,11 +13,18 @@ none is configured), the corrector's options, and vrcorrect's own code and data 
 package, a physics fix included, misses the cache).  A file that does not load (damaged, written by
 another version) is a miss.  The files are pickles written by the same user; nothing else is read.
 
+The pupil bank's designs (:mod:`~vrcorrect.runtime.pupil_bank`: the same eye at the pupils the light
+asks for) are kept the same way, one file a design under ``<cache>/designs/``
+(:func:`design_key`, :func:`load_design`, :func:`store_design`), where a caller asks for it (the
+OpenXR layer, :meth:`~vrcorrect.runtime.corrector.Corrector.keep_pupil_designs`): a second launch
+switches to the light's pupil within frames instead of designing it again beside the application's.
+
 Layer 5: numpy; never torch.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import os
@@ -26,9 +33,11 @@ import threading
 from pathlib import Path
 from typing import Any, Mapping
 
+import numpy as np
+
 from .glcache import cache_dir
 
-__all__ = ["key", "load", "store", "code_fingerprint"]
+__all__ = ["key", "load", "store", "code_fingerprint", "design_key", "load_design", "store_design"]
 
 _PACKAGE = Path(__file__).resolve().parents[1]
 
@@ -63,8 +72,72 @@ def key(eyes: Mapping[str, Any], display: str | None, view_size: tuple[int, int]
     return digest.hexdigest()
 
 
-def _path(cache_key: str, env: Mapping[str, str] | None) -> Path:
-    return cache_dir(env) / "eyes" / f"{cache_key}.pickle"
+def _path(cache_key: str, env: Mapping[str, str] | None, folder: str = "eyes") -> Path:
+    return cache_dir(env) / folder / f"{cache_key}.pickle"
+
+
+def design_key(eye: Any, display: Any, options: Any, age_years: float | None, pupil_mm: float,
+               grid_kernel_size: int | None, reach_mm: float | None) -> str:
+    """The cache key of one pupil bank design: the eye as designed, the display profile itself (its
+    pickle), the options, the age, the pupil, the grids' kernel size and reach, and the package."""
+    digest = hashlib.sha256(code_fingerprint().encode())
+    digest.update(f"\neye={eye!r}\nage={age_years!r}\noptions={options!r}".encode())
+    digest.update(f"\npupil={float(pupil_mm)!r}; grid kernel={grid_kernel_size!r}; reach={reach_mm!r}\n".encode())
+    _digest_value(digest, display)
+    return digest.hexdigest()
+
+
+def _digest_value(digest: Any, value: Any) -> None:
+    """Add ``value`` to ``digest`` by its content: dataclasses field by field, arrays by their dtype,
+    shape and bytes, the rest by ``repr`` (a pickle's bytes differ between a profile loaded and the
+    same profile read back from a cache)."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        digest.update(f"<{type(value).__name__}".encode())
+        for f in dataclasses.fields(value):
+            digest.update(f"|{f.name}=".encode())
+            _digest_value(digest, getattr(value, f.name))
+        digest.update(b">")
+    elif isinstance(value, np.ndarray):
+        digest.update(f"{value.dtype.str}{value.shape}".encode())
+        digest.update(np.ascontiguousarray(value).tobytes())
+    elif isinstance(value, (tuple, list)):
+        digest.update(b"(")
+        for v in value:
+            _digest_value(digest, v)
+            digest.update(b",")
+        digest.update(b")")
+    elif isinstance(value, dict):
+        _digest_value(digest, sorted(value.items(), key=lambda kv: repr(kv[0])))
+    else:
+        digest.update(repr(value).encode())
+
+
+def load_design(cache_key: str, env: Mapping[str, str] | None = None) -> Any | None:
+    """The design :func:`store_design` kept under ``cache_key``, or ``None``."""
+    try:
+        with open(_path(cache_key, env, "designs"), "rb") as f:
+            doc = pickle.load(f)
+    except Exception:  # noqa: BLE001  (missing, damaged, another version's: a miss)
+        return None
+    return doc.get("model") if isinstance(doc, dict) and doc.get("key") == cache_key else None
+
+
+def store_design(cache_key: str, model: Any, env: Mapping[str, str] | None = None) -> Path | None:
+    """Keep one design under ``cache_key``; returns the file, or ``None`` when it could not be written."""
+    return _write(_path(cache_key, env, "designs"), {"key": cache_key, "model": model})
+
+
+def _write(path: Path, doc: dict) -> Path | None:
+    """Write ``doc`` to ``path`` through a temporary file beside it (never a partial file)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+        with open(tmp, "wb") as f:
+            pickle.dump(doc, f, protocol=pickle.HIGHEST_PROTOCOL)
+        tmp.replace(path)
+    except Exception:  # noqa: BLE001  (a read-only cache: the next launch designs again)
+        return None
+    return path
 
 
 def load(cache_key: str, env: Mapping[str, str] | None = None) -> dict[str, Any] | None:
@@ -85,14 +158,4 @@ def store(cache_key: str, display: Any, why: str, models: Mapping[str, Any],
           env: Mapping[str, str] | None = None) -> Path | None:
     """Keep the designed ``models`` (eye -> model) and the ``display`` profile (with ``why`` it was
     chosen) under ``cache_key``; returns the file, or ``None`` when it could not be written."""
-    path = _path(cache_key, env)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f"{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
-        with open(tmp, "wb") as f:
-            pickle.dump({"key": cache_key, "display": display, "why": why, "models": dict(models)}, f,
-                        protocol=pickle.HIGHEST_PROTOCOL)
-        tmp.replace(path)
-    except Exception:  # noqa: BLE001  (a read-only cache: the next launch designs again)
-        return None
-    return path
+    return _write(_path(cache_key, env), {"key": cache_key, "display": display, "why": why, "models": dict(models)})

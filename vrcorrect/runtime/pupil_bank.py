@@ -17,7 +17,11 @@ switch between (``pupil="auto"``, :class:`~vrcorrect.runtime.eye_model.Corrector
   entry with hysteresis (:data:`HYSTERESIS`: a quarter of a step past the midpoint), the current design
   stays while the next is built, and the switch itself only uploads the new spectra: the iteration
   goes on from its state, so the picture moves to the new design over a few frames instead of
-  jumping (``tests/test_pupil.py`` holds that).  Every design's grid holds the kernel of the bank's
+  jumping (``tests/test_pupil.py`` holds that).  Where the corrector keeps its designs
+  (:meth:`~vrcorrect.runtime.corrector.Corrector.keep_pupil_designs`: the OpenXR layer) the worker
+  takes a design from the cache (:func:`~vrcorrect.runtime.eye_cache.load_design`) before designing
+  it, and keeps what it designs; the layer's priming asks for the light's design at once and waits
+  for it (:meth:`~vrcorrect.runtime.pupil_state.PupilState.follow_now`).  Every design's grid holds the kernel of the bank's
   widest reachable design (:func:`bank_grid_kernel_size`), so a switch keeps the grids.
 * **The reach** (:func:`bank_reach_mm`): the grids hold designs up to :data:`BANK_REACH_STEPS` entries
   above the first design, not up to 7.5 mm.  A pupil beyond the reach is designed for at the reach (a

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable, Mapping
 
 from ..specs.prescription import EyeRx
+from . import eye_cache
 from .eye_model import EyeModel, build_eye_model, initial_pupil_mm
 from .pupil_bank import PupilBank, PupilFollower
 from .strategies.admm import bank_spectra
@@ -42,6 +43,9 @@ class PupilState:
         self.current: float | None = None
         self.switches = 0
         self._last_time: float | None = None
+        self.cache_env: Mapping[str, str] | None = None
+        """Where the bank's designs are kept between runs (:mod:`~vrcorrect.runtime.eye_cache`'s
+        ``designs``, under this environment's cache folder); None: designed again in every run."""
 
     def _upper(self, eye: EyeRx) -> float | None:
         return eye.higher_order.pupil_diameter_mm if eye.higher_order is not None else None
@@ -76,10 +80,17 @@ class PupilState:
         """A bank's design (on its worker): the model and its spectra on the strategy's grids."""
 
         base = self.c.model
-        model = build_eye_model(base.eye, self.c.display, self.c.options, pupil_mm=pupil_mm,
-                                age_years=self.c.age_years, kernels=kernels, grid_kernel_size=base.grid_kernel_size,
-                                reach_mm=base.reach_mm,
-                                progress=progress)
+        key = model = None
+        if self.cache_env is not None:
+            key = eye_cache.design_key(base.eye, self.c.display, self.c.options, self.c.age_years, pupil_mm,
+                                       base.grid_kernel_size, base.reach_mm)
+            model = eye_cache.load_design(key, self.cache_env)
+        if model is None:
+            model = build_eye_model(base.eye, self.c.display, self.c.options, pupil_mm=pupil_mm,
+                                    age_years=self.c.age_years, kernels=kernels,
+                                    grid_kernel_size=base.grid_kernel_size, reach_mm=base.reach_mm, progress=progress)
+            if key is not None:
+                eye_cache.store_design(key, model, self.cache_env)
         self.c.check_eye(model.eye)
         return replace(model, spectra=bank_spectra(model, grids)) if grids else model
 
@@ -105,6 +116,29 @@ class PupilState:
                 self.bank.request(entry, grids)
                 return
         self.c.switch_design(model)
+
+    def follow_now(self, wait_s: float, stopped: Callable[[], bool] = lambda: False) -> float | None:
+        """Switch to the design the frame just corrected asks for, now: read its light (this waits for
+        the GPU), have the bank's worker design that pupil (or take it from the bank or the cache) and
+        wait for it at most ``wait_s`` (the caller's thread only waits).  For a build's priming, never
+        an application's frame: the application's first corrected frames are then the light's design,
+        not a mid-grey frame's switched a few seconds later.  Returns the light's design's pupil, now in
+        use (switched to, or designed for already), or None (nothing measured, not ready in time,
+        refused or ``stopped()``)."""
+        lum = self.meter.newest()
+        if lum is None or self.follower is None or self.bank is None:
+            return None
+        entry = self.follower.update(lum, 0.0)
+        if entry == self.current:
+            return entry
+        self.bank.request(entry, self.c.strategy.spectra_grids() if hasattr(self.c.strategy, "spectra_grids") else ())
+        deadline = time.monotonic() + wait_s
+        while (model := self.bank.get(entry)) is None:
+            if entry in self.bank.failed or stopped() or time.monotonic() > deadline:
+                return None
+            time.sleep(0.01)
+        self.c.switch_design(model)
+        return entry
 
     def status(self) -> str:
         f = self.follower

@@ -30,6 +30,7 @@ from ..glcache import egl_context, glx_context
 from .config import (
     BUILD_NICE,
     CAPTURE_WAIT_S,
+    LIGHT_WAIT_S,
     PRIME_BUDGET_S,
     LayerConfig,
     choose_display,
@@ -244,6 +245,7 @@ class Builder:
                         break
                     correctors[eye] = Corrector(ctx, prescription, display, eye, eye_model=model,
                                                 **self.config.corrector_options)
+                    correctors[eye].keep_pupil_designs(engine.env)   # a second launch follows the light at once
             except Exception:
                 for c in correctors.values():
                     c.release()
@@ -267,8 +269,10 @@ class Builder:
                 except ValidationError as exc:
                     budget = PRIME_BUDGET_S
                     self._post("log", f"{exc}; priming for {PRIME_BUDGET_S:g} s")
-                pipeline.prime(copies, stopped=lambda: self._stopped, budget_s=budget)
-            steps["priming"] = time.perf_counter() - t0 - sum(steps.values())
+                pipeline.prime(copies, stopped=lambda: self._stopped, budget_s=budget, light_wait_s=LIGHT_WAIT_S)
+            steps["priming"] = time.perf_counter() - t0 - sum(steps.values()) - pipeline.light_seconds
+            if pipeline.light_seconds:
+                steps["the light's design"] = pipeline.light_seconds
             if self._stopped:
                 return None, 0.0
             handed = True

@@ -35,7 +35,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from ...specs.display import DisplayProfile
 
 __all__ = ["BUILD_NICE", "CAPTURE_WAIT_S", "CLOSE_WAIT_S", "CONFIG_ENV", "DISABLE_ENV", "LAYER_NAME", "LOG_ENV",
-           "LAYER_DEFAULTS", "LayerConfig", "LayerLog", "OFF_ENV", "PRIME_BUDGET_S", "PRIME_ENV", "PRIME_MAX_FRAMES", "RX_ENV",
+           "LAYER_DEFAULTS", "LayerConfig", "LayerLog", "LIGHT_WAIT_S", "OFF_ENV", "PRIME_BUDGET_S", "PRIME_ENV", "PRIME_MAX_FRAMES", "RX_ENV",
            "choose_display", "config_path", "eye_of_view", "log_path", "off_file", "one_line",
            "one_line_text", "prime_budget", "read_config"]
 
@@ -65,6 +65,11 @@ take milliseconds); on a software renderer, where a frame of both eyes at 96x64 
 a still scene needs some 35 frames, the correction is handed over after the budget and goes on
 converging on the application's frames, as it does after any cut, instead of keeping the
 application uncorrected for seconds more."""
+LIGHT_WAIT_S = 30.0
+"""How long a build's priming waits at most for the design of the light's pupil (``pupil="auto"``,
+:meth:`~vrcorrect.runtime.layer.pipeline.Pipeline.prime`), the application passing through meanwhile;
+past it the correction starts with the mid-grey frame's design and switches when the light's is ready.
+A second launch takes it from the design cache (:mod:`~vrcorrect.runtime.eye_cache`) at once."""
 BUILD_NICE = 10
 """The build worker's CPU priority (Linux nice value, per thread): the application's threads come first.
 Not the lowest: the worker holds Python's lock between its GL calls, and a worker the scheduler leaves

@@ -272,6 +272,9 @@ class Engine(VulkanFrames):
                 primed += (" frames, converged" if all(pipeline.prime_converged.values()) else
                            " frames, then converging on the application's frames (priming "
                            + ("budget reached)" if over_budget else f"stopped at {PRIME_MAX_FRAMES} frames an eye)"))
+            if pipeline.light_pupils:
+                primed += "; designed for the light's pupil while priming: " + ", ".join(
+                    f"{mm:.2f} mm ({eye})" for eye, mm in pipeline.light_pupils.items())
             self.log.line(f"correcting with {pipeline.rx} on display {pipeline.display.name} ({info['why']}); built in "
                           f"{time.perf_counter() - self._t0:.1f} s off the application's thread ({models}; GL "
                           f"{info['gl_seconds']:.1f} s: {steps}; {programs}"

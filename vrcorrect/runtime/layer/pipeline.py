@@ -112,6 +112,8 @@ class Pipeline:
         self.steps: dict[str, float] = {}                 # seconds of each step of its build
         self.primed_frames: dict[str, int] = {}           # frames each eye was primed for
         self.prime_converged: dict[str, bool] = {}        # whether its priming converged
+        self.light_pupils: dict[str, float] = {}          # the light's design switched to while priming
+        self.light_seconds = 0.0                          # spent waiting for those designs
         self.formats = GL_FORMATS if api == "OpenGL" else VK_FORMATS
         self._external: dict[tuple[int, int, int], moderngl.Texture] = {}    # the application's textures (OpenGL)
         self._staging: dict[tuple[int, int, str], moderngl.Texture] = {}
@@ -194,14 +196,21 @@ class Pipeline:
         return out
 
     def prime(self, copies: list[dict[str, Any]], stopped: Any = lambda: False,
-              budget_s: float = PRIME_BUDGET_S) -> None:
+              budget_s: float = PRIME_BUDGET_S, light_wait_s: float = 0.0) -> None:
         """Correct each eye's captured view as frames would, from a cold start until the early stop
         would skip the next frame of the same content (the last two frames' objectives agree to its
         tolerance), so that the application's first corrected frames are already converged, or until
         the eye's share of ``budget_s`` is spent (then the application's frames go on from there);
         the Correctors keep that state (a fresh Corrector given the same number of frames reaches the
         same one).  :attr:`primed_frames` counts each eye's frames, :attr:`prime_converged` says
-        whether they converged."""
+        whether they converged.
+
+        With ``light_wait_s`` (``pupil="auto"``), after each eye's first frame the eye switches to the
+        design for that frame's light (:meth:`~vrcorrect.runtime.corrector.Corrector.follow_light_now`:
+        from the bank's worker or the design cache, waiting at most ``light_wait_s``), so that the
+        application's first corrected frames are not a mid-grey frame's design switched seconds later;
+        that wait is not counted in the budget (:attr:`light_pupils`: the light's design in use after
+        priming; :attr:`light_seconds`)."""
 
         share = budget_s / max(len(copies), 1)
         for c in copies:
@@ -220,6 +229,16 @@ class Pipeline:
                     self.primed_frames[c["eye"]] = n + 1
                     self.correct_rect(c["eye"], c["format"], c["texture"], scratch, c["rect"],
                                       flip=self.api == "Vulkan")
+                    if n == 0 and light_wait_s > 0:
+                        t0, before = time.perf_counter(), corrector.model
+                        pupil = corrector.follow_light_now(light_wait_s, stopped)
+                        waited = time.perf_counter() - t0
+                        self.light_seconds += waited
+                        deadline += waited
+                        if pupil is not None:
+                            self.light_pupils[c["eye"]] = pupil
+                        if corrector.model is not before:
+                            continue                           # converge on the new design
                     fraction = corrector.last_objective_fraction((width, height))
                     if fraction is None:                       # no guard: nothing to converge on
                         self.prime_converged[c["eye"]] = True

@@ -285,9 +285,15 @@ class LuminanceMeter:
 
     def latest(self) -> float | None:
         """The mean relative luminance of the frame measured :data:`RING` - 1 frames ago."""
-        if self.frames < self.RING - 1:
-            return None
-        buffer, pixels, count = self._ring[(self.frames - (self.RING - 1)) % self.RING]
+        return None if self.frames < self.RING - 1 else self._read(self.frames - (self.RING - 1))
+
+    def newest(self) -> float | None:
+        """The mean relative luminance of the frame measured last, read now (this waits for the GPU:
+        for a build's priming, never for an application's frame); None before any."""
+        return None if self.frames < 1 else self._read(self.frames - 1)
+
+    def _read(self, frame: int) -> float:
+        buffer, pixels, count = self._ring[frame % self.RING]
         data = np.frombuffer(buffer.read(size=4 * count), np.float32)
         return float(data.astype(np.float64).sum() / max(pixels, 1))
 

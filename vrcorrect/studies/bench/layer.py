@@ -177,9 +177,11 @@ def run_layer_bench(repeats: int = 3, out: Path = Path("docs/benchmarks.md"), wr
         "VK_KHR_external_semaphore_fd on lavapipe, so the layer waits on a fence and calls glFinish), glFinish, and the copy of the result into the output image (not waited "
         "for). `first frame`: the layer's time in the first corrected frame's xrEndFrame (one run). The layer "
         "builds its correction off the application's thread (a GL context of its own, its programs compiled or "
-        "loaded from its cache, primed on the application's frame until converged), so that frame costs what a "
-        "converged frame costs. Each run starts with an empty Mesa shader cache (MESA_SHADER_CACHE_DIR) and an "
-        "empty vrcorrect cache, as a first launch does. `-` where the figure does not exist.\n\n"
+        "loaded from its cache, the design for the light's pupil made, and primed on the application's frame "
+        "within its budget, 1 s for both eyes: on a GPU until converged, here a frame or two, so the "
+        "application's first frames still cost full iterations until the early stop skips them). Each run starts "
+        "with an empty Mesa shader cache (MESA_SHADER_CACHE_DIR) and an empty vrcorrect cache, as a first launch "
+        "does. `-` where the figure does not exist.\n\n"
         + markdown_table(["view", "session", *COLUMNS], rows)
         + "\n\nThe Vulkan path's own steps (copy in and wait, glFinish, copy out) took "
         + ("; ".join(steps) or "-")

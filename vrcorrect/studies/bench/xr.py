@@ -112,9 +112,8 @@ def run_xr_bench(repeats: int = 3, out: Path = Path("docs/benchmarks.md"), write
             renderer, runtime = summary.renderer, summary.runtime
             columns.append(f"{w}x{h} per eye")
             results.append((summary, build_s))
-    from ...runtime.eye_model import (  # on use: start-up time (the CLI imports the studies to build its parser)
-        DEFAULT_ITERATIONS,
-        CorrectorOptions,
+    from ...runtime.eye_model import (
+        CorrectorOptions,  # on use: start-up time (the CLI imports the studies to build its parser)
     )
 
     options = CorrectorOptions()
@@ -140,7 +139,7 @@ def run_xr_bench(repeats: int = 3, out: Path = Path("docs/benchmarks.md"), write
         f"OpenXR runtime: {runtime} (tests/xr_runtime, loaded by pyopenxr's loader; it does not pace xrWaitFrame "
         "and reads nothing back here). Demo scene from each tracked eye, bundled sample prescription, Quest 2 "
         f"profile, sRGB swapchains, the Corrector's default correction ({options.filter}, "
-        f"{options.iterations_per_frame or DEFAULT_ITERATIONS[options.filter]} iterations a frame, warm-started; the "
+        f"{options.iterations_per_frame} iterations a frame, warm-started; the "
         "prescription's pupil and one eye's design, not `vrcorrect xr`'s --pupil auto --robust on). Median of "
         f"{repeats} rendered "
         "frames after the first. Cells: `GPU ms / CPU ms` (GPU from timer queries) or CPU ms alone for the "
