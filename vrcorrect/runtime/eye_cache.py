@@ -78,8 +78,9 @@ def _path(cache_key: str, env: Mapping[str, str] | None, folder: str = "eyes") -
 
 def design_key(eye: Any, display: Any, options: Any, age_years: float | None, pupil_mm: float,
                grid_kernel_size: int | None, reach_mm: float | None) -> str:
-    """The cache key of one pupil bank design: the eye as designed, the display profile itself (its
-    pickle), the options, the age, the pupil, the grids' kernel size and reach, and the package."""
+    """The cache key of one pupil bank design: the eye as designed, the display profile by its content
+    (:func:`_digest_value`), the options, the age, the pupil, the grids' kernel size and reach, and the
+    package."""
     digest = hashlib.sha256(code_fingerprint().encode())
     digest.update(f"\neye={eye!r}\nage={age_years!r}\noptions={options!r}".encode())
     digest.update(f"\npupil={float(pupil_mm)!r}; grid kernel={grid_kernel_size!r}; reach={reach_mm!r}\n".encode())

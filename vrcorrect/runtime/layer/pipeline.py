@@ -112,7 +112,7 @@ class Pipeline:
         self.steps: dict[str, float] = {}                 # seconds of each step of its build
         self.primed_frames: dict[str, int] = {}           # frames each eye was primed for
         self.prime_converged: dict[str, bool] = {}        # whether its priming converged
-        self.light_pupils: dict[str, float] = {}          # the light's design switched to while priming
+        self.light_pupils: dict[str, float] = {}          # the light's design in use after priming
         self.light_seconds = 0.0                          # spent waiting for those designs
         self.formats = GL_FORMATS if api == "OpenGL" else VK_FORMATS
         self._external: dict[tuple[int, int, int], moderngl.Texture] = {}    # the application's textures (OpenGL)
