@@ -45,17 +45,10 @@ import time
 
 import numpy as np
 
-from dark_text_guard import image
-from robust_band_choice import EYE, SEEN, _kernels
-from vrcorrect.physics.perception import luminance_weights
-from vrcorrect.physics.pupil import pupil_from_light
-from vrcorrect.physics.robust import design_eye
-from vrcorrect.runtime.pupil_bank import nearest_bank_pupil
+from dark_text_guard import default_design, seen_gains
 from vrcorrect.solvers import objective, solve
-from vrcorrect.solvers.problem import make_design_problem
 from vrcorrect.solvers.realtime import AdmmFrames
-from vrcorrect.specs.display import decode, get_display
-from vrcorrect.vision.metrics import evaluate_seen
+
 
 class WeberFrames(AdmmFrames):
     """The twin with the data term weighed by Weber's law: the data step's keep per pixel,
@@ -82,11 +75,7 @@ FRAMES = (10, 100)
 
 def run(display_name: str, name: str, weber: bool = False) -> None:
     t0 = time.perf_counter()
-    display = get_display(display_name)
-    target = decode(display, image(name)).astype(np.float32)
-    p = pupil_from_light(float(np.mean(target.astype(np.float64) @ luminance_weights(display))), display).diameter_mm
-    design = design_eye(EYE, display, nearest_bank_pupil(p), kernels=_kernels)
-    problem = make_design_problem(target, design)
+    display, target, p, design, problem = default_design(display_name, name)
     shown, notes = {}, {}
     for tol in TOLERANCES:
         result = solve(problem, "fast", tolerance=tol, max_iterations=400)
@@ -107,13 +96,7 @@ def run(display_name: str, name: str, weber: bool = False) -> None:
             frame = weighted.frame(target, 2)
         shown[f"weber {floor:g}"] = np.clip(frame.solution, 0.0, 1.0)
         notes[f"weber {floor:g}"] = f"guard beta {frame.beta:.2f}"
-    gains: dict[str, list[float]] = {k: [] for k in shown}
-    for q, s in SEEN:
-        seen = design_eye(EYE.with_changes(sphere_D=EYE.sphere_D + s), display, p if q is None else q, robust=False,
-                          kernels=_kernels).nominal
-        none = evaluate_seen(target, target, seen, display)[0].jod
-        for key, img in shown.items():
-            gains[key].append(evaluate_seen(np.clip(img, 0.0, 1.0), target, seen, display)[0].jod - none)
+    gains = seen_gains(display, target, p, shown)
     print(f"{display_name} {name} (light {p:.2f} mm, {time.perf_counter() - t0:.0f} s)", flush=True)
     for key, g in gains.items():
         print(f"    {key:10s} {notes[key]:15s} objective {objective(np.clip(shown[key], 0.0, 1.0), problem):.6f}  "

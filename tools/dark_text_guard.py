@@ -98,13 +98,31 @@ def weber_beta(eyes, target: np.ndarray, shown: np.ndarray) -> float:
     return min(max(-s_rk / s_kk, 0.0), 1.0) if s_kk > 0 else 0.0
 
 
-def run(display_name: str, name: str) -> None:
-    t0 = time.perf_counter()
+def default_design(display_name: str, name: str):
+    """The case as ``--pupil auto --robust on`` designs it: the display, the linear target, the light's
+    pupil, the design (the pupil bank's nearest entry) and its problem."""
     display = get_display(display_name)
     target = decode(display, image(name)).astype(np.float32)
     p = pupil_from_light(float(np.mean(target.astype(np.float64) @ luminance_weights(display))), display).diameter_mm
     design = design_eye(EYE, display, nearest_bank_pupil(p), kernels=_kernels)
-    problem = make_design_problem(target, design)
+    return display, target, p, design, make_design_problem(target, design)
+
+
+def seen_gains(display, target: np.ndarray, p: float, shown: dict) -> dict:
+    """Each image's JOD gain over no correction through the eyes of ``SEEN`` (``None``: the light's pupil ``p``)."""
+    gains: dict = {key: [] for key in shown}
+    for q, s in SEEN:
+        seen = design_eye(EYE.with_changes(sphere_D=EYE.sphere_D + s), display, p if q is None else q, robust=False,
+                          kernels=_kernels).nominal
+        none = evaluate_seen(target, target, seen, display)[0].jod
+        for key, img in shown.items():
+            gains[key].append(evaluate_seen(np.clip(img, 0.0, 1.0), target, seen, display)[0].jod - none)
+    return gains
+
+
+def run(display_name: str, name: str) -> None:
+    t0 = time.perf_counter()
+    display, target, p, design, problem = default_design(display_name, name)
     members = [(m.weight, m.kernel, m.target_lms) for m in problem.members]
     effective = [(1.0, design.kernel, problem.target_lms)]
     twin = AdmmFrames(design.kernel, design.reference, target.shape[:2])
@@ -118,13 +136,7 @@ def run(display_name: str, name: str) -> None:
                             ("weber, eff", weber_beta(effective, target, x))):
             shown[(method, guard)] = target + np.float32(beta) * (x - target)
             betas[(method, guard)] = beta
-    gains: dict = {key: [] for key in shown}
-    for q, s in SEEN:
-        seen = design_eye(EYE.with_changes(sphere_D=EYE.sphere_D + s), display, p if q is None else q, robust=False,
-                          kernels=_kernels).nominal
-        none = evaluate_seen(target, target, seen, display)[0].jod
-        for key, img in shown.items():
-            gains[key].append(evaluate_seen(np.clip(img, 0.0, 1.0), target, seen, display)[0].jod - none)
+    gains = seen_gains(display, target, p, shown)
     print(f"{display_name} {name} (light {p:.2f} mm, {time.perf_counter() - t0:.0f} s)", flush=True)
     for key, g in gains.items():
         print(f"    {key[0]:9s} {key[1]:10s} beta {betas[key]:.2f}  least {min(g):+.2f}  3 mm {g[1]:+.2f}", flush=True)

@@ -108,7 +108,7 @@ class PupilState:
         if entry == self.current:
             return
         model = self.bank.get(entry)
-        grids = self.c.strategy.spectra_grids() if hasattr(self.c.strategy, "spectra_grids") else ()
+        grids = self._grids()
         if model is None:
             if self.c.frame_time_s is not None:           # a batch render: deterministic, so wait for it
                 model = self.bank.build_now(entry, grids)
@@ -116,6 +116,10 @@ class PupilState:
                 self.bank.request(entry, grids)
                 return
         self.c.switch_design(model)
+
+    def _grids(self) -> tuple:
+        """The grids a design's spectra are made on before a switch (the strategy's; none for others)."""
+        return self.c.strategy.spectra_grids() if hasattr(self.c.strategy, "spectra_grids") else ()
 
     def follow_now(self, wait_s: float, stopped: Callable[[], bool] = lambda: False) -> float | None:
         """Switch to the design the frame just corrected asks for, now: read its light (this waits for
@@ -131,7 +135,7 @@ class PupilState:
         entry = self.follower.update(lum, 0.0)
         if entry == self.current:
             return entry
-        self.bank.request(entry, self.c.strategy.spectra_grids() if hasattr(self.c.strategy, "spectra_grids") else ())
+        self.bank.request(entry, self._grids())
         deadline = time.monotonic() + wait_s
         while (model := self.bank.get(entry)) is None:
             if entry in self.bank.failed or stopped() or time.monotonic() > deadline:
