@@ -36,7 +36,8 @@
 // and uses is used as stored); else 32-bit.
 // Defines: NX, NY, HX, IMG_W, IMG_H, HALF, IDEAL, one pass, its mode; a row or column pass also
 // LINE (NX or NY), PER, WG = LINE / PER (the work group: a literal, as GLSL 4.30's layout asks),
-// FFT_STAGES, FFT_RADICES and LINES (a column pass's lines a work group, default 1).
+// FFT_STAGES, FFT_RADICES and LINES (a column pass's lines a work group, default 1); LIGHT_CAP (a
+// robust design: the box's upper end is min(1, 2 t + LIGHT_CAP) of the pixel's target t, not 1).
 #if defined COMPUTE_SHADER
 
 #if defined HALF
@@ -63,6 +64,15 @@ vec3 stored(vec3 v) {
     return vec3(stored2(v.xy), stored2(vec2(v.z, 0.0)).x);
 #else
     return v;
+#endif
+}
+
+// The box's upper end at a pixel whose target is t (vrcorrect.solvers.problem.light_cap).
+vec3 box_top(vec3 t) {
+#if defined LIGHT_CAP
+    return min(vec3(1.0), 2.0 * t + vec3(LIGHT_CAP));
+#else
+    return vec3(1.0);
 #endif
 }
 
@@ -156,12 +166,12 @@ uniform float u_alpha;         // over-relaxation
 
 bool inside(ivec2 p) { return all(greaterThanEqual(p, ivec2(0))) && p.x < IMG_W && p.y < IMG_H; }
 vec3 prox(vec3 w, vec3 T, bool in_image) { return in_image ? u_keep * w + (1.0 - u_keep) * T : w; }
-vec3 proj(vec3 q, bool in_image) { return in_image ? clamp(q, 0.0, 1.0) : vec3(0.0); }
+vec3 proj(vec3 q, bool in_image, vec3 t) { return in_image ? clamp(q, vec3(0.0), box_top(t)) : vec3(0.0); }
 // FOVEA (a foveated frame, vrcorrect.runtime.strategies.foveated): the image is the sub-image around
 // the gaze; the data term holds on the window u_win (x0, y0, x1, y1: GL texels of the image, half
 // open) only, and the rest of the image (the ring) is held to what the view shows there, u_hold (the
 // target, or the periphery's correction): proj there is that value (the CPU twin:
-// vrcorrect.solvers.foveated).
+// vrcorrect.solvers.foveated). proj_at's `held` is that value, `t` the target (the light cap's).
 #if defined FOVEA
 uniform ivec4 u_win;
 uniform sampler2D u_hold;
@@ -170,11 +180,11 @@ bool in_data(ivec2 p) { return all(greaterThanEqual(p, u_win.xy)) && all(lessTha
 #else
 bool in_data(ivec2 p) { return inside(p); }
 #endif
-vec3 proj_at(vec3 q, ivec2 p, bool in_image, vec3 t) {
+vec3 proj_at(vec3 q, ivec2 p, bool in_image, vec3 held, vec3 t) {
 #if defined FOVEA
-    if (in_image && !in_data(p)) return t;
+    if (in_image && !in_data(p)) return held;
 #endif
-    return proj(q, in_image);
+    return proj(q, in_image, t);
 }
 #endif
 
@@ -473,9 +483,9 @@ void main() {
         imageStore(u_q, p, vec4(q, 1.0));
         a1[m] = 2.0 * prox(w, Tp, in_data(p)) - w;
 #if defined FOVEA
-        a2[m] = 2.0 * proj_at(q, p, in_image, held_at(p, in_image)) - q;
+        a2[m] = 2.0 * proj_at(q, p, in_image, held_at(p, in_image), t) - q;
 #else
-        a2[m] = 2.0 * proj_at(q, p, in_image, t) - q;
+        a2[m] = 2.0 * proj_at(q, p, in_image, t, t) - q;
 #endif
     }
     forward_six(a1, a2, y);
@@ -486,7 +496,7 @@ void main() {
 // (NO_UPDATE, with LAST: no iteration this frame; only the guard's input from the state as it is.)
 #if defined ROWS_UPDATE
 uniform sampler2D u_T;                          // this frame's T inside the image
-uniform sampler2D u_t;                          // LAST: the target, for the guard
+uniform sampler2D u_t;                          // LAST or LIGHT_CAP: the target (the guard's, the cap's)
 layout(IMG_FMT, binding = 2) uniform image2D u_w;
 layout(IMG_FMT, binding = 3) uniform image2D u_q;
 void main() {
@@ -505,22 +515,27 @@ void main() {
 #else
         vec3 tp = vec3(0.0);
 #endif
+#if defined LAST || defined LIGHT_CAP
+        vec3 t = in_image ? texelFetch(u_t, p, 0).rgb : vec3(0.0);
+#else
+        vec3 t = vec3(0.0);                             // (box_top does not read it)
+#endif
 #if !defined NO_UPDATE
         vec3 T = in_image ? texelFetch(u_T, p, 0).rgb : vec3(0.0);
         vec3 w = imageLoad(u_w, p).rgb;
         vec3 pw = prox(w, T, in_data(p));
-        vec3 pq = proj_at(q, p, in_image, tp);
+        vec3 pq = proj_at(q, p, in_image, tp, t);
         w = stored(w + u_alpha * (Ku[m] - pw));
         q = stored(q + u_alpha * (u[m] - pq));
         imageStore(u_w, p, vec4(w, 1.0));
         imageStore(u_q, p, vec4(q, 1.0));
 #endif
 #if defined LAST
-        a1[m] = proj_at(q, p, in_image, tp);                           // z
-        a2[m] = in_image ? texelFetch(u_t, p, 0).rgb : vec3(0.0);      // t
+        a1[m] = proj_at(q, p, in_image, tp, t);                        // z
+        a2[m] = t;                                                     // t
 #else
         a1[m] = 2.0 * prox(w, T, in_data(p)) - w;
-        a2[m] = 2.0 * proj_at(q, p, in_image, tp) - q;
+        a2[m] = 2.0 * proj_at(q, p, in_image, tp, t) - q;
 #endif
     }
 #if defined LAST
@@ -638,7 +653,7 @@ void main() {
     ivec2 p = ivec2(gl_GlobalInvocationID.xy);
     if (p.x >= IMG_W || p.y >= IMG_H) return;
     vec3 t = texelFetch(u_t, p, 0).rgb;
-    vec3 z = clamp(texelFetch(u_q, p, 0).rgb, 0.0, 1.0);
+    vec3 z = clamp(texelFetch(u_q, p, 0).rgb, vec3(0.0), box_top(t));
 #if defined FOVEA
     if (!(all(greaterThanEqual(p, u_win.xy)) && all(lessThan(p, u_win.zw)))) z = texelFetch(u_hold, p, 0).rgb;
 #endif

@@ -508,7 +508,7 @@ def test_the_gpu_equals_its_twin_across_pupil_switches(gl):
                       decode("srgb", dark.astype(np.float32) / 255), QUEST2))
     c.frame_time_s = 1 / 90
     twin = AdmmFrames(c.model.kernel, c.model.reference, (H, W), precision="single",
-                      grid_kernel_size=c.model.grid_kernel_size)
+                      grid_kernel_size=c.model.grid_kernel_size, cap=True)
     src = G.upload_texture(gl, dark)
     tex, fbo = G.render_target(gl, width=W, height=H)
     designs = [c.model.pupil_mm]

@@ -36,12 +36,16 @@ data step is pointwise, so it would cost nothing: ``--weber``, each pixel's data
 c)^2`` over its mean, ``Y`` the target's light; on quest2 darkwords it dimmed the strokes to spare
 the ground, its solution 3.0 (c = 0.01) and 1.7 (c = 0.05) JOD below none at the least, and the guard
 refused it, beta 0.00 and 0.02) do not.
+
+Run with the box [0, 1] (``Problem.capped`` off, the twin uncapped): the default before the light
+cap, which these figures describe; ``tools/light_cap_choice.py`` compares the two.
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -76,6 +80,7 @@ FRAMES = (10, 100)
 def run(display_name: str, name: str, weber: bool = False) -> None:
     t0 = time.perf_counter()
     display, target, p, design, problem = default_design(display_name, name)
+    problem = replace(problem, capped=False)                     # the box [0, 1] (module docstring)
     shown, notes = {}, {}
     for tol in TOLERANCES:
         result = solve(problem, "fast", tolerance=tol, max_iterations=400)

@@ -45,12 +45,16 @@ inverted chart, whose small letters no eye here resolves), but it does not see w
 the real-time default's dimmed strokes and lifted ground on dark text (quest2 darkwords stays at
 -0.22), and where it helps most it needs the band's eyes' kernels: on the GPU three more transforms a
 frame, since the effective kernel's view is not an eye's.  Not adopted.
+
+Run with the box [0, 1] (``Problem.capped`` off, the twin uncapped): the default before the light
+cap, which these figures describe; ``tools/light_cap_choice.py`` compares the two.
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -128,7 +132,7 @@ def run(display_name: str, name: str) -> None:
     twin = AdmmFrames(design.kernel, design.reference, target.shape[:2])
     for _ in range(FRAMES):
         frame = twin.frame(target, 2)
-    solutions = {"fast": solve(problem, "fast").image, "real time": np.clip(frame.solution, 0.0, 1.0)}
+    solutions = {"fast": solve(replace(problem, capped=False), "fast").image, "real time": np.clip(frame.solution, 0.0, 1.0)}
     shown, betas = {}, {}
     for method, x in solutions.items():
         linear = 1.0 if method == "fast" else frame.beta
@@ -142,10 +146,12 @@ def run(display_name: str, name: str) -> None:
         print(f"    {key[0]:9s} {key[1]:10s} beta {betas[key]:.2f}  least {min(g):+.2f}  3 mm {g[1]:+.2f}", flush=True)
 
 
-def main(argv: list[str]) -> None:
+def main(argv: list[str], case=None) -> None:
+    """``case(display, image)`` (default: this script's :func:`run`) on the displays and images named by
+    ``argv`` (comma-separated; default all); ``tools/light_cap_choice.py`` runs its own."""
     for d in (argv[0].split(",") if argv else DISPLAYS):
         for name in (argv[1].split(",") if len(argv) > 1 else IMAGES):
-            run(d, name)
+            (case or run)(d, name)
 
 
 if __name__ == "__main__":

@@ -29,12 +29,16 @@ correction:
 
 So half the correction keeps dark text above none and nearly all of its small gain, and halves the
 gain elsewhere; the cube root gains more on the page and the photograph and loses more on dark text.
+
+Run with the box [0, 1] (``Problem.capped`` off, the twin uncapped): the default before the light
+cap, which these figures describe; ``tools/light_cap_choice.py`` compares the two.
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 import scipy.optimize
@@ -112,7 +116,7 @@ def run(display_name: str, image: str, kernels: dict) -> None:
     mismatch = check_forward(design)
     if mismatch > 1e-4:
         raise SystemExit(f"the torch forward model differs from simulate_lms by {mismatch:.2g}")
-    problem = make_design_problem(target, design)
+    problem = replace(make_design_problem(target, design), capped=False)     # the box [0, 1] (module docstring)
     x = solve(problem, "fast").image
     shown = {"fast": x, "half": target + 0.5 * (x - target), "cube root": cube_root_solution(problem, x)}
     gains: dict[str, list[float]] = {name: [] for name in shown}

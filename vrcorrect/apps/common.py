@@ -173,8 +173,10 @@ PUPIL_HELP = ("the viewing pupil: auto (default: from the display's light, Watso
               "image's mean luminance, the display's peak luminance and field of view, and the prescription's "
               "age_years), rx (the prescription's pupil_diameter_mm), or a diameter in mm from 2 to 7.5")
 ROBUST_HELP = ("on (default): design the correction for the eyes the estimate leaves open (sphere -0.25 to +0.25 D "
-               "at a pupil 7 %% below the estimate, where an error costs least), so that it stays better than none "
-               "when the eye is not exactly as modelled; off: for the one eye (pupil and sphere as given)")
+               "at a pupil 7 %% below the estimate, where an error costs least) and add to each pixel at most twice "
+               "its own light plus 2 %% of white (the light cap: no halo lifts a dark ground), so that it stays "
+               "better than none when the eye is not exactly as modelled; off: for the one eye (pupil and sphere "
+               "as given), in the box [0, 1]")
 
 
 def parse_pupil(text: Any, field: str = "--pupil") -> str | float:

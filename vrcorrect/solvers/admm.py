@@ -3,6 +3,8 @@
 ``min ||C K x - t||^2`` subject to ``0 <= x <= 1`` inside the image and ``x = 0``
 outside, with ``K`` the eye's 3x3 kernel bank (cones x primaries), ``C`` the crop
 to the image and ``t`` the target's cone image: the same objective as ``paper``.
+A robust design's problem (``Problem.capped``) has ``x <= light_cap(target)`` instead of
+``x <= 1`` (:func:`~vrcorrect.solvers.problem.light_cap`): the same clip, per pixel.
 
 Split (Almeida & Figueiredo 2013, boundary-aware deconvolution): on a padded
 periodic domain, ``v = K u`` (the retina, cropped by ``C`` only in the data term)
@@ -39,7 +41,7 @@ from typing import Callable
 
 import numpy as np
 
-from .problem import Correction, Problem, guard_weight
+from .problem import LIGHT_CAP_FLOOR, Correction, Problem, guard_weight, light_cap
 from .spectral import (Blur, apply3, conj_transpose, hermitian_inverse, irfft_grid, kernel_spectrum, margin_shape,
                        mirror_fill, padded_shape, rfft_grid, spectral_norm_squared)
 
@@ -65,10 +67,13 @@ def coarse_level_pays(height: int, width: int, kernel_size: int) -> bool:
 def _admm(kernel: np.ndarray, t_lms: np.ndarray, z0: np.ndarray, rho: float, relaxation: float,
           balance: float, max_iterations: int, tolerance: float,
           progress: Callable[[int, int], None] | None = None,
-          duals: tuple[np.ndarray, np.ndarray] | None = None, track: bool = True
+          duals: tuple[np.ndarray, np.ndarray] | None = None, track: bool = True,
+          upper: np.ndarray | None = None
           ) -> tuple[np.ndarray, int, list[float], float, tuple[np.ndarray, np.ndarray]]:
     """ADMM on (3, H, W) float32 arrays, optionally warm-started in the scaled duals too (inside
     the image; zero outside); returns (z, iterations, history, norm2, duals cropped to the image).
+    ``upper``: the box's upper end inside the image, ``(3, H, W)`` (the light cap,
+    :func:`~vrcorrect.solvers.problem.light_cap`; None: 1).
 
     With ``track``, ``history`` holds the true objective at the feasible ``z`` after every
     iteration (one more convolution per step) and the loop stops when one iteration improves it
@@ -128,6 +133,8 @@ def _admm(kernel: np.ndarray, t_lms: np.ndarray, z0: np.ndarray, rho: float, rel
         inner += t_scaled
         np.add(u, d2, out=z)                                               # z: box inside, black outside
         np.clip(z, 0.0, 1.0, out=z)
+        if upper is not None:
+            np.minimum(z[:, :H, :W], upper, out=z[:, :H, :W])
         z[:, H:, :] = 0.0
         z[:, :H, W:] = 0.0
         d1 += Ku
@@ -202,18 +209,21 @@ def _upsample2(a: np.ndarray) -> np.ndarray:
 
 def _coarse_to_fine(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, levels: int, coarse_iterations: int,
                     level_iterations: int, rho: float, relaxation: float,
-                    balance: float, warm_start: bool
+                    balance: float, warm_start: bool, capped: bool = False
                     ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None, list[str]]:
-    """Starting point at this resolution, primal and dual (see the module docstring)."""
+    """Starting point at this resolution, primal and dual (see the module docstring); ``capped``:
+    the box's upper end is the light cap of this level's target."""
     H, W = t_lms.shape[1:]
+    upper = light_cap(target) if capped else None
     if levels > 0 and coarse_level_pays(H, W, kernel.shape[-1]):
         Kc = coarse_kernel(kernel)
-        zc, dc, notes = _coarse_to_fine(Kc, _pool2(target), _pool2(t_lms), levels - 1, coarse_iterations,
-                                        level_iterations, rho, relaxation, balance, warm_start)
+        coarse_target = _pool2(target)
+        zc, dc, notes = _coarse_to_fine(Kc, coarse_target, _pool2(t_lms), levels - 1, coarse_iterations,
+                                        level_iterations, rho, relaxation, balance, warm_start, capped)
         deeper = dc is not None
         its = level_iterations if deeper else coarse_iterations
         zc, done, _, _, dc = _admm(Kc, _pool2(t_lms), zc, rho, relaxation, balance, its, 0.0, duals=dc,
-                                   track=False)
+                                   track=False, upper=light_cap(coarse_target) if capped else None)
         notes.append(f"{done} ADMM iterations at {zc.shape[2]}x{zc.shape[1]}")
         H2, W2 = H // 2 * 2, W // 2 * 2
 
@@ -223,13 +233,14 @@ def _coarse_to_fine(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, l
             return out
 
         zero = np.zeros_like(target)
-        return np.clip(up(zc, target), 0.0, 1.0), (up(dc[0], zero), up(dc[1], zero)), notes
+        return np.clip(up(zc, target), 0.0, 1.0 if upper is None else upper), (up(dc[0], zero), up(dc[1], zero)), notes
     if not warm_start:
         return target.copy(), None, ["target"]
-    return _ridge_start(kernel, target, t_lms), None, ["regularised inverse blended with the target"]
+    return _ridge_start(kernel, target, t_lms, upper=upper), None, ["regularised inverse blended with the target"]
 
 
-def _ridge_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, mu_rel: float = 0.03) -> np.ndarray:
+def _ridge_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, mu_rel: float = 0.03,
+                 upper: np.ndarray | None = None) -> np.ndarray:
     """Closed-form start: the ridge inverse of the cone target, regularised toward zero,
     ``d = clip((K^H K + mu I)^-1 K^H t_lms) - t`` (``mu`` relative to ``||K||^2``), on a periodic
     grid holding ``t_lms`` mirror-filled around the image (one kernel width each side), then the
@@ -240,14 +251,15 @@ def _ridge_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, mu_r
     Not ``wiener``'s inverse: that one is regularised toward the target (``F(0) = I``, a flat field
     kept), this one toward zero, which shrinks a flat field along the colour matrix's weak
     directions (docs/architecture.md, 'Regularise toward the target'); here it is only a starting
-    point, which the blend keeps no worse than the target and ADMM's iterations then improve."""
+    point, which the blend keeps no worse than the target and ADMM's iterations then improve.
+    ``upper``: the box's upper end (the light cap; None: 1), which the inverse is clipped to."""
     _, H, W = t_lms.shape
     m = kernel.shape[-1]
     Q = margin_shape(H, W, m)
     K = Blur(kernel_spectrum(kernel, Q, np.float32), Q, (H, W))          # black surround (Q > H + m)
     G = hermitian_inverse(K.spectrum, mu_rel * spectral_norm_squared(kernel))
     R = apply3(conj_transpose(K.spectrum), rfft_grid(mirror_fill(t_lms, Q, m), Q))
-    d = np.clip(irfft_grid(apply3(G, R), Q)[:, m:m + H, m:m + W], 0.0, 1.0) - target
+    d = np.clip(irfft_grid(apply3(G, R), Q)[:, m:m + H, m:m + W], 0.0, 1.0 if upper is None else upper) - target
     r0, Kd = K.apply(target) - t_lms, K.apply(d)
     beta = guard_weight(float(np.vdot(r0, Kd)), float(np.vdot(Kd, Kd)))
     return (target + np.float32(beta) * d).astype(np.float32)
@@ -277,15 +289,17 @@ def fast(problem: Problem, tolerance: float = 1e-2, max_iterations: int = 200, r
     lowers the best objective by less than ``tolerance`` (relative), after :data:`PATIENCE`
     iterations without a new best, or after ``max_iterations`` on the full-resolution level;
     returns the best iterate.  A robust problem (``problem.members``) is solved on its effective
-    kernel (:mod:`vrcorrect.physics.robust`), as the real-time path solves it."""
+    kernel (:mod:`vrcorrect.physics.robust`), as the real-time path solves it, and in its box
+    (``problem.capped``: below the light cap, :func:`~vrcorrect.solvers.problem.light_cap`)."""
     K = problem.kernel.kernel
     t = np.ascontiguousarray(np.moveaxis(problem.target_lms, 2, 0), dtype=np.float32)
     target = np.ascontiguousarray(np.moveaxis(problem.target, 2, 0), dtype=np.float32)
     z0, duals, notes = _coarse_to_fine(K, target, t, levels, coarse_iterations, level_iterations,
-                                       rho, relaxation, balance, warm_start)
+                                       rho, relaxation, balance, warm_start, problem.capped)
     z, iterations, history, norm2, _ = _admm(K, t, z0, rho, relaxation, balance, max_iterations, tolerance,
-                                             progress, duals)
+                                             progress, duals, upper=light_cap(target) if problem.capped else None)
     settings = {"solver": "ADMM (boundary-aware split), over-relaxed", "rho": rho, "relaxation": relaxation,
                 "spectral_norm_squared": norm2, "tolerance": tolerance,
+                "box": "0 to the light cap min(1, 2 t + %g)" % LIGHT_CAP_FLOOR if problem.capped else "0 to 1",
                 "warm_start": ", then ".join(notes)}
     return Correction(np.moveaxis(z, 0, 2).astype(np.float32), iterations, settings, history)

@@ -4,6 +4,8 @@ A robust design (:mod:`vrcorrect.physics.robust`) asks for the displayed image t
 
     sum_i w_i || C K_i x - T_i ||^2       subject to 0 <= x <= 1 inside the image, 0 outside,
 
+(``x <= light_cap(t)`` instead of 1 with ``capped``, as ``fast`` solves a robust design's problem)
+
 one term per eye of the band, each cropped to the image by ``C``.  The other solvers take the
 design's effective kernel ``(U, R)``, whose single crop acts on ``U x`` rather than on each ``K_i x``;
 this one keeps each member's own crop: ``fast``'s boundary-aware split (:mod:`vrcorrect.solvers.admm`)
@@ -30,6 +32,7 @@ import numpy as np
 
 from ..physics.kernel import EyeKernel
 from .admm import FAST_RELAXATION, FAST_RHO, PATIENCE, _admm, _coarse_to_fine
+from .problem import light_cap
 from .spectral import (Blur, apply3, conj_transpose, gram, inv3, irfft_grid, kernel_spectrum, padded_shape, rfft_grid,
                        spectral_norm_squared)
 
@@ -60,16 +63,19 @@ def expectation_objective(displayed_chw: np.ndarray, members: tuple[BandEye, ...
 def fast_expectation(target: np.ndarray, members: tuple[BandEye, ...], effective: EyeKernel, effective_lms: np.ndarray,
                      tolerance: float = 1e-2, max_iterations: int = 200, rho: float = FAST_RHO,
                      relaxation: float = FAST_RELAXATION, levels: int = 1,
-                     progress: Callable[[int, int], None] | None = None) -> tuple[np.ndarray, int, list[float], dict]:
+                     progress: Callable[[int, int], None] | None = None, capped: bool = False
+                     ) -> tuple[np.ndarray, int, list[float], dict]:
     """The expectation's ADMM (module docstring) for a ``(H, W, 3)`` linear target: returns the
     displayed image ``(H, W, 3)`` float32, the iterations, the objective after each and settings.
-    ``effective`` and ``effective_lms`` (the design's ``U`` and ``R t``) give the start."""
+    ``effective`` and ``effective_lms`` (the design's ``U`` and ``R t``) give the start; ``capped``:
+    the box's upper end is the target's light cap (``Problem.capped``, as ``fast``'s)."""
     t = np.ascontiguousarray(np.moveaxis(target, 2, 0), dtype=np.float32)
     H, W = t.shape[1:]
     t_eff = np.ascontiguousarray(np.moveaxis(effective_lms, 2, 0), dtype=np.float32)
-    z0, duals, notes = _coarse_to_fine(effective.kernel, t, t_eff, levels, 15, 3, rho, relaxation, 1.0, True)
+    upper = light_cap(t) if capped else None
+    z0, duals, notes = _coarse_to_fine(effective.kernel, t, t_eff, levels, 15, 3, rho, relaxation, 1.0, True, capped)
     z0, done, _, _, _ = _admm(effective.kernel, t_eff, z0, rho, relaxation, 1.0, max_iterations, tolerance,
-                              duals=duals)
+                              duals=duals, upper=upper)
     notes.append(f"{done} ADMM iterations on the effective kernel")
     P = padded_shape(H, W, max(m.kernel.size for m in members))
     spectra = [kernel_spectrum(m.kernel.kernel, P, np.float32) for m in members]
@@ -103,6 +109,8 @@ def fast_expectation(target: np.ndarray, members: tuple[BandEye, ...], effective
 
     def proj(qq: np.ndarray) -> np.ndarray:
         z = np.clip(qq, 0.0, 1.0)
+        if upper is not None:
+            np.minimum(z[inside], upper, out=z[inside])
         z[:, H:, :] = 0.0
         z[:, :H, W:] = 0.0
         return z

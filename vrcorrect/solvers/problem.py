@@ -25,7 +25,26 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     from ..physics.robust import Design
 
 __all__ = ["Problem", "Correction", "SolveResult", "scale_contrast", "make_problem", "make_design_problem", "objective",
-           "guard_weight"]
+           "guard_weight", "light_cap", "LIGHT_CAP_FLOOR"]
+
+#: The light cap's floor (a fraction of white): a robust design's displayed primary may be at most
+#: ``2 t + LIGHT_CAP_FLOOR`` where the target's is ``t`` (:func:`light_cap`).
+LIGHT_CAP_FLOOR = 0.02
+
+
+def light_cap(target: np.ndarray, floor: float = LIGHT_CAP_FLOOR) -> np.ndarray:
+    """The light cap of a robust design (issue 44): the most each displayed primary may show,
+    ``min(1, 2 t + floor)`` for the target's ``t`` (any shape, linear light), float32.
+
+    A correction may add to a pixel at most the light the target has there, plus ``floor`` of white.
+    By Weber's law the eye sees light added to a dark ground relative to that ground, so a halo that
+    lifts a dark ground is seen far more than its share of the linear objective; an eye that sees
+    better than the design assumed sees such halos where the design put them, and on light text over a
+    dark ground the correction then fell below no correction (docs/realtime.md, "The light cap").
+    On a bright image the cap is 1 nearly everywhere.  It is the upper end of the box that ``fast``
+    and the real-time ADMM project onto (``0 <= x <= light_cap(t)``), a pointwise bound, so it costs
+    nothing but the target's read where the box is applied."""
+    return np.minimum(np.float32(1.0), np.float32(2.0) * np.asarray(target, np.float32) + np.float32(floor))
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,6 +69,10 @@ class Problem:
         effective kernel ``U`` and ``target_lms`` its ``R t``, the objective is the expectation over
         the members (:func:`objective`), and ``fast`` minimises it exactly
         (:mod:`vrcorrect.solvers.expectation`); the other methods solve the effective form.
+    capped
+        The displayed image is bounded by :func:`light_cap` of ``target`` instead of 1 (a robust
+        design's, :func:`make_design_problem`); ``fast`` honours it, and the real-time ADMM does
+        the same for a robust design; the other methods keep the box [0, 1].
     """
 
     target: np.ndarray
@@ -59,6 +82,7 @@ class Problem:
     reference: str = "ideal"
     reference_kernel: EyeKernel | None = None
     members: tuple = ()
+    capped: bool = False
 
 
 def scale_contrast(image: np.ndarray, contrast: float) -> np.ndarray:
@@ -102,7 +126,7 @@ def make_design_problem(target: np.ndarray, design: "Design", contrast: float = 
         k, r = design.member_kernels(m)
         tl = simulate_lms(ts, r)[0] if r is not None else (ts @ k.matrix.T.astype(np.float32))
         members.append(BandEye(m.weight, k, np.asarray(tl, np.float32)))
-    return replace(problem, members=tuple(members), reference="glasses" if design.nominal_reference is not None
+    return replace(problem, members=tuple(members), capped=True, reference="glasses" if design.nominal_reference is not None
                    else "ideal", reference_kernel=design.nominal_reference)
 
 

@@ -81,7 +81,7 @@ from ..plumbing.errors import ValidationError
 from ..specs.vocabulary import ITERATIVE_FILTERS, Filter, Precision, either, names, one_of
 from .admm import COARSE_ITERATIONS, coarse_kernel, coarse_level_pays
 from .fista import FistaState, gradient_plan, projected_gradient
-from .problem import guard_weight, make_problem
+from .problem import guard_weight, light_cap, make_problem
 from .spectral import (Blur, apply3, conj_transpose, hermitian_inverse, kernel_spectrum, smooth_length,
                        spectral_norm_squared)
 
@@ -255,12 +255,16 @@ class AdmmFrames:
     edge_band
         Leave the edge band in place when the content moves (module docstring; the GPU always
         does: ``False`` is the earlier warm start, kept for the benchmark's comparison).
+    cap
+        The box's upper end is the frame target's light cap instead of 1
+        (:func:`~vrcorrect.solvers.problem.light_cap`: a robust design's, as ``fast``'s
+        ``Problem.capped``; the GPU's ``LIGHT_CAP``).
     """
 
     def __init__(self, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int],
                  precision: str = Precision.HALF, rho: float = ADMM_RHO, relaxation: float = ADMM_RELAXATION,
                  cold_iterations: int = COARSE_ITERATIONS, edge_band: bool = True, balance: float = ADMM_BALANCE,
-                 grid_kernel_size: int | None = None):
+                 grid_kernel_size: int | None = None, cap: bool = False):
         if precision not in names(Precision):
             raise ValidationError("precision", precision, one_of(Precision))
         if not (isinstance(balance, (int, float)) and math.isfinite(balance) and balance > 0):
@@ -271,12 +275,15 @@ class AdmmFrames:
         self.radius = kernel.size // 2
         self.edge_band = edge_band
         self.cold_iterations = int(cold_iterations)
+        self.cap = bool(cap)
+        self.upper: np.ndarray | None = None            # with cap: this frame's light cap inside the image
         self.coarse: AdmmFrames | None = None
         if self.cold_iterations > 0 and coarse_level_pays(H, W, kernel.size):
             self.coarse = AdmmFrames(coarse_eye_kernel(kernel), None if reference is None else
                                      coarse_eye_kernel(reference), ((H + 1) // 2, (W + 1) // 2), precision, rho,
                                      relaxation, cold_iterations=0, balance=balance,
-                                     grid_kernel_size=None if grid_kernel_size is None else coarse_kernel_size(grid_kernel_size))
+                                     grid_kernel_size=None if grid_kernel_size is None else coarse_kernel_size(grid_kernel_size),
+                                     cap=cap)
         size = max(kernel.size, reference.size if reference is not None else 1, grid_kernel_size or 1)
         self.grid = P = admm_grid(W, H, size)
         self.rho, self.balance = rho, balance
@@ -347,6 +354,9 @@ class AdmmFrames:
 
     def proj(self, q: np.ndarray) -> np.ndarray:
         z = np.clip(q, 0.0, 1.0)
+        if self.upper is not None:
+            H, W = self.shape
+            np.minimum(z[:, :H, :W], self.upper, out=z[:, :H, :W])
         z[:, ~self.inside] = 0.0
         return z
 
@@ -354,7 +364,7 @@ class AdmmFrames:
 
     def reset(self) -> None:
         """The next frame starts cold."""
-        self.w = self.q = self.t_prev = self.T_prev = None
+        self.w = self.q = self.t_prev = self.T_prev = self.upper = None
 
     def start(self, t: np.ndarray, T: np.ndarray, shift: tuple[int, int] | None = None,
               first_guess: np.ndarray | None = None) -> None:
@@ -383,6 +393,7 @@ class AdmmFrames:
             q[:, :H, :W] += t - t_prev
             self.w, self.q = w, q
         self.w, self.q = _store(self.w, self.half), _store(self.q, self.half)
+        self.upper = light_cap(t) if self.cap else None
         self.t_prev, self.T_prev = t, T[:, :H, :W].copy()
 
     def cold_correction(self, target_chw: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
@@ -536,12 +547,12 @@ class FistaFrames:
 
 def frames_twin(method: str, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int],
                 precision: str = Precision.HALF, cold_iterations: int = COARSE_ITERATIONS,
-                edge_band: bool = True, balance: float = ADMM_BALANCE) -> "AdmmFrames | FistaFrames":
+                edge_band: bool = True, balance: float = ADMM_BALANCE, cap: bool = False) -> "AdmmFrames | FistaFrames":
     """The CPU twin of the GPU's ``method`` (``"admm"`` or ``"fista"``) for one eye and image size
-    (``cold_iterations``, ``edge_band``, ``balance``: ADMM's, see :class:`AdmmFrames`)."""
+    (``cold_iterations``, ``edge_band``, ``balance``, ``cap``: ADMM's, see :class:`AdmmFrames`)."""
     if method == Filter.ADMM:
         return AdmmFrames(kernel, reference, shape, precision=precision, cold_iterations=cold_iterations,
-                          edge_band=edge_band, balance=balance)
+                          edge_band=edge_band, balance=balance, cap=cap)
     if method == Filter.FISTA:
         return FistaFrames(kernel, reference, shape)
     raise ValidationError("method", method, either(ITERATIVE_FILTERS) + " (the methods that iterate over frames)")

@@ -51,6 +51,7 @@ from ..dispatch import resource_bytes
 from ..gl import fullscreen_triangle, release
 from ..shaders import compile_compute, compile_program
 from .base import GuardResult, IterativeStrategy, Size, float_texture, groups_2d
+from .spectra import half_spectrum
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
@@ -131,9 +132,13 @@ class AdmmStrategy(IterativeStrategy):
     name = Filter.ADMM
     cold_extra_iterations = 0     # run beyond iterations_per_frame on a cold frame (a foveated window's, its periphery's)
 
-    def __init__(self, *args: Any, coarse_level: bool = False, fovea: bool = False, **kwargs: Any):
+    def __init__(self, *args: Any, coarse_level: bool = False, fovea: bool = False, cap: bool | None = None,
+                 **kwargs: Any):
         super().__init__(*args, **kwargs)
         self.fovea = fovea
+        self.cap = bool(getattr(self.model.design, "robust", False)) if cap is None else bool(cap)
+        """The box's upper end is the target's light cap (``LIGHT_CAP``; the twin's ``AdmmFrames(cap=True)``):
+        by default where the eye model is a robust design, as ``fast`` caps a robust design's problem."""
         """A foveated frame's sub-image (:mod:`vrcorrect.runtime.strategies.foveated`): the data term
         holds on :attr:`window_gl` only and the rest of the image is held to the target (``FOVEA``
         in ``admm.glsl``); no coarse level."""
@@ -141,7 +146,10 @@ class AdmmStrategy(IterativeStrategy):
         """With ``fovea``: the window ``(x0, y0, x1, y1)`` in GL texels of the image, half open."""
         self.hold: "moderngl.Texture | None" = None
         """With ``fovea``: what the view shows on the ring (the image's size; None: the target)."""
-        from ...solvers.realtime import ADMM_RELAXATION, admm_weights  # start-up time: scipy with the first eye
+        from ...solvers.problem import LIGHT_CAP_FLOOR, light_cap  # start-up time: scipy with the first eye
+        from ...solvers.realtime import ADMM_RELAXATION, admm_weights  # (as above)
+
+        self._light_cap, self._cap_define = light_cap, {"LIGHT_CAP": LIGHT_CAP_FLOOR} if self.cap else {}
 
         m = self.model
         self.half = self.options.precision == Precision.HALF
@@ -224,6 +232,7 @@ class AdmmStrategy(IterativeStrategy):
             defines["IDEAL"] = None
         if self.fovea:
             defines["FOVEA"] = None
+        defines.update(self._cap_define)
         per_pass = self.options.work_groups.table(self.coarse_level)    # shape only, never a value
         compiled: dict[str, int] = {}
         col_plan = fft.line_plan(ny, per_pass["COLUMNS"])
@@ -263,7 +272,7 @@ class AdmmStrategy(IterativeStrategy):
         hx = nx // 2 + 1
         dtype = "f2" if self.half else "f4"
         programs, compiled, col_lines = self.compile_passes(size)
-        present = compile_program(ctx, "admm_present.glsl")
+        present = compile_program(ctx, "admm_present.glsl", defines=self._cap_define)
 
         spectra = model_spectra(m, grid, dtype)
 
@@ -319,7 +328,8 @@ class AdmmStrategy(IterativeStrategy):
             model = coarse_model(self.model)
             options = replace(self.options, iterations_per_frame=self.options.cold_iterations, early_stop=False,
                               cold_iterations=0)
-            self.coarse = AdmmStrategy(self.gpu, model, options, self.encoder, self.decoder, coarse_level=True)
+            self.coarse = AdmmStrategy(self.gpu, model, options, self.encoder, self.decoder, coarse_level=True,
+                                       cap=self.cap)
         W, H = linear.size
         size = ((W + 1) // 2, (H + 1) // 2)
         c = self.coarse
@@ -415,12 +425,13 @@ class AdmmStrategy(IterativeStrategy):
                             "u_matrix": tuple(float(v) for v in self.model.kernel.matrix.T.ravel())},
                   rows={0: (ny, 3)}, written={0: (ny, 6)}, **images)
         self._begin("iterations")
+        capped = {"u_t": linear} if self.cap else {}          # the light cap's target
         if self.coarse_level:                     # the state is the result: every iteration a plain update
             for _ in range(k):
                 self._run(b, "cols_admm", "columns: ADMM solve", cols, sample={**col_tw, "u_kernel": b.kernel},
                           modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.box_weight},
                           round_trip=True)
-                self._run(b, "rows_update", "rows: update, reflections", ny, sample={**twiddle, "u_T": b.T[new]},
+                self._run(b, "rows_update", "rows: update, reflections", ny, sample={**twiddle, "u_T": b.T[new], **capped},
                           modify={0: b.spec, 2: b.w[new], 3: b.q[new]},
                           uniforms={"u_keep": self.keep, "u_alpha": self.alpha})
             b.current, b.last_t, b.warm = new, b.next_t, True
@@ -430,7 +441,7 @@ class AdmmStrategy(IterativeStrategy):
                       modify={0: b.spec}, uniforms={"u_rows_in": ny, "u_rows_out": ny, "u_norm2": self.box_weight},
                       round_trip=True)
             last = i == k - 1
-            sample = {**twiddle, "u_T": b.T[new], **held}
+            sample = {**twiddle, "u_T": b.T[new], **held, **capped}
             if last:
                 sample["u_t"] = linear
             self._run(b, "rows_last" if last else "rows_update",
@@ -497,7 +508,9 @@ class AdmmStrategy(IterativeStrategy):
         W, H = size
         q = np.frombuffer(b.q[b.current].read(), np.float16 if self.half else np.float32)
         q = q.reshape(b.grid[0], b.grid[1], 4)[:H, :W, :3].astype(np.float32)
-        return np.ascontiguousarray(np.clip(q, 0.0, 1.0)[::-1])
+        t = np.frombuffer(b.t[b.last_t].read(), np.float16 if self.half else np.float32) if self.cap else None
+        top = 1.0 if t is None else self._light_cap(t.reshape(H, W, 4)[:, :, :3].astype(np.float32))
+        return np.ascontiguousarray(np.clip(q, 0.0, top)[::-1])
 
     def spectra_grids(self) -> tuple[tuple[tuple[int, int], str, bool], ...]:
         """The grids (``(NY, NX)``, texture dtype, coarse level or not) whose kernel spectra a switch of
@@ -557,7 +570,6 @@ MAX_ADMM_GRID = 4096
 
 def coarse_model(m: "EyeModel") -> "EyeModel":
     """The model a cold frame's half-resolution level runs: the kernels 2x2 pixel blocks see."""
-
     from ...solvers.realtime import coarse_eye_kernel, coarse_kernel_size  # start-up time (as above)
 
     return replace(m, kernel=coarse_eye_kernel(m.kernel),
@@ -586,13 +598,3 @@ def bank_spectra(m: "EyeModel", grids: tuple) -> dict:
         out[(grid, dtype, coarse)] = model_spectra(source, grid, dtype)
     return out
 
-
-def half_spectrum(kernel: np.ndarray, grid: tuple[int, int], dtype: str) -> np.ndarray:
-    """The real-to-complex spectrum of a ``(3, 3, s, s)`` kernel in GL orientation (vertically
-    flipped) on ``grid``, centred on the origin, as the texture holds it: ``(9, NY, NX/2 + 1, 2)``
-    (real, imaginary) in float16 or float32 (``dtype`` ``"f2"``/``"f4"``), from float64."""
-    from ...solvers.spectral import kernel_spectrum  # start-up time (as above)
-
-    Kf = kernel_spectrum(np.ascontiguousarray(kernel[:, :, ::-1, :]), grid)
-    out = np.stack([Kf.real, Kf.imag], axis=-1).reshape(9, grid[0], grid[1] // 2 + 1, 2)
-    return out.astype(np.float16 if dtype == "f2" else np.float32)

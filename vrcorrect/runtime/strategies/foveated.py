@@ -84,7 +84,7 @@ class FoveatedStrategy(AdmmStrategy):
 
     def __init__(self, *args: Any, radius_px: float, band_px: int | None = None, periphery: str = DEFAULT_PERIPHERY,
                  **kwargs: Any):
-        super().__init__(*args, fovea=True, **kwargs)
+        super().__init__(*args, fovea=True, cap=False, **kwargs)     # the light cap: not in the foveated path yet
         if not (isinstance(radius_px, (int, float)) and math.isfinite(radius_px) and radius_px >= 1):
             raise ValidationError("fovea radius", radius_px, "at least 1 pixel (a radius in degrees times the "
                                   "display's pixels per degree)")
@@ -105,7 +105,7 @@ class FoveatedStrategy(AdmmStrategy):
                 model = coarse_model(model)
             options = replace(self.options, iterations_per_frame=PERIPHERY_ITERATIONS[periphery], early_stop=False,
                               cold_iterations=0, fovea_deg=None, cold_start_model=None)
-            self.outer = AdmmStrategy(self.gpu, model, options, self.encoder, self.decoder)
+            self.outer = AdmmStrategy(self.gpu, model, options, self.encoder, self.decoder, cap=False)
             self.outer.cold_extra_iterations = max(COLD_PERIPHERY_ITERATIONS - PERIPHERY_ITERATIONS[periphery], 0)
         self.cold_extra_iterations = COLD_WINDOW_ITERATIONS
         self.gaze_px: tuple[float, float] | None = None

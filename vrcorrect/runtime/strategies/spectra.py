@@ -1,6 +1,7 @@
 """The eye's kernel spectra on a 5-smooth FFT grid, computed on the CPU for the strategies that
 upload whole 3x3 complex spectra (:class:`~vrcorrect.runtime.fft.FftBankGL`: FISTA, the one-pass
-FFT inverse and the preview's forward model).
+FFT inverse and the preview's forward model), and the ADMM strategy's real-to-complex half spectra
+(:func:`half_spectrum`).
 
 Layer 5: numpy only.
 """
@@ -15,7 +16,7 @@ import numpy as np
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from ..eye_model import EyeModel
 
-__all__ = ["kernel_spectra", "simulation_spectrum"]
+__all__ = ["kernel_spectra", "simulation_spectrum", "half_spectrum"]
 
 
 def kernel_spectra(model: "EyeModel", grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -39,3 +40,14 @@ def simulation_spectrum(model: "EyeModel", grid: tuple[int, int]) -> np.ndarray:
     k = model.seen_kernel
     Kf = np.fft.fft2(centred_kernel(k.kernel, grid), axes=(2, 3))
     return np.einsum("ik,kjyx->ijyx", np.linalg.inv(k.matrix), Kf)
+
+
+def half_spectrum(kernel: np.ndarray, grid: tuple[int, int], dtype: str) -> np.ndarray:
+    """The real-to-complex spectrum of a ``(3, 3, s, s)`` kernel in GL orientation (vertically
+    flipped) on ``grid``, centred on the origin, as the texture holds it: ``(9, NY, NX/2 + 1, 2)``
+    (real, imaginary) in float16 or float32 (``dtype`` ``"f2"``/``"f4"``), from float64."""
+    from ...solvers.spectral import kernel_spectrum  # start-up time: scipy with the first eye
+
+    Kf = kernel_spectrum(np.ascontiguousarray(kernel[:, :, ::-1, :]), grid)
+    out = np.stack([Kf.real, Kf.imag], axis=-1).reshape(9, grid[0], grid[1] // 2 + 1, 2)
+    return out.astype(np.float16 if dtype == "f2" else np.float32)

@@ -16,11 +16,12 @@ Methods (``fast`` unless said):
   pupil came from the light);
 * ``default``: ``--pupil auto --robust on``: the pupil from the image's light (designed for the pupil
   bank's nearest entry, as every command does; the eye as it is sees through the light's own pupil),
-  the robust band;
+  the robust band and its light cap (:func:`~vrcorrect.solvers.problem.light_cap`);
 * ``real time``: the same design through the real-time default's CPU twin (equal to the GPU,
   ``tests/test_pupil.py``), ten frames of the still (``vrcorrect render``'s default);
 * ``learned``: the shipped learned model (``models/default.onnx``) given the same design;
-* ``ceiling``: designed for exactly the eye seen (its pupil and sphere), one eye.
+* ``ceiling``: designed for exactly the eye seen (its pupil and sphere), one eye (the box [0, 1], as
+  ``--robust off``).
 
 The issue's checks are summarised: the default and the real time never below ``none`` (JOD, within
 0.05) on the sweep's pupils 2.5, 3, 4, 5.5 mm and spheres +-0.5 D; at 3 mm the default's share of
@@ -95,7 +96,7 @@ def held_out_image(name: str, size: int = SIZE) -> np.ndarray:
 
 def _realtime(design, target: np.ndarray, frames: int = REALTIME_FRAMES) -> np.ndarray:
     """What the real-time default shows after ``frames`` frames of a still (its CPU twin)."""
-    twin = AdmmFrames(design.kernel, design.reference, target.shape[:2])
+    twin = AdmmFrames(design.kernel, design.reference, target.shape[:2], cap=design.robust)
     shown = None
     for _ in range(frames):
         shown = twin.frame(target, 2).shown
@@ -185,7 +186,7 @@ def _boundary(case: dict) -> dict[str, Any]:
     effective = solve(problem, "fast", tolerance=1e-3).image
     t0 = time.perf_counter()
     exact, iterations, _, _ = fast_expectation(problem.target, problem.members, design.kernel, problem.target_lms,
-                                               tolerance=1e-3, max_iterations=60)
+                                               tolerance=1e-3, max_iterations=60, capped=problem.capped)
     seconds = time.perf_counter() - t0
     none = objective(problem.target, problem)
     return {"display": case["display"], "image": case["image"], "none": none,
@@ -204,7 +205,7 @@ DARK = 0.08
 def _twin_run(design, frames: Sequence[np.ndarray], motions: Sequence[Any]) -> list[np.ndarray]:
     """The real-time default's CPU twin over linear frames with the motion ``vrcorrect render``
     estimates (a cold start at a cut)."""
-    twin = AdmmFrames(design.kernel, design.reference, frames[0].shape[:2])
+    twin = AdmmFrames(design.kernel, design.reference, frames[0].shape[:2], cap=design.robust)
     shown = []
     for i, frame in enumerate(frames):
         m = None if i == 0 else motions[i - 1]
@@ -300,7 +301,7 @@ def dark_to_bright(kernels: dict, size: int = VIDEO_SIZE, dark_frames: int = 30,
     current = follower.entry_mm
     first = design(current)                              # the dark scene's: the widest kernels of the clip
     twin = AdmmFrames(first.kernel, first.reference, (size, size),
-                      grid_kernel_size=max(first.kernel.size, first.reference.size))
+                      grid_kernel_size=max(first.kernel.size, first.reference.size), cap=first.robust)
     shown, switches, seen_pupils = [], [], []
     for i, x in enumerate(lin):
         if i >= 2:
@@ -314,7 +315,7 @@ def dark_to_bright(kernels: dict, size: int = VIDEO_SIZE, dark_frames: int = 30,
         shown.append(twin.frame(x, 2).shown)
         seen_pupils.append(nearest_bank_pupil(eye_pupil.update(pupil_from_light(lum[i], display).diameter_mm, 1 / 90)))
     held = AdmmFrames(design(current).kernel, design(current).reference, (size, size),
-                      grid_kernel_size=twin.grid[0] - size + 1)
+                      grid_kernel_size=twin.grid[0] - size + 1, cap=first.robust)
     held_shown = []
     for i, x in enumerate(lin):
         if i == dark_frames:
@@ -402,10 +403,11 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
              "page of text; darktext, light words on dark blue, 18 px, added after the band was chosen). Each correction is seen by the eye as it is: pupils 2 to 7 mm at the prescription's "
              "sphere, and the sphere off by -0.5 to +0.5 D at the pupil the light gives. JOD (ColorVideoVDP) of "
              "what that eye sees against the target image; gains are over no correction. `4 mm`: designed for a "
-             "4 mm pupil, as every correction was before; `default`: `--pupil auto --robust on` (`fast`); `real "
+             "4 mm pupil, as every correction was before; `default`: `--pupil auto --robust on` (`fast`; the "
+             "robust band and its light cap, each primary at most twice the target's light plus 0.02); `real "
              "time`: the same design through the real-time default's CPU twin, 10 frames of the still; `learned`: "
-             "the shipped learned model (models/default.onnx) on the same design; `ceiling`: designed for exactly "
-             "the eye seen.", ""]
+             "the shipped learned model (models/default.onnx) on the same design (not capped); `ceiling`: designed "
+             "for exactly the eye seen (`--robust off`: one eye, the box [0, 1]).", ""]
     summary = []
     for c in cases:
         k = _checks(c)
