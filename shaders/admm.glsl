@@ -67,14 +67,7 @@ vec3 stored(vec3 v) {
 #endif
 }
 
-// The box's upper end at a pixel whose target is t (vrcorrect.solvers.problem.light_cap).
-vec3 box_top(vec3 t) {
-#if defined LIGHT_CAP
-    return min(vec3(1.0), 2.0 * t + vec3(LIGHT_CAP));
-#else
-    return vec3(1.0);
-#endif
-}
+#include "light_cap.glsl"
 
 vec2 cmul(vec2 a, vec2 b) { return vec2(a.x * b.x - a.y * b.y, a.x * b.y + a.y * b.x); }
 vec2 conj2(vec2 a) { return vec2(a.x, -a.y); }

@@ -6,6 +6,7 @@
 // min(1, 2 t + LIGHT_CAP) instead of 1, as admm.glsl's box.
 #include "fullscreen.glsl"
 #include "srgb.glsl"
+#include "light_cap.glsl"
 
 #if defined VERTEX_SHADER
 out vec2 v_uv;
@@ -27,11 +28,7 @@ out vec4 f_color;
 void main() {
     ivec2 p = clamp(ivec2(v_uv * vec2(u_size)), ivec2(0), u_size - 1);
     vec3 t = texelFetch(u_t, p, 0).rgb;
-#if defined LIGHT_CAP
-    vec3 z = clamp(texelFetch(u_q, p, 0).rgb, vec3(0.0), min(vec3(1.0), 2.0 * t + vec3(LIGHT_CAP)));
-#else
-    vec3 z = clamp(texelFetch(u_q, p, 0).rgb, 0.0, 1.0);
-#endif
+    vec3 z = clamp(texelFetch(u_q, p, 0).rgb, vec3(0.0), box_top(t));
     f_color = vec4(linear_to_srgb(t + u_beta * (z - t)), 1.0);
 }
 #endif

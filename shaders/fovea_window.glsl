@@ -1,11 +1,12 @@
 // A foveated frame's view at one texel (a library: #include "fovea_window.glsl" in a stage that
 // declares u_t, u_q, u_origin and the Guard buffer, and with PERIPHERY includes fovea_periphery.glsl
 // first): the target (or the periphery's correction) outside the window; inside it the
-// sub-image's guarded solution t + beta (clip(q, 0, 1) - t), faded to the target over the blend band
+// sub-image's guarded solution t + beta (clip(q, 0, box_top(t)) - t), faded to the target over the blend band
 // along the window's edges that lie inside the view, a raised cosine on each axis (the CPU twin's
 // vrcorrect.solvers.foveated.blend_ramp).
 #ifndef FOVEA_WINDOW_GLSL
 #define FOVEA_WINDOW_GLSL
+#include "light_cap.glsl"
 uniform ivec2 u_view;           // the view's size (W, H)
 uniform ivec4 u_win;            // the window in the view: x0, x1 (columns) and y0, y1 (rows top first), half open
 uniform float u_band;           // the blend band's width (0: no fade)
@@ -29,7 +30,7 @@ vec3 fovea_shown(ivec2 p) {
     int row = u_view.y - 1 - p.y;                        // rows top first, as the window is given
     if (p.x < u_win.x || p.x >= u_win.y || row < u_win.z || row >= u_win.w) return base;
     float a = fovea_ramp(float(p.x), u_win.x, u_win.y, u_view.x) * fovea_ramp(float(row), u_win.z, u_win.w, u_view.y);
-    vec3 z = clamp(texelFetch(u_q, p - u_origin, 0).rgb, 0.0, 1.0);
+    vec3 z = clamp(texelFetch(u_q, p - u_origin, 0).rgb, vec3(0.0), box_top(t));
     vec3 s = t + u_beta * (z - t);
     return a >= 1.0 ? s : base + a * (s - base);
 }

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from vrcorrect.physics.robust import design_eye
+from vrcorrect.runtime.strategies.foveated import PERIPHERY_ITERATIONS
 from vrcorrect.plumbing.images import prepare_image
 from vrcorrect.solvers import solve
 from vrcorrect.solvers.problem import LIGHT_CAP_FLOOR, light_cap, make_design_problem
@@ -128,3 +129,42 @@ def test_the_gpu_shows_a_robust_design_under_the_cap_and_equals_its_twin(gl):
         c.release()
         G.release(fbo, tex, src)
 
+
+
+@pytest.mark.parametrize("periphery", ["target", "quarter"])
+def test_a_foveated_robust_frame_keeps_to_the_cap_and_equals_its_twin(gl, periphery):
+    """The foveated path (``--fovea``) with a robust design: the view the GPU composes (the window's
+    solution, the periphery's correction, the blend) equals the capped twin's to 2e-5 as the gaze
+    moves, and stays under the cap everywhere; the twin without the cap goes past it."""
+    from vrcorrect.runtime import gl as G
+    from vrcorrect.runtime.corrector import Corrector
+    from vrcorrect.solvers.foveated import FoveatedFrames, fovea_pixels
+
+    w, h, radius = 128, 96, 16
+    ppd = QUEST2.pixels_per_degree
+    solved, band = fovea_pixels(radius / ppd, ppd)
+    page = prepare_image(text_page(w, h, WORDS, font_px=12, ink=(225, 225, 225), paper=(18, 18, 18)), w, "w")
+    words = np.ascontiguousarray(np.round(page[:h, :w] * 255).astype(np.uint8))
+    c = Corrector(gl, Prescription(right=EYE, left=EYE), "quest2", "right", pupil=3.125, robust=True,
+                  precision="single", iterations_per_frame=2, fovea_deg=radius / ppd, fovea_periphery=periphery)
+    k, r = c.model.kernel, c.model.reference
+    twins = {cap: FoveatedFrames(k, r, (h, w), radius_px=solved, band_px=band, precision="single", periphery=periphery,
+                                 periphery_iterations=PERIPHERY_ITERATIONS.get(periphery), cap=cap)
+             for cap in (True, False)}
+    src = G.upload_texture(gl, words)
+    tex, fbo = G.render_target(gl, width=w, height=h)
+    t = linear(words)
+    cap = light_cap(t)
+    over = 0.0
+    try:
+        for f, gaze in enumerate(((64.5, 48.5), (40.5, 30.5), (100.5, 70.5))):
+            c.gaze_deg = ((gaze[0] - w / 2) / ppd, (h / 2 - gaze[1]) / ppd)
+            c.apply(src, fbo)
+            cpu = twins[True].frame(t, 2, gaze_px=gaze)
+            assert np.abs(c.solution((w, h)) - cpu.shown).max() <= 2e-5, f
+            assert np.max(cpu.shown - cap) <= 1e-6, f
+            over = max(over, float(np.max(twins[False].frame(t, 2, gaze_px=gaze).shown - cap)))
+        assert over > 0.02
+    finally:
+        c.release()
+        G.release(fbo, tex, src)

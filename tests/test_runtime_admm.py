@@ -455,6 +455,41 @@ def test_a_cold_frame_reads_no_previous_state_and_a_shifted_one_reads_the_other_
         r.release()
 
 
+def test_the_start_pass_binds_the_same_formats_on_every_kind_of_frame(gl, clip):
+    """A driver may compile a variant of a program for each set of texture formats bound where it
+    samples or loads (Mesa's llvmpipe does, about a second for this pass): the start pass binds every
+    sampler and image it declares, with the same format and size class, on a cold, a plain warm and a
+    shifted frame, even with other textures (8-bit, as an application's) left on every unit between
+    frames; the ones a frame does not read are bound idle, not counted."""
+    r = Run(gl, "half", 2)
+    seen: list[dict] = []
+    run = r.c.gpu.run
+
+    def recording(name, program, groups, **kw):
+        if name.startswith("rows: T, warm"):
+            bound = {**(kw.get("sample") or {}), **(kw.get("idle") or {}), **(kw.get("read") or {}),
+                     **(kw.get("write") or {}), **(kw.get("modify") or {})}
+            samplers = {n for n in program if getattr(program[n], "gl_type", None) == 0x8B5E}   # GL_SAMPLER_2D
+            assert samplers <= set(bound), samplers - set(bound)
+            seen.append({k: (t.dtype, t.components) for k, t in bound.items()})
+        return run(name, program, groups, **kw)
+
+    other = gl.texture((7, 5), 4, dtype="f1")
+    r.c.gpu.run = recording
+    try:
+        for f, motion in enumerate((None, None, (-3, -2), None)):
+            for unit in range(8):
+                other.use(unit)
+                other.bind_to_image(unit, read=True, write=False)
+            r.frame(clip[f], motion)
+        assert len(seen) == 4 and all(s == seen[0] for s in seen[1:]), seen
+        assert {"u_t_prev", "u_T_prev", "u_start", 2, 3} <= set(seen[0])
+    finally:
+        r.c.gpu.run = run
+        other.release()
+        r.release()
+
+
 def test_a_still_converged_view_stops_and_a_change_restarts(gl, photo, clip):
     """The early stop: on a still view the GPU gives every pass no work once two frames' objectives
     agree to 1e-3 (the counted frame is then the decode, the plan and the present); the frames it

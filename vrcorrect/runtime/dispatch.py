@@ -202,7 +202,8 @@ class Gpu:
             rows: Mapping[str | int, Part] | None = None,
             written: Mapping[int, Part] | None = None,
             round_trip: bool = False,
-            indirect: tuple["moderngl.Buffer", int] | None = None) -> None:
+            indirect: tuple["moderngl.Buffer", int] | None = None,
+            idle: Mapping[str | int, Texture] | None = None) -> None:
         """Bind and run one compute pass, then a memory barrier.
 
         ``sample``: uniform name -> texture (sampled, read; texture units 0, 1, ... in order);
@@ -215,13 +216,26 @@ class Gpu:
         read; ``round_trip``: this pass is the spectral product of an FFT round trip; ``indirect``:
         (buffer, byte offset) of the work groups, which a pass on the GPU wrote (``groups`` is then
         what it writes when the pass runs): with a ledger attached they are read back (a wait for
-        the GPU, so only when counting) and a pass given no work groups is counted as nothing."""
+        the GPU, so only when counting) and a pass given no work groups is counted as nothing.
+        ``idle``: samplers (by uniform name, on the texture units after ``sample``'s) and read-only
+        images (by unit) the program declares but this pass does not read, bound anyway so that every
+        run of the program sees the same formats there: a driver may compile a variant of the program
+        for each set of formats bound (Mesa's llvmpipe does: about a second for the ADMM's start pass
+        at 96x64); not counted."""
         partial = rows or {}
         nread = nwritten = 0
         for unit, (uniform, texture) in enumerate((sample or {}).items()):
             texture.use(unit)
             program[uniform] = unit
             nread += resource_bytes(texture, partial.get(uniform))
+        unit = len(sample or {})
+        for key, texture in (idle or {}).items():
+            if isinstance(key, str):
+                texture.use(unit)
+                program[key] = unit
+                unit += 1
+            else:
+                texture.bind_to_image(key, read=True, write=False)
         for access, binds in (("r", read), ("w", write), ("rw", modify)):
             for binding, texture in (binds or {}).items():
                 texture.bind_to_image(binding, read="r" in access, write="w" in access)

@@ -47,6 +47,7 @@ import numpy as np
 from ..physics.kernel import EyeKernel
 from ..plumbing.errors import ValidationError
 from ..specs.vocabulary import PERIPHERY_LEVELS, Precision, names
+from .problem import light_cap
 from .realtime import (
     ADMM_BALANCE,
     ADMM_RELAXATION,
@@ -234,13 +235,16 @@ class FoveatedFrames:
     cold_window_iterations, cold_periphery_iterations
         The window's iterations beyond the frame's on a cold frame (:data:`COLD_WINDOW_ITERATIONS`),
         and the periphery's on its cold frames, at least its own (:data:`COLD_PERIPHERY_ITERATIONS`).
+    cap
+        The box's upper end is the target's light cap (a robust design's, as the full-field twin's
+        ``cap``): in the window, in the periphery and in what the view shows of it.
     """
 
     def __init__(self, kernel: EyeKernel, reference: EyeKernel | None, shape: tuple[int, int], radius_px: float,
                  band_px: int | None = None, precision: str = Precision.HALF, rho: float = ADMM_RHO,
                  relaxation: float = ADMM_RELAXATION, balance: float = ADMM_BALANCE, periphery: str = "target",
                  periphery_iterations: int | None = None, cold_window_iterations: int = COLD_WINDOW_ITERATIONS,
-                 cold_periphery_iterations: int = COLD_PERIPHERY_ITERATIONS):
+                 cold_periphery_iterations: int = COLD_PERIPHERY_ITERATIONS, cap: bool = False):
         r = _check_radius(radius_px)
         for name, v in (("cold_window_iterations", cold_window_iterations),
                         ("cold_periphery_iterations", cold_periphery_iterations)):
@@ -257,7 +261,8 @@ class FoveatedFrames:
         self.shape, self.radius_px, self.band_px = (H, W), r, band_px
         self.ring = max(kernel.size, reference.size if reference is not None else 1) // 2
         self._kernel, self._reference = kernel, reference
-        self._options = {"precision": precision, "rho": rho, "relaxation": relaxation, "balance": balance}
+        self._options = {"precision": precision, "rho": rho, "relaxation": relaxation, "balance": balance,
+                         "cap": bool(cap)}
         self.twin: _WindowTwin | None = None
         self.window: FoveaWindow | None = None
         self.periphery = periphery
@@ -319,7 +324,8 @@ class FoveatedFrames:
             change = np.moveaxis(c.shown, 2, 0) - pooled
             for shape in self._shapes[-2::-1]:
                 change = upsample_double(change, shape)
-            outside = np.clip(t_full + change, 0.0, 1.0).astype(np.float32)
+            top = light_cap(t_full) if self._options["cap"] else 1.0
+            outside = np.clip(t_full + change, 0.0, top).astype(np.float32)
             periphery = np.ascontiguousarray(np.moveaxis(outside, 0, 2))
         t = np.ascontiguousarray(t_full[:, sy0:sy1, sx0:sx1])
         t_stored, T, T_inside = twin._targets(t)

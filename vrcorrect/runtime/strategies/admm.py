@@ -136,12 +136,12 @@ class AdmmStrategy(IterativeStrategy):
                  **kwargs: Any):
         super().__init__(*args, **kwargs)
         self.fovea = fovea
-        self.cap = bool(getattr(self.model.design, "robust", False)) if cap is None else bool(cap)
-        """The box's upper end is the target's light cap (``LIGHT_CAP``; the twin's ``AdmmFrames(cap=True)``):
-        by default where the eye model is a robust design, as ``fast`` caps a robust design's problem."""
         """A foveated frame's sub-image (:mod:`vrcorrect.runtime.strategies.foveated`): the data term
         holds on :attr:`window_gl` only and the rest of the image is held to the target (``FOVEA``
         in ``admm.glsl``); no coarse level."""
+        self.cap = bool(getattr(self.model.design, "robust", False)) if cap is None else bool(cap)
+        """The box's upper end is the target's light cap (``LIGHT_CAP``; the twin's ``AdmmFrames(cap=True)``):
+        by default where the eye model is a robust design, as ``fast`` caps a robust design's problem."""
         self.window_gl: tuple[int, int, int, int] = (0, 0, 0, 0)
         """With ``fovea``: the window ``(x0, y0, x1, y1)`` in GL texels of the image, half open."""
         self.hold: "moderngl.Texture | None" = None
@@ -150,7 +150,6 @@ class AdmmStrategy(IterativeStrategy):
         from ...solvers.realtime import ADMM_RELAXATION, admm_weights  # (as above)
 
         self._light_cap, self._cap_define = light_cap, {"LIGHT_CAP": LIGHT_CAP_FLOOR} if self.cap else {}
-
         m = self.model
         self.half = self.options.precision == Precision.HALF
         keep, n = admm_weights(m.kernel.kernel)                        # as the CPU twin's
@@ -172,10 +171,9 @@ class AdmmStrategy(IterativeStrategy):
         self._guesses: dict[Size, "moderngl.Texture"] = {}
 
     def use_first_guess(self, slot: Any) -> None:
-        """Start every cold frame from ``slot``'s pass (``slot.run(src, dst)`` on rgba32f textures: an
-        :class:`~vrcorrect.runtime.unrolled.UnrolledEye`, the learned cold start) instead of the
-        half-resolution level: :attr:`cold_start` reads the decoded target back, runs the slot and
-        uploads its result into a texture kept per size; both counted as transfers."""
+        """Start every cold frame from ``slot``'s pass (``slot.run(src, dst)`` on rgba32f textures: the learned cold
+        start, :class:`~vrcorrect.runtime.unrolled.UnrolledEye`) instead of the half-resolution level: :attr:`cold_start`
+        reads the decoded target back, runs the slot, uploads its result into a texture kept per size (transfers)."""
         def start(linear: "moderngl.Texture") -> "moderngl.Texture":
             size = tuple(linear.size)
             out = self._guesses.get(size)
@@ -416,7 +414,9 @@ class AdmmStrategy(IterativeStrategy):
         else:
             sample["u_t_prev"] = t_prev
             images["modify"].update({1: b.T[new], 4: b.w[new], 5: b.q[new]})
-        self._run(b, "rows_start", "rows: T, warm start, reflections", ny, sample=sample,
+        idle = {k: v for k, v in (("u_t_prev", t_prev), ("u_T_prev", b.T[old]), ("u_start", b.out)) if k not in sample}
+        idle.update({u: v for u, v in ((2, b.w[old]), (3, b.q[old])) if u not in images["read"]})  # same formats every frame
+        self._run(b, "rows_start", "rows: T, warm start, reflections", ny, sample=sample, idle=idle,
                   uniforms={"u_cold": cold, "u_in_place": not shifted, "u_start_given": start_given,
                             "u_shift": motion_gl if shifted else (0, 0),
                             "u_band": self._band(motion_gl) if shifted else (0, 0),

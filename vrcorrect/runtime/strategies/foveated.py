@@ -84,7 +84,7 @@ class FoveatedStrategy(AdmmStrategy):
 
     def __init__(self, *args: Any, radius_px: float, band_px: int | None = None, periphery: str = DEFAULT_PERIPHERY,
                  **kwargs: Any):
-        super().__init__(*args, fovea=True, cap=False, **kwargs)     # the light cap: not in the foveated path yet
+        super().__init__(*args, fovea=True, **kwargs)
         if not (isinstance(radius_px, (int, float)) and math.isfinite(radius_px) and radius_px >= 1):
             raise ValidationError("fovea radius", radius_px, "at least 1 pixel (a radius in degrees times the "
                                   "display's pixels per degree)")
@@ -105,7 +105,7 @@ class FoveatedStrategy(AdmmStrategy):
                 model = coarse_model(model)
             options = replace(self.options, iterations_per_frame=PERIPHERY_ITERATIONS[periphery], early_stop=False,
                               cold_iterations=0, fovea_deg=None, cold_start_model=None)
-            self.outer = AdmmStrategy(self.gpu, model, options, self.encoder, self.decoder, cap=False)
+            self.outer = AdmmStrategy(self.gpu, model, options, self.encoder, self.decoder, cap=self.cap)
             self.outer.cold_extra_iterations = max(COLD_PERIPHERY_ITERATIONS - PERIPHERY_ITERATIONS[periphery], 0)
         self.cold_extra_iterations = COLD_WINDOW_ITERATIONS
         self.gaze_px: tuple[float, float] | None = None
@@ -132,7 +132,8 @@ class FoveatedStrategy(AdmmStrategy):
         key = (kind, *sorted(extra))
         program = self._passes.get(key)
         if program is None:
-            defines: dict[str, Any] = {kind: None, "IMG_FMT": "rgba16f" if self.half else "rgba32f", **extra}
+            defines: dict[str, Any] = {kind: None, "IMG_FMT": "rgba16f" if self.half else "rgba32f", **extra,
+                                       **self._cap_define}
             if self.half:
                 defines["HALF"] = None
             program = self._passes[key] = compile_compute(self.ctx, "fovea.glsl", defines=defines)
@@ -276,8 +277,8 @@ class FoveatedStrategy(AdmmStrategy):
                 viewport: tuple[int, int, int, int] | None) -> None:
         """The view composed and sRGB-encoded in one draw (``fovea_present.glsl``)."""
         if self._present is None:
-            program = compile_program(self.ctx, "fovea_present.glsl",
-                                      defines={"PERIPHERY": None} if self.outer is not None else None)
+            program = compile_program(self.ctx, "fovea_present.glsl", defines={
+                **({"PERIPHERY": None} if self.outer is not None else {}), **self._cap_define})
             self._present = (program, fullscreen_triangle(self.ctx, program))
         program, vao = self._present
         b = self._last
