@@ -175,3 +175,36 @@ def test_from_fasts_start_the_twin_continues_fasts_admm_with_its_duals():
     assert np.abs(warm[0].numpy() - expected[:, :64, :64]).max() < 1e-5
     k = torch.from_numpy(kernel.kernel).float()[None]
     assert objective_per_sample(warm, k, T(t_lms)).item() < 0.95 * objective_per_sample(cold, k, T(t_lms)).item()
+
+
+def test_under_the_light_cap_the_twin_is_fasts_capped_admm_from_fasts_capped_start():
+    """The box's top ``upper`` (a robust design's light cap) holds at every stage, as in ``fast``:
+    from ``fast_start(capped=True)`` the twin is the capped numpy ADMM iteration for iteration, keeps
+    under the cap where the unit box goes past it, and differs from the uncapped twin."""
+    from vrcorrect.solvers.problem import light_cap
+
+    display = get_display("desktop")
+    eye = EyeRx(sphere_D=-3.0, cylinder_D=-1.0, axis_deg=100.0, pupil_diameter_mm=5.0)
+    kernel = build_kernel(eye, display)
+    codes = np.full((64, 64, 3), 0.12)                           # light bars on a dark ground
+    codes[:, 8:56:12] = 0.92
+    problem = make_problem(decode(display, codes).astype(np.float32), kernel, build_reference_kernel(eye, display))
+    t_lms = np.ascontiguousarray(problem.target_lms.transpose(2, 0, 1), np.float32)
+    target = np.ascontiguousarray(problem.target.transpose(2, 0, 1), np.float32)
+    cap = light_cap(target)
+    z0, d1, d2 = fast_start(kernel.kernel, target, t_lms, capped=True)
+    assert np.all(z0 <= cap + 1e-7) and np.abs(d1).max() > 0                   # the coarse level ran, capped
+    expected = _admm(kernel.kernel, t_lms, z0, FAST_RHO, FAST_RELAXATION, 1.0, 3, 0.0, duals=(d1, d2), track=False,
+                     upper=cap)[0][:, :64, :64]
+    spectra = kernel_spectra([kernel.kernel], (64, 64), power_of_two=False)
+
+    def T(a):
+        return torch.from_numpy(a)[None]
+
+    history: list[torch.Tensor] = []
+    with torch.no_grad():
+        capped = twin(3)(T(t_lms), T(z0), *spectra, d1=T(d1), d2=T(d2), upper=T(cap), history=history)[0].numpy()
+        free = twin(3)(T(t_lms), T(z0), *spectra, d1=T(d1), d2=T(d2))[0].numpy()
+    assert np.abs(capped - expected).max() < 1e-5
+    assert all(float((z[0].numpy() - cap).max()) <= 1e-7 for z in history)
+    assert (free - cap).max() > 0.05                   # the unit box lifts the dark ground past the cap

@@ -3,13 +3,15 @@ torch (vrcorrect.runtime.unrolled): one file for every size, equal to torch, ref
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
 
 from vrcorrect.learn.conditioning import unrolled_features
 from vrcorrect.learn.unrolled import kernel_spectra
-from vrcorrect.learn.unrolled_export import TOLERANCE, export_unrolled
+from vrcorrect.learn.unrolled_export import TOLERANCE, export_unrolled, model_from_onnx
 from vrcorrect.learn.unrolled_train import UnrolledTrainConfig, build_pool, load_unrolled, train_unrolled
 from vrcorrect.plumbing.errors import InputError, ValidationError
 from vrcorrect.plumbing.images import bundled_images
@@ -38,7 +40,7 @@ def test_the_export_is_checked_and_carries_its_metadata(exported):
     assert report.max_abs_error <= TOLERANCE and (run / "unrolled.onnx").stat().st_size == report.bytes
     model = UnrolledModel(run / "unrolled.onnx")
     assert model.config["stages"] == 2 and model.displays == ["index"]
-    assert model.metadata["vrcorrect.format"] == "vrcorrect-unrolled-v3"
+    assert model.metadata["vrcorrect.format"] == "vrcorrect-unrolled-v4" and model.takes_cap
 
 
 @pytest.mark.parametrize("size", [(33, 47), (72, 64)])   # (72, 64): fast's start solves a coarse level
@@ -97,7 +99,7 @@ def test_the_runtime_refuses_other_models_and_eyes_outside_the_range(exported, t
 
     other = tmp_path / "other.onnx"
     write_one_minus_x_model(other)
-    with pytest.raises(ValidationError, match="vrcorrect-unrolled-v3"):
+    with pytest.raises(ValidationError, match="vrcorrect-unrolled-v3 or vrcorrect-unrolled-v4"):
         UnrolledModel(other)
     run, _, pool = exported
     entry = pool["held_out"][0]
@@ -105,6 +107,60 @@ def test_the_runtime_refuses_other_models_and_eyes_outside_the_range(exported, t
     with pytest.raises(ValidationError, match="sphere_D"):
         UnrolledModel(run / "unrolled.onnx").correct(np.zeros((24, 24, 3), np.float32), far, entry.eye_kernel,
                                                     entry.reference_kernel)
+
+
+def _as_v3(path, out):
+    """The v4 file as a v3 model: no ``upper`` input (a graph node makes it ones, the unit box)."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    proto = onnx.load(str(path))
+    graph = proto.graph
+    kept = [i for i in graph.input if i.name != "upper"]
+    del graph.input[:]
+    graph.input.extend(kept)
+    one = helper.make_tensor("v3_one", TensorProto.FLOAT, [], [1.0])
+    graph.initializer.append(one)
+    graph.node.insert(0, helper.make_node("Shape", ["target"], ["v3_shape"]))
+    graph.node.insert(1, helper.make_node("Expand", ["v3_one", "v3_shape"], ["upper"]))
+    for entry in proto.metadata_props:
+        if entry.key == "vrcorrect.format":
+            entry.value = "vrcorrect-unrolled-v3"
+    onnx.save(proto, str(out))
+    return out
+
+
+def test_the_light_cap_holds_in_the_exported_model_and_a_v3_model_runs_as_before(exported, tmp_path):
+    """``capped``: the model's box is [0, the light cap] at every stage (a robust design's, as in
+    ``fast``), where the unit box goes past the cap on light bars over a dark ground; bound with
+    ``capped`` it is the same pass.  A model of the older format v3 has no input for the cap: it
+    runs, uncapped, and says so (``takes_cap``, the bound eye's ``capped``)."""
+    from vrcorrect.solvers.problem import light_cap
+
+    run, _, pool = exported
+    entry = pool["held_out"][0]
+    display = get_display("index")
+    codes = np.full((40, 56, 3), 0.1)
+    codes[:, 6:50:10] = 0.95
+    image = decode(display, codes).astype(np.float32)
+    model = UnrolledModel(run / "unrolled.onnx")
+    capped = model.correct(image, entry.eye, entry.eye_kernel, entry.reference_kernel, capped=True)
+    free = model.correct(image, entry.eye, entry.eye_kernel, entry.reference_kernel)
+    cap = light_cap(image)
+    assert (capped - cap).max() <= 1e-6 and capped.min() >= 0.0
+    assert (free - cap).max() > 0.05
+    bound = model.for_eye(entry.eye, display, entry.eye_kernel, entry.reference_kernel, capped=True)
+    assert bound.capped and np.array_equal(bound.infer(np.ascontiguousarray(image.transpose(2, 0, 1))),
+                                           capped.transpose(2, 0, 1))
+    old = UnrolledModel(_as_v3(run / "unrolled.onnx", tmp_path / "v3.onnx"))
+    assert old.metadata["vrcorrect.format"] == "vrcorrect-unrolled-v3" and not old.takes_cap
+    assert np.abs(old.correct(image, entry.eye, entry.eye_kernel, entry.reference_kernel, capped=True)
+                  - free).max() <= 1e-5
+    assert not old.for_eye(entry.eye, display, entry.eye_kernel, entry.reference_kernel, capped=True).capped
+    back, meta = model_from_onnx(tmp_path / "v3.onnx")              # what tools/reexport_unrolled.py reads
+    want = load_unrolled(run / "unrolled.pt").state_dict()
+    assert meta["vrcorrect.format"] == "vrcorrect-unrolled-v3"
+    assert all(torch.allclose(v, want[k], atol=1e-7) for k, v in back.state_dict().items() if k in want)
 
 
 def test_correct_method_learned_takes_an_unrolled_model(exported, tmp_path, capsys):
@@ -119,9 +175,15 @@ def test_correct_method_learned_takes_an_unrolled_model(exported, tmp_path, caps
     Image.fromarray((dict(bundled_images(32))["coffee"] * 255).astype(np.uint8)).save(src)
     out = tmp_path / "out.png"
     assert main(["correct", str(src), "-o", str(out), "--method", "learned", "--model", str(run / "unrolled.onnx"),
-                 "--display", "index"]) == 0
+                 "--display", "index", "--report", str(tmp_path / "r.json")]) == 0
     shown = np.asarray(Image.open(out))
     assert shown.shape == (32, 32, 3) and not np.array_equal(shown, np.asarray(Image.open(src)))
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["robust"] and report["settings"]["light_cap"] is True     # the default's robust design: capped
+    assert main(["correct", str(src), "-o", str(tmp_path / "one.png"), "--method", "learned", "--model",
+                 str(run / "unrolled.onnx"), "--display", "index", "--robust", "off", "--report",
+                 str(tmp_path / "one.json")]) == 0
+    assert json.loads((tmp_path / "one.json").read_text())["settings"]["light_cap"] is False
     capsys.readouterr()
     assert main(["correct", str(src), "-o", str(tmp_path / "no.png"), "--method", "learned", "--model",
                  str(run / "unrolled.onnx"), "--display", "quest2"]) == 2
@@ -266,6 +328,38 @@ def test_backend_onnx_runs_the_unrolled_model_alone_on_every_frame(exported, gl)
         c.release()
     with pytest.raises(ValidationError, match="display"):
         Corrector(gl, rx, "quest2", "right", backend="onnx", model=str(run / "unrolled.onnx"))
+
+
+def test_backend_onnx_holds_a_robust_designs_light_cap(exported, gl):
+    """With a robust design (``robust=True``) the Corrector binds the unrolled model capped: light
+    bars on a dark ground stay under the light cap in every pixel, where the one eye's design (no
+    cap) goes past it."""
+    from vrcorrect.runtime import gl as G
+    from vrcorrect.runtime.corrector import Corrector
+    from vrcorrect.solvers.problem import light_cap
+    from vrcorrect.specs.display import encode
+    from vrcorrect.specs.prescription import Prescription
+
+    run, _, pool = exported
+    entry = pool["held_out"][0]
+    rx = Prescription(right=entry.eye, left=entry.eye)
+    frame = np.full((40, 56, 3), 26, np.uint8)
+    frame[:, 6:50:10] = 242
+    lin = decode("srgb", frame.astype(np.float32) / 255).astype(np.float32)
+    top = np.round(encode("srgb", light_cap(lin)) * 255).astype(int)
+    over = {}
+    for robust in (True, False):
+        c = Corrector(gl, rx, "index", "right", backend="onnx", model=str(run / "unrolled.onnx"),
+                      pupil=entry.eye.pupil_diameter_mm, robust=robust)
+        src = G.upload_texture(gl, frame)
+        tex, fbo = G.render_target(gl, width=56, height=40)
+        try:
+            c.apply(src, fbo)
+            over[robust] = int((G.read_framebuffer(fbo).astype(int) - top).max())
+        finally:
+            G.release(fbo, tex, src)
+            c.release()
+    assert over[True] <= 1 and over[False] > 8
 
 
 def test_render_takes_the_learned_cold_start(exported, tmp_path, capsys):

@@ -66,6 +66,26 @@ def test_the_batch_starts_where_fast_starts(pool):
         assert np.array_equal(b["d1"][i].numpy(), d1) and np.abs(d1).max() > 0
 
 
+def test_a_capped_crop_has_the_light_cap_as_its_box_and_starts_where_fast_starts_under_it(pool):
+    """make_batch(capped=...): the capped crops' ``upper`` is the light cap of their target, the
+    others' 1, and each starts at ``fast_start(capped=...)``; the model on the batch keeps under it."""
+    from vrcorrect.solvers.admm import fast_start
+    from vrcorrect.solvers.problem import light_cap
+
+    codes = np.full((64, 64, 3), 0.1)
+    codes[:, 4:60:10] = 0.9                          # light bars on a dark ground: the cap binds
+    b = make_batch(pool["train"], [codes, codes], capped=np.array([True, False]))
+    t = b["target"].numpy()
+    assert np.array_equal(b["upper"][0].numpy(), light_cap(t[0])) and np.all(b["upper"][1].numpy() == 1.0)
+    for i, entry in enumerate(pool["train"]):
+        z0, d1, _ = fast_start(entry.kernel, t[i], b["target_lms"][i].numpy(), capped=i == 0)
+        assert np.array_equal(b["z0"][i].numpy(), z0) and np.array_equal(b["d1"][i].numpy(), d1)
+    with torch.no_grad():
+        shown = run_model(twin(2), b).numpy()
+    assert (shown[0] - light_cap(t[0])).max() <= 1e-6 and (shown[1] - light_cap(t[1])).max() > 0.05
+    assert "upper" not in make_batch(pool["train"], [codes, codes], capped=np.array([False, False]))
+
+
 def test_fasts_yardstick_is_below_no_correction_and_the_twin_between(pool, images):
     cases = [(pool["held_out"][0], images[1][0][:24, :24])]
     fast = fast_objectives(cases)[0]
@@ -105,7 +125,8 @@ def test_evaluate_reports_the_twin_as_the_untrained_model(pool, images):
 
 
 @pytest.mark.parametrize("field, value", [("stages", 0), ("crop_px", 8), ("minutes", 0), ("lr", 2.0),
-                                          ("displays", ()), ("batch", True), ("box_floor", 0.0), ("box_floor", 2.0)])
+                                          ("displays", ()), ("batch", True), ("box_floor", 0.0), ("box_floor", 2.0),
+                                          ("cap_share", -0.1), ("cap_share", 1.5), ("cap_share", True)])
 def test_bad_configs_name_the_field(field, value):
     with pytest.raises(ValidationError, match=field):
         UnrolledTrainConfig(**{field: value})

@@ -74,7 +74,8 @@ def cmd_correct(args: argparse.Namespace) -> int:
     problem = make_design_problem(target, design, contrast=args.contrast)
     seen_problem = problem if not design.robust else make_problem(target, design.nominal, design.nominal_reference,
                                                                   contrast=args.contrast)
-    options = _solver_options(args, learned, eye.with_changes(pupil_diameter_mm=pupil), display, kernel, reference)
+    options = _solver_options(args, learned, eye.with_changes(pupil_diameter_mm=pupil), display, kernel, reference,
+                              problem.capped)
     bar = None
     if args.method in (Method.PAPER, Method.FAST, Method.CONVENTIONAL):
         bar = tqdm(desc=f"{args.method}", unit="it", disable=None, leave=False, file=sys.stderr)
@@ -163,16 +164,18 @@ def _eye_and_model(args: argparse.Namespace):
     return learned, rx_path, eye, display, age
 
 
-def _solver_options(args: argparse.Namespace, learned, eye, display, kernel, reference) -> dict:
+def _solver_options(args: argparse.Namespace, learned, eye, display, kernel, reference, capped: bool = False) -> dict:
     options: dict = {}
     if args.iterations is not None:
         options["iterations" if args.method == Method.PAPER else "max_iterations"] = args.iterations
     if args.tolerance is not None:
         options["tolerance"] = args.tolerance
     if learned is not None:
-        options["model"] = learned.for_eye(eye, display, kernel, reference)   # refused outside its range
+        cap = {"capped": capped} if hasattr(learned, "takes_cap") else {}    # the unrolled model holds the light cap
+        options["model"] = learned.for_eye(eye, display, kernel, reference, **cap)   # refused outside its range
         options["settings"] = {"model": str(learned.path), "providers": list(learned.providers),
-                               "ranges": learned.ranges.as_dict(), "version": learned.metadata.get("vrcorrect.version")}
+                               "ranges": learned.ranges.as_dict(), "version": learned.metadata.get("vrcorrect.version"),
+                               "light_cap": bool(getattr(options["model"], "capped", False))}
     return options
 
 
@@ -233,7 +236,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
                 problem = make_design_problem(linear, design, contrast=args.contrast)
                 if options is None or new_pupil != pupil:
                     options = _solver_options(args, learned, eye.with_changes(pupil_diameter_mm=new_pupil), display,
-                                              design.kernel, design.reference)
+                                              design.kernel, design.reference, problem.capped)
                 pupil = new_pupil
                 result = solve(problem, args.method, **options)
                 entry = {"source_frame": source, "objective": result.objective,
@@ -307,7 +310,7 @@ def _learned_model(args: argparse.Namespace):
     """The learned model of ``--model`` (default: the shipped one), its reference checked."""
     from ..runtime.learned import LearnedModel, model_metadata  # on use: start-up time (apps/__init__)
     from ..runtime.unrolled import (  # on use: start-up time (apps/__init__: the parser loads no layer below)
-        UNROLLED_FORMAT,
+        UNROLLED_FORMATS,
         UnrolledModel,
     )
 
@@ -315,7 +318,7 @@ def _learned_model(args: argparse.Namespace):
     if args.model is None and not path.is_file():
         raise InputError(f"no default learned model is installed ({path}); pass --model PATH "
                          "(a model exported by tools/export_onnx.py), or use --method wiener or fast")
-    unrolled = model_metadata(path).get("vrcorrect.format") == UNROLLED_FORMAT
+    unrolled = model_metadata(path).get("vrcorrect.format") in UNROLLED_FORMATS
     model = UnrolledModel(path) if unrolled else LearnedModel(path)
     if model.reference != args.reference:
         raise ValidationError("--reference", args.reference, f"{model.reference} (the target {path.name} was "

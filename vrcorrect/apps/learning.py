@@ -103,7 +103,8 @@ def cmd_train_unrolled(args: argparse.Namespace) -> int:
     config = UnrolledTrainConfig(stages=args.stages, prior_width=args.prior_width, displays=tuple(args.displays),
                                  eyes_per_display=args.eyes_per_display, crop_px=args.crop_px, batch=args.batch_size,
                                  steps=args.steps, minutes=args.minutes, seed=args.seed,
-                                 fast_weight=args.fast_weight, fast_bank=args.fast_bank, box_floor=args.box_floor)
+                                 fast_weight=args.fast_weight, fast_bank=args.fast_bank, box_floor=args.box_floor,
+                                 cap_share=args.cap_share)
     out = Path(args.out)
     if out.exists() and not out.is_dir():                         # all before minutes of kernels
         raise InputError(f"{out}: exists and is not a folder (-o names the run folder)")
@@ -286,6 +287,9 @@ def add_parser(sub) -> None:
                    help="the least box weight a stage may learn, as a fraction of ||K||^2 (0.07; from 0.001 to 1): "
                         "below it one held-out myope's photograph lost all of fast's JOD gain at a near-equal "
                         "objective (docs/learned.md)")
+    p.add_argument("--cap-share", type=float, default=0.0, metavar="S",
+                   help="the share of training crops whose box is a robust design's light cap (each primary at most "
+                        "twice the target's light plus 0.02), not [0, 1] (0; from 0 to 1)")
     p.add_argument("--ray", metavar="ADDRESS",
                    help="build the eyes' kernels as Ray tasks on the cluster at ADDRESS (auto, HOST:PORT, "
                         "ray://HOST:10001, or local: a one-node Ray on this machine's CPUs); default: local "

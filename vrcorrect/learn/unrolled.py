@@ -19,7 +19,8 @@ One stage is one iteration of :func:`vrcorrect.solvers.admm._admm` (the boundary
   so that only the FFTs are complex and the graph exports to ONNX;
 * relaxation by ``alpha_s``; ``v`` per pixel inside the image (penalty ``rho_s ||K||^2``);
 * ``z``: ``u + d2``, plus the prior's residual (``prior(u + d2, target)``), then the box: clipped
-  to [0, 1] inside the image, zero outside, at every stage;
+  to [0, 1] inside the image (or to [0, the light cap] for a robust design, the ``upper`` input),
+  zero outside, at every stage;
 * the scaled duals.
 
 The stage settings ``(rho_s, alpha_s, beta_s)`` start at ``fast``'s (0.1, 1.8, 1) and a tiny MLP
@@ -171,14 +172,16 @@ class UnrolledADMM(nn.Module):
     def forward(self, t_lms: torch.Tensor, z0: torch.Tensor, spectrum: torch.Tensor, gram: torch.Tensor,
                 norm2: torch.Tensor, features: torch.Tensor | None = None, target: torch.Tensor | None = None,
                 d1: torch.Tensor | None = None, d2: torch.Tensor | None = None,
-                history: list[torch.Tensor] | None = None) -> torch.Tensor:
+                upper: torch.Tensor | None = None, history: list[torch.Tensor] | None = None) -> torch.Tensor:
         """The displayed image ``(N, 3, H, W)`` in [0, 1] after the stages.
 
         ``spectrum`` and ``gram`` (:func:`kernel_spectra`): ``K`` and ``K^H K`` per frequency,
         ``(N, 3, 3, P0, P1 // 2 + 1, 2)`` float32 (real and imaginary parts last); ``norm2`` ``(N,)``. ``target``: the image the prior sees (default ``z0``). ``d1``, ``d2``:
         the scaled duals to start from, ``(N, 3, H, W)`` inside the image (zero outside; default
-        zero), as :func:`vrcorrect.solvers.admm.fast_start` gives them with ``z0``. ``history``, when
-        given, receives each stage's ``z``."""
+        zero), as :func:`vrcorrect.solvers.admm.fast_start` gives them with ``z0``. ``upper``: the box's
+        top per pixel ``(N, 3, H, W)`` (default 1: the box [0, 1]); the light cap
+        (:func:`vrcorrect.solvers.problem.light_cap`) of a robust design holds at every stage, as in
+        ``fast``. ``history``, when given, receives each stage's ``z``."""
         N, _, H, W = t_lms.shape
         P = (spectrum.shape[-3], 2 * (spectrum.shape[-2] - 1))
         if spectrum.shape[-1] != 2 or gram.shape != spectrum.shape:
@@ -197,6 +200,7 @@ class UnrolledADMM(nn.Module):
         d1 = torch.zeros_like(v) if d1 is None else nn.functional.pad(d1, pad)
         d2 = torch.zeros_like(z) if d2 is None else nn.functional.pad(d2, pad)
         n = norm2.view(N, 1, 1, 1).to(t_lms.dtype)
+        top = None if upper is None else nn.functional.pad(upper, pad, value=1.0)
         S = self.config.stages
         for s in range(S):
             nb = beta[:, s].view(N, 1, 1, 1) * n                                       # the box weight
@@ -214,7 +218,8 @@ class UnrolledADMM(nn.Module):
             if self.prior is not None:
                 stage = torch.full((1, 1, 1, 1), (s + 0.5) / S, dtype=t_lms.dtype, device=t_lms.device)
                 z_new = z_new + nn.functional.pad(self.prior(z_new[..., :H, :W], target, stage), pad)
-            z_new = torch.clamp(z_new, 0.0, 1.0) * inside
+            z_new = torch.clamp(z_new, 0.0, 1.0) if top is None else torch.minimum(torch.clamp(z_new, min=0.0), top)
+            z_new = z_new * inside
             d1 = d1 + Ku - v_new
             d2 = d2 + u - z_new
             v, z = v_new, z_new

@@ -2,7 +2,8 @@
 (torch, onnx, onnxscript: torch's dynamo exporter, which writes the FFTs as ONNX ``DFT`` ops).
 
 The graph: inputs ``target_lms``, ``z0``, ``target`` and the start's duals ``d1``, ``d2``
-(:func:`vrcorrect.solvers.admm.fast_start`) float32 ``(1, 3, H, W)``; ``spectrum`` and
+(:func:`vrcorrect.solvers.admm.fast_start`) and ``upper``, the box's top per pixel (ones, or a
+robust design's light cap, :func:`vrcorrect.solvers.problem.light_cap`) float32 ``(1, 3, H, W)``; ``spectrum`` and
 ``gram`` (``K^H K``) float32 ``(1, 3, 3, P0, P1 // 2 + 1, 2)``; ``norm2`` ``(1,)``; ``features`` ``(1, 5)``
 (:func:`vrcorrect.learn.conditioning.unrolled_features`). Output ``displayed`` ``(1, 3, H, W)`` in
 [0, 1]. ``H``, ``W``, ``P0`` and ``P1`` are dynamic: one file serves every image size and kernel.
@@ -29,13 +30,14 @@ from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.fileio import check_writable
 from .conditioning import N_UNROLLED_FEATURES
 from .export import stamp_and_write
-from .unrolled import UnrolledADMM, kernel_spectra
+from .unrolled import UnrolledADMM, UnrolledConfig, kernel_spectra
 from .unrolled_train import load_unrolled
 
-FORMAT = "vrcorrect-unrolled-v3"      # v2: starts from fast_start (the duals d1, d2 added); v3: box weight per stage
+FORMAT = "vrcorrect-unrolled-v4"      # v2: starts from fast_start (the duals d1, d2 added); v3: box weight per
+#                                       stage; v4: the box's top per pixel (upper: the light cap)
 OPSET = 18
 TOLERANCE = 1e-4
-INPUTS = ("target_lms", "z0", "spectrum", "gram", "norm2", "features", "target", "d1", "d2")
+INPUTS = ("target_lms", "z0", "spectrum", "gram", "norm2", "features", "target", "d1", "d2", "upper")
 OUTPUT = "displayed"
 
 
@@ -55,8 +57,9 @@ def _case(H: int, W: int, kernel_size: int, seed: int) -> tuple[torch.Tensor, ..
     t = torch.from_numpy(rng.random((1, 3, H, W), dtype=np.float32))
     z0 = torch.from_numpy(rng.random((1, 3, H, W), dtype=np.float32))
     d1, d2 = (torch.from_numpy(rng.normal(0, 0.05, (1, 3, H, W)).astype(np.float32)) for _ in range(2))
+    upper = torch.from_numpy(rng.uniform(0.2, 1.0, (1, 3, H, W)).astype(np.float32))
     return (torch.from_numpy(rng.random((1, 3, H, W), dtype=np.float32)), z0, spectrum, gram, norm2,
-            torch.from_numpy(rng.uniform(-1, 1, (1, N_UNROLLED_FEATURES)).astype(np.float32)), t, d1, d2)
+            torch.from_numpy(rng.uniform(-1, 1, (1, N_UNROLLED_FEATURES)).astype(np.float32)), t, d1, d2, upper)
 
 
 def onnx_bytes(model: UnrolledADMM) -> bytes:
@@ -67,7 +70,7 @@ def onnx_bytes(model: UnrolledADMM) -> bytes:
     p0, f1 = Dim("P0", min=8, max=16384), Dim("F1", min=5, max=8193)
     image, spec = {2: h, 3: w}, {3: p0, 4: f1}
     shapes = {"t_lms": image, "z0": image, "spectrum": spec, "gram": spec, "norm2": None, "features": None,
-              "target": image, "d1": image, "d2": image}
+              "target": image, "d1": image, "d2": image, "upper": image}
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -118,3 +121,37 @@ def export_unrolled(checkpoint: str | Path, out: str | Path, force: bool = False
     blob = stamp_and_write(onnx.load_from_string(data), meta, out, force, "vrcorrect unrolled correction: inputs "
                            + ", ".join(INPUTS) + "; output displayed (1,3,H,W). See vrcorrect.runtime.unrolled.")
     return UnrolledExport(path=out, max_abs_error=error, metadata=meta, bytes=len(blob))
+
+
+def model_from_onnx(path: str | Path) -> tuple[UnrolledADMM, dict[str, str]]:
+    """The torch model an exported file holds (its learned settings read back from the graph's
+    initializers, by name) and the file's ``vrcorrect.*`` metadata: what re-exports a model of an
+    older format with the same weights (tools/reexport_unrolled.py).  Checked against the file on a
+    random case, as an export is; a weight not found by its name is refused, naming it."""
+    import onnx  # optional: the learn extra
+    import onnxruntime as ort  # optional: the learn and realtime extras
+    from onnx import numpy_helper
+
+    proto = onnx.load(str(path))
+    meta = {p.key: p.value for p in proto.metadata_props}
+    if not meta.get("vrcorrect.format", "").startswith("vrcorrect-unrolled-"):
+        raise ValidationError("model", str(path), "an ONNX model exported by vrcorrect.learn.unrolled_export")
+    model = UnrolledADMM(UnrolledConfig(**json.loads(meta["vrcorrect.config"])))
+    found = {i.name: numpy_helper.to_array(i) for i in proto.graph.initializer}
+    state = {}
+    for name, value in model.state_dict().items():
+        # the shared stage settings are exported expanded to the batch: (1, stages, 3)
+        array = found["expand"][0] if name == "stage_base" and name not in found else found.get(name)
+        if array is None or array.shape != tuple(value.shape):
+            raise ValidationError("model", str(path), f"an initializer {name} of shape {tuple(value.shape)}")
+        state[name] = torch.from_numpy(np.array(array, np.float32))
+    model.load_state_dict(state)
+    names = [i.name for i in proto.graph.input]
+    args = _case(37, 61, 9, seed=1)[:len(names)]
+    session = ort.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
+    out = session.run(None, {name: a.numpy() for name, a in zip(names, args)})[0]
+    with torch.no_grad():
+        error = float(np.max(np.abs(model.eval()(*args).numpy() - out)))
+    if not error <= TOLERANCE:
+        raise InputError(f"{path}: the weights read back differ from the file by {error:.3g} (> {TOLERANCE:g})")
+    return model, meta

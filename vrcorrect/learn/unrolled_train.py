@@ -40,7 +40,7 @@ from ..plumbing.errors import ValidationError
 from ..plumbing.fileio import write_text_atomic
 from ..solvers import solve
 from ..solvers.admm import fast_start
-from ..solvers.problem import Problem
+from ..solvers.problem import Problem, light_cap
 from ..specs.display import decode, get_display, preset_names
 from ..specs.vocabulary import Method
 from .conditioning import N_UNROLLED_FEATURES, SamplingRanges, unrolled_features
@@ -71,6 +71,9 @@ class UnrolledTrainConfig:
     fast_weight: float = 0.0
     fast_bank: int = 64
     box_floor: float = 1e-3
+    cap_share: float = 0.0
+    """The share of training crops whose box is a robust design's light cap (``upper`` =
+    :func:`~vrcorrect.solvers.problem.light_cap` of the crop), not [0, 1]."""
 
     def __post_init__(self) -> None:
         for name, lo, hi in (("stages", 1, 32), ("prior_width", 0, 256), ("eyes_per_display", 1, 1000),
@@ -88,6 +91,8 @@ class UnrolledTrainConfig:
         if isinstance(self.fast_weight, bool) or not (isinstance(self.fast_weight, (int, float))
                                                       and 0 <= self.fast_weight <= 1000):
             raise ValidationError("fast_weight", self.fast_weight, "a weight from 0 (no pull towards fast) to 1000")
+        if isinstance(self.cap_share, bool) or not (isinstance(self.cap_share, (int, float)) and 0 <= self.cap_share <= 1):
+            raise ValidationError("cap_share", self.cap_share, "a share of the crops from 0 (none capped) to 1 (all)")
         UnrolledConfig(stages=self.stages, prior_width=self.prior_width, box_floor=self.box_floor)  # its checks
         if not self.displays:
             raise ValidationError("displays", self.displays, "at least one display preset")
@@ -159,13 +164,17 @@ def build_pool(config: UnrolledTrainConfig, progress: Callable[[int, int], None]
     return {"train": results[:n], "held_out": results[n:]}
 
 
-def make_batch(entries: Sequence[PoolEntry], crops: Sequence[np.ndarray]) -> dict[str, torch.Tensor]:
+def make_batch(entries: Sequence[PoolEntry], crops: Sequence[np.ndarray], capped: np.ndarray | None = None
+               ) -> dict[str, Any]:
     """Tensors for one batch: ``target`` (linear RGB), ``target_lms`` (what the eye sees of it with
     glasses), ``spectrum``, ``gram`` and ``norm2`` (:func:`kernel_spectra`, on
     ``fast``'s grid: the least that does not wrap, three times cheaper here than a
     power-of-two grid, and the model is the same on either), ``kernel`` (padded to one size),
     ``features``, and ``fast``'s start ``z0`` with its duals ``d1``, ``d2``
-    (:func:`~vrcorrect.solvers.admm.fast_start`). ``crops`` are sRGB-coded ``(h, w, 3)`` crops, one per entry."""
+    (:func:`~vrcorrect.solvers.admm.fast_start`). ``crops`` are sRGB-coded ``(h, w, 3)`` crops, one per entry.
+    ``capped`` (bool per crop): those crops' box is a robust design's, under the light cap
+    (:func:`~vrcorrect.solvers.problem.light_cap`; the batch's ``upper``, 1 for the others), and
+    their start is ``fast``'s under it."""
     shape = crops[0].shape[:2]
     t = np.stack([decode(get_display(e.display), c).astype(np.float32).transpose(2, 0, 1)
                   for e, c in zip(entries, crops)])
@@ -178,17 +187,24 @@ def make_batch(entries: Sequence[PoolEntry], crops: Sequence[np.ndarray]) -> dic
         target_lms = retina(target, reference)
     spectrum, gram, norm2 = kernel_spectra([e.kernel for e in entries], shape, power_of_two=False)
     features = torch.from_numpy(np.stack([e.features for e in entries]))
-    starts = [fast_start(e.kernel, t[i], target_lms[i].numpy()) for i, e in enumerate(entries)]
+    capped = np.zeros(len(entries), bool) if capped is None else np.asarray(capped, bool)
+    starts = [fast_start(e.kernel, t[i], target_lms[i].numpy(), capped=bool(capped[i])) for i, e in enumerate(entries)]
     z0, d1, d2 = (torch.from_numpy(np.stack([s[j] for s in starts])) for j in range(3))
-    return {"target": target, "target_lms": target_lms, "spectrum": spectrum, "gram": gram, "norm2": norm2,
-            "kernel": kernel, "features": features, "z0": z0, "d1": d1, "d2": d2}
+    batch = {"target": target, "target_lms": target_lms, "spectrum": spectrum, "gram": gram, "norm2": norm2,
+             "kernel": kernel, "features": features, "z0": z0, "d1": d1, "d2": d2}
+    if capped.any():
+        upper = np.where(capped[:, None, None, None], light_cap(t), np.float32(1.0))
+        batch["upper"] = torch.from_numpy(np.ascontiguousarray(upper, np.float32))
+    return batch
 
 
 def run_model(model: UnrolledADMM, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-    """``model`` on a batch of :func:`make_batch`, from ``fast``'s start."""
+    """``model`` on a batch of :func:`make_batch`, from ``fast``'s start (the box's top ``upper``
+    where the batch has one)."""
     return model(batch["target_lms"], batch["z0"], batch["spectrum"], batch["gram"], batch["norm2"],
                  features=batch["features"] if model.mlp is not None else None, target=batch["target"],
-                 d1=batch["d1"], d2=batch["d2"])
+                 d1=batch["d1"], d2=batch["d2"], upper=batch.get("upper"))
+
 
 
 def _crops(images: Sequence[np.ndarray], rng: np.random.Generator, n: int, size: int) -> list[np.ndarray]:
@@ -362,7 +378,9 @@ def train_unrolled(run_dir: str | Path, config: UnrolledTrainConfig, train_image
             b = make_batch([pool["train"][e] for e, _, _ in drawn], [c for _, c, _ in drawn])
         else:
             idx = rng.integers(len(pool["train"]), size=config.batch)
-            b = make_batch([pool["train"][i] for i in idx], _crops(train_images, rng, config.batch, config.crop_px))
+            capped = rng.random(config.batch) < config.cap_share if config.cap_share > 0 else None
+            b = make_batch([pool["train"][i] for i in idx], _crops(train_images, rng, config.batch, config.crop_px),
+                           capped)
         shown = run_model(model, b)
         obj = objective_per_sample(shown, b["kernel"], b["target_lms"])
         base = objective_per_sample(b["target"], b["kernel"], b["target_lms"])

@@ -159,14 +159,14 @@ class Corrector:
         self._learned: LearnedModel | UnrolledModel | None = None
         if backend == Backend.ONNX:
             from .learned import LEARNED_FORMAT, LearnedModel, model_metadata  # start-up time: optics, solvers
-            from .unrolled import UNROLLED_FORMAT, UnrolledModel  # start-up time: optics, solvers
+            from .unrolled import UNROLLED_FORMATS, UnrolledModel  # start-up time: optics, solvers
 
             if not self.options.model:
                 raise ValidationError("model", None, "an ONNX model path for backend 'onnx'")
             fmt = model_metadata(self.options.model).get("vrcorrect.format")
             if fmt == LEARNED_FORMAT:                       # one model for many eyes: bound per eye
                 self._learned = LearnedModel(self.options.model)
-            elif fmt == UNROLLED_FORMAT:                    # the unrolled correction alone, every frame
+            elif fmt in UNROLLED_FORMATS:                  # the unrolled correction alone, every frame
                 self._learned = UnrolledModel(self.options.model)
             else:
                 self._onnx = OnnxModel(self.options.model)
@@ -297,8 +297,11 @@ class Corrector:
         if not isinstance(model, EyeModel):
             raise ValidationError("eye_model", type(model).__name__, "an EyeModel (build_eye_model)")
         slot = None
+        # a robust design's light cap holds in the unrolled model too (a model that has the input for it)
+        cap = {"capped": bool(getattr(model.design, "robust", False))}
         if self._learned is not None:
-            slot = self._learned.for_eye(model.eye, self.display, model.kernel, model.reference)
+            slot = self._learned.for_eye(model.eye, self.display, model.kernel, model.reference,
+                                         **(cap if hasattr(self._learned, "takes_cap") else {}))
         elif self._onnx is not None:
             slot = self._onnx
         old = (self.strategy, self.preview)
@@ -306,7 +309,7 @@ class Corrector:
                                       ppd=self.display.pixels_per_degree)
         if self._cold_model is not None and not model.identity and hasattr(self.strategy, "use_first_guess"):
             self.strategy.use_first_guess(self._cold_model.for_eye(model.eye, self.display, model.kernel,
-                                                                   model.reference))
+                                                                   model.reference, **cap))
         self.preview = Preview(self.gpu, model)
         self.model = model
         if self._pupil is not None:

@@ -85,15 +85,17 @@ def _session(path: Path, providers: tuple[str, ...] | None) -> "onnxruntime.Infe
         raise InputError(f"{path}: not a loadable ONNX model ({type(exc).__name__}: {exc})") from None
 
 
-def checked_session(path: Path, providers: tuple[str, ...] | None, fmt: str, made_by: str
+def checked_session(path: Path, providers: tuple[str, ...] | None, fmt: str | tuple[str, ...], made_by: str
                     ) -> tuple["onnxruntime.InferenceSession", dict[str, str]]:
     """An onnxruntime session on ``path`` and its ``vrcorrect.*`` metadata, refused unless the
-    metadata says ``vrcorrect.format = fmt`` (``made_by``: what writes that format, for the error)."""
+    metadata says ``vrcorrect.format = fmt`` (or one of ``fmt``'s formats; ``made_by``: what writes
+    that format, for the error)."""
     session = _session(path, providers)
     meta = dict(session.get_modelmeta().custom_metadata_map)
-    if meta.get("vrcorrect.format") != fmt:
+    formats = (fmt,) if isinstance(fmt, str) else fmt
+    if meta.get("vrcorrect.format") not in formats:
         raise ValidationError("model", str(path), f"an ONNX model exported by {made_by} (metadata vrcorrect.format "
-                              f"= {fmt})")
+                              f"= {' or '.join(formats)})")
     return session, meta
 
 

@@ -28,6 +28,7 @@ from ..learn.conditioning import SamplingRanges, check_eye, unrolled_features, u
 from ..physics.kernel import EyeKernel
 from ..plumbing.errors import InputError, ValidationError
 from ..solvers.admm import fast_start
+from ..solvers.problem import light_cap
 from ..specs.display import DisplayProfile
 from ..specs.prescription import EyeRx
 from ..vision.forward import simulate_lms
@@ -37,10 +38,14 @@ from .onnx_backend import run_slot
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
-__all__ = ["UNROLLED_FORMAT", "UnrolledModel", "UnrolledEye"]
+__all__ = ["UNROLLED_FORMAT", "UNROLLED_FORMATS", "UnrolledModel", "UnrolledEye"]
 
-UNROLLED_FORMAT = "vrcorrect-unrolled-v3"
-INPUTS = ("target_lms", "z0", "spectrum", "gram", "norm2", "features", "target", "d1", "d2")
+UNROLLED_FORMAT = "vrcorrect-unrolled-v4"
+"""What :mod:`vrcorrect.learn.unrolled_export` writes: v3's inputs and ``upper``, the box's top per pixel."""
+UNROLLED_FORMATS = ("vrcorrect-unrolled-v3", UNROLLED_FORMAT)
+"""The formats this module runs: a v3 model has no ``upper`` input, so it cannot hold the light cap."""
+INPUTS_V3 = ("target_lms", "z0", "spectrum", "gram", "norm2", "features", "target", "d1", "d2")
+INPUTS = INPUTS_V3 + ("upper",)
 
 
 class UnrolledModel:
@@ -48,11 +53,14 @@ class UnrolledModel:
 
     def __init__(self, path: str | Path, providers: tuple[str, ...] | None = None):
         self.path = Path(path)
-        self.session, meta = checked_session(self.path, providers, UNROLLED_FORMAT,
+        self.session, meta = checked_session(self.path, providers, UNROLLED_FORMATS,
                                              "vrcorrect.learn.unrolled_export")
         names = tuple(i.name for i in self.session.get_inputs())
-        if names != INPUTS:
-            raise ValidationError("model inputs", list(names), ", ".join(INPUTS))
+        expected = INPUTS if meta["vrcorrect.format"] == UNROLLED_FORMAT else INPUTS_V3
+        if names != expected:
+            raise ValidationError("model inputs", list(names), ", ".join(expected))
+        self.takes_cap = "upper" in names
+        """Whether the model holds a robust design's light cap at its stages (format v4)."""
         try:
             self.config: dict[str, Any] = json.loads(meta["vrcorrect.config"])
             ranges = json.loads(meta.get("vrcorrect.ranges") or "null")
@@ -74,33 +82,40 @@ class UnrolledModel:
         return e
 
     def for_eye(self, eye: EyeRx, display: DisplayProfile, kernel: EyeKernel,
-                reference_kernel: EyeKernel | None) -> "UnrolledEye":
-        """The model bound to one eye (``solve(problem, "learned", model=...)``'s ``BoundModel``)."""
+                reference_kernel: EyeKernel | None, capped: bool = False) -> "UnrolledEye":
+        """The model bound to one eye (``solve(problem, "learned", model=...)``'s ``BoundModel``);
+        ``capped``: hold a robust design's light cap (:func:`~vrcorrect.solvers.problem.light_cap`)
+        at every stage, where the model can (:attr:`takes_cap`; a v3 model runs uncapped)."""
         if reference_kernel is None:
             raise ValidationError("reference", "ideal", "glasses (the target the model was trained on)")
-        return UnrolledEye(self, self.check(eye, display), kernel, reference_kernel)
+        return UnrolledEye(self, self.check(eye, display), kernel, reference_kernel, capped)
 
-    def correct(self, image: np.ndarray, eye: EyeRx, kernel: EyeKernel, reference_kernel: EyeKernel) -> np.ndarray:
+    def correct(self, image: np.ndarray, eye: EyeRx, kernel: EyeKernel, reference_kernel: EyeKernel,
+                capped: bool = False) -> np.ndarray:
         """The displayed image ``(H, W, 3)`` float32 in [0, 1] for ``image`` (linear display RGB
         ``(H, W, 3)``) seen by ``eye`` through ``kernel`` (``reference_kernel``: the same eye with
-        glasses, which sets the target). An eye outside the trained ranges is refused."""
+        glasses, which sets the target; ``capped``: as :meth:`for_eye`). An eye outside the trained
+        ranges is refused."""
         e = check_eye(eye, self.ranges, f"the model {self.path.name}")
         img = _checked_image(image)
         return self._run(img, unrolled_features(e, kernel.size, self.ranges), unrolled_spectra(kernel.kernel, img.shape[:2]),
-                         kernel, reference_kernel)
+                         kernel, reference_kernel, capped)
 
     def _run(self, img: np.ndarray, features: np.ndarray, spectra: tuple[np.ndarray, np.ndarray, float],
-             kernel: EyeKernel, reference_kernel: EyeKernel) -> np.ndarray:
+             kernel: EyeKernel, reference_kernel: EyeKernel, capped: bool = False) -> np.ndarray:
         """The pass on a checked ``(H, W, 3)`` image, given the eye's features and the kernel's
         spectra on its grid (what depends on the eye and the size, not on the picture)."""
         t_lms, _ = simulate_lms(img, reference_kernel)
         spectrum, gram, norm2 = spectra
         chw = np.ascontiguousarray(img.transpose(2, 0, 1))
         lms = np.ascontiguousarray(t_lms.transpose(2, 0, 1), np.float32)
-        z0, d1, d2 = fast_start(kernel.kernel, chw, lms)
+        capped = capped and self.takes_cap
+        z0, d1, d2 = fast_start(kernel.kernel, chw, lms, capped=capped)
         feed = {"target_lms": lms[None], "z0": z0[None], "spectrum": spectrum[None], "gram": gram[None],
                 "norm2": np.array([norm2], np.float32), "features": features[None],
                 "target": chw[None], "d1": d1[None], "d2": d2[None]}
+        if self.takes_cap:
+            feed["upper"] = (light_cap(chw) if capped else np.ones_like(chw))[None]
         out = self.session.run(None, feed)[0][0]
         return np.ascontiguousarray(out.transpose(1, 2, 0), np.float32)
 
@@ -116,8 +131,11 @@ class UnrolledEye:
     """An :class:`UnrolledModel` bound to one eye and its kernels: :meth:`infer` maps a ``(3, H, W)``
     linear target to the displayed ``(3, H, W)``."""
 
-    def __init__(self, model: UnrolledModel, eye: EyeRx, kernel: EyeKernel, reference_kernel: EyeKernel):
+    def __init__(self, model: UnrolledModel, eye: EyeRx, kernel: EyeKernel, reference_kernel: EyeKernel,
+                 capped: bool = False):
         self.model, self.eye, self.kernel, self.reference_kernel = model, eye, kernel, reference_kernel
+        self.capped = bool(capped) and model.takes_cap
+        """Whether the light cap holds (asked for, and the model can)."""
         self._buffers: dict[tuple[int, int], np.ndarray] = {}
         # the eye is checked once (UnrolledModel.for_eye); its features once; the spectra once per size
         self._features = unrolled_features(eye, kernel.size, model.ranges)
@@ -128,7 +146,7 @@ class UnrolledEye:
         size = img.shape[:2]
         if size not in self._spectra:
             self._spectra[size] = unrolled_spectra(self.kernel.kernel, size)
-        out = self.model._run(img, self._features, self._spectra[size], self.kernel, self.reference_kernel)
+        out = self.model._run(img, self._features, self._spectra[size], self.kernel, self.reference_kernel, self.capped)
         return np.ascontiguousarray(np.moveaxis(out, 2, 0))
 
     def run(self, src_texture: "moderngl.Texture", dst_texture: "moderngl.Texture") -> None:

@@ -266,14 +266,16 @@ def _ridge_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, mu_r
 
 
 def fast_start(kernel: np.ndarray, target: np.ndarray, t_lms: np.ndarray, levels: int = 1,
-               rho: float = FAST_RHO, relaxation: float = FAST_RELAXATION) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               rho: float = FAST_RHO, relaxation: float = FAST_RELAXATION, capped: bool = False
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where :func:`fast`'s full-resolution iterations start, with its default settings: the
     primal ``z0`` and the scaled duals ``(d1, d2)`` inside the image, each ``(3, H, W)`` float32
     for a ``(3, H, W)`` linear ``target`` and its cone image ``t_lms``. The coarse level's solution
     and duals where that level pays (:func:`coarse_level_pays`), else the closed-form start and zero
-    duals. The unrolled correction (:mod:`vrcorrect.learn.unrolled`) starts its stages here."""
+    duals. ``capped``: in the box under the light cap, as ``fast`` starts a robust design. The
+    unrolled correction (:mod:`vrcorrect.learn.unrolled`) starts its stages here."""
     z0, duals, _ = _coarse_to_fine(kernel, np.asarray(target, np.float32), np.asarray(t_lms, np.float32), levels,
-                                   COARSE_ITERATIONS, 3, rho, relaxation, 1.0, True)
+                                   COARSE_ITERATIONS, 3, rho, relaxation, 1.0, True, capped)
     if duals is None:
         zero = np.zeros_like(z0, dtype=np.float32)
         duals = (zero, zero.copy())

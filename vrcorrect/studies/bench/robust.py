@@ -113,7 +113,7 @@ def _learned(design, display, target: np.ndarray, problem) -> np.ndarray:
     )
 
     bound = UnrolledModel(DEFAULT_MODEL).for_eye(EYE.with_changes(pupil_diameter_mm=design.pupil_mm), display,
-                                                 design.kernel, design.reference)
+                                                 design.kernel, design.reference, capped=problem.capped)
     return solve(problem, "learned", model=bound).image
 
 

@@ -183,7 +183,8 @@ def card_text(model: UnrolledModel, path: Path, bench_md: str) -> str:
         "## What it is",
         f"- {stages} ADMM stages (two FFT round trips each) after `fast`'s start (a half-resolution level and "
         "its duals); each stage's data step is `fast`'s per-frequency 3x3 solve with a box weight of its own; "
-        "the box [0, 1] holds at every stage",
+        "the box [0, 1] holds at every stage" + (" (for a robust design, [0, the light cap], as in `fast`: the input "
+                                                  "`upper`)" if model.takes_cap else ""),
         "- learned: each stage's retina penalty, relaxation and box weight, shared values plus a correction an "
         "MLP reads from the eye (power vector, pupil, the kernel's size); "
         + (f"a {width}-channel prior network between the stages" if width else "no image prior")
