@@ -86,6 +86,25 @@ def test_a_capped_crop_has_the_light_cap_as_its_box_and_starts_where_fast_starts
     assert "upper" not in make_batch(pool["train"], [codes, codes], capped=np.array([False, False]))
 
 
+def test_a_run_with_a_cap_share_trains_on_that_share_of_capped_crops(tmp_path, pool, images, monkeypatch):
+    import vrcorrect.learn.unrolled_train as trainer
+
+    drawn = []
+    real = trainer.make_batch
+
+    def spy(entries, crops, capped=None):
+        if capped is not None:
+            drawn.append(np.asarray(capped, bool).copy())
+        return real(entries, crops, capped)
+
+    monkeypatch.setattr(trainer, "make_batch", spy)
+    report = train_unrolled(tmp_path, replace(CONFIG, steps=3, cap_share=0.5), images[0], images[1], pool=pool,
+                            held_out_cases=1)
+    flags = np.concatenate(drawn)
+    assert flags.size == 3 * CONFIG.batch and 0 < flags.sum() < flags.size          # some crops capped, not all
+    assert report["config"]["cap_share"] == 0.5 and report["steps"] == 3
+
+
 def test_fasts_yardstick_is_below_no_correction_and_the_twin_between(pool, images):
     cases = [(pool["held_out"][0], images[1][0][:24, :24])]
     fast = fast_objectives(cases)[0]
