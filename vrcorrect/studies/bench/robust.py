@@ -406,8 +406,8 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
              "4 mm pupil, as every correction was before; `default`: `--pupil auto --robust on` (`fast`; the "
              "robust band and its light cap, each primary at most twice the target's light plus 0.02); `real "
              "time`: the same design through the real-time default's CPU twin, 10 frames of the still; `learned`: "
-             "the shipped learned model (models/default.onnx) on the same design (not capped); `ceiling`: designed "
-             "for exactly the eye seen (`--robust off`: one eye, the box [0, 1]).", ""]
+             "the shipped learned model (models/default.onnx) on the same design, under the same light cap at "
+             "every stage; `ceiling`: designed for exactly the eye seen (`--robust off`: one eye, the box [0, 1]).", ""]
     summary = []
     for c in cases:
         k = _checks(c)
