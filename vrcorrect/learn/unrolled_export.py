@@ -130,7 +130,7 @@ def model_from_onnx(path: str | Path) -> tuple[UnrolledADMM, dict[str, str]]:
     random case, as an export is; a weight not found by its name is refused, naming it."""
     import onnx  # optional: the learn extra
     import onnxruntime as ort  # optional: the learn and realtime extras
-    from onnx import numpy_helper
+    from onnx import numpy_helper  # optional: the learn extra
 
     proto = onnx.load(str(path))
     meta = {p.key: p.value for p in proto.metadata_props}
