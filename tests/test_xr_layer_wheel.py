@@ -5,9 +5,11 @@ compiler, ``vrcorrect layer install --rx`` only writes the manifest and the conf
 Khronos's ``hello_xr`` (``-g Vulkan`` and ``-g OpenGL``, unmodified, on the test runtime, 96x64 views)
 is corrected, each API in a fresh ``HOME`` (empty caches: vrcorrect's and Mesa's):
 
-* after the first three frames no gap between frames reaching the runtime is longer than 0.5 s (the
-  runtime's ``frame_times.txt``): the layer builds, compiles and primes its correction off
-  ``hello_xr``'s thread;
+* after the first three frames no gap between frames reaching the runtime is longer than 0.5 s, or
+  than twice the median corrected frame's gap on a renderer too slow for that (the runtime's
+  ``frame_times.txt``; on a 2-core Intel Xeon a corrected frame of both eyes at 96x64 takes 0.42-0.46 s
+  on llvmpipe, the first 0.69 s): the layer builds, compiles and primes its correction off
+  ``hello_xr``'s thread, where a stall there took seconds (14 s before issue 46);
 * the first launch is corrected within 60 s of its first frame;
 * a second launch finds its eye models and every compiled program in the caches (vrcorrect's, under
   the fresh ``HOME``'s ``~/.cache``) and is corrected within 5 s of its first frame.  Before it
@@ -179,7 +181,8 @@ def _times(out: Path) -> list[tuple[int, float, float]]:
 def _launch(kit, out: Path, venv: Path, home: Path, api: str, display: str) -> tuple[float, float, float]:
     """hello_xr -g ``api`` with the layer the wheel installed in ``home``, until 3 corrected frames have
     arrived; returns (seconds from the first frame to the first corrected one, the largest gap
-    between frames after the first three, in seconds, and the seconds the layer spent priming)."""
+    between frames after the first three over the gap it may reach (:data:`MAX_GAP_S`, or twice
+    the corrected frames' median gap where that is longer), and the seconds the layer spent priming)."""
     environ = env(kit, out, app="vk", home=home, DISPLAY=display, XRTEST_FRAME_MS="20", explicit=False,
                   PATH=str(venv / "bin"), prime=None)                  # the layer's default priming budget
     environ.pop("MESA_SHADER_CACHE_DIR")                   # Mesa's own cache in the fresh HOME, as a user's
@@ -195,7 +198,9 @@ def _launch(kit, out: Path, venv: Path, home: Path, api: str, display: str) -> t
         assert not np.array_equal(received(out, first, view), received(out, received_frames[0], view))
     times = _times(out)
     arrival = {frame: t for frame, t, _ in times}
-    gap = max(g for frame, _, g in times[3:]) / 1e3
+    corrected = [g for frame, _, g in times if frame >= first]
+    allowed = max(MAX_GAP_S, 2.0 * float(np.median(corrected)) / 1e3)        # the renderer's own pace
+    gap = max(g for frame, _, g in times[3:]) / 1e3 / allowed
     ready = [line for line in log if "correcting with" in line]
     assert len(ready) == 1, log
     priming = re.search(r"priming ([\d.]+) s", ready[0])
@@ -214,16 +219,16 @@ def test_hello_xr_corrected_from_the_wheel_never_stalls_and_starts_again_within_
     assert _install(venv, home, kit.rx).returncode == 0
     first_s, first_gap, _ = _launch(kit, tmp_path / "first", venv, home, api, xorg_display)
     second_s, second_gap, second_priming = _launch(kit, tmp_path / "second", venv, home, api, xorg_display)
-    for name, value in (("first_launch_s", first_s), ("first_launch_max_gap_s", first_gap),
+    for name, value in (("first_launch_s", first_s), ("first_launch_max_gap_share", first_gap),
                         ("second_launch_s", second_s), ("second_launch_priming_s", second_priming),
-                        ("second_launch_max_gap_s", second_gap)):
+                        ("second_launch_max_gap_share", second_gap)):
         record_property(name, round(value, 3))
-    print(f"{api}: corrected after {first_s:.1f} s (largest gap {first_gap:.3f} s), again after {second_s:.1f} s "
-          f"of which {second_priming:.1f} s priming (largest gap {second_gap:.3f} s)")
+    print(f"{api}: corrected after {first_s:.1f} s (largest gap {first_gap:.2f} of what it may reach), again after "
+          f"{second_s:.1f} s of which {second_priming:.1f} s priming (largest gap {second_gap:.2f} of it)")
     second_log = layer_log(tmp_path / "second")
     assert any("came from the cache" in line for line in second_log), second_log
     assert any("correcting with" in line and ", 0 compiled" in line for line in second_log), second_log
-    assert first_gap <= MAX_GAP_S and second_gap <= MAX_GAP_S, (first_gap, second_gap)
+    assert first_gap <= 1.0 and second_gap <= 1.0, (first_gap, second_gap)
     assert first_s <= FIRST_LAUNCH_S, first_s
     assert second_s <= SECOND_LAUNCH_S, (second_s, second_priming)
     assert "destroy_instance" in runtime_log(tmp_path / "second")

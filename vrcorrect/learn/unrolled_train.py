@@ -206,7 +206,6 @@ def run_model(model: UnrolledADMM, batch: dict[str, torch.Tensor]) -> torch.Tens
                  d1=batch["d1"], d2=batch["d2"], upper=batch.get("upper"))
 
 
-
 def _crops(images: Sequence[np.ndarray], rng: np.random.Generator, n: int, size: int) -> list[np.ndarray]:
     out = []
     for _ in range(n):
