@@ -621,6 +621,11 @@ def test_correct_with_the_learned_method(tiny_onnx, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "-1.5 to -0.5 D" in err[0] and "wiener or fast" in err[0]
     assert not (tmp_path / "left.png").exists()
+    # a robust design: this format has no input for the light cap, runs as it is and says so
+    robust_report = tmp_path / "robust.json"
+    assert main(args[:-1] + ["on", "-o", str(tmp_path / "robust.png"), "--report", str(robust_report)]) == 0
+    doc = json.loads(robust_report.read_text())
+    assert doc["robust"] and doc["settings"]["light_cap"] is False
     assert main(["correct", str(src), "-o", str(tmp_path / "x.png"), "--model", str(tiny_onnx)]) == 2
     assert "only with --method learned" in capsys.readouterr().err
 

@@ -171,11 +171,11 @@ def _solver_options(args: argparse.Namespace, learned, eye, display, kernel, ref
     if args.tolerance is not None:
         options["tolerance"] = args.tolerance
     if learned is not None:
-        cap = {"capped": capped} if hasattr(learned, "takes_cap") else {}    # the unrolled model holds the light cap
-        options["model"] = learned.for_eye(eye, display, kernel, reference, **cap)   # refused outside its range
+        # refused outside its range; the unrolled model holds the light cap (the older format has none)
+        options["model"] = learned.for_eye(eye, display, kernel, reference, capped=capped)
         options["settings"] = {"model": str(learned.path), "providers": list(learned.providers),
                                "ranges": learned.ranges.as_dict(), "version": learned.metadata.get("vrcorrect.version"),
-                               "light_cap": bool(getattr(options["model"], "capped", False))}
+                               "light_cap": options["model"].capped}
     return options
 
 

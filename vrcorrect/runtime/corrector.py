@@ -298,10 +298,9 @@ class Corrector:
             raise ValidationError("eye_model", type(model).__name__, "an EyeModel (build_eye_model)")
         slot = None
         # a robust design's light cap holds in the unrolled model too (a model that has the input for it)
-        cap = {"capped": bool(getattr(model.design, "robust", False))}
+        capped = bool(getattr(model.design, "robust", False))
         if self._learned is not None:
-            slot = self._learned.for_eye(model.eye, self.display, model.kernel, model.reference,
-                                         **(cap if hasattr(self._learned, "takes_cap") else {}))
+            slot = self._learned.for_eye(model.eye, self.display, model.kernel, model.reference, capped=capped)
         elif self._onnx is not None:
             slot = self._onnx
         old = (self.strategy, self.preview)
@@ -309,7 +308,7 @@ class Corrector:
                                       ppd=self.display.pixels_per_degree)
         if self._cold_model is not None and not model.identity and hasattr(self.strategy, "use_first_guess"):
             self.strategy.use_first_guess(self._cold_model.for_eye(model.eye, self.display, model.kernel,
-                                                                   model.reference, **cap))
+                                                                   model.reference, capped=capped))
         self.preview = Preview(self.gpu, model)
         self.model = model
         if self._pupil is not None:

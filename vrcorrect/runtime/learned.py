@@ -112,6 +112,9 @@ def is_learned_model(path: str | Path) -> bool:
 class LearnedModel:
     """A learned-correction ONNX model and what its metadata says about it."""
 
+    takes_cap = False
+    """This format has no input for a robust design's light cap (the unrolled model's has)."""
+
     def __init__(self, path: str | Path, providers: tuple[str, ...] | None = None):
         self.path = Path(path)
         self.session, meta = checked_session(self.path, providers, LEARNED_FORMAT, "tools/export_onnx.py")
@@ -142,8 +145,10 @@ class LearnedModel:
         return e
 
     def for_eye(self, eye: EyeRx, display: DisplayProfile, kernel: EyeKernel | None = None,
-                reference_kernel: EyeKernel | None = None) -> "LearnedEye":
-        """The model bound to one eye on ``display`` (kernels built here unless given).
+                reference_kernel: EyeKernel | None = None, capped: bool = False) -> "LearnedEye":
+        """The model bound to one eye on ``display`` (kernels built here unless given).  ``capped``
+        is accepted as :meth:`UnrolledModel.for_eye <vrcorrect.runtime.unrolled.UnrolledModel.for_eye>`
+        takes it and has no effect (:attr:`takes_cap` is False): this model's output is in [0, 1].
 
         Raises
         ------
@@ -162,6 +167,8 @@ class LearnedEye:
 
     def __init__(self, model: LearnedModel, eye: EyeRx, kernel: EyeKernel, reference_kernel: EyeKernel | None):
         self.model, self.eye, self.kernel, self.reference_kernel = model, eye, kernel, reference_kernel
+        self.capped = False
+        """This format never holds a light cap (:attr:`LearnedModel.takes_cap`)."""
         self.features = eye_features(eye, model.ranges)[None]
         self._buffers: dict[tuple[int, int], np.ndarray] = {}
         self._plans: dict[tuple[int, int], GradientPlan] = {}
