@@ -530,6 +530,38 @@ def test_the_gpu_equals_its_twin_across_pupil_switches(gl):
         G.release(fbo, tex, src)
 
 
+@pytest.mark.parametrize("filter_", ["fft", "separable", "fista"])
+def test_a_switch_that_installs_a_new_strategy_corrects_the_frame_it_happens_in(gl, filter_):
+    """A filter has no ``swap_model``: the bank's switch installs a new strategy in the middle of a
+    frame, which releases the old one's texture the frame was decoded into; the frame is decoded again
+    and corrected (``apply``) or simulated (``simulate``) with the new design, never a released texture
+    (``vrcorrect mirror --filter fft`` failed so on its first switch)."""
+    from vrcorrect.runtime import gl as G
+    from vrcorrect.runtime.corrector import Corrector
+
+    light = np.full((H, W, 3), 230, np.uint8)                # brighter than the mid-grey start: the pupil narrows
+    c = Corrector(gl, Prescription(right=EYE, left=EYE), "quest2", "right", pupil="auto", robust=False,
+                  filter=filter_)
+    c.frame_time_s = 1 / 30                              # deterministic: each switch's design is made at once
+    src = G.upload_texture(gl, light)
+    tex, fbo = G.render_target(gl, width=W, height=H)
+    try:
+        for run, want, codes in ((c.simulate, 1, 230), (c.apply, 2, 20)):    # narrows, then widens in the dark
+            G.write_texture(src, np.full((H, W, 3), codes, np.uint8))
+            for _ in range(300):
+                strategy = c.strategy
+                run(src, fbo)
+                if c.strategy is not strategy:
+                    break
+            assert c._pupil.switches == want and c.model.pupil_mm == c._pupil.current
+            assert np.isfinite(G.read_framebuffer(fbo).astype(np.float32)).all()
+        c.apply(src, fbo)                                # and the frame after the switch
+        assert np.abs(G.read_framebuffer(fbo).astype(np.float32)[..., :3] - 20).mean() < 10
+    finally:
+        c.release()
+        G.release(fbo, tex, src)
+
+
 def test_priming_switches_to_the_lights_design_at_once_and_a_second_run_takes_it_from_the_cache(gl, tmp_path):
     """The OpenXR layer's priming (``Corrector.follow_light_now``): the frame just corrected is read now,
     not two frames late, and the design for its light is made on the bank's worker and switched to

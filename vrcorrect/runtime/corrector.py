@@ -328,6 +328,8 @@ class Corrector:
                 self._pupil.installed(model, switched=True)
             return
         self.install(model)
+        if self._pupil is not None:
+            self._pupil.switches += 1            # a switch all the same (the status counts it), by a new strategy
 
     def adjust(self, sphere_D: float = 0.0, cylinder_D: float = 0.0, axis_deg: float = 0.0) -> None:
         """Change this eye's prescription live by these amounts and rebuild now, on this thread (the
@@ -396,6 +398,18 @@ class Corrector:
         self.gpu.begin("decode")
         return self.strategy.decode(src, self._motion_gl)
 
+    def _decode_and_follow(self, src: "moderngl.Texture") -> "moderngl.Texture":
+        """The frame in linear light, its light measured and followed (``pupil="auto"``).  A switch of
+        the pupil's design that installs a new strategy (one without ``swap_model``: the filters) releases
+        the old one and the texture it decoded into, so the frame is decoded again by the new one."""
+        linear = self._decode_source(src)
+        if self._pupil is not None:
+            strategy = self.strategy
+            self._pupil.frame(linear)
+            if self.strategy is not strategy:
+                linear = self._decode_source(src)
+        return linear
+
     def _correct(self, linear: "moderngl.Texture") -> "moderngl.Texture":
         self.gpu.begin("correct")
         motion, self._motion_gl = self._motion_gl, (0, 0)
@@ -454,9 +468,7 @@ class Corrector:
         if self.budget is not None:
             self._budget_frame()
         self._set_motion(motion_px)
-        linear = self._decode_source(src_texture)
-        if self._pupil is not None:
-            self._pupil.frame(linear)
+        linear = self._decode_and_follow(src_texture)
         if self.enabled:
             shown = self._correct(linear)
             if self._timer is not None and self.strategy.last_cold:        # its cold work: off the budget's line
@@ -494,9 +506,7 @@ class Corrector:
         ``motion_px`` as for :meth:`apply`."""
         t0 = time.perf_counter()
         self._set_motion(motion_px)
-        linear = self._decode_source(src_texture)
-        if self._pupil is not None:
-            self._pupil.frame(linear)
+        linear = self._decode_and_follow(src_texture)
         shown = self.strategy.shown_texture(self._correct(linear)) if corrected and self.enabled else linear
         self.gpu.begin("simulate")
         size = tuple(linear.size)
