@@ -21,9 +21,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-import torch
-
 from vrcorrect.learn.unrolled_export import export_unrolled, model_from_onnx
+from vrcorrect.learn.unrolled_train import save_unrolled
 from vrcorrect.runtime.unrolled import UnrolledModel
 from vrcorrect.studies.bench.unrolled import card_text
 
@@ -50,8 +49,7 @@ def main(argv: list[str]) -> int:
         body = HELD_OUT + "\n" + text.split(HELD_OUT, 1)[1].split("\n", 1)[1]   # card_text drops the heading
     with tempfile.TemporaryDirectory() as tmp:
         ckpt = Path(tmp) / "unrolled.pt"
-        torch.save({"format": "vrcorrect-unrolled-checkpoint", "config": model.config.as_dict(),
-                    "state_dict": model.state_dict(), "train": train.get("config")}, ckpt)
+        save_unrolled(model, ckpt, train.get("config"))
         (Path(tmp) / "report.json").write_text(json.dumps(train))
         report = export_unrolled(ckpt, args.out, force=args.force)
     print(f"{args.model} ({meta.get('vrcorrect.format')}) -> {args.out} ({report.metadata['vrcorrect.format']}, "

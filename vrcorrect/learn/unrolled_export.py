@@ -82,14 +82,16 @@ def onnx_bytes(model: UnrolledADMM) -> bytes:
 def check_against_torch(model: UnrolledADMM, data: bytes, size: tuple[int, int] = (37, 61), kernel_size: int = 9
                         ) -> float:
     """Largest absolute difference between onnxruntime on ``data`` and torch on a random case of
-    ``size`` (not the traced one)."""
+    ``size`` (not the traced one).  The case is fed by the file's own input names, in order, so a file
+    of an older format (without the last inputs: v3 has no ``upper``) is checked as it is run."""
     import onnxruntime as ort  # optional: the learn and realtime extras
 
-    args = _case(*size, kernel_size, seed=1)
     session = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
-    out = session.run(None, {name: a.numpy() for name, a in zip(INPUTS, args)})[0]
+    names = [i.name for i in session.get_inputs()]
+    args = _case(*size, kernel_size, seed=1)[:len(names)]
+    out = session.run(None, {name: a.numpy() for name, a in zip(names, args)})[0]
     with torch.no_grad():
-        ref = model(*args).numpy()
+        ref = model.eval()(*args).numpy()
     return float(np.max(np.abs(out - ref)))
 
 
@@ -97,7 +99,6 @@ def export_unrolled(checkpoint: str | Path, out: str | Path, force: bool = False
     """Export ``checkpoint`` (``unrolled.pt``, with ``report.json`` beside it when there is one) to
     ``out``, checked against torch; nothing is written when the check fails."""
     import onnx  # optional: the learn extra
-
 
     out = Path(out)
     if out.suffix.lower() != ".onnx":
@@ -129,7 +130,6 @@ def model_from_onnx(path: str | Path) -> tuple[UnrolledADMM, dict[str, str]]:
     older format with the same weights (tools/reexport_unrolled.py).  Checked against the file on a
     random case, as an export is; a weight not found by its name is refused, naming it."""
     import onnx  # optional: the learn extra
-    import onnxruntime as ort  # optional: the learn and realtime extras
     from onnx import numpy_helper  # optional: the learn extra
 
     proto = onnx.load(str(path))
@@ -146,12 +146,7 @@ def model_from_onnx(path: str | Path) -> tuple[UnrolledADMM, dict[str, str]]:
             raise ValidationError("model", str(path), f"an initializer {name} of shape {tuple(value.shape)}")
         state[name] = torch.from_numpy(np.array(array, np.float32))
     model.load_state_dict(state)
-    names = [i.name for i in proto.graph.input]
-    args = _case(37, 61, 9, seed=1)[:len(names)]
-    session = ort.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
-    out = session.run(None, {name: a.numpy() for name, a in zip(names, args)})[0]
-    with torch.no_grad():
-        error = float(np.max(np.abs(model.eval()(*args).numpy() - out)))
+    error = check_against_torch(model, proto.SerializeToString())
     if not error <= TOLERANCE:
         raise InputError(f"{path}: the weights read back differ from the file by {error:.3g} (> {TOLERANCE:g})")
     return model, meta

@@ -289,6 +289,7 @@ def build_fast_bank(config: UnrolledTrainConfig, pool: dict[str, list[PoolEntry]
     return list(zip(eyes, crops, solutions))
 
 
+CHECKPOINT_FORMAT = "vrcorrect-unrolled-checkpoint"   # the trained model (unrolled.pt): save_unrolled, load_unrolled
 CHECKPOINT = "checkpoint.pt"
 """The training's state in the run folder, written every :data:`CHECKPOINT_EVERY_S` and at the end."""
 CHECKPOINT_EVERY_S = 60.0
@@ -413,17 +414,23 @@ def train_unrolled(run_dir: str | Path, config: UnrolledTrainConfig, train_image
                                      for k, v in result.items()},
               "per_case": [{"display": e.display, "learned": result["learned"]["cases"][i],
                             "twin": result["twin"]["cases"][i]} for i, (e, _) in enumerate(cases)]}
-    torch.save({"format": "vrcorrect-unrolled-checkpoint", "config": model.config.as_dict(),
-                "state_dict": model.state_dict(), "train": report["config"]}, run / "unrolled.pt")
+    save_unrolled(model, run / "unrolled.pt", report["config"])
     write_text_atomic(run / "log.csv", log.getvalue(), force=True)
     write_text_atomic(run / "report.json", json.dumps(report, indent=2) + "\n", force=True)
     return report
 
 
+def save_unrolled(model: UnrolledADMM, path: str | Path, train: dict | None) -> None:
+    """Save ``model`` as :func:`load_unrolled` reads it (``train``: the training configuration, as the
+    report's ``config``)."""
+    torch.save({"format": CHECKPOINT_FORMAT, "config": model.config.as_dict(),
+                "state_dict": model.state_dict(), "train": train}, path)
+
+
 def load_unrolled(path: str | Path) -> UnrolledADMM:
-    """A model saved by :func:`train_unrolled`."""
+    """A model saved by :func:`train_unrolled` (:func:`save_unrolled`)."""
     ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    if not isinstance(ckpt, dict) or ckpt.get("format") != "vrcorrect-unrolled-checkpoint":
+    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
         raise ValidationError("checkpoint", str(path), "a file written by train_unrolled (unrolled.pt)")
     model = UnrolledADMM(UnrolledConfig(**ckpt["config"]))
     model.load_state_dict(ckpt["state_dict"])

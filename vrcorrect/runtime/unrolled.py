@@ -99,17 +99,17 @@ class UnrolledModel:
         e = check_eye(eye, self.ranges, f"the model {self.path.name}")
         img = _checked_image(image)
         return self._run(img, unrolled_features(e, kernel.size, self.ranges), unrolled_spectra(kernel.kernel, img.shape[:2]),
-                         kernel, reference_kernel, capped)
+                         kernel, reference_kernel, capped and self.takes_cap)
 
     def _run(self, img: np.ndarray, features: np.ndarray, spectra: tuple[np.ndarray, np.ndarray, float],
              kernel: EyeKernel, reference_kernel: EyeKernel, capped: bool = False) -> np.ndarray:
         """The pass on a checked ``(H, W, 3)`` image, given the eye's features and the kernel's
-        spectra on its grid (what depends on the eye and the size, not on the picture)."""
+        spectra on its grid (what depends on the eye and the size, not on the picture); ``capped`` only
+        where the model :attr:`takes_cap` (the callers see to it)."""
         t_lms, _ = simulate_lms(img, reference_kernel)
         spectrum, gram, norm2 = spectra
         chw = np.ascontiguousarray(img.transpose(2, 0, 1))
         lms = np.ascontiguousarray(t_lms.transpose(2, 0, 1), np.float32)
-        capped = capped and self.takes_cap
         z0, d1, d2 = fast_start(kernel.kernel, chw, lms, capped=capped)
         feed = {"target_lms": lms[None], "z0": z0[None], "spectrum": spectrum[None], "gram": gram[None],
                 "norm2": np.array([norm2], np.float32), "features": features[None],
