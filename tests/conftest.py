@@ -76,6 +76,31 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker("serial")
 
 
+@pytest.fixture(scope="session", autouse=True)
+def private_cache(tmp_path_factory) -> Iterator[None]:
+    """vrcorrect's cache folder (``VRCORRECT_CACHE_DIR``: compiled programs, eye models, the pupil bank's
+    designs, which the windowed apps keep between runs) in the session's temporary folder, never the
+    user's ``~/.cache``.  The OpenXR layer's tests give each run its own ``HOME`` as well."""
+    old = os.environ.get("VRCORRECT_CACHE_DIR")
+    os.environ["VRCORRECT_CACHE_DIR"] = str(tmp_path_factory.mktemp("vrcorrect_cache"))
+    yield
+    if old is None:
+        os.environ.pop("VRCORRECT_CACHE_DIR", None)
+    else:
+        os.environ["VRCORRECT_CACHE_DIR"] = old
+
+
+_CACHES = iter(range(1 << 62))
+
+
+@pytest.fixture(autouse=True)
+def private_cache_per_test(private_cache, tmp_path_factory, monkeypatch) -> None:
+    """Each test its own cache folder (made when something is kept): what one test's window designed
+    is never another's start (a test that counts the designs at start would see none).  Fixtures
+    wider than a test (a module's shared mirror) start before this and keep the session's."""
+    monkeypatch.setenv("VRCORRECT_CACHE_DIR", str(tmp_path_factory.getbasetemp() / f"vrcorrect_cache_{next(_CACHES)}"))
+
+
 @pytest.fixture(scope="session")
 def x_display() -> Iterator[str]:
     """An X display name for the session (``DISPLAY`` is set to it while the session runs).

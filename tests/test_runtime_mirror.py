@@ -10,6 +10,7 @@ import math
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -1045,3 +1046,51 @@ def test_the_panel_shows_what_the_frame_budget_chose(x_display, mirror_image, tm
         press(m, KEY_RIGHT_BRACKET)                              # the keys do not fight the budget
         m.render()
         assert "chosen by the frame budget (5000 ms, --budget-ms)" in m.status, m.status
+
+
+def test_a_second_launch_takes_its_designs_from_the_cache(x_display, tmp_path, monkeypatch):
+    """The window keeps each eye's first design and, with ``pupil="auto"``, the pupil bank's designs in
+    vrcorrect's cache folder (``VRCORRECT_CACHE_DIR``).  A bright picture makes the pupil leave the
+    mid-grey design it starts with for the light's, designed on the bank's worker and written there.
+    Launched again, the window starts from the kept first designs (it says so) and follows the same
+    light with the kept file: nothing is designed and written again, and the designs are the same."""
+    from vrcorrect.physics.pupil import pupil_from_light
+    from vrcorrect.runtime import eye_cache
+    from vrcorrect.runtime.pupil_bank import nearest_bank_pupil, relative_luminance_of
+    from vrcorrect.specs.display import decode, get_display
+
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("VRCORRECT_CACHE_DIR", str(cache))
+    light = np.full((EYE_H, EYE_W, 3), 230, np.uint8)
+    _write_png(tmp_path / "bright.png", light)
+    (tmp_path / "rx.json").write_text(SAMPLE_RX)
+    quest2 = get_display("quest2")
+    want = nearest_bank_pupil(pupil_from_light(
+        relative_luminance_of(decode("srgb", light.astype(np.float32) / 255), quest2), quest2).diameter_mm)
+    config = MirrorConfig(rx=tmp_path / "rx.json", source=str(tmp_path / "bright.png"), eye_size=(EYE_W, EYE_H),
+                          visible=False, vsync=False, platform="x11", panel=False,
+                          corrector_options={"filter": "fft", "pupil": "auto", "robust": False})
+    kept, said, first = [], [], []
+    for _ in range(2):
+        lines: list[str] = []
+        with Mirror(config, echo=lines.append) as m:
+            c = m.correctors["right"]
+            first.append({eye: m.correctors[eye].model for eye in VIEW_ORDER})
+            assert c._pupil.current != pytest.approx(want)           # a mid-grey frame's design to begin with
+            deadline = time.monotonic() + 240                          # the bank designs on its worker
+            while c._pupil.current != pytest.approx(want) and time.monotonic() < deadline:
+                m.step()
+            assert c._pupil.current == pytest.approx(want) and c.model.pupil_mm == pytest.approx(want)
+            name = eye_cache.design_key(c.model.eye, c.display, c.options, c.age_years, want,
+                                        c.model.grid_kernel_size, c.model.reach_mm) + ".pickle"
+            kept.append({p.name: p.stat().st_mtime_ns for p in (cache / "designs").glob("*.pickle")})
+            assert name in kept[-1]
+        said.append(lines)
+    assert sum("built in" in line for line in said[0]) == 2 and not any("taken from" in line for line in said[0])
+    assert sum(f"taken from {cache}" in line for line in said[1]) == 2 and not any("built in" in line for line in said[1])
+    assert len(kept[0]) >= 3                                           # two first designs and the light's
+    assert all(kept[1][k] == v for k, v in kept[0].items())           # nothing kept was designed again
+    for eye in VIEW_ORDER:
+        a, b = first[0][eye], first[1][eye]
+        assert (a.eye, a.pupil_mm, a.reach_mm) == (b.eye, b.pupil_mm, b.reach_mm)
+        assert np.array_equal(a.kernel.kernel, b.kernel.kernel)

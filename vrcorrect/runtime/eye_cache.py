@@ -18,6 +18,8 @@ asks for) are kept the same way, one file a design under ``<cache>/designs/``
 (:func:`design_key`, :func:`load_design`, :func:`store_design`), where a caller asks for it (the
 OpenXR layer, :meth:`~vrcorrect.runtime.corrector.Corrector.keep_pupil_designs`): a second launch
 switches to the light's pupil within frames instead of designing it again beside the application's.
+The windowed commands (``vrcorrect xr``, ``mirror``, ``overlay``) keep those too, and each eye's
+first design (:func:`start_key`): launched again, they start without designing.
 
 Layer 5: numpy; never torch.
 """
@@ -37,7 +39,7 @@ import numpy as np
 
 from .glcache import cache_dir
 
-__all__ = ["key", "load", "store", "code_fingerprint", "design_key", "load_design", "store_design"]
+__all__ = ["key", "load", "store", "code_fingerprint", "design_key", "start_key", "load_design", "store_design"]
 
 _PACKAGE = Path(__file__).resolve().parents[1]
 
@@ -84,6 +86,17 @@ def design_key(eye: Any, display: Any, options: Any, age_years: float | None, pu
     digest = hashlib.sha256(code_fingerprint().encode())
     digest.update(f"\neye={eye!r}\nage={age_years!r}\noptions={options!r}".encode())
     digest.update(f"\npupil={float(pupil_mm)!r}; grid kernel={grid_kernel_size!r}; reach={reach_mm!r}\n".encode())
+    _digest_value(digest, display)
+    return digest.hexdigest()
+
+
+def start_key(eye: Any, display: Any, options: Any, age_years: float | None) -> str:
+    """The cache key of an eye's first design in a window (``vrcorrect xr``, ``mirror``, ``overlay``):
+    the eye, the display profile by its content, the options and the age, which decide its pupil too
+    (:func:`~vrcorrect.runtime.eye_model.initial_pupil_mm` of a mid-grey frame), and the package.
+    Kept beside the bank's designs (:func:`store_design`)."""
+    digest = hashlib.sha256(code_fingerprint().encode())
+    digest.update(f"\nfirst design\neye={eye!r}\nage={age_years!r}\noptions={options!r}\n".encode())
     _digest_value(digest, display)
     return digest.hexdigest()
 

@@ -27,6 +27,7 @@ from ...plumbing.errors import GLUnavailableError, InputError, ValidationError, 
 from ...plumbing.imageio import write_png
 from ...specs.display import get_display
 from ...specs.prescription import EyeRx, bundled_sample_path
+from .. import eye_cache
 from ..corrector import Corrector
 from ..eye_model import CorrectorOptions
 from ..eye_source import EyeSource, EyeUpdate
@@ -209,14 +210,29 @@ class WindowApp:
         """The :class:`~vrcorrect.runtime.eye_source.EyeSource` that owns the prescription (from its
         one read), watches the file and designs later changes off the render thread
         (:meth:`_poll_eyes`); then each eye's :class:`~vrcorrect.runtime.corrector.Corrector` of that
-        source, designed now (the start: the window says "building")."""
+        source, designed now (the start: the window says "building") or taken from vrcorrect's cache
+        folder where an earlier run kept it (:func:`~vrcorrect.runtime.eye_cache.start_key`), keeping
+        the pupil bank's designs there too
+        (:meth:`~vrcorrect.runtime.corrector.Corrector.keep_pupil_designs`)."""
         self.eye_source = EyeSource(self._rx, self.display, options, eyes=tuple(eyes))
+        prescription = self.eye_source.prescription
+        age = options.age_years if options.age_years is not None else prescription.age_years
         for eye in eyes:
-            self.say(f"building the {eye} eye's correction ({_eye_words(self._rx.prescription.eye(eye))} on "
-                     f"{self.display.name})...")
+            # each eye's first design and the pupil bank's (pupil "auto") are kept in vrcorrect's cache
+            # folder: launched again, the window starts at once and follows the light without designing
+            cache_key = eye_cache.start_key(self.eye_source.eye_rx(eye), self.display, options, age)
+            kept = eye_cache.load_design(cache_key)
+            self.say(f"{'starting' if kept is not None else 'building'} the {eye} eye's correction "
+                     f"({_eye_words(prescription.eye(eye))} on {self.display.name})...")
             t0 = time.perf_counter()
-            self.correctors[eye] = Corrector(ctx, self.eye_source, self.display, eye, options.backend, options=options)
-            self.say(f"  built in {time.perf_counter() - t0:.1f} s")
+            self.correctors[eye] = Corrector(ctx, self.eye_source, self.display, eye, options.backend, options=options,
+                                             eye_model=kept)
+            self.correctors[eye].keep_pupil_designs()
+            if kept is None:
+                eye_cache.store_design(cache_key, self.correctors[eye].model)
+                self.say(f"  built in {time.perf_counter() - t0:.1f} s")
+            else:
+                self.say(f"  designed before: taken from {eye_cache.cache_dir()} ({time.perf_counter() - t0:.1f} s)")
         self.eye_source.check = self.correctors[eyes[0]].check_eye      # a learned model's range, before each design
 
     def _poll_eyes(self) -> tuple[list[EyeUpdate], list[str]]:
