@@ -530,18 +530,20 @@ def test_the_gpu_equals_its_twin_across_pupil_switches(gl):
         G.release(fbo, tex, src)
 
 
-@pytest.mark.parametrize("filter_", ["fft", "separable", "fista"])
-def test_a_switch_that_installs_a_new_strategy_corrects_the_frame_it_happens_in(gl, filter_):
-    """A filter has no ``swap_model``: the bank's switch installs a new strategy in the middle of a
-    frame, which releases the old one's texture the frame was decoded into; the frame is decoded again
-    and corrected (``apply``) or simulated (``simulate``) with the new design, never a released texture
-    (``vrcorrect mirror --filter fft`` failed so on its first switch)."""
+@pytest.mark.parametrize("options", [{"filter": "fft"}, {"filter": "separable"}, {"filter": "fista"},
+                                     {"fovea_deg": 0.8}], ids=["fft", "separable", "fista", "fovea"])
+def test_a_switch_that_installs_a_new_strategy_corrects_the_frame_it_happens_in(gl, options):
+    """The filters and a fovea with its periphery (the default) have no ``swap_model`` that takes the
+    switch: the bank's switch installs a new strategy in the middle of a frame, which releases the old
+    one's texture the frame was decoded into; the frame is decoded again and corrected (``apply``) or
+    simulated (``simulate``) with the new design, never a released texture (``vrcorrect mirror
+    --filter fft`` failed so on its first switch; with ``--fovea`` the new strategy had decoded nothing
+    and failed on that)."""
     from vrcorrect.runtime import gl as G
     from vrcorrect.runtime.corrector import Corrector
 
     light = np.full((H, W, 3), 230, np.uint8)                # brighter than the mid-grey start: the pupil narrows
-    c = Corrector(gl, Prescription(right=EYE, left=EYE), "quest2", "right", pupil="auto", robust=False,
-                  filter=filter_)
+    c = Corrector(gl, Prescription(right=EYE, left=EYE), "quest2", "right", pupil="auto", robust=False, **options)
     c.frame_time_s = 1 / 30                              # deterministic: each switch's design is made at once
     src = G.upload_texture(gl, light)
     tex, fbo = G.render_target(gl, width=W, height=H)
