@@ -221,7 +221,8 @@ def test_eye_models_are_kept_under_a_key_of_everything_they_depend_on(setup, tmp
 def test_a_pupil_design_is_kept_under_its_display_by_content_and_everything_else_it_depends_on(setup, tmp_path):
     """The pupil bank's designs (the layer's second launch): keyed by the display profile's content,
     so a profile read back from the eye models' cache (its pickle's bytes differ) finds the design a
-    freshly loaded one kept; any other input is another key; a damaged file is a miss."""
+    freshly loaded one kept; any other input is another key; a damaged file is a miss.  A window's
+    first design (``start_key``) likewise, never under a bank design's key."""
     import pickle
     from dataclasses import replace
 
@@ -249,3 +250,12 @@ def test_a_pupil_design_is_kept_under_its_display_by_content_and_everything_else
     assert eye_cache.load_design(next(iter(others)), env) is None
     (tmp_path / "designs" / f"{key}.pickle").write_bytes(b"damaged")
     assert eye_cache.load_design(key, env) is None
+    # a window's first design (its pupil follows from these): the same inputs, the same key; any other, another
+    start = (eye, display, options, None)
+    first = eye_cache.start_key(*start)
+    assert eye_cache.start_key(eye, pickle.loads(pickle.dumps(display)), options, None) == first
+    firsts = {eye_cache.start_key(eye.with_changes(sphere_D=-3.25), *start[1:]),
+              eye_cache.start_key(eye, get_display("desktop" if display.name != "desktop" else "quest2"), *start[2:]),
+              eye_cache.start_key(eye, display, replace(options, pupil="auto"), None),
+              eye_cache.start_key(*start[:3], 70)}
+    assert len(firsts | {first} | others | {key}) == 13
