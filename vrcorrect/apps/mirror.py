@@ -12,6 +12,7 @@ from ..runtime.shell.source_spec import parse_size, parse_source
 from ..runtime.shell.keys import key_map_text, knob_text
 from .common import rx_path, say_sample_rx
 from .realtime_options import (
+    KEPT_DESIGNS,
     add_backend_option,
     add_filter_options,
     add_reprojection_option,
@@ -29,7 +30,7 @@ def add_parser(subparsers: "argparse._SubParsersAction[argparse.ArgumentParser]"
         "mirror", help="a window with both eyes side by side, corrected live (keys: press h)",
         description=("Open a window showing both eyes side by side (left eye on the left): the displayed,\n"
                      "pre-corrected image or what each eye sees of it, with live prescription edits,\n"
-                     "screenshots and stage timings. Needs a display (X11/Wayland) and OpenGL 4.3."),
+                     "screenshots and stage timings. Needs a display (X11/Wayland) and OpenGL 4.3." + KEPT_DESIGNS),
         epilog=key_map_text(KEY_MAP), formatter_class=argparse.RawDescriptionHelpFormatter)
     add_rx_option(p)
     p.add_argument("--display", default="quest2", metavar="PRESET",

@@ -13,6 +13,7 @@ from ..runtime.shell.keys import key_map_text
 from ..specs.vocabulary import Eye, names
 from .common import rx_path, say_sample_rx
 from .realtime_options import (
+    KEPT_DESIGNS,
     add_backend_option,
     add_filter_options,
     add_reprojection_option,
@@ -31,7 +32,7 @@ def add_parser(subparsers: "argparse._SubParsersAction[argparse.ArgumentParser]"
                         "window",
         description=("Show frames from an external source (a video, a folder of images, an image, or a\n"
                      "region of the X11 screen) corrected for one eye, full-screen on the primary monitor\n"
-                     "or in a window. Needs a display (X11) and OpenGL 4.3."),
+                     "or in a window. Needs a display (X11) and OpenGL 4.3." + KEPT_DESIGNS),
         epilog=key_map_text(KEY_MAP), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--source", required=True, metavar="VIDEO|DIR|IMAGE|screen",
                    help="a video (or animated GIF/PNG/WebP), a folder of images shown in turn, an image, or "

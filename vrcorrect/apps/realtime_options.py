@@ -27,6 +27,9 @@ __all__ = ["FILTER_CHOICES", "parse_frames", "parse_whole_number", "parse_iterat
            "fovea_options", "add_reprojection_option",
            "filter_options", "cold_start_choice", "corrector_options"]
 
+KEPT_DESIGNS = ("\nEach eye's designs are kept in vrcorrect's cache folder ($VRCORRECT_CACHE_DIR, else\n"
+                "~/.cache/vrcorrect): launched again, it starts without designing them. Deleting it is safe.")
+"""What the windowed commands' descriptions say about the designs they keep between runs."""
 FILTER_CHOICES = names(Filter)
 _ITERATIVE = " or ".join(names(ITERATIVE_FILTERS))
 

@@ -14,6 +14,7 @@ from ..runtime.shell.source_spec import parse_source
 from ..runtime.shell.xr import EXIT_NO_RUNTIME, EXIT_SESSION_LOST, XrApp, XrConfig
 from .common import rx_path
 from .realtime_options import (
+    KEPT_DESIGNS,
     add_backend_option,
     add_filter_options,
     add_reprojection_option,
@@ -34,7 +35,8 @@ def add_parser(subparsers: "argparse._SubParsersAction[argparse.ArgumentParser]"
                      "corrected for that eye's prescription: the 3D demo scene from the tracked eyes, or a\n"
                      "picture source. Needs an OpenXR runtime (Monado, SteamVR) and a headset; without one it\n"
                      f"says so and exits with status {EXIT_NO_RUNTIME}. Ctrl-C (or closing the mirror window) ends\n"
-                     f"the session cleanly (status 0); a session the runtime lost exits with status {EXIT_SESSION_LOST}."),
+                     f"the session cleanly (status 0); a session the runtime lost exits with status {EXIT_SESSION_LOST}."
+                     + KEPT_DESIGNS),
         formatter_class=argparse.RawDescriptionHelpFormatter)
     add_rx_option(p)
     p.add_argument("--display", default="quest2", metavar="PRESET",
