@@ -247,6 +247,10 @@ def test_bench_unrolled_refuses_what_it_cannot_measure(exported, tmp_path, capsy
     assert "not an unrolled model" in capsys.readouterr().err
     assert main(["bench", "unrolled", "--model", str(tmp_path / "none.onnx"), "--out", str(tmp_path / "b.md")]) == 2
     assert "no such model" in capsys.readouterr().err and not (tmp_path / "b.md").exists()
+    v3 = _as_v3(run / "unrolled.onnx", tmp_path / "v3.onnx")  # an older format it runs: taken as unrolled,
+    assert main(["bench", "unrolled", "--model", str(v3), "--eyes", "0", "--out", str(tmp_path / "b.md")]) == 2
+    err = capsys.readouterr().err                            # so the next check speaks (was: "not an unrolled model")
+    assert "--eyes" in err and "not an unrolled model" not in err and not (tmp_path / "b.md").exists()
 
 
 # ---------------------------------------------------------------- the learned pass as the real-time cold start

@@ -142,18 +142,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
         print(run_realtime_bench(out=Path(args.out), write=not args.no_write, quick=args.quick))
     elif args.what in ("learned", "unrolled"):
-        from ..runtime.learned import (
-            model_metadata,  # on use: start-up time (apps/__init__: the parser loads no layer below)
-        )
         from ..runtime.unrolled import (
-            UNROLLED_FORMAT,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+            is_unrolled_model,  # on use: start-up time (apps/__init__: the parser loads no layer below)
         )
 
         path = Path(args.model) if args.model else DEFAULT_MODEL
         if not path.is_file():
             raise InputError(f"{path}: no such model; pass --model PATH (an unrolled model: vrcorrect unroll -o RUN "
                              "writes RUN/unrolled.onnx)")
-        if model_metadata(path).get("vrcorrect.format") == UNROLLED_FORMAT:
+        if is_unrolled_model(path):                       # today's format or an older one it runs
             from ..studies.bench.unrolled import (
                 run_unrolled_bench,  # on use: start-up time (apps/__init__: the parser loads no layer below)
             )

@@ -308,18 +308,17 @@ def _clip_report(args, plan: clips.ClipPlan, rx_path, display, result, reference
 
 def _learned_model(args: argparse.Namespace):
     """The learned model of ``--model`` (default: the shipped one), its reference checked."""
-    from ..runtime.learned import LearnedModel, model_metadata  # on use: start-up time (apps/__init__)
+    from ..runtime.learned import LearnedModel  # on use: start-up time (apps/__init__)
     from ..runtime.unrolled import (  # on use: start-up time (apps/__init__: the parser loads no layer below)
-        UNROLLED_FORMATS,
         UnrolledModel,
+        is_unrolled_model,
     )
 
     path = Path(args.model) if args.model else DEFAULT_MODEL
     if args.model is None and not path.is_file():
         raise InputError(f"no default learned model is installed ({path}); pass --model PATH "
                          "(a model exported by tools/export_onnx.py), or use --method wiener or fast")
-    unrolled = model_metadata(path).get("vrcorrect.format") in UNROLLED_FORMATS
-    model = UnrolledModel(path) if unrolled else LearnedModel(path)
+    model = UnrolledModel(path) if is_unrolled_model(path) else LearnedModel(path)
     if model.reference != args.reference:
         raise ValidationError("--reference", args.reference, f"{model.reference} (the target {path.name} was "
                               "trained for)")

@@ -32,13 +32,13 @@ from ..solvers.problem import light_cap
 from ..specs.display import DisplayProfile
 from ..specs.prescription import EyeRx
 from ..vision.forward import simulate_lms
-from .learned import checked_session
+from .learned import checked_session, model_metadata
 from .onnx_backend import run_slot
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
-__all__ = ["UNROLLED_FORMAT", "UNROLLED_FORMATS", "UnrolledModel", "UnrolledEye"]
+__all__ = ["UNROLLED_FORMAT", "UNROLLED_FORMATS", "is_unrolled_model", "UnrolledModel", "UnrolledEye"]
 
 UNROLLED_FORMAT = "vrcorrect-unrolled-v4"
 """What :mod:`vrcorrect.learn.unrolled_export` writes: v3's inputs and ``upper``, the box's top per pixel."""
@@ -46,6 +46,12 @@ UNROLLED_FORMATS = ("vrcorrect-unrolled-v3", UNROLLED_FORMAT)
 """The formats this module runs: a v3 model has no ``upper`` input, so it cannot hold the light cap."""
 INPUTS_V3 = ("target_lms", "z0", "spectrum", "gram", "norm2", "features", "target", "d1", "d2")
 INPUTS = INPUTS_V3 + ("upper",)
+
+
+def is_unrolled_model(path: str | Path) -> bool:
+    """True for a model exported by :mod:`vrcorrect.learn.unrolled_export`, of any format this
+    module runs (:data:`UNROLLED_FORMATS`; ``InputError`` if the file cannot be loaded)."""
+    return model_metadata(path).get("vrcorrect.format") in UNROLLED_FORMATS
 
 
 class UnrolledModel:
