@@ -15,6 +15,8 @@ must not import torch, directly or through :mod:`vrcorrect.learn.model`.
   alone is a poor start for strong eyes: on the default data set's eyes its best blend
   with the image closes 4 % of the gap between no correction and ``fast``, where three
   projected-gradient steps close about half of it.
+* :data:`UNROLLED_FORMAT`, :data:`UNROLLED_INPUTS` - the unrolled model's ONNX contract, shared by
+  its exporter and the runtime.
 """
 
 from __future__ import annotations
@@ -191,6 +193,16 @@ def precorrect(image: np.ndarray, kernel: EyeKernel, reference_kernel: EyeKernel
 
 #: Length of :func:`unrolled_features`.
 N_UNROLLED_FEATURES = 5
+
+UNROLLED_FORMAT = "vrcorrect-unrolled-v4"   # v2: starts from fast_start (the duals d1, d2 added); v3: box weight
+#                                             per stage; v4: the box's top per pixel (upper: the light cap)
+"""The unrolled model's ONNX format: what :mod:`vrcorrect.learn.unrolled_export` writes and
+:mod:`vrcorrect.runtime.unrolled` runs."""
+UNROLLED_FORMATS = ("vrcorrect-unrolled-v3", UNROLLED_FORMAT)
+"""The formats the runtime runs: a v3 model has no ``upper`` input, so it cannot hold the light cap."""
+UNROLLED_INPUTS_V3 = ("target_lms", "z0", "spectrum", "gram", "norm2", "features", "target", "d1", "d2")
+UNROLLED_INPUTS = UNROLLED_INPUTS_V3 + ("upper",)
+"""The unrolled model's inputs, in order (v4; v3's without ``upper``)."""
 
 
 def unrolled_features(eye: EyeRx, kernel_size: int, ranges: SamplingRanges) -> np.ndarray:

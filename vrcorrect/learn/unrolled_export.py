@@ -28,16 +28,15 @@ import torch
 from .. import __version__
 from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.fileio import check_writable
-from .conditioning import N_UNROLLED_FEATURES
+from .conditioning import N_UNROLLED_FEATURES, UNROLLED_FORMAT, UNROLLED_INPUTS
 from .export import stamp_and_write
 from .unrolled import UnrolledADMM, UnrolledConfig, kernel_spectra
 from .unrolled_train import load_unrolled
 
-FORMAT = "vrcorrect-unrolled-v4"      # v2: starts from fast_start (the duals d1, d2 added); v3: box weight per
-#                                       stage; v4: the box's top per pixel (upper: the light cap)
+FORMAT = UNROLLED_FORMAT               # the format and its inputs: one contract with the runtime (conditioning)
 OPSET = 18
 TOLERANCE = 1e-4
-INPUTS = ("target_lms", "z0", "spectrum", "gram", "norm2", "features", "target", "d1", "d2", "upper")
+INPUTS = UNROLLED_INPUTS
 OUTPUT = "displayed"
 
 

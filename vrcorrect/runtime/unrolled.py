@@ -24,7 +24,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..learn.conditioning import SamplingRanges, check_eye, unrolled_features, unrolled_spectra
+from ..learn.conditioning import (
+    UNROLLED_FORMAT,
+    UNROLLED_FORMATS,
+    UNROLLED_INPUTS,
+    UNROLLED_INPUTS_V3,
+    SamplingRanges,
+    check_eye,
+    unrolled_features,
+    unrolled_spectra,
+)
 from ..physics.kernel import EyeKernel
 from ..plumbing.errors import InputError, ValidationError
 from ..solvers.admm import fast_start
@@ -40,12 +49,6 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
 __all__ = ["UNROLLED_FORMAT", "UNROLLED_FORMATS", "is_unrolled_model", "UnrolledModel", "UnrolledEye"]
 
-UNROLLED_FORMAT = "vrcorrect-unrolled-v4"
-"""What :mod:`vrcorrect.learn.unrolled_export` writes: v3's inputs and ``upper``, the box's top per pixel."""
-UNROLLED_FORMATS = ("vrcorrect-unrolled-v3", UNROLLED_FORMAT)
-"""The formats this module runs: a v3 model has no ``upper`` input, so it cannot hold the light cap."""
-INPUTS_V3 = ("target_lms", "z0", "spectrum", "gram", "norm2", "features", "target", "d1", "d2")
-INPUTS = INPUTS_V3 + ("upper",)
 
 
 def is_unrolled_model(path: str | Path) -> bool:
@@ -62,7 +65,7 @@ class UnrolledModel:
         self.session, meta = checked_session(self.path, providers, UNROLLED_FORMATS,
                                              "vrcorrect.learn.unrolled_export")
         names = tuple(i.name for i in self.session.get_inputs())
-        expected = INPUTS if meta["vrcorrect.format"] == UNROLLED_FORMAT else INPUTS_V3
+        expected = UNROLLED_INPUTS if meta["vrcorrect.format"] == UNROLLED_FORMAT else UNROLLED_INPUTS_V3
         if names != expected:
             raise ValidationError("model inputs", list(names), ", ".join(expected))
         self.takes_cap = "upper" in names
