@@ -294,6 +294,13 @@ class Corrector:
         """Correct with ``model`` from the next frame on (GL work only: what the CPU designs is in
         the model; the prescription it is from is the source's).  The old strategy is released and
         the next frame starts cold."""
+        self._new_strategy(model)
+        if self._pupil is not None:
+            self._pupil.installed(model)
+
+    def _new_strategy(self, model: EyeModel) -> None:
+        """Make the strategy and preview of ``model`` and release the old ones (what :meth:`install`
+        and a switch that cannot swap in place share)."""
         if not isinstance(model, EyeModel):
             raise ValidationError("eye_model", type(model).__name__, "an EyeModel (build_eye_model)")
         slot = None
@@ -311,8 +318,6 @@ class Corrector:
                                                                    model.reference, capped=capped))
         self.preview = Preview(self.gpu, model)
         self.model = model
-        if self._pupil is not None:
-            self._pupil.installed(model)
         release(*old)
 
     def switch_design(self, model: EyeModel) -> None:
@@ -324,12 +329,10 @@ class Corrector:
             self.model = model
             self.preview.release()
             self.preview = Preview(self.gpu, model)
-            if self._pupil is not None:
-                self._pupil.installed(model, switched=True)
-            return
-        self.install(model)
+        else:
+            self._new_strategy(model)            # a switch all the same (the status counts it), by a new strategy
         if self._pupil is not None:
-            self._pupil.switches += 1            # a switch all the same (the status counts it), by a new strategy
+            self._pupil.installed(model, switched=True)
 
     def adjust(self, sphere_D: float = 0.0, cylinder_D: float = 0.0, axis_deg: float = 0.0) -> None:
         """Change this eye's prescription live by these amounts and rebuild now, on this thread (the

@@ -83,11 +83,8 @@ def design_key(eye: Any, display: Any, options: Any, age_years: float | None, pu
     """The cache key of one pupil bank design: the eye as designed, the display profile by its content
     (:func:`_digest_value`), the options, the age, the pupil, the grids' kernel size and reach, and the
     package."""
-    digest = hashlib.sha256(code_fingerprint().encode())
-    digest.update(f"\neye={eye!r}\nage={age_years!r}\noptions={options!r}".encode())
-    digest.update(f"\npupil={float(pupil_mm)!r}; grid kernel={grid_kernel_size!r}; reach={reach_mm!r}\n".encode())
-    _digest_value(digest, display)
-    return digest.hexdigest()
+    return _eye_digest(f"pupil={float(pupil_mm)!r}; grid kernel={grid_kernel_size!r}; reach={reach_mm!r}", eye,
+                       display, options, age_years)
 
 
 def start_key(eye: Any, display: Any, options: Any, age_years: float | None) -> str:
@@ -95,8 +92,14 @@ def start_key(eye: Any, display: Any, options: Any, age_years: float | None) -> 
     the eye, the display profile by its content, the options and the age, which decide its pupil too
     (:func:`~vrcorrect.runtime.eye_model.initial_pupil_mm` of a mid-grey frame), and the package.
     Kept beside the bank's designs (:func:`store_design`)."""
+    return _eye_digest("first design", eye, display, options, age_years)
+
+
+def _eye_digest(what: str, eye: Any, display: Any, options: Any, age_years: float | None) -> str:
+    """The key :func:`design_key` and :func:`start_key` share: ``what`` (which design of the eye), the
+    eye, the age, the options, the display profile by its content, and the package."""
     digest = hashlib.sha256(code_fingerprint().encode())
-    digest.update(f"\nfirst design\neye={eye!r}\nage={age_years!r}\noptions={options!r}\n".encode())
+    digest.update(f"\n{what}\neye={eye!r}\nage={age_years!r}\noptions={options!r}\n".encode())
     _digest_value(digest, display)
     return digest.hexdigest()
 
