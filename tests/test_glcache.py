@@ -250,12 +250,14 @@ def test_a_pupil_design_is_kept_under_its_display_by_content_and_everything_else
     assert eye_cache.load_design(next(iter(others)), env) is None
     (tmp_path / "designs" / f"{key}.pickle").write_bytes(b"damaged")
     assert eye_cache.load_design(key, env) is None
-    # a window's first design (its pupil follows from these): the same inputs, the same key; any other, another
-    start = (eye, display, options, None)
+    # a window's first design: the same inputs, the same key; any other (the pupil its first frame's light
+    # gives among them), another
+    start = (eye, display, options, None, 3.125)
     first = eye_cache.start_key(*start)
-    assert eye_cache.start_key(eye, pickle.loads(pickle.dumps(display)), options, None) == first
+    assert eye_cache.start_key(eye, pickle.loads(pickle.dumps(display)), options, None, 3.125) == first
     firsts = {eye_cache.start_key(eye.with_changes(sphere_D=-3.25), *start[1:]),
               eye_cache.start_key(eye, get_display("desktop" if display.name != "desktop" else "quest2"), *start[2:]),
-              eye_cache.start_key(eye, display, replace(options, pupil="auto"), None),
-              eye_cache.start_key(*start[:3], 70)}
-    assert len(firsts | {first} | others | {key}) == 13
+              eye_cache.start_key(eye, display, replace(options, pupil="auto"), None, 3.125),
+              eye_cache.start_key(*start[:3], 70, 3.125),
+              eye_cache.start_key(*start[:4], 2.901)}
+    assert len(firsts | {first} | others | {key}) == 14

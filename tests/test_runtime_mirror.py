@@ -1048,35 +1048,73 @@ def test_the_panel_shows_what_the_frame_budget_chose(x_display, mirror_image, tm
         assert "chosen by the frame budget (5000 ms, --budget-ms)" in m.status, m.status
 
 
-def test_a_second_launch_takes_its_designs_from_the_cache(x_display, tmp_path, monkeypatch):
-    """The window keeps each eye's first design and, with ``pupil="auto"``, the pupil bank's designs in
-    vrcorrect's cache folder (``VRCORRECT_CACHE_DIR``).  A bright picture makes the pupil leave the
-    mid-grey design it starts with for the light's, designed on the bank's worker and written there.
-    Launched again, the window starts from the kept first designs (it says so) and follows the same
-    light with the kept file: nothing is designed and written again, and the designs are the same."""
+def _light_entry(codes: np.ndarray) -> float:
+    """The bank entry of the light-adapted pupil for a picture of these sRGB codes on quest2 (from the
+    formula and the picture, not from the window)."""
     from vrcorrect.physics.pupil import pupil_from_light
-    from vrcorrect.runtime import eye_cache
     from vrcorrect.runtime.pupil_bank import nearest_bank_pupil, relative_luminance_of
     from vrcorrect.specs.display import decode, get_display
 
+    quest2 = get_display("quest2")
+    linear = decode("srgb", codes.astype(np.float32) / 255)
+    return nearest_bank_pupil(pupil_from_light(relative_luminance_of(linear, quest2), quest2).diameter_mm)
+
+
+def test_the_first_design_is_for_the_first_frames_light(x_display, tmp_path):
+    """With ``pupil="auto"`` the window reads its source's first frame before it designs, and each
+    eye's first design is for the pupil of that frame's light (a bright picture: a small pupil), not a
+    mid-grey frame's that the pupil bank would leave a few frames later; the window says so."""
+    from vrcorrect.runtime.eye_model import NEUTRAL_LUMINANCE
+
+    bright = np.full((EYE_H, EYE_W, 3), 230, np.uint8)
+    _write_png(tmp_path / "bright.png", bright)
+    want = _light_entry(bright)
+    grey = _light_entry(np.full((1, 1, 3), np.round(255 * NEUTRAL_LUMINANCE ** (1 / 2.2)), np.uint8))
+    assert want < grey                                                 # the test means something
+    config = MirrorConfig(source=str(tmp_path / "bright.png"), eye_size=(EYE_W, EYE_H), visible=False, vsync=False,
+                          platform="x11", panel=False, corrector_options={"filter": "fft", "pupil": "auto", "robust": False})
+    lines: list[str] = []
+    with Mirror(config, echo=lines.append) as m:
+        for eye in VIEW_ORDER:
+            c = m.correctors[eye]
+            assert c.model.pupil_mm == pytest.approx(want) and c._pupil.current == pytest.approx(want)
+        for _ in range(5):                                             # the light measured: the same pupil
+            m.step()
+        assert all(m.correctors[eye]._pupil.switches == 0 for eye in VIEW_ORDER)
+    assert sum(f"pupil {want:.2f} mm from the first frame's light" in line for line in lines) == 2, lines
+
+
+def test_a_second_launch_takes_its_designs_from_the_cache(x_display, tmp_path, monkeypatch):
+    """The window keeps each eye's first design and, with ``pupil="auto"``, the pupil bank's designs in
+    vrcorrect's cache folder (``VRCORRECT_CACHE_DIR``).  A folder whose first picture is mid-grey and
+    the rest bright: the first design is the grey picture's, and the pupil leaves it for the bright
+    light's, designed on the bank's worker and written there.  Launched again, the window starts from
+    the kept first designs (it says so) and follows the same light with the kept file: nothing is
+    designed and written again, and the designs are the same."""
+    from vrcorrect.runtime import eye_cache
+
     cache = tmp_path / "cache"
     monkeypatch.setenv("VRCORRECT_CACHE_DIR", str(cache))
+    grey = np.full((EYE_H, EYE_W, 3), 128, np.uint8)
     light = np.full((EYE_H, EYE_W, 3), 230, np.uint8)
-    _write_png(tmp_path / "bright.png", light)
+    pictures = tmp_path / "pictures"
+    pictures.mkdir()
+    _write_png(pictures / "a.png", grey)
+    for i in range(9):                                                 # bright nine tenths of the loop
+        _write_png(pictures / f"b{i}.png", light)
     (tmp_path / "rx.json").write_text(SAMPLE_RX)
-    quest2 = get_display("quest2")
-    want = nearest_bank_pupil(pupil_from_light(
-        relative_luminance_of(decode("srgb", light.astype(np.float32) / 255), quest2), quest2).diameter_mm)
-    config = MirrorConfig(rx=tmp_path / "rx.json", source=str(tmp_path / "bright.png"), eye_size=(EYE_W, EYE_H),
-                          visible=False, vsync=False, platform="x11", panel=False,
-                          corrector_options={"filter": "fft", "pupil": "auto", "robust": False})
+    start, want = _light_entry(grey), _light_entry(light)
+    assert start != want
+    config = MirrorConfig(rx=tmp_path / "rx.json", source=str(pictures), eye_size=(EYE_W, EYE_H),
+                          visible=False, vsync=False, platform="x11", panel=False, folder_interval_s=0.5,
+                          time_step_s=0.1, corrector_options={"filter": "fft", "pupil": "auto", "robust": False})
     kept, said, first = [], [], []
     for _ in range(2):
         lines: list[str] = []
         with Mirror(config, echo=lines.append) as m:
             c = m.correctors["right"]
             first.append({eye: m.correctors[eye].model for eye in VIEW_ORDER})
-            assert c._pupil.current != pytest.approx(want)           # a mid-grey frame's design to begin with
+            assert c._pupil.current == pytest.approx(start)           # the grey picture's design to begin with
             deadline = time.monotonic() + 240                          # the bank designs on its worker
             while c._pupil.current != pytest.approx(want) and time.monotonic() < deadline:
                 m.step()

@@ -87,12 +87,12 @@ def design_key(eye: Any, display: Any, options: Any, age_years: float | None, pu
                        display, options, age_years)
 
 
-def start_key(eye: Any, display: Any, options: Any, age_years: float | None) -> str:
+def start_key(eye: Any, display: Any, options: Any, age_years: float | None, pupil_mm: float | None = None) -> str:
     """The cache key of an eye's first design in a window (``vrcorrect xr``, ``mirror``, ``overlay``):
-    the eye, the display profile by its content, the options and the age, which decide its pupil too
-    (:func:`~vrcorrect.runtime.eye_model.initial_pupil_mm` of a mid-grey frame), and the package.
-    Kept beside the bank's designs (:func:`store_design`)."""
-    return _eye_digest("first design", eye, display, options, age_years)
+    the eye, the display profile by its content, the options, the age, the pupil it is designed for
+    (:func:`~vrcorrect.runtime.eye_model.initial_pupil_mm`: with ``pupil="auto"`` the first frame's
+    light's), and the package.  Kept beside the bank's designs (:func:`store_design`)."""
+    return _eye_digest(f"first design at pupil={pupil_mm!r}", eye, display, options, age_years)
 
 
 def _eye_digest(what: str, eye: Any, display: Any, options: Any, age_years: float | None) -> str:

@@ -369,7 +369,7 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
     def _build(self) -> None:
         cfg, ctx = self.config, self.ctx
         self.source = open_source(ctx, self.spec, *cfg.eye_size, folder_interval_s=cfg.folder_interval_s)
-        self._start_eyes(ctx, VIEW_ORDER, cfg.corrector_options)
+        self._start_eyes(ctx, VIEW_ORDER, cfg.corrector_options, first=dict(zip(VIEW_ORDER, self.source.render(0.0))))
         start_motion(self.source, self.correctors.values(), cfg.reprojection)
         atlas = build_font_atlas(cfg.font_px)
         self.overlay = TextOverlay(ctx, atlas)

@@ -362,7 +362,7 @@ class Overlay(KeyedWindowApp[OverlayState, OverlayAction]):
         else:
             self.source = open_picture_source(ctx, self.spec, w, h, folder_interval_s=cfg.folder_interval_s)
         self.say(f"{self.source.label}, {w}x{h}")
-        self._start_eyes(ctx, (cfg.eye,), cfg.corrector_options)
+        self._start_eyes(ctx, (cfg.eye,), cfg.corrector_options, first={cfg.eye: self.source.render(0.0)[1]})
         start_motion(self.source, [self.corrector], cfg.reprojection)
         atlas = build_font_atlas(cfg.font_px)
         self.text = TextOverlay(ctx, atlas)

@@ -19,20 +19,21 @@ from __future__ import annotations
 import time
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING, Any, Callable, Generic, Protocol, Self, Sequence, TypeVar
+from typing import TYPE_CHECKING, Any, Callable, Generic, Mapping, Protocol, Self, Sequence, TypeVar
 
 import numpy as np
 
 from ...plumbing.errors import GLUnavailableError, InputError, ValidationError, VrcorrectError
 from ...plumbing.imageio import write_png
-from ...specs.display import get_display
+from ...specs.display import decode, get_display
 from ...specs.prescription import EyeRx, bundled_sample_path
 from .. import eye_cache
 from ..corrector import Corrector
-from ..eye_model import CorrectorOptions
+from ..eye_model import CorrectorOptions, initial_pupil_mm
 from ..eye_source import EyeSource, EyeUpdate
 from ..gl import read_framebuffer
 from ..optional import require_glfw, require_moderngl
+from ..pupil_bank import relative_luminance_of
 from ..rx_snapshot import RxSnapshot
 from .keys import GLFW_PRESS, key_map_text
 from .timing import StageTimes
@@ -206,27 +207,37 @@ class WindowApp:
         self.correctors: dict[str, Corrector] = {}
         self.eye_source: EyeSource | None = None
 
-    def _start_eyes(self, ctx: "moderngl.Context", eyes: Sequence[str], options: CorrectorOptions) -> None:
+    def _start_eyes(self, ctx: "moderngl.Context", eyes: Sequence[str], options: CorrectorOptions,
+                    first: Mapping[str, Any] | None = None) -> None:
         """The :class:`~vrcorrect.runtime.eye_source.EyeSource` that owns the prescription (from its
         one read), watches the file and designs later changes off the render thread
         (:meth:`_poll_eyes`); then each eye's :class:`~vrcorrect.runtime.corrector.Corrector` of that
         source, designed now (the start: the window says "building") or taken from vrcorrect's cache
         folder where an earlier run kept it (:func:`~vrcorrect.runtime.eye_cache.start_key`), keeping
         the pupil bank's designs there too
-        (:meth:`~vrcorrect.runtime.corrector.Corrector.keep_pupil_designs`)."""
+        (:meth:`~vrcorrect.runtime.corrector.Corrector.keep_pupil_designs`).
+
+        ``first``: each eye's first source frame (a texture of sRGB codes).  With ``pupil="auto"`` the
+        first design is for the pupil of its light (:meth:`_first_light`), as a render's and the OpenXR
+        layer's are, not a mid-grey frame's that the bank would leave a few seconds later."""
         self.eye_source = EyeSource(self._rx, self.display, options, eyes=tuple(eyes))
         prescription = self.eye_source.prescription
         age = options.age_years if options.age_years is not None else prescription.age_years
+        auto = options.pupil == "auto" and first is not None
         for eye in eyes:
+            eye_rx = self.eye_source.eye_rx(eye)
+            light = self._first_light(first[eye]) if auto else None
+            pupil = initial_pupil_mm(eye_rx, self.display, options, light, age)
             # each eye's first design and the pupil bank's (pupil "auto") are kept in vrcorrect's cache
             # folder: launched again, the window starts at once and follows the light without designing
-            cache_key = eye_cache.start_key(self.eye_source.eye_rx(eye), self.display, options, age)
+            cache_key = eye_cache.start_key(eye_rx, self.display, options, age, pupil)
             kept = eye_cache.load_design(cache_key)
+            whence = f"; pupil {pupil:.2f} mm from the first frame's light" if auto else ""
             self.say(f"{'starting' if kept is not None else 'building'} the {eye} eye's correction "
-                     f"({_eye_words(prescription.eye(eye))} on {self.display.name})...")
+                     f"({_eye_words(prescription.eye(eye))} on {self.display.name}{whence})...")
             t0 = time.perf_counter()
             self.correctors[eye] = Corrector(ctx, self.eye_source, self.display, eye, options.backend, options=options,
-                                             eye_model=kept)
+                                             eye_model=kept, first_luminance=light)
             self.correctors[eye].keep_pupil_designs()
             if kept is None:
                 eye_cache.store_design(cache_key, self.correctors[eye].model)
@@ -234,6 +245,17 @@ class WindowApp:
             else:
                 self.say(f"  designed before: taken from {eye_cache.cache_dir()} ({time.perf_counter() - t0:.1f} s)")
         self.eye_source.check = self.correctors[eyes[0]].check_eye      # a learned model's range, before each design
+
+    def _first_light(self, texture: Any) -> float:
+        """The mean relative luminance (white = 1) on the display of a source frame, ``texture`` (sRGB
+        codes; 8-bit or float), read back once: what the corrector's meter measures of that frame."""
+        kinds = {"f1": (np.uint8, 255.0), "f2": (np.float16, 1.0), "f4": (np.float32, 1.0)}
+        if texture.dtype not in kinds:
+            raise ValidationError("source texture dtype", texture.dtype, "f1, f2 or f4")
+        dtype, scale = kinds[texture.dtype]
+        pixels = np.frombuffer(texture.read(), dtype).reshape(texture.height, texture.width, texture.components)
+        codes = np.clip(pixels[..., :3].astype(np.float32) / scale, 0.0, 1.0)
+        return relative_luminance_of(decode(self.display, codes), self.display)
 
     def _poll_eyes(self) -> tuple[list[EyeUpdate], list[str]]:
         """Install the eyes the :class:`~vrcorrect.runtime.eye_source.EyeSource` has designed since

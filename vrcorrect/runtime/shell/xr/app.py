@@ -250,7 +250,7 @@ class XrApp(WindowApp):
             self.source = ScreenSource(ctx, w, h, self.region or screen_bounds())
         else:
             self.source = open_source(ctx, self.spec, w, h, folder_interval_s=cfg.folder_interval_s)
-        self._start_eyes(ctx, VIEW_ORDER, cfg.corrector_options)
+        self._start_eyes(ctx, VIEW_ORDER, cfg.corrector_options, first=dict(zip(VIEW_ORDER, self.source.render(0.0))))
         if not isinstance(self.source, DemoScene):     # a head-locked picture source
             start_motion(self.source, self.correctors.values(), cfg.reprojection)
         if self.format == GL_RGBA8:
