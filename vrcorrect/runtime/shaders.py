@@ -135,6 +135,8 @@ def _read_lines(root: Path, name: str, chain: tuple[tuple[str, int], ...]) -> li
 
 def _code_part(line: str, in_comment: bool) -> tuple[str, bool]:
     """The line with comments blanked out, and whether a block comment is open at its end."""
+    if not in_comment and "/" not in line:
+        return line, False                      # most lines: no comment in them
     out = []
     i = 0
     while i < len(line):
@@ -145,14 +147,14 @@ def _code_part(line: str, in_comment: bool) -> tuple[str, bool]:
             out.append(" ")
             i = end + 2
             in_comment = False
-        elif line.startswith("//", i):
+            continue
+        slashes, block = line.find("//", i), line.find("/*", i)
+        if block < 0 or 0 <= slashes < block:    # a line comment first (or no block comment): the rest goes
+            out.append(line[i:] if slashes < 0 else line[i:slashes])
             break
-        elif line.startswith("/*", i):
-            in_comment = True
-            i += 2
-        else:
-            out.append(line[i])
-            i += 1
+        out.append(line[i:block])
+        in_comment = True
+        i = block + 2
     return "".join(out), in_comment
 
 
