@@ -224,9 +224,14 @@ class WindowApp:
         prescription = self.eye_source.prescription
         age = options.age_years if options.age_years is not None else prescription.age_years
         auto = options.pupil == "auto" and first is not None
+        lights: dict[int, float] = {}                    # by texture: a picture source gives both eyes one
         for eye in eyes:
             eye_rx = self.eye_source.eye_rx(eye)
-            light = self._first_light(first[eye]) if auto else None
+            light = None
+            if auto:
+                if id(first[eye]) not in lights:
+                    lights[id(first[eye])] = self._first_light(first[eye])
+                light = lights[id(first[eye])]
             pupil = initial_pupil_mm(eye_rx, self.display, options, light, age)
             # each eye's first design and the pupil bank's (pupil "auto") are kept in vrcorrect's cache
             # folder: launched again, the window starts at once and follows the light without designing
