@@ -87,7 +87,7 @@ def design_key(eye: Any, display: Any, options: Any, age_years: float | None, pu
                        display, options, age_years)
 
 
-def start_key(eye: Any, display: Any, options: Any, age_years: float | None, pupil_mm: float | None = None) -> str:
+def start_key(eye: Any, display: Any, options: Any, age_years: float | None, pupil_mm: float) -> str:
     """The cache key of an eye's first design in a window (``vrcorrect xr``, ``mirror``, ``overlay``):
     the eye, the display profile by its content, the options, the age, the pupil it is designed for
     (:func:`~vrcorrect.runtime.eye_model.initial_pupil_mm`: with ``pupil="auto"`` the first frame's

@@ -31,7 +31,7 @@ from .. import eye_cache
 from ..corrector import Corrector
 from ..eye_model import CorrectorOptions, initial_pupil_mm
 from ..eye_source import EyeSource, EyeUpdate
-from ..gl import read_framebuffer
+from ..gl import download_texture, read_framebuffer
 from ..optional import require_glfw, require_moderngl
 from ..pupil_bank import relative_luminance_of
 from ..rx_snapshot import RxSnapshot
@@ -253,13 +253,9 @@ class WindowApp:
 
     def _first_light(self, texture: Any) -> float:
         """The mean relative luminance (white = 1) on the display of a source frame, ``texture`` (sRGB
-        codes; 8-bit or float), read back once: what the corrector's meter measures of that frame."""
-        kinds = {"f1": (np.uint8, 255.0), "f2": (np.float16, 1.0), "f4": (np.float32, 1.0)}
-        if texture.dtype not in kinds:
-            raise ValidationError("source texture dtype", texture.dtype, "f1, f2 or f4")
-        dtype, scale = kinds[texture.dtype]
-        pixels = np.frombuffer(texture.read(), dtype).reshape(texture.height, texture.width, texture.components)
-        codes = np.clip(pixels[..., :3].astype(np.float32) / scale, 0.0, 1.0)
+        codes, 8-bit or float), read back once: what the corrector's meter measures of that frame."""
+        pixels = download_texture(texture)[..., :3]
+        codes = pixels.astype(np.float32) / 255.0 if pixels.dtype == np.uint8 else np.clip(pixels, 0.0, 1.0)
         return relative_luminance_of(decode(self.display, codes), self.display)
 
     def _poll_eyes(self) -> tuple[list[EyeUpdate], list[str]]:
