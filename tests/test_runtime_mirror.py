@@ -1084,30 +1084,6 @@ def test_the_first_design_is_for_the_first_frames_light(x_display, tmp_path):
     assert sum(f"pupil {want:.2f} mm from the first frame's light" in line for line in lines) == 2, lines
 
 
-def test_a_robust_window_whose_first_frame_is_a_page_designs_it_for_the_one_eye(x_display, tmp_path):
-    """With ``robust`` the window judges its source's first frame (issue 44): a page of dark words on
-    light paper is designed for the one eye, without the band and its light cap, and the window says
-    so; a photograph keeps the band."""
-    from PIL import Image
-    from skimage import data
-
-    from vrcorrect.studies.bench.sequences import text_page
-
-    _write_png(tmp_path / "page.png", np.ascontiguousarray(text_page(EYE_W, EYE_H)))
-    photo = np.asarray(Image.fromarray(data.astronaut()).resize((EYE_W, EYE_H), Image.LANCZOS))
-    _write_png(tmp_path / "photo.png", np.ascontiguousarray(photo[..., :3]))
-    for source, page in (("page.png", True), ("photo.png", False)):
-        config = MirrorConfig(source=str(tmp_path / source), eye_size=(EYE_W, EYE_H),
-                              visible=False, vsync=False, platform="x11", panel=False,
-                              corrector_options={"filter": "fft", "pupil": 3.0, "robust": True})
-        lines: list[str] = []
-        with Mirror(config, echo=lines.append) as m:
-            for eye in VIEW_ORDER:
-                design = m.correctors[eye].model.design
-                assert (design.page, design.robust) == (page, not page), source
-        assert sum("a page: designed for the one eye" in line for line in lines) == (2 if page else 0), lines
-
-
 def test_a_second_launch_takes_its_designs_from_the_cache(x_display, tmp_path, monkeypatch):
     """The window keeps each eye's first design and, with ``pupil="auto"``, the pupil bank's designs in
     vrcorrect's cache folder (``VRCORRECT_CACHE_DIR``).  A folder whose first picture is mid-grey and

@@ -276,18 +276,14 @@ def viewing_pupil(args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfi
 class PupilPerFrame:
     """``--pupil`` for each source frame of a clip: the pupil its light gives (:func:`viewing_pupil`),
     its lines said when the pupil changes, and what ``build(pupil_mm)`` makes for it, made once per
-    pupil (``seconds``: the time those builds took).  With ``pages`` and ``--robust on``, each frame is
-    also judged a page or not (:func:`judge_page`, said when it changes) and ``build(pupil_mm, page)``
-    makes one design per pupil and verdict."""
+    pupil (``seconds``: the time those builds took)."""
 
     def __init__(self, args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfile", age_years: float | None,
-                 build: Callable[..., Any], design: bool = True, pages: bool = False):
+                 build: Callable[[float], Any], design: bool = True):
         self.args, self.eye, self.display, self.age_years = args, eye, display, age_years
         self.build, self.design = build, design
-        self.pages = pages and getattr(args, "robust", "on") == "on"
-        self.built: dict[Any, Any] = {}
+        self.built: dict[float, Any] = {}
         self.said: float | None = None
-        self.said_page: bool | None = None
         self.seconds = 0.0
 
     def __call__(self, image_linear: np.ndarray, where: str = "") -> tuple[float, Any]:
@@ -298,39 +294,21 @@ class PupilPerFrame:
             for line in lines:
                 print(f"vrcorrect: {line}{where}", flush=True)   # stdout: an error stays the one line on stderr
             self.said = pupil
-        key: tuple = (pupil,)
-        if self.pages:
-            verdict = judge_page(self.args, self.display, image_linear)
-            if verdict.page != self.said_page:
-                print(f"vrcorrect: {verdict.describe()}{where}", flush=True)
-                self.said_page = verdict.page
-            key = (pupil, verdict.page)
-        if key not in self.built:
+        if pupil not in self.built:
             t0 = time.perf_counter()
-            self.built[key] = self.build(*key)
+            self.built[pupil] = self.build(pupil)
             self.seconds += time.perf_counter() - t0
-        return pupil, self.built[key]
-
-
-def judge_page(args: argparse.Namespace, display: "DisplayProfile", image_linear: np.ndarray) -> Any:
-    """Whether ``--robust on`` designs this picture as a page (:func:`vrcorrect.physics.page.page_verdict`);
-    None with ``--robust off``."""
-    if getattr(args, "robust", "on") != "on":
-        return None
-    from ..physics.page import page_verdict  # on use: start-up time (module docstring)
-
-    return page_verdict(image_linear, display)
+        return pupil, self.built[pupil]
 
 
 def build_design(args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfile", pupil_mm: float,
-                 reference: str, robust: bool | None = None, page: bool = False):
+                 reference: str, robust: bool | None = None):
     """The correction's design (:func:`vrcorrect.physics.robust.design_eye`) with a progress bar:
-    robust as ``--robust`` says (or ``robust``), for ``pupil_mm``, ``reference`` glasses or ideal;
-    ``page``: the picture is a page (:func:`judge_page`), designed for the one eye."""
+    robust as ``--robust`` says (or ``robust``), for ``pupil_mm``, ``reference`` glasses or ideal."""
     from ..physics.robust import design_eye  # on use: start-up time (module docstring)
 
     robust = (getattr(args, "robust", "on") == "on") if robust is None else robust
-    bar = tqdm(desc="building the eye's kernels" + (" (the robust band)" if robust and not page else ""), unit="kernel",
+    bar = tqdm(desc="building the eye's kernels" + (" (the robust band)" if robust else ""), unit="kernel",
                disable=None, leave=False, file=sys.stderr)
 
     def progress(done: int, total: int) -> None:
@@ -340,7 +318,7 @@ def build_design(args: argparse.Namespace, eye: "EyeRx", display: "DisplayProfil
 
     try:
         return design_eye(eye, display, pupil_mm, robust=robust, reference=reference, options=kernel_options(args),
-                          progress=progress, page=page)
+                          progress=progress)
     finally:
         bar.close()
 

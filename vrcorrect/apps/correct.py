@@ -27,7 +27,6 @@ from .common import (
     check_memory,
     check_not_input,
     finite_json,
-    judge_page,
     kernel_decisions,
     load_eye_and_age,
     parse_pupil,
@@ -63,13 +62,10 @@ def cmd_correct(args: argparse.Namespace) -> int:
     check_memory(args.method, *image.shape[:2])
     target = decode(display, image)
     pupil, pupil_lines = viewing_pupil(args, eye, display, target, age)
-    page = judge_page(args, display, target)
-    if page is not None:
-        pupil_lines.append(page.describe())
     for line in pupil_lines:
         print(f"vrcorrect: {line}", flush=True)          # stdout: an error stays the one line on stderr
     t0 = time.perf_counter()
-    design = build_design(args, eye, display, pupil, args.reference, page=page is not None and page.page)
+    design = build_design(args, eye, display, pupil, args.reference)
     kernel, reference = design.kernel, design.reference
     t1 = time.perf_counter()
     small = small_image_note(image.shape[1], image.shape[0], kernel.size, "the correction")
@@ -104,8 +100,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
             "input": str(args.input), "output": str(out), "prescription": str(rx_path), "eye": args.eye,
             "display": display.name, "method": result.method, "reference": problem.reference,
             "contrast": args.contrast, "iterations": result.iterations,
-            "pupil_mm": pupil, "pupil": pupil_lines, "robust": design.robust, "page": design.page,
-            "design": design.describe(),
+            "pupil_mm": pupil, "pupil": pupil_lines, "robust": design.robust, "design": design.describe(),
             "seconds": {"kernel": t1 - t0, "solve": result.seconds},
             "objective": result.objective, "objective_uncorrected": objective(target, problem),
             "metrics": corrected.__dict__, "metrics_uncorrected": uncorrected.__dict__,
@@ -219,8 +214,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     print_notes(clip.notes)
     check_memory(args.method, clip.size[1], clip.size[0])
     # each source frame designed for its own light
-    design_for = PupilPerFrame(args, eye, display, age, pages=True,
-                               build=lambda p, page=False: build_design(args, eye, display, p, args.reference, page=page))
+    design_for = PupilPerFrame(args, eye, display, age, lambda p: build_design(args, eye, display, p, args.reference))
     pupil, design = design_for(decode(display, next(iter(clips.planned_frames(plan)))[1]))
     kernel, reference = design.nominal, design.nominal_reference
     options: dict | None = None
@@ -237,13 +231,13 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
         for index, (source, frame) in enumerate(clips.planned_frames(plan)):
             if source != last_source:               # a repeated source frame has the same correction
                 linear = decode(display, frame)
-                new_pupil, new_design = design_for(linear)
-                kernel = new_design.nominal
-                problem = make_design_problem(linear, new_design, contrast=args.contrast)
-                if options is None or new_design is not design:
+                new_pupil, design = design_for(linear)
+                kernel = design.nominal
+                problem = make_design_problem(linear, design, contrast=args.contrast)
+                if options is None or new_pupil != pupil:
                     options = _solver_options(args, learned, eye.with_changes(pupil_diameter_mm=new_pupil), display,
-                                              new_design.kernel, new_design.reference, problem.capped)
-                design = new_design
+                                              design.kernel, design.reference, problem.capped)
+                pupil = new_pupil
                 result = solve(problem, args.method, **options)
                 entry = {"source_frame": source, "objective": result.objective,
                          "objective_uncorrected": objective(problem.target, problem) if args.report else None,

@@ -191,15 +191,9 @@ def _print_eye(args: argparse.Namespace, info: dict) -> None:
     if getattr(args, "cold_start_note", ""):
         print(f"  cold start: {args.cold_start_note}")
     if info.get("pupil_status"):
-        print(f"  {info['pupil_status']}" + _design_words(info))
+        print(f"  {info['pupil_status']}" + ("; robust design" if info.get("robust") else ""))
     elif info.get("pupil_mm") is not None:
-        print(f"  designed for a {info['pupil_mm']:.2f} mm pupil" + _design_words(info))
-
-
-def _design_words(info: dict) -> str:
-    if info.get("page"):
-        return "; a page of dark text or lines on light paper: designed for the one eye, without the robust band"
-    return "; robust design" if info.get("robust") else ""
+        print(f"  designed for a {info['pupil_mm']:.2f} mm pupil" + (", robust" if info.get("robust") else ""))
 
 
 def _print_fovea(info: dict) -> None:

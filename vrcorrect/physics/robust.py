@@ -48,13 +48,6 @@ cropped to all but :data:`CROP_TAIL` of their magnitude; their spatial sums are 
 floor (:data:`FLOOR_REL`, a pull towards the target, never towards zero) where every member's
 transfer has died out.  Everything is float64.
 
-Pages.  The band's hedge and its light cap are what a photograph needs and what a page of dark text
-on light paper cannot afford: on the choice images every band kept 60-77 % of an exact design's gain
-at 3 mm on a page, the one eye's design without the cap 83-98 % while staying above none there (and
-0.4-1.6 JOD below none on the photographs).  ``design_eye(page=True)`` therefore designs a page
-(:func:`vrcorrect.physics.page.page_verdict`) for the one eye; the commands judge each picture, or
-a window's first frame.
-
 Weights: each member's prior weight over its expected uncorrected error, ``sum_f ||K_i(f) -
 T_i(f)||^2 S(f)`` with a natural image's spectrum ``S(f) = 1 / (|f|^2 + f0^2)``, so that an eye that
 sees the uncorrected image well (a smaller pupil, less defocus) counts for as much, in relative terms,
@@ -184,9 +177,6 @@ class Design:
         Whether ``kernel`` is an effective kernel.
     band
         The band (None when not robust).
-    page
-        Designed for the one eye because the picture is a page (``design_eye(page=True)``), though
-        robust designs were asked for.
     """
 
     pupil_mm: float
@@ -198,7 +188,6 @@ class Design:
     robust: bool = False
     band: RobustBand | None = None
     notes: tuple[str, ...] = field(default=())
-    page: bool = False
     _kernels: dict = field(default_factory=dict, repr=False)
 
     def member_kernels(self, member: Member) -> tuple[EyeKernel, EyeKernel | None]:
@@ -207,9 +196,6 @@ class Design:
 
     def describe(self) -> list[str]:
         """The design in words (``--explain``, reports)."""
-        if self.page:
-            return [f"designed for one eye: pupil {self.pupil_mm:.2f} mm, the prescription's sphere, no light cap "
-                    "(a page of dark text or lines on light paper: --robust on designs pages so)"]
         if not self.robust:
             return [f"designed for one eye: pupil {self.pupil_mm:.2f} mm, the prescription's sphere (--robust off)"]
         assert self.band is not None
@@ -371,8 +357,7 @@ def _effective(nominal: EyeKernel, kernel: np.ndarray) -> EyeKernel:
 
 def design_eye(eye: EyeRx, display: DisplayProfile, pupil_mm: float, *, robust: bool = True,
                reference: str = "glasses", band: RobustBand | None = None, options: KernelOptions | None = None,
-               kernels: dict | None = None, progress: Callable[[int, int], None] | None = None,
-               page: bool = False) -> Design:
+               kernels: dict | None = None, progress: Callable[[int, int], None] | None = None) -> Design:
     """The correction's design for ``eye`` (its sphere, cylinder, axis, accommodation, higher-order
     terms) viewing ``display`` through a ``pupil_mm`` pupil: robust over ``band`` (default
     :class:`RobustBand`) or for the one eye (``robust=False``, today's single-pupil design).
@@ -381,9 +366,7 @@ def design_eye(eye: EyeRx, display: DisplayProfile, pupil_mm: float, *, robust: 
     (keyed by the eye as built, whether it is a glasses kernel, the options and the display's name,
     pixels per degree and distance): a bank of designs shares them.
     ``progress(done, total)`` after each kernel built.  A member's pupil is held within the
-    prescription's higher-order measurement pupil and above 1 mm, with a note.  ``page``: the picture
-    is a page (:func:`vrcorrect.physics.page.page_verdict`); a robust design is then the one eye's
-    (no band, no light cap: :mod:`vrcorrect.physics.page` says why), marked ``Design.page``.
+    prescription's higher-order measurement pupil and above 1 mm, with a note.
     """
     if reference not in ("glasses", "ideal"):
         raise ValidationError("reference", reference, "'glasses' or 'ideal'")
@@ -394,7 +377,7 @@ def design_eye(eye: EyeRx, display: DisplayProfile, pupil_mm: float, *, robust: 
     cache = kernels if kernels is not None else {}
     ho_limit = eye.higher_order.pupil_diameter_mm if eye.higher_order is not None else math.inf
     notes: list[str] = []
-    wanted = [(round(pupil_mm * f, 4), s) for f in band.pupil_factors for s in band.sphere_offsets_D] if robust and not page \
+    wanted = [(round(pupil_mm * f, 4), s) for f in band.pupil_factors for s in band.sphere_offsets_D] if robust \
         else [(round(pupil_mm, 4), 0.0)]
     total = len(wanted) + len({p for p, _ in wanted}) * (reference == "glasses")
     done = 0
@@ -423,9 +406,9 @@ def design_eye(eye: EyeRx, display: DisplayProfile, pupil_mm: float, *, robust: 
 
     nominal = get(pupil_mm, 0.0, False)
     nominal_ref = get(pupil_mm, 0.0, True) if reference == "glasses" else None
-    if not robust or page:
+    if not robust:
         return Design(pupil_mm=pupil_mm, kernel=nominal, reference=nominal_ref, nominal=nominal,
-                      nominal_reference=nominal_ref, notes=tuple(notes), page=robust and page)
+                      nominal_reference=nominal_ref, notes=tuple(notes))
     ks = [get(p, s, False) for p, s in wanted]
     rs = [get(p, 0.0, True) if reference == "glasses" else None for p, _ in wanted]
     if all(k.identity for k in ks) and all(r is None or r.identity for r in rs):

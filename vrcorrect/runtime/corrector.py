@@ -527,8 +527,8 @@ class Corrector:
         m = self.model
         info = {"eye": self.eye_name, "sphere_D": m.eye.sphere_D, "cylinder_D": m.eye.cylinder_D,
                 "axis_deg": m.eye.axis_deg, "pupil_mm": m.pupil_mm, "pupil": self.options.pupil,
-                "pupil_status": self.pupil_status, "robust": self.options.robust,
-                "page": self.options.robust and self.options.page, "display": self.display.name, "backend": self.backend,
+                "pupil_status": self.pupil_status, "robust": self.options.robust, "display": self.display.name,
+                "backend": self.backend,
                 "filter": self.options.filter, "strategy": self.strategy.name, "kernel_size": m.kernel.size,
                 "mu_rel": m.mu_rel, "beta": m.beta, "identity": m.identity, "margin": m.margin,
                 "build_seconds": m.build_seconds, "notes": list(m.notes)}

@@ -249,11 +249,6 @@ class CorrectorOptions:
         Design over a band of pupils and defocus around the pupil
         (:func:`~vrcorrect.physics.robust.design_eye`: one effective kernel, the frame's cost
         unchanged) instead of for the one eye; the commands use ``True``.
-    page
-        With ``robust``: the picture is a page of dark text or lines on light paper
-        (:func:`~vrcorrect.physics.page.page_verdict`), designed for the one eye without the band
-        and its light cap (:mod:`vrcorrect.physics.page` says why).  ``render`` and the windows judge
-        their first frame; the OpenXR layer, which designs before it sees a frame, leaves it False.
     age_years
         The wearer's age for ``pupil="auto"`` (None: the prescription's ``age_years``, else the
         pupil formula's reference age).
@@ -294,7 +289,6 @@ class CorrectorOptions:
     work_groups: WorkGroups = field(default_factory=WorkGroups)
     pupil: str | float = "rx"
     robust: bool = False
-    page: bool = False
     age_years: float | None = None
     fovea_deg: float | None = None
     fovea_periphery: str = Periphery.QUARTER
@@ -315,8 +309,6 @@ class CorrectorOptions:
             object.__setattr__(self, "pupil", check_pupil_mm(self.pupil, "pupil"))
         if not isinstance(self.robust, bool):
             raise ValidationError("robust", self.robust, "True or False")
-        if not isinstance(self.page, bool):
-            raise ValidationError("page", self.page, "True or False")
         if self.age_years is not None and (isinstance(self.age_years, bool) or
                                            not isinstance(self.age_years, (int, float)) or
                                            not 1 <= self.age_years <= 120):
@@ -502,7 +494,7 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
     kopts = options.kernel_options or KernelOptions()
     pupil = initial_pupil_mm(eye_rx, display, options, age_years=age_years) if pupil_mm is None else float(pupil_mm)
     design = design_eye(eye_rx, display, pupil, robust=options.robust, reference=options.reference, options=kopts,
-                        kernels=kernels, progress=progress, page=options.page)
+                        kernels=kernels, progress=progress)
     kernel, reference, seen = design.kernel, design.reference, design.nominal
     if options.pupil == "auto" and grid_kernel_size is None:          # the grids hold the bank's reachable designs
         reach_mm = auto_reach_mm(eye_rx, display, options, pupil, age_years) if reach_mm is None else reach_mm

@@ -43,12 +43,12 @@ import queue
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
 from ..plumbing.errors import VrcorrectError
-from ..specs.display import DisplayProfile, decode
+from ..specs.display import DisplayProfile
 from ..specs.prescription import EyeRx
 
 __all__ = ["BANK_STEP", "BANK_PUPILS_MM", "BANK_REACH_STEPS", "HYSTERESIS", "GRID_MARGIN", "bank_pupils",
@@ -302,22 +302,3 @@ def relative_luminance_of(image_linear: np.ndarray, display: DisplayProfile) -> 
     from ..physics.perception import luminance_weights  # start-up time (as above)
 
     return float(np.mean(np.asarray(image_linear, np.float64) @ luminance_weights(display)))
-
-
-def first_frame_facts(codes: np.ndarray, display: DisplayProfile, *, light: bool, page: bool) -> dict[str, Any]:
-    """What an eye's first design takes from the first frame it will correct, ``codes`` (``(H, W, 3+)``
-    sRGB code values in [0, 1]): its mean relative luminance (``first_luminance``, with ``light``: the
-    pupil follows the light) and whether it is a page (``page``, with ``page``: a robust design;
-    :func:`~vrcorrect.physics.page.page_verdict`), as :class:`~vrcorrect.runtime.corrector.Corrector`
-    fields.  ``render`` and the windows both ask it."""
-    if not (light or page):
-        return {}
-    linear = decode(display, np.clip(np.asarray(codes, np.float32)[..., :3], 0.0, 1.0))
-    facts: dict[str, Any] = {}
-    if light:
-        facts["first_luminance"] = relative_luminance_of(linear, display)
-    if page:
-        from ..physics.page import page_verdict  # start-up time (as above)
-
-        facts["page"] = page_verdict(linear, display).page
-    return facts

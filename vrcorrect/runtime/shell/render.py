@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Callable, Hashable, Iterable, Iterator
 import numpy as np
 
 from ...plumbing.errors import ValidationError
-from ...specs.display import DisplayProfile, get_display
+from ...specs.display import DisplayProfile, decode, get_display
 from ...specs.vocabulary import Backend, Eye
 from ...vision.forward import check_image
 from ..corrector import Corrector, runs_iterations
@@ -39,7 +39,7 @@ from ..gl import (
     write_texture,
 )
 from ..motion import MotionTracker
-from ..pupil_bank import first_frame_facts
+from ..pupil_bank import relative_luminance_of
 from ..rx_snapshot import RxSource
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -77,7 +77,7 @@ def render_frame(image: np.ndarray, rx: RxSource, display: str | os.PathLike[str
     _check_view(view)
     frames = check_frames(frames)
     img = _codes(image, "image")
-    options = _with_first_frame(options, img, display)
+    options = _with_first_light(options, img, display)
     with _corrector_session(ctx, rx, display, eye, backend, options, frame_time_s) as (ctx, corrector, held, build_s):
         t1 = time.perf_counter()
         src = upload_texture(ctx, img)
@@ -109,16 +109,15 @@ def _check_view(view: str) -> None:
         raise ValidationError("view", view, "one of " + ", ".join(VIEWS))
 
 
-def _with_first_frame(options: dict[str, Any], first_codes: np.ndarray, display: Any) -> dict[str, Any]:
-    """``options`` with what the first frame tells the first design
-    (:func:`~vrcorrect.runtime.pupil_bank.first_frame_facts`): its mean relative luminance
-    (``first_luminance``) where the pupil follows the light, and whether it is a page (``page``) where
-    the design is robust."""
-    light, page = options.get("pupil") == "auto", bool(options.get("robust")) and "page" not in options
-    if not (light or page):
+def _with_first_light(options: dict[str, Any], first_codes: np.ndarray, display: Any) -> dict[str, Any]:
+    """``options`` with the first frame's mean relative luminance (``first_luminance``) where the pupil
+    follows the light, so that the first design is for it."""
+    if options.get("pupil") != "auto":
         return options
+
     profile = display if isinstance(display, DisplayProfile) else get_display(display)
-    return {**options, **first_frame_facts(first_codes.astype(np.float32) / 255.0, profile, light=light, page=page)}
+    linear = decode(profile, first_codes.astype(np.float32) / 255.0)
+    return {**options, "first_luminance": relative_luminance_of(linear, profile)}
 
 
 @contextlib.contextmanager
@@ -191,7 +190,7 @@ def render_clip(frames: Iterable[tuple[Hashable, np.ndarray]], rx: RxSource,
     first = next(frames, None)
     if first is None:
         raise ValidationError("frames", "no frames", "one or more frames")
-    options = _with_first_frame(options, _codes(first[1], "frames[0]"), display)
+    options = _with_first_light(options, _codes(first[1], "frames[0]"), display)
     frames = itertools.chain([first], frames)
     with _corrector_session(ctx, rx, display, eye, backend, options, frame_time_s) as (ctx, corrector, held, build_s):
         iterates = runs_iterations(corrector) and view != "seen-uncorrected"

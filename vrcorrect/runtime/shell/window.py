@@ -16,7 +16,6 @@ Layer 5: numpy, Pillow, moderngl, glfw (pyopenxr for the headset); never torch.
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
 from types import ModuleType
@@ -26,7 +25,7 @@ import numpy as np
 
 from ...plumbing.errors import GLUnavailableError, InputError, ValidationError, VrcorrectError
 from ...plumbing.imageio import write_png
-from ...specs.display import get_display
+from ...specs.display import decode, get_display
 from ...specs.prescription import EyeRx, bundled_sample_path
 from .. import eye_cache
 from ..corrector import Corrector
@@ -34,7 +33,7 @@ from ..eye_model import CorrectorOptions, initial_pupil_mm
 from ..eye_source import EyeSource, EyeUpdate
 from ..gl import download_texture, read_framebuffer
 from ..optional import require_glfw, require_moderngl
-from ..pupil_bank import first_frame_facts
+from ..pupil_bank import relative_luminance_of
 from ..rx_snapshot import RxSnapshot
 from .keys import GLFW_PRESS, key_map_text
 from .timing import StageTimes
@@ -219,30 +218,26 @@ class WindowApp:
         (:meth:`~vrcorrect.runtime.corrector.Corrector.keep_pupil_designs`).
 
         ``first``: each eye's first source frame (a texture of sRGB codes).  With ``pupil="auto"`` the
-        first design is for the pupil of its light (:meth:`_first_facts`), as a render's and the OpenXR
-        layer's are, not a mid-grey frame's that the bank would leave a few seconds later; with
-        ``robust``, the eyes are designed as a page where every first frame is one (as ``render``)."""
-        auto = options.pupil == "auto" and first is not None
-        facts: dict[int, dict[str, Any]] = {}            # by texture: a picture source gives both eyes one
-        if first is not None and (auto or options.robust):
-            for eye in eyes:
-                if id(first[eye]) not in facts:
-                    facts[id(first[eye])] = self._first_facts(first[eye], light=auto, page=options.robust)
-            if options.robust:
-                options = dataclasses.replace(options, page=all(f["page"] for f in facts.values()))
+        first design is for the pupil of its light (:meth:`_first_light`), as a render's and the OpenXR
+        layer's are, not a mid-grey frame's that the bank would leave a few seconds later."""
         self.eye_source = EyeSource(self._rx, self.display, options, eyes=tuple(eyes))
         prescription = self.eye_source.prescription
         age = options.age_years if options.age_years is not None else prescription.age_years
+        auto = options.pupil == "auto" and first is not None
+        lights: dict[int, float] = {}                    # by texture: a picture source gives both eyes one
         for eye in eyes:
             eye_rx = self.eye_source.eye_rx(eye)
-            light = facts[id(first[eye])]["first_luminance"] if auto else None
+            light = None
+            if auto:
+                if id(first[eye]) not in lights:
+                    lights[id(first[eye])] = self._first_light(first[eye])
+                light = lights[id(first[eye])]
             pupil = initial_pupil_mm(eye_rx, self.display, options, light, age)
             # each eye's first design and the pupil bank's (pupil "auto") are kept in vrcorrect's cache
             # folder: launched again, the window starts at once and follows the light without designing
             cache_key = eye_cache.start_key(eye_rx, self.display, options, age, pupil)
             kept = eye_cache.load_design(cache_key)
-            whence = (f"; pupil {pupil:.2f} mm from the first frame's light" if auto else "") + \
-                ("; a page: designed for the one eye" if options.page else "")
+            whence = f"; pupil {pupil:.2f} mm from the first frame's light" if auto else ""
             self.say(f"{'starting' if kept is not None else 'building'} the {eye} eye's correction "
                      f"({_eye_words(prescription.eye(eye))} on {self.display.name}{whence})...")
             t0 = time.perf_counter()
@@ -256,13 +251,12 @@ class WindowApp:
                 self.say(f"  designed before: taken from {eye_cache.cache_dir()} ({time.perf_counter() - t0:.1f} s)")
         self.eye_source.check = self.correctors[eyes[0]].check_eye      # a learned model's range, before each design
 
-    def _first_facts(self, texture: Any, *, light: bool, page: bool) -> dict[str, Any]:
-        """What the first design takes from a source frame, ``texture`` (sRGB codes, 8-bit or float),
-        read back once (:func:`~vrcorrect.runtime.pupil_bank.first_frame_facts`): its mean relative
-        luminance on the display, as the corrector's meter measures it, and whether it is a page."""
+    def _first_light(self, texture: Any) -> float:
+        """The mean relative luminance (white = 1) on the display of a source frame, ``texture`` (sRGB
+        codes, 8-bit or float), read back once: what the corrector's meter measures of that frame."""
         pixels = download_texture(texture)[..., :3]
-        codes = pixels.astype(np.float32) / 255.0 if pixels.dtype == np.uint8 else pixels
-        return first_frame_facts(codes, self.display, light=light, page=page)
+        codes = pixels.astype(np.float32) / 255.0 if pixels.dtype == np.uint8 else np.clip(pixels, 0.0, 1.0)
+        return relative_luminance_of(decode(self.display, codes), self.display)
 
     def _poll_eyes(self) -> tuple[list[EyeUpdate], list[str]]:
         """Install the eyes the :class:`~vrcorrect.runtime.eye_source.EyeSource` has designed since

@@ -16,8 +16,7 @@ Methods (``fast`` unless said):
   pupil came from the light);
 * ``default``: ``--pupil auto --robust on``: the pupil from the image's light (designed for the pupil
   bank's nearest entry, as every command does; the eye as it is sees through the light's own pupil),
-  the robust band and its light cap (:func:`~vrcorrect.solvers.problem.light_cap`), or for a page of
-  dark text on light paper (:func:`~vrcorrect.physics.page.page_verdict`) the one eye without the cap;
+  the robust band and its light cap (:func:`~vrcorrect.solvers.problem.light_cap`);
 * ``real time``: the same design through the real-time default's CPU twin (equal to the GPU,
   ``tests/test_pupil.py``), ten frames of the still (``vrcorrect render``'s default);
 * ``learned``: the shipped learned model (``models/default.onnx``) given the same design;
@@ -134,10 +133,7 @@ def _case(display_name: str, image_name: str, bar, kernels: dict, size: int = SI
     shown: dict[str, np.ndarray] = {"none": target}
     old = design_eye(EYE, display, OLD_PUPIL_MM, robust=False, kernels=kernels)
     shown["4 mm"] = solve(make_problem(target, old.kernel, old.reference), "fast").image
-    from ...physics.page import page_verdict  # on use: start-up time (the CLI imports the studies to build its parser)
-
-    page = page_verdict(target, display)          # --robust on designs a page for the one eye
-    default = design_eye(EYE, display, entry, kernels=kernels, page=page.page)
+    default = design_eye(EYE, display, entry, kernels=kernels)
     problem = make_design_problem(target, default)
     t0 = time.perf_counter()
     shown["default"] = solve(problem, "fast").image
@@ -159,7 +155,6 @@ def _case(display_name: str, image_name: str, bar, kernels: dict, size: int = SI
         rows.append({"pupil_mm": q, "sphere_offset_D": s, "scores": scores})
     return {"display": display_name, "image": image_name, "pupil_mm": p, "design_pupil_mm": entry,
             "pupil": estimate.describe() + f"; the default designed for {entry:.2f} mm, the pupil bank's nearest entry",
-            "page": page.describe(),
             "design": default.describe()[0], "default_seconds": default_s, "rows": rows,
             "_problem": problem, "_default": default, "_target": target}
 
@@ -399,7 +394,7 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
         for d in displays:
             for name in images:
                 cases.append(_case(d, name, bar, kernels, size, seen_pupils, seen_spheres))
-    bounds = [_boundary(c) for c in cases if c["_default"].robust] if boundary else []   # a page's is one eye's
+    bounds = [_boundary(c) for c in cases] if boundary else []
     seconds = time.perf_counter() - t0
     lines = ["## The eye as it is: a correction against the eye it meets (`vrcorrect bench robust`)", "",
              f"Machine: {machine_description()}. {len(cases)} cases in {seconds / 60:.0f} min. The eye: right "
@@ -409,8 +404,7 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
              "sphere, and the sphere off by -0.5 to +0.5 D at the pupil the light gives. JOD (ColorVideoVDP) of "
              "what that eye sees against the target image; gains are over no correction. `4 mm`: designed for a "
              "4 mm pupil, as every correction was before; `default`: `--pupil auto --robust on` (`fast`; the "
-             "robust band and its light cap, each primary at most twice the target's light plus 0.02, or, for a "
-             "page of dark text on light paper, the one eye at the light's pupil without the cap); `real "
+             "robust band and its light cap, each primary at most twice the target's light plus 0.02); `real "
              "time`: the same design through the real-time default's CPU twin, 10 frames of the still; `learned`: "
              "the shipped learned model (models/default.onnx) on the same design, under the same light cap at "
              "every stage; `ceiling`: designed for exactly the eye seen (`--robust off`: one eye, the box [0, 1]).", ""]
@@ -440,8 +434,7 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
                          *(f"{_gain(r, m):+.2f}" for m in METHODS[1:]),
                          f"{sc['none']['flip']:.3f} / {sc['default']['flip']:.3f} / {sc['ceiling']['flip']:.3f}",
                          f"{sc['default']['objective'] / sc['none']['objective']:.3f}"])
-        lines += [f"### {c['display']}, {c['image']}: {c['pupil']}", "", f"{c['page'][0].upper()}{c['page'][1:]}. "
-                  + c["design"] + ".", "",
+        lines += [f"### {c['display']}, {c['image']}: {c['pupil']}", "", c["design"] + ".", "",
                   markdown_table(["pupil seen (mm)", "sphere off (D)", "JOD none", "4 mm", "default", "real time",
                                   "learned", "ceiling", "FLIP none / default / ceiling", "objective default / none"],
                                  rows), ""]
