@@ -368,6 +368,21 @@ def _frames():
     return (big * 0.08).astype(np.uint8), big
 
 
+def test_a_frames_code_values_are_measured_as_its_decoded_light():
+    """``codes_luminance``: 8-bit and float code values of one frame measure the same light, the
+    alpha left out, floats held in [0, 1]; white is 1 and black 0."""
+    from vrcorrect.runtime.pupil_bank import codes_luminance
+
+    rng = np.random.default_rng(3)
+    u8 = rng.integers(0, 256, (12, 10, 4), dtype=np.uint8)
+    want = relative_luminance_of(decode(QUEST2, u8[..., :3].astype(np.float32) / 255), QUEST2)
+    assert codes_luminance(u8, QUEST2) == pytest.approx(want, rel=1e-6)
+    assert codes_luminance(u8[..., :3].astype(np.float32) / 255, QUEST2) == pytest.approx(want, rel=1e-6)
+    assert codes_luminance(np.full((2, 2, 3), 255, np.uint8), QUEST2) == pytest.approx(1.0, abs=1e-6)
+    assert codes_luminance(np.full((2, 2, 3), 1.7, np.float32), QUEST2) == pytest.approx(1.0, abs=1e-6)
+    assert codes_luminance(np.zeros((2, 2, 3), np.uint8), QUEST2) == 0.0
+
+
 def test_the_gpu_measures_the_frames_light_two_frames_late(gl):
     from vrcorrect.runtime import gl as G
     from vrcorrect.runtime.corrector import Corrector

@@ -48,7 +48,7 @@ from typing import Callable
 import numpy as np
 
 from ..plumbing.errors import VrcorrectError
-from ..specs.display import DisplayProfile
+from ..specs.display import DisplayProfile, decode
 from ..specs.prescription import EyeRx
 
 __all__ = ["BANK_STEP", "BANK_PUPILS_MM", "BANK_REACH_STEPS", "HYSTERESIS", "GRID_MARGIN", "bank_pupils",
@@ -302,3 +302,13 @@ def relative_luminance_of(image_linear: np.ndarray, display: DisplayProfile) -> 
     from ..physics.perception import luminance_weights  # start-up time (as above)
 
     return float(np.mean(np.asarray(image_linear, np.float64) @ luminance_weights(display)))
+
+
+def codes_luminance(codes: np.ndarray, display: DisplayProfile) -> float:
+    """:func:`relative_luminance_of` a frame given as code values: 8-bit, or floats in [0, 1] (held
+    there), ``(H, W, 3+)`` (the alpha, if any, left out): what a window's or a render's first frame
+    is measured as before its first design."""
+    pixels = np.asarray(codes)[..., :3]
+    unit = (pixels.astype(np.float32) / 255.0 if pixels.dtype == np.uint8
+            else np.clip(pixels.astype(np.float32), 0.0, 1.0))
+    return relative_luminance_of(decode(display, unit), display)

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Callable, Hashable, Iterable, Iterator
 import numpy as np
 
 from ...plumbing.errors import ValidationError
-from ...specs.display import DisplayProfile, decode, get_display
+from ...specs.display import DisplayProfile, get_display
 from ...specs.vocabulary import Backend, Eye
 from ...vision.forward import check_image
 from ..corrector import Corrector, runs_iterations
@@ -39,7 +39,7 @@ from ..gl import (
     write_texture,
 )
 from ..motion import MotionTracker
-from ..pupil_bank import relative_luminance_of
+from ..pupil_bank import codes_luminance
 from ..rx_snapshot import RxSource
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -116,8 +116,7 @@ def _with_first_light(options: dict[str, Any], first_codes: np.ndarray, display:
         return options
 
     profile = display if isinstance(display, DisplayProfile) else get_display(display)
-    linear = decode(profile, first_codes.astype(np.float32) / 255.0)
-    return {**options, "first_luminance": relative_luminance_of(linear, profile)}
+    return {**options, "first_luminance": codes_luminance(first_codes, profile)}
 
 
 @contextlib.contextmanager

@@ -25,7 +25,7 @@ import numpy as np
 
 from ...plumbing.errors import GLUnavailableError, InputError, ValidationError, VrcorrectError
 from ...plumbing.imageio import write_png
-from ...specs.display import decode, get_display
+from ...specs.display import get_display
 from ...specs.prescription import EyeRx, bundled_sample_path
 from .. import eye_cache
 from ..corrector import Corrector
@@ -33,7 +33,7 @@ from ..eye_model import CorrectorOptions, initial_pupil_mm
 from ..eye_source import EyeSource, EyeUpdate
 from ..gl import download_texture, read_framebuffer
 from ..optional import require_glfw, require_moderngl
-from ..pupil_bank import relative_luminance_of
+from ..pupil_bank import codes_luminance
 from ..rx_snapshot import RxSnapshot
 from .keys import GLFW_PRESS, key_map_text
 from .timing import StageTimes
@@ -254,9 +254,7 @@ class WindowApp:
     def _first_light(self, texture: Any) -> float:
         """The mean relative luminance (white = 1) on the display of a source frame, ``texture`` (sRGB
         codes, 8-bit or float), read back once: what the corrector's meter measures of that frame."""
-        pixels = download_texture(texture)[..., :3]
-        codes = pixels.astype(np.float32) / 255.0 if pixels.dtype == np.uint8 else np.clip(pixels, 0.0, 1.0)
-        return relative_luminance_of(decode(self.display, codes), self.display)
+        return codes_luminance(download_texture(texture), self.display)
 
     def _poll_eyes(self) -> tuple[list[EyeUpdate], list[str]]:
         """Install the eyes the :class:`~vrcorrect.runtime.eye_source.EyeSource` has designed since
