@@ -13,6 +13,9 @@ for exactly 3 mm (the issue asks 80 %).
     .venv/bin/python tools/robust_band_choice.py                      # the default and the first band
     .venv/bin/python tools/robust_band_choice.py "pf=1;sp=1,3,1"      # any band: pf pupil factors, pp their
                                                                       # priors, so sphere offsets, sp priors
+    .venv/bin/python tools/robust_band_choice.py --image scan.png ""  # the default on the choice images and
+                                                                      # a picture of your own (repeatable;
+                                                                      # centre-cropped and scaled to 256 px)
 
 About a minute and a half for the first band on 2 cores (the seen eyes' kernels are built then), seconds
 for each after it.  Dev machine, 2026-11-28, the worst case over the eight (least gain; share at 3 mm,
@@ -78,9 +81,9 @@ default stays at +0.09 / +0.05: a scan's grey, textured paper and thin strokes s
 halos as a photograph does, and the clean rendered pages of the choice set do not.  (The first page
 rule, one paper level for the picture, judged that scan no page; its shading model was added after
 that verdict, so the scan's figures were not blind to that step.)  What this leaves: the choice set
-needs real documents (scans or photographs of pages, none of them the held-out scan) before any
-picture-dependent design can be chosen; until then the default band stays, and the pages' 80 % bar
-(79 % / 75 % on the held-out page) stays open.
+needs real documents (scans or photographs of pages, none of them the held-out scan; ``--image``
+adds them) before any picture-dependent design can be chosen; until then the default band stays, and
+the pages' 80 % bar (79 % / 75 % on the held-out page) stays open.
 """
 
 from __future__ import annotations
@@ -110,8 +113,15 @@ _kernels: dict = {}
 _cases: dict = {}
 
 
+_files: dict[str, str] = {}                                                      # --image: name -> path
+
+
 def choice_image(name: str) -> np.ndarray:
     assert name not in HELD_OUT
+    if name in _files:                   # a picture given with --image (a real document, say)
+        from vrcorrect.plumbing.imageio import read_image
+
+        return prepare_image(read_image(_files[name], []), 256, name)
     if name == "chart":
         return prepare_image(text_chart(256, 256), 256, "chart")
     if name == "words":                  # the tuning clips' page: dark words on light paper, 14 px
@@ -155,13 +165,28 @@ def _case(display_name: str, name: str):
 
 
 def main(argv: list[str]) -> int:
+    images = list(CHOICE_IMAGES)
+    while "--image" in argv:
+        i = argv.index("--image")
+        if i + 1 >= len(argv):
+            print("robust_band_choice: --image needs a path", file=sys.stderr)
+            return 2
+        path = argv[i + 1]
+        name = path.rsplit("/", 1)[-1].rsplit(".", 1)[0]
+        if name in HELD_OUT or name in images:
+            print(f"robust_band_choice: --image {path}: the name {name!r} is taken (a choice or held-out image)",
+                  file=sys.stderr)
+            return 2
+        _files[name] = path
+        images.append(name)
+        argv = argv[:i] + argv[i + 2:]
     for text in argv or BANDS:
         band = parse_band(text)
         t0 = time.perf_counter()
         print(f"band {text or 'default'}: pupil factors {band.pupil_factors} (priors {band.pupil_priors}), "
               f"sphere offsets {band.sphere_offsets_D} D (priors {band.sphere_priors})")
         for display_name in DISPLAYS:
-            for name in CHOICE_IMAGES:
+            for name in images:
                 display, target, p, seen = _case(display_name, name)
                 design = design_eye(EYE, display, nearest_bank_pupil(p), band=band, kernels=_kernels)
                 shown = solve(make_design_problem(target, design), "fast").image
