@@ -96,6 +96,7 @@ import numpy as np
 from vrcorrect.physics.perception import luminance_weights
 from vrcorrect.physics.pupil import pupil_from_light
 from vrcorrect.physics.robust import RobustBand, design_eye
+from vrcorrect.plumbing.errors import VrcorrectError
 from vrcorrect.plumbing.charts import text_chart
 from vrcorrect.plumbing.images import prepare_image
 from vrcorrect.runtime.pupil_bank import nearest_bank_pupil
@@ -111,8 +112,6 @@ SEEN = ((2.5, 0.0), (3.0, 0.0), (4.0, 0.0), (5.5, 0.0), (None, -0.5), (None, 0.5
 BANDS = ("pf=0.8,1,1.25;pp=1,2,1;so=-0.25,0,0.25;sp=1,2,1", "")                      # "": the default
 _kernels: dict = {}
 _cases: dict = {}
-
-
 _files: dict[str, str] = {}                                                      # --image: name -> path
 
 
@@ -178,6 +177,11 @@ def main(argv: list[str]) -> int:
                   file=sys.stderr)
             return 2
         _files[name] = path
+        try:
+            choice_image(name)                                                   # a bad file: one line, now
+        except (VrcorrectError, OSError) as e:
+            print(f"robust_band_choice: --image {path}: {e}", file=sys.stderr)
+            return 2
         images.append(name)
         argv = argv[:i] + argv[i + 2:]
     for text in argv or BANDS:
