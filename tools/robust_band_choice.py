@@ -78,8 +78,8 @@ the light cap.  On the choice pages that kept 98 % / 83 % (``words``, desktop / 
 -0.01) and 98 % / 87 % (the chart; -0.02 / +0.02) of the exact 3 mm gain; with the cap 79 % on desktop
 ``words``.  On the held-out scanned page (``vrcorrect bench robust``) it kept 100 % / 97 % at 3 mm but
 fell 0.90 / 0.22 JOD below none with the sphere 0.5 D off (2.7x / 1.3x none's objective), where the
-default stays at +0.09 / +0.05: a scan's grey, textured paper and thin strokes show the over-sharpened
-halos as a photograph does, and the clean rendered pages of the choice set do not.  (The first page
+default stays at +0.09 / +0.05; the clean rendered pages of the choice set showed no such fall (why
+the scan does is a guess, below).  (The first page
 rule, one paper level for the picture, judged that scan no page; its shading model was added after
 that verdict, so the scan's figures were not blind to that step.)  What this leaves: the choice set
 needs real documents (scans or photographs of pages, none of them the held-out scan; ``--image``
@@ -109,6 +109,7 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -193,7 +194,7 @@ def main(argv: list[str]) -> int:
             print("robust_band_choice: --image needs a path", file=sys.stderr)
             return 2
         path = argv[i + 1]
-        name = path.rsplit("/", 1)[-1].rsplit(".", 1)[0]
+        name = Path(path).stem
         if name in HELD_OUT or name in images:
             print(f"robust_band_choice: --image {path}: the name {name!r} is taken (a choice or held-out image)",
                   file=sys.stderr)
