@@ -143,3 +143,94 @@ def test_a_signal_that_python_wraps_is_still_a_termination(monkeypatch, capsys):
     assert cli.main([]) == 128 + signal.SIGTERM
     assert capsys.readouterr().err.strip().splitlines() == ["vrcorrect: terminated (SIGTERM)"]
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+def _command_importing(monkeypatch, module_dir: Path, module: str, after):
+    """``cli.main`` with a command that imports ``module`` from ``module_dir``, then calls ``after``."""
+    import argparse
+    import importlib
+
+    from vrcorrect.apps import cli
+
+    monkeypatch.syspath_prepend(str(module_dir))
+
+    def command(args):
+        importlib.import_module(module)
+        after()
+        return 0
+
+    def parser():
+        ap = argparse.ArgumentParser(prog="vrcorrect")
+        ap.set_defaults(func=command)
+        return ap
+
+    monkeypatch.setattr(cli, "build_parser", parser)
+    return cli
+
+
+def test_a_signal_during_an_import_acts_when_the_import_is_done(tmp_path, monkeypatch, capsys):
+    """A SIGTERM that lands while a module is imported (torch's native initialisation runs Python
+    that cannot pass an exception on: one CI run aborted there, status -6) is held until the import
+    is done: the module is whole, and the command then ends as terminated (143, one line)."""
+    (tmp_path / "slow_import_mod.py").write_text(
+        "import os, signal, time\n"
+        "os.kill(os.getpid(), signal.SIGTERM)\n"
+        "t = time.monotonic()\n"
+        "while time.monotonic() - t < 0.4:\n"
+        "    pass\n"
+        "DONE = True\n")
+    reached = []
+    cli = _command_importing(monkeypatch, tmp_path, "slow_import_mod",
+                             lambda: (reached.append(True), time.sleep(5)))
+    try:
+        before = signal.getsignal(signal.SIGTERM)
+        assert cli.main([]) == 128 + signal.SIGTERM
+        assert sys.modules["slow_import_mod"].DONE is True
+        assert reached == [True]                  # the import returned; the signal acted after it
+        assert capsys.readouterr().err.strip().splitlines() == ["vrcorrect: terminated (SIGTERM)"]
+        assert signal.getsignal(signal.SIGTERM) is before
+    finally:
+        sys.modules.pop("slow_import_mod", None)
+
+
+def test_ctrl_c_during_an_import_is_an_interruption_after_it(tmp_path, monkeypatch, capsys):
+    (tmp_path / "slow_import_int.py").write_text(
+        "import os, signal, time\n"
+        "os.kill(os.getpid(), signal.SIGINT)\n"
+        "t = time.monotonic()\n"
+        "while time.monotonic() - t < 0.3:\n"
+        "    pass\n"
+        "DONE = True\n")
+    cli = _command_importing(monkeypatch, tmp_path, "slow_import_int", lambda: time.sleep(5))
+    try:
+        assert cli.main([]) == 130
+        assert sys.modules["slow_import_int"].DONE is True
+        assert capsys.readouterr().err.strip().splitlines() == ["vrcorrect: interrupted"]
+    finally:
+        sys.modules.pop("slow_import_int", None)
+
+
+def test_a_signal_the_process_ignores_stays_ignored(monkeypatch, capsys):
+    """Started under ``nohup`` (SIGHUP ignored), a command is not ended by a hang-up."""
+    import argparse
+    import os
+
+    from vrcorrect.apps import cli
+
+    def command(args):
+        os.kill(os.getpid(), signal.SIGHUP)
+        time.sleep(0.3)
+        return 0
+
+    def parser():
+        ap = argparse.ArgumentParser(prog="vrcorrect")
+        ap.set_defaults(func=command)
+        return ap
+
+    monkeypatch.setattr(cli, "build_parser", parser)
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        assert cli.main([]) == 0
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, previous)

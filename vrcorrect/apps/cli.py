@@ -47,18 +47,45 @@ class Terminated(BaseException):
         self.signum = signum
 
 
+#: How long a signal that arrived during an import waits before it is delivered again.
+IMPORT_RETRY_S = 0.05
+
+
+def _importing(frame: Any) -> bool:
+    """Whether ``frame`` runs inside an import (a frame of Python's import machinery below it)."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
+
+
 def _raise_terminated(signum: int, frame: Any) -> None:
+    """The command's handler of SIGTERM, SIGHUP and Ctrl-C.  Inside an import it raises nothing: an
+    extension's initialisation (torch's, for one) runs Python under native code that cannot pass an
+    exception on, and the process would abort.  The signal is sent again a moment later and acts
+    once the import is done."""
+    if _importing(frame):
+        timer = threading.Timer(IMPORT_RETRY_S, os.kill, (os.getpid(), signum))
+        timer.daemon = True
+        timer.start()
+        return
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
     raise Terminated(signum)
 
 
 @contextlib.contextmanager
 def _terminate_like_interrupt() -> Iterator[None]:
-    """Treat SIGTERM and SIGHUP as Ctrl-C for the duration of a command (main thread only)."""
-    names = [n for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n)]
+    """Treat SIGTERM and SIGHUP as Ctrl-C for the duration of a command (main thread only), and hold
+    all three back while a module is imported (:func:`_raise_terminated`).  A signal the process
+    was started ignoring (``nohup``'s SIGHUP, a background job's Ctrl-C) stays ignored."""
+    names = [n for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)]
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = {n: signal.signal(getattr(signal, n), _raise_terminated) for n in names}
+    old = {n: signal.signal(getattr(signal, n), _raise_terminated) for n in names
+           if signal.getsignal(getattr(signal, n)) is not signal.SIG_IGN}
     try:
         yield
     finally:
