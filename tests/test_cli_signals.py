@@ -234,3 +234,75 @@ def test_a_signal_the_process_ignores_stays_ignored(monkeypatch, capsys):
         assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
     finally:
         signal.signal(signal.SIGHUP, previous)
+
+
+def test_a_signal_in_a_librarys_code_acts_when_the_command_runs_again(tmp_path, monkeypatch, capsys):
+    """A SIGTERM that lands in an installed library's Python code (which native code may have called,
+    as torch's operators do) waits until the library returns to the command's own code."""
+    library = tmp_path / "site-packages"
+    library.mkdir()
+    (library / "slow_library_mod.py").write_text(
+        "import os, signal, time\n"
+        "FINISHED = []\n"
+        "def work():\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "    t = time.monotonic()\n"
+        "    while time.monotonic() - t < 0.4:\n"
+        "        pass\n"
+        "    FINISHED.append(True)\n")
+    monkeypatch.syspath_prepend(str(library))
+    import slow_library_mod
+
+    reached = []
+    cli = _command_importing(monkeypatch, library, "slow_library_mod",
+                             lambda: (slow_library_mod.work(), reached.append(True), time.sleep(5)))
+    try:
+        assert cli.main([]) == 128 + signal.SIGTERM
+        assert slow_library_mod.FINISHED == [True] and reached == [True]
+        assert capsys.readouterr().err.strip().splitlines() == ["vrcorrect: terminated (SIGTERM)"]
+    finally:
+        sys.modules.pop("slow_library_mod", None)
+
+
+def test_a_held_signal_acts_after_the_longest_hold(tmp_path, monkeypatch, capsys):
+    """A library that never returns (a loop in its own code) is still ended: the signal is held at
+    most ``HOLD_MAX_S``."""
+    from vrcorrect.apps import cli as cli_module
+
+    monkeypatch.setattr(cli_module, "HOLD_MAX_S", 0.5)
+    library = tmp_path / "site-packages"
+    library.mkdir()
+    (library / "endless_library_mod.py").write_text(
+        "import os, signal, time\n"
+        "def work():\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "    t = time.monotonic()\n"
+        "    while time.monotonic() - t < 60:\n"
+        "        pass\n")
+    monkeypatch.syspath_prepend(str(library))
+    import endless_library_mod
+
+    cli = _command_importing(monkeypatch, library, "endless_library_mod", endless_library_mod.work)
+    try:
+        t0 = time.monotonic()
+        assert cli.main([]) == 128 + signal.SIGTERM
+        assert time.monotonic() - t0 < 10
+    finally:
+        sys.modules.pop("endless_library_mod", None)
+
+
+def test_vrcorrects_own_code_is_never_held_where_it_is_installed(monkeypatch):
+    """Installed from a wheel, vrcorrect itself lives in site-packages: a signal in its own code still
+    acts at once, one in another library's code waits."""
+    from types import SimpleNamespace
+
+    from vrcorrect.apps import cli
+
+    monkeypatch.setattr(cli, "_OWN_CODE", "/usr/lib/python3/site-packages/vrcorrect/")
+
+    def frame(path):
+        return SimpleNamespace(f_code=SimpleNamespace(co_filename=path), f_back=None)
+
+    assert not cli._hold_here(frame("/usr/lib/python3/site-packages/vrcorrect/solvers/admm.py"))
+    assert cli._hold_here(frame("/usr/lib/python3/site-packages/torch/nn/modules/module.py"))
+    assert not cli._hold_here(frame("/usr/lib/python3.11/threading.py"))

@@ -15,6 +15,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from typing import Any, Iterator, Sequence
 
 from ..plumbing.errors import VrcorrectError
@@ -47,12 +48,20 @@ class Terminated(BaseException):
         self.signum = signum
 
 
-#: How long a signal that arrived during an import waits before it is delivered again.
-IMPORT_RETRY_S = 0.05
+#: How long a held signal waits before it is sent again (:func:`_raise_terminated`).
+HOLD_RETRY_S = 0.05
+#: The longest a signal is held: then it acts wherever the command is.
+HOLD_MAX_S = 10.0
+_held_since: dict[int, float] = {}
+_OWN_CODE = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep     # vrcorrect/, installed or not
 
 
-def _importing(frame: Any) -> bool:
-    """Whether ``frame`` runs inside an import (a frame of Python's import machinery below it)."""
+def _hold_here(frame: Any) -> bool:
+    """Whether a signal landing in ``frame`` waits: inside an import (a frame of Python's import
+    machinery below it), or in an installed library's Python code (site-packages, not vrcorrect's)."""
+    code = frame.f_code.co_filename if frame is not None else ""
+    if ("site-packages" in code or "dist-packages" in code) and not code.startswith(_OWN_CODE):
+        return True
     while frame is not None:
         if frame.f_code.co_filename.startswith("<frozen importlib"):
             return True
@@ -61,15 +70,21 @@ def _importing(frame: Any) -> bool:
 
 
 def _raise_terminated(signum: int, frame: Any) -> None:
-    """The command's handler of SIGTERM, SIGHUP and Ctrl-C.  Inside an import it raises nothing: an
-    extension's initialisation (torch's, for one) runs Python under native code that cannot pass an
-    exception on, and the process would abort.  The signal is sent again a moment later and acts
-    once the import is done."""
-    if _importing(frame):
-        timer = threading.Timer(IMPORT_RETRY_S, os.kill, (os.getpid(), signum))
+    """The command's handler of SIGTERM, SIGHUP and Ctrl-C.
+
+    Where the command's own code (or the standard library's) runs, it raises at once.  Inside an
+    import or a library's Python code it raises nothing: native code may have called that Python (an
+    extension's initialisation, torch's operators) and may be unable to pass an exception on, and the
+    process would abort (one CI run of ``correct --report`` ended with status -6 and a pybind11
+    exception's traceback after a SIGTERM).  The signal is sent again a moment later and acts once the
+    command's own code runs again, or after :data:`HOLD_MAX_S` wherever it is."""
+    now = time.monotonic()
+    if _hold_here(frame) and now - _held_since.setdefault(signum, now) < HOLD_MAX_S:
+        timer = threading.Timer(HOLD_RETRY_S, os.kill, (os.getpid(), signum))
         timer.daemon = True
         timer.start()
         return
+    _held_since.pop(signum, None)
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
     raise Terminated(signum)
@@ -78,7 +93,7 @@ def _raise_terminated(signum: int, frame: Any) -> None:
 @contextlib.contextmanager
 def _terminate_like_interrupt() -> Iterator[None]:
     """Treat SIGTERM and SIGHUP as Ctrl-C for the duration of a command (main thread only), and hold
-    all three back while a module is imported (:func:`_raise_terminated`).  A signal the process
+    all three back while a module is imported or a library's Python code runs (:func:`_raise_terminated`).  A signal the process
     was started ignoring (``nohup``'s SIGHUP, a background job's Ctrl-C) stays ignored."""
     names = [n for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)]
     if threading.current_thread() is not threading.main_thread():
