@@ -94,3 +94,75 @@ def test_a_window_opens_on_a_thread_whose_headless_contexts_were_released(x_disp
                             timeout=120, cwd=tmp_path)
     assert result.returncode == 0 and "window " in result.stdout, (result.returncode, result.stdout,
                                                                    result.stderr[-2000:])
+
+
+_LATE_DISPLAY = """
+import sys
+import glfw
+from vrcorrect.plumbing.errors import GLUnavailableError
+real_init = glfw.init
+def init():                                        # each attempt said, so the test knows when to start X
+    ok = real_init()
+    print("attempt", bool(ok), flush=True)
+    return ok
+glfw.init = init
+from vrcorrect.runtime.shell.window import GlfwSession
+GlfwSession.RETRY_DELAYS_S = tuple(float(d) for d in sys.argv[1].split(","))
+try:
+    with GlfwSession(platform="x11") as window:
+        window.open(64, 48, "late display", visible=False, vsync=False)
+        print("window", window.ctx.version_code, flush=True)
+except GLUnavailableError as e:
+    print("refused:", e, flush=True)
+"""
+
+
+def _free_display_number() -> int:
+    import os
+
+    for number in range(200 + os.getpid() % 300, 1000):
+        if not os.path.exists(f"/tmp/.X{number}-lock") and not os.path.exists(f"/tmp/.X11-unix/X{number}"):
+            return number
+    raise AssertionError("no free X display number")
+
+
+def test_a_display_that_answers_late_is_tried_again(tmp_path):
+    """An X server that is not yet accepting connections when the window is asked for (a busy test
+    machine refused one once) is tried again: here Xvfb starts on the named display half a second
+    after the window's first attempt, and the window opens."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    from conftest import stop_process
+
+    number = _free_display_number()
+    env = dict(os.environ, DISPLAY=f":{number}")
+    client = subprocess.Popen([sys.executable, "-c", _LATE_DISPLAY, "1,2,4,8"], env=env, cwd=tmp_path,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    first = client.stdout.readline()                   # the first attempt has failed: no server yet
+    server = subprocess.Popen([shutil.which("Xvfb"), f":{number}", "-screen", "0", "320x240x24", "-nolisten", "tcp"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        out, err = client.communicate(timeout=120)
+    finally:
+        stop_process(server)
+    assert first == "attempt False\n", (first, out, err[-2000:])
+    assert client.returncode == 0 and "attempt True" in out and "window " in out, (out, err[-2000:])
+
+
+def test_a_display_that_never_answers_is_reported_after_the_tries(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    number = _free_display_number()
+    env = dict(os.environ, DISPLAY=f":{number}")
+    result = subprocess.run([sys.executable, "-c", _LATE_DISPLAY, "0.01,0.01"], env=env, cwd=tmp_path,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr[-2000:]
+    lines = result.stdout.splitlines()
+    assert lines[:3] == ["attempt False"] * 3 and len(lines) == 4, result.stdout
+    assert lines[3].startswith("refused: cannot open a window: GLFW found no display"), result.stdout
+    assert "3 attempts over 0.0 s" in lines[3] and f":{number}" in lines[3], result.stdout

@@ -16,6 +16,7 @@ Layer 5: numpy, Pillow, moderngl, glfw (pyopenxr for the headset); never torch.
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 from types import ModuleType
@@ -78,6 +79,12 @@ class GlfwSession:
     OpenGL 4.3 core context (the corrector's compute shaders need it).
     """
 
+    #: Seconds to wait before each further attempt to reach a display that is named (``DISPLAY``):
+    #: a connection refused once by a busy X server (seen once on a loaded test machine: "X11:
+    #: Failed to open display :0" while that server ran) is tried again; one that stays unreachable
+    #: is reported after the last.
+    RETRY_DELAYS_S: tuple[float, ...] = (0.2, 0.5, 1.0)
+
     def __init__(self, platform: str | None = None):
         glfw = require_glfw()
         self.glfw: ModuleType | None = glfw
@@ -90,10 +97,16 @@ class GlfwSession:
             lambda code, text: self.errors.append(text.decode(errors="replace") if isinstance(text, bytes) else text))
         if platform is not None:
             glfw.init_hint(glfw.PLATFORM, glfw.PLATFORM_X11 if platform == "x11" else glfw.PLATFORM_WAYLAND)
-        if not glfw.init():
+        delays = self.RETRY_DELAYS_S if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") else ()
+        for delay in (0.0, *delays):
+            time.sleep(delay)
+            if glfw.init():
+                break
+        else:
             reason = "; ".join(self.errors[-2:] or ["glfw.init failed"])
+            tries = f", {len(delays) + 1} attempts over {sum(delays):.1f} s" if delays else ""
             self.close()
-            raise GLUnavailableError(f"cannot open a window: GLFW found no display ({reason}); set DISPLAY, "
+            raise GLUnavailableError(f"cannot open a window: GLFW found no display ({reason}{tries}); set DISPLAY, "
                                      "or run under xvfb-run")
         self._initialised = True
 
