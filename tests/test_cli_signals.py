@@ -118,10 +118,7 @@ def test_a_signal_that_python_wraps_is_still_a_termination(monkeypatch, capsys):
     """A real SIGTERM delivered while a class is created (as when a library is imported) lands in a
     descriptor's ``__set_name__``; Python 3.11 re-raises it as a RuntimeError caused by it.  The
     command still ends as terminated (143, one line), not as an internal error (as one CI run did)."""
-    import argparse
     import os
-
-    from vrcorrect.apps import cli
 
     class Descriptor:
         def __set_name__(self, owner, name):
@@ -133,31 +130,18 @@ def test_a_signal_that_python_wraps_is_still_a_termination(monkeypatch, capsys):
             field = Descriptor()
         return 0
 
-    def parser():
-        ap = argparse.ArgumentParser(prog="vrcorrect")
-        ap.set_defaults(func=command)
-        return ap
-
-    monkeypatch.setattr(cli, "build_parser", parser)
+    cli = _cli_running(monkeypatch, command)
     before = signal.getsignal(signal.SIGTERM)
     assert cli.main([]) == 128 + signal.SIGTERM
     assert capsys.readouterr().err.strip().splitlines() == ["vrcorrect: terminated (SIGTERM)"]
     assert signal.getsignal(signal.SIGTERM) is before
 
 
-def _command_importing(monkeypatch, module_dir: Path, module: str, after):
-    """``cli.main`` with a command that imports ``module`` from ``module_dir``, then calls ``after``."""
+def _cli_running(monkeypatch, command):
+    """``vrcorrect.apps.cli`` whose parser runs ``command(args)`` for any arguments."""
     import argparse
-    import importlib
 
     from vrcorrect.apps import cli
-
-    monkeypatch.syspath_prepend(str(module_dir))
-
-    def command(args):
-        importlib.import_module(module)
-        after()
-        return 0
 
     def parser():
         ap = argparse.ArgumentParser(prog="vrcorrect")
@@ -168,10 +152,25 @@ def _command_importing(monkeypatch, module_dir: Path, module: str, after):
     return cli
 
 
+def _command_importing(monkeypatch, module_dir: Path, module: str, after):
+    """``cli.main`` with a command that imports ``module`` from ``module_dir``, then calls ``after``."""
+    import importlib
+
+    monkeypatch.syspath_prepend(str(module_dir))
+
+    def command(args):
+        importlib.import_module(module)
+        after()
+        return 0
+
+    return _cli_running(monkeypatch, command)
+
+
 def test_a_signal_during_an_import_acts_when_the_import_is_done(tmp_path, monkeypatch, capsys):
-    """A SIGTERM that lands while a module is imported (torch's native initialisation runs Python
-    that cannot pass an exception on: one CI run aborted there, status -6) is held until the import
-    is done: the module is whole, and the command then ends as terminated (143, one line)."""
+    """A SIGTERM that lands while a module is imported (an extension's initialisation may run Python
+    under native code that cannot pass an exception on; one CI run aborted with status -6 and a
+    pybind11 exception) is held until the import is done: the module is whole, and the command then
+    ends as terminated (143, one line)."""
     (tmp_path / "slow_import_mod.py").write_text(
         "import os, signal, time\n"
         "os.kill(os.getpid(), signal.SIGTERM)\n"
@@ -212,22 +211,14 @@ def test_ctrl_c_during_an_import_is_an_interruption_after_it(tmp_path, monkeypat
 
 def test_a_signal_the_process_ignores_stays_ignored(monkeypatch, capsys):
     """Started under ``nohup`` (SIGHUP ignored), a command is not ended by a hang-up."""
-    import argparse
     import os
-
-    from vrcorrect.apps import cli
 
     def command(args):
         os.kill(os.getpid(), signal.SIGHUP)
         time.sleep(0.3)
         return 0
 
-    def parser():
-        ap = argparse.ArgumentParser(prog="vrcorrect")
-        ap.set_defaults(func=command)
-        return ap
-
-    monkeypatch.setattr(cli, "build_parser", parser)
+    cli = _cli_running(monkeypatch, command)
     previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
     try:
         assert cli.main([]) == 0
