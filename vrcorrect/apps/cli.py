@@ -93,12 +93,14 @@ def _raise_terminated(signum: int, frame: Any) -> None:
 @contextlib.contextmanager
 def _terminate_like_interrupt() -> Iterator[None]:
     """Treat SIGTERM and SIGHUP as Ctrl-C for the duration of a command (main thread only), and hold
-    all three back while a module is imported or a library's Python code runs (:func:`_raise_terminated`).  A signal the process
-    was started ignoring (``nohup``'s SIGHUP, a background job's Ctrl-C) stays ignored."""
+    all three back while a module is imported or a library's Python code runs
+    (:func:`_raise_terminated`).  A signal the process was started ignoring (``nohup``'s SIGHUP, a
+    background job's Ctrl-C) stays ignored."""
     names = [n for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)]
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    _held_since.clear()                         # a hold of an earlier command in this process is over
     old = {n: signal.signal(getattr(signal, n), _raise_terminated) for n in names
            if signal.getsignal(getattr(signal, n)) is not signal.SIG_IGN}
     try:
