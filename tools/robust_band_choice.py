@@ -300,6 +300,11 @@ def main(argv: list[str]) -> int:
         from fetch_documents import CHOICE, HELD_OUT as HELD_OUT_PAGES  # tools/: this script's folder
 
         paths += [str(args.documents / f"{n}.png") for n in (HELD_OUT_PAGES if args.held_out else CHOICE)]
+        missing = [p for p in paths if not Path(p).is_file()]
+        if missing:
+            print(f"robust_band_choice: --documents {args.documents}: no {Path(missing[0]).name} there; fetch the "
+                  f"pages first: .venv/bin/python tools/fetch_documents.py {args.documents}", file=sys.stderr)
+            return 2
     elif args.held_out:
         print("robust_band_choice: --held-out needs --documents DIR", file=sys.stderr)
         return 2
