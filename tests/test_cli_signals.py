@@ -258,9 +258,9 @@ def test_a_signal_in_a_librarys_code_acts_when_the_command_runs_again(tmp_path, 
 def test_a_held_signal_acts_after_the_longest_hold(tmp_path, monkeypatch, capsys):
     """A library that never returns (a loop in its own code) is still ended: the signal is held at
     most ``HOLD_MAX_S``."""
-    from vrcorrect.apps import cli as cli_module
+    from vrcorrect.plumbing import signals
 
-    monkeypatch.setattr(cli_module, "HOLD_MAX_S", 0.5)
+    monkeypatch.setattr(signals, "HOLD_MAX_S", 0.5)
     library = tmp_path / "site-packages"
     library.mkdir()
     (library / "endless_library_mod.py").write_text(
@@ -287,13 +287,48 @@ def test_vrcorrects_own_code_is_never_held_where_it_is_installed(monkeypatch):
     acts at once, one in another library's code waits."""
     from types import SimpleNamespace
 
-    from vrcorrect.apps import cli
+    from vrcorrect.plumbing import signals
 
-    monkeypatch.setattr(cli, "_OWN_CODE", "/usr/lib/python3/site-packages/vrcorrect/")
+    monkeypatch.setattr(signals, "OWN_CODE", "/usr/lib/python3/site-packages/vrcorrect/")
 
     def frame(path):
         return SimpleNamespace(f_code=SimpleNamespace(co_filename=path), f_back=None)
 
-    assert not cli._hold_here(frame("/usr/lib/python3/site-packages/vrcorrect/solvers/admm.py"))
-    assert cli._hold_here(frame("/usr/lib/python3/site-packages/torch/nn/modules/module.py"))
-    assert not cli._hold_here(frame("/usr/lib/python3.11/threading.py"))
+    assert not signals.hold_here(frame("/usr/lib/python3/site-packages/vrcorrect/solvers/admm.py"))
+    assert signals.hold_here(frame("/usr/lib/python3/site-packages/torch/nn/modules/module.py"))
+    assert not signals.hold_here(frame("/usr/lib/python3.11/threading.py"))
+
+
+def test_a_signal_held_while_outputs_are_written_leaves_none(tmp_path, monkeypatch, capsys):
+    """A SIGHUP that lands while a library writes a command's outputs (an image encoder, say) is held
+    there; the outputs are then not committed: the command ends as terminated (129) and leaves no
+    output and no temporary file (one CI run found both outputs beside a 129)."""
+    from vrcorrect.plumbing.fileio import write_together
+
+    library = tmp_path / "site-packages"
+    library.mkdir()
+    (library / "slow_writer_mod.py").write_text(
+        "import os, signal, time\n"
+        "def write(path):\n"
+        "    os.kill(os.getpid(), signal.SIGHUP)\n"
+        "    t = time.monotonic()\n"
+        "    while time.monotonic() - t < 0.3:\n"
+        "        pass\n"
+        "    path.write_text('written')\n")
+    monkeypatch.syspath_prepend(str(library))
+    import slow_writer_mod
+
+    out = tmp_path / "out"
+    out.mkdir()
+
+    def command(args):
+        write_together([(out / "a.txt", slow_writer_mod.write), (out / "b.txt", slow_writer_mod.write)])
+        return 0
+
+    cli = _cli_running(monkeypatch, command)
+    try:
+        assert cli.main([]) == 128 + signal.SIGHUP
+        assert capsys.readouterr().err.strip().splitlines() == ["vrcorrect: terminated (SIGHUP)"]
+        assert sorted(p.name for p in out.iterdir()) == []
+    finally:
+        sys.modules.pop("slow_writer_mod", None)

@@ -10,15 +10,13 @@ stderr and exit status 2; a command-line user never sees a traceback
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import signal
 import sys
-import threading
-import time
-from typing import Any, Iterator, Sequence
+from typing import Sequence
 
 from ..plumbing.errors import VrcorrectError
+from ..plumbing.signals import Terminated, command_signals
 from . import acuity, bench, correct, demo, displays, evaluate, layer, learning, mirror, overlay, psf, render, rx
 from . import simulate, xr
 
@@ -37,77 +35,6 @@ def build_parser() -> argparse.ArgumentParser:
         command.add_parser(sub)
     bench.add_parser(sub)
     return ap
-
-
-class Terminated(BaseException):
-    """SIGTERM or SIGHUP arrived: unwinds like Ctrl-C, so every ``finally`` (temporary files, GL
-    and OpenXR objects) runs and no partial output is left."""
-
-    def __init__(self, signum: int):
-        super().__init__(signum)
-        self.signum = signum
-
-
-#: How long a held signal waits before it is sent again (:func:`_raise_terminated`).
-HOLD_RETRY_S = 0.05
-#: The longest a signal is held: then it acts wherever the command is.
-HOLD_MAX_S = 10.0
-_held_since: dict[int, float] = {}
-_OWN_CODE = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep     # vrcorrect/, installed or not
-
-
-def _hold_here(frame: Any) -> bool:
-    """Whether a signal landing in ``frame`` waits: inside an import (a frame of Python's import
-    machinery below it), or in an installed library's Python code (site-packages, not vrcorrect's)."""
-    code = frame.f_code.co_filename if frame is not None else ""
-    if ("site-packages" in code or "dist-packages" in code) and not code.startswith(_OWN_CODE):
-        return True
-    while frame is not None:
-        if frame.f_code.co_filename.startswith("<frozen importlib"):
-            return True
-        frame = frame.f_back
-    return False
-
-
-def _raise_terminated(signum: int, frame: Any) -> None:
-    """The command's handler of SIGTERM, SIGHUP and Ctrl-C.
-
-    Where the command's own code (or the standard library's) runs, it raises at once.  Inside an
-    import or a library's Python code it raises nothing: native code may have called that Python (an
-    extension's initialisation, torch's operators) and may be unable to pass an exception on, and the
-    process would abort (one CI run of ``correct --report`` ended with status -6 and a pybind11
-    exception's traceback after a SIGTERM).  The signal is sent again a moment later and acts once the
-    command's own code runs again, or after :data:`HOLD_MAX_S` wherever it is."""
-    now = time.monotonic()
-    if _hold_here(frame) and now - _held_since.setdefault(signum, now) < HOLD_MAX_S:
-        timer = threading.Timer(HOLD_RETRY_S, os.kill, (os.getpid(), signum))
-        timer.daemon = True
-        timer.start()
-        return
-    _held_since.pop(signum, None)
-    if signum == signal.SIGINT:
-        raise KeyboardInterrupt
-    raise Terminated(signum)
-
-
-@contextlib.contextmanager
-def _terminate_like_interrupt() -> Iterator[None]:
-    """Treat SIGTERM and SIGHUP as Ctrl-C for the duration of a command (main thread only), and hold
-    all three back while a module is imported or a library's Python code runs
-    (:func:`_raise_terminated`).  A signal the process was started ignoring (``nohup``'s SIGHUP, a
-    background job's Ctrl-C) stays ignored."""
-    names = [n for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)]
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    _held_since.clear()                         # a hold of an earlier command in this process is over
-    old = {n: signal.signal(getattr(signal, n), _raise_terminated) for n in names
-           if signal.getsignal(getattr(signal, n)) is not signal.SIG_IGN}
-    try:
-        yield
-    finally:
-        for n, handler in old.items():
-            signal.signal(getattr(signal, n), handler)
 
 
 def _interruption(exc: BaseException) -> BaseException | None:
@@ -136,7 +63,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        with _terminate_like_interrupt():
+        with command_signals():
             return int(args.func(args) or 0)
     except (Terminated, KeyboardInterrupt) as exc:
         return _interrupted(exc)

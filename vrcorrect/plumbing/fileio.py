@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
 from .errors import InputError
+from .signals import raise_if_held
 
 
 def package_data(name: str) -> Path:
@@ -116,6 +117,7 @@ def atomic_paths(paths: Sequence[Path], *, force: bool = False) -> Iterator[list
             except OSError:
                 pass
         yield list(tmps)
+        raise_if_held()                        # a termination asked for while the outputs were written
         with signals_deferred():
             for path in targets:
                 if path.exists() and not force:  # appeared while we worked
