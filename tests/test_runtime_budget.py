@@ -152,7 +152,8 @@ def test_a_budget_the_window_cannot_meet_shrinks_the_fovea(gl, frame):
     and two 1.21, both while the renderer's own speed changed). A run that ends over the band is run once
     more (until 2026-11-29 only when ``_renderer_slowed`` saw the renderer change speed; CI then failed
     twice on a run whose tail went from 33 to 46 ms a frame at the same window, which that check did not
-    catch): the window must shrink in every run and hold the budget in one of two."""
+    catch; on 2026-12-02 a run's window moved in its last frames, one of 217 ms, and left one frame at
+    its last size): the window must shrink in every run, and settle and hold the budget in one of two."""
     from vrcorrect.specs.display import get_display
 
     src, fbo = frame
@@ -173,10 +174,11 @@ def test_a_budget_the_window_cannot_meet_shrinks_the_fovea(gl, frame):
             assert c.budget.fovea_deg < radius and c.options.fovea_deg == c.budget.fovea_deg
             assert c.budget.moves >= 1
             tail = [ms for choice, ms in list(c.budget.history)[-16:] if choice.fovea_deg == c.budget.fovea_deg]
-            assert len(tail) >= 8
-            held = _trimmed_mean(tail) <= budget_ms * (1 + BAND)     # back under it (a smaller window may
-            if not held and attempt == 0:                                   # leave room)
+            settled = len(tail) >= 8                                  # at its last window for half the tail
+            held = settled and _trimmed_mean(tail) <= budget_ms * (1 + BAND)   # back under it (a smaller
+            if not held and attempt == 0:                                      # window may leave room)
                 continue
+            assert settled, (budget_ms, list(c.budget.history)[-16:])
             assert held, (budget_ms, tail)
             break
         finally:
