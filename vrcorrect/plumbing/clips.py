@@ -37,9 +37,10 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from .errors import InputError, ValidationError
-from .fileio import Writer, atomic_paths, signals_deferred
+from .fileio import Writer, atomic_paths
 from .imageio import MAX_PIXELS, png_writer, read_image
 from .images import IMAGE_SUFFIXES, image_files
+from .signals import signals_deferred
 
 __all__ = [
     "ANIMATED_SUFFIXES", "VIDEO_SUFFIXES", "FFMPEG_HINT", "MAX_CLIP_FRAMES", "CLIP_KINDS",

@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import contextlib
 import os
-import signal
 import tempfile
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
 from .errors import InputError
-from .signals import raise_if_held
+from .signals import raise_if_held, signals_deferred
 
 
 def package_data(name: str) -> Path:
@@ -77,23 +76,6 @@ def atomic_path(path: Path, *, force: bool = False) -> Iterator[Path]:
     """
     with atomic_paths([path], force=force) as tmps:
         yield tmps[0]
-
-
-_DEFERRED = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
-
-
-@contextlib.contextmanager
-def signals_deferred() -> Iterator[None]:
-    """Hold Ctrl-C, SIGTERM and SIGHUP back while the block runs (they are delivered after it), so
-    that a group of renames is not cut in half."""
-    if not hasattr(signal, "pthread_sigmask"):
-        yield
-        return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, _DEFERRED)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 @contextlib.contextmanager

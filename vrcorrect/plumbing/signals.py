@@ -9,7 +9,8 @@ signal is *held*: sent again every :data:`HOLD_RETRY_S` until the command's own 
 standard library's) runs, and acts then, or after :data:`HOLD_MAX_S` wherever the command is.  A
 command's outputs are committed only when no signal is held (:func:`raise_if_held`, called by
 :func:`vrcorrect.plumbing.fileio.atomic_paths` before its renames), so a signal held while the
-outputs were written still leaves nothing behind.
+outputs were written still leaves nothing behind.  While the renames run (:func:`signals_deferred`)
+a signal waits until they are done, whichever thread the kernel delivered it to.
 
 The standard library only.
 """
@@ -23,7 +24,8 @@ import threading
 import time
 from typing import Any, Iterator
 
-__all__ = ["Terminated", "command_signals", "raise_if_held", "HOLD_RETRY_S", "HOLD_MAX_S"]
+__all__ = ["Terminated", "command_signals", "raise_if_held", "signals_deferred", "HOLD_RETRY_S", "HOLD_MAX_S",
+           "SIGNAL_NAMES"]
 
 #: How long a held signal waits before it is sent again.
 HOLD_RETRY_S = 0.05
@@ -31,8 +33,12 @@ HOLD_RETRY_S = 0.05
 HOLD_MAX_S = 10.0
 #: vrcorrect's own code, installed or not (a frame there is never held).
 OWN_CODE = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep
-_NAMES = ("SIGINT", "SIGTERM", "SIGHUP")
+#: The signals a command handles, and that :func:`signals_deferred` holds back.
+SIGNAL_NAMES = ("SIGINT", "SIGTERM", "SIGHUP")
+_NUMBERS = tuple(getattr(signal, n) for n in SIGNAL_NAMES if hasattr(signal, n))
 _held: dict[int, float] = {}                   # signal number -> when it was first held
+_deferring = 0                                 # how many signals_deferred blocks are open
+_deferred: list[int] = []                      # signals that arrived inside one, oldest first
 
 
 class Terminated(BaseException):
@@ -70,6 +76,9 @@ def _raise(signum: int) -> None:
 
 def on_signal(signum: int, frame: Any) -> None:
     """The command's handler of SIGTERM, SIGHUP and Ctrl-C (module docstring)."""
+    if _deferring:                             # renames under way: act when they are done
+        _deferred.append(signum)
+        return
     now = time.monotonic()
     if hold_here(frame) and now - _held.setdefault(signum, now) < HOLD_MAX_S:
         timer = threading.Timer(HOLD_RETRY_S, _send_again, (signum,))
@@ -99,11 +108,36 @@ def command_signals() -> Iterator[None]:
         yield
         return
     _held.clear()
-    numbers = [getattr(signal, n) for n in _NAMES if hasattr(signal, n)]
-    old = {s: signal.signal(s, on_signal) for s in numbers if signal.getsignal(s) is not signal.SIG_IGN}
+    old = {s: signal.signal(s, on_signal) for s in _NUMBERS if signal.getsignal(s) is not signal.SIG_IGN}
     try:
         yield
     finally:
         _held.clear()
+        _deferred.clear()
         for s, handler in old.items():
             signal.signal(s, handler)
+
+
+@contextlib.contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Hold Ctrl-C, SIGTERM and SIGHUP back while the block runs (a group of renames is then never
+    cut in half); one that arrived meanwhile acts when the block is done.
+
+    Two shields, because the kernel may deliver a process's signal to any thread that does not
+    block it (OpenBLAS's and torch's workers, say), while Python runs the handler in the main
+    thread: the main thread's signal mask holds back a signal sent to it (whatever the handler is),
+    and :func:`on_signal` keeps one that reached another thread until the block ends."""
+    global _deferring
+    mask = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, _NUMBERS) if mask else None
+    _deferring += 1
+    try:
+        yield
+    finally:
+        _deferring -= 1
+        if mask:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)   # a blocked signal is delivered here
+        if _deferred and not _deferring:       # after an error too: the termination was asked for
+            signum = _deferred[0]
+            _deferred.clear()
+            _raise(signum)
