@@ -161,11 +161,32 @@ the grey branch: -0.47 on the held-out scan).  A rule "white page: the sharper b
 the default" is supported by these figures but was not planned before them, and leaves the issue's
 held-out scan (grey) at the default's 79 / 75 %; the real-time path would need it too (a page
 design per bank entry, and a design pupil above the entry, which widens the grids).
+Sixth look (2026-12-02, later; the choice pages only, nothing held out looked at): why grey paper
+falls.  ``--grey-paper 0.58`` adds grey stand-ins of the white choice pages (``linn@0.58`` and so on:
+each page's light times 0.58, the held-out scan's paper), and a band's text may end in ``+paper[=F]``:
+each primary capped at F times the brightest target light within ``PAPER_REACH_PX`` (6 px at 256 px),
+the page's paper near a stroke; at F=1 a page cannot be lit above its paper, as white paper cannot be
+by the display.  ``--documents /tmp/realdocs --no-builtin --grey-paper 0.58 "" B+nocap B+paper
+B+paper=1.3 off+paper`` with B = pf=1.04;so=0,0.25;sp=5,1 (dev machine, 2026-12-02; least gain, share
+at 3 mm; the six choice pages, then the four stand-ins):
+
+* the default: +0.04 to +0.18, 53-90 %; stand-ins +0.04 to +0.23, 73-83 % (desktop) / 67-79 % (quest2);
+* B without the cap: stand-ins -0.40 to -0.71 on desktop and -0.13 to -0.47 on quest2 (the sphere
+  +0.5 D), at 96-99 %: they fall as the held-out scan did (-0.47), where c02-22 (tinted) fell less
+  (-0.21), so the stand-ins stand for grey paper better than c02-22 did;
+* B under the paper cap: the white pages nearly as without it (-0.023 to +0.09, 80-96 %); stand-ins
+  -0.069 to +0.12 but 28-42 %, c02-22 51-54 %;  B+paper=1.3: stand-ins -0.31 to +0.10, 67-75 %;
+  the one eye under the paper cap: as B+paper, stand-ins 27-42 %.
+
+On grey paper the share at 3 mm and the fall with the sphere off have one source, light added above
+the paper: removing it removes both.  No design tried on grey paper keeps 80 % at 3 mm and stays
+above none; the default (73-83 %, 67-79 %) is the best of them there.  Nothing adopted.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 from dataclasses import replace
@@ -195,8 +216,18 @@ _cases: dict = {}
 _files: dict[str, str] = {}                                                      # --image: name -> path
 
 
+#: The real choice pages on white paper, whose grey stand-ins ``--grey-paper`` adds (sixth look).
+WHITE_CHOICE_PAGES = ("linn", "typewriter", "epson", "francais")
+
+
 def choice_image(name: str) -> np.ndarray:
     assert name not in HELD_OUT
+    if "@" in name:                      # NAME@LIGHT: a grey stand-in, the page's light times LIGHT
+        from vrcorrect.specs.display import encode
+
+        page, light = name.split("@")
+        linear = decode("srgb", choice_image(page)).astype(np.float64) * float(light)
+        return encode("srgb", linear).astype(np.float32)
     if name in _files:                   # a picture given with --image (a real document, say)
         from vrcorrect.plumbing.imageio import read_image
 
@@ -216,7 +247,9 @@ def choice_image(name: str) -> np.ndarray:
 
 def parse_band(text: str) -> RobustBand | None:
     """A band from its text ("": the default; "off" or "off+cap": None, the one eye at the bank entry,
-    without the light cap or with it; a band's text may end in "+nocap": that band without the cap)."""
+    without the light cap or with it; a band's text may end in "+nocap": that band without the cap, or
+    in "+paper" or "+paper=F": that band under the paper cap, :func:`paper_cap`)."""
+    text = _split_paper(text)[0]
     if not text:
         return RobustBand()
     if text in ("off", "off+cap"):
@@ -226,6 +259,49 @@ def parse_band(text: str) -> RobustBand | None:
     numbers = lambda key: tuple(float(v) for v in fields[key].split(",")) if key in fields else None  # noqa: E731
     return RobustBand(pupil_factors=numbers("pf") or (1.0,), sphere_offsets_D=numbers("so") or (-0.25, 0.0, 0.25),
                       pupil_priors=numbers("pp"), sphere_priors=numbers("sp"))
+
+
+def _split_paper(text: str) -> tuple[str, float | None]:
+    """A band's text without its "+paper[=F]" ending, and F (None: no paper cap)."""
+    head, sep, tail = text.partition("+paper")
+    if not sep:
+        return text, None
+    if tail and not tail.startswith("="):
+        raise ValueError(f"{text!r}: the paper cap is '+paper' or '+paper=F'")
+    return head, float(tail[1:]) if tail else 1.0
+
+
+#: The paper cap's reach (sixth look): the local maximum is taken over a square this many pixels
+#: from its centre, at 256 px (a letter's size and its halo).
+PAPER_REACH_PX = 6
+
+
+def paper_cap(target: np.ndarray, factor: float) -> np.ndarray:
+    """The paper cap (sixth look): each displayed primary at most ``factor`` times the brightest target
+    light within :data:`PAPER_REACH_PX` (the page's paper near a stroke), and 1.  At 1 a page cannot be
+    lit above its paper, as white paper cannot be by the display.  ``target`` is ``(H, W, 3)`` or,
+    inside the solver, ``(3, H, W)``."""
+    from scipy.ndimage import maximum_filter
+
+    t = np.asarray(target, np.float32)
+    first = t.shape[0] == 3 and t.shape[-1] != 3
+    side = t.shape[1] if first else t.shape[0]
+    k = 2 * max(1, round(PAPER_REACH_PX * side / 256)) + 1
+    top = maximum_filter(t, size=(1, k, k) if first else (k, k, 1), mode="nearest")
+    return np.minimum(np.float32(1.0), np.float32(factor) * top).astype(np.float32)
+
+
+@contextlib.contextmanager
+def _paper_capped(factor: float):
+    """``fast``'s light cap swapped for the paper cap while the block runs (a study, not the product)."""
+    from vrcorrect.solvers import admm
+
+    light_cap = admm.light_cap
+    admm.light_cap = lambda target, floor=0.0: paper_cap(target, factor)
+    try:
+        yield
+    finally:
+        admm.light_cap = light_cap
 
 
 #: The fifth look's page rule ("page-rule"): a page on white paper, on paper below this light (grey,
@@ -248,11 +324,15 @@ def _band_title(text: str, band: RobustBand | None) -> str:
         return (f"band page-rule: a page on paper at {WHITE_PAPER} of white or more: {PAGE_RULE['white']}; on darker "
                 f"paper: {PAGE_RULE['grey']}; anything else: the default")
     if band is None:
-        return f"band {text}: the one eye at the bank entry, " + ("under the light cap" if text == "off+cap"
-                                                                 else "no light cap (--robust off)")
+        paper = _split_paper(text)[1]
+        return f"band {text}: the one eye at the bank entry, " + (
+            "under the light cap" if text == "off+cap" else f"under the paper cap x{paper:g}" if paper is not None
+            else "no light cap (--robust off)")
+    paper = _split_paper(text)[1]
     return (f"band {text or 'default'}: pupil factors {band.pupil_factors} (priors {band.pupil_priors}), sphere "
             f"offsets {band.sphere_offsets_D} D (priors {band.sphere_priors})"
-            + (", without the light cap" if text.endswith("+nocap") else ""))
+            + (", without the light cap" if text.endswith("+nocap") else "")
+            + (f", under the paper cap x{paper:g}" if paper is not None else ""))
 
 
 def _case(display_name: str, name: str):
@@ -287,6 +367,9 @@ def _arguments(argv: list[str]) -> argparse.Namespace:
                     help="the real pages of tools/fetch_documents.py: their choice half is added")
     ap.add_argument("--held-out", action="store_true",
                     help="with --documents: the held-out half instead (to judge what was chosen, once)")
+    ap.add_argument("--grey-paper", type=float, action="append", default=[], metavar="LIGHT",
+                    help="with --documents: grey stand-ins of the white choice pages, their light times LIGHT "
+                    "(0.58: the held-out scan's paper), added as NAME@LIGHT (repeatable)")
     ap.add_argument("--no-builtin", action="store_true",
                     help="leave out the built-in choice images (astronaut, coffee, sktext, chart, words)")
     return ap.parse_args(argv)
@@ -294,6 +377,11 @@ def _arguments(argv: list[str]) -> argparse.Namespace:
 
 def main(argv: list[str]) -> int:
     args = _arguments(argv)
+    try:
+        bands = [(text, None if text == "page-rule" else parse_band(text)) for text in (args.bands or BANDS)]
+    except (ValueError, KeyError) as e:
+        print(f"robust_band_choice: a band is 'off', '' or 'pf=...;pp=...;so=...;sp=...' ({e})", file=sys.stderr)
+        return 2
     images = [] if args.no_builtin else list(CHOICE_IMAGES)
     paths = list(args.image)
     if args.documents is not None:
@@ -305,8 +393,16 @@ def main(argv: list[str]) -> int:
             print(f"robust_band_choice: --documents {args.documents}: no {Path(missing[0]).name} there; fetch the "
                   f"pages first: .venv/bin/python tools/fetch_documents.py {args.documents}", file=sys.stderr)
             return 2
-    elif args.held_out:
-        print("robust_band_choice: --held-out needs --documents DIR", file=sys.stderr)
+    elif args.held_out or args.grey_paper:
+        print("robust_band_choice: --held-out and --grey-paper need --documents DIR", file=sys.stderr)
+        return 2
+    if args.grey_paper and args.held_out:
+        print("robust_band_choice: --grey-paper makes stand-ins of choice pages only, not with --held-out",
+              file=sys.stderr)
+        return 2
+    bad = [g for g in args.grey_paper if not 0.05 <= g <= 1.0]
+    if bad:
+        print(f"robust_band_choice: --grey-paper {bad[0]}: a paper light from 0.05 to 1 of white", file=sys.stderr)
         return 2
     for path in paths:
         name = Path(path).stem
@@ -321,13 +417,9 @@ def main(argv: list[str]) -> int:
             print(f"robust_band_choice: {path}: {e}", file=sys.stderr)
             return 2
         images.append(name)
+    images += [f"{page}@{light:g}" for light in args.grey_paper for page in WHITE_CHOICE_PAGES]
     if not images:
         print("robust_band_choice: no images (--no-builtin leaves only --image and --documents)", file=sys.stderr)
-        return 2
-    try:
-        bands = [(text, None if text == "page-rule" else parse_band(text)) for text in (args.bands or BANDS)]
-    except (ValueError, KeyError) as e:
-        print(f"robust_band_choice: a band is 'off', '' or 'pf=...;pp=...;so=...;sp=...' ({e})", file=sys.stderr)
         return 2
     for text, band in bands:
         t0 = time.perf_counter()
@@ -342,18 +434,20 @@ def main(argv: list[str]) -> int:
                 design = design_eye(EYE, display, nearest_bank_pupil(p), band=case_band, kernels=_kernels,
                                     robust=case_band is not None)
                 problem = make_design_problem(target, design)
-                if case_text == "off+cap":                                       # the one eye under the light cap
-                    problem = replace(problem, capped=True)
+                case_text, paper = _split_paper(case_text)
+                if case_text == "off+cap" or paper is not None:                  # the one eye under the light cap,
+                    problem = replace(problem, capped=True)                      # or a band under the paper cap
                 elif case_text.endswith("+nocap"):                               # a band without the light cap
                     problem = replace(problem, capped=False)
-                shown = solve(problem, "fast").image
+                with _paper_capped(paper) if paper is not None else contextlib.nullcontext():
+                    shown = solve(problem, "fast").image
                 gains, share = [], float("nan")
                 for exact, none, ceiling in seen:
                     gain = evaluate_seen(shown, target, exact.nominal, display)[0].jod - none
                     gains.append(gain)
                     if ceiling is not None:
                         share = gain / ceiling
-                print(f"  {display_name:8s} {name:9s} light {p:.2f} mm  least {min(gains):+.3f}  share at 3 mm "
+                print(f"  {display_name:8s} {name:15s} light {p:.2f} mm  least {min(gains):+.3f}  share at 3 mm "
                       f"{share:4.0%}  gains " + " ".join(f"{g:+.2f}" for g in gains) + (f"  {judged}" if judged else ""),
                       flush=True)
         print(f"  ({time.perf_counter() - t0:.0f} s)")

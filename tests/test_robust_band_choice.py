@@ -1,0 +1,93 @@
+"""The study tool of the robust band's choice (tools/robust_band_choice.py): its grey stand-ins, its
+paper cap and its refusals, without solving anything."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _tool():
+    """tools/robust_band_choice.py as a module (tools/ is not a package; sys.path is left alone)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("robust_band_choice", ROOT / "tools" / "robust_band_choice.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+rbc = _tool()
+
+
+def _page(paper: float) -> np.ndarray:
+    """(64, 64, 3) linear light: paper at ``paper`` with one black stroke, 4 px wide, across it."""
+    page = np.full((64, 64, 3), paper, np.float32)
+    page[:, 30:34] = 0.0
+    return page
+
+
+def test_the_paper_cap_keeps_a_grey_page_at_its_paper_and_white_at_one():
+    grey = rbc.paper_cap(_page(0.58), 1.0)
+    assert grey.shape == (64, 64, 3) and grey.dtype == np.float32
+    np.testing.assert_allclose(grey, 0.58, rtol=1e-6)           # the stroke too: paper within reach
+    np.testing.assert_allclose(rbc.paper_cap(_page(0.58), 1.3), 0.754, rtol=1e-6)
+    np.testing.assert_allclose(rbc.paper_cap(_page(0.9), 1.3), 1.0)   # never above white
+    wide = _page(0.58)
+    wide[:, 16:48] = 0.0                                         # a stroke wider than the reach
+    middle = rbc.paper_cap(wide, 1.0)[:, 32]
+    np.testing.assert_allclose(middle, 0.0)                      # nothing to light in its middle
+
+
+def test_the_paper_cap_reads_both_layouts_alike():
+    page = _page(0.7)
+    page[10:14, :, 1] = 0.2
+    hwc = rbc.paper_cap(page, 1.0)
+    chw = rbc.paper_cap(np.moveaxis(page, -1, 0), 1.0)
+    np.testing.assert_allclose(np.moveaxis(chw, 0, -1), hwc)
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("", ("", None)), ("pf=1.04;so=0,0.25;sp=5,1+paper", ("pf=1.04;so=0,0.25;sp=5,1", 1.0)),
+    ("off+paper=1.3", ("off", 1.3)), ("pf=1+nocap", ("pf=1+nocap", None))])
+def test_a_bands_paper_cap_is_read_from_its_text(text, expected):
+    assert rbc._split_paper(text) == expected
+
+
+def test_a_grey_stand_in_has_the_pages_light_times_the_paper_light(tmp_path, monkeypatch):
+    from PIL import Image
+
+    from vrcorrect.specs.display import decode
+
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 256, (256, 256, 3), dtype=np.uint8)
+    Image.fromarray(image).save(tmp_path / "scan.png")
+    monkeypatch.setitem(rbc._files, "scan", str(tmp_path / "scan.png"))
+    page = decode("srgb", rbc.choice_image("scan")).astype(np.float64)
+    grey = decode("srgb", rbc.choice_image("scan@0.58")).astype(np.float64)
+    np.testing.assert_allclose(grey, 0.58 * page, atol=2e-5)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--grey-paper", "0.5", ""], "--held-out and --grey-paper need --documents DIR"),
+    (["--documents", "DOCS", "--grey-paper", "1.5", ""], "--grey-paper 1.5: a paper light from 0.05 to 1 of white"),
+    (["--documents", "DOCS", "--held-out", "--grey-paper", "0.5", ""], "not with --held-out"),
+    (["--documents", "DOCS", "pf=1+paper2"], "the paper cap is '+paper' or '+paper=F'"),
+])
+def test_bad_arguments_get_one_line_and_status_2(tmp_path, args, message):
+    docs = tmp_path / "docs"
+    docs.mkdir()
+    for name in ("linn", "typewriter", "baiona", "c02-22", "epson", "francais", "sudoku", "imageTextN", "masks", "kcs"):
+        (docs / f"{name}.png").write_bytes(b"")                  # never read: refused before
+    args = [str(docs) if a == "DOCS" else a for a in args]
+    done = subprocess.run([sys.executable, str(ROOT / "tools" / "robust_band_choice.py"), "--no-builtin", *args],
+                          capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0] and "Traceback" not in done.stderr
