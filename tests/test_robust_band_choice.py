@@ -91,3 +91,28 @@ def test_bad_arguments_get_one_line_and_status_2(tmp_path, args, message):
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0] and "Traceback" not in done.stderr
+
+
+def test_rendered_pages_are_pages_on_white_paper_and_are_not_overwritten(tmp_path):
+    """tools/render_pages.py: six 256 px pages that the page judge calls pages on white paper (the
+    seventh look's condition); a second run refuses to overwrite them without --force."""
+    from PIL import Image
+
+    from vrcorrect.physics.page import page_verdict
+    from vrcorrect.specs.display import decode, get_display
+
+    tool = [sys.executable, str(ROOT / "tools" / "render_pages.py"), str(tmp_path)]
+    done = subprocess.run(tool, capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert done.returncode == 0, done.stderr
+    pages = sorted(tmp_path.glob("*.png"))
+    assert [p.stem for p in pages] == sorted(["serif12", "sans11", "stix14", "mono12", "cmr18", "links14"])
+    display = get_display("desktop")
+    for path in pages:
+        image = np.asarray(Image.open(path).convert("RGB"))
+        assert image.shape == (256, 256, 3)
+        verdict = page_verdict(decode(display, image / 255.0), display)
+        assert verdict.page and verdict.paper_light >= rbc.WHITE_PAPER, (path.stem, verdict)
+    before = pages[0].read_bytes()
+    again = subprocess.run(tool, capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert again.returncode == 2 and "pass --force to overwrite it" in again.stderr
+    assert "Traceback" not in again.stderr and pages[0].read_bytes() == before
