@@ -195,6 +195,20 @@ judged a page on white paper.  The default is run beside it, for the comparison 
 figures, the rule leaves grey paper (the issue's held-out scan) at the default's 79 / 75 %, and the
 real-time path would need a page design per bank entry: a pass supports building it, and closes
 nothing.
+
+Judged once, the same day (``render_pages.py /tmp/fresh``, then ``--no-builtin --image`` each page,
+``"" white-rule``; dev machine, 2 cores): it passes.  Every fresh page was judged a page on white
+paper (paper light 0.96-1.00).  Least gain and share at 3 mm, desktop / quest2:
+
+* white-rule: least +0.003 to +0.067 / +0.014 to +0.086; shares 93-95 % / 81-93 % (the lowest: sans
+  11 px 81 %, links 82 % on quest2);
+* the default beside it: least +0.04 to +0.14 / +0.02 to +0.10, but shares 47-71 % / 54-77 %: on
+  rendered text, what a monitor or a headset shows, the default keeps even less than on scans.
+
+So on white pages the sharper band without the cap meets both bars on 16 pages (eight real
+scans, the two built-in rendered pages, six fresh ones; kcs's 70 % on quest2 aside, whose whole gain is 0.03 JOD), where the default keeps 47-90 %.
+Not yet in the product: neither ``fast`` nor the real-time path chooses a band by the picture, and
+the issue's held-out scan is grey.
 """
 
 from __future__ import annotations
