@@ -334,19 +334,29 @@ def test_a_signal_held_while_outputs_are_written_leaves_none(tmp_path, monkeypat
         sys.modules.pop("slow_writer_mod", None)
 
 
-def test_a_signal_delivered_to_another_thread_waits_for_the_renames(tmp_path, monkeypatch, capsys):
+@pytest.fixture
+def other_thread():
+    """A running thread besides the main one (a BLAS worker's stand-in: a real thread a signal can be
+    sent to with ``pthread_kill``), ended when the test is."""
+    import threading
+
+    release = threading.Event()
+    worker = threading.Thread(target=release.wait, daemon=True)
+    worker.start()
+    yield worker
+    release.set()
+    worker.join(timeout=5)
+
+
+def test_a_signal_delivered_to_another_thread_waits_for_the_renames(tmp_path, monkeypatch, capsys, other_thread):
     """The kernel may deliver a SIGTERM to any thread that does not block it (a BLAS worker, say);
     Python then runs the handler in the main thread, whose signal mask does not stop it.  While a
     command's outputs are renamed into place it still waits: both outputs appear, then the command
     ends as terminated (143).  Before, it acted between the two renames and left one output."""
     import os
-    import threading
 
     from vrcorrect.plumbing import fileio
 
-    release = threading.Event()
-    worker = threading.Thread(target=release.wait, daemon=True)
-    worker.start()
     real_replace = os.replace
     renamed = []
 
@@ -354,7 +364,7 @@ def test_a_signal_delivered_to_another_thread_waits_for_the_renames(tmp_path, mo
         real_replace(src, dst)
         renamed.append(Path(dst).name)
         if len(renamed) == 1:
-            signal.pthread_kill(worker.ident, signal.SIGTERM)
+            signal.pthread_kill(other_thread.ident, signal.SIGTERM)
             t = time.monotonic()
             while time.monotonic() - t < 0.3:  # the main thread runs bytecode: the handler's chance
                 pass
@@ -369,39 +379,27 @@ def test_a_signal_delivered_to_another_thread_waits_for_the_renames(tmp_path, mo
         return 0
 
     cli = _cli_running(monkeypatch, command)
-    try:
-        assert cli.main([]) == 128 + signal.SIGTERM
-    finally:
-        release.set()
+    assert cli.main([]) == 128 + signal.SIGTERM
     assert capsys.readouterr().err.strip().splitlines() == ["vrcorrect: terminated (SIGTERM)"]
     assert renamed == ["a.txt", "b.txt"]
     assert sorted(p.name for p in out.iterdir()) == ["a.txt", "b.txt"]
 
 
-def test_a_signal_in_the_renames_after_an_error_still_terminates(tmp_path, monkeypatch, capsys):
+def test_a_signal_in_the_renames_after_an_error_still_terminates(tmp_path, monkeypatch, capsys, other_thread):
     """A SIGTERM that arrived while the renames ran is not lost when they fail (an output appeared
     meanwhile): the command ends as terminated, not with the error, and a later command's renames
     are not cut short by it."""
-    import threading
-
     from vrcorrect.plumbing import fileio
     from vrcorrect.plumbing.signals import signals_deferred
 
-    release = threading.Event()
-    worker = threading.Thread(target=release.wait, daemon=True)
-    worker.start()
-
     def command(args):
         with signals_deferred():
-            signal.pthread_kill(worker.ident, signal.SIGTERM)
+            signal.pthread_kill(other_thread.ident, signal.SIGTERM)
             time.sleep(0.2)
             raise fileio.InputError("out.txt: file exists; pass --force to overwrite it")
 
     cli = _cli_running(monkeypatch, command)
-    try:
-        assert cli.main([]) == 128 + signal.SIGTERM
-    finally:
-        release.set()
+    assert cli.main([]) == 128 + signal.SIGTERM
     assert capsys.readouterr().err.strip().splitlines() == ["vrcorrect: terminated (SIGTERM)"]
     with signals_deferred():
         pass                                   # nothing left over to act on
