@@ -60,6 +60,18 @@ def test_a_bands_paper_cap_is_read_from_its_text(text, expected):
     assert rbc._split_paper(text) == expected
 
 
+def test_the_white_rules_band_is_the_one_correct_designs_a_white_page_over():
+    """What the seventh look judged is what ``vrcorrect correct --band auto`` uses: the white-rule's
+    band, read from its text, is the product's page band (and its white paper the product's)."""
+    from vrcorrect.physics.page import PAGE_BAND, WHITE_PAPER
+    from vrcorrect.physics.robust import RobustBand
+
+    assert rbc.parse_band(rbc.WHITE_RULE["white"]) == PAGE_BAND
+    assert rbc.parse_band(rbc.WHITE_RULE["other"]) == RobustBand() and rbc.WHITE_RULE["grey"] == ""
+    assert rbc.WHITE_PAPER == WHITE_PAPER
+    assert rbc.parse_band("pf=1").light_cap and not rbc.parse_band("pf=1+nocap").light_cap
+
+
 def test_a_grey_stand_in_has_the_pages_light_times_the_paper_light(tmp_path, monkeypatch):
     from PIL import Image
 

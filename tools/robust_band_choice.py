@@ -222,6 +222,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vrcorrect.physics.page import WHITE_PAPER
 from vrcorrect.physics.perception import luminance_weights
 from vrcorrect.physics.pupil import pupil_from_light
 from vrcorrect.physics.robust import RobustBand, design_eye
@@ -282,11 +283,12 @@ def parse_band(text: str) -> RobustBand | None:
         return RobustBand()
     if text in ("off", "off+cap"):
         return None
+    capped = not text.endswith("+nocap")
     text = text.removesuffix("+nocap")
     fields = dict(item.split("=") for item in text.split(";"))
     numbers = lambda key: tuple(float(v) for v in fields[key].split(",")) if key in fields else None  # noqa: E731
     return RobustBand(pupil_factors=numbers("pf") or (1.0,), sphere_offsets_D=numbers("so") or (-0.25, 0.0, 0.25),
-                      pupil_priors=numbers("pp"), sphere_priors=numbers("sp"))
+                      pupil_priors=numbers("pp"), sphere_priors=numbers("sp"), light_cap=capped)
 
 
 def _split_paper(text: str) -> tuple[str, float | None]:
@@ -332,9 +334,10 @@ def _paper_capped(factor: float):
         admm.light_cap = light_cap
 
 
-#: The fifth look's page rule ("page-rule"): a page on white paper, on paper below this light (grey,
-#: tinted), and anything else: each its band (the text form above; "+nocap": without the light cap).
-WHITE_PAPER = 0.9
+#: The fifth look's page rule ("page-rule"): a page on white paper, on paper below WHITE_PAPER's light
+#: (grey, tinted), and anything else: each its band (the text form above; "+nocap": without the light
+#: cap).  Since 2026-12-02 ``vrcorrect correct`` designs by the white-rule (``--band auto``:
+#: vrcorrect.physics.page.choose_band, its PAGE_BAND and WHITE_PAPER).
 PAGE_RULE = {"white": "pf=1.04;so=0,0.25;sp=5,1+nocap", "grey": "pf=1.04;so=0,0.25;sp=3,1+nocap", "other": ""}
 #: The seventh look's rule ("white-rule"): the page rule's white branch alone; the default elsewhere.
 WHITE_RULE = {"white": PAGE_RULE["white"], "grey": "", "other": ""}

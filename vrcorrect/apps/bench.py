@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 
 from ..plumbing.errors import InputError, ValidationError
-from ..plumbing.fileio import check_writable
+from ..plumbing.fileio import check_readable, check_writable
 from ..runtime.model_path import DEFAULT_MODEL
 from ..specs.vocabulary import Periphery, names
 from ..studies.bench import BENCHMARKS_FILE, default_out
@@ -29,7 +29,24 @@ def _json_out(args: argparse.Namespace) -> Path | None:
     return Path(args.json)
 
 
+def _robust_image(path: str) -> str:
+    """An ``--image`` of ``bench robust``, checked before minutes of work: a readable picture file."""
+    from ..studies.bench.robust import (
+        IMAGE_SUFFIXES,  # on use: start-up time (apps/__init__: the parser loads no layer below)
+    )
+
+    if Path(path).suffix.lower() not in IMAGE_SUFFIXES:
+        raise ValidationError("--image", path, "a picture file ending in " + ", ".join(IMAGE_SUFFIXES))
+    check_readable(path)
+    return path
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
+    if args.image and args.what != "robust":
+        raise ValidationError("--image", args.image[0], f"only with bench robust (not bench {args.what})")
+    if args.image and not args.no_write and args.out is None:
+        raise ValidationError("--image", args.image[0], "with --no-write or --out FILE.md: the repository's "
+                              "benchmarks keep the held-out images' figures")
     # --out before any work: the repository's file only inside the repository, else named by the user
     if args.out is None:
         args.out = str(BENCHMARKS_FILE if args.no_write else default_out())    # --no-write: names only
@@ -114,9 +131,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
             run_robust_bench,  # on use: start-up time (apps/__init__: the parser loads no layer below)
         )
 
+        images = {"images": [_robust_image(path) for path in args.image]} if args.image else {}
         report = run_robust_bench(out=Path(args.out), write=not args.no_write,
                                   plot=Path(args.out).with_name("robust_sweep.png"), json_out=_json_out(args),
-                                  force=args.force, video=args.video)
+                                  force=args.force, video=args.video, **images)
         print(report["markdown"])
     elif args.what == "fovea":
         from ..studies.bench.fovea import (
@@ -241,5 +259,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--default-only", action="store_true",
                    help="cost: count and time the default method only (not single precision, FISTA and the "
                         "one-pass inverse beside it)")
+    p.add_argument("--image", action="append", default=[], metavar="PATH",
+                   help="robust: judge on this picture instead of the held-out images (repeatable; PNG, JPEG, TIFF or "
+                        "BMP, centre-cropped and scaled to 256 px), e.g. pages of your own; with --no-write or "
+                        "--out elsewhere, so that the repository's figures stay the held-out images'")
     p.add_argument("--force", action="store_true", help="cost, workgroups, halfres, robust: overwrite --json's file")
     p.set_defaults(func=cmd_bench)

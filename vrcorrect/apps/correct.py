@@ -24,6 +24,7 @@ from .common import (
     add_model_options,
     add_pupil_options,
     build_design,
+    picture_band,
     check_memory,
     check_not_input,
     finite_json,
@@ -62,10 +63,11 @@ def cmd_correct(args: argparse.Namespace) -> int:
     check_memory(args.method, *image.shape[:2])
     target = decode(display, image)
     pupil, pupil_lines = viewing_pupil(args, eye, display, target, age)
-    for line in pupil_lines:
+    band, band_line = picture_band(args, display, target)
+    for line in pupil_lines + ([band_line] if band_line else []):
         print(f"vrcorrect: {line}", flush=True)          # stdout: an error stays the one line on stderr
     t0 = time.perf_counter()
-    design = build_design(args, eye, display, pupil, args.reference)
+    design = build_design(args, eye, display, pupil, args.reference, band=band)
     kernel, reference = design.kernel, design.reference
     t1 = time.perf_counter()
     small = small_image_note(image.shape[1], image.shape[0], kernel.size, "the correction")
@@ -100,7 +102,8 @@ def cmd_correct(args: argparse.Namespace) -> int:
             "input": str(args.input), "output": str(out), "prescription": str(rx_path), "eye": args.eye,
             "display": display.name, "method": result.method, "reference": problem.reference,
             "contrast": args.contrast, "iterations": result.iterations,
-            "pupil_mm": pupil, "pupil": pupil_lines, "robust": design.robust, "design": design.describe(),
+            "pupil_mm": pupil, "pupil": pupil_lines, "robust": design.robust, "band": band_line,
+            "light_cap": problem.capped, "design": design.describe(),
             "seconds": {"kernel": t1 - t0, "solve": result.seconds},
             "objective": result.objective, "objective_uncorrected": objective(target, problem),
             "metrics": corrected.__dict__, "metrics_uncorrected": uncorrected.__dict__,
@@ -111,7 +114,8 @@ def cmd_correct(args: argparse.Namespace) -> int:
     # the image and its report appear together or not at all (an interruption leaves neither)
     write_together(outputs, force=args.force)
     design_text = (f"designed for a {pupil:.2f} mm pupil" + (f", robust over {len(design.members)} eyes"
-                                                               if design.robust else ""))
+                                                               if design.robust else "")
+                   + (" of the page band" if _band_name(design) == "page" else ""))
     parts = [f"eye model {duration_text(t1 - t0)}", f"{_solve_text(result.method, result.iterations)} "
              f"{duration_text(t3 - t2)}"]
     if args.report:
@@ -122,6 +126,12 @@ def cmd_correct(args: argparse.Namespace) -> int:
           f"(objective {result.objective:.3g})" + (f"; report {args.report}" if args.report else ""))
     print(f"  took {duration_text(time.perf_counter() - started)}: " + ", ".join(parts))
     return 0
+
+
+def _band_name(design) -> str | None:
+    """The band a design was made over, for a clip's report: ``page`` (the page band: no light cap),
+    ``default``, or None (``--robust off``)."""
+    return None if not design.robust else "default" if design.capped else "page"
 
 
 def _solve_text(method: str, iterations: int) -> str:
@@ -214,8 +224,9 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     print_notes(clip.notes)
     check_memory(args.method, clip.size[1], clip.size[0])
     # each source frame designed for its own light
-    design_for = PupilPerFrame(args, eye, display, age, lambda p: build_design(args, eye, display, p, args.reference))
-    pupil, design = design_for(decode(display, next(iter(clips.planned_frames(plan)))[1]))
+    design_for = PupilPerFrame(args, eye, display, age, lambda p, b: build_design(args, eye, display, p, args.reference,
+                                                                                  band=b), bands=True)
+    _, design = design_for(decode(display, next(iter(clips.planned_frames(plan)))[1]))
     kernel, reference = design.nominal, design.nominal_reference
     options: dict | None = None
     scored = bool(args.report) and plan.count * clip.size[0] * clip.size[1] <= VIDEO_JOD_MAX_PIXELS
@@ -225,21 +236,21 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
         return encode("srgb", lms_to_display(lms, kernel)).astype(np.float32)
 
     per_frame: list[dict] = []
-    last_source, result, entry = -1, None, None
+    last_source, result, entry, last_design = -1, None, None, None
     bits = 16 if args.sixteen_bit else 8
     with folder, clips.frames_bar(f"correct ({args.method})", plan.count) as bar:
         for index, (source, frame) in enumerate(clips.planned_frames(plan)):
             if source != last_source:               # a repeated source frame has the same correction
                 linear = decode(display, frame)
-                new_pupil, design = design_for(linear)
+                pupil, design = design_for(linear)
                 kernel = design.nominal
                 problem = make_design_problem(linear, design, contrast=args.contrast)
-                if options is None or new_pupil != pupil:
-                    options = _solver_options(args, learned, eye.with_changes(pupil_diameter_mm=new_pupil), display,
+                if design is not last_design:      # a new pupil or band (designs are kept per pupil and band)
+                    options = _solver_options(args, learned, eye.with_changes(pupil_diameter_mm=pupil), display,
                                               design.kernel, design.reference, problem.capped)
-                pupil = new_pupil
+                last_design = design
                 result = solve(problem, args.method, **options)
-                entry = {"source_frame": source, "objective": result.objective,
+                entry = {"source_frame": source, "objective": result.objective, "band": _band_name(design),
                          "objective_uncorrected": objective(problem.target, problem) if args.report else None,
                          "iterations": result.iterations, "seconds": result.seconds}
                 if scored:
@@ -334,7 +345,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "objective, a summary, and ColorVideoVDP in video mode of what the eye sees.")
     clips.add_input_output(p, "image file (sRGB code values)")
     add_model_options(p)
-    add_pupil_options(p)
+    add_pupil_options(p, band=True)
     p.add_argument("--method", choices=names((Method.CONVENTIONAL, Method.PAPER, Method.FAST, Method.WIENER,
                                                Method.LEARNED)), default=Method.FAST.value,
                    help="correction method (default fast)")

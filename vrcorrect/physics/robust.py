@@ -110,6 +110,10 @@ class RobustBand:
         Offsets added to the prescription's sphere, dioptres (each within +-2).
     pupil_priors, sphere_priors
         Prior weights of the factors and offsets (None: equal); a member's prior is the product.
+    light_cap
+        Whether the design's display light is held under the light cap
+        (:func:`~vrcorrect.solvers.problem.light_cap`); the page band
+        (:data:`~vrcorrect.physics.page.PAGE_BAND`) is not.
 
     The default (chosen on the choice images, :data:`CHOICE_NOTE`): one pupil,
     :data:`DESIGN_PUPIL_FACTOR` of the estimate, and spheres -0.25/0/+0.25 D with the eye as
@@ -120,6 +124,7 @@ class RobustBand:
     sphere_offsets_D: tuple[float, ...] = (-0.25, 0.0, 0.25)
     pupil_priors: tuple[float, ...] | None = None
     sphere_priors: tuple[float, ...] | None = (1.0, 3.0, 1.0)
+    light_cap: bool = True
 
     def prior(self, i: int, j: int) -> float:
         """The prior weight of pupil factor ``i`` with sphere offset ``j`` (uniform unless given)."""
@@ -143,7 +148,7 @@ class RobustBand:
     def describe(self, pupil_mm: float) -> str:
         pupils = "/".join(f"{pupil_mm * f:.2f}" for f in self.pupil_factors)
         spheres = "/".join(f"{s:+.2f}" for s in self.sphere_offsets_D)
-        return f"pupils {pupils} mm x sphere {spheres} D"
+        return f"pupils {pupils} mm x sphere {spheres} D" + ("" if self.light_cap else ", no light cap")
 
 
 @dataclass(frozen=True)
@@ -189,6 +194,12 @@ class Design:
     band: RobustBand | None = None
     notes: tuple[str, ...] = field(default=())
     _kernels: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def capped(self) -> bool:
+        """Whether a correction of this design is held under the light cap: a robust design's band says
+        (:attr:`RobustBand.light_cap`); one eye's never is (the box [0, 1])."""
+        return self.robust and self.band is not None and self.band.light_cap
 
     def member_kernels(self, member: Member) -> tuple[EyeKernel, EyeKernel | None]:
         """A member's kernel and glasses kernel (None: the ideal target), as the design built them."""

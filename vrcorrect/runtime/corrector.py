@@ -305,7 +305,7 @@ class Corrector:
             raise ValidationError("eye_model", type(model).__name__, "an EyeModel (build_eye_model)")
         slot = None
         # a robust design's light cap holds in the unrolled model too (a model that has the input for it)
-        capped = bool(getattr(model.design, "robust", False))
+        capped = bool(getattr(model.design, "capped", False))
         if self._learned is not None:
             slot = self._learned.for_eye(model.eye, self.display, model.kernel, model.reference, capped=capped)
         elif self._onnx is not None:

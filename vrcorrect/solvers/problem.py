@@ -71,7 +71,7 @@ class Problem:
         (:mod:`vrcorrect.solvers.expectation`); the other methods solve the effective form.
     capped
         The displayed image is bounded by :func:`light_cap` of ``target`` instead of 1 (a robust
-        design's, :func:`make_design_problem`); ``fast`` honours it, and the real-time ADMM does
+        design's whose band keeps the cap, :func:`make_design_problem`); ``fast`` honours it, and the real-time ADMM does
         the same for a robust design; the other methods keep the box [0, 1].
     """
 
@@ -126,7 +126,7 @@ def make_design_problem(target: np.ndarray, design: "Design", contrast: float = 
         k, r = design.member_kernels(m)
         tl = simulate_lms(ts, r)[0] if r is not None else (ts @ k.matrix.T.astype(np.float32))
         members.append(BandEye(m.weight, k, np.asarray(tl, np.float32)))
-    return replace(problem, members=tuple(members), capped=True, reference="glasses" if design.nominal_reference is not None
+    return replace(problem, members=tuple(members), capped=design.capped, reference="glasses" if design.nominal_reference is not None
                    else "ideal", reference_kernel=design.nominal_reference)
 
 

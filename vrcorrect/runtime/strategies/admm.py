@@ -139,9 +139,9 @@ class AdmmStrategy(IterativeStrategy):
         """A foveated frame's sub-image (:mod:`vrcorrect.runtime.strategies.foveated`): the data term
         holds on :attr:`window_gl` only and the rest of the image is held to the target (``FOVEA``
         in ``admm.glsl``); no coarse level."""
-        self.cap = bool(getattr(self.model.design, "robust", False)) if cap is None else bool(cap)
+        self.cap = bool(getattr(self.model.design, "capped", False)) if cap is None else bool(cap)
         """The box's upper end is the target's light cap (``LIGHT_CAP``; the twin's ``AdmmFrames(cap=True)``):
-        by default where the eye model is a robust design, as ``fast`` caps a robust design's problem."""
+        by default where the eye model's design is capped (``Design.capped``), as ``fast`` caps its problem."""
         self.window_gl: tuple[int, int, int, int] = (0, 0, 0, 0)
         """With ``fovea``: the window ``(x0, y0, x1, y1)`` in GL texels of the image, half open."""
         self.hold: "moderngl.Texture | None" = None

@@ -14,12 +14,16 @@ Methods (``fast`` unless said):
 * ``none``: the target, uncorrected (the floor);
 * ``4 mm``: designed for a 4 mm pupil, the prescription's sphere, one eye (every design before the
   pupil came from the light);
-* ``default``: ``--pupil auto --robust on``: the pupil from the image's light (designed for the pupil
-  bank's nearest entry, as every command does; the eye as it is sees through the light's own pupil),
-  the robust band and its light cap (:func:`~vrcorrect.solvers.problem.light_cap`);
-* ``real time``: the same design through the real-time default's CPU twin (equal to the GPU,
-  ``tests/test_pupil.py``), ten frames of the still (``vrcorrect render``'s default);
-* ``learned``: the shipped learned model (``models/default.onnx``) given the same design;
+* ``default``: ``--pupil auto --robust on --band auto``: the pupil from the image's light (designed for
+  the pupil bank's nearest entry, as every command does; the eye as it is sees through the light's own
+  pupil) and the band by the picture (:func:`~vrcorrect.physics.page.choose_band`): a page on white
+  paper the page band, anything else the robust band and its light cap
+  (:func:`~vrcorrect.solvers.problem.light_cap`);
+* ``real time``: the real-time default's CPU twin (equal to the GPU, ``tests/test_pupil.py``), ten
+  frames of the still (``vrcorrect render``'s default): the same design where the picture gets the
+  default band; the default band for a page on white paper too (the real-time path does not yet
+  choose the band by the picture);
+* ``learned``: the shipped learned model (``models/default.onnx``) given the default's design;
 * ``ceiling``: designed for exactly the eye seen (its pupil and sphere), one eye (the box [0, 1], as
   ``--robust off``).
 
@@ -29,7 +33,8 @@ the gain of a correction designed for exactly 3 mm.  A second table measures wha
 boundary does to the effective kernel (:mod:`vrcorrect.physics.robust`): the expectation the
 robust design minimises, for the effective kernel's solution and for the exact expectation's
 (:func:`~vrcorrect.solvers.expectation.fast_expectation`, one split per member, to 1e-3).  A plot
-draws the pupil sweep.  Layer 6.
+draws the pupil sweep.  ``--image PATH`` runs the sweep on pictures of one's own instead of the
+held-out images (the checked band by the picture: rendered pages, docs/realtime.md).  Layer 6.
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ from typing import Any, Sequence
 import numpy as np
 from tqdm import tqdm
 
+from ...physics.page import choose_band
 from ...physics.perception import luminance_weights
 from ...physics.pupil import pupil_from_light
 from ...physics.robust import design_eye
@@ -71,6 +77,8 @@ SIZE = 256
 REALTIME_FRAMES = 10
 OLD_PUPIL_MM = 4.0
 METHODS = ("none", "4 mm", "default", "real time", "learned", "ceiling")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+"""An image name ending so is a file of one's own (``--image``), not a held-out image."""
 
 
 def held_out_image(name: str, size: int = SIZE) -> np.ndarray:
@@ -81,6 +89,10 @@ def held_out_image(name: str, size: int = SIZE) -> np.ndarray:
         prepare_image,  # on use: start-up time (the CLI imports the studies to build its parser)
     )
 
+    if Path(name).suffix.lower() in IMAGE_SUFFIXES:       # a picture of your own (``bench robust --image``)
+        from ...plumbing.imageio import read_image  # on use: start-up time (as above)
+
+        return prepare_image(read_image(name, []), size, Path(name).stem)
     if name == "motorcycle":
         raw = data.stereo_motorcycle()[0][..., :3]
     elif name == "page":
@@ -96,7 +108,7 @@ def held_out_image(name: str, size: int = SIZE) -> np.ndarray:
 
 def _realtime(design, target: np.ndarray, frames: int = REALTIME_FRAMES) -> np.ndarray:
     """What the real-time default shows after ``frames`` frames of a still (its CPU twin)."""
-    twin = AdmmFrames(design.kernel, design.reference, target.shape[:2], cap=design.robust)
+    twin = AdmmFrames(design.kernel, design.reference, target.shape[:2], cap=design.capped)
     shown = None
     for _ in range(frames):
         shown = twin.frame(target, 2).shown
@@ -133,12 +145,14 @@ def _case(display_name: str, image_name: str, bar, kernels: dict, size: int = SI
     shown: dict[str, np.ndarray] = {"none": target}
     old = design_eye(EYE, display, OLD_PUPIL_MM, robust=False, kernels=kernels)
     shown["4 mm"] = solve(make_problem(target, old.kernel, old.reference), "fast").image
-    default = design_eye(EYE, display, entry, kernels=kernels)
+    choice = choose_band(target, display)         # --band auto: the band by the picture
+    default = design_eye(EYE, display, entry, band=choice.band, kernels=kernels)
     problem = make_design_problem(target, default)
     t0 = time.perf_counter()
     shown["default"] = solve(problem, "fast").image
     default_s = time.perf_counter() - t0
-    shown["real time"] = _realtime(default, target)
+    realtime = design_eye(EYE, display, entry, kernels=kernels) if choice.page_band else default
+    shown["real time"] = _realtime(realtime, target)
     shown["learned"] = _learned(default, display, target, problem)
     seen_eyes = [(q, 0.0) for q in seen_pupils] + [(p, s) for s in seen_spheres]
     rows = []
@@ -153,7 +167,8 @@ def _case(display_name: str, image_name: str, bar, kernels: dict, size: int = SI
             scores[method] = {"jod": m.jod, "flip": m.flip, "objective": objective(image, seen_target)}
             bar.update(1)
         rows.append({"pupil_mm": q, "sphere_offset_D": s, "scores": scores})
-    return {"display": display_name, "image": image_name, "pupil_mm": p, "design_pupil_mm": entry,
+    return {"display": display_name, "image": Path(image_name).stem, "pupil_mm": p, "design_pupil_mm": entry,
+            "band": choice.describe(), "page_band": choice.page_band,
             "pupil": estimate.describe() + f"; the default designed for {entry:.2f} mm, the pupil bank's nearest entry",
             "design": default.describe()[0], "default_seconds": default_s, "rows": rows,
             "_problem": problem, "_default": default, "_target": target}
@@ -205,7 +220,7 @@ DARK = 0.08
 def _twin_run(design, frames: Sequence[np.ndarray], motions: Sequence[Any]) -> list[np.ndarray]:
     """The real-time default's CPU twin over linear frames with the motion ``vrcorrect render``
     estimates (a cold start at a cut)."""
-    twin = AdmmFrames(design.kernel, design.reference, frames[0].shape[:2], cap=design.robust)
+    twin = AdmmFrames(design.kernel, design.reference, frames[0].shape[:2], cap=design.capped)
     shown = []
     for i, frame in enumerate(frames):
         m = None if i == 0 else motions[i - 1]
@@ -301,7 +316,7 @@ def dark_to_bright(kernels: dict, size: int = VIDEO_SIZE, dark_frames: int = 30,
     current = follower.entry_mm
     first = design(current)                              # the dark scene's: the widest kernels of the clip
     twin = AdmmFrames(first.kernel, first.reference, (size, size),
-                      grid_kernel_size=max(first.kernel.size, first.reference.size), cap=first.robust)
+                      grid_kernel_size=max(first.kernel.size, first.reference.size), cap=first.capped)
     shown, switches, seen_pupils = [], [], []
     for i, x in enumerate(lin):
         if i >= 2:
@@ -315,7 +330,7 @@ def dark_to_bright(kernels: dict, size: int = VIDEO_SIZE, dark_frames: int = 30,
         shown.append(twin.frame(x, 2).shown)
         seen_pupils.append(nearest_bank_pupil(eye_pupil.update(pupil_from_light(lum[i], display).diameter_mm, 1 / 90)))
     held = AdmmFrames(design(current).kernel, design(current).reference, (size, size),
-                      grid_kernel_size=twin.grid[0] - size + 1, cap=first.robust)
+                      grid_kernel_size=twin.grid[0] - size + 1, cap=first.capped)
     held_shown = []
     for i, x in enumerate(lin):
         if i == dark_frames:
@@ -398,16 +413,22 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
     seconds = time.perf_counter() - t0
     lines = ["## The eye as it is: a correction against the eye it meets (`vrcorrect bench robust`)", "",
              f"Machine: {machine_description()}. {len(cases)} cases in {seconds / 60:.0f} min. The eye: right "
-             f"{EYE.sphere_D:+.2f}/{EYE.cylinder_D:+.2f} x {EYE.axis_deg:g}; images at {size} px, held out from "
-             "choosing the robust band (scikit-image's stereo_motorcycle, a colour photograph; page, a scanned "
-             "page of text; darktext, light words on dark blue, 18 px, added after the band was chosen). Each correction is seen by the eye as it is: pupils 2 to 7 mm at the prescription's "
+             f"{EYE.sphere_D:+.2f}/{EYE.cylinder_D:+.2f} x {EYE.axis_deg:g}; images at {size} px, "
+             + (f"pictures given with --image ({', '.join(Path(n).name for n in images)}). "
+                if any(Path(n).suffix.lower() in IMAGE_SUFFIXES for n in images) else
+                "held out from choosing the robust band (scikit-image's stereo_motorcycle, a colour photograph; page, "
+                "a scanned page of text; darktext, light words on dark blue, 18 px, added after the band was "
+                "chosen). ")
+             + "Each correction is seen by the eye as it is: pupils 2 to 7 mm at the prescription's "
              "sphere, and the sphere off by -0.5 to +0.5 D at the pupil the light gives. JOD (ColorVideoVDP) of "
              "what that eye sees against the target image; gains are over no correction. `4 mm`: designed for a "
-             "4 mm pupil, as every correction was before; `default`: `--pupil auto --robust on` (`fast`; the "
-             "robust band and its light cap, each primary at most twice the target's light plus 0.02); `real "
-             "time`: the same design through the real-time default's CPU twin, 10 frames of the still; `learned`: "
-             "the shipped learned model (models/default.onnx) on the same design, under the same light cap at "
-             "every stage; `ceiling`: designed for exactly the eye seen (`--robust off`: one eye, the box [0, 1]).", ""]
+             "4 mm pupil, as every correction was before; `default`: `--pupil auto --robust on --band auto` "
+             "(`fast`; the band by the picture: a page on white paper the page band, without the light cap; "
+             "anything else the robust band and its light cap, each primary at most twice the target's light plus "
+             "0.02); `real time`: the real-time default's CPU twin, 10 frames of the still, with the default band "
+             "for every picture (the real-time path does not yet choose the band by the picture); `learned`: "
+             "the shipped learned model (models/default.onnx) on the default's design, under its light cap (if any) "
+             "at every stage; `ceiling`: designed for exactly the eye seen (`--robust off`: one eye, the box [0, 1]).", ""]
     summary = []
     for c in cases:
         k = _checks(c)
@@ -434,7 +455,8 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
                          *(f"{_gain(r, m):+.2f}" for m in METHODS[1:]),
                          f"{sc['none']['flip']:.3f} / {sc['default']['flip']:.3f} / {sc['ceiling']['flip']:.3f}",
                          f"{sc['default']['objective'] / sc['none']['objective']:.3f}"])
-        lines += [f"### {c['display']}, {c['image']}: {c['pupil']}", "", c["design"] + ".", "",
+        lines += [f"### {c['display']}, {c['image']}: {c['pupil']}", "", f"{c['band'][0].upper()}{c['band'][1:]}. "
+                  f"{c['design']}.", "",
                   markdown_table(["pupil seen (mm)", "sphere off (D)", "JOD none", "4 mm", "default", "real time",
                                   "learned", "ceiling", "FLIP none / default / ceiling", "objective default / none"],
                                  rows), ""]
