@@ -317,7 +317,7 @@ class PupilPerFrame:
         self.build, self.design, self.bands = build, design, bands
         self.built: dict[Any, Any] = {}
         self.said: float | None = None
-        self.said_band: Any = PupilPerFrame  # nothing said yet (no band is this)
+        self.said_band: Any = None
         self.seconds = 0.0
 
     def __call__(self, image_linear: np.ndarray, where: str = "") -> tuple[float, Any]:

@@ -53,8 +53,8 @@ from ..specs.display import DisplayProfile
 from .perception import luminance_weights
 from .robust import RobustBand
 
-__all__ = ["PageVerdict", "page_verdict", "BandChoice", "choose_band", "WHITE_PAPER", "PAGE_BAND", "BAND_CHOICES", "PAPER_LEVEL", "INK_LEVEL", "PAPER_SHARE", "INK_SHARE", "MID_SHARE",
-           "PAPER_MISFIT"]
+__all__ = ["PageVerdict", "page_verdict", "BandChoice", "choose_band", "WHITE_PAPER", "PAGE_BAND", "PAPER_LEVEL",
+           "INK_LEVEL", "PAPER_SHARE", "INK_SHARE", "MID_SHARE", "PAPER_MISFIT"]
 
 #: A pixel is paper at or above this fraction of the picture's 99th percentile luminance.
 PAPER_LEVEL = 0.8
@@ -78,9 +78,6 @@ WHITE_PAPER = 0.9
 #: design pupil, the prescription's sphere counting five times and +0.25 D once, no light cap.
 PAGE_BAND = RobustBand(pupil_factors=(1.04,), sphere_offsets_D=(0.0, 0.25), sphere_priors=(5.0, 1.0),
                        light_cap=False)
-#: ``--band``'s values: ``auto`` the band by the picture (:func:`choose_band`), ``default`` the
-#: default band for every picture.
-BAND_CHOICES = ("auto", "default")
 
 
 @dataclass(frozen=True)
