@@ -181,6 +181,9 @@ BAND_HELP = ("with --robust on, the band of eyes the correction is designed over
              "page of dark text or lines on white paper gets the page band (the sphere hedged towards the sharper eye "
              "only, a pupil 4 %% above the estimate, no light cap: it keeps more of a page's sharpness), anything else "
              "the default band; default: the default band for every picture")
+REALTIME_BAND_HELP = ("; in real time the GPU looks at the picture every few frames and the correction switches band as "
+                      "it switches pupils (with --pupil auto and --filter admm over the whole view; otherwise the "
+                      "default band)")
 
 
 def parse_pupil(text: Any, field: str = "--pupil") -> str | float:

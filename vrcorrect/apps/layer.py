@@ -120,6 +120,7 @@ def cmd_install(args: argparse.Namespace, env: Mapping[str, str] | None = None) 
     if args.periphery is not None and fovea is None:
         raise ValidationError("--periphery", args.periphery, "only with --fovea DEG (outside its window)")
     options = {k: v for k, v in (("iterations_per_frame", args.iterations), ("pupil", pupil), ("robust", robust),
+                                 ("band", args.band),
                                  ("fovea_deg", fovea), ("gaze_deg", None if gaze is None else list(gaze)),
                                  ("fovea_periphery", args.periphery),
                                  ("budget_ms", None if args.budget_ms is None else
@@ -289,6 +290,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "shown; the default), rx (the prescription's pupil_diameter_mm) or a diameter in mm")
     i.add_argument("--robust", choices=("on", "off"), default=None,
                    help="the robust design over the band of pupils and +-0.25 D (default: on)")
+    i.add_argument("--band", choices=("auto", "default"), default=None,
+                   help="with --robust on: auto (the default): a page of dark text on white paper is designed over "
+                        "the page band, chosen every few frames; default: the default band for every picture")
     i.add_argument("--fovea", default=None, metavar="DEG|off",
                    help="correct only a window of this radius in degrees around the gaze (default: off, the whole "
                         "view)")

@@ -20,7 +20,8 @@ from ..specs.vocabulary import (
     Periphery,
     names,
 )
-from .common import FOVEA_HELP, GAZE_HELP, PERIPHERY_HELP, PUPIL_HELP, ROBUST_HELP, parse_fovea, parse_gaze, parse_pupil
+from .common import (BAND_HELP, FOVEA_HELP, GAZE_HELP, PERIPHERY_HELP, PUPIL_HELP, REALTIME_BAND_HELP, ROBUST_HELP,
+                     parse_fovea, parse_gaze, parse_pupil)
 
 __all__ = ["FILTER_CHOICES", "parse_frames", "parse_whole_number", "parse_iterations_per_frame", "add_backend_option",
            "add_rx_option", "add_filter_options", "add_pupil_choice", "pupil_options", "add_fovea_choice",
@@ -106,7 +107,7 @@ def add_filter_options(p: argparse.ArgumentParser, eye_tracker: bool = False) ->
 
 
 def add_pupil_choice(p: argparse.ArgumentParser) -> None:
-    """``--pupil`` and ``--robust`` (``render``, ``mirror``, ``overlay``, ``xr``): the eye as it is.
+    """``--pupil``, ``--robust`` and ``--band`` (``render``, ``mirror``, ``overlay``, ``xr``): the eye as it is.
     With ``auto`` the pupil follows each frame's light (measured on the GPU, with the pupil's own
     dynamics) and the correction switches between designs built off the render thread."""
 
@@ -117,6 +118,8 @@ def add_pupil_choice(p: argparse.ArgumentParser) -> None:
                                            "Yellott's formula on the frame's mean luminance (measured on the GPU), "
                                            "with the pupil's own dynamics,"))
     g.add_argument("--robust", choices=("on", "off"), default="on", help=ROBUST_HELP)
+    g.add_argument("--band", choices=("auto", "default"), default="auto",
+                   help=BAND_HELP + REALTIME_BAND_HELP)
 
 
 def add_fovea_choice(p: argparse.ArgumentParser, eye_tracker: bool = False) -> None:
@@ -152,9 +155,11 @@ def fovea_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def pupil_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The :class:`~vrcorrect.runtime.eye_model.CorrectorOptions` fields of ``--pupil`` and ``--robust``."""
+    """The :class:`~vrcorrect.runtime.eye_model.CorrectorOptions` fields of ``--pupil``, ``--robust`` and
+    ``--band``."""
 
-    return {"pupil": parse_pupil(getattr(args, "pupil", "auto")), "robust": getattr(args, "robust", "on") == "on"}
+    return {"pupil": parse_pupil(getattr(args, "pupil", "auto")), "robust": getattr(args, "robust", "on") == "on",
+            "band": getattr(args, "band", "default")}
 
 
 def add_reprojection_option(p: argparse.ArgumentParser) -> None:

@@ -6,7 +6,9 @@ default band keeps 53-90 % of the gain of a design for exactly the eye seen thro
 needs to know a page when it sees one; this is that judge, and :func:`choose_band` the choice it
 makes: a page on white paper (its paper's light at least :data:`WHITE_PAPER` of white) gets
 :data:`PAGE_BAND`, anything else the default band.  ``vrcorrect correct`` (``--band auto``, the
-default) designs by it; the real-time path does not yet.
+default) designs by it, and so does the real-time path (``band="auto"``,
+:class:`~vrcorrect.runtime.pupil_state.PupilState`: a strided look every few frames, judged by
+:func:`luminance_verdict`).
 
 Why that choice (``tools/robust_band_choice.py``, "Fifth look" to "Seventh look").  On a page the
 default band's hedge towards the blurrier eye (the sphere -0.25 D, the pupil a bank step below the
@@ -53,7 +55,8 @@ from ..specs.display import DisplayProfile
 from .perception import luminance_weights
 from .robust import RobustBand
 
-__all__ = ["PageVerdict", "page_verdict", "BandChoice", "choose_band", "WHITE_PAPER", "PAGE_BAND", "PAPER_LEVEL",
+__all__ = ["PageVerdict", "page_verdict", "luminance_verdict", "look_step", "BandChoice", "choose_band", "band_of",
+           "REALTIME_LOOK_SIDE", "WHITE_PAPER", "PAGE_BAND", "PAPER_LEVEL",
            "INK_LEVEL", "PAPER_SHARE", "INK_SHARE", "MID_SHARE", "PAPER_MISFIT"]
 
 #: A pixel is paper at or above this fraction of the picture's 99th percentile luminance.
@@ -68,6 +71,9 @@ INK_SHARE = 0.02
 MID_SHARE = 0.15
 #: The picture is looked at on at most this many pixels a side (a stride; a 4K frame in a few ms).
 LOOK_SIDE = 512
+#: The real-time path's look (:class:`~vrcorrect.runtime.pupil_state.PupilState`): at most this many
+#: pixels a side, so that a verdict costs a few ms of the render thread's CPU every few frames.
+REALTIME_LOOK_SIDE = 256
 #: A picture whose paper is darker than this relative luminance (white = 1) is dark: no page.
 DARKEST_PAPER = 0.02
 #: The paper's light fitted within this rms share of its mean (the tiles' 95th percentiles).
@@ -98,14 +104,28 @@ class PageVerdict:
         return f"not a page ({shares})"
 
 
-def page_verdict(linear_rgb: np.ndarray, display: DisplayProfile) -> PageVerdict:
+def look_step(height: int, width: int, side: int = LOOK_SIDE) -> int:
+    """The stride a picture is looked at with: at most ``side`` pixels a side."""
+    return max(1, -(-max(height, width) // side))
+
+
+def page_verdict(linear_rgb: np.ndarray, display: DisplayProfile, side: int = LOOK_SIDE) -> PageVerdict:
     """Judge ``linear_rgb`` (``(H, W, 3)`` linear display RGB, white 1) a page or not (module
-    docstring); a black or dark frame is no page."""
+    docstring), looked at on at most ``side`` pixels a side; a black or dark frame is no page."""
     image = np.asarray(linear_rgb)
     if image.ndim != 3 or image.shape[2] < 3 or image.size == 0:
         raise ValueError(f"linear_rgb: an (H, W, 3) image, got shape {image.shape}")
-    step = max(1, -(-max(image.shape[:2]) // LOOK_SIDE))
+    step = look_step(*image.shape[:2], side)
     y = np.clip(image[::step, ::step, :3].astype(np.float64), 0.0, 1.0) @ luminance_weights(display)
+    return luminance_verdict(y)
+
+
+def luminance_verdict(y: np.ndarray) -> PageVerdict:
+    """:func:`page_verdict` of a picture already strided and reduced to its relative luminance ``y``
+    (``(h, w)``, white 1): what the real-time path's GPU look reads back."""
+    y = np.asarray(y, np.float64)
+    if y.ndim != 2 or y.size == 0:
+        raise ValueError(f"y: an (h, w) luminance image, got shape {y.shape}")
     paper_light, misfit = _paper_light(y)
     light = float(np.mean(paper_light))
     if float(np.percentile(y, 99)) < DARKEST_PAPER:
@@ -165,9 +185,13 @@ class BandChoice:
         return f"the picture is {self.verdict.describe()}: the default band"
 
 
-def choose_band(linear_rgb: np.ndarray, display: DisplayProfile) -> BandChoice:
+def choose_band(linear_rgb: np.ndarray, display: DisplayProfile, side: int = LOOK_SIDE) -> BandChoice:
     """The band ``linear_rgb`` (``(H, W, 3)`` linear display RGB) is designed over on ``display``:
     :data:`PAGE_BAND` for a page on white paper, the default :class:`RobustBand` otherwise."""
-    verdict = page_verdict(linear_rgb, display)
+    return band_of(page_verdict(linear_rgb, display, side))
+
+
+def band_of(verdict: PageVerdict) -> BandChoice:
+    """The band a picture judged ``verdict`` is designed over (:func:`choose_band`)."""
     white = verdict.page and verdict.paper_light >= WHITE_PAPER
     return BandChoice(PAGE_BAND if white else RobustBand(), verdict, white)

@@ -109,11 +109,16 @@ class Corrector:
         ``eye`` (``ValidationError`` otherwise).
     options, **fields
         The :class:`CorrectorOptions`, made or as their fields (not both).
+    first_luminance, first_band
+        With ``pupil="auto"``: the first frame's mean relative luminance and, with ``band="auto"``, its
+        band (``"page"`` or ``"default"``, :func:`~vrcorrect.runtime.pupil_bank.codes_band`), so that
+        the first design is the first frame's (None: a mid-grey frame's light, the default band).
     """
 
     def __init__(self, ctx: "moderngl.Context", rx: RxSource | EyeSource, display: str | os.PathLike[str] | DisplayProfile,
                  eye: str, backend: str = Backend.GLSL, *, eye_model: EyeModel | None = None,
-                 options: CorrectorOptions | None = None, first_luminance: float | None = None, **fields: Any):
+                 options: CorrectorOptions | None = None, first_luminance: float | None = None,
+                 first_band: str | None = None, **fields: Any):
         if backend not in names(Backend):
             raise ValidationError("backend", backend, one_of(Backend))
         if eye not in names(Eye):
@@ -189,11 +194,12 @@ class Corrector:
         between :meth:`apply` calls; a batch render sets its clip's frame time."""
         self._pupil: PupilState | None = None
         if self.options.pupil == "auto":
-            self._pupil = PupilState(self, first_luminance)
+            self._pupil = PupilState(self, first_luminance, first_band)
         if eye_model is None:
             pupil = None if self._pupil is None else self._pupil.first_entry(eye_rx)
             eye_model = build_eye_model(eye_rx, self.display, self.options, pupil_mm=pupil, age_years=self.age_years,
-                                        kernels=None if self._pupil is None else self._pupil.kernels)
+                                        kernels=None if self._pupil is None else self._pupil.kernels,
+                                        band="default" if self._pupil is None else self._pupil.band)
         self.install(eye_model)
         check_gl_errors(ctx, "Corrector build")
 
@@ -267,9 +273,13 @@ class Corrector:
 
     def reset(self) -> None:
         """Make the next frame a cold start (the iterative methods: from the target), as a scene cut
-        needs.  A size change, :meth:`adjust`, :meth:`install` and a reload do it too."""
+        needs.  A size change, :meth:`adjust`, :meth:`install` and a reload do it too.  With
+        ``band="auto"`` the next frame is looked at at once (:meth:`PupilState.cut
+        <vrcorrect.runtime.pupil_state.PupilState.cut>`)."""
         if self.strategy is not None:
             self.strategy.reset()
+        if self._pupil is not None:
+            self._pupil.cut()
 
     @property
     def eye_rx(self) -> EyeRx:
@@ -527,7 +537,8 @@ class Corrector:
         m = self.model
         info = {"eye": self.eye_name, "sphere_D": m.eye.sphere_D, "cylinder_D": m.eye.cylinder_D,
                 "axis_deg": m.eye.axis_deg, "pupil_mm": m.pupil_mm, "pupil": self.options.pupil,
-                "pupil_status": self.pupil_status, "robust": self.options.robust, "display": self.display.name,
+                "pupil_status": self.pupil_status, "robust": self.options.robust, "band": m.band,
+                "band_option": self.options.band, "display": self.display.name,
                 "backend": self.backend,
                 "filter": self.options.filter, "strategy": self.strategy.name, "kernel_size": m.kernel.size,
                 "mu_rel": m.mu_rel, "beta": m.beta, "identity": m.identity, "margin": m.margin,

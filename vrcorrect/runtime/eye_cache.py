@@ -79,20 +79,22 @@ def _path(cache_key: str, env: Mapping[str, str] | None, folder: str = "eyes") -
 
 
 def design_key(eye: Any, display: Any, options: Any, age_years: float | None, pupil_mm: float,
-               grid_kernel_size: int | None, reach_mm: float | None) -> str:
+               grid_kernel_size: int | None, reach_mm: float | None, band: str = "default") -> str:
     """The cache key of one pupil bank design: the eye as designed, the display profile by its content
-    (:func:`_digest_value`), the options, the age, the pupil, the grids' kernel size and reach, and the
-    package."""
-    return _eye_digest(f"pupil={float(pupil_mm)!r}; grid kernel={grid_kernel_size!r}; reach={reach_mm!r}", eye,
-                       display, options, age_years)
+    (:func:`_digest_value`), the options, the age, the pupil, the grids' kernel size and reach, the band
+    (``"default"`` or ``"page"``) and the package."""
+    return _eye_digest(f"pupil={float(pupil_mm)!r}; grid kernel={grid_kernel_size!r}; reach={reach_mm!r}; "
+                       f"band={band}", eye, display, options, age_years)
 
 
-def start_key(eye: Any, display: Any, options: Any, age_years: float | None, pupil_mm: float) -> str:
+def start_key(eye: Any, display: Any, options: Any, age_years: float | None, pupil_mm: float,
+              band: str = "default") -> str:
     """The cache key of an eye's first design in a window (``vrcorrect xr``, ``mirror``, ``overlay``):
     the eye, the display profile by its content, the options, the age, the pupil it is designed for
     (:func:`~vrcorrect.runtime.eye_model.initial_pupil_mm`: with ``pupil="auto"`` the first frame's
-    light's), and the package.  Kept beside the bank's designs (:func:`store_design`)."""
-    return _eye_digest(f"first design at pupil={pupil_mm!r}", eye, display, options, age_years)
+    light's), its band (``band="auto"``: the first frame's) and the package.  Kept beside the bank's
+    designs (:func:`store_design`)."""
+    return _eye_digest(f"first design at pupil={pupil_mm!r}; band={band}", eye, display, options, age_years)
 
 
 def _eye_digest(what: str, eye: Any, display: Any, options: Any, age_years: float | None) -> str:

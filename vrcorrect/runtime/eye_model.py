@@ -50,14 +50,14 @@ from ..specs.vocabulary import (
 )
 from .budget import check_budget_ms
 from .filters import DEFAULT_RANK_TOLERANCE, SeparableBank, separable_bank
-from .pupil_bank import bank_grid_kernel_size, bank_reach_mm, nearest_bank_pupil
+from .pupil_bank import band_slack, bank_grid_kernel_size, bank_reach_mm, nearest_bank_pupil
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from ..physics.kernel import EyeKernel, KernelOptions
 
 __all__ = ["as_options", "initial_pupil_mm", "auto_reach_mm", "NEUTRAL_LUMINANCE", "DEFAULT_ITERATIONS", "DEFAULT_COLD_ITERATIONS", "WORK_GROUP_PASSES", "VALUES_PER_THREAD",
            "COARSE_VALUES_PER_THREAD", "COLUMN_LINES", "WorkGroups", "CorrectorOptions", "EyeModel", "build_eye_model",
-           "check_iterations"]
+           "check_iterations", "BAND_OPTIONS", "band_switches"]
 
 # The names (backends, filters, precisions) and the iterations' ranges are the vocabulary's
 # (vrcorrect.specs.vocabulary): Backend, Filter, ITERATIVE_FILTERS, Precision, ITERATIONS_PER_FRAME,
@@ -249,6 +249,14 @@ class CorrectorOptions:
         Design over a band of pupils and defocus around the pupil
         (:func:`~vrcorrect.physics.robust.design_eye`: one effective kernel, the frame's cost
         unchanged) instead of for the one eye; the commands use ``True``.
+    band
+        ``"default"`` (the default here): every design over the default band
+        (:class:`~vrcorrect.physics.robust.RobustBand`); ``"auto"`` (the commands'): by the picture, as
+        ``correct --band auto``: a page of dark text on white paper is designed over the page band
+        (:data:`~vrcorrect.physics.page.PAGE_BAND`, no light cap), anything else over the default band.
+        The GPU looks at every few frames (:class:`~vrcorrect.runtime.pupil_state.PupilState`) and the
+        bank switches designs as it does between pupils.  Only where :func:`band_switches` (a robust
+        design followed with the light, the whole view, the ADMM filter); elsewhere the default band.
     age_years
         The wearer's age for ``pupil="auto"`` (None: the prescription's ``age_years``, else the
         pupil formula's reference age).
@@ -289,6 +297,7 @@ class CorrectorOptions:
     work_groups: WorkGroups = field(default_factory=WorkGroups)
     pupil: str | float = "rx"
     robust: bool = False
+    band: str = "default"
     age_years: float | None = None
     fovea_deg: float | None = None
     fovea_periphery: str = Periphery.QUARTER
@@ -309,6 +318,8 @@ class CorrectorOptions:
             object.__setattr__(self, "pupil", check_pupil_mm(self.pupil, "pupil"))
         if not isinstance(self.robust, bool):
             raise ValidationError("robust", self.robust, "True or False")
+        if self.band not in BAND_OPTIONS:
+            raise ValidationError("band", self.band, "'auto' (the page band for a page on white paper) or 'default'")
         if self.age_years is not None and (isinstance(self.age_years, bool) or
                                            not isinstance(self.age_years, (int, float)) or
                                            not 1 <= self.age_years <= 120):
@@ -374,6 +385,19 @@ class CorrectorOptions:
         return self.blend == "frame" and self.beta is None and self.filter == Filter.FFT
 
 
+BAND_OPTIONS = ("default", "auto")
+""":attr:`CorrectorOptions.band`'s values."""
+
+
+def band_switches(options: CorrectorOptions) -> bool:
+    """Whether a corrector with ``options`` designs by the picture (``band="auto"``): a robust design
+    whose pupil follows the light (its bank switches designs) on the ADMM filter of the glsl backend,
+    over the whole view and with no learned cold start (their caps are the programs'); anything else
+    keeps the default band."""
+    return (options.band == "auto" and options.robust and options.pupil == "auto" and options.filter == Filter.ADMM
+            and options.backend == Backend.GLSL and options.fovea_deg is None and options.cold_start_model is None)
+
+
 @dataclass(frozen=True, eq=False)
 class EyeModel:
     """Everything the GPU needs for one eye, computed on the CPU (numpy).
@@ -399,6 +423,7 @@ class EyeModel:
     grid_kernel_size: int | None = None          # the kernel size grids are made for (a pupil bank's largest)
     reach_mm: float | None = None                # a pupil bank's largest entry its grids hold (bank_reach_mm)
     spectra: dict = field(default_factory=dict)  # precomputed half spectra by (grid, dtype, coarse): a bank's switch
+    band: str = "default"                        # the robust band designed over: "default" or "page" (PAGE_BAND)
 
     @property
     def seen_kernel(self) -> EyeKernel:
@@ -470,7 +495,7 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
                     options: CorrectorOptions = CorrectorOptions(), *, pupil_mm: float | None = None,
                     age_years: float | None = None, kernels: dict | None = None,
                     grid_kernel_size: int | None = None, reach_mm: float | None = None,
-                    progress: Callable[[int, int], None] | None = None) -> EyeModel:
+                    progress: Callable[[int, int], None] | None = None, band: str = "default") -> EyeModel:
     """Kernel, regulariser, blend weight (and, for the separable strategy, both banks) for one
     eye (CPU, numpy); only what ``options.backend`` and ``options.filter`` use (module docstring).
 
@@ -480,10 +505,12 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
     pupil bank's), ``grid_kernel_size`` makes the grids hold a larger kernel than this design's (with
     ``pupil="auto"`` and none given: the kernel of the bank's reach, ``reach_mm``, by default
     :func:`auto_reach_mm` of this design's pupil);
-    ``progress(done, total)`` after each kernel (a bank's worker stops a design from it)."""
+    ``progress(done, total)`` after each kernel (a bank's worker stops a design from it).  ``band``:
+    ``"default"`` or ``"page"`` (:data:`~vrcorrect.physics.page.PAGE_BAND`, with ``options.robust``)."""
     # start-up time, each below: scipy, the optics and the solvers load with the first eye (importing the
     # runtime loads none of them)
     from ..physics.kernel import KernelOptions  # start-up time (above)
+    from ..physics.page import PAGE_BAND  # start-up time (above)
     from ..physics.robust import design_eye  # start-up time (above)
     from ..solvers import make_problem  # start-up time (above)
     from ..solvers.wiener import correction_filters, wiener  # start-up time (above)
@@ -493,12 +520,15 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
     designs = options.backend == Backend.GLSL            # the ONNX backend corrects with its model
     kopts = options.kernel_options or KernelOptions()
     pupil = initial_pupil_mm(eye_rx, display, options, age_years=age_years) if pupil_mm is None else float(pupil_mm)
+    if band not in ("default", "page"):
+        raise ValidationError("band", band, "'default' or 'page'")
     design = design_eye(eye_rx, display, pupil, robust=options.robust, reference=options.reference, options=kopts,
-                        kernels=kernels, progress=progress)
+                        kernels=kernels, progress=progress, band=PAGE_BAND if band == "page" else None)
     kernel, reference, seen = design.kernel, design.reference, design.nominal
     if options.pupil == "auto" and grid_kernel_size is None:          # the grids hold the bank's reachable designs
         reach_mm = auto_reach_mm(eye_rx, display, options, pupil, age_years) if reach_mm is None else reach_mm
-        grid_kernel_size = bank_grid_kernel_size(design, reach_mm)
+        grid_kernel_size = bank_grid_kernel_size(design, reach_mm, band_slack(eye_rx, design) if band_switches(options)
+                                                 else 1.0)
     notes: list[str] = []
     if options.pupil != "rx" or options.robust:
         notes.append(f"designed for a {pupil:.2f} mm pupil" + (" (auto: from the light)" if options.pupil == "auto"
@@ -514,7 +544,7 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
                         simulation=simulation, mu_rel=mu_rel, beta=beta,
                         build_seconds=time.perf_counter() - t0, notes=tuple(notes),
                         seen=None if seen is kernel else seen, pupil_mm=pupil, design=design,
-                        grid_kernel_size=grid_kernel_size, reach_mm=reach_mm)
+                        grid_kernel_size=grid_kernel_size, reach_mm=reach_mm, band=band)
 
     def nothing_to_correct(why: str) -> EyeModel:
         notes.append(why + ": the correction is the identity")

@@ -23,6 +23,9 @@ switch between (``pupil="auto"``, :class:`~vrcorrect.runtime.eye_model.Corrector
   it, and keeps what it designs; the layer's priming asks for the light's design at once and waits
   for it (:meth:`~vrcorrect.runtime.pupil_state.PupilState.follow_now`).  Every design's grid holds the kernel of the bank's
   widest reachable design (:func:`bank_grid_kernel_size`), so a switch keeps the grids.
+* **The band** (``band="auto"``): the bank's designs are keyed by ``(pupil, band)`` where the band is
+  chosen by the picture too (:mod:`~vrcorrect.runtime.pupil_state`); a bank first designed over the page
+  band sizes its grids with :func:`band_slack` more, so that the default band's designs fit them.
 * **The reach** (:func:`bank_reach_mm`): the grids hold designs up to :data:`BANK_REACH_STEPS` entries
   above the first design, not up to 7.5 mm.  A pupil beyond the reach is designed for at the reach (a
   smaller pupil than the eye's: less correction, never the over-correction a too-large design gives
@@ -43,7 +46,7 @@ import queue
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Hashable
 
 import numpy as np
 
@@ -52,7 +55,7 @@ from ..specs.display import DisplayProfile, decode
 from ..specs.prescription import EyeRx
 
 __all__ = ["BANK_STEP", "BANK_PUPILS_MM", "BANK_REACH_STEPS", "HYSTERESIS", "GRID_MARGIN", "bank_pupils",
-           "bank_grid_kernel_size", "bank_reach_mm", "nearest_bank_pupil", "PupilFollower", "PupilBank"]
+           "bank_grid_kernel_size", "band_slack", "codes_band", "bank_reach_mm", "nearest_bank_pupil", "PupilFollower", "PupilBank"]
 
 log = logging.getLogger(__name__)
 
@@ -99,12 +102,28 @@ def bank_reach_mm(entry_mm: float) -> float:
     return BANK_PUPILS_MM[min(index + BANK_REACH_STEPS, len(BANK_PUPILS_MM) - 1)]
 
 
-def bank_grid_kernel_size(design, reach_mm: float | None = None) -> int:
+def band_slack(eye: EyeRx, design) -> float:
+    """How much wider the default band's widest kernel may be than a design over another band (the page
+    band, :data:`~vrcorrect.physics.page.PAGE_BAND`: no member 0.25 D more myopic than the eye, whose
+    blur is the widest of a myope's) at the same pupils: the worst meridian's power ``m`` and the default
+    band's ``(m + 0.25) / m`` (a defocus blur's width grows with it; at most 2), 1 for the default band."""
+    from ..physics.robust import RobustBand  # start-up time: the optics load with the first eye
+
+    band = getattr(design, "band", None)
+    if not getattr(design, "robust", False) or band is None or band == RobustBand():
+        return 1.0
+    worst = max(abs(eye.sphere_D), abs(eye.sphere_D + eye.cylinder_D))
+    spread = max(abs(o) for o in RobustBand().sphere_offsets_D)
+    return min((worst + spread) / max(worst, spread), 2.0)
+
+
+def bank_grid_kernel_size(design, reach_mm: float | None = None, slack: float = 1.0) -> int:
     """The kernel size every grid of a bank holds, so that a switch keeps the grids: the widest member
     kernel of ``design`` (:class:`~vrcorrect.physics.robust.Design`) extrapolated linearly in the pupil
     (a defocus blur's width grows with it) to the design of the bank's reach ``reach_mm``
-    (:func:`bank_reach_mm`; None: the bank's largest pupil), with :data:`GRID_MARGIN` room, doubled
-    for the effective kernels' window where the design is robust.  A later design that still does not
+    (:func:`bank_reach_mm`; None: the bank's largest pupil), with :data:`GRID_MARGIN` room and
+    ``slack`` more (:func:`band_slack`: a page band's design, whose bank may switch to the default
+    band), doubled for the effective kernels' window where the design is robust.  A later design that still does not
     fit is installed anew (a cold start) instead of switched."""
     from ..physics.robust import MAX_MEMBER_PUPIL_MM, RobustBand  # start-up time: the optics load with the first eye
 
@@ -113,7 +132,7 @@ def bank_grid_kernel_size(design, reach_mm: float | None = None) -> int:
     pupil = max([m.pupil_mm for m in members] + [design.pupil_mm])
     reach = max(BANK_PUPILS_MM) if reach_mm is None else reach_mm
     top = min(reach * (max(RobustBand().pupil_factors) if design.robust else 1.0), MAX_MEMBER_PUPIL_MM)
-    size = int(math.ceil(widest * max(top / pupil, 1.0) * GRID_MARGIN)) | 1
+    size = int(math.ceil(widest * max(top / pupil, 1.0) * GRID_MARGIN * slack)) | 1
     return 2 * size + 1 if design.robust else size
 
 
@@ -180,14 +199,23 @@ class _Closed(Exception):
 
 @dataclass(frozen=True)
 class _Job:
-    pupil_mm: float
+    key: Hashable
     grids: tuple
+
+
+def _named(key: Hashable) -> str:
+    """A design's key in a log line: ``3.13 mm``, or ``3.13 mm, page band`` for ``(pupil, band)``."""
+    if isinstance(key, tuple):
+        return f"{key[0]:.2f} mm, {key[1]} band"
+    return f"{key:.2f} mm"
 
 
 class PupilBank:
     """Designs for one eye at the bank's pupils, built on a worker thread of the bank's own.
 
-    ``build(pupil_mm, kernels, grids, progress)`` designs one (:func:`~vrcorrect.runtime.eye_model.build_eye_model`)
+    A design's key is its pupil, or ``(pupil_mm, band)`` where the band is chosen too
+    (:class:`~vrcorrect.runtime.pupil_state.PupilState`).
+    ``build(key, kernels, grids, progress)`` designs one (:func:`~vrcorrect.runtime.eye_model.build_eye_model`)
     with its spectra on the strategy's grids; :meth:`request` asks for one without waiting, :meth:`get`
     returns it once built (None before).  Designs share one cache of kernels (``kernels``: the first
     design's too).
@@ -199,43 +227,43 @@ class PupilBank:
         self.eye, self.display, self.options, self.age_years = eye, display, options, age_years
         self._build = build
         self.kernels: dict = {} if kernels is None else kernels
-        self._models: dict[float, object] = {}
-        self.failed: dict[float, str] = {}
+        self._models: dict[Hashable, object] = {}
+        self.failed: dict[Hashable, str] = {}
         self._lock = threading.Lock()
         self._jobs: queue.Queue[_Job | None] = queue.Queue()
-        self._queued: set[float] = set()
+        self._queued: set[Hashable] = set()
         self._worker: threading.Thread | None = None
         self._closing = threading.Event()
 
-    def get(self, pupil_mm: float):
+    def get(self, key: Hashable):
         with self._lock:
-            return self._models.get(pupil_mm)
+            return self._models.get(key)
 
-    def put(self, pupil_mm: float, model) -> None:
+    def put(self, key: Hashable, model) -> None:
         """Keep a design built elsewhere (the first, built before the first frame)."""
         with self._lock:
-            self._models[pupil_mm] = model
+            self._models[key] = model
 
-    def build_now(self, pupil_mm: float, grids: tuple = ()):
-        """Design ``pupil_mm`` on the caller's thread (a batch render that must not run ahead of it)."""
-        model = self.get(pupil_mm)
+    def build_now(self, key: Hashable, grids: tuple = ()):
+        """Design ``key`` on the caller's thread (a batch render that must not run ahead of it)."""
+        model = self.get(key)
         if model is None:
-            model = self._build(pupil_mm, self.kernels, grids, None)
-            self.put(pupil_mm, model)
+            model = self._build(key, self.kernels, grids, None)
+            self.put(key, model)
         return model
 
-    def request(self, pupil_mm: float, grids: tuple = ()) -> None:
-        """Have the worker design ``pupil_mm`` (nothing if it is built, queued or failed)."""
+    def request(self, key: Hashable, grids: tuple = ()) -> None:
+        """Have the worker design ``key`` (nothing if it is built, queued or failed)."""
         with self._lock:
-            if pupil_mm in self._models or pupil_mm in self._queued or pupil_mm in self.failed:
+            if key in self._models or key in self._queued or key in self.failed:
                 return
-            self._queued.add(pupil_mm)
+            self._queued.add(key)
             if self._worker is None:
                 # not a daemon: at exit the interpreter must not tear down a thread that is inside
                 # a C extension (scipy's FFT), which aborts the process; close() waits for it.
                 self._worker = threading.Thread(target=self._run, name="vrcorrect-pupil-bank", daemon=False)
                 self._worker.start()
-        self._jobs.put(_Job(pupil_mm, tuple(grids)))
+        self._jobs.put(_Job(key, tuple(grids)))
 
     def _run(self) -> None:
         while True:
@@ -243,22 +271,22 @@ class PupilBank:
             if job is None:
                 return
             try:
-                model = self._build(job.pupil_mm, self.kernels, job.grids, self._check)
+                model = self._build(job.key, self.kernels, job.grids, self._check)
                 with self._lock:
-                    self._models[job.pupil_mm] = model
+                    self._models[job.key] = model
             except _Closed:
                 return
             except VrcorrectError as exc:
                 with self._lock:
-                    self.failed[job.pupil_mm] = str(exc)
-                log.warning("pupil bank: no design for %.2f mm: %s", job.pupil_mm, exc)
+                    self.failed[job.key] = str(exc)
+                log.warning("pupil bank: no design for %s: %s", _named(job.key), exc)
             except Exception as exc:                     # a worker must not die silently
                 with self._lock:
-                    self.failed[job.pupil_mm] = repr(exc)
-                log.exception("pupil bank: the design for %.2f mm failed", job.pupil_mm)
+                    self.failed[job.key] = repr(exc)
+                log.exception("pupil bank: the design for %s failed", _named(job.key))
             finally:
                 with self._lock:
-                    self._queued.discard(job.pupil_mm)
+                    self._queued.discard(job.key)
 
     def wait_idle(self, timeout_s: float = 600.0) -> None:
         """Wait until every queued design is built (tests, batch renders)."""
@@ -290,7 +318,7 @@ class PupilBank:
                 break
             if job is not None:
                 with self._lock:
-                    self._queued.discard(job.pupil_mm)
+                    self._queued.discard(job.key)
         self._jobs.put(None)
         if worker is not threading.current_thread():
             worker.join()
@@ -312,3 +340,15 @@ def codes_luminance(codes: np.ndarray, display: DisplayProfile) -> float:
     unit = (pixels.astype(np.float32) / 255.0 if pixels.dtype == np.uint8
             else np.clip(pixels.astype(np.float32), 0.0, 1.0))
     return relative_luminance_of(decode(display, unit), display)
+
+
+def codes_band(codes: np.ndarray, display: DisplayProfile) -> str:
+    """The band a frame given as code values (as :func:`codes_luminance`) is designed over with
+    ``band="auto"``: ``"page"`` for a page on white paper, else ``"default"``
+    (:func:`~vrcorrect.physics.page.choose_band`, looked at as the real-time path looks)."""
+    from ..physics.page import REALTIME_LOOK_SIDE, choose_band  # start-up time (as above)
+
+    pixels = np.asarray(codes)[..., :3]
+    unit = (pixels.astype(np.float32) / 255.0 if pixels.dtype == np.uint8
+            else np.clip(pixels.astype(np.float32), 0.0, 1.0))
+    return "page" if choose_band(decode(display, unit), display, REALTIME_LOOK_SIDE).page_band else "default"

@@ -3,6 +3,16 @@ on the GPU, follows the pupil with it (:class:`~vrcorrect.runtime.pupil_bank.Pup
 switches the :class:`~vrcorrect.runtime.corrector.Corrector` between the designs of its bank
 (:class:`~vrcorrect.runtime.pupil_bank.PupilBank`), built off the render thread.
 
+With ``band="auto"`` (where :func:`~vrcorrect.runtime.eye_model.band_switches`) it also chooses the
+robust band by the picture, as ``vrcorrect correct --band auto`` does: every :data:`LOOK_EVERY` frames
+the GPU takes a strided look at the frame's luminance (:class:`~vrcorrect.runtime.strategies.base.PageLook`,
+at most :data:`~vrcorrect.physics.page.REALTIME_LOOK_SIDE` a side), read :data:`LOOK_LATE` frames later
+and judged on this thread (:func:`~vrcorrect.physics.page.luminance_verdict`, a few ms); after
+:data:`BAND_HOLD` verdicts in a row that differ from the band in use, the bank designs that band at
+the pupil's entry and the corrector switches to it as it switches pupils: the iteration goes on from
+its state, and the light cap (a uniform, ``light_cap.glsl``) follows the design.  The bank's designs
+are keyed by ``(pupil, band)``.
+
 Layer 5: numpy, moderngl; never torch.
 """
 
@@ -14,29 +24,51 @@ from typing import TYPE_CHECKING, Callable, Mapping
 
 from ..specs.prescription import EyeRx
 from . import eye_cache
-from .eye_model import EyeModel, build_eye_model, initial_pupil_mm
+from .eye_model import EyeModel, band_switches, build_eye_model, initial_pupil_mm
 from .pupil_bank import PupilBank, PupilFollower
-from .strategies.admm import bank_spectra
-from .strategies.base import LuminanceMeter
+from .strategies.base import LuminanceMeter, PageLook
+from .strategies.spectra import bank_spectra
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
     from .corrector import Corrector
 
-__all__ = ["PupilState"]
+__all__ = ["PupilState", "LOOK_EVERY", "LOOK_LATE", "BAND_HOLD"]
+
+LOOK_EVERY = 10
+"""``band="auto"``: frames between two looks at the picture (a ninth of a second at 90 Hz)."""
+LOOK_LATE = 2
+"""Frames after a look that it is read (the GPU has done it by then: nothing waits)."""
+BAND_HOLD = 2
+"""Verdicts in a row that a band must get before the bank switches to it (a cross-fade or a single
+odd frame does not flip the band)."""
 
 
 class PupilState:
     """A corrector's viewing pupil with ``pupil="auto"`` (:mod:`vrcorrect.runtime.pupil_bank`): the GPU's
     luminance of each frame, the pupil following it, and the bank of designs it switches between."""
 
-    def __init__(self, corrector: "Corrector", first_luminance: float | None):
-        from ..physics.perception import luminance_weights  # start-up time: the optics load with the first eye
+    def __init__(self, corrector: "Corrector", first_luminance: float | None, first_band: str | None = None):
+        from ..physics.page import REALTIME_LOOK_SIDE  # start-up time: the optics load with the first eye
+        from ..physics.perception import luminance_weights  # start-up time (as above)
 
         self.c = corrector
         self.first_luminance = first_luminance
-        self.meter = LuminanceMeter(corrector.gpu, luminance_weights(corrector.display))
+        weights = luminance_weights(corrector.display)
+        self.meter = LuminanceMeter(corrector.gpu, weights)
+        self.look: PageLook | None = PageLook(corrector.gpu, weights, REALTIME_LOOK_SIDE) \
+            if band_switches(corrector.options) else None
+        """``band="auto"``: the GPU's look at the picture (None: the band is the default's)."""
+        self.band = (first_band or "default") if self.look is not None else "default"
+        """The band the picture asks for (the verdicts', :data:`BAND_HOLD` in a row); the design in use is
+        :attr:`current_band`'s."""
+        self.current_band = self.band
+        self.verdict = None
+        """The last verdict (:class:`~vrcorrect.physics.page.PageVerdict`), None before the first look."""
+        self._said, self._agree = self.band, BAND_HOLD
+        self._frames = self._looked = 0
+        self._cut = self._decisive = False
         self.kernels: dict = {}                         # shared by every design of this eye (the bank's)
         self.follower: PupilFollower | None = None
         self.bank: PupilBank | None = None
@@ -65,38 +97,43 @@ class PupilState:
                     self.kernels = {}                   # a new eye: its own kernels
                 self.bank = PupilBank(model.eye, self.c.display, self.c.options, self.c.age_years, self._build,
                                       self.kernels)
-            self.bank.put(model.pupil_mm, model)
+            self.bank.put((model.pupil_mm, model.band), model)
             if self.follower is None:
                 self.follower = PupilFollower(self.c.display, self.c.age_years, upper, model.pupil_mm)
             self.follower.upper_mm = upper
             self.follower.reach_mm = model.reach_mm          # the new grids' reach (a new eye: its own)
         else:
             self.switches += 1
-        self.current = model.pupil_mm
+        self.current, self.current_band = model.pupil_mm, model.band
         if self.follower is not None:
             self.follower.entry_mm = model.pupil_mm
 
-    def _build(self, pupil_mm: float, kernels: dict, grids: tuple, progress=None) -> EyeModel:
-        """A bank's design (on its worker): the model and its spectra on the strategy's grids."""
+    def _build(self, wanted: tuple[float, str], kernels: dict, grids: tuple, progress=None) -> EyeModel:
+        """A bank's design (on its worker) for ``(pupil, band)``: the model and its spectra on the
+        strategy's grids."""
 
+        pupil_mm, band = wanted
         base = self.c.model
         key = model = None
         if self.cache_env is not None:
             key = eye_cache.design_key(base.eye, self.c.display, self.c.options, self.c.age_years, pupil_mm,
-                                       base.grid_kernel_size, base.reach_mm)
+                                       base.grid_kernel_size, base.reach_mm, band)
             model = eye_cache.load_design(key, self.cache_env)
         if model is None:
             model = build_eye_model(base.eye, self.c.display, self.c.options, pupil_mm=pupil_mm,
                                     age_years=self.c.age_years, kernels=kernels,
-                                    grid_kernel_size=base.grid_kernel_size, reach_mm=base.reach_mm, progress=progress)
+                                    grid_kernel_size=base.grid_kernel_size, reach_mm=base.reach_mm, progress=progress,
+                                    band=band)
             if key is not None:
                 eye_cache.store_design(key, model, self.cache_env)
         self.c.check_eye(model.eye)
         return replace(model, spectra=bank_spectra(model, grids)) if grids else model
 
     def frame(self, linear: "moderngl.Texture") -> None:
-        """Measure this frame's light; follow the pupil with the frame two back; switch or ask."""
+        """Measure this frame's light (and look at it, every :data:`LOOK_EVERY` frames); follow the pupil
+        with the frame two back and the band with the verdicts; switch or ask."""
         self.meter.measure(linear)
+        self._look(linear)
         lum = self.meter.latest()
         now = time.monotonic()
         dt = self.c.frame_time_s if self.c.frame_time_s is not None else \
@@ -104,8 +141,8 @@ class PupilState:
         self._last_time = now
         if lum is None or self.follower is None or self.bank is None:
             return
-        entry = self.follower.update(lum, dt)
-        if entry == self.current:
+        entry = (self.follower.update(lum, dt), self.band)
+        if entry == (self.current, self.current_band):
             return
         model = self.bank.get(entry)
         grids = self._grids()
@@ -116,6 +153,36 @@ class PupilState:
                 self.bank.request(entry, grids)
                 return
         self.c.switch_design(model)
+
+    def cut(self) -> None:
+        """A scene cut (:meth:`~vrcorrect.runtime.corrector.Corrector.reset`): the next frame is looked at
+        at once, and its verdict alone decides the band, so that a switch lands among the cold start's
+        own changes, :data:`LOOK_LATE` frames after the cut, not on a converged picture later."""
+        self._cut = True
+
+    def _look(self, linear: "moderngl.Texture") -> None:
+        """``band="auto"``: read the pending look once it is :data:`LOOK_LATE` frames old and judge it;
+        queue the next every :data:`LOOK_EVERY` frames (at once after a cut)."""
+        if self.look is None:
+            return
+        from ..physics.page import band_of, luminance_verdict  # start-up time (as above)
+
+        self._frames += 1
+        if self._cut:                                      # the pending look (if any) is of the last scene
+            self._cut, self._decisive = False, True
+            self.look.look(linear)
+            self._looked = self._frames
+        elif self.look.shape is not None:
+            if self._frames - self._looked >= LOOK_LATE:
+                self.verdict = luminance_verdict(self.look.take())
+                said = "page" if band_of(self.verdict).page_band else "default"
+                self._agree = BAND_HOLD if self._decisive else self._agree + 1 if said == self._said else 1
+                self._said, self._decisive = said, False
+                if self._agree >= BAND_HOLD:
+                    self.band = said
+        elif self._frames - self._looked >= LOOK_EVERY or self._looked == 0:
+            self.look.look(linear)
+            self._looked = self._frames
 
     def _grids(self) -> tuple:
         """The grids a design's spectra are made on before a switch (the strategy's; none for others)."""
@@ -132,9 +199,10 @@ class PupilState:
         lum = self.meter.newest()
         if lum is None or self.follower is None or self.bank is None:
             return None
-        entry = self.follower.update(lum, 0.0)
-        if entry == self.current:
-            return entry
+        pupil = self.follower.update(lum, 0.0)
+        entry = (pupil, self.band)
+        if entry == (self.current, self.current_band):
+            return pupil
         self.bank.request(entry, self._grids())
         deadline = time.monotonic() + wait_s
         while (model := self.bank.get(entry)) is None:
@@ -142,17 +210,21 @@ class PupilState:
                 return None
             time.sleep(0.01)
         self.c.switch_design(model)
-        return entry
+        return pupil
 
     def status(self) -> str:
         f = self.follower
         if f is None or f.pupil_mm is None or f.estimate is None:
             return f"pupil auto: {self.current:.2f} mm design, no frame measured yet" if self.current else "pupil auto"
         held = f.held_at_reach
+        band = f", {self.current_band} band" if self.look is not None else ""
         return (f"pupil {f.pupil_mm:.2f} mm (auto: {f.estimate.luminance_cd_m2:.3g} cd/m^2), design "
-                f"{self.current:.2f} mm{' (the grids reach no further)' if held else ''}, {self.switches} switch(es)")
+                f"{self.current:.2f} mm{' (the grids reach no further)' if held else ''}{band}, "
+                f"{self.switches} switch(es)")
 
     def release(self) -> None:
         self.meter.release()
+        if self.look is not None:
+            self.look.release()
         if self.bank is not None:
             self.bank.close()

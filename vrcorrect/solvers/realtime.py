@@ -314,15 +314,19 @@ class AdmmFrames:
         self.G = hermitian_inverse(self.Kf.astype(np.complex128), self.box_weight).astype(np.complex64)  # as the GPU's
         self.Kh = np.ascontiguousarray(conj_transpose(self.Kf))
 
-    def set_design(self, kernel: EyeKernel, reference: EyeKernel | None) -> None:
+    def set_design(self, kernel: EyeKernel, reference: EyeKernel | None, cap: bool | None = None) -> None:
         """Go on with another design's kernel and reference (a pupil bank's switch,
         :mod:`vrcorrect.runtime.pupil_bank`): the spectra change, the state stays, so the next frame
         continues from where this one left (as the GPU's ``AdmmStrategy.swap_model``).  The grid stays
         (the kernels must fit it: ``grid_kernel_size``); so does the box weight (``||A||^2``: every
-        design of one eye and display has it)."""
+        design of one eye and display has it).  ``cap``: the new design's light cap (``Design.capped``:
+        a switch of band, the GPU's ``u_cap_floor``), from the next frame; None keeps it."""
         self._set_spectra(kernel, reference)
+        if cap is not None:
+            self.cap = bool(cap)
         if self.coarse is not None:
-            self.coarse.set_design(coarse_eye_kernel(kernel), None if reference is None else coarse_eye_kernel(reference))
+            self.coarse.set_design(coarse_eye_kernel(kernel), None if reference is None else coarse_eye_kernel(reference),
+                                   cap)
 
     # ------------------------------------------------------------------ transforms, as the GPU stores them
 

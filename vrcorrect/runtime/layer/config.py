@@ -46,10 +46,11 @@ OFF_ENV = "VRCORRECT_LAYER_OFF"              # the engine's live off switch (the
 CONFIG_ENV = "VRCORRECT_LAYER_CONFIG"
 RX_ENV = "VRCORRECT_RX"
 LOG_ENV = "VRCORRECT_LAYER_LOG"
-LAYER_DEFAULTS: Mapping[str, Any] = {"pupil": "auto", "robust": True}
+LAYER_DEFAULTS: Mapping[str, Any] = {"pupil": "auto", "robust": True, "band": "auto"}
 """The corrector options the layer uses where its configuration's ``options`` do not say otherwise: the
-viewing pupil followed from the light of the frames shown and the robust design, as ``vrcorrect xr``,
-``mirror``, ``overlay`` and ``render`` do (``--pupil auto --robust on``)."""
+viewing pupil followed from the light of the frames shown, the robust design and its band by the
+picture, as ``vrcorrect xr``, ``mirror``, ``overlay`` and ``render`` do (``--pupil auto --robust on
+--band auto``)."""
 _CHECK_INTERVAL_S = 0.25
 _REPORT_INTERVAL_S = 1.0
 CAPTURE_WAIT_S = 2.0

@@ -39,7 +39,7 @@ from ..gl import (
     write_texture,
 )
 from ..motion import MotionTracker
-from ..pupil_bank import codes_luminance
+from ..pupil_bank import codes_band, codes_luminance
 from ..rx_snapshot import RxSource
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -111,12 +111,14 @@ def _check_view(view: str) -> None:
 
 def _with_first_light(options: dict[str, Any], first_codes: np.ndarray, display: Any) -> dict[str, Any]:
     """``options`` with the first frame's mean relative luminance (``first_luminance``) where the pupil
-    follows the light, so that the first design is for it."""
+    follows the light, and its band (``first_band``) where the band is chosen by the picture, so that
+    the first design is for them."""
     if options.get("pupil") != "auto":
         return options
 
     profile = display if isinstance(display, DisplayProfile) else get_display(display)
-    return {**options, "first_luminance": codes_luminance(first_codes, profile)}
+    band = {"first_band": codes_band(first_codes, profile)} if options.get("band") == "auto" else {}
+    return {**options, "first_luminance": codes_luminance(first_codes, profile), **band}
 
 
 @contextlib.contextmanager

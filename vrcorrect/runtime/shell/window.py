@@ -30,11 +30,11 @@ from ...specs.display import get_display
 from ...specs.prescription import EyeRx, bundled_sample_path
 from .. import eye_cache
 from ..corrector import Corrector
-from ..eye_model import CorrectorOptions, initial_pupil_mm
+from ..eye_model import CorrectorOptions, band_switches, initial_pupil_mm
 from ..eye_source import EyeSource, EyeUpdate
 from ..gl import download_texture, read_framebuffer
 from ..optional import require_glfw, require_moderngl
-from ..pupil_bank import codes_luminance
+from ..pupil_bank import codes_band, codes_luminance
 from ..rx_snapshot import RxSnapshot
 from .keys import GLFW_PRESS, key_map_text
 from .timing import StageTimes
@@ -237,25 +237,26 @@ class WindowApp:
         prescription = self.eye_source.prescription
         age = options.age_years if options.age_years is not None else prescription.age_years
         auto = options.pupil == "auto" and first is not None
-        lights: dict[int, float] = {}                    # by texture: a picture source gives both eyes one
+        lights: dict[int, tuple[float, str | None]] = {}  # by texture: a picture source gives both eyes one
         for eye in eyes:
             eye_rx = self.eye_source.eye_rx(eye)
-            light = None
+            light, band = None, None
             if auto:
                 if id(first[eye]) not in lights:
-                    lights[id(first[eye])] = self._first_light(first[eye])
-                light = lights[id(first[eye])]
+                    lights[id(first[eye])] = self._first_light(first[eye], band_switches(options))
+                light, band = lights[id(first[eye])]
             pupil = initial_pupil_mm(eye_rx, self.display, options, light, age)
             # each eye's first design and the pupil bank's (pupil "auto") are kept in vrcorrect's cache
             # folder: launched again, the window starts at once and follows the light without designing
-            cache_key = eye_cache.start_key(eye_rx, self.display, options, age, pupil)
+            cache_key = eye_cache.start_key(eye_rx, self.display, options, age, pupil, band or "default")
             kept = eye_cache.load_design(cache_key)
             whence = f"; pupil {pupil:.2f} mm from the first frame's light" if auto else ""
+            whence += "; a page on white paper: the page band" if band == "page" else ""
             self.say(f"{'starting' if kept is not None else 'building'} the {eye} eye's correction "
                      f"({_eye_words(prescription.eye(eye))} on {self.display.name}{whence})...")
             t0 = time.perf_counter()
             self.correctors[eye] = Corrector(ctx, self.eye_source, self.display, eye, options.backend, options=options,
-                                             eye_model=kept, first_luminance=light)
+                                             eye_model=kept, first_luminance=light, first_band=band)
             self.correctors[eye].keep_pupil_designs()
             if kept is None:
                 eye_cache.store_design(cache_key, self.correctors[eye].model)
@@ -264,10 +265,12 @@ class WindowApp:
                 self.say(f"  designed before: taken from {eye_cache.cache_dir()} ({time.perf_counter() - t0:.1f} s)")
         self.eye_source.check = self.correctors[eyes[0]].check_eye      # a learned model's range, before each design
 
-    def _first_light(self, texture: Any) -> float:
+    def _first_light(self, texture: Any, band: bool = False) -> tuple[float, str | None]:
         """The mean relative luminance (white = 1) on the display of a source frame, ``texture`` (sRGB
-        codes, 8-bit or float), read back once: what the corrector's meter measures of that frame."""
-        return codes_luminance(download_texture(texture), self.display)
+        codes, 8-bit or float), read back once: what the corrector's meter measures of that frame; and
+        with ``band`` its band (:func:`~vrcorrect.runtime.pupil_bank.codes_band`; else None)."""
+        codes = download_texture(texture)
+        return codes_luminance(codes, self.display), codes_band(codes, self.display) if band else None
 
     def _poll_eyes(self) -> tuple[list[EyeUpdate], list[str]]:
         """Install the eyes the :class:`~vrcorrect.runtime.eye_source.EyeSource` has designed since

@@ -51,14 +51,14 @@ from ..dispatch import resource_bytes
 from ..gl import fullscreen_triangle, release
 from ..shaders import compile_compute, compile_program
 from .base import GuardResult, IterativeStrategy, Size, float_texture, groups_2d
-from .spectra import half_spectrum
+from .spectra import coarse_model, model_spectra
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import moderngl
 
     from ..eye_model import EyeModel
 
-__all__ = ["AdmmStrategy", "values_per_thread", "column_lines", "coarse_model", "model_spectra", "bank_spectra"]
+__all__ = ["AdmmStrategy", "values_per_thread", "column_lines"]
 
 MAX_INVOCATIONS = fft.MAX_INVOCATIONS
 MIN_SHARED_BYTES = fft.MIN_SHARED_BYTES
@@ -133,7 +133,7 @@ class AdmmStrategy(IterativeStrategy):
     cold_extra_iterations = 0     # run beyond iterations_per_frame on a cold frame (a foveated window's, its periphery's)
 
     def __init__(self, *args: Any, coarse_level: bool = False, fovea: bool = False, cap: bool | None = None,
-                 **kwargs: Any):
+                 cap_switch: bool | None = None, **kwargs: Any):
         super().__init__(*args, **kwargs)
         self.fovea = fovea
         """A foveated frame's sub-image (:mod:`vrcorrect.runtime.strategies.foveated`): the data term
@@ -142,6 +142,11 @@ class AdmmStrategy(IterativeStrategy):
         self.cap = bool(getattr(self.model.design, "capped", False)) if cap is None else bool(cap)
         """The box's upper end is the target's light cap (``LIGHT_CAP``; the twin's ``AdmmFrames(cap=True)``):
         by default where the eye model's design is capped (``Design.capped``), as ``fast`` caps its problem."""
+        from ..eye_model import band_switches  # circular: the eye model imports the strategies
+
+        self.cap_switch = (not fovea and band_switches(self.options)) if cap_switch is None else bool(cap_switch)
+        """The cap is a uniform (``CAP_UNIFORM``), so that :meth:`swap_model` can go on with a design whose
+        band has no cap, or has one (``--band auto``: a page's band and the default's), without new programs."""
         self.window_gl: tuple[int, int, int, int] = (0, 0, 0, 0)
         """With ``fovea``: the window ``(x0, y0, x1, y1)`` in GL texels of the image, half open."""
         self.hold: "moderngl.Texture | None" = None
@@ -149,7 +154,9 @@ class AdmmStrategy(IterativeStrategy):
         from ...solvers.problem import LIGHT_CAP_FLOOR, light_cap  # start-up time: scipy with the first eye
         from ...solvers.realtime import ADMM_RELAXATION, admm_weights  # (as above)
 
-        self._light_cap, self._cap_define = light_cap, {"LIGHT_CAP": LIGHT_CAP_FLOOR} if self.cap else {}
+        self._light_cap, self._cap_floor = light_cap, LIGHT_CAP_FLOOR
+        self._cap_define = {"LIGHT_CAP": "u_cap_floor", "CAP_UNIFORM": None} if self.cap_switch else \
+            {"LIGHT_CAP": LIGHT_CAP_FLOOR} if self.cap else {}
         m = self.model
         self.half = self.options.precision == Precision.HALF
         keep, n = admm_weights(m.kernel.kernel)                        # as the CPU twin's
@@ -327,7 +334,7 @@ class AdmmStrategy(IterativeStrategy):
             options = replace(self.options, iterations_per_frame=self.options.cold_iterations, early_stop=False,
                               cold_iterations=0)
             self.coarse = AdmmStrategy(self.gpu, model, options, self.encoder, self.decoder, coarse_level=True,
-                                       cap=self.cap)
+                                       cap=self.cap, cap_switch=self.cap_switch)
         W, H = linear.size
         size = ((W + 1) // 2, (H + 1) // 2)
         c = self.coarse
@@ -347,7 +354,13 @@ class AdmmStrategy(IterativeStrategy):
         """One pass; on a plain warm frame with the early stop on, its work groups come from the
         plan (``KINDS``)."""
         indirect = (b.args, 12 * KINDS.index(kind)) if b.compared else None
+        if self.cap_switch:
+            bindings["uniforms"] = {**bindings.get("uniforms", {}), **self._cap_uniform()}
         self.gpu.run(name, b.programs[kind], (groups, 1, 1), indirect=indirect, **bindings)
+
+    def _cap_uniform(self) -> dict[str, float]:
+        """With :attr:`cap_switch`: the cap's floor now (``light_cap.glsl``; 1 is no cap)."""
+        return {"u_cap_floor": float(self._cap_floor) if self.cap else 1.0} if self.cap_switch else {}
 
     def correct(self, linear: "moderngl.Texture", motion_gl: tuple[int, int]) -> "moderngl.Texture":
         gpu = self.gpu
@@ -425,7 +438,7 @@ class AdmmStrategy(IterativeStrategy):
                             "u_matrix": tuple(float(v) for v in self.model.kernel.matrix.T.ravel())},
                   rows={0: (ny, 3)}, written={0: (ny, 6)}, **images)
         self._begin("iterations")
-        capped = {"u_t": linear} if self.cap else {}          # the light cap's target
+        capped = {"u_t": linear} if self.cap or self.cap_switch else {}          # the light cap's target
         if self.coarse_level:                     # the state is the result: every iteration a plain update
             for _ in range(k):
                 self._run(b, "cols_admm", "columns: ADMM solve", cols, sample={**col_tw, "u_kernel": b.kernel},
@@ -479,7 +492,7 @@ class AdmmStrategy(IterativeStrategy):
         size = tuple(shown.size)
         vp = viewport if viewport is not None else (0, 0, *dst.size)
         self.gpu.draw("blend and encode", b.present_vao, b.present, dst, vp,
-                      sample={"u_t": shown, "u_q": b.q[b.current]}, uniforms={"u_size": size},
+                      sample={"u_t": shown, "u_q": b.q[b.current]}, uniforms={"u_size": size, **self._cap_uniform()},
                       buffers={3: b.guard.result}, rows={"u_q": size[1]})
 
     def shown_texture(self, shown: "moderngl.Texture") -> "moderngl.Texture":
@@ -488,7 +501,7 @@ class AdmmStrategy(IterativeStrategy):
         held = {"u_hold": self.hold if self.hold is not None else shown} if self.fovea else {}
         self.gpu.run("blend", b.programs["blend"], groups_2d(size), sample={"u_t": shown, "u_q": b.q[b.current], **held},
                      write={1: b.out}, buffers={3: (b.guard.result, "r")}, rows={"u_q": size[1]},
-                     uniforms={"u_win": self.window_gl})
+                     uniforms={"u_win": self.window_gl, **self._cap_uniform()})
         return b.out
 
     # ------------------------------------------------------------------ read-backs
@@ -527,8 +540,12 @@ class AdmmStrategy(IterativeStrategy):
         buffers (from ``model.spectra``, which the bank computed off the render thread, where it has
         them), and the state, the grids and the programs stay, so the iteration goes on from where it
         was; the plan is told the frame changed, so the early stop looks again.  False (nothing done)
-        when the design does not fit the grids (the caller installs it instead)."""
+        when the design does not fit the grids, or its cap differs and :attr:`cap_switch` is off (the
+        caller installs it instead).  With :attr:`cap_switch` the cap follows the design's."""
         if model.margin > self.model.margin and self._sized:
+            return False
+        cap = bool(getattr(model.design, "capped", False))
+        if cap != self.cap and not self.cap_switch:
             return False
         dtype = "f2" if self.half else "f4"
         for b in self._sized.values():
@@ -540,7 +557,7 @@ class AdmmStrategy(IterativeStrategy):
                 b.reference.write(R.tobytes())
             b.changed.write(np.ones(4, np.uint32).tobytes())
             b.history.write(np.full(4, -1.0, np.float32).tobytes())
-        self.model = model
+        self.model, self.cap = model, cap
         if self.coarse is not None:
             self.coarse.swap_model(coarse_model(model))
         return True
@@ -566,35 +583,4 @@ class AdmmStrategy(IterativeStrategy):
 
 MAX_ADMM_GRID = 4096
 """Largest FFT grid side (the line a work group transforms sits in shared memory: 32 KiB at 4096)."""
-
-
-def coarse_model(m: "EyeModel") -> "EyeModel":
-    """The model a cold frame's half-resolution level runs: the kernels 2x2 pixel blocks see."""
-    from ...solvers.realtime import coarse_eye_kernel, coarse_kernel_size  # start-up time (as above)
-
-    return replace(m, kernel=coarse_eye_kernel(m.kernel),
-                   reference=None if m.reference is None else coarse_eye_kernel(m.reference),
-                   grid_kernel_size=None if m.grid_kernel_size is None else coarse_kernel_size(m.grid_kernel_size),
-                   spectra={k: v for k, v in m.spectra.items() if k[2]})
-
-
-def model_spectra(m: "EyeModel", grid: tuple[int, int], dtype: str, coarse: bool = False
-                  ) -> tuple[np.ndarray, np.ndarray | None]:
-    """The kernel's and the reference's half spectra on ``grid`` as the textures hold them
-    (:func:`half_spectrum`): from ``m.spectra`` where a pupil bank computed them, else now."""
-    have = m.spectra.get((grid, dtype, coarse))
-    if have is not None:
-        return have
-    return (half_spectrum(m.kernel.kernel, grid, dtype),
-            None if m.reference is None else half_spectrum(m.reference.kernel, grid, dtype))
-
-
-def bank_spectra(m: "EyeModel", grids: tuple) -> dict:
-    """``model_spectra`` on each of ``grids`` (:meth:`AdmmStrategy.spectra_grids`), for
-    ``EyeModel.spectra``: what a pupil bank's worker computes before a switch."""
-    out = {}
-    for grid, dtype, coarse in grids:
-        source = coarse_model(m) if coarse else m
-        out[(grid, dtype, coarse)] = model_spectra(source, grid, dtype)
-    return out
 

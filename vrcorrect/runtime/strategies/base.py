@@ -34,7 +34,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
     from ..eye_model import CorrectorOptions, EyeModel
 
-__all__ = ["Strategy", "Encoder", "Decoder", "FrameBlend", "GuardResult", "LuminanceMeter", "float_texture", "GROUP",
+__all__ = ["Strategy", "Encoder", "Decoder", "FrameBlend", "GuardResult", "LuminanceMeter", "PageLook", "float_texture", "GROUP",
            "groups_2d"]
 
 GROUP = 16
@@ -300,6 +300,50 @@ class LuminanceMeter:
     def release(self) -> None:
         release(self.program, *(h[0] for h in self._ring if h is not None))
         self._ring = [None] * self.RING
+
+
+class PageLook:
+    """A strided look at a frame's relative luminance for the page verdict (``band="auto"``,
+    :class:`~vrcorrect.runtime.pupil_state.PupilState`; ``shaders/page_look.glsl``): every
+    ``step``-th pixel of every ``step``-th row, at most ``side`` a side
+    (:func:`~vrcorrect.physics.page.look_step`), into one buffer that :meth:`take` reads once the
+    caller has let the GPU get to it (two frames later: nothing waits)."""
+
+    def __init__(self, gpu: Gpu, weights: np.ndarray, side: int):
+        self.gpu, self.side = gpu, int(side)
+        self.weights = tuple(float(w) for w in np.asarray(weights, np.float64))
+        self.program = compile_compute(gpu.ctx, "page_look.glsl")
+        self.buffer: "moderngl.Buffer | None" = None
+        self.shape: tuple[int, int] | None = None       # the pending look's (h, w); None: nothing pending
+
+    def look(self, linear: "moderngl.Texture") -> None:
+        """Queue the look at this frame's decoded ``linear`` texture (W x H)."""
+        from ...physics.page import look_step  # start-up time: the optics load with the first eye
+
+        W, H = linear.size
+        step = look_step(H, W, self.side)
+        w, h = -(-W // step), -(-H // step)
+        if self.buffer is None or self.buffer.size < 4 * w * h:
+            release(self.buffer)
+            self.buffer = self.gpu.ctx.buffer(reserve=4 * w * h)
+        self.gpu.run("page look", self.program, groups_2d((w, h)), sample={"u_linear": linear},
+                     buffers={0: (self.buffer, "w")},
+                     uniforms={"u_weights": self.weights, "u_out": (w, h), "u_step": step})
+        self.shape = (h, w)
+
+    def take(self) -> np.ndarray | None:
+        """The pending look, ``(h, w)`` relative luminance with the picture's top row first (this
+        waits for the GPU if it has not got there); None when nothing is pending."""
+        if self.shape is None or self.buffer is None:
+            return None
+        h, w = self.shape
+        self.shape = None
+        y = np.frombuffer(self.buffer.read(size=4 * w * h), np.float32).reshape(h, w)
+        return np.ascontiguousarray(y[::-1])
+
+    def release(self) -> None:
+        release(self.program, self.buffer)
+        self.buffer, self.shape = None, None
 
 
 class FrameBlend:

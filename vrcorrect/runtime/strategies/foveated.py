@@ -39,7 +39,8 @@ from ...plumbing.errors import ValidationError
 from ...specs.vocabulary import PERIPHERY_LEVELS, Periphery, names
 from ..gl import fullscreen_triangle, release
 from ..shaders import compile_compute, compile_program
-from .admm import AdmmStrategy, coarse_model
+from .admm import AdmmStrategy
+from .spectra import coarse_model
 from .base import Size, float_texture, groups_2d
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
