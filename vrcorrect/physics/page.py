@@ -21,7 +21,9 @@ rendered after it (``tools/render_pages.py``): least gain +0.003 to +0.086 JOD, 
 on desktop and 81-93 % on quest2 (the default: 47-77 %).  Judged by the objective and FLIP too
 (``vrcorrect bench robust --image``, docs/realtime.md), it costs an eye 0.5 D less myopic than
 prescribed: its view there is at none by JOD but up to 1.36 times none's error by the objective (the
-default band: 0.93-1.04 times).
+default band: 0.93-1.04 times).  And ``fast``'s +0.003 there is its early stop's: the page band's optimum,
+which the real-time ADMM reaches in ten frames, is 0.06-0.07 JOD below none for that eye on two of the
+six pages (docs/realtime.md, "In real time since 2026-12-03").
 
 What makes a page, from the picture's relative luminance ``Y`` over its paper's light ``P``: at
 least :data:`PAPER_SHARE` of the pixels at or above :data:`PAPER_LEVEL` of ``P``, at least

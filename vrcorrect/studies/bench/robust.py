@@ -569,13 +569,15 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
         j, p = to_page["jod"], to_page
         lines += [f"The photograph for 30 frames cut to a page of text on white paper for 60, the band chosen as the "
                   f"real-time path chooses it (a look every {LOOK_EVERY} frames, read {LOOK_LATE} later, "
-                  f"{BAND_HOLD} verdicts in a row): switched to the page band at frame(s) "
+                  f"{BAND_HOLD} verdicts in a row; the cut, reported as `render` reports it, looked at at once and "
+                  "deciding alone): switched to the page band at frame(s) "
                   f"{', '.join(map(str, p['switches'])) or '-'}. Video JOD after the cut: none {j['none']:.2f}, "
                   f"choosing by the picture {j['choosing by the picture']:.2f}, the default band held "
                   f"{j['default band held']:.2f}, the page band from the cut {j['page band from the cut']:.2f}. "
                   f"Mean change of code values from the frame before: at the cut {p['mean_change_at_the_cut']:.2f}, "
                   "at the switch " + ("-" if p["mean_change_at_switches"] is None else f"{p['mean_change_at_switches']:.2f}")
-                  + "; the largest elsewhere after the first five frames past the cut: "
+                  + " (the first frames from the cut on: " + ", ".join(f"{c:.1f}" for c in p["changes_after_the_cut"])
+                  + "); the largest elsewhere after the first five frames past the cut: "
                   + ("-" if p["largest_change_elsewhere_after_the_cut"] is None
                      else f"{p['largest_change_elsewhere_after_the_cut']:.2f}") + ".", ""]
     if plot is not None:
