@@ -185,3 +185,24 @@ def test_render_designs_a_page_over_the_page_band_and_says_so(tmp_path, capsys):
     assert ", page band, " in said["page"]
     assert ", default band, " in said["photo"]
     assert " band, " not in said["default"] and " band, " not in said["fft"]      # no look: the default band
+
+
+def test_a_first_frame_nobody_judged_is_looked_at_at_once(gl):
+    """Without ``first_band`` (the OpenXR layer's corrector, which primes on the application's frames)
+    the first frame is a new scene: looked at at once and deciding alone, so a page gets the page band
+    :data:`LOOK_LATE` frames in, not after :data:`BAND_HOLD` looks."""
+    from vrcorrect.runtime import gl as G
+    from vrcorrect.runtime.corrector import Corrector
+
+    c = Corrector(gl, Prescription(right=EYE, left=EYE), "quest2", "right", **AUTO)
+    c.frame_time_s = 1 / 90                              # deterministic: the switch's design is made at once
+    assert c.model.band == "default"
+    src = G.upload_texture(gl, page())
+    tex, fbo = G.render_target(gl, width=W, height=H)
+    try:
+        for f in range(LOOK_LATE + 1):
+            c.apply(src, fbo)
+            assert c.model.band == ("page" if f == LOOK_LATE else "default"), f
+    finally:
+        c.release()
+        G.release(fbo, tex, src)

@@ -68,7 +68,8 @@ class PupilState:
         """The last verdict (:class:`~vrcorrect.physics.page.PageVerdict`), None before the first look."""
         self._said, self._agree = self.band, BAND_HOLD
         self._frames = self._looked = 0
-        self._cut = self._decisive = False
+        # a first frame whose band nobody judged (the OpenXR layer's) is a new scene: looked at at once
+        self._cut, self._decisive = self.look is not None and first_band is None, False
         self.kernels: dict = {}                         # shared by every design of this eye (the bank's)
         self.follower: PupilFollower | None = None
         self.bank: PupilBank | None = None
