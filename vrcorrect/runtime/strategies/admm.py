@@ -50,6 +50,7 @@ from .. import fft
 from ..dispatch import resource_bytes
 from ..gl import fullscreen_triangle, release
 from ..shaders import compile_compute, compile_program
+from ..eye_model import band_switches
 from .base import GuardResult, IterativeStrategy, Size, float_texture, groups_2d
 from .spectra import coarse_model, model_spectra
 
@@ -142,8 +143,6 @@ class AdmmStrategy(IterativeStrategy):
         self.cap = bool(getattr(self.model.design, "capped", False)) if cap is None else bool(cap)
         """The box's upper end is the target's light cap (``LIGHT_CAP``; the twin's ``AdmmFrames(cap=True)``):
         by default where the eye model's design is capped (``Design.capped``), as ``fast`` caps its problem."""
-        from ..eye_model import band_switches  # circular: the eye model imports the strategies
-
         self.cap_switch = (not fovea and band_switches(self.options)) if cap_switch is None else bool(cap_switch)
         """The cap is a uniform (``CAP_UNIFORM``), so that :meth:`swap_model` can go on with a design whose
         band has no cap, or has one (``--band auto``: a page's band and the default's), without new programs."""
