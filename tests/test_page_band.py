@@ -62,9 +62,9 @@ def designs():
 
 def test_the_page_bands_design_is_not_capped_and_the_defaults_is(designs):
     page, default, one = designs["page"], designs["default"], designs["one eye"]
-    assert [m.sphere_offset_D for m in page.members] == [0.0, 0.25]
-    assert page.members[0].pupil_mm == pytest.approx(2.901 * 1.04, abs=1e-3)
-    assert page.members[0].weight > page.members[1].weight            # the eye as modelled counts five times
+    assert [m.sphere_offset_D for m in page.members] == [0.0, 0.5]
+    assert page.members[0].pupil_mm == pytest.approx(2.901 * 1.2, abs=1e-3)
+    assert page.members[0].weight > page.members[1].weight            # the eye as modelled counts three times
     assert (page.capped, default.capped, one.capped) == (False, True, False)
     target = linear(page_codes())
     assert [make_design_problem(target, d).capped for d in (page, default, one)] == [False, True, False]
@@ -104,7 +104,7 @@ def test_correct_designs_a_white_page_over_the_page_band_and_says_so(tmp_path, c
             assert "page band" not in text
     assert reports["auto"]["light_cap"] is False and "page band" in reports["auto"]["band"]
     assert reports["default"]["light_cap"] is True and reports["default"]["band"] is None
-    assert "sphere +0.00/+0.25 D, no light cap" in reports["auto"]["design"][0]
+    assert "sphere +0.00/+0.50 D, no light cap" in reports["auto"]["design"][0]
     off = tmp_path / "off.json"
     assert cli.main(["correct", str(page), "-o", str(tmp_path / "off.png"), "--report", str(off), "--display",
                      "desktop", "--method", "wiener", "--robust", "off"]) == 0

@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 
 from vrcorrect.physics.page import REALTIME_LOOK_SIDE, luminance_verdict, page_verdict
+from vrcorrect.physics.perception import luminance_weights
 from vrcorrect.plumbing.errors import ValidationError
 from vrcorrect.plumbing.images import prepare_image
 from vrcorrect.runtime.eye_model import CorrectorOptions, band_switches, build_eye_model
-from vrcorrect.runtime.pupil_bank import band_slack, codes_band, codes_luminance
-from vrcorrect.runtime.pupil_state import BAND_HOLD, LOOK_EVERY, LOOK_LATE
+from vrcorrect.runtime.pupil_bank import band_slack, codes_band, codes_light_and_band, codes_luminance
+from vrcorrect.runtime.pupil_state import BAND_HOLD, LOOK_EVERY, LOOK_LATE, BandFollower
 from vrcorrect.specs.display import decode, get_display
 from vrcorrect.specs.prescription import EyeRx, Prescription
 from vrcorrect.studies.bench.sequences import text_page
@@ -51,28 +52,34 @@ def test_the_first_frames_band_is_the_verdict_of_its_codes():
     assert codes_band(photograph(), QUEST2) == "default"
     assert codes_band(np.zeros((H, W, 3), np.uint8), QUEST2) == "default"          # a black frame
     assert codes_band(np.full((H, W, 3), 255, np.uint8), QUEST2) == "default"      # a white frame: no ink
+    for codes in (page(), photograph(), page().astype(np.float32) / 255):        # one decoding, the same answers
+        assert codes_light_and_band(codes, QUEST2, True) == (codes_luminance(codes, QUEST2), codes_band(codes, QUEST2))
+        assert codes_light_and_band(codes, QUEST2, False) == (codes_luminance(codes, QUEST2), None)
 
 
-def test_a_page_bands_grids_hold_the_default_bands_designs_it_may_switch_to():
-    """A bank first designed over the page band (no member more myopic than the eye) sizes its grids
-    with the default band's slack, so that a switch to the default band at the grids' reach fits them
-    (a switch that does not fit would be a new strategy: a cold start on the render thread)."""
+@pytest.mark.parametrize("first_band", ["page", "default"])
+def test_a_banks_grids_hold_the_other_bands_designs_it_may_switch_to(first_band):
+    """A bank first designed over one band sizes its grids with the other band's slack, so that a switch
+    to the other band (or to its own) at the grids' reach fits them (a switch that does not fit would be
+    a new strategy: a cold start on the render thread).  Myopes, a low myope and a hyperope: the page
+    band's sphere offsets widen a hyperope's blur and narrow a myope's."""
     options = CorrectorOptions(**AUTO)
-    for eye in (EYE, EyeRx(-0.5, 0.0, 0.0, 4.0), EyeRx(-6.0, 0.0, 0.0, 4.0)):
-        first = build_eye_model(eye, QUEST2, options, pupil_mm=3.125, band="page")
-        assert first.band == "page" and not first.design.capped
-        assert band_slack(eye, first.design) > 1.0
-        widest = build_eye_model(eye, QUEST2, options, pupil_mm=first.reach_mm, band="default",
-                                 grid_kernel_size=first.grid_kernel_size, reach_mm=first.reach_mm)
-        assert widest.design.capped
-        assert max(widest.kernel.size, widest.reference.size) <= first.grid_kernel_size, eye
+    other = {"page": "default", "default": "page"}[first_band]
+    for eye in (EYE, EyeRx(-0.5, 0.0, 0.0, 4.0), EyeRx(-6.0, 0.0, 0.0, 4.0), EyeRx(3.0, -1.0, 90.0, 4.0)):
+        first = build_eye_model(eye, QUEST2, options, pupil_mm=3.125, band=first_band)
+        assert first.band == first_band and first.design.capped == (first_band == "default")
+        assert band_slack(eye, first.design) >= 1.0
+        for band in (first_band, other):
+            widest = build_eye_model(eye, QUEST2, options, pupil_mm=first.reach_mm, band=band,
+                                     grid_kernel_size=first.grid_kernel_size, reach_mm=first.reach_mm)
+            assert widest.design.capped == (band == "default")
+            assert max(widest.kernel.size, widest.reference.size) <= first.grid_kernel_size, (eye, band)
 
 
 @pytest.mark.parametrize("codes", [page(), photograph()], ids=["page", "photograph"])
 def test_the_gpus_look_is_the_strided_luminance_the_verdict_reads(gl, codes):
     """``PageLook`` reads back what ``page_verdict`` looks at (every step-th pixel's clipped luminance),
     and the verdict of the read-back equals the CPU's of the picture."""
-    from vrcorrect.physics.perception import luminance_weights
     from vrcorrect.runtime import gl as G
     from vrcorrect.runtime.dispatch import Gpu
     from vrcorrect.runtime.strategies.base import PageLook
@@ -206,3 +213,37 @@ def test_a_first_frame_nobody_judged_is_looked_at_at_once(gl):
     finally:
         c.release()
         G.release(fbo, tex, src)
+
+
+def test_the_band_follower_looks_every_few_frames_and_switches_on_verdicts_in_a_row():
+    """:class:`BandFollower` (the real-time path's and ``bench robust``'s): a look at the first frame and
+    every ``LOOK_EVERY`` frames, read ``LOOK_LATE`` frames later; ``BAND_HOLD`` verdicts in a row switch
+    the band; after a cut the next frame is looked at and its verdict alone decides."""
+    as_page = luminance_verdict(np.clip(linear(page()), 0, 1).astype(np.float64) @ luminance_weights(QUEST2))
+    as_photo = luminance_verdict(np.clip(linear(photograph()), 0, 1).astype(np.float64) @ luminance_weights(QUEST2))
+    assert as_page.page and not as_photo.page
+    f = BandFollower("default")
+    actions = [f.tick() for _ in range(2 * LOOK_EVERY + 1)]
+    assert [i for i, a in enumerate(actions) if a == "look"] == [0, LOOK_EVERY, 2 * LOOK_EVERY]
+    assert [i for i, a in enumerate(actions) if a == "read"] == [LOOK_LATE, LOOK_EVERY + LOOK_LATE]
+    f = BandFollower("default")
+    bands = []
+    for _ in range(5 * LOOK_EVERY):                      # a page from the first frame
+        if f.tick() == "read":
+            bands.append(f.judge(as_page))
+    assert bands[:BAND_HOLD] == ["default"] * (BAND_HOLD - 1) + ["page"] and set(bands[BAND_HOLD:]) == {"page"}
+    assert f.verdict is as_page
+    f.cut()                                              # a cut to a photograph: looked at at once, decisive
+    assert f.tick() == "look"
+    assert [f.tick() for _ in range(LOOK_LATE - 1)] == [None] * (LOOK_LATE - 1) and f.tick() == "read"
+    assert f.judge(as_photo) == "default"
+    odd = BandFollower("page")                           # one odd verdict between pages does not flip it
+    verdicts = iter([as_page, as_photo, as_page, as_page])
+    seen = []
+    for _ in range(4 * LOOK_EVERY + LOOK_LATE):
+        if odd.tick() == "read":
+            seen.append(odd.judge(next(verdicts)))
+    assert seen == ["page"] * 4
+    first = BandFollower("default", cut=True)            # a first frame nobody judged: decisive at once
+    assert first.tick() == "look" and [first.tick() for _ in range(LOOK_LATE)][-1] == "read"
+    assert first.judge(as_page) == "page"

@@ -61,13 +61,15 @@ def test_a_bands_paper_cap_is_read_from_its_text(text, expected):
 
 
 def test_the_white_rules_band_is_the_one_correct_designs_a_white_page_over():
-    """What the seventh look judged is what ``vrcorrect correct --band auto`` uses: the white-rule's
+    """What the eighth look judged is what ``vrcorrect correct --band auto`` uses: the white-rule-2's
     band, read from its text, is the product's page band (and its white paper the product's)."""
     from vrcorrect.physics.page import PAGE_BAND, WHITE_PAPER
     from vrcorrect.physics.robust import RobustBand
 
-    assert rbc.parse_band(rbc.WHITE_RULE["white"]) == PAGE_BAND
-    assert rbc.parse_band(rbc.WHITE_RULE["other"]) == RobustBand() and rbc.WHITE_RULE["grey"] == ""
+    assert rbc.parse_band(rbc.WHITE_RULE_2["white"]) == PAGE_BAND          # the eighth look's (2026-12-03)
+    assert rbc.parse_band(rbc.WHITE_RULE["white"]) != PAGE_BAND            # the seventh's, before it
+    for rule in (rbc.WHITE_RULE, rbc.WHITE_RULE_2):
+        assert rbc.parse_band(rule["other"]) == RobustBand() and rule["grey"] == ""
     assert rbc.WHITE_PAPER == WHITE_PAPER
     assert rbc.parse_band("pf=1").light_cap and not rbc.parse_band("pf=1+nocap").light_cap
 
@@ -91,6 +93,8 @@ def test_a_grey_stand_in_has_the_pages_light_times_the_paper_light(tmp_path, mon
     (["--documents", "DOCS", "--grey-paper", "1.5", ""], "--grey-paper 1.5: a paper light from 0.05 to 1 of white"),
     (["--documents", "DOCS", "--held-out", "--grey-paper", "0.5", ""], "not with --held-out"),
     (["--documents", "DOCS", "pf=1+paper2"], "the paper cap is '+paper' or '+paper=F'"),
+    (["--documents", "DOCS", "--solver", "twin:0", ""], "'fast' or 'twin:N' with N frames from 1 to 2000"),
+    (["--documents", "DOCS", "--solver", "admm", ""], "--solver 'admm'"),
 ])
 def test_bad_arguments_get_one_line_and_status_2(tmp_path, args, message):
     docs = tmp_path / "docs"
@@ -105,19 +109,23 @@ def test_bad_arguments_get_one_line_and_status_2(tmp_path, args, message):
     assert len(lines) == 1 and message in lines[0] and "Traceback" not in done.stderr
 
 
-def test_rendered_pages_are_pages_on_white_paper_and_are_not_overwritten(tmp_path):
-    """tools/render_pages.py: six 256 px pages that the page judge calls pages on white paper (the
-    seventh look's condition); a second run refuses to overwrite them without --force."""
+@pytest.mark.parametrize("number, names", [
+    (1, ["serif12", "sans11", "stix14", "mono12", "cmr18", "links14"]),
+    (2, ["italic13", "cmss15", "stix12", "bold10", "cmtt14", "grey16"])])
+def test_rendered_pages_are_pages_on_white_paper_and_are_not_overwritten(tmp_path, number, names):
+    """tools/render_pages.py: each set's six 256 px pages, which the page judge calls pages on white
+    paper (the seventh and eighth looks' condition); a second run refuses to overwrite them without
+    --force."""
     from PIL import Image
 
     from vrcorrect.physics.page import page_verdict
     from vrcorrect.specs.display import decode, get_display
 
-    tool = [sys.executable, str(ROOT / "tools" / "render_pages.py"), str(tmp_path)]
+    tool = [sys.executable, str(ROOT / "tools" / "render_pages.py"), "--set", str(number), str(tmp_path)]
     done = subprocess.run(tool, capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert done.returncode == 0, done.stderr
     pages = sorted(tmp_path.glob("*.png"))
-    assert [p.stem for p in pages] == sorted(["serif12", "sans11", "stix14", "mono12", "cmr18", "links14"])
+    assert [p.stem for p in pages] == sorted(names)
     display = get_display("desktop")
     for path in pages:
         image = np.asarray(Image.open(path).convert("RGB"))

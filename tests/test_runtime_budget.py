@@ -114,7 +114,10 @@ def test_the_budget_holds_the_frame_time_while_the_content_changes_and_cuts(gl, 
     mean 0.6-1.4 % off the budget in the four runs printed; the test is ``serial``; on renderers of known
     cost the controller holds 5 %: tests/test_budget.py). A run in which the renderer's own speed changed (:func:`_renderer_slowed`)
     is run once more: the budget is scaled to the renderer measured before the run, and the controller's
-    following of a change of load is checked on renderers of known cost (tests/test_budget.py)."""
+    following of a change of load is checked on renderers of known cost (tests/test_budget.py). So is a
+    run that held the budget with more iterations than the scale allows (CI on 2026-12-03: 5-7 where
+    about 2.5 fit, the budget held): the renderer ran faster than when it was measured, and the scale
+    is measured again."""
     src, fbo = frame
     rx = Prescription(right=EYE, left=EYE)
     pictures = _pictures()
@@ -136,10 +139,11 @@ def test_the_budget_holds_the_frame_time_while_the_content_changes_and_cuts(gl, 
             assert len(measured) >= 80                        # the timestamps were read, two frames late
             tail = measured[-24:]
             held = abs(_trimmed_mean(tail) / budget_ms - 1) <= BAND
-            if not held and attempt == 0 and _renderer_slowed(history):
+            counted = 1 <= min(ks[-16:]) and max(ks[-16:]) <= 5 and len(set(ks[-16:])) <= 3
+            if attempt == 0 and ((not held and _renderer_slowed(history)) or (held and not counted)):
                 continue
             assert held, (budget_ms, tail, ks[-24:])
-            assert 1 <= min(ks[-16:]) and max(ks[-16:]) <= 5 and len(set(ks[-16:])) <= 3, ks[-16:]
+            assert counted, (budget_ms, t1, t4, ks[-16:])
             assert "budget" in c.describe()["budget"]
             break
         finally:

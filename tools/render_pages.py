@@ -2,10 +2,13 @@
 or a headset shows it (a document, a web page, an e-book), drawn with the fonts matplotlib ships.
 
     .venv/bin/python tools/render_pages.py DIR        # six 256 px pages, a second
+    .venv/bin/python tools/render_pages.py --set 2 DIR2   # six more: other fonts, sizes, inks and prose
     .venv/bin/python tools/robust_band_choice.py --no-builtin $(for f in DIR/*.png; do echo --image $f; done) "" white-rule
 
-Every page is held out: they were made (2026-12-02) after the white-page rule was written down, and
-no band or rule was chosen on them.  The text is this project's own prose.  Each page is drawn at
+Every page is held out: the first set was made (2026-12-02) after the white-page rule was written
+down, and no band or rule was chosen on it; it was spent judging that rule and then the real-time
+band (docs/realtime.md).  The second set (``--set 2``, 2026-12-03) was written before the real-time
+page band's second choice was judged, and is held out for that.  The text is this project's own prose.  Each page is drawn at
 256 px, the size ``robust_band_choice.py`` works at, so no resampling touches the strokes.
 """
 
@@ -34,13 +37,32 @@ PAGES = {
     "cmr18": ("cmr10.ttf", 18, (0, 0, 0), (255, 255, 255), None),
     "links14": ("DejaVuSans.ttf", 14, (32, 33, 36), (255, 255, 255), (26, 13, 171)),
 }
+#: A second set (``--set 2``), written on 2026-12-03 before any correction was made of it, for
+#: judging a page band chosen after the first set was spent: other fonts, sizes and inks, other prose.
+TEXT2 = (
+    "When the light in a headset rises, the iris closes within half a second, and the blur of each "
+    "point shrinks with it. A correction that sharpens too much for the eye it meets rings at every "
+    "edge, and on a page the ringing sits right beside the strokes of the letters. So the design "
+    "must expect an eye a little sharper or a little softer than the one written in the prescription, "
+    "and still leave the words easier to read than the plain page would be. Small print on a bright "
+    "ground is the hardest case, and the one people notice first when they take their glasses off."
+)
+PAGES2 = {
+    "italic13": ("DejaVuSerif-Italic.ttf", 13, (0, 0, 0), (255, 255, 255), None),
+    "cmss15": ("cmss10.ttf", 15, (16, 16, 16), (255, 255, 255), None),
+    "stix12": ("STIXGeneral.ttf", 12, (0, 0, 0), (252, 252, 250), None),
+    "bold10": ("DejaVuSans-Bold.ttf", 10, (40, 40, 40), (255, 255, 255), None),
+    "cmtt14": ("cmtt10.ttf", 14, (0, 0, 0), (248, 246, 240), None),
+    "grey16": ("DejaVuSans.ttf", 16, (70, 70, 70), (255, 255, 255), (0, 102, 204)),
+}
+SETS = {1: (PAGES, TEXT), 2: (PAGES2, TEXT2)}
 SIDE = 256
 MARGIN = 8
 
 
-def _lines(font, width: int) -> list[list[str]]:
+def _lines(font, width: int, text: str = TEXT) -> list[list[str]]:
     lines: list[list[str]] = [[]]
-    for word in TEXT.split():
+    for word in text.split():
         trial = " ".join(lines[-1] + [word])
         if lines[-1] and font.getlength(trial) > width:
             lines.append([word])
@@ -49,19 +71,20 @@ def _lines(font, width: int) -> list[list[str]]:
     return lines
 
 
-def render(name: str):
-    """One page as a PIL image (RGB, SIDE x SIDE)."""
+def render(name: str, number: int = 1):
+    """One page of set ``number`` as a PIL image (RGB, SIDE x SIDE)."""
     import matplotlib
     from PIL import Image, ImageDraw, ImageFont
 
-    font_file, size, ink, paper, link = PAGES[name]
+    pages, text = SETS[number]
+    font_file, size, ink, paper, link = pages[name]
     font = ImageFont.truetype(str(Path(matplotlib.get_data_path()) / "fonts" / "ttf" / font_file), size)
     page = Image.new("RGB", (SIDE, SIDE), paper)
     draw = ImageDraw.Draw(page)
     step = round(size * 1.35)
     y, n = MARGIN, 0
     while y + step <= SIDE - MARGIN + size // 3:
-        for line in _lines(font, SIDE - 2 * MARGIN):
+        for line in _lines(font, SIDE - 2 * MARGIN, text):
             if y + step > SIDE - MARGIN + size // 3:
                 break
             x = MARGIN
@@ -79,15 +102,18 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="render_pages", description=__doc__.split("\n\n")[0])
     ap.add_argument("folder", type=Path, help="where the pages go (made if missing)")
     ap.add_argument("--force", action="store_true", help="overwrite pages that are there already")
+    ap.add_argument("--set", type=int, choices=sorted(SETS), default=1, dest="number",
+                    help="which set of pages: 1 (2026-12-02; spent on the white-page rule and the real-time band) "
+                    "or 2 (2026-12-03)")
     args = ap.parse_args(argv)
     try:
         args.folder.mkdir(parents=True, exist_ok=True)
-        for name in PAGES:
+        for name in SETS[args.number][0]:
             out = args.folder / f"{name}.png"
             if out.exists() and not args.force:
                 print(f"render_pages: {out}: exists; pass --force to overwrite it", file=sys.stderr)
                 return 2
-            render(name).save(out)
+            render(name, args.number).save(out)
             print(out)
     except OSError as e:
         print(f"render_pages: {e}", file=sys.stderr)

@@ -24,8 +24,8 @@ switch between (``pupil="auto"``, :class:`~vrcorrect.runtime.eye_model.Corrector
   for it (:meth:`~vrcorrect.runtime.pupil_state.PupilState.follow_now`).  Every design's grid holds the kernel of the bank's
   widest reachable design (:func:`bank_grid_kernel_size`), so a switch keeps the grids.
 * **The band** (``band="auto"``): the bank's designs are keyed by ``(pupil, band)`` where the band is
-  chosen by the picture too (:mod:`~vrcorrect.runtime.pupil_state`); a bank first designed over the page
-  band sizes its grids with :func:`band_slack` more, so that the default band's designs fit them.
+  chosen by the picture too (:mod:`~vrcorrect.runtime.pupil_state`); such a bank sizes its grids with
+  :func:`band_slack` more, so that the other band's designs fit them.
 * **The reach** (:func:`bank_reach_mm`): the grids hold designs up to :data:`BANK_REACH_STEPS` entries
   above the first design, not up to 7.5 mm.  A pupil beyond the reach is designed for at the reach (a
   smaller pupil than the eye's: less correction, never the over-correction a too-large design gives
@@ -55,7 +55,7 @@ from ..specs.display import DisplayProfile, decode
 from ..specs.prescription import EyeRx
 
 __all__ = ["BANK_STEP", "BANK_PUPILS_MM", "BANK_REACH_STEPS", "HYSTERESIS", "GRID_MARGIN", "bank_pupils",
-           "bank_grid_kernel_size", "band_slack", "codes_band", "bank_reach_mm", "nearest_bank_pupil", "PupilFollower", "PupilBank"]
+           "bank_grid_kernel_size", "band_slack", "codes_band", "codes_light_and_band", "bank_reach_mm", "nearest_bank_pupil", "PupilFollower", "PupilBank"]
 
 log = logging.getLogger(__name__)
 
@@ -103,18 +103,24 @@ def bank_reach_mm(entry_mm: float) -> float:
 
 
 def band_slack(eye: EyeRx, design) -> float:
-    """How much wider the default band's widest kernel may be than a design over another band (the page
-    band, :data:`~vrcorrect.physics.page.PAGE_BAND`: no member 0.25 D more myopic than the eye, whose
-    blur is the widest of a myope's) at the same pupils: the worst meridian's power ``m`` and the default
-    band's ``(m + 0.25) / m`` (a defocus blur's width grows with it; at most 2), 1 for the default band."""
-    from ..physics.robust import RobustBand  # start-up time: the optics load with the first eye
+    """How much wider the other band's widest kernel may be than a robust design's over its own band, at
+    the same pupil (a bank with ``band="auto"`` switches between the default band and the page band,
+    :data:`~vrcorrect.physics.page.PAGE_BAND`): the ratio of the bands' widest blur, each member's pupil
+    factor times its worst meridian's power (a defocus blur's width grows with both; a power below
+    0.25 D counts as 0.25 D, where diffraction sets the width); at least 1, at most 2; 1 for a design
+    that is not robust."""
+    from ..physics.page import PAGE_BAND  # start-up time: the optics load with the first eye
+    from ..physics.robust import RobustBand  # start-up time (as above)
 
-    band = getattr(design, "band", None)
-    if not getattr(design, "robust", False) or band is None or band == RobustBand():
+    if not getattr(design, "robust", False):
         return 1.0
-    worst = max(abs(eye.sphere_D), abs(eye.sphere_D + eye.cylinder_D))
-    spread = max(abs(o) for o in RobustBand().sphere_offsets_D)
-    return min((worst + spread) / max(worst, spread), 2.0)
+    band = getattr(design, "band", None) or RobustBand()           # None: the default band
+
+    def blur(b: RobustBand) -> float:
+        worst = lambda o: max(abs(eye.sphere_D + o), abs(eye.sphere_D + eye.cylinder_D + o), 0.25)  # noqa: E731
+        return max(f * worst(o) for f in b.pupil_factors for o in b.sphere_offsets_D)
+
+    return min(max(max(blur(RobustBand()), blur(PAGE_BAND)) / blur(band), 1.0), 2.0)
 
 
 def bank_grid_kernel_size(design, reach_mm: float | None = None, slack: float = 1.0) -> int:
@@ -122,8 +128,7 @@ def bank_grid_kernel_size(design, reach_mm: float | None = None, slack: float = 
     kernel of ``design`` (:class:`~vrcorrect.physics.robust.Design`) extrapolated linearly in the pupil
     (a defocus blur's width grows with it) to the design of the bank's reach ``reach_mm``
     (:func:`bank_reach_mm`; None: the bank's largest pupil), with :data:`GRID_MARGIN` room and
-    ``slack`` more (:func:`band_slack`: a page band's design, whose bank may switch to the default
-    band), doubled for the effective kernels' window where the design is robust.  A later design that still does not
+    ``slack`` more (:func:`band_slack`: a bank that may switch to the other band), doubled for the effective kernels' window where the design is robust.  A later design that still does not
     fit is installed anew (a cold start) instead of switched."""
     from ..physics.robust import MAX_MEMBER_PUPIL_MM, RobustBand  # start-up time: the optics load with the first eye
 
@@ -131,7 +136,8 @@ def bank_grid_kernel_size(design, reach_mm: float | None = None, slack: float = 
     widest = max([m.kernel_size for m in members] + [design.nominal.size])
     pupil = max([m.pupil_mm for m in members] + [design.pupil_mm])
     reach = max(BANK_PUPILS_MM) if reach_mm is None else reach_mm
-    top = min(reach * (max(RobustBand().pupil_factors) if design.robust else 1.0), MAX_MEMBER_PUPIL_MM)
+    own = getattr(design, "band", None) or RobustBand()
+    top = min(reach * (max(own.pupil_factors) if design.robust else 1.0), MAX_MEMBER_PUPIL_MM)
     size = int(math.ceil(widest * max(top / pupil, 1.0) * GRID_MARGIN * slack)) | 1
     return 2 * size + 1 if design.robust else size
 
@@ -332,23 +338,37 @@ def relative_luminance_of(image_linear: np.ndarray, display: DisplayProfile) -> 
     return float(np.mean(np.asarray(image_linear, np.float64) @ luminance_weights(display)))
 
 
+def _codes_linear(codes: np.ndarray, display: DisplayProfile) -> np.ndarray:
+    """A frame's code values (8-bit, or floats held in [0, 1]; ``(H, W, 3+)``, the alpha left out) as
+    linear display RGB."""
+    pixels = np.asarray(codes)[..., :3]
+    unit = (pixels.astype(np.float32) / 255.0 if pixels.dtype == np.uint8
+            else np.clip(pixels.astype(np.float32), 0.0, 1.0))
+    return decode(display, unit)
+
+
 def codes_luminance(codes: np.ndarray, display: DisplayProfile) -> float:
     """:func:`relative_luminance_of` a frame given as code values: 8-bit, or floats in [0, 1] (held
     there), ``(H, W, 3+)`` (the alpha, if any, left out): what a window's or a render's first frame
     is measured as before its first design."""
-    pixels = np.asarray(codes)[..., :3]
-    unit = (pixels.astype(np.float32) / 255.0 if pixels.dtype == np.uint8
-            else np.clip(pixels.astype(np.float32), 0.0, 1.0))
-    return relative_luminance_of(decode(display, unit), display)
+    return relative_luminance_of(_codes_linear(codes, display), display)
 
 
 def codes_band(codes: np.ndarray, display: DisplayProfile) -> str:
     """The band a frame given as code values (as :func:`codes_luminance`) is designed over with
     ``band="auto"``: ``"page"`` for a page on white paper, else ``"default"``
     (:func:`~vrcorrect.physics.page.choose_band`, looked at as the real-time path looks)."""
+    return _band_of_linear(_codes_linear(codes, display), display)
+
+
+def codes_light_and_band(codes: np.ndarray, display: DisplayProfile, band: bool) -> tuple[float, str | None]:
+    """A first frame's light (:func:`codes_luminance`) and, with ``band`` (``band="auto"``), its band
+    (:func:`codes_band`; else None), from one decoding of its codes."""
+    linear = _codes_linear(codes, display)
+    return relative_luminance_of(linear, display), _band_of_linear(linear, display) if band else None
+
+
+def _band_of_linear(linear: np.ndarray, display: DisplayProfile) -> str:
     from ..physics.page import REALTIME_LOOK_SIDE, choose_band  # start-up time (as above)
 
-    pixels = np.asarray(codes)[..., :3]
-    unit = (pixels.astype(np.float32) / 255.0 if pixels.dtype == np.uint8
-            else np.clip(pixels.astype(np.float32), 0.0, 1.0))
-    return "page" if choose_band(decode(display, unit), display, REALTIME_LOOK_SIDE).page_band else "default"
+    return "page" if choose_band(linear, display, REALTIME_LOOK_SIDE).page_band else "default"

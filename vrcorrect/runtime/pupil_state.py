@@ -34,7 +34,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
     from .corrector import Corrector
 
-__all__ = ["PupilState", "LOOK_EVERY", "LOOK_LATE", "BAND_HOLD"]
+__all__ = ["PupilState", "BandFollower", "LOOK_EVERY", "LOOK_LATE", "BAND_HOLD"]
 
 LOOK_EVERY = 10
 """``band="auto"``: frames between two looks at the picture (a ninth of a second at 90 Hz)."""
@@ -43,6 +43,60 @@ LOOK_LATE = 2
 BAND_HOLD = 2
 """Verdicts in a row that a band must get before the bank switches to it (a cross-fade or a single
 odd frame does not flip the band)."""
+
+
+class BandFollower:
+    """When to look at the picture and which band its verdicts ask for (``band="auto"``; no GPU: the
+    real-time path's :class:`PupilState` and ``bench robust``'s twin both follow the band with it).
+
+    Each frame, :meth:`tick` says what to do with it: ``"look"`` (take a look at this frame),
+    ``"read"`` (the pending look is :data:`LOOK_LATE` frames old: judge it and give the verdict to
+    :meth:`judge`) or None.  A look is taken every :data:`LOOK_EVERY` frames (the first frame's at
+    once); :attr:`band` changes after :data:`BAND_HOLD` verdicts in a row that ask for it.  After
+    :meth:`cut` the next frame is looked at at once and its verdict alone decides."""
+
+    def __init__(self, band: str = "default", cut: bool = False):
+        self.band = band
+        """The band the verdicts ask for (``"page"`` or ``"default"``)."""
+        self.verdict = None
+        """The last verdict (:class:`~vrcorrect.physics.page.PageVerdict`), None before the first."""
+        self._said, self._agree = band, BAND_HOLD
+        self._frames = self._looked = 0
+        self._pending = self._decisive = False
+        self._cut = cut
+
+    def cut(self) -> None:
+        """A scene cut: the next frame is looked at at once, and its verdict alone decides."""
+        self._cut = True
+
+    def tick(self) -> str | None:
+        """This frame's part: ``"look"``, ``"read"`` or None (class docstring)."""
+        self._frames += 1
+        if self._cut:                                      # a pending look is of the last scene: looked past
+            self._cut, self._decisive, self._pending, self._looked = False, True, True, self._frames
+            return "look"
+        if self._pending:
+            if self._frames - self._looked >= LOOK_LATE:
+                self._pending = False
+                return "read"
+            return None
+        if self._looked == 0 or self._frames - self._looked >= LOOK_EVERY:
+            self._pending, self._looked = True, self._frames
+            return "look"
+        return None
+
+    def judge(self, verdict) -> str:
+        """Count the verdict (:class:`~vrcorrect.physics.page.PageVerdict`) of the look just read;
+        returns :attr:`band`."""
+        from ..physics.page import band_of  # start-up time: the optics load with the first eye
+
+        self.verdict = verdict
+        said = "page" if band_of(verdict).page_band else "default"
+        self._agree = BAND_HOLD if self._decisive else self._agree + 1 if said == self._said else 1
+        self._said, self._decisive = said, False
+        if self._agree >= BAND_HOLD:
+            self.band = said
+        return self.band
 
 
 class PupilState:
@@ -60,16 +114,10 @@ class PupilState:
         self.look: PageLook | None = PageLook(corrector.gpu, weights, REALTIME_LOOK_SIDE) \
             if band_switches(corrector.options) else None
         """``band="auto"``: the GPU's look at the picture (None: the band is the default's)."""
-        self.band = (first_band or "default") if self.look is not None else "default"
-        """The band the picture asks for (the verdicts', :data:`BAND_HOLD` in a row); the design in use is
-        :attr:`current_band`'s."""
-        self.current_band = self.band
-        self.verdict = None
-        """The last verdict (:class:`~vrcorrect.physics.page.PageVerdict`), None before the first look."""
-        self._said, self._agree = self.band, BAND_HOLD
-        self._frames = self._looked = 0
         # a first frame whose band nobody judged (the OpenXR layer's) is a new scene: looked at at once
-        self._cut, self._decisive = self.look is not None and first_band is None, False
+        self.bands = BandFollower(first_band or "default", cut=first_band is None) if self.look is not None else None
+        """``band="auto"``: when to look and the band the verdicts ask for (:attr:`band`)."""
+        self.current_band = self.band
         self.kernels: dict = {}                         # shared by every design of this eye (the bank's)
         self.follower: PupilFollower | None = None
         self.bank: PupilBank | None = None
@@ -155,35 +203,36 @@ class PupilState:
                 return
         self.c.switch_design(model)
 
+    @property
+    def band(self) -> str:
+        """The band the picture asks for (the verdicts', :data:`BAND_HOLD` in a row; ``"default"`` where the
+        band does not switch); the design in use is :attr:`current_band`'s."""
+        return self.bands.band if self.bands is not None else "default"
+
+    @property
+    def verdict(self):
+        """The last verdict (:class:`~vrcorrect.physics.page.PageVerdict`), None before the first look."""
+        return self.bands.verdict if self.bands is not None else None
+
     def cut(self) -> None:
         """A scene cut (:meth:`~vrcorrect.runtime.corrector.Corrector.reset`): the next frame is looked at
         at once, and its verdict alone decides the band, so that a switch lands among the cold start's
         own changes, :data:`LOOK_LATE` frames after the cut, not on a converged picture later."""
-        self._cut = True
+        if self.bands is not None:
+            self.bands.cut()
 
     def _look(self, linear: "moderngl.Texture") -> None:
-        """``band="auto"``: read the pending look once it is :data:`LOOK_LATE` frames old and judge it;
-        queue the next every :data:`LOOK_EVERY` frames (at once after a cut)."""
-        if self.look is None:
+        """``band="auto"``: take this frame's look, or read the pending one and judge it, as
+        :class:`BandFollower` says."""
+        if self.look is None or self.bands is None:
             return
-        from ..physics.page import band_of, luminance_verdict  # start-up time (as above)
+        from ..physics.page import luminance_verdict  # start-up time (as above)
 
-        self._frames += 1
-        if self._cut:                                      # the pending look (if any) is of the last scene
-            self._cut, self._decisive = False, True
+        action = self.bands.tick()
+        if action == "look":
             self.look.look(linear)
-            self._looked = self._frames
-        elif self.look.shape is not None:
-            if self._frames - self._looked >= LOOK_LATE:
-                self.verdict = luminance_verdict(self.look.take())
-                said = "page" if band_of(self.verdict).page_band else "default"
-                self._agree = BAND_HOLD if self._decisive else self._agree + 1 if said == self._said else 1
-                self._said, self._decisive = said, False
-                if self._agree >= BAND_HOLD:
-                    self.band = said
-        elif self._frames - self._looked >= LOOK_EVERY or self._looked == 0:
-            self.look.look(linear)
-            self._looked = self._frames
+        elif action == "read":
+            self.bands.judge(luminance_verdict(self.look.take()))
 
     def _grids(self) -> tuple:
         """The grids a design's spectra are made on before a switch (the strategy's; none for others)."""

@@ -39,7 +39,7 @@ from ..gl import (
     write_texture,
 )
 from ..motion import MotionTracker
-from ..pupil_bank import codes_band, codes_luminance
+from ..pupil_bank import codes_light_and_band
 from ..rx_snapshot import RxSource
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -117,8 +117,8 @@ def _with_first_light(options: dict[str, Any], first_codes: np.ndarray, display:
         return options
 
     profile = display if isinstance(display, DisplayProfile) else get_display(display)
-    band = {"first_band": codes_band(first_codes, profile)} if options.get("band") == "auto" else {}
-    return {**options, "first_luminance": codes_luminance(first_codes, profile), **band}
+    light, band = codes_light_and_band(first_codes, profile, options.get("band") == "auto")
+    return {**options, "first_luminance": light, **({"first_band": band} if band is not None else {})}
 
 
 @contextlib.contextmanager

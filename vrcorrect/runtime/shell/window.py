@@ -34,7 +34,7 @@ from ..eye_model import CorrectorOptions, band_switches, initial_pupil_mm
 from ..eye_source import EyeSource, EyeUpdate
 from ..gl import download_texture, read_framebuffer
 from ..optional import require_glfw, require_moderngl
-from ..pupil_bank import codes_band, codes_luminance
+from ..pupil_bank import codes_light_and_band
 from ..rx_snapshot import RxSnapshot
 from .keys import GLFW_PRESS, key_map_text
 from .timing import StageTimes
@@ -268,9 +268,8 @@ class WindowApp:
     def _first_light(self, texture: Any, band: bool = False) -> tuple[float, str | None]:
         """The mean relative luminance (white = 1) on the display of a source frame, ``texture`` (sRGB
         codes, 8-bit or float), read back once: what the corrector's meter measures of that frame; and
-        with ``band`` its band (:func:`~vrcorrect.runtime.pupil_bank.codes_band`; else None)."""
-        codes = download_texture(texture)
-        return codes_luminance(codes, self.display), codes_band(codes, self.display) if band else None
+        with ``band`` its band (:func:`~vrcorrect.runtime.pupil_bank.codes_light_and_band`; else None)."""
+        return codes_light_and_band(download_texture(texture), self.display, band)
 
     def _poll_eyes(self) -> tuple[list[EyeUpdate], list[str]]:
         """Install the eyes the :class:`~vrcorrect.runtime.eye_source.EyeSource` has designed since

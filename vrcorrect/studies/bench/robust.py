@@ -372,8 +372,8 @@ def photo_to_page(kernels: dict, size: int = VIDEO_SIZE, photo_frames: int = 30,
     with the cap), at the design pupil :data:`VIDEO_PUPIL_MM`, against the default band held throughout
     and the page band from the cut.  Judged as video after the cut by the eye as modelled, with each
     frame's mean change of code values from the last at the switch and elsewhere."""
-    from ...physics.page import band_of, luminance_verdict  # on use: start-up time (as above)
-    from ...runtime.pupil_state import BAND_HOLD, LOOK_EVERY, LOOK_LATE  # on use: start-up time (as above)
+    from ...physics.page import luminance_verdict  # on use: start-up time (as above)
+    from ...runtime.pupil_state import BandFollower  # on use: start-up time (as above)
     from ...specs.display import encode  # on use: start-up time (the CLI imports the studies to build its parser)
     from ...vision.vdp import video_jod  # on use: start-up time (the CLI imports the studies to build its parser)
     from .realtime import linear  # on use: start-up time (the CLI imports the studies to build its parser)
@@ -385,30 +385,31 @@ def photo_to_page(kernels: dict, size: int = VIDEO_SIZE, photo_frames: int = 30,
              "page": design_eye(EYE, display, VIDEO_PUPIL_MM, band=PAGE_BAND, kernels=kernels)}
     grid = max(d.kernel.size for d in bands.values())
 
-    def run(choose: bool, fixed: str) -> tuple[list[np.ndarray], list[int]]:
-        twin = AdmmFrames(bands[fixed].kernel, bands[fixed].reference, (size, size), grid_kernel_size=grid,
-                          cap=bands[fixed].capped)
-        band, said, agree, looked, switches, shown, decisive = fixed, fixed, BAND_HOLD, None, [], [], False
-        for i, x in enumerate(lin):
-            if choose and looked is not None and i - looked == LOOK_LATE:
-                y = np.clip(lin[looked], 0, 1).astype(np.float64) @ luminance_weights(display)
-                now = "page" if band_of(luminance_verdict(y)).page_band else "default"
-                agree, said, decisive = (BAND_HOLD if decisive else agree + 1 if now == said else 1), now, False
-                if agree >= BAND_HOLD and said != band:
-                    band = said
+    def run(choose: bool, band: str, clip: Sequence[np.ndarray], cut: int | None) -> tuple[list[np.ndarray], list[int]]:
+        """The twin over ``clip`` from ``band``, following the band by the picture where ``choose``
+        (the real-time path's :class:`BandFollower`), reset at frame ``cut`` (as render detects it)."""
+        twin = AdmmFrames(bands[band].kernel, bands[band].reference, (size, size), grid_kernel_size=grid,
+                          cap=bands[band].capped)
+        follower, looked, switches, shown = BandFollower(band), None, [], []
+        for i, x in enumerate(clip):
+            if i == cut:
+                twin.reset()
+                follower.cut()
+            action = follower.tick() if choose else None
+            if action == "look":
+                looked = x
+            elif action == "read":
+                y = np.clip(looked, 0, 1).astype(np.float64) @ luminance_weights(display)
+                if follower.judge(luminance_verdict(y)) != band:
+                    band = follower.band
                     twin.set_design(bands[band].kernel, bands[band].reference, cap=bands[band].capped)
                     switches.append(i)
-            if choose and (i % LOOK_EVERY == 0 or i == photo_frames):      # at once at the cut, decisive
-                looked, decisive = i, decisive or i == photo_frames
-            if i == photo_frames:
-                twin.reset()                                 # the cut, as render detects it
             shown.append(twin.frame(x, 2).shown)
         return shown, switches
 
-    following, switches = run(True, "default")
-    held = {"default band held": run(False, "default")[0]}
-    page_twin = AdmmFrames(bands["page"].kernel, bands["page"].reference, (size, size), grid_kernel_size=grid, cap=False)
-    held["page band from the cut"] = [page_twin.frame(x, 2).shown for x in lin[photo_frames:]]
+    following, switches = run(True, "default", lin, photo_frames)
+    held = {"default band held": run(False, "default", lin, photo_frames)[0],
+            "page band from the cut": run(False, "page", lin[photo_frames:], None)[0]}
     after = slice(photo_frames, len(lin))
     eye = bands["default"].nominal, bands["default"].nominal_reference
     ref = np.stack([_ref_frame(eye[0], eye[1], x) for x in lin[after]])
