@@ -14,8 +14,12 @@ from vrcorrect.studies.bench.robust import METHODS, run_robust_bench
 
 def test_a_small_sweep_scores_every_method_and_writes_its_section(tmp_path):
     out = tmp_path / "bench.md"
-    report = run_robust_bench(out, displays=("quest2",), images=("page",), boundary=False, size=64,
-                              seen_pupils=(2.5, 3.0), seen_spheres=(0.5,), json_out=tmp_path / "r.json")
+    small = dict(displays=("quest2",), images=("page",), boundary=False, size=64, seen_pupils=(2.5, 3.0),
+                 seen_spheres=(0.5,))
+    run_robust_bench(out, write=False, plot=tmp_path / "sweep.png", **small)
+    assert not out.exists() and not (tmp_path / "sweep.png").exists()        # --no-write: nothing written
+    report = run_robust_bench(out, plot=tmp_path / "sweep.png", json_out=tmp_path / "r.json", **small)
+    assert (tmp_path / "sweep.png").stat().st_size > 0
     text = out.read_text()
     assert "<!-- bench:robust -->" in text and "### The checks" in text and "quest2, page" in text
     case = report["cases"][0]

@@ -143,3 +143,22 @@ def test_bench_robust_takes_pictures_of_ones_own_and_refuses_bad_ones(tmp_path, 
     err = capsys.readouterr().err
     assert said in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", "page.png"]
+
+
+@pytest.mark.parametrize("eye, offset", [
+    (EyeRx(-2.0, -1.0, 120.0, 4.0), 0.5),        # a myope: its residual defocus at the headset's image is myopic
+    (EyeRx(3.0, -1.0, 90.0, 4.0), -0.5),         # a hyperope
+    (EyeRx(-0.5, 0.0, 0.0, 4.0), -0.5),          # a low myope whose far point lies beyond the headset's image
+])
+def test_the_page_bands_hedge_points_to_the_sharper_eye(eye, offset):
+    """The page band's second member is the eye 0.5 D towards focus at the display, whichever side of
+    it the eye is: its residual worst meridian is less than the eye's own, where the other sign's
+    would be more."""
+    quest2 = get_display("quest2")
+    design = design_eye(eye, quest2, 3.0, band=PAGE_BAND)
+    assert [m.sphere_offset_D for m in design.members] == [0.0, offset]
+    worst = [design.member_kernels(m)[0].report.focus.residual_worst_meridian_D for m in design.members]
+    assert worst[1] < worst[0]
+    wrong = design_eye(eye.with_changes(sphere_D=eye.sphere_D - offset), quest2, 3.0, robust=False)
+    assert wrong.nominal.report.focus.residual_worst_meridian_D > worst[0]
+    assert design.band.sphere_offsets_D == (0.0, offset) and "+0.00/" + f"{offset:+.2f}" in design.describe()[0]

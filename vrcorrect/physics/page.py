@@ -28,8 +28,10 @@ six pages (docs/realtime.md, "In real time since 2026-12-03").  So the eighth lo
 the band again with the real-time twin on the choice pages: the pupil 1.2 times, the sphere +0.5 D
 counting once against three (least -0.023, 83-98 % at 3 mm there).  Judged on six more fresh pages
 (``tools/render_pages.py --set 2``), ``fast`` passed on all, the real time on five: a page of grey ink
-fell to -0.05 / -0.07 with the sphere +0.5 D and kept 72 % at 3 mm on quest2.  The hedge is towards
-+0.5 D, the sharper eye for a myope; for a hyperope it is the blurrier one (not judged).
+fell to -0.05 / -0.07 with the sphere +0.5 D and kept 72 % at 3 mm on quest2.  The hedge is towards the
+sharper eye: +0.5 D for the myope every band was chosen with, -0.5 D for an eye whose residual defocus
+at the display is hyperopic (a hyperope, or a low myope whose far point lies beyond a headset's
+image: :func:`~vrcorrect.physics.robust.oriented_band`; not judged with such an eye).
 
 What makes a page, from the picture's relative luminance ``Y`` over its paper's light ``P``: at
 least :data:`PAPER_SHARE` of the pixels at or above :data:`PAPER_LEVEL` of ``P``, at least
@@ -89,10 +91,11 @@ PAPER_MISFIT = 0.1
 #: A page whose paper's light (:attr:`PageVerdict.paper_light`) is at least this is on white paper.
 WHITE_PAPER = 0.9
 #: The band a page on white paper is designed over (module docstring; since 2026-12-03): the pupil 1.2
-#: times the design pupil, the prescription's sphere counting three times and +0.5 D once, no light
-#: cap.  (Until 2026-12-03: the pupil 1.04 times, the sphere +0.25 D once against five times.)
+#: times the design pupil, the prescription's sphere counting three times and +0.5 D towards the sharper
+#: eye once (a myope's +0.5 D; an eye whose residual defocus at the display is hyperopic, -0.5 D), no
+#: light cap.  (Until 2026-12-03: the pupil 1.04 times, the sphere +0.25 D once against five times.)
 PAGE_BAND = RobustBand(pupil_factors=(1.2,), sphere_offsets_D=(0.0, 0.5), sphere_priors=(3.0, 1.0),
-                       light_cap=False)
+                       light_cap=False, towards_sharper=True)
 
 
 @dataclass(frozen=True)

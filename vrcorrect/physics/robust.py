@@ -114,6 +114,10 @@ class RobustBand:
         Whether the design's display light is held under the light cap
         (:func:`~vrcorrect.solvers.problem.light_cap`); the page band
         (:data:`~vrcorrect.physics.page.PAGE_BAND`) is not.
+    towards_sharper
+        Whether the sphere offsets point towards the sharper eye: a positive offset lessens the eye's
+        residual defocus at the display, so the offsets' signs flip where that residual is hyperopic
+        (:func:`oriented_band`; the page band's hedge).  False: offsets as given.
 
     The default (chosen on the choice images, :data:`CHOICE_NOTE`): one pupil,
     :data:`DESIGN_PUPIL_FACTOR` of the estimate, and spheres -0.25/0/+0.25 D with the eye as
@@ -125,6 +129,7 @@ class RobustBand:
     pupil_priors: tuple[float, ...] | None = None
     sphere_priors: tuple[float, ...] | None = (1.0, 3.0, 1.0)
     light_cap: bool = True
+    towards_sharper: bool = False
 
     def prior(self, i: int, j: int) -> float:
         """The prior weight of pupil factor ``i`` with sphere offset ``j`` (uniform unless given)."""
@@ -366,6 +371,18 @@ def _effective(nominal: EyeKernel, kernel: np.ndarray) -> EyeKernel:
     return dataclasses.replace(nominal, kernel=kernel, matrix=kernel.sum(axis=(2, 3)), identity=False)
 
 
+def oriented_band(band: RobustBand, residual_M_D: float) -> RobustBand:
+    """``band`` with its sphere offsets as added to the prescription's sphere for an eye whose residual
+    spherical equivalent at the display (after distance and accommodation, :class:`FocusCheck`) is
+    ``residual_M_D``: where the band points :attr:`~RobustBand.towards_sharper` and the residual is
+    hyperopic (positive), the offsets' signs flip, so that they lessen the defocus as they do a
+    myope's; otherwise ``band`` itself."""
+    if not band.towards_sharper or residual_M_D <= 0.0:
+        return band
+    return dataclasses.replace(band, sphere_offsets_D=tuple(0.0 - s for s in band.sphere_offsets_D),
+                               towards_sharper=False)
+
+
 def design_eye(eye: EyeRx, display: DisplayProfile, pupil_mm: float, *, robust: bool = True,
                reference: str = "glasses", band: RobustBand | None = None, options: KernelOptions | None = None,
                kernels: dict | None = None, progress: Callable[[int, int], None] | None = None) -> Design:
@@ -420,6 +437,9 @@ def design_eye(eye: EyeRx, display: DisplayProfile, pupil_mm: float, *, robust: 
     if not robust:
         return Design(pupil_mm=pupil_mm, kernel=nominal, reference=nominal_ref, nominal=nominal,
                       nominal_reference=nominal_ref, notes=tuple(notes))
+    if band.towards_sharper:                      # the offsets towards this eye's sharper side
+        band = oriented_band(band, nominal.report.focus.residual.M_D)
+        wanted = [(round(pupil_mm * f, 4), s) for f in band.pupil_factors for s in band.sphere_offsets_D]
     ks = [get(p, s, False) for p, s in wanted]
     rs = [get(p, 0.0, True) if reference == "glasses" else None for p, _ in wanted]
     if all(k.identity for k in ks) and all(r is None or r.identity for r in rs):

@@ -527,7 +527,7 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
     kernel, reference, seen = design.kernel, design.reference, design.nominal
     if options.pupil == "auto" and grid_kernel_size is None:          # the grids hold the bank's reachable designs
         reach_mm = auto_reach_mm(eye_rx, display, options, pupil, age_years) if reach_mm is None else reach_mm
-        grid_kernel_size = bank_grid_kernel_size(design, reach_mm, band_slack(eye_rx, design) if band_switches(options)
+        grid_kernel_size = bank_grid_kernel_size(design, reach_mm, band_slack(design) if band_switches(options)
                                                  else 1.0)
     notes: list[str] = []
     if options.pupil != "rx" or options.robust:

@@ -102,23 +102,25 @@ def bank_reach_mm(entry_mm: float) -> float:
     return BANK_PUPILS_MM[min(index + BANK_REACH_STEPS, len(BANK_PUPILS_MM) - 1)]
 
 
-def band_slack(eye: EyeRx, design) -> float:
+def band_slack(design) -> float:
     """How much wider the other band's widest kernel may be than a robust design's over its own band, at
     the same pupil (a bank with ``band="auto"`` switches between the default band and the page band,
-    :data:`~vrcorrect.physics.page.PAGE_BAND`): the ratio of the bands' widest blur, each member's pupil
-    factor times its worst meridian's power (a defocus blur's width grows with both; a power below
-    0.25 D counts as 0.25 D, where diffraction sets the width); at least 1, at most 2; 1 for a design
-    that is not robust."""
+    :data:`~vrcorrect.physics.page.PAGE_BAND`, oriented for this eye): the ratio of the bands' widest
+    blur, each member's pupil factor times its worst meridian's residual defocus at the display (a
+    defocus blur's width grows with both; below 0.25 D counts as 0.25 D, where diffraction sets the
+    width); at least 1, at most 2; 1 for a design that is not robust."""
     from ..physics.page import PAGE_BAND  # start-up time: the optics load with the first eye
-    from ..physics.robust import RobustBand  # start-up time (as above)
+    from ..physics.robust import RobustBand, oriented_band  # start-up time (as above)
 
     if not getattr(design, "robust", False):
         return 1.0
     band = getattr(design, "band", None) or RobustBand()           # None: the default band
+    residual = design.nominal.report.focus.residual
+    m, j = residual.M_D, math.hypot(residual.J0_D, residual.J45_D)
 
     def blur(b: RobustBand) -> float:
-        worst = lambda o: max(abs(eye.sphere_D + o), abs(eye.sphere_D + eye.cylinder_D + o), 0.25)  # noqa: E731
-        return max(f * worst(o) for f in b.pupil_factors for o in b.sphere_offsets_D)
+        b = oriented_band(b, m)
+        return max(f * max(abs(m + o) + j, 0.25) for f in b.pupil_factors for o in b.sphere_offsets_D)
 
     return min(max(max(blur(RobustBand()), blur(PAGE_BAND)) / blur(band), 1.0), 2.0)
 

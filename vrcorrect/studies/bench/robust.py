@@ -581,7 +581,7 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
                   + "); the largest elsewhere after the first five frames past the cut: "
                   + ("-" if p["largest_change_elsewhere_after_the_cut"] is None
                      else f"{p['largest_change_elsewhere_after_the_cut']:.2f}") + ".", ""]
-    if plot is not None:
+    if plot is not None and write:                  # --no-write writes nothing: the plot neither
         _plot(cases, plot)
         lines += [f"![JOD gain over no correction against the pupil of the eye as it is]({plot.name})", ""]
     report = {"markdown": "\n".join(lines), "seconds": seconds,
