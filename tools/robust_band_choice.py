@@ -276,9 +276,8 @@ from vrcorrect.plumbing.images import prepare_image
 from vrcorrect.runtime.pupil_bank import nearest_bank_pupil
 from vrcorrect.solvers import make_problem, solve
 from vrcorrect.solvers.problem import make_design_problem
-from vrcorrect.solvers.realtime import AdmmFrames
 from vrcorrect.specs.display import decode, get_display
-from vrcorrect.studies.bench.robust import EYE, IMAGES as HELD_OUT, held_out_image
+from vrcorrect.studies.bench.robust import EYE, IMAGES as HELD_OUT, held_out_image, realtime_still
 from vrcorrect.vision.metrics import evaluate_seen
 
 CHOICE_IMAGES = ("astronaut", "coffee", "sktext", "chart", "words")
@@ -549,9 +548,7 @@ def main(argv: list[str]) -> int:
                     if paper is not None:
                         print("robust_band_choice: the paper cap is fast's only", file=sys.stderr)
                         return 2
-                    twin = AdmmFrames(design.kernel, design.reference, target.shape[:2], cap=problem.capped)
-                    for _ in range(frames):
-                        shown = twin.frame(target, 2).shown
+                    shown = realtime_still(design, target, frames, cap=problem.capped)
                 else:
                     with _paper_capped(paper) if paper is not None else contextlib.nullcontext():
                         shown = solve(problem, "fast").image

@@ -46,7 +46,7 @@ from typing import Any, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from ...physics.page import PAGE_BAND, REALTIME_LOOK_SIDE, choose_band
+from ...physics.page import PAGE_BAND, REALTIME_LOOK_SIDE, choose_band, page_verdict
 from ...physics.perception import luminance_weights
 from ...physics.pupil import pupil_from_light
 from ...physics.robust import design_eye
@@ -106,9 +106,10 @@ def held_out_image(name: str, size: int = SIZE) -> np.ndarray:
     return prepare_image(raw, size, name)
 
 
-def _realtime(design, target: np.ndarray, frames: int = REALTIME_FRAMES) -> np.ndarray:
-    """What the real-time default shows after ``frames`` frames of a still (its CPU twin)."""
-    twin = AdmmFrames(design.kernel, design.reference, target.shape[:2], cap=design.capped)
+def realtime_still(design, target: np.ndarray, frames: int = REALTIME_FRAMES, cap: bool | None = None) -> np.ndarray:
+    """What the real-time default shows after ``frames`` frames of a still (its CPU twin), under the
+    light cap where ``cap`` (None: where the design's band has one)."""
+    twin = AdmmFrames(design.kernel, design.reference, target.shape[:2], cap=design.capped if cap is None else cap)
     shown = None
     for _ in range(frames):
         shown = twin.frame(target, 2).shown
@@ -154,7 +155,7 @@ def _case(display_name: str, image_name: str, bar, kernels: dict, size: int = SI
     seen_rt = choose_band(target, display, REALTIME_LOOK_SIDE)       # as the real-time path looks
     realtime = default if seen_rt.page_band == choice.page_band else \
         design_eye(EYE, display, entry, band=seen_rt.band, kernels=kernels)
-    shown["real time"] = _realtime(realtime, target)
+    shown["real time"] = realtime_still(realtime, target)
     shown["learned"] = _learned(default, display, target, problem)
     seen_eyes = [(q, 0.0) for q in seen_pupils] + [(p, s) for s in seen_spheres]
     rows = []
@@ -372,7 +373,6 @@ def photo_to_page(kernels: dict, size: int = VIDEO_SIZE, photo_frames: int = 30,
     with the cap), at the design pupil :data:`VIDEO_PUPIL_MM`, against the default band held throughout
     and the page band from the cut.  Judged as video after the cut by the eye as modelled, with each
     frame's mean change of code values from the last at the switch and elsewhere."""
-    from ...physics.page import luminance_verdict  # on use: start-up time (as above)
     from ...runtime.pupil_state import BandFollower  # on use: start-up time (as above)
     from ...specs.display import encode  # on use: start-up time (the CLI imports the studies to build its parser)
     from ...vision.vdp import video_jod  # on use: start-up time (the CLI imports the studies to build its parser)
@@ -399,8 +399,7 @@ def photo_to_page(kernels: dict, size: int = VIDEO_SIZE, photo_frames: int = 30,
             if action == "look":
                 looked = x
             elif action == "read":
-                y = np.clip(looked, 0, 1).astype(np.float64) @ luminance_weights(display)
-                if follower.judge(luminance_verdict(y)) != band:
+                if follower.judge(page_verdict(looked, display, REALTIME_LOOK_SIDE)) != band:
                     band = follower.band
                     twin.set_design(bands[band].kernel, bands[band].reference, cap=bands[band].capped)
                     switches.append(i)
