@@ -3,12 +3,14 @@ or a headset shows it (a document, a web page, an e-book), drawn with the fonts 
 
     .venv/bin/python tools/render_pages.py DIR        # six 256 px pages, a second
     .venv/bin/python tools/render_pages.py --set 2 DIR2   # six more: other fonts, sizes, inks and prose
+    .venv/bin/python tools/render_pages.py --set 3 DIR3   # and six more (the ninth look's judgement)
     .venv/bin/python tools/robust_band_choice.py --no-builtin $(for f in DIR/*.png; do echo --image $f; done) "" white-rule
 
 Every page is held out: the first set was made (2026-12-02) after the white-page rule was written
 down, and no band or rule was chosen on it; it was spent judging that rule and then the real-time
 band (docs/realtime.md).  The second set (``--set 2``, 2026-12-03) was written before the real-time
-page band's second choice was judged, and is held out for that.  The text is this project's own prose.  Each page is drawn at
+page band's second choice was judged, and was spent on it.  The third (``--set 3``) was written
+before the ninth look's band (the pull towards the target) was chosen, and is held out for that.  The text is this project's own prose.  Each page is drawn at
 256 px, the size ``robust_band_choice.py`` works at, so no resampling touches the strokes.
 """
 
@@ -55,7 +57,25 @@ PAGES2 = {
     "cmtt14": ("cmtt10.ttf", 14, (0, 0, 0), (248, 246, 240), None),
     "grey16": ("DejaVuSans.ttf", 16, (70, 70, 70), (255, 255, 255), (0, 102, 204)),
 }
-SETS = {1: (PAGES, TEXT), 2: (PAGES2, TEXT2)}
+#: A third set (``--set 3``), written on 2026-12-03 (later) before the pull's band was chosen or
+#: judged: again other faces, sizes and inks (two grey inks, a dark blue, a sepia on cream), other prose.
+TEXT3 = (
+    "Most of what a person reads on a screen is small dark type on a pale ground: mail, menus, code, "
+    "the pages of a book. The eye's own lens blurs each letter a little, and more when the prescription "
+    "is strong or the room is dim. A display that knows the blur can lean against it, brightening the "
+    "paper just beside a stroke and darkening the stroke itself, until the sum on the retina is crisp. "
+    "It must not lean too far: an eye rarely matches its prescription to the quarter dioptre, and a "
+    "pupil changes with every scene, so the design has to be kind to eyes it was not made for."
+)
+PAGES3 = {
+    "serifb14": ("DejaVuSerif-Bold.ttf", 14, (0, 0, 0), (255, 255, 255), None),
+    "oblique12": ("DejaVuSans-Oblique.ttf", 12, (90, 90, 90), (255, 255, 255), None),
+    "cmti16": ("cmti10.ttf", 16, (20, 20, 20), (255, 255, 255), None),
+    "monob11": ("DejaVuSansMono-Bold.ttf", 11, (0, 32, 96), (255, 255, 255), None),
+    "stixb13": ("STIXGeneralBol.ttf", 13, (60, 40, 20), (250, 245, 232), None),
+    "grey20": ("DejaVuSans.ttf", 20, (100, 100, 100), (255, 255, 255), (180, 40, 40)),
+}
+SETS = {1: (PAGES, TEXT), 2: (PAGES2, TEXT2), 3: (PAGES3, TEXT3)}
 SIDE = 256
 MARGIN = 8
 
@@ -103,8 +123,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("folder", type=Path, help="where the pages go (made if missing)")
     ap.add_argument("--force", action="store_true", help="overwrite pages that are there already")
     ap.add_argument("--set", type=int, choices=sorted(SETS), default=1, dest="number",
-                    help="which set of pages: 1 (2026-12-02; spent on the white-page rule and the real-time band) "
-                    "or 2 (2026-12-03)")
+                    help="which set of pages: 1 (2026-12-02; spent on the white-page rule and the real-time band), "
+                    "2 (2026-12-03; spent on the eighth look's band) or 3 (2026-12-03, later)")
     args = ap.parse_args(argv)
     try:
         args.folder.mkdir(parents=True, exist_ok=True)
