@@ -61,7 +61,7 @@ def test_a_bands_paper_cap_is_read_from_its_text(text, expected):
 
 
 def test_the_white_rules_band_is_the_one_correct_designs_a_white_page_over():
-    """What the eighth look judged is what ``vrcorrect correct --band auto`` uses: the white-rule-2's
+    """What the ninth look judged is what ``vrcorrect correct --band auto`` uses: the white-rule-3's
     band, read from its text, is the product's page band (and its white paper the product's)."""
     from dataclasses import replace
 
@@ -69,14 +69,15 @@ def test_the_white_rules_band_is_the_one_correct_designs_a_white_page_over():
     from vrcorrect.physics.robust import RobustBand, design_eye, oriented_band
     from vrcorrect.specs.display import get_display
 
-    # the eighth look's (2026-12-03); oriented towards the sharper eye, which for the tool's eye, a myope,
+    # the ninth look's (2026-12-03); oriented towards the sharper eye, which for the tool's eye, a myope,
     # is the band as written
-    assert replace(rbc.parse_band(rbc.WHITE_RULE_2["white"]), towards_sharper=True) == PAGE_BAND
+    assert replace(rbc.parse_band(rbc.WHITE_RULE_3["white"]), towards_sharper=True) == PAGE_BAND
+    assert PAGE_BAND.pull == 0.005 and rbc.parse_band(rbc.WHITE_RULE_2["white"]).pull == 0.0   # the eighth's: none
     for display in ("desktop", "quest2"):
         m = design_eye(rbc.EYE, get_display(display), 3.0, robust=False).nominal.report.focus.residual.M_D
         assert m < 0 and oriented_band(PAGE_BAND, m).sphere_offsets_D == PAGE_BAND.sphere_offsets_D
     assert rbc.parse_band(rbc.WHITE_RULE["white"]) != PAGE_BAND            # the seventh's, before it
-    for rule in (rbc.WHITE_RULE, rbc.WHITE_RULE_2):
+    for rule in (rbc.WHITE_RULE, rbc.WHITE_RULE_2, rbc.WHITE_RULE_3):
         assert rbc.parse_band(rule["other"]) == RobustBand() and rule["grey"] == ""
     assert rbc.WHITE_PAPER == WHITE_PAPER
     assert rbc.parse_band("pf=1").light_cap and not rbc.parse_band("pf=1+nocap").light_cap

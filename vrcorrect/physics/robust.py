@@ -118,6 +118,10 @@ class RobustBand:
         Whether the sphere offsets point towards the sharper eye: a positive offset lessens the eye's
         residual defocus at the display, so the offsets' signs flip where that residual is hyperopic
         (:func:`oriented_band`; the page band's hedge).  False: offsets as given.
+    pull
+        A pull towards the target, ``pull ||A||^2 ||x - t||^2`` added to the expectation on top of
+        :data:`FLOOR_REL` (from 0 to 1): where the band's summed transfer ``sum w |K|^2`` falls under
+        ``pull ||A||^2`` the design leaves the target nearly as it is.  0: the floor alone.
 
     The default (chosen on the choice images, :data:`CHOICE_NOTE`): one pupil,
     :data:`DESIGN_PUPIL_FACTOR` of the estimate, and spheres -0.25/0/+0.25 D with the eye as
@@ -130,6 +134,7 @@ class RobustBand:
     sphere_priors: tuple[float, ...] | None = (1.0, 3.0, 1.0)
     light_cap: bool = True
     towards_sharper: bool = False
+    pull: float = 0.0
 
     def prior(self, i: int, j: int) -> float:
         """The prior weight of pupil factor ``i`` with sphere offset ``j`` (uniform unless given)."""
@@ -147,6 +152,8 @@ class RobustBand:
             raise ValidationError("pupil_factors", self.pupil_factors, "one or more factors from 0.2 to 5")
         if not so or any(not (math.isfinite(s) and abs(s) <= 2.0) for s in so):
             raise ValidationError("sphere_offsets_D", self.sphere_offsets_D, "one or more offsets from -2 to 2 D")
+        if not (isinstance(self.pull, (int, float)) and math.isfinite(self.pull) and 0.0 <= self.pull <= 1.0):
+            raise ValidationError("pull", self.pull, "a pull towards the target from 0 to 1 (relative to ||A||^2)")
         object.__setattr__(self, "pupil_factors", pf)
         object.__setattr__(self, "sphere_offsets_D", so)
 
@@ -451,7 +458,8 @@ def design_eye(eye: EyeRx, display: DisplayProfile, pupil_mm: float, *, robust: 
                                       nominal.matrix, grid)
     priors = [band.prior(i, j) for i in range(len(band.pupil_factors)) for j in range(len(band.sphere_offsets_D))]
     weights = member_weights(spectra, targets, priors, grid)
-    U, R = effective_kernels(spectra, targets, weights, grid, FLOOR_REL * float(np.linalg.norm(nominal.matrix, 2)) ** 2,
+    U, R = effective_kernels(spectra, targets, weights, grid,
+                             (FLOOR_REL + band.pull) * float(np.linalg.norm(nominal.matrix, 2)) ** 2,
                              radius=max(k.size for k in ks))
     members = tuple(Member(pupil_mm=float(k.report.focus.pupil_diameter_mm), sphere_offset_D=s, weight=float(w),
                            kernel_size=k.size) for k, (_, s), w in zip(ks, wanted, weights))
