@@ -162,3 +162,37 @@ def test_the_page_bands_hedge_points_to_the_sharper_eye(eye, offset):
     wrong = design_eye(eye.with_changes(sphere_D=eye.sphere_D - offset), quest2, 3.0, robust=False)
     assert wrong.nominal.report.focus.residual_worst_meridian_D > worst[0]
     assert design.band.sphere_offsets_D == (0.0, offset) and "+0.00/" + f"{offset:+.2f}" in design.describe()[0]
+
+
+@pytest.mark.parametrize("pull", [-0.001, 1.5, float("nan"), float("inf")])
+def test_a_bands_pull_outside_0_to_1_is_refused_by_name(pull):
+    from vrcorrect.plumbing.errors import ValidationError
+
+    with pytest.raises(ValidationError, match="pull"):
+        RobustBand(pull=pull)
+
+
+def test_the_page_bands_pull_keeps_the_converged_design_off_the_fine_detail():
+    """The ninth look: without the pull, the real time's converged page design puts light into detail
+    finer than 32 cycles an image (at 256 px) that the band barely passes, and drives more pixels to
+    the box's ends; the page band's pull (in the effective kernel) takes most of that away, and a pull
+    of 1 leaves the page nearly as it is."""
+    from dataclasses import replace
+
+    from vrcorrect.studies.bench.robust import realtime_still
+
+    target = linear(page_codes(128, 128))
+
+    def converged(pull: float) -> np.ndarray:
+        design = design_eye(EYE, DESKTOP, 2.9, band=replace(PAGE_BAND, pull=pull))
+        return realtime_still(design, target, 30)
+
+    def fine(x: np.ndarray) -> float:                       # energy of x - t above 32 cycles / 256 px
+        d = np.fft.fft2((x - target).mean(-1))
+        f = np.hypot(*np.meshgrid(np.fft.fftfreq(128), np.fft.fftfreq(128), indexing="ij"))
+        return float(np.sum(np.abs(d[f >= 32 / 256]) ** 2))
+
+    bare, pulled, full = converged(0.0), converged(PAGE_BAND.pull), converged(1.0)
+    assert fine(pulled) < 0.8 * fine(bare)
+    assert np.mean(pulled <= 1e-4) < np.mean(bare <= 1e-4)
+    assert np.abs(full - target).mean() < 0.25 * np.abs(bare - target).mean()

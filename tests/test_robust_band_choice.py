@@ -97,7 +97,28 @@ def test_a_grey_stand_in_has_the_pages_light_times_the_paper_light(tmp_path, mon
     np.testing.assert_allclose(grey, 0.58 * page, atol=2e-5)
 
 
+def test_a_grey_ink_stand_in_lifts_the_ink_and_keeps_the_paper(tmp_path, monkeypatch):
+    """NAME^INK (ninth look): each primary's light L shown as INK + (1 - INK) L: black ink at INK,
+    white paper still white."""
+    from PIL import Image
+
+    from vrcorrect.specs.display import decode
+
+    rng = np.random.default_rng(4)
+    image = rng.integers(0, 256, (256, 256, 3), dtype=np.uint8)
+    image[:8], image[8:16] = 0, 255                                  # some ink, some paper
+    Image.fromarray(image).save(tmp_path / "scan.png")
+    monkeypatch.setitem(rbc._files, "scan", str(tmp_path / "scan.png"))
+    page = decode("srgb", rbc.choice_image("scan")).astype(np.float64)
+    grey = decode("srgb", rbc.choice_image("scan^0.15")).astype(np.float64)
+    np.testing.assert_allclose(grey, 0.15 + 0.85 * page, atol=2e-5)
+    np.testing.assert_allclose(grey[:8], 0.15, atol=2e-5)
+    np.testing.assert_allclose(grey[8:16], 1.0, atol=2e-5)
+
+
 @pytest.mark.parametrize("args, message", [
+    (["--image", "PAGE", "--grey-ink", "0.7", ""], "--grey-ink 0.7: an ink light above 0 and at most 0.5 of white"),
+    (["--image", "PAGE", "--grey-ink", "0", ""], "--grey-ink 0.0: an ink light above 0"),
     (["--grey-paper", "0.5", ""], "--held-out and --grey-paper need --documents DIR"),
     (["--documents", "DOCS", "--grey-paper", "1.5", ""], "--grey-paper 1.5: a paper light from 0.05 to 1 of white"),
     (["--documents", "DOCS", "--held-out", "--grey-paper", "0.5", ""], "not with --held-out"),
@@ -110,7 +131,10 @@ def test_bad_arguments_get_one_line_and_status_2(tmp_path, args, message):
     docs.mkdir()
     for name in ("linn", "typewriter", "baiona", "c02-22", "epson", "francais", "sudoku", "imageTextN", "masks", "kcs"):
         (docs / f"{name}.png").write_bytes(b"")                  # never read: refused before
-    args = [str(docs) if a == "DOCS" else a for a in args]
+    from PIL import Image
+
+    Image.new("RGB", (256, 256), (255, 255, 255)).save(tmp_path / "blank.png")
+    args = [str(docs) if a == "DOCS" else str(tmp_path / "blank.png") if a == "PAGE" else a for a in args]
     done = subprocess.run([sys.executable, str(ROOT / "tools" / "robust_band_choice.py"), "--no-builtin", *args],
                           capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert done.returncode == 2, done.stderr
@@ -120,7 +144,8 @@ def test_bad_arguments_get_one_line_and_status_2(tmp_path, args, message):
 
 @pytest.mark.parametrize("number, names", [
     (1, ["serif12", "sans11", "stix14", "mono12", "cmr18", "links14"]),
-    (2, ["italic13", "cmss15", "stix12", "bold10", "cmtt14", "grey16"])])
+    (2, ["italic13", "cmss15", "stix12", "bold10", "cmtt14", "grey16"]),
+    (3, ["serifb14", "oblique12", "cmti16", "monob11", "stixb13", "grey20"])])
 def test_rendered_pages_are_pages_on_white_paper_and_are_not_overwritten(tmp_path, number, names):
     """tools/render_pages.py: each set's six 256 px pages, which the page judge calls pages on white
     paper (the seventh and eighth looks' condition); a second run refuses to overwrite them without
