@@ -533,7 +533,8 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
                   "the image; the effective kernel (one 3x3 solve a frequency, the cost of one kernel) crops its own "
                   "retina instead. The expectation of the effective kernel's solution (`fast`, to 1e-3) against the "
                   "exact expectation's (one split per member, to 1e-3): the gap as a share of the exact gain over no "
-                  "correction.", "",
+                  "correction. The page band's pull towards the target is in the effective kernel only, so on a page "
+                  "the gap holds its cost too.", "",
                   markdown_table(["display", "image", "none", "effective kernel", "exact expectation", "gap left",
                                   "exact: iterations", "exact: s"], rows), ""]
     if video:
