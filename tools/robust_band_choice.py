@@ -305,6 +305,20 @@ to +0.13 and +0.00 to +0.07, shares 81-103 % and 86-91 %.  The least gains are a
 (serifb14, grey20); there the objective still puts ``fast``'s view at 1.10-1.29 times none's error,
 and FLIP above none, where JOD puts it at or above none: the price of designing for the sharper side,
 smaller than the eighth look's (1.07-1.38) but not gone.
+
+Does the pull rescue grey paper?  Looked at the same day, the choice half only (``--documents
+/tmp/realdocs --no-builtin --grey-paper 0.58 --solver twin:10``: c02-22 and the four grey stand-ins,
+both displays; least gain, shares at 3 mm desktop / quest2).  No:
+
+* the default band: +0.04, 65-81 % / 53-78 %;
+* the page band as it is (pull 0.005, no cap): -0.42 (quest2 francais@0.58, the sphere +0.5 D), 65-80 %
+  / 82-88 %; under the light cap: -0.30, 59-72 % / 77-84 %; pull 0.03 under the cap: +0.03, 36-51 % /
+  54-65 %;
+* the default band with pull 0.005: +0.03, 60-75 % / 52-73 %.
+
+On grey paper the pull trades share for floor as it does on white paper, but the fall it must stop
+with the sphere +0.5 D is four to eight times deeper; no band tried keeps 80 % there and stays above
+none, so grey paper keeps the default band and the held-out scan its 79 % / 75 %.
 """
 
 from __future__ import annotations
