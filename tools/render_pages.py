@@ -4,13 +4,16 @@ or a headset shows it (a document, a web page, an e-book), drawn with the fonts 
     .venv/bin/python tools/render_pages.py DIR        # six 256 px pages, a second
     .venv/bin/python tools/render_pages.py --set 2 DIR2   # six more: other fonts, sizes, inks and prose
     .venv/bin/python tools/render_pages.py --set 3 DIR3   # and six more (the ninth look's judgement)
+    .venv/bin/python tools/render_pages.py --set 4 DIR4   # six pages on grey paper (the tenth look)
     .venv/bin/python tools/robust_band_choice.py --no-builtin $(for f in DIR/*.png; do echo --image $f; done) "" white-rule
 
 Every page is held out: the first set was made (2026-12-02) after the white-page rule was written
 down, and no band or rule was chosen on it; it was spent judging that rule and then the real-time
 band (docs/realtime.md).  The second set (``--set 2``, 2026-12-03) was written before the real-time
 page band's second choice was judged, and was spent on it.  The third (``--set 3``) was written
-before the ninth look's band (the pull towards the target) was chosen, and is held out for that.  The text is this project's own prose.  Each page is drawn at
+before the ninth look's band (the pull towards the target) was chosen, and was spent judging it.  The
+fourth (``--set 4``), pages on grey paper, was written before the tenth look's sweep for grey paper was
+read, and is held out for judging it.  The text is this project's own prose.  Each page is drawn at
 256 px, the size ``robust_band_choice.py`` works at, so no resampling touches the strokes.
 """
 
@@ -75,7 +78,25 @@ PAGES3 = {
     "stixb13": ("STIXGeneralBol.ttf", 13, (60, 40, 20), (250, 245, 232), None),
     "grey20": ("DejaVuSans.ttf", 20, (100, 100, 100), (255, 255, 255), (180, 40, 40)),
 }
-SETS = {1: (PAGES, TEXT), 2: (PAGES2, TEXT2), 3: (PAGES3, TEXT3)}
+#: A fourth set (``--set 4``), written on 2026-12-03 (the tenth look) before a band for grey paper was
+#: chosen: pages on grey paper (newsprint, e-ink, a grey theme; paper from 0.40 to 0.80 of white's
+#: light), other faces and prose.
+TEXT4 = (
+    "Not every page is white. Newsprint is grey, an e-reader's screen is the colour of weak tea, and "
+    "many people turn the brightness of a reading app down until the paper is a pale stone. On such a "
+    "page there is room above the paper for light the display may add, and a correction is tempted to "
+    "spend it all on bright rims around each letter. An eye that focuses a little better than expected "
+    "then sees those rims as halos, and the plain grey page would have been kinder to it."
+)
+PAGES4 = {
+    "news12": ("DejaVuSerif.ttf", 12, (30, 30, 30), (200, 200, 196), None),
+    "eink14": ("STIXGeneral.ttf", 14, (20, 20, 20), (214, 210, 200), None),
+    "sans13": ("DejaVuSans.ttf", 13, (0, 0, 0), (185, 185, 185), None),
+    "mono11": ("DejaVuSansMono.ttf", 11, (25, 25, 25), (231, 231, 231), None),
+    "cmr16": ("cmr10.ttf", 16, (10, 10, 10), (170, 170, 172), None),
+    "bold12": ("DejaVuSans-Bold.ttf", 12, (45, 40, 35), (205, 200, 190), None),
+}
+SETS = {1: (PAGES, TEXT), 2: (PAGES2, TEXT2), 3: (PAGES3, TEXT3), 4: (PAGES4, TEXT4)}
 SIDE = 256
 MARGIN = 8
 
@@ -124,7 +145,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--force", action="store_true", help="overwrite pages that are there already")
     ap.add_argument("--set", type=int, choices=sorted(SETS), default=1, dest="number",
                     help="which set of pages: 1 (2026-12-02; spent on the white-page rule and the real-time band), "
-                    "2 (2026-12-03; spent on the eighth look's band) or 3 (2026-12-03, later)")
+                    "2 (2026-12-03; spent on the eighth look's band), 3 (2026-12-03, later; spent on the ninth) or "
+                    "4 (2026-12-03, pages on grey paper; the tenth look)")
     args = ap.parse_args(argv)
     try:
         args.folder.mkdir(parents=True, exist_ok=True)
