@@ -322,6 +322,27 @@ both displays; least gain, shares at 3 mm desktop / quest2).  No:
 On grey paper the pull trades share for floor as it does on white paper, but the fall it must stop
 with the sphere +0.5 D is four to eight times deeper; no band tried keeps 80 % there and stays above
 none, so grey paper keeps the default band and the held-out scan its 79 % / 75 %.
+
+Tenth look (2026-12-03, a fourth session that day): the default band's shape made sharper for grey
+paper, under its light cap.  ``tools/render_pages.py --set 4`` (six pages on grey paper, 0.40-0.80 of
+white) was written before the sweep's second half was read, to judge a band if one passed; none did,
+so it is not spent.  The choice half of grey paper (``--documents /tmp/realdocs --no-builtin
+--grey-paper 0.58 --solver twin:10``: c02-22 and the four stand-ins, both displays; least gain, and
+shares at 3 mm desktop / quest2, over those ten cases):
+
+* the default (pf 0.93, so -0.25/0/+0.25, sp 1,3,1): +0.04, 65-81 % / 53-78 %;
+* the design pupil raised, pf 1.0 / 1.07 / 1.15 (default spheres): -0.26 / -0.65 / -1.12, 80-89 / 86-90
+  / 76-91 % on desktop, 73-93 / 87-101 / 89-94 % on quest2; the modelled sphere counting six times
+  (pf 1.0): -0.44, 84-93 % / 76-95 %;
+* a fourth sphere member, +0.5 D, towards the sharper eye (so -0.25/0/+0.25/+0.5): with pf 1.07 and it
+  counting 1 (sp 1,3,1,1): +0.03, 65-77 % / 69-87 %; counting 0.5 (sp 1,3,1,0.5): -0.19 (quest2
+  francais@0.58, the sphere +0.5 D), 75-84 % / 77-94 %; with sp 1,4,1,0.5: -0.30, 78-85 % / 80-95 %;
+  with pf 1.0 and sp 1,3,1,0.5: +0.04, 64-78 % / 62-83 %; with pf 1.15 and sp 1,3,1,1: -0.49, 73-81 %
+  / 82-93 %.
+
+The floor falls off a cliff as the share rises: between the two weights of the +0.5 D member the least
+gain goes from +0.03 to -0.19 while the desktop shares rise by 7-10 points, and no band keeps both
+80 % and the floor on the grey half (c02-22, tinted, keeps 53-93 % as the bands go).  Grey paper keeps the default band, and the held-out scan its 79 % / 75 %.
 """
 
 from __future__ import annotations
