@@ -43,3 +43,20 @@ def test_the_held_out_images_include_light_text_on_a_dark_ground():
     assert float(np.median(codes)) < 0.3                       # a dark ground
     assert float(codes.max()) > 0.85                           # light strokes
     assert float(np.mean(codes > 0.5)) < 0.3                   # strokes, not a light page
+
+
+def test_a_sweep_for_ones_own_eye_and_age_designs_for_it_and_says_so(tmp_path):
+    """``bench robust --rx``: the sweep's eye and age are the prescription's.  The pupil from the light
+    narrows with age (Watson & Yellott), and the designs are for that eye, not the bench's."""
+    from vrcorrect.specs.prescription import EyeRx
+
+    hyperope = EyeRx(sphere_D=3.0, cylinder_D=-1.0, axis_deg=90.0, pupil_diameter_mm=4.0)
+    small = dict(displays=("quest2",), images=("page",), boundary=False, size=64, seen_pupils=(3.0,),
+                 seen_spheres=(0.5,))
+    young = run_robust_bench(tmp_path / "a.md", write=False, eye=hyperope, age_years=20, **small)
+    old = run_robust_bench(tmp_path / "b.md", write=False, eye=hyperope, age_years=80, **small)
+    assert "+3.00/-1.00 x 90, age 80" in old["markdown"] and "-2.00/-1.00" not in old["markdown"]
+    assert old["cases"][0]["pupil_mm"] < young["cases"][0]["pupil_mm"] - 0.2
+    ours = run_robust_bench(tmp_path / "c.md", write=False, age_years=80, **small)   # the bench's own myope
+    jods = [[r["scores"]["default"]["jod"] for r in rep["cases"][0]["rows"]] for rep in (old, ours)]
+    assert not np.allclose(jods[0], jods[1], atol=1e-3)

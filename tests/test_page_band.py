@@ -18,7 +18,7 @@ from vrcorrect.plumbing.images import prepare_image
 from vrcorrect.solvers import make_problem, objective, solve
 from vrcorrect.solvers.problem import make_design_problem
 from vrcorrect.specs.display import decode, get_display
-from vrcorrect.specs.prescription import EyeRx
+from vrcorrect.specs.prescription import EyeRx, bundled_sample_path
 from vrcorrect.studies.bench.sequences import text_page
 
 DESKTOP = get_display("desktop")
@@ -134,15 +134,21 @@ def test_a_clip_of_a_page_cut_to_a_photograph_changes_band_with_the_picture(tmp_
     (["bench", "cost", "--image", "{page}", "--no-write"], "only with bench robust"),
     (["bench", "robust", "--image", "{d}/nothere.png", "--no-write"], "no such file"),
     (["bench", "robust", "--image", "{d}/notes.txt", "--no-write"], "a picture file ending in"),
+    (["bench", "robust", "--rx", "{rx}"], "--no-write or --out"),                 # one's own prescription
+    (["bench", "robust", "--rx", "{rx}", "--video", "--no-write"], "still cases only"),
+    (["bench", "robust", "--rx", "{d}/notes.txt", "--no-write"], "notes.txt"),
+    (["bench", "robust", "--rx", "{d}/nothere.json", "--no-write"], "nothere.json"),
 ])
-def test_bench_robust_takes_pictures_of_ones_own_and_refuses_bad_ones(tmp_path, capsys, args, said):
+def test_bench_robust_takes_pictures_and_prescriptions_of_ones_own_and_refuses_bad_ones(tmp_path, capsys, args, said):
     page = _png(tmp_path / "page.png", page_codes())
     (tmp_path / "notes.txt").write_text("not a picture")
-    argv = [a.format(page=page, d=tmp_path) for a in args]
+    rx = tmp_path / "rx.json"
+    rx.write_text(bundled_sample_path().read_text())
+    argv = [a.format(page=page, d=tmp_path, rx=rx) for a in args]
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
     assert said in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", "page.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", "page.png", "rx.json"]
 
 
 @pytest.mark.parametrize("eye, offset", [

@@ -29,6 +29,19 @@ def _json_out(args: argparse.Namespace) -> Path | None:
     return Path(args.json)
 
 
+def _robust_eye(args) -> dict:
+    """``bench robust --rx``: the right eye of that prescription and its age (checked before minutes of
+    work); without it the bench's own eye.  The video parts keep the bench's eye, so not with --video."""
+    if not args.rx:
+        return {}
+    if args.video:
+        raise ValidationError("--rx", args.rx, "bench robust --rx sweeps the still cases only; run --video without --rx")
+    from ..specs.prescription import load_prescription  # on use: start-up time (as below)
+
+    rx = load_prescription(args.rx)
+    return {"eye": rx.right, "age_years": rx.age_years}
+
+
 def _robust_image(path: str) -> str:
     """An ``--image`` of ``bench robust``, checked before minutes of work: a readable picture file."""
     from ..studies.bench.robust import (
@@ -47,6 +60,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.image and not args.no_write and args.out is None:
         raise ValidationError("--image", args.image[0], "with --no-write or --out FILE.md: the repository's "
                               "benchmarks keep the held-out images' figures")
+    if args.what == "robust" and args.rx and not args.no_write and args.out is None:
+        raise ValidationError("--rx", args.rx, "with --no-write or --out FILE.md: the repository's benchmarks "
+                              "keep the bench's own eye's figures")
     # --out before any work: the repository's file only inside the repository, else named by the user
     if args.out is None:
         args.out = str(BENCHMARKS_FILE if args.no_write else default_out())    # --no-write: names only
@@ -134,7 +150,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         images = {"images": [_robust_image(path) for path in args.image]} if args.image else {}
         report = run_robust_bench(out=Path(args.out), write=not args.no_write,
                                   plot=Path(args.out).with_name("robust_sweep.png"), json_out=_json_out(args),
-                                  force=args.force, video=args.video, **images)
+                                  force=args.force, video=args.video, **images, **_robust_eye(args))
         print(report["markdown"])
     elif args.what == "fovea":
         from ..studies.bench.fovea import (
@@ -238,7 +254,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "there")
     p.add_argument("--display", default="quest2",
                    help="cost, workgroups: display preset or profile (default quest2)")
-    p.add_argument("--rx", metavar="RX.json", help="cost, workgroups: prescription (default: the bundled sample)")
+    p.add_argument("--rx", metavar="RX.json", help="cost, workgroups: prescription (default: the bundled sample); "
+                   "robust: sweep the right eye of this prescription, at its age, instead of the bench's "
+                   "-2.00/-1.00 x 120 (not with --video)")
     p.add_argument("--dry-run", action="store_true",
                    help="cost: count the passes without running them (seconds instead of minutes on a software "
                         "renderer; no times)")

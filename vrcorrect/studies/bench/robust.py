@@ -116,7 +116,7 @@ def realtime_still(design, target: np.ndarray, frames: int = REALTIME_FRAMES, ca
     return shown
 
 
-def _learned(design, display, target: np.ndarray, problem) -> np.ndarray:
+def _learned(design, display, target: np.ndarray, problem, eye: EyeRx = EYE) -> np.ndarray:
     """The shipped learned model (``models/default.onnx``) on the same design (its effective kernel)."""
     from ...runtime.model_path import (
         DEFAULT_MODEL,  # on use: start-up time (the CLI imports the studies to build its parser)
@@ -125,18 +125,18 @@ def _learned(design, display, target: np.ndarray, problem) -> np.ndarray:
         UnrolledModel,  # on use: start-up time (the CLI imports the studies to build its parser)
     )
 
-    bound = UnrolledModel(DEFAULT_MODEL).for_eye(EYE.with_changes(pupil_diameter_mm=design.pupil_mm), display,
+    bound = UnrolledModel(DEFAULT_MODEL).for_eye(eye.with_changes(pupil_diameter_mm=design.pupil_mm), display,
                                                  design.kernel, design.reference, capped=problem.capped)
     return solve(problem, "learned", model=bound).image
 
 
 def _case(display_name: str, image_name: str, bar, kernels: dict, size: int = SIZE,
-          seen_pupils: Sequence[float] = SEEN_PUPILS_MM, seen_spheres: Sequence[float] = SEEN_SPHERES_D
-          ) -> dict[str, Any]:
+          seen_pupils: Sequence[float] = SEEN_PUPILS_MM, seen_spheres: Sequence[float] = SEEN_SPHERES_D,
+          eye: EyeRx = EYE, age_years: float | None = None) -> dict[str, Any]:
     display = get_display(display_name)
     codes = held_out_image(image_name, size)
     target = decode(display, codes).astype(np.float32)
-    estimate = pupil_from_light(float(np.mean(target.astype(np.float64) @ luminance_weights(display))), display)
+    estimate = pupil_from_light(float(np.mean(target.astype(np.float64) @ luminance_weights(display))), display, age_years)
     p = estimate.diameter_mm                      # the eye as it is sees through this pupil
     from ...runtime.pupil_bank import (
         nearest_bank_pupil,  # on use: start-up time (the CLI imports the studies to build its parser)
@@ -144,24 +144,23 @@ def _case(display_name: str, image_name: str, bar, kernels: dict, size: int = SI
 
     entry = nearest_bank_pupil(p)                 # the default designs for the pupil bank's nearest entry
     shown: dict[str, np.ndarray] = {"none": target}
-    old = design_eye(EYE, display, OLD_PUPIL_MM, robust=False, kernels=kernels)
+    old = design_eye(eye, display, OLD_PUPIL_MM, robust=False, kernels=kernels)
     shown["4 mm"] = solve(make_problem(target, old.kernel, old.reference), "fast").image
     choice = choose_band(target, display)         # --band auto: the band by the picture
-    default = design_eye(EYE, display, entry, band=choice.band, kernels=kernels)
+    default = design_eye(eye, display, entry, band=choice.band, kernels=kernels)
     problem = make_design_problem(target, default)
     t0 = time.perf_counter()
     shown["default"] = solve(problem, "fast").image
     default_s = time.perf_counter() - t0
     seen_rt = choose_band(target, display, REALTIME_LOOK_SIDE)       # as the real-time path looks
     realtime = default if seen_rt.page_band == choice.page_band else \
-        design_eye(EYE, display, entry, band=seen_rt.band, kernels=kernels)
+        design_eye(eye, display, entry, band=seen_rt.band, kernels=kernels)
     shown["real time"] = realtime_still(realtime, target)
-    shown["learned"] = _learned(default, display, target, problem)
+    shown["learned"] = _learned(default, display, target, problem, eye)
     seen_eyes = [(q, 0.0) for q in seen_pupils] + [(p, s) for s in seen_spheres]
     rows = []
     for q, s in seen_eyes:
-        eye = EYE.with_changes(sphere_D=EYE.sphere_D + s)
-        exact = design_eye(eye, display, q, robust=False, kernels=kernels)
+        exact = design_eye(eye.with_changes(sphere_D=eye.sphere_D + s), display, q, robust=False, kernels=kernels)
         ceiling = solve(make_problem(target, exact.kernel, exact.reference), "fast").image
         scores = {}
         seen_target = make_problem(target, exact.nominal, exact.nominal_reference)
@@ -454,11 +453,11 @@ def _plot(cases: list[dict], path: Path) -> None:
 def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, displays: Sequence[str] = DISPLAYS,
                      images: Sequence[str] = IMAGES, json_out: Path | None = None, force: bool = False,
                      boundary: bool = True, video: bool = False, size: int = SIZE,
-                     seen_pupils: Sequence[float] = SEEN_PUPILS_MM, seen_spheres: Sequence[float] = SEEN_SPHERES_D
-                     ) -> dict[str, Any]:
-    """Run the sweep (module docstring); with ``video`` also the motion suite and the dark clip cut to
-    a bright one (:func:`motion_suite`, :func:`dark_to_bright`); returns the report (``markdown`` and
-    the figures)."""
+                     seen_pupils: Sequence[float] = SEEN_PUPILS_MM, seen_spheres: Sequence[float] = SEEN_SPHERES_D,
+                     eye: EyeRx = EYE, age_years: float | None = None) -> dict[str, Any]:
+    """Run the sweep (module docstring) for ``eye`` (of a viewer ``age_years`` old, for the pupil from
+    the light; the video parts keep :data:`EYE`); with ``video`` also the motion suite and the dark clip
+    cut to a bright one (:func:`motion_suite`, :func:`dark_to_bright`); returns the report."""
     kernels: dict = {}
     if video:
         t_video = time.perf_counter()
@@ -472,12 +471,13 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
     with tqdm(total=per_case * len(displays) * len(images), desc="bench robust", unit="score") as bar:
         for d in displays:
             for name in images:
-                cases.append(_case(d, name, bar, kernels, size, seen_pupils, seen_spheres))
+                cases.append(_case(d, name, bar, kernels, size, seen_pupils, seen_spheres, eye, age_years))
     bounds = [_boundary(c) for c in cases] if boundary else []
     seconds = time.perf_counter() - t0
     lines = ["## The eye as it is: a correction against the eye it meets (`vrcorrect bench robust`)", "",
              f"Machine: {machine_description()}. {len(cases)} cases in {seconds / 60:.0f} min. The eye: right "
-             f"{EYE.sphere_D:+.2f}/{EYE.cylinder_D:+.2f} x {EYE.axis_deg:g}; images at {size} px, "
+             f"{eye.sphere_D:+.2f}/{eye.cylinder_D:+.2f} x {eye.axis_deg:g}"
+             + (f", age {age_years:g}" if age_years is not None else "") + f"; images at {size} px, "
              + (f"pictures given with --image ({', '.join(Path(n).name for n in images)}). "
                 if any(Path(n).suffix.lower() in IMAGE_SUFFIXES for n in images) else
                 "held out from choosing the robust band (scikit-image's stereo_motorcycle, a colour photograph; page, "
