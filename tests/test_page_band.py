@@ -154,20 +154,33 @@ def test_bench_robust_takes_pictures_and_prescriptions_of_ones_own_and_refuses_b
 @pytest.mark.parametrize("eye, offset", [
     (EyeRx(-2.0, -1.0, 120.0, 4.0), 0.5),        # a myope: its residual defocus at the headset's image is myopic
     (EyeRx(3.0, -1.0, 90.0, 4.0), -0.5),         # a hyperope
-    (EyeRx(-0.5, 0.0, 0.0, 4.0), -0.5),          # a low myope whose far point lies beyond the headset's image
-])
+    (EyeRx(-0.5, 0.0, 0.0, 4.0), 0.5 - 1 / 1.3),   # a low myope whose far point lies beyond the headset's
+])                                                  # image (1.3 m): 0.27 D from focus, the hedge stops there
 def test_the_page_bands_hedge_points_to_the_sharper_eye(eye, offset):
-    """The page band's second member is the eye 0.5 D towards focus at the display, whichever side of
-    it the eye is: its residual worst meridian is less than the eye's own, where the other sign's
-    would be more."""
+    """The page band's second member is the eye up to 0.5 D towards focus at the display, whichever side
+    of it the eye is, and never past focus: its residual worst meridian is less than the eye's own, where
+    the other sign's would be more."""
     quest2 = get_display("quest2")
     design = design_eye(eye, quest2, 3.0, band=PAGE_BAND)
-    assert [m.sphere_offset_D for m in design.members] == [0.0, offset]
+    assert [m.sphere_offset_D for m in design.members] == pytest.approx([0.0, offset], abs=1e-9)
     worst = [design.member_kernels(m)[0].report.focus.residual_worst_meridian_D for m in design.members]
     assert worst[1] < worst[0]
     wrong = design_eye(eye.with_changes(sphere_D=eye.sphere_D - offset), quest2, 3.0, robust=False)
     assert wrong.nominal.report.focus.residual_worst_meridian_D > worst[0]
-    assert design.band.sphere_offsets_D == (0.0, offset) and "+0.00/" + f"{offset:+.2f}" in design.describe()[0]
+    assert design.band.sphere_offsets_D == pytest.approx((0.0, offset)) and "+0.00/" + f"{offset:+.2f}" in design.describe()[0]
+
+
+def test_the_page_bands_hedge_stops_at_focus_for_an_eye_near_it():
+    """An eye near focus at the display: the hedge goes to the eye in focus and no further (past focus
+    the eye is blurrier again); an eye further off keeps the whole 0.5 D."""
+    from vrcorrect.physics.robust import oriented_band
+
+    assert oriented_band(PAGE_BAND, 0.27).sphere_offsets_D == pytest.approx((0.0, -0.27))
+    assert oriented_band(PAGE_BAND, -0.3).sphere_offsets_D == pytest.approx((0.0, 0.3))
+    assert oriented_band(PAGE_BAND, -1.7) is PAGE_BAND and oriented_band(PAGE_BAND, 0.9).sphere_offsets_D == (0.0, -0.5)
+    near = design_eye(EyeRx(-0.5, 0.0, 0.0, 4.0), get_display("quest2"), 3.0, band=PAGE_BAND)
+    focus = [abs(near.member_kernels(m)[0].report.focus.residual.M_D) for m in near.members]
+    assert focus[1] < 1e-9 < focus[0]                          # the second member is the eye in focus
 
 
 @pytest.mark.parametrize("pull", [-0.001, 1.5, float("nan"), float("inf")])

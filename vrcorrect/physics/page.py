@@ -31,7 +31,9 @@ counting once against three (least -0.023, 83-98 % at 3 mm there).  Judged on si
 fell to -0.05 / -0.07 with the sphere +0.5 D and kept 72 % at 3 mm on quest2.  The hedge is towards the
 sharper eye: +0.5 D for the myope every band was chosen with, -0.5 D for an eye whose residual defocus
 at the display is hyperopic (a hyperope, or a low myope whose far point lies beyond a headset's
-image: :func:`~vrcorrect.physics.robust.oriented_band`; not judged with such an eye).  Why the real
+image: :func:`~vrcorrect.physics.robust.oriented_band`), and no further than focus: a -0.50 D eye in the
+Quest 2, 0.27 D from focus, fell 0.07-0.17 JOD below none while the hedge crossed focus, -0.02 to -0.05
+since it stops there (``bench robust --rx``; docs/realtime.md, "Other eyes").  Why the real
 time lost there and ``fast`` did not ("Ninth look"): the converged design spends its last objective
 on fine detail (32-128 cycles an image at 256 px) that the band's summed transfer barely passes, driving
 more pixels to 0 and 1; the eye 0.5 D off sees that detail in the wrong phase.  ``fast``'s early stop
