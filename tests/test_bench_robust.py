@@ -60,3 +60,19 @@ def test_a_sweep_for_ones_own_eye_and_age_designs_for_it_and_says_so(tmp_path):
     ours = run_robust_bench(tmp_path / "c.md", write=False, age_years=80, **small)   # the bench's own myope
     jods = [[r["scores"]["default"]["jod"] for r in rep["cases"][0]["rows"]] for rep in (old, ours)]
     assert not np.allclose(jods[0], jods[1], atol=1e-3)
+
+
+def test_bench_robust_sweeps_the_eye_asked_for(tmp_path):
+    """``bench robust --rx F --eye left`` sweeps the left eye of F, at F's age (right by default)."""
+    from vrcorrect.apps.bench import _robust_eye
+    from vrcorrect.apps.cli import build_parser
+
+    rx = tmp_path / "rx.json"
+    rx.write_text(json.dumps({"schema": "vrcorrect.prescription/1", "age_years": 61,
+                              "right": {"sphere_D": -0.5, "cylinder_D": 0.0, "axis_deg": 0, "pupil_diameter_mm": 4.0},
+                              "left": {"sphere_D": 1.25, "cylinder_D": -0.75, "axis_deg": 15, "pupil_diameter_mm": 4.0}}))
+    for argv, sphere in ((["--eye", "left"], 1.25), ([], -0.5)):
+        args = build_parser().parse_args(["bench", "robust", "--rx", str(rx), "--no-write", *argv])
+        got = _robust_eye(args)
+        assert got["eye"].sphere_D == sphere and got["age_years"] == 61
+    assert _robust_eye(build_parser().parse_args(["bench", "robust", "--no-write"])) == {}    # the bench's eye

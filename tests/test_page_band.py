@@ -138,6 +138,8 @@ def test_a_clip_of_a_page_cut_to_a_photograph_changes_band_with_the_picture(tmp_
     (["bench", "robust", "--rx", "{rx}", "--video", "--no-write"], "still cases only"),
     (["bench", "robust", "--rx", "{d}/notes.txt", "--no-write"], "notes.txt"),
     (["bench", "robust", "--rx", "{d}/nothere.json", "--no-write"], "nothere.json"),
+    (["bench", "robust", "--eye", "left", "--no-write"], "only with bench robust --rx"),   # which eye of no file
+    (["bench", "cost", "--rx", "{rx}", "--eye", "left", "--no-write"], "only with bench robust --rx"),
 ])
 def test_bench_robust_takes_pictures_and_prescriptions_of_ones_own_and_refuses_bad_ones(tmp_path, capsys, args, said):
     page = _png(tmp_path / "page.png", page_codes())

@@ -342,7 +342,8 @@ shares at 3 mm desktop / quest2, over those ten cases):
 
 The floor falls off a cliff as the share rises: between the two weights of the +0.5 D member the least
 gain goes from +0.03 to -0.19 while the desktop shares rise by 7-10 points, and no band keeps both
-80 % and the floor on the grey half (c02-22, tinted, keeps 53-93 % as the bands go).  Grey paper keeps the default band, and the held-out scan its 79 % / 75 %.
+80 % and the floor on the grey half (c02-22, tinted, keeps 53-93 % as the bands go).  Grey paper keeps
+the default band, and the held-out scan its 79 % / 75 %.
 """
 
 from __future__ import annotations
@@ -377,6 +378,7 @@ BANDS = ("pf=0.8,1,1.25;pp=1,2,1;so=-0.25,0,0.25;sp=1,2,1", "")                 
 _kernels: dict = {}
 _cases: dict = {}
 _files: dict[str, str] = {}                                                      # --image: name -> path
+_eye = {"eye": EYE, "age": None}                                                 # --rx: the right eye, its age
 
 
 #: The real choice pages on white paper, whose grey stand-ins ``--grey-paper`` adds (sixth look).
@@ -521,11 +523,13 @@ def _case(display_name: str, name: str):
     if key not in _cases:
         display = get_display(display_name)
         target = decode(display, choice_image(name)).astype(np.float32)
-        p = pupil_from_light(float(np.mean(target.astype(np.float64) @ luminance_weights(display))), display).diameter_mm
+        eye = _eye["eye"]
+        p = pupil_from_light(float(np.mean(target.astype(np.float64) @ luminance_weights(display))), display,
+                             _eye["age"]).diameter_mm
         seen = []
         for q, s in SEEN:
             q = p if q is None else q
-            exact = design_eye(EYE.with_changes(sphere_D=EYE.sphere_D + s), display, q, robust=False, kernels=_kernels)
+            exact = design_eye(eye.with_changes(sphere_D=eye.sphere_D + s), display, q, robust=False, kernels=_kernels)
             none = evaluate_seen(target, target, exact.nominal, display)[0].jod
             ceiling = None
             if (q, s) == (3.0, 0.0):
@@ -569,6 +573,9 @@ def _arguments(argv: list[str]) -> argparse.Namespace:
                     help="what designs the correction: fast (the default), or twin:N, the real-time default's CPU "
                     "twin after N frames of the still (two iterations a frame; twin:10 is what render shows, a "
                     "larger N what a still settles to)")
+    ap.add_argument("--rx", metavar="RX.json", type=Path,
+                    help="sweep the right eye of this prescription, at its age_years for the pupil from the light, "
+                    "instead of the bench's eye (-2.00/-1.00 x 120)")
     ap.add_argument("--no-builtin", action="store_true",
                     help="leave out the built-in choice images (astronaut, coffee, sktext, chart, words)")
     return ap.parse_args(argv)
@@ -581,6 +588,17 @@ def main(argv: list[str]) -> int:
     except (ValueError, KeyError) as e:
         print(f"robust_band_choice: a band is 'off', '' or 'pf=...;pp=...;so=...;sp=...' ({e})", file=sys.stderr)
         return 2
+    if args.rx is not None:
+        from vrcorrect.specs.prescription import load_prescription
+
+        try:
+            rx = load_prescription(args.rx)
+        except (VrcorrectError, OSError) as e:
+            print(f"robust_band_choice: --rx {args.rx}: {e}", file=sys.stderr)
+            return 2
+        _eye.update(eye=rx.right, age=rx.age_years)
+        print(f"the right eye of {args.rx}: sphere {rx.right.sphere_D:+.2f} D, cylinder {rx.right.cylinder_D:+.2f} D "
+              f"x {rx.right.axis_deg:g}" + (f", age {rx.age_years:g}" if rx.age_years is not None else ""), flush=True)
     frames = _twin_frames(args.solver)
     if frames is not None and frames < 0:
         print(f"robust_band_choice: --solver {args.solver!r}: 'fast' or 'twin:N' with N frames from 1 to 2000",
@@ -649,7 +667,7 @@ def main(argv: list[str]) -> int:
                 if text in RULES:                                                # the band by what the picture is
                     case_text, judged = _rule_band(target, display, RULES[text])
                     case_band = parse_band(case_text)
-                design = design_eye(EYE, display, nearest_bank_pupil(p), band=case_band, kernels=_kernels,
+                design = design_eye(_eye["eye"], display, nearest_bank_pupil(p), band=case_band, kernels=_kernels,
                                     robust=case_band is not None)
                 problem = make_design_problem(target, design)
                 case_text, paper = _split_paper(case_text)

@@ -13,9 +13,9 @@ from pathlib import Path
 from ..plumbing.errors import InputError, ValidationError
 from ..plumbing.fileio import check_readable, check_writable
 from ..runtime.model_path import DEFAULT_MODEL
-from ..specs.vocabulary import Periphery, names
+from ..specs.vocabulary import Eye, Periphery, names
 from ..studies.bench import BENCHMARKS_FILE, default_out
-from .common import GAZE_HELP, PERIPHERY_HELP, parse_fovea, parse_gaze, rx_path
+from .common import GAZE_HELP, PERIPHERY_HELP, load_eye_and_age, parse_fovea, parse_gaze, rx_path
 
 
 def _json_out(args: argparse.Namespace) -> Path | None:
@@ -30,16 +30,22 @@ def _json_out(args: argparse.Namespace) -> Path | None:
 
 
 def _robust_eye(args) -> dict:
-    """``bench robust --rx``: the right eye of that prescription and its age (checked before minutes of
-    work); without it the bench's own eye.  The video parts keep the bench's eye, so not with --video."""
-    if not args.rx:
+    """``bench robust --rx``: the ``--eye`` of that prescription (default right) and its age, checked
+    before minutes of work, with every refusal of ``--rx``/``--eye`` here; without ``--rx`` the bench's
+    own eye.  The video parts keep the bench's eye, so not with --video; the repository's benchmarks
+    keep the bench eye's figures, so only with --no-write or --out."""
+    if args.eye is not None and not (args.what == "robust" and args.rx):
+        raise ValidationError("--eye", args.eye, "only with bench robust --rx (which eye of the prescription to sweep)")
+    if args.what != "robust" or not args.rx:
         return {}
     if args.video:
         raise ValidationError("--rx", args.rx, "bench robust --rx sweeps the still cases only; run --video without --rx")
-    from ..specs.prescription import load_prescription  # on use: start-up time (as below)
-
-    rx = load_prescription(args.rx)
-    return {"eye": rx.right, "age_years": rx.age_years}
+    if not args.no_write and args.out is None:
+        raise ValidationError("--rx", args.rx, "with --no-write or --out FILE.md: the repository's benchmarks "
+                              "keep the bench's own eye's figures")
+    args.eye = args.eye or "right"
+    _, eye, age = load_eye_and_age(args)
+    return {"eye": eye, "age_years": age}
 
 
 def _robust_image(path: str) -> str:
@@ -60,9 +66,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.image and not args.no_write and args.out is None:
         raise ValidationError("--image", args.image[0], "with --no-write or --out FILE.md: the repository's "
                               "benchmarks keep the held-out images' figures")
-    if args.what == "robust" and args.rx and not args.no_write and args.out is None:
-        raise ValidationError("--rx", args.rx, "with --no-write or --out FILE.md: the repository's benchmarks "
-                              "keep the bench's own eye's figures")
+    robust_eye = _robust_eye(args)
     # --out before any work: the repository's file only inside the repository, else named by the user
     if args.out is None:
         args.out = str(BENCHMARKS_FILE if args.no_write else default_out())    # --no-write: names only
@@ -150,7 +154,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         images = {"images": [_robust_image(path) for path in args.image]} if args.image else {}
         report = run_robust_bench(out=Path(args.out), write=not args.no_write,
                                   plot=Path(args.out).with_name("robust_sweep.png"), json_out=_json_out(args),
-                                  force=args.force, video=args.video, **images, **_robust_eye(args))
+                                  force=args.force, video=args.video, **images, **robust_eye)
         print(report["markdown"])
     elif args.what == "fovea":
         from ..studies.bench.fovea import (
@@ -255,8 +259,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--display", default="quest2",
                    help="cost, workgroups: display preset or profile (default quest2)")
     p.add_argument("--rx", metavar="RX.json", help="cost, workgroups: prescription (default: the bundled sample); "
-                   "robust: sweep the right eye of this prescription, at its age, instead of the bench's "
-                   "-2.00/-1.00 x 120 (not with --video)")
+                   "robust: sweep an eye of this prescription (--eye, default right), at its age, instead of the "
+                   "bench's -2.00/-1.00 x 120 (not with --video)")
+    p.add_argument("--eye", choices=names(Eye), default=None,
+                   help="robust --rx: which eye of the prescription to sweep (default right)")
     p.add_argument("--dry-run", action="store_true",
                    help="cost: count the passes without running them (seconds instead of minutes on a software "
                         "renderer; no times)")
