@@ -76,3 +76,31 @@ def test_bench_robust_sweeps_the_eye_asked_for(tmp_path):
         got = _robust_eye(args)
         assert got["eye"].sphere_D == sphere and got["age_years"] == 61
     assert _robust_eye(build_parser().parse_args(["bench", "robust", "--no-write"])) == {}    # the bench's eye
+
+
+def test_an_eye_the_learned_model_does_not_take_leaves_its_column_empty_and_says_why(tmp_path):
+    """``bench robust --rx`` with an accommodating eye (the shipped model was trained on presbyopes'
+    accommodation 0): the sweep runs, the learned column is empty, and the case says why."""
+    from vrcorrect.specs.prescription import EyeRx
+
+    young = EyeRx(sphere_D=-1.5, cylinder_D=0.0, axis_deg=0.0, pupil_diameter_mm=4.0, accommodation_D=3.0)
+    rep = run_robust_bench(tmp_path / "a.md", write=False, eye=young, displays=("quest2",), images=("page",),
+                           boundary=False, size=64, seen_pupils=(3.0,), seen_spheres=(0.5,))
+    case = rep["cases"][0]
+    assert all("learned" not in r["scores"] and "default" in r["scores"] for r in case["rows"])
+    assert "learned: not run" in case["design"] and "accommodation_D" in case["design"]
+    assert math.isnan(case["checks"]["least_learned"]) and not math.isnan(case["checks"]["least_default"])
+    assert "nan" not in rep["markdown"] and "+-" not in rep["markdown"]
+
+
+def test_an_eye_in_focus_at_the_display_is_swept_without_dividing_by_zero(tmp_path):
+    """A young myope at the monitor accommodates into focus: no correction has anything to gain, none's
+    objective is 0, and the sweep still writes its table (the ratio marked in focus)."""
+    from vrcorrect.specs.prescription import EyeRx
+
+    young = EyeRx(sphere_D=-1.5, cylinder_D=0.0, axis_deg=0.0, pupil_diameter_mm=4.0, accommodation_D=3.0)
+    rep = run_robust_bench(tmp_path / "a.md", write=False, eye=young, displays=("desktop",), images=("page",),
+                           boundary=False, size=64, seen_pupils=(3.0,), seen_spheres=(0.5,))
+    rows = rep["cases"][0]["rows"]
+    assert any(r["scores"]["none"]["objective"] == 0.0 for r in rows)
+    assert "- (in focus)" in rep["markdown"]

@@ -50,6 +50,7 @@ from ...physics.page import PAGE_BAND, REALTIME_LOOK_SIDE, choose_band, page_ver
 from ...physics.perception import luminance_weights
 from ...physics.pupil import pupil_from_light
 from ...physics.robust import design_eye
+from ...plumbing.errors import ValidationError
 from ...solvers import make_problem, objective, solve
 from ...solvers.expectation import fast_expectation
 from ...solvers.problem import make_design_problem
@@ -117,7 +118,7 @@ def realtime_still(design, target: np.ndarray, frames: int = REALTIME_FRAMES, ca
 
 
 def _learned(design, display, target: np.ndarray, problem, eye: EyeRx = EYE) -> np.ndarray:
-    """The shipped learned model (``models/default.onnx``) on the same design (its effective kernel)."""
+    """The shipped learned model (``models/default.onnx``) on the same design, or why it refuses the eye."""
     from ...runtime.model_path import (
         DEFAULT_MODEL,  # on use: start-up time (the CLI imports the studies to build its parser)
     )
@@ -125,8 +126,11 @@ def _learned(design, display, target: np.ndarray, problem, eye: EyeRx = EYE) -> 
         UnrolledModel,  # on use: start-up time (the CLI imports the studies to build its parser)
     )
 
-    bound = UnrolledModel(DEFAULT_MODEL).for_eye(eye.with_changes(pupil_diameter_mm=design.pupil_mm), display,
-                                                 design.kernel, design.reference, capped=problem.capped)
+    try:
+        bound = UnrolledModel(DEFAULT_MODEL).for_eye(eye.with_changes(pupil_diameter_mm=design.pupil_mm), display,
+                                                     design.kernel, design.reference, capped=problem.capped)
+    except ValidationError as e:                  # an eye outside what the model was trained on: no column
+        return str(e)
     return solve(problem, "learned", model=bound).image
 
 
@@ -156,7 +160,8 @@ def _case(display_name: str, image_name: str, bar, kernels: dict, size: int = SI
     realtime = default if seen_rt.page_band == choice.page_band else \
         design_eye(eye, display, entry, band=seen_rt.band, kernels=kernels)
     shown["real time"] = realtime_still(realtime, target)
-    shown["learned"] = _learned(default, display, target, problem, eye)
+    learned = _learned(default, display, target, problem, eye)
+    shown.update({} if isinstance(learned, str) else {"learned": learned})
     seen_eyes = [(q, 0.0) for q in seen_pupils] + [(p, s) for s in seen_spheres]
     rows = []
     for q, s in seen_eyes:
@@ -172,12 +177,15 @@ def _case(display_name: str, image_name: str, bar, kernels: dict, size: int = SI
     return {"display": display_name, "image": Path(image_name).stem, "pupil_mm": p, "design_pupil_mm": entry,
             "band": choice.describe(), "page_band": choice.page_band,
             "pupil": estimate.describe() + f"; the default designed for {entry:.2f} mm, the pupil bank's nearest entry",
-            "design": default.describe()[0], "default_seconds": default_s, "rows": rows,
+            "design": default.describe()[0] + (f"; learned: not run ({learned})" if isinstance(learned, str) else ""),
+            "default_seconds": default_s, "rows": rows,
             "_problem": problem, "_default": default, "_target": target}
 
 
 def _gain(row: dict, method: str) -> float:
-    return row["scores"][method]["jod"] - row["scores"]["none"]["jod"]
+    """JOD gain of ``method`` over none (NaN for a method not run: the learned model refused the eye)."""
+    sc = row["scores"]
+    return sc[method]["jod"] - sc["none"]["jod"] if method in sc else float("nan")
 
 
 def _checks(case: dict) -> dict[str, Any]:
@@ -497,10 +505,10 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
     for c in cases:
         k = _checks(c)
         def pct(v):
-            return "-" if v is None else f"{100 * v:.0f} %"
+            return "-" if v is None or v != v else f"{100 * v:.0f} %"
 
         summary.append([c["display"], c["image"], f"{c['pupil_mm']:.2f}", f"{k['least_4mm']:+.2f}",
-                        f"{k['least_default']:+.2f} / {k['least_realtime']:+.2f} / {k['least_learned']:+.2f}",
+                        f"{k['least_default']:+.2f} / {k['least_realtime']:+.2f} / {k['least_learned']:+.2f}".replace("+nan", "-"),
                         f"{pct(k['share_at_3mm'])} / {pct(k['share_at_3mm_realtime'])} / "
                         f"{pct(k['share_at_3mm_learned'])}"])
         c["checks"] = k
@@ -516,9 +524,10 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
         for r in c["rows"]:
             sc = r["scores"]
             rows.append([f"{r['pupil_mm']:.2f}", f"{r['sphere_offset_D']:+.2f}", f"{sc['none']['jod']:.2f}",
-                         *(f"{_gain(r, m):+.2f}" for m in METHODS[1:]),
+                         *(f"{_gain(r, m):+.2f}".replace("+nan", "-") for m in METHODS[1:]),
                          f"{sc['none']['flip']:.3f} / {sc['default']['flip']:.3f} / {sc['ceiling']['flip']:.3f}",
-                         f"{sc['default']['objective'] / sc['none']['objective']:.3f}"])
+                         f"{sc['default']['objective'] / sc['none']['objective']:.3f}" if sc['none']['objective'] > 0
+                         else "- (in focus)"])
         lines += [f"### {c['display']}, {c['image']}: {c['pupil']}", "", f"{c['band'][0].upper()}{c['band'][1:]}. "
                   f"{c['design']}.", "",
                   markdown_table(["pupil seen (mm)", "sphere off (D)", "JOD none", "4 mm", "default", "real time",
