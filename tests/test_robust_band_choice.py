@@ -170,3 +170,29 @@ def test_rendered_pages_are_pages_on_white_paper_and_are_not_overwritten(tmp_pat
     again = subprocess.run(tool, capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert again.returncode == 2 and "pass --force to overwrite it" in again.stderr
     assert "Traceback" not in again.stderr and pages[0].read_bytes() == before
+
+
+def test_the_objective_guard_holds_each_guard_eye_within_rho_of_none_and_leaves_a_safe_correction_alone():
+    """``guarded`` (eleventh look): an over-sharpened correction, seen by an eye 0.5 D nearer focus than
+    the one it was designed for, is blended towards the target until that eye's objective is RHO times
+    none's; with a RHO the correction already meets it is shown unchanged (blend 1)."""
+    from vrcorrect.physics.robust import design_eye
+    from vrcorrect.solvers import make_problem, objective, solve
+    from vrcorrect.specs.display import get_display
+    from vrcorrect.specs.prescription import EyeRx
+
+    display = get_display("quest2")
+    eye = EyeRx(-1.5, 0.0, 0.0, 3.0, accommodation_D=0.0)
+    rng = np.random.default_rng(3)
+    target = np.clip(0.5 + 0.25 * rng.standard_normal((48, 48, 3)), 0, 1).astype(np.float32)
+    design = design_eye(eye, display, 3.0, robust=False)
+    shown = solve(make_problem(target, design.kernel, design.reference), "fast").image
+    nearer = design_eye(eye.with_changes(sphere_D=-1.0), display, 3.0, robust=False)   # 0.23 D from focus
+    seen = make_problem(target, nearer.nominal, nearer.nominal_reference)
+    none, before = objective(target, seen), objective(shown, seen)
+    assert before > 1.25 * none                                       # the exact design over-sharpens for it
+    out, beta = rbc.guarded(shown, target, [nearer], 1.25)
+    assert 0.0 < beta < 1.0 and out.dtype == np.float32
+    assert objective(out, seen) == pytest.approx(1.25 * none, rel=1e-3)
+    same, one = rbc.guarded(shown, target, [nearer], 2.0 * before / none)
+    assert one == 1.0 and np.array_equal(same, shown)
