@@ -89,7 +89,9 @@ def test_an_eye_the_learned_model_does_not_take_leaves_its_column_empty_and_says
     case = rep["cases"][0]
     assert all("learned" not in r["scores"] and "default" in r["scores"] for r in case["rows"])
     assert "learned: not run" in case["design"] and "accommodation_D" in case["design"]
-    assert math.isnan(case["checks"]["least_learned"]) and not math.isnan(case["checks"]["least_default"])
+    assert case["checks"]["least_learned"] is None and case["checks"]["share_at_3mm_learned"] is None
+    assert not math.isnan(case["checks"]["least_default"])
+    json.dumps(case["checks"], allow_nan=False)                   # --json: strict JSON, no NaN
     assert "nan" not in rep["markdown"] and "+-" not in rep["markdown"]
 
 

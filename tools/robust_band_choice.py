@@ -346,7 +346,7 @@ gain goes from +0.03 to -0.19 while the desktop shares rise by 7-10 points, and 
 the default band, and the held-out scan its 79 % / 75 %.
 
 Eleventh look (2026-12-03, a fifth session): other eyes (``--rx``).  The default band was chosen for the
-bench's eye, whose blur is mostly its cylinder.  On the built-in choice images (``fast``), seven eyes of
+bench's eye, whose blur is mostly its cylinder.  On the built-in choice images (``fast``), six eyes of
 sphere alone and no accommodation (``accommodation_D`` 0, as a presbyope; their residual defocus at the
 monitor / in the Quest 2 in brackets), least gain over the checked eyes, desktop / quest2:
 

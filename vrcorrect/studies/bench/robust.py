@@ -117,14 +117,10 @@ def realtime_still(design, target: np.ndarray, frames: int = REALTIME_FRAMES, ca
     return shown
 
 
-def _learned(design, display, target: np.ndarray, problem, eye: EyeRx = EYE) -> np.ndarray:
+def _learned(design, display, target: np.ndarray, problem, eye: EyeRx = EYE) -> np.ndarray | str:
     """The shipped learned model (``models/default.onnx``) on the same design, or why it refuses the eye."""
-    from ...runtime.model_path import (
-        DEFAULT_MODEL,  # on use: start-up time (the CLI imports the studies to build its parser)
-    )
-    from ...runtime.unrolled import (
-        UnrolledModel,  # on use: start-up time (the CLI imports the studies to build its parser)
-    )
+    from ...runtime.model_path import DEFAULT_MODEL  # on use: start-up time (the CLI imports the studies to build its parser)
+    from ...runtime.unrolled import UnrolledModel  # on use: start-up time (as above)
 
     try:
         bound = UnrolledModel(DEFAULT_MODEL).for_eye(eye.with_changes(pupil_diameter_mm=design.pupil_mm), display,
@@ -184,8 +180,11 @@ def _case(display_name: str, image_name: str, bar, kernels: dict, size: int = SI
 
 def _gain(row: dict, method: str) -> float:
     """JOD gain of ``method`` over none (NaN for a method not run: the learned model refused the eye)."""
-    sc = row["scores"]
-    return sc[method]["jod"] - sc["none"]["jod"] if method in sc else float("nan")
+    return row["scores"][method]["jod"] - row["scores"]["none"]["jod"] if method in row["scores"] else float("nan")
+
+
+def _signed(v: float | None) -> str:
+    return "-" if v is None or v != v else f"{v:+.2f}"                           # - : not run
 
 
 def _checks(case: dict) -> dict[str, Any]:
@@ -198,11 +197,11 @@ def _checks(case: dict) -> dict[str, Any]:
     ceiling = _gain(at3, "ceiling") if at3 is not None else 0.0
     return {"least_default": min((_gain(r, "default") for r in checked), default=float("nan")),
             "least_realtime": min((_gain(r, "real time") for r in checked), default=float("nan")),
-            "least_learned": min((_gain(r, "learned") for r in checked), default=float("nan")),
+            "least_learned": min((g for g in (_gain(r, "learned") for r in checked) if g == g), default=None),
             "least_4mm": min((_gain(r, "4 mm") for r in checked), default=float("nan")),
             "share_at_3mm": _gain(at3, "default") / ceiling if ceiling > 0 else None,
             "share_at_3mm_realtime": _gain(at3, "real time") / ceiling if ceiling > 0 else None,
-            "share_at_3mm_learned": _gain(at3, "learned") / ceiling if ceiling > 0 else None}
+            "share_at_3mm_learned": _gain(at3, "learned") / ceiling if ceiling > 0 and "learned" in at3["scores"] else None}
 
 
 def _boundary(case: dict) -> dict[str, Any]:
@@ -505,10 +504,10 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
     for c in cases:
         k = _checks(c)
         def pct(v):
-            return "-" if v is None or v != v else f"{100 * v:.0f} %"
+            return "-" if v is None else f"{100 * v:.0f} %"
 
         summary.append([c["display"], c["image"], f"{c['pupil_mm']:.2f}", f"{k['least_4mm']:+.2f}",
-                        f"{k['least_default']:+.2f} / {k['least_realtime']:+.2f} / {k['least_learned']:+.2f}".replace("+nan", "-"),
+                        f"{k['least_default']:+.2f} / {k['least_realtime']:+.2f} / " + _signed(k['least_learned']),
                         f"{pct(k['share_at_3mm'])} / {pct(k['share_at_3mm_realtime'])} / "
                         f"{pct(k['share_at_3mm_learned'])}"])
         c["checks"] = k
@@ -524,7 +523,7 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
         for r in c["rows"]:
             sc = r["scores"]
             rows.append([f"{r['pupil_mm']:.2f}", f"{r['sphere_offset_D']:+.2f}", f"{sc['none']['jod']:.2f}",
-                         *(f"{_gain(r, m):+.2f}".replace("+nan", "-") for m in METHODS[1:]),
+                         *(_signed(_gain(r, m)) for m in METHODS[1:]),
                          f"{sc['none']['flip']:.3f} / {sc['default']['flip']:.3f} / {sc['ceiling']['flip']:.3f}",
                          f"{sc['default']['objective'] / sc['none']['objective']:.3f}" if sc['none']['objective'] > 0
                          else "- (in focus)"])
