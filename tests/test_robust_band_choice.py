@@ -125,6 +125,7 @@ def test_a_grey_ink_stand_in_lifts_the_ink_and_keeps_the_paper(tmp_path, monkeyp
     (["--documents", "DOCS", "pf=1+paper2"], "the paper cap is '+paper' or '+paper=F'"),
     (["--documents", "DOCS", "--solver", "twin:0", ""], "'fast' or 'twin:N' with N frames from 1 to 2000"),
     (["--documents", "DOCS", "--solver", "admm", ""], "--solver 'admm'"),
+    (["--rx", "DOCS/nothere.json", ""], "prescription file not found"),               # another eye's file
 ])
 def test_bad_arguments_get_one_line_and_status_2(tmp_path, args, message):
     docs = tmp_path / "docs"
@@ -134,7 +135,8 @@ def test_bad_arguments_get_one_line_and_status_2(tmp_path, args, message):
     from PIL import Image
 
     Image.new("RGB", (256, 256), (255, 255, 255)).save(tmp_path / "blank.png")
-    args = [str(docs) if a == "DOCS" else str(tmp_path / "blank.png") if a == "PAGE" else a for a in args]
+    args = [str(docs) if a == "DOCS" else str(tmp_path / "blank.png") if a == "PAGE" else a.replace("DOCS", str(docs))
+            for a in args]
     done = subprocess.run([sys.executable, str(ROOT / "tools" / "robust_band_choice.py"), "--no-builtin", *args],
                           capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert done.returncode == 2, done.stderr

@@ -668,16 +668,16 @@ def main(argv: list[str]) -> int:
         print(f"robust_band_choice: a band is 'off', '' or 'pf=...;pp=...;so=...;sp=...' ({e})", file=sys.stderr)
         return 2
     if args.rx is not None:
-        from vrcorrect.specs.prescription import load_prescription
+        from vrcorrect.apps.common import load_eye_and_age
 
         try:
-            rx = load_prescription(args.rx)
+            _, eye, age = load_eye_and_age(argparse.Namespace(rx=str(args.rx), eye="right"))
         except (VrcorrectError, OSError) as e:
             print(f"robust_band_choice: --rx {args.rx}: {e}", file=sys.stderr)
             return 2
-        _eye.update(eye=rx.right, age=rx.age_years)
-        print(f"the right eye of {args.rx}: sphere {rx.right.sphere_D:+.2f} D, cylinder {rx.right.cylinder_D:+.2f} D "
-              f"x {rx.right.axis_deg:g}" + (f", age {rx.age_years:g}" if rx.age_years is not None else ""), flush=True)
+        _eye.update(eye=eye, age=age)
+        print(f"the right eye of {args.rx}: sphere {eye.sphere_D:+.2f} D, cylinder {eye.cylinder_D:+.2f} D "
+              f"x {eye.axis_deg:g}" + (f", age {age:g}" if age is not None else ""), flush=True)
     frames = _twin_frames(args.solver)
     if frames is not None and frames < 0:
         print(f"robust_band_choice: --solver {args.solver!r}: 'fast' or 'twin:N' with N frames from 1 to 2000",
