@@ -403,3 +403,67 @@ def test_a_signal_in_the_renames_after_an_error_still_terminates(tmp_path, monke
     assert capsys.readouterr().err.strip().splitlines() == ["vrcorrect: terminated (SIGTERM)"]
     with signals_deferred():
         pass                                   # nothing left over to act on
+
+
+@pytest.mark.parametrize("nth", [1, 2])
+def test_a_signal_as_a_temporary_file_is_made_leaves_none(tmp_path, monkeypatch, capsys, nth):
+    """A SIGTERM that lands just after the ``nth`` temporary output file is made (before it was listed
+    for removal: one CI run found ``.out.png.*.png`` beside a 143) leaves no output and no temporary
+    file: the command ends as terminated."""
+    import os
+    import tempfile
+
+    from vrcorrect.plumbing import fileio
+
+    real_mkstemp = tempfile.mkstemp
+    made = []
+
+    def mkstemp(*args, **kwargs):
+        fd, name = real_mkstemp(*args, **kwargs)
+        if not name.endswith(".probe"):
+            made.append(name)
+            if len(made) == nth:
+                os.kill(os.getpid(), signal.SIGTERM)
+                t = time.monotonic()
+                while time.monotonic() - t < 0.2:  # bytecode runs: the handler's chance to act here
+                    pass
+        return fd, name
+
+    monkeypatch.setattr(fileio.tempfile, "mkstemp", mkstemp)
+    out = tmp_path / "out"
+    out.mkdir()
+
+    def command(args):
+        fileio.write_together([(out / "a.txt", lambda p: p.write_text("a")),
+                               (out / "b.txt", lambda p: p.write_text("b"))])
+        return 0
+
+    cli = _cli_running(monkeypatch, command)
+    assert cli.main([]) == 128 + signal.SIGTERM
+    assert capsys.readouterr().err.strip().splitlines() == ["vrcorrect: terminated (SIGTERM)"]
+    assert len(made) == 2                      # both were made: the signal waited for the listing
+    assert sorted(p.name for p in out.iterdir()) == []
+
+
+def test_a_signal_as_the_probe_is_made_leaves_no_probe(tmp_path, monkeypatch, capsys):
+    """The writability probe (made and removed before any work) is not stranded by a signal either."""
+    import os
+    import tempfile
+
+    from vrcorrect.plumbing import fileio
+
+    real_mkstemp = tempfile.mkstemp
+
+    def mkstemp(*args, **kwargs):
+        fd, name = real_mkstemp(*args, **kwargs)
+        if name.endswith(".probe"):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.2)
+        return fd, name
+
+    monkeypatch.setattr(fileio.tempfile, "mkstemp", mkstemp)
+    out = tmp_path / "out"
+    out.mkdir()
+    cli = _cli_running(monkeypatch, lambda args: fileio.write_text_atomic(out / "a.txt", "a") or 0)
+    assert cli.main([]) == 128 + signal.SIGTERM
+    assert sorted(p.name for p in out.iterdir()) == []

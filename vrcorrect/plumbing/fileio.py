@@ -40,12 +40,13 @@ def check_writable(path: Path, *, force: bool) -> Path:
         raise InputError(f"{path}: folder {parent} does not exist")
     if not os.access(parent, os.W_OK):
         raise InputError(f"{path}: folder {parent} is not writable")
-    try:                                   # what the write will do (a root user passes os.access on /proc)
-        fd, probe = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".probe", dir=parent)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot create a file in folder {parent} ({exc.strerror or exc})") from None
-    os.close(fd)
-    os.unlink(probe)
+    with signals_deferred():               # a signal never strands the probe between its creation and removal
+        try:                               # what the write will do (a root user passes os.access on /proc)
+            fd, probe = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".probe", dir=parent)
+        except OSError as exc:
+            raise InputError(f"{path}: cannot create a file in folder {parent} ({exc.strerror or exc})") from None
+        os.close(fd)
+        os.unlink(probe)
     return path
 
 
@@ -88,16 +89,17 @@ def atomic_paths(paths: Sequence[Path], *, force: bool = False) -> Iterator[list
         raise InputError("two outputs name the same file: " + ", ".join(str(t) for t in targets))
     tmps: list[Path] = []
     try:
-        for path in targets:
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
-                                       dir=path.parent if str(path.parent) else ".")
-            os.close(fd)
-            tmps.append(Path(tmp))
-            try:
-                mode = path.stat().st_mode & 0o7777 if path.exists() else 0o666 & ~_umask()
-                os.chmod(tmp, mode)
-            except OSError:
-                pass
+        with signals_deferred():           # a temporary file is listed for removal as it is made, never after
+            for path in targets:
+                fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
+                                           dir=path.parent if str(path.parent) else ".")
+                tmps.append(Path(tmp))
+                os.close(fd)
+                try:
+                    mode = path.stat().st_mode & 0o7777 if path.exists() else 0o666 & ~_umask()
+                    os.chmod(tmp, mode)
+                except OSError:
+                    pass
         yield list(tmps)
         raise_if_held()                        # a termination asked for while the outputs were written
         with signals_deferred():
@@ -107,9 +109,10 @@ def atomic_paths(paths: Sequence[Path], *, force: bool = False) -> Iterator[list
             for tmp, path in zip(tmps, targets):
                 os.replace(tmp, path)
     finally:
-        for tmp in tmps:
-            if tmp.exists():
-                tmp.unlink()
+        with signals_deferred():           # a second signal does not cut the clean-up short
+            for tmp in tmps:
+                with contextlib.suppress(FileNotFoundError):
+                    tmp.unlink()
 
 
 def write_text_atomic(path: Path, text: str, *, force: bool = False) -> None:
