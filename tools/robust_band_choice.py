@@ -404,7 +404,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import math
 import sys
 import time
 from dataclasses import replace
@@ -420,7 +419,7 @@ from vrcorrect.plumbing.errors import VrcorrectError
 from vrcorrect.plumbing.charts import text_chart
 from vrcorrect.plumbing.images import prepare_image
 from vrcorrect.runtime.pupil_bank import nearest_bank_pupil
-from vrcorrect.solvers import make_problem, objective, solve
+from vrcorrect.solvers import make_problem, solve
 from vrcorrect.solvers.problem import make_design_problem
 from vrcorrect.specs.display import decode, get_display
 from vrcorrect.studies.bench.robust import EYE, IMAGES as HELD_OUT, held_out_image, realtime_still
@@ -576,21 +575,12 @@ def _band_title(text: str, band: RobustBand | None) -> str:
 
 def guarded(shown: np.ndarray, target: np.ndarray, guards, rho: float) -> tuple[np.ndarray, float]:
     """``t + b (x - t)`` with the largest ``b`` in [0, 1] that keeps every guard eye's objective at most
-    ``rho`` times its objective for the target shown as it is (each objective is quadratic in ``b``:
-    ``f(b) = a + 2 g b + c b^2``, read from ``f(0)``, ``f(1/2)``, ``f(1)``), and ``b``."""
-    beta = 1.0
-    for design in guards:
-        problem = make_problem(target, design.nominal, design.nominal_reference)
-        f0, fh, f1 = (objective(target + b * (shown - target), problem) for b in (0.0, 0.5, 1.0))
-        c = 2.0 * (f1 - 2.0 * fh + f0)
-        g = 0.5 * (f1 - f0 - c)
-        if f1 <= rho * f0 or c <= 0.0:
-            continue
-        beta = min(beta, (-g + math.sqrt(max(g * g + c * (rho - 1.0) * f0, 0.0))) / c)
-    if beta >= 1.0:
-        return shown, 1.0
-    beta = max(beta, 0.0)
-    return (target + np.float32(beta) * (shown - target)).astype(np.float32), beta
+    ``rho`` times its objective for the target shown as it is (the product's guard,
+    :func:`vrcorrect.solvers.guard.guard_blend`, which ``vrcorrect correct --guard`` runs), and ``b``."""
+    from vrcorrect.solvers.guard import guard_blend
+
+    done = guard_blend(shown, target, [make_problem(target, d.nominal, d.nominal_reference) for d in guards], rho)
+    return done.image, done.weight
 
 
 def _case(display_name: str, name: str):
@@ -762,19 +752,23 @@ def main(argv: list[str]) -> int:
                 else:
                     with _paper_capped(paper) if paper is not None else contextlib.nullcontext():
                         shown = solve(problem, "fast").image
-                beta = 1.0
+                beta, unguarded = 1.0, shown
                 if args.guard is not None:                                       # the objective guard
                     shown, beta = guarded(shown, target, [e for (e, _, _), (_, o) in zip(seen, SEEN) if o != 0.0],
                                           args.guard)
-                gains, share = [], float("nan")
+                gains, share, plain, plain_share = [], float("nan"), [], float("nan")
                 for exact, none, ceiling in seen:
                     gain = evaluate_seen(shown, target, exact.nominal, display)[0].jod - none
                     gains.append(gain)
+                    # with the guard acting, the unguarded correction too (blend 1: the same image)
+                    plain.append(gain if beta >= 1.0 else
+                                 evaluate_seen(unguarded, target, exact.nominal, display)[0].jod - none)
                     if ceiling is not None:
-                        share = gain / ceiling
+                        share, plain_share = gain / ceiling, plain[-1] / ceiling
                 print(f"  {display_name:8s} {name:15s} light {p:.2f} mm  least {min(gains):+.3f}  share at 3 mm "
                       f"{share:4.0%}  gains " + " ".join(f"{g:+.2f}" for g in gains) + (f"  {judged}" if judged else "")
-                      + (f"  blend {beta:.2f}" if args.guard is not None else ""),
+                      + (f"  blend {beta:.2f} (unguarded: least {min(plain):+.3f}, share {plain_share:4.0%})"
+                         if args.guard is not None else ""),
                       flush=True)
         print(f"  ({time.perf_counter() - t0:.0f} s)")
     return 0

@@ -51,6 +51,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
     _check_options(args)
     check_readable(args.input)                      # before the heavy imports: a typo is told at once
     from ..solvers import make_problem, objective, solve  # on use: start-up time (apps/__init__)
+    from ..solvers.guard import guard_blend  # on use: start-up time (apps/__init__)
     from ..solvers.problem import (
         make_design_problem,  # on use: start-up time (apps/__init__: the parser loads no layer below)
     )
@@ -68,6 +69,8 @@ def cmd_correct(args: argparse.Namespace) -> int:
         print(f"vrcorrect: {line}", flush=True)          # stdout: an error stays the one line on stderr
     t0 = time.perf_counter()
     design = build_design(args, eye, display, pupil, args.reference, band=band)
+    rho = parse_guard(args.guard)
+    guards = _guard_designs(args, eye, display, pupil) if rho is not None else []
     kernel, reference = design.kernel, design.reference
     t1 = time.perf_counter()
     small = small_image_note(image.shape[1], image.shape[0], kernel.size, "the correction")
@@ -92,6 +95,11 @@ def cmd_correct(args: argparse.Namespace) -> int:
     finally:
         if bar is not None:
             bar.close()
+    guarded = None
+    if rho is not None:
+        guarded = guard_blend(result.image, target, _guard_problems(target, guards, args.contrast), rho)
+        result.image = guarded.image
+        result.objective = objective(result.image, problem)
     t3 = time.perf_counter()
     outputs = [(out, png_writer(out, encode(display, result.image), bits=16 if args.sixteen_bit else 8))]
     if args.report:
@@ -108,6 +116,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
             "objective": result.objective, "objective_uncorrected": objective(target, problem),
             "metrics": corrected.__dict__, "metrics_uncorrected": uncorrected.__dict__,
             "settings": result.settings, "kernel_decisions": kernel_decisions(seen),
+            "guard": _guard_report(rho, guarded),
         }
         outputs.append((Path(args.report), _report_writer(report, notes)))
     t4 = time.perf_counter()
@@ -124,8 +133,79 @@ def cmd_correct(args: argparse.Namespace) -> int:
     parts.append(f"start-up, reading and writing {duration_text(rest)}")
     print(f"wrote {out}: {result.method} correction for the {args.eye} eye on {display.title}, {design_text} "
           f"(objective {result.objective:.3g})" + (f"; report {args.report}" if args.report else ""))
+    if guarded is not None:
+        print("  " + _guard_text(rho, guarded))
+    elif _sphere_alone(eye):
+        print_notes([SPHERE_ALONE_NOTE])
     print(f"  took {duration_text(time.perf_counter() - started)}: " + ", ".join(parts))
     return 0
+
+
+#: What ``correct`` says, without ``--guard``, for an eye of sphere alone (docs/realtime.md, "Eyes of sphere alone").
+SPHERE_ALONE_NOTE = ("an eye of sphere alone may see this correction worse than none if it is 0.5 D nearer focus "
+                     "than prescribed; --guard 1.25 blends the correction towards the picture where the objective "
+                     "sees that harm (docs/realtime.md, 'Eyes of sphere alone')")
+
+
+def _sphere_alone(eye) -> bool:
+    """Whether the eye's correction is sphere alone (a cylinder under 0.25 D): the eyes the default band
+    has been seen to fail 0.5 D nearer focus."""
+    return abs(float(eye.cylinder_D)) < 0.25
+
+
+#: The factors ``--guard`` takes: 1 (never worse than none, by the objective) to 10.
+GUARD_RANGE = (1.0, 10.0)
+
+
+def parse_guard(text: str) -> float | None:
+    """``--guard``: None (``off``) or the factor RHO, refused outside 1..10 naming the flag."""
+    lo, hi = GUARD_RANGE
+    allowed = (f"off, or a factor from {lo:g} to {hi:g}: the most error, times none's, the eye with the sphere "
+               "0.5 D off may see")
+    if str(text).strip().lower() == "off":
+        return None
+    try:
+        rho = float(text)
+    except ValueError:
+        raise ValidationError("--guard", text, allowed) from None
+    if not (lo <= rho <= hi):                        # NaN too
+        raise ValidationError("--guard", text, allowed)
+    return rho
+
+
+def _guard_designs(args: argparse.Namespace, eye, display, pupil: float) -> list:
+    """The guard eyes (``--guard``): the prescription with the sphere 0.5 D off either way, seen at the
+    viewing pupil, each a design of one eye."""
+    from ..solvers.guard import GUARD_SPHERE_D  # on use: start-up time (apps/__init__)
+
+    return [build_design(args, eye.with_changes(sphere_D=eye.sphere_D + s), display, pupil, args.reference,
+                         robust=False) for s in (-GUARD_SPHERE_D, GUARD_SPHERE_D)]
+
+
+def _guard_problems(target: np.ndarray, designs: list, contrast: float) -> list:
+    from ..solvers import make_problem  # on use: start-up time (apps/__init__)
+
+    return [make_problem(target, d.nominal, d.nominal_reference, contrast=contrast) for d in designs]
+
+
+def _guard_report(rho: float | None, guarded) -> dict | None:
+    """The report's ``guard``: null without ``--guard``."""
+    if guarded is None:
+        return None
+    return {"rho": rho, "sphere_offsets_D": [-0.5, 0.5], "weight": guarded.weight,
+            "objective_ratio_before": list(guarded.ratios("before")),
+            "objective_ratio_after": list(guarded.ratios("after"))}
+
+
+def _guard_text(rho: float, guarded) -> str:
+    """The guard in words, for the command's output."""
+    worst = max(guarded.ratios("before"))
+    if guarded.weight >= 1.0:
+        return (f"guard {rho:g}: the correction shown as designed (the eyes with the sphere 0.5 D off see at most "
+                f"{worst:.2f} x none's error by the objective)")
+    return (f"guard {rho:g}: the correction shown {guarded.weight:.2f} of the way from the picture to it (an eye with "
+            f"the sphere 0.5 D off would have seen {worst:.2f} x none's error by the objective; now "
+            f"{max(guarded.ratios('after')):.2f} x)")
 
 
 def _band_name(design) -> str | None:
@@ -161,6 +241,7 @@ def _check_options(args: argparse.Namespace) -> None:
     if args.model is not None and args.method != Method.LEARNED:
         raise ValidationError("--model", args.model, "only with --method learned")
     parse_pupil(args.pupil)
+    parse_guard(args.guard)
 
 
 def _eye_and_model(args: argparse.Namespace):
@@ -219,7 +300,10 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
         simulate_lms,
     )
 
+    from ..solvers.guard import guard_blend  # on use: start-up time (apps/__init__)
+
     learned, rx_path, eye, display, age = _eye_and_model(args)
+    rho, guards = parse_guard(args.guard), {}
     clip = plan.clip
     print_notes(clip.notes)
     check_memory(args.method, clip.size[1], clip.size[0])
@@ -250,7 +334,14 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
                                               design.kernel, design.reference, problem.capped)
                 last_design = design
                 result = solve(problem, args.method, **options)
+                if rho is not None:                 # the guard eyes at this frame's pupil, built once per pupil
+                    if pupil not in guards:
+                        guards[pupil] = _guard_designs(args, eye, display, pupil)
+                    guarded = guard_blend(result.image, linear, _guard_problems(linear, guards[pupil], args.contrast),
+                                          rho)
+                    result.image, result.objective = guarded.image, objective(guarded.image, problem)
                 entry = {"source_frame": source, "objective": result.objective, "band": _band_name(design),
+                         "guard_weight": guarded.weight if rho is not None else None,
                          "objective_uncorrected": objective(problem.target, problem) if args.report else None,
                          "iterations": result.iterations, "seconds": result.seconds}
                 if scored:
@@ -278,6 +369,12 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     print(f"  took {duration_text(time.perf_counter() - started)}: eye model {duration_text(design_for.seconds)}, "
           f"{_solve_text(args.method, int(np.median([f['iterations'] for f in per_frame])))} "
           f"{duration_text(sum(f['seconds'] for f in per_frame))} for the frames")
+    if rho is not None:
+        weights = [f["guard_weight"] for f in per_frame]
+        print(f"  guard {rho:g}: {sum(w < 1.0 for w in weights)} of {len(weights)} frames blended towards the "
+              f"picture (the least weight {min(weights):.2f})")
+    elif _sphere_alone(eye):
+        print_notes([SPHERE_ALONE_NOTE])
     return 0
 
 
@@ -314,6 +411,8 @@ def _clip_report(args, plan: clips.ClipPlan, rx_path, display, result, reference
         "metrics": metrics,
         "frames": per_frame,
         "settings": result.settings, "kernel_decisions": kernel_decisions(kernel),
+        "guard": None if parse_guard(args.guard) is None else {"rho": parse_guard(args.guard),
+                                                                 "sphere_offsets_D": [-0.5, 0.5]},
     }
 
 
@@ -357,6 +456,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--reference", choices=("glasses", "ideal"), default="glasses",
                    help="target: what the eye sees with glasses (default) or the paper's blur-free A t")
     p.add_argument("--report", metavar="REPORT.json", help="write metrics, timings and settings")
+    p.add_argument("--guard", default="off", metavar="RHO|off",
+                   help="blend the correction towards the picture until the eye with the sphere 0.5 D off either "
+                        "way sees at most RHO (1 to 10) times the error it sees with no correction, by the "
+                        "objective; 1.25 spares most eyes of sphere alone that are nearer focus than prescribed "
+                        "(default off: the correction as designed)")
     p.add_argument("--16bit", dest="sixteen_bit", action="store_true", help="write a 16-bit PNG")
     clips.add_clip_options(p, fps_help="a clip: resample it in time to F frames per second (source frames "
                                        "repeated or dropped by presentation time; default: each source frame once)")

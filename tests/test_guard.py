@@ -1,0 +1,161 @@
+"""The objective guard (``vrcorrect correct --guard RHO``): the correction blended towards the picture
+until the eyes with the sphere 0.5 D off see at most RHO times none's objective."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from vrcorrect.apps.cli import main
+from vrcorrect.physics.robust import design_eye
+from vrcorrect.solvers import make_problem, objective, solve
+from vrcorrect.solvers.guard import guard_blend
+from vrcorrect.solvers.problem import make_design_problem
+from vrcorrect.specs.display import decode, get_display
+from vrcorrect.specs.prescription import EyeRx
+
+SIZE = 48
+
+
+def _picture() -> np.ndarray:
+    from skimage import data, transform
+
+    image = transform.resize(data.astronaut()[40:240, 140:340], (SIZE, SIZE), anti_aliasing=True)
+    return decode(get_display("desktop"), (image * 255).round() / 255.0).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def near_focus_case():
+    """A -0.50 D eye of sphere alone on the desktop monitor at 3 mm, its one-eye ``fast`` correction, and
+    the problems of the eyes with the sphere 0.5 D off (the eye nearer focus sees the correction worse
+    than none by the objective: the case the guard is for)."""
+    display = get_display("desktop")
+    eye = EyeRx(sphere_D=-0.5, cylinder_D=0.0, axis_deg=0.0, pupil_diameter_mm=4.0)
+    target = _picture()
+    design = design_eye(eye, display, 3.0, robust=False)
+    shown = solve(make_design_problem(target, design), "fast").image
+    guards = [design_eye(eye.with_changes(sphere_D=eye.sphere_D + s), display, 3.0, robust=False) for s in (-0.5, 0.5)]
+    problems = [make_problem(target, g.nominal, g.nominal_reference) for g in guards]
+    return target, shown, problems
+
+
+def test_the_objective_of_a_blend_is_the_quadratic_the_guard_reads_off_three_points(near_focus_case):
+    target, shown, problems = near_focus_case
+    for problem in problems:
+        f0, fh, f1 = (objective(target + b * (shown - target), problem) for b in (0.0, 0.5, 1.0))
+        c = 2.0 * (f1 - 2.0 * fh + f0)
+        g = 0.5 * (f1 - f0 - c)
+        for b in (0.2, 0.7, 0.9):
+            exact = objective((target + np.float32(b) * (shown - target)).astype(np.float32), problem)
+            assert exact == pytest.approx(f0 + 2 * g * b + c * b * b, rel=1e-4, abs=1e-12)
+
+
+@pytest.mark.parametrize("rho", [1.0, 1.25])
+def test_the_guard_keeps_each_eye_within_rho_of_none_with_the_largest_weight(near_focus_case, rho):
+    target, shown, problems = near_focus_case
+    guarded = guard_blend(shown, target, problems, rho)
+    assert max(guarded.ratios("before")) > 1.25          # the case is one the guard must act on
+    assert 0.0 <= guarded.weight < 1.0
+    assert max(guarded.ratios("after")) <= rho * (1 + 1e-5)
+    after = [objective(guarded.image, p) / objective(target, p) for p in problems]
+    assert np.allclose(after, guarded.ratios("after"), rtol=1e-6)
+    # the largest such weight: a little more correction breaks the bound for one eye
+    more = (target + np.float32(min(guarded.weight + 0.03, 1.0)) * (shown - target)).astype(np.float32)
+    assert max(objective(more, p) / objective(target, p) for p in problems) > rho
+    # and the blend is the picture moved towards the correction, in range
+    assert guarded.image.min() >= 0.0 and guarded.image.max() <= 1.0
+    assert np.allclose(guarded.image, target + guarded.weight * (shown - target), atol=1e-6)
+
+
+def test_a_loose_guard_shows_the_correction_as_it_is(near_focus_case):
+    target, shown, problems = near_focus_case
+    guarded = guard_blend(shown, target, problems, 10.0)
+    assert max(guarded.ratios("before")) <= 10.0
+    assert guarded.weight == 1.0
+    assert np.array_equal(guarded.image, shown)
+
+
+def test_on_a_black_frame_any_light_is_harm_and_the_picture_is_shown(near_focus_case):
+    """A black picture: none's objective is 0, so a correction that adds light (here: a grey) is blended
+    back to black entirely; the ratio of a black frame's black correction is 1, not a division by 0."""
+    _, _, problems = near_focus_case
+    black = np.zeros((SIZE, SIZE, 3), np.float32)
+    black_problems = [make_problem(black, p.kernel, p.reference_kernel) for p in problems]
+    guarded = guard_blend(np.full_like(black, 0.2), black, black_problems, 1.25)
+    assert guarded.weight == 0.0 and not guarded.image.any()
+    same = guard_blend(black, black, black_problems, 1.0)
+    assert same.weight == 1.0 and same.ratios("before") == (1.0, 1.0)
+
+
+def test_a_white_frame_is_left_as_it_is(near_focus_case):
+    """A white picture is its own best correction (nothing in range can sharpen a uniform field): the
+    guard has nothing to blend."""
+    _, _, problems = near_focus_case
+    white = np.ones((SIZE, SIZE, 3), np.float32)
+    white_problems = [make_problem(white, p.kernel, p.reference_kernel) for p in problems]
+    guarded = guard_blend(white, white, white_problems, 1.0)
+    assert guarded.weight == 1.0 and np.array_equal(guarded.image, white)
+
+
+@pytest.mark.parametrize("rho", [0.99, float("nan"), float("inf")])
+def test_a_factor_below_one_or_not_finite_is_refused(near_focus_case, rho):
+    from vrcorrect.plumbing.errors import ValidationError
+
+    target, shown, problems = near_focus_case
+    with pytest.raises(ValidationError, match="guard.*finite factor of at least 1"):
+        guard_blend(shown, target, problems, rho)
+
+
+@pytest.fixture()
+def sphere_alone(tmp_path: Path) -> tuple[Path, Path]:
+    from skimage import data, transform
+
+    image = transform.resize(data.astronaut()[40:240, 140:340], (SIZE, SIZE), anti_aliasing=True)
+    picture = tmp_path / "in.png"
+    Image.fromarray((image * 255).round().astype(np.uint8)).save(picture)
+    rx = tmp_path / "rx.json"
+    eye = {"sphere_D": -0.5, "cylinder_D": 0.0, "axis_deg": 0, "pupil_diameter_mm": 4.0, "accommodation_D": 0.0}
+    rx.write_text(json.dumps({"schema": "vrcorrect.prescription/1", "right": eye, "left": eye}))
+    return picture, rx
+
+
+@pytest.mark.parametrize("value", ["0.5", "11", "nan", "loose"])
+def test_correct_refuses_a_bad_guard_before_any_work(tmp_path, sphere_alone, value, capsys):
+    picture, rx = sphere_alone
+    out = tmp_path / "out.png"
+    assert main(["correct", str(picture), "-o", str(out), "--rx", str(rx), "--guard", value]) == 2
+    err = capsys.readouterr().err
+    assert "--guard" in err and value in err and "from 1 to 10" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+@pytest.mark.cvvdp                                   # --report judges what the eye sees with ColorVideoVDP
+def test_correct_with_a_guard_reports_the_blend_and_without_one_says_why_it_might_be_wanted(tmp_path, sphere_alone,
+                                                                                             capsys):
+    """The -0.50 D eye of sphere alone at 3 mm: with --guard 1 the report holds the weight and each guard
+    eye's objective over none's (at most 1 after), and the output says it; without --guard, the command
+    notes that an eye of sphere alone may see the correction worse than none, and names the flag."""
+    picture, rx = sphere_alone
+    out, report = tmp_path / "out.png", tmp_path / "r.json"
+    assert main(["correct", str(picture), "-o", str(out), "--rx", str(rx), "--pupil", "3", "--robust", "off",
+                 "--guard", "1", "--report", str(report)]) == 0
+    said = capsys.readouterr()
+    guard = json.loads(report.read_text())["guard"]
+    assert guard["rho"] == 1.0 and 0.0 <= guard["weight"] < 1.0
+    assert max(guard["objective_ratio_before"]) > 1.0 and max(guard["objective_ratio_after"]) <= 1.0 + 1e-5
+    assert f"guard 1: the correction shown {guard['weight']:.2f} of the way" in said.out
+    assert "--guard" not in said.err
+    assert main(["correct", str(picture), "-o", str(tmp_path / "plain.png"), "--rx", str(rx), "--pupil", "3",
+                 "--robust", "off"]) == 0
+    said = capsys.readouterr()
+    assert "eye of sphere alone" in said.err and "--guard 1.25" in said.err
+    plain = np.asarray(Image.open(tmp_path / "plain.png"), np.float64)
+    guarded = np.asarray(Image.open(out), np.float64)
+    source = np.asarray(Image.open(picture), np.float64)
+    # the guarded image lies between the picture and the plain correction (sRGB code values: not exactly)
+    assert np.abs(guarded - source).mean() < np.abs(plain - source).mean()
