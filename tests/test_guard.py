@@ -159,3 +159,23 @@ def test_correct_with_a_guard_reports_the_blend_and_without_one_says_why_it_migh
     source = np.asarray(Image.open(picture), np.float64)
     # the guarded image lies between the picture and the plain correction (sRGB code values: not exactly)
     assert np.abs(guarded - source).mean() < np.abs(plain - source).mean()
+
+
+@pytest.mark.cvvdp                                   # a clip's --report scores it with ColorVideoVDP
+def test_a_clip_is_guarded_frame_by_frame_as_each_still_is(tmp_path, sphere_alone, capsys):
+    """Each frame of a clip corrected with --guard is the guarded still of that frame; the report gives
+    each frame's weight and the output how many frames were blended."""
+    picture, rx = sphere_alone
+    source = np.asarray(Image.open(picture))
+    clip = tmp_path / "clip"
+    clip.mkdir()
+    for i in range(3):
+        Image.fromarray(np.roll(source, 3 * i, axis=1)).save(clip / f"shot{i + 1}.png")
+    common = ["--rx", str(rx), "--pupil", "3", "--robust", "off", "--guard", "1"]
+    out, report = tmp_path / "shown", tmp_path / "r.json"
+    assert main(["correct", str(clip), "-o", str(out), "--report", str(report), *common]) == 0
+    frames = json.loads(report.read_text())["frames"]
+    assert all(0.0 <= f["guard_weight"] < 1.0 for f in frames), frames
+    assert "3 of 3 frames blended towards the picture" in capsys.readouterr().out
+    assert main(["correct", str(clip / "shot2.png"), "-o", str(tmp_path / "still.png"), *common]) == 0
+    assert np.array_equal(np.asarray(Image.open(out / "frame_00001.png")), np.asarray(Image.open(tmp_path / "still.png")))
