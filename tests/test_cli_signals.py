@@ -348,6 +348,18 @@ def other_thread():
     worker.join(timeout=5)
 
 
+def _writes_two(out: Path):
+    """A command that writes ``a.txt`` and ``b.txt`` into ``out`` together (``write_together``)."""
+    from vrcorrect.plumbing import fileio
+
+    def command(args):
+        fileio.write_together([(out / "a.txt", lambda p: p.write_text("a")),
+                               (out / "b.txt", lambda p: p.write_text("b"))])
+        return 0
+
+    return command
+
+
 def test_a_signal_delivered_to_another_thread_waits_for_the_renames(tmp_path, monkeypatch, capsys, other_thread):
     """The kernel may deliver a SIGTERM to any thread that does not block it (a BLAS worker, say);
     Python then runs the handler in the main thread, whose signal mask does not stop it.  While a
@@ -373,11 +385,7 @@ def test_a_signal_delivered_to_another_thread_waits_for_the_renames(tmp_path, mo
     out = tmp_path / "out"
     out.mkdir()
 
-    def command(args):
-        fileio.write_together([(out / "a.txt", lambda p: p.write_text("a")),
-                               (out / "b.txt", lambda p: p.write_text("b"))])
-        return 0
-
+    command = _writes_two(out)
     cli = _cli_running(monkeypatch, command)
     assert cli.main([]) == 128 + signal.SIGTERM
     assert capsys.readouterr().err.strip().splitlines() == ["vrcorrect: terminated (SIGTERM)"]
@@ -433,11 +441,7 @@ def test_a_signal_as_a_temporary_file_is_made_leaves_none(tmp_path, monkeypatch,
     out = tmp_path / "out"
     out.mkdir()
 
-    def command(args):
-        fileio.write_together([(out / "a.txt", lambda p: p.write_text("a")),
-                               (out / "b.txt", lambda p: p.write_text("b"))])
-        return 0
-
+    command = _writes_two(out)
     cli = _cli_running(monkeypatch, command)
     assert cli.main([]) == 128 + signal.SIGTERM
     assert capsys.readouterr().err.strip().splitlines() == ["vrcorrect: terminated (SIGTERM)"]
