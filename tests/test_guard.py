@@ -1,5 +1,6 @@
-"""The objective guard (``vrcorrect correct --guard RHO``): the correction blended towards the picture
-until the eyes with the sphere 0.5 D off see at most RHO times none's objective."""
+"""The guard (``vrcorrect correct --guard RHO``): the correction blended towards the picture until the
+eyes with the sphere 0.5 D off see at most RHO times none's objective; with ``--guard-measure
+lightness``, a lightness-like error, over those eyes and the prescribed eye at 2.5 to 5.5 mm."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from PIL import Image
 from vrcorrect.apps.cli import main
 from vrcorrect.physics.robust import design_eye
 from vrcorrect.solvers import make_problem, objective, solve
-from vrcorrect.solvers.guard import guard_blend
+from vrcorrect.solvers.guard import LIGHTNESS_STEPS, guard_blend, lightness_error
 from vrcorrect.solvers.problem import make_design_problem
 from vrcorrect.specs.display import decode, get_display
 from vrcorrect.specs.prescription import EyeRx
@@ -110,6 +111,60 @@ def test_a_factor_below_one_or_not_finite_is_refused(near_focus_case, rho):
         guard_blend(shown, target, problems, rho)
 
 
+def test_the_lightness_error_sees_a_dark_grounds_error_the_objective_barely_weighs(near_focus_case):
+    """The same error of light (0.01 of white, added to a third of the picture) on a dark and on a bright
+    grey, seen by one eye against its own view of the grey (so that the image's border, dark to a wide
+    blur, is the same in both): the objective, linear in light, weighs both alike; the lightness-like
+    error weighs the dark one several times more, as the eye does."""
+    _, _, problems = near_focus_case
+    problem = problems[0]
+    ratios = {}
+    for name, level in (("dark", 0.02), ("bright", 0.8)):
+        flat = np.full((SIZE, SIZE, 3), level, np.float32)
+        off = flat.copy()
+        off[:, : SIZE // 3] += 0.01
+        p = make_problem(flat, problem.kernel, problem.kernel)
+        ratios[name] = (objective(off, p), lightness_error(off, p))
+    assert ratios["dark"][0] == pytest.approx(ratios["bright"][0], rel=0.05)
+    assert ratios["dark"][1] > 5 * ratios["bright"][1]
+    assert lightness_error(np.full((SIZE, SIZE, 3), 0.5, np.float32),
+                           make_problem(np.full((SIZE, SIZE, 3), 0.5, np.float32), problem.kernel,
+                                        problem.kernel)) < 1e-12
+
+
+def test_the_lightness_guard_keeps_each_eye_within_rho_of_none_at_the_largest_grid_weight(near_focus_case):
+    target, shown, problems = near_focus_case
+    guarded = guard_blend(shown, target, problems, 1.0, measure="lightness")
+    assert guarded.measure == "lightness"
+    assert max(guarded.ratios("before")) > 1.0           # the case is one the guard must act on
+    assert 0.0 <= guarded.weight < 1.0
+    assert round(guarded.weight * LIGHTNESS_STEPS) == pytest.approx(guarded.weight * LIGHTNESS_STEPS, abs=1e-9)
+    after = [lightness_error(guarded.image, p) / lightness_error(target, p) for p in problems]
+    assert max(after) <= 1.0 + 1e-5
+    assert np.allclose(after, guarded.ratios("after"), rtol=1e-4)
+    step = (target + np.float32(guarded.weight + 1.0 / LIGHTNESS_STEPS) * (shown - target)).astype(np.float32)
+    assert max(lightness_error(step, p) / lightness_error(target, p) for p in problems) > 1.0
+    assert np.allclose(guarded.image, target + guarded.weight * (shown - target), atol=1e-6)
+
+
+def test_the_lightness_guard_blacks_out_light_added_to_black_and_leaves_white(near_focus_case):
+    _, _, problems = near_focus_case
+    for level, shown_level, weight in ((0.0, 0.2, 0.0), (1.0, 1.0, 1.0)):
+        flat = np.full((SIZE, SIZE, 3), level, np.float32)
+        flat_problems = [make_problem(flat, p.kernel, p.reference_kernel) for p in problems]
+        guarded = guard_blend(np.full_like(flat, shown_level), flat, flat_problems, 1.0, measure="lightness")
+        assert guarded.weight == weight
+        assert np.array_equal(guarded.image, flat)
+
+
+def test_an_unknown_measure_is_refused(near_focus_case):
+    from vrcorrect.plumbing.errors import ValidationError
+
+    target, shown, problems = near_focus_case
+    with pytest.raises(ValidationError, match="measure.*objective, lightness"):
+        guard_blend(shown, target, problems, 1.0, measure="jod")
+
+
 @pytest.fixture()
 def sphere_alone(tmp_path: Path) -> tuple[Path, Path]:
     from skimage import data, transform
@@ -148,12 +203,13 @@ def test_correct_with_a_guard_reports_the_blend_and_without_one_says_why_it_migh
     guard = json.loads(report.read_text())["guard"]
     assert guard["rho"] == 1.0 and 0.0 <= guard["weight"] < 1.0
     assert max(guard["objective_ratio_before"]) > 1.0 and max(guard["objective_ratio_after"]) <= 1.0 + 1e-5
-    assert f"guard 1: the correction shown {guard['weight']:.2f} of the way" in said.out
+    # at 1, an eye whose error rises from the picture's at once allows no part of the correction
+    assert guard["weight"] == 0.0 and "guard 1: the picture shown uncorrected" in said.out
     assert "--guard" not in said.err
     assert main(["correct", str(picture), "-o", str(tmp_path / "plain.png"), "--rx", str(rx), "--pupil", "3",
                  "--robust", "off"]) == 0
     said = capsys.readouterr()
-    assert "eye of sphere alone" in said.err and "--guard 1.25" in said.err
+    assert "eye of sphere alone" in said.err and "--guard 1.25" in said.err and "--guard-measure lightness" in said.err
     plain = np.asarray(Image.open(tmp_path / "plain.png"), np.float64)
     guarded = np.asarray(Image.open(out), np.float64)
     source = np.asarray(Image.open(picture), np.float64)
@@ -162,7 +218,8 @@ def test_correct_with_a_guard_reports_the_blend_and_without_one_says_why_it_migh
 
 
 @pytest.mark.cvvdp                                   # a clip's --report scores it with ColorVideoVDP
-def test_a_clip_is_guarded_frame_by_frame_as_each_still_is(tmp_path, sphere_alone, capsys):
+@pytest.mark.parametrize("measure", ["objective", "lightness"])
+def test_a_clip_is_guarded_frame_by_frame_as_each_still_is(tmp_path, sphere_alone, capsys, measure):
     """Each frame of a clip corrected with --guard is the guarded still of that frame; the report gives
     each frame's weight and the output how many frames were blended."""
     picture, rx = sphere_alone
@@ -171,11 +228,57 @@ def test_a_clip_is_guarded_frame_by_frame_as_each_still_is(tmp_path, sphere_alon
     clip.mkdir()
     for i in range(3):
         Image.fromarray(np.roll(source, 3 * i, axis=1)).save(clip / f"shot{i + 1}.png")
-    common = ["--rx", str(rx), "--pupil", "3", "--robust", "off", "--guard", "1"]
+    common = ["--rx", str(rx), "--pupil", "3", "--robust", "off", "--guard", "1", "--guard-measure", measure]
     out, report = tmp_path / "shown", tmp_path / "r.json"
     assert main(["correct", str(clip), "-o", str(out), "--report", str(report), *common]) == 0
-    frames = json.loads(report.read_text())["frames"]
+    written = json.loads(report.read_text())
+    assert written["guard"]["measure"] == measure
+    frames = written["frames"]
     assert all(0.0 <= f["guard_weight"] < 1.0 for f in frames), frames
     assert "3 of 3 frames blended towards the picture" in capsys.readouterr().out
     assert main(["correct", str(clip / "shot2.png"), "-o", str(tmp_path / "still.png"), *common]) == 0
     assert np.array_equal(np.asarray(Image.open(out / "frame_00001.png")), np.asarray(Image.open(tmp_path / "still.png")))
+
+
+def test_a_guard_measure_without_a_guard_is_refused(tmp_path, sphere_alone, capsys):
+    picture, rx = sphere_alone
+    out = tmp_path / "out.png"
+    assert main(["correct", str(picture), "-o", str(out), "--rx", str(rx), "--guard-measure", "lightness"]) == 2
+    err = capsys.readouterr().err
+    assert "--guard-measure" in err and "lightness" in err and "only with --guard" in err
+    assert len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+@pytest.mark.cvvdp                                   # --report judges what the eye sees with ColorVideoVDP
+def test_correct_with_the_lightness_guard_reports_six_guard_eyes_within_none(tmp_path, sphere_alone, capsys):
+    """--guard 1 --guard-measure lightness: the six guard eyes (the sphere 0.5 D off either way, then the
+    pupils 2.5, 3, 4, 5.5 mm) each see at most none's lightness-like error after the blend; the weight is
+    on the grid; the eye as designed (3 mm, the prescribed sphere) sees the correction better than none
+    before any blend."""
+    picture, rx = sphere_alone
+    out, report = tmp_path / "out.png", tmp_path / "r.json"
+    assert main(["correct", str(picture), "-o", str(out), "--rx", str(rx), "--pupil", "3", "--robust", "off",
+                 "--guard", "1", "--guard-measure", "lightness", "--report", str(report)]) == 0
+    said = capsys.readouterr().out
+    guard = json.loads(report.read_text())["guard"]
+    assert guard["measure"] == "lightness" and guard["pupils_mm"] == [2.5, 3.0, 4.0, 5.5]
+    assert guard["sphere_offsets_D"] == [-0.5, 0.5]
+    before, after = guard["lightness_ratio_before"], guard["lightness_ratio_after"]
+    assert len(before) == len(after) == 6
+    assert before[3] < 1.0                           # the 3 mm eye: the one designed for
+    assert max(before) > 1.0 and max(after) <= 1.0 + 1e-9
+    assert 0.0 <= guard["weight"] < 1.0 and (guard["weight"] * 40) == pytest.approx(round(guard["weight"] * 40))
+    assert "lightness-like error" in said and "a pupil of 2.5 to 5.5 mm" in said
+
+
+def test_the_guard_says_the_picture_is_shown_uncorrected_when_no_part_of_the_correction_is_kept():
+    from vrcorrect.apps.correct import _guard_text
+    from vrcorrect.solvers.guard import Guarded
+
+    image = np.zeros((2, 2, 3), np.float32)
+    none = Guarded(image=image, weight=0.0, before=(1.4, 0.8), after=(1.0, 1.0), none=(1.0, 1.0), measure="lightness")
+    text = _guard_text(1.0, none)
+    assert "the picture shown uncorrected" in text and "1.40 x none's error by the lightness-like error" in text
+    part = Guarded(image=image, weight=0.5, before=(1.4, 0.8), after=(1.1, 0.9), none=(1.0, 1.0))
+    text = _guard_text(1.25, part)
+    assert "shown 0.50 of the way" in text and "by the objective" in text and "now 1.10 x" in text

@@ -97,7 +97,8 @@ def cmd_correct(args: argparse.Namespace) -> int:
             bar.close()
     guarded = None
     if rho is not None:
-        guarded = guard_blend(result.image, target, _guard_problems(target, guards, args.contrast), rho)
+        guarded = guard_blend(result.image, target, _guard_problems(target, guards, args.contrast), rho,
+                              args.guard_measure)
         result.image = guarded.image
         result.objective = objective(result.image, problem)
     t3 = time.perf_counter()
@@ -144,7 +145,8 @@ def cmd_correct(args: argparse.Namespace) -> int:
 #: What ``correct`` says, without ``--guard``, for an eye of sphere alone (docs/realtime.md, "Eyes of sphere alone").
 SPHERE_ALONE_NOTE = ("an eye of sphere alone may see this correction worse than none if it is 0.5 D nearer focus "
                      "than prescribed; --guard 1.25 blends the correction towards the picture where the objective "
-                     "sees that harm (docs/realtime.md, 'Eyes of sphere alone')")
+                     "sees that harm, and --guard 1 --guard-measure lightness spares more such views at a larger "
+                     "cost to the gain (docs/realtime.md, 'Eyes of sphere alone')")
 
 
 def _sphere_alone(eye) -> bool:
@@ -173,13 +175,33 @@ def parse_guard(text: str) -> float | None:
     return rho
 
 
-def _guard_designs(args: argparse.Namespace, eye, display, pupil: float) -> list:
-    """The guard eyes (``--guard``): the prescription with the sphere 0.5 D off either way, seen at the
-    viewing pupil, each a design of one eye."""
+def _guard_offsets() -> list[float]:
+    """The guard eyes' sphere offsets from the prescription, dioptres."""
     from ..solvers.guard import GUARD_SPHERE_D  # on use: start-up time (apps/__init__)
 
-    return [build_design(args, eye.with_changes(sphere_D=eye.sphere_D + s), display, pupil, args.reference,
-                         robust=False) for s in (-GUARD_SPHERE_D, GUARD_SPHERE_D)]
+    return [-GUARD_SPHERE_D, GUARD_SPHERE_D]
+
+
+def _guard_pupils(measure: str) -> list[float]:
+    """The pupils (mm) through which the prescribed eye is a guard eye too: the lightness guard's."""
+    from ..solvers.guard import GUARD_PUPILS_MM  # on use: start-up time (apps/__init__)
+
+    return list(GUARD_PUPILS_MM) if measure == "lightness" else []
+
+
+def _guard_designs(args: argparse.Namespace, eye, display, pupil: float, fixed: list | None = None) -> list:
+    """The guard eyes (``--guard``), each a design of one eye: the prescription with the sphere 0.5 D
+    off either way, seen at the viewing pupil; then the eyes of :func:`_pupil_guards` (``fixed``: those
+    already built, which no viewing pupil changes; a clip builds them once)."""
+    return ([build_design(args, eye.with_changes(sphere_D=eye.sphere_D + s), display, pupil, args.reference,
+                          robust=False) for s in _guard_offsets()]
+            + (fixed if fixed is not None else _pupil_guards(args, eye, display)))
+
+
+def _pupil_guards(args: argparse.Namespace, eye, display) -> list:
+    """With ``--guard-measure lightness``, the prescribed eye through each pupil of :func:`_guard_pupils`."""
+    return [build_design(args, eye, display, q, args.reference, robust=False)
+            for q in _guard_pupils(args.guard_measure)]
 
 
 def _guard_problems(target: np.ndarray, designs: list, contrast: float) -> list:
@@ -188,24 +210,43 @@ def _guard_problems(target: np.ndarray, designs: list, contrast: float) -> list:
     return [make_problem(target, d.nominal, d.nominal_reference, contrast=contrast) for d in designs]
 
 
+def check_guard(args: argparse.Namespace) -> float | None:
+    """``--guard`` parsed, and ``--guard-measure`` refused without it."""
+    rho = parse_guard(args.guard)
+    if rho is None and args.guard_measure != "objective":
+        raise ValidationError("--guard-measure", args.guard_measure, "only with --guard RHO (the guard is off)")
+    return rho
+
+
 def _guard_report(rho: float | None, guarded) -> dict | None:
-    """The report's ``guard``: null without ``--guard``."""
+    """The report's ``guard``: null without ``--guard``.  The ratios are each guard eye's, in the order
+    of the sphere offsets, then the pupils."""
     if guarded is None:
         return None
-    return {"rho": rho, "sphere_offsets_D": [-0.5, 0.5], "weight": guarded.weight,
-            "objective_ratio_before": list(guarded.ratios("before")),
-            "objective_ratio_after": list(guarded.ratios("after"))}
+    m = guarded.measure
+    return {"rho": rho, "measure": m, "sphere_offsets_D": _guard_offsets(), "pupils_mm": _guard_pupils(m),
+            "weight": guarded.weight, f"{m}_ratio_before": list(guarded.ratios("before")),
+            f"{m}_ratio_after": list(guarded.ratios("after"))}
+
+
+#: The guard eyes and the error, in words, by ``--guard-measure``.
+GUARD_WORDS = {"objective": ("the eyes with the sphere 0.5 D off", "by the objective"),
+               "lightness": ("the eyes with the sphere 0.5 D off or a pupil of 2.5 to 5.5 mm",
+                             "by the lightness-like error")}
 
 
 def _guard_text(rho: float, guarded) -> str:
     """The guard in words, for the command's output."""
+    eyes, error = GUARD_WORDS[guarded.measure]
     worst = max(guarded.ratios("before"))
     if guarded.weight >= 1.0:
-        return (f"guard {rho:g}: the correction shown as designed (the eyes with the sphere 0.5 D off see at most "
-                f"{worst:.2f} x none's error by the objective)")
-    return (f"guard {rho:g}: the correction shown {guarded.weight:.2f} of the way from the picture to it (an eye with "
-            f"the sphere 0.5 D off would have seen {worst:.2f} x none's error by the objective; now "
-            f"{max(guarded.ratios('after')):.2f} x)")
+        return (f"guard {rho:g}: the correction shown as designed ({eyes} see at most {worst:.2f} x none's error "
+                f"{error})")
+    if guarded.weight <= 0.0:
+        return (f"guard {rho:g}: the picture shown uncorrected (one of {eyes} would have seen {worst:.2f} x none's "
+                f"error {error}, and any part of the correction more than {rho:g} x)")
+    return (f"guard {rho:g}: the correction shown {guarded.weight:.2f} of the way from the picture to it (one of "
+            f"{eyes} would have seen {worst:.2f} x none's error {error}; now {max(guarded.ratios('after')):.2f} x)")
 
 
 def _band_name(design) -> str | None:
@@ -241,7 +282,7 @@ def _check_options(args: argparse.Namespace) -> None:
     if args.model is not None and args.method != Method.LEARNED:
         raise ValidationError("--model", args.model, "only with --method learned")
     parse_pupil(args.pupil)
-    parse_guard(args.guard)
+    check_guard(args)
 
 
 def _eye_and_model(args: argparse.Namespace):
@@ -303,7 +344,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     from ..solvers.guard import guard_blend  # on use: start-up time (apps/__init__)
 
     learned, rx_path, eye, display, age = _eye_and_model(args)
-    rho, guards = parse_guard(args.guard), {}
+    rho, guards, fixed = parse_guard(args.guard), {}, None
     clip = plan.clip
     print_notes(clip.notes)
     check_memory(args.method, clip.size[1], clip.size[0])
@@ -336,9 +377,11 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
                 result = solve(problem, args.method, **options)
                 if rho is not None:                 # the guard eyes at this frame's pupil, built once per pupil
                     if pupil not in guards:
-                        guards[pupil] = _guard_designs(args, eye, display, pupil)
+                        if fixed is None:
+                            fixed = _pupil_guards(args, eye, display)
+                        guards[pupil] = _guard_designs(args, eye, display, pupil, fixed)
                     guarded = guard_blend(result.image, linear, _guard_problems(linear, guards[pupil], args.contrast),
-                                          rho)
+                                          rho, args.guard_measure)
                     result.image, result.objective = guarded.image, objective(guarded.image, problem)
                 entry = {"source_frame": source, "objective": result.objective, "band": _band_name(design),
                          "guard_weight": guarded.weight if rho is not None else None,
@@ -359,7 +402,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
         others = []
         if args.report:
             report = _clip_report(args, plan, rx_path, display, result, reference, kernel, per_frame, seen if scored
-                                  else None, design_for.seconds)
+                                  else None, design_for.seconds, rho)
             others.append((Path(args.report), _report_writer(report, list(clip.notes))))
         folder.commit(others)                       # the frames and the report appear together or not at all
     objectives = [f["objective"] for f in per_frame]
@@ -379,7 +422,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
 
 
 def _clip_report(args, plan: clips.ClipPlan, rx_path, display, result, reference, kernel, per_frame: list[dict],
-                 seen: dict[str, list] | None, kernel_s: float) -> dict:
+                 seen: dict[str, list] | None, kernel_s: float, rho: float | None) -> dict:
     """The report of a clip: each frame's objective (and uncorrected), a summary, and ColorVideoVDP
     in video mode of what the eye sees, corrected and uncorrected, against the target."""
     objectives = np.array([f["objective"] for f in per_frame], dtype=np.float64)
@@ -411,8 +454,9 @@ def _clip_report(args, plan: clips.ClipPlan, rx_path, display, result, reference
         "metrics": metrics,
         "frames": per_frame,
         "settings": result.settings, "kernel_decisions": kernel_decisions(kernel),
-        "guard": None if parse_guard(args.guard) is None else {"rho": parse_guard(args.guard),
-                                                                 "sphere_offsets_D": [-0.5, 0.5]},
+        "guard": None if rho is None else {"rho": rho, "measure": args.guard_measure,
+                                           "sphere_offsets_D": _guard_offsets(),
+                                           "pupils_mm": _guard_pupils(args.guard_measure)},
     }
 
 
@@ -461,6 +505,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "way sees at most RHO (1 to 10) times the error it sees with no correction, by the "
                         "objective; 1.25 spares most eyes of sphere alone that are nearer focus than prescribed "
                         "(default off: the correction as designed)")
+    p.add_argument("--guard-measure", choices=("objective", "lightness"), default="objective",
+                   help="with --guard: the error kept within RHO of none's: objective (the default), or lightness, "
+                        "the cube roots of each cone's light relative to white's, which sees errors on a dark "
+                        "ground; lightness also guards the eye as prescribed through pupils of 2.5, 3, 4 and "
+                        "5.5 mm (with --guard 1 it lifts most falls below none, at a cost to the gain: "
+                        "docs/realtime.md, 'Eyes of sphere alone')")
     p.add_argument("--16bit", dest="sixteen_bit", action="store_true", help="write a 16-bit PNG")
     clips.add_clip_options(p, fps_help="a clip: resample it in time to F frames per second (source frames "
                                        "repeated or dropped by presentation time; default: each source frame once)")

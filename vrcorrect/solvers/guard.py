@@ -12,7 +12,12 @@ in [0, 1]), so three evaluations, at ``b`` = 0, 1/2 and 1, give it:
 
 It acts only where the objective sees harm: an eye for whom ``x`` is no worse than ``rho`` times
 none leaves ``b`` at 1.  It does not see every fall that JOD sees (``docs/realtime.md``, "Eyes of
-sphere alone").
+sphere alone"): the objective is linear in light, so an error on a dark ground weighs almost nothing
+in it.  ``measure="lightness"`` guards a lightness-like error instead (:func:`lightness_error`: the
+cube roots of each cone's light relative to white's, plus :data:`LIGHTNESS_FLOOR`), which is not
+quadratic in ``b``; the eye's cone image still is linear in ``b``, so two simulations an eye give
+the error at every ``b`` of a grid of :data:`LIGHTNESS_STEPS` steps, and ``b`` is the largest grid
+point every eye allows (the thirteenth look of ``docs/realtime.md``).
 
 Layer 4: numpy.
 """
@@ -26,12 +31,29 @@ from typing import Sequence
 import numpy as np
 
 from ..plumbing.errors import ValidationError
+from ..vision.forward import simulate_lms
 from .problem import Problem, objective
 
-__all__ = ["GUARD_SPHERE_D", "Guarded", "guard_blend"]
+__all__ = ["GUARD_MEASURES", "GUARD_PUPILS_MM", "GUARD_SPHERE_D", "LIGHTNESS_FLOOR", "LIGHTNESS_STEPS", "Guarded",
+           "guard_blend", "lightness_error"]
 
 #: The guard eyes: the prescription's sphere this far off, either way (the ``Done when`` of issue 44).
 GUARD_SPHERE_D = 0.5
+
+#: The lightness guard's eyes besides those two: the prescribed eye through each of these pupils (the
+#: pupils of the ``Done when`` of issue 44), mm.
+GUARD_PUPILS_MM = (2.5, 3.0, 4.0, 5.5)
+
+#: What the guard keeps each eye's view of the blend within ``rho`` times none's of.
+GUARD_MEASURES = ("objective", "lightness")
+
+#: The lightness-like error's floor, of white's light: a cone's light ``q`` of white's ``w`` counts
+#: as ``(q / w + LIGHTNESS_FLOOR) ** (1/3)``, so that black's slope stays finite (CIELAB's cube root
+#: turns linear below 0.009 of white; this floor does the same work without a seam).
+LIGHTNESS_FLOOR = 0.01
+
+#: The lightness guard's grid of blend weights: ``b`` in ``0, 1/STEPS, ..., 1``.
+LIGHTNESS_STEPS = 40
 
 
 @dataclass(frozen=True)
@@ -44,6 +66,7 @@ class Guarded:
     before: tuple[float, ...]
     after: tuple[float, ...]
     none: tuple[float, ...]
+    measure: str = "objective"
 
     def ratios(self, which: str = "before") -> tuple[float, ...]:
         """Each guard eye's objective over none's (``inf`` where none's is 0 and the image's is not)."""
@@ -63,11 +86,68 @@ def _largest_weight(f0: float, fh: float, f1: float, rho: float) -> float:
     return min(max(root, 0.0), 1.0)
 
 
-def guard_blend(shown: np.ndarray, target: np.ndarray, problems: Sequence[Problem], rho: float) -> Guarded:
+def _lightness(lms: np.ndarray, white: np.ndarray) -> np.ndarray:
+    """Each cone's light as the lightness-like scale: ``cbrt(max(q, 0) / w + LIGHTNESS_FLOOR)`` (float64)."""
+    return np.cbrt(np.maximum(lms.astype(np.float64), 0.0) / white + LIGHTNESS_FLOOR)
+
+
+def _seen_by(problem: Problem):
+    """The cone image an eye's problem sees of a displayed image (a function), and white's cone light."""
+    if problem.members:
+        raise ValidationError("problem", "a robust design", "one eye's problem (the guard judges single eyes)")
+    method = "fft" if problem.kernel.size > 1 else "auto"
+    return (lambda image: simulate_lms(image, problem.kernel, method)[0]), problem.kernel.matrix.sum(axis=1)
+
+
+def lightness_error(displayed: np.ndarray, problem: Problem) -> float:
+    """The mean squared difference, on the lightness-like scale (white's cone light 1), between the
+    cone image of ``displayed`` seen by ``problem``'s eye and the target's cone image (float64).  A
+    dark ground's error weighs here as the eye sees it, where the objective (linear in light) all but
+    ignores it."""
+    seen, white = _seen_by(problem)
+    d = _lightness(seen(np.asarray(displayed, np.float32)), white) - _lightness(problem.target_lms, white)
+    return float(np.mean(d * d))
+
+
+def _lightness_curve(x: np.ndarray, t: np.ndarray, problem: Problem, steps: int) -> np.ndarray:
+    """The lightness error of ``t + b (x - t)`` at ``b = 0, 1/steps, ..., 1`` (the cone image is linear
+    in ``b``: two simulations)."""
+    seen, white = _seen_by(problem)
+    seen_t = seen(t).astype(np.float64)
+    seen_d = seen(x).astype(np.float64) - seen_t
+    goal = _lightness(problem.target_lms, white)
+    out = np.empty(steps + 1)
+    for i in range(steps + 1):
+        d = _lightness(seen_t + (i / steps) * seen_d, white) - goal
+        out[i] = float(np.mean(d * d))
+    return out
+
+
+def _guard_lightness(x: np.ndarray, t: np.ndarray, problems: Sequence[Problem], rho: float) -> Guarded:
+    """:func:`guard_blend` on the lightness-like error."""
+    steps = LIGHTNESS_STEPS
+    allowed = np.ones(steps + 1, bool)
+    curves = []
+    for problem in problems:
+        curve = _lightness_curve(x, t, problem, steps)
+        curves.append(curve)
+        allowed &= curve <= rho * curve[0] * (1.0 + 1e-12)
+    k = int(np.flatnonzero(allowed).max())               # b = 0 is always allowed
+    weight = k / steps
+    image = x if k == steps else (t + np.float32(weight) * (x - t)).astype(np.float32)
+    return Guarded(image=image, weight=weight, before=tuple(float(c[-1]) for c in curves),
+                   after=tuple(float(c[k]) for c in curves), none=tuple(float(c[0]) for c in curves),
+                   measure="lightness")
+
+
+def guard_blend(shown: np.ndarray, target: np.ndarray, problems: Sequence[Problem], rho: float,
+                measure: str = "objective") -> Guarded:
     """``t + b (x - t)`` for a correction ``shown`` (``x``, linear display RGB in [0, 1]) of ``target``
     (``t``), with the largest ``b`` in [0, 1] that keeps every guard eye's objective (``problems``: one
     :class:`~vrcorrect.solvers.problem.Problem` per guard eye, of ``target``) at most ``rho`` times
-    its objective for ``t``.  float64 for the objectives, float32 for the image."""
+    its objective for ``t``.  float64 for the objectives, float32 for the image.  ``measure``
+    (:data:`GUARD_MEASURES`): ``"objective"`` (exact ``b``) or ``"lightness"`` (:func:`lightness_error`,
+    ``b`` on a grid of :data:`LIGHTNESS_STEPS`)."""
     if not (isinstance(rho, (int, float)) and math.isfinite(rho) and rho >= 1.0):
         raise ValidationError("guard", rho, "a finite factor of at least 1 (the most objective, times none's, a "
                                             "guard eye may see)")
@@ -75,6 +155,10 @@ def guard_blend(shown: np.ndarray, target: np.ndarray, problems: Sequence[Proble
     t = np.asarray(target, np.float32)
     if x.shape != t.shape:
         raise ValidationError("shown.shape", x.shape, f"the target's shape {t.shape}")
+    if measure not in GUARD_MEASURES:
+        raise ValidationError("measure", measure, f"one of {', '.join(GUARD_MEASURES)}")
+    if measure == "lightness":
+        return _guard_lightness(x, t, problems, float(rho))
     half = (t + np.float32(0.5) * (x - t)).astype(np.float32)
     weight, before, none = 1.0, [], []
     for problem in problems:
