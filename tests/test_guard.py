@@ -282,3 +282,19 @@ def test_the_guard_says_the_picture_is_shown_uncorrected_when_no_part_of_the_cor
     part = Guarded(image=image, weight=0.5, before=(1.4, 0.8), after=(1.1, 0.9), none=(1.0, 1.0))
     text = _guard_text(1.25, part)
     assert "shown 0.50 of the way" in text and "by the objective" in text and "now 1.10 x" in text
+
+
+def test_the_commands_offer_exactly_the_guards_measures_and_name_each_in_words():
+    """The parsers keep their own copy of the measures (start-up loads no solver); this keeps them in step."""
+    import argparse
+
+    from vrcorrect.apps.cli import build_parser
+    from vrcorrect.apps.correct import GUARD_WORDS
+    from vrcorrect.solvers.guard import GUARD_MEASURES
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    offered = next(a for a in sub.choices["correct"]._actions if a.dest == "guard_measure")
+    assert tuple(offered.choices) == GUARD_MEASURES and offered.default == GUARD_MEASURES[0]
+    assert tuple(GUARD_WORDS) == GUARD_MEASURES
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["correct", "in.png", "-o", "out.png", "--guard", "1", "--guard-measure", "jod"])

@@ -462,6 +462,7 @@ from vrcorrect.plumbing.charts import text_chart
 from vrcorrect.plumbing.images import prepare_image
 from vrcorrect.runtime.pupil_bank import nearest_bank_pupil
 from vrcorrect.solvers import make_problem, solve
+from vrcorrect.solvers.guard import GUARD_MEASURES
 from vrcorrect.solvers.problem import make_design_problem
 from vrcorrect.specs.display import decode, get_display
 from vrcorrect.studies.bench.robust import EYE, IMAGES as HELD_OUT, held_out_image, realtime_still
@@ -689,7 +690,7 @@ def _arguments(argv: list[str]) -> argparse.Namespace:
                     help="the objective guard (eleventh look): the correction blended towards the target, "
                     "t + b (x - t) with the largest b <= 1 that keeps the objective of the eyes with the sphere "
                     "0.5 D off either way (at the light's pupil) at most RHO times none's")
-    ap.add_argument("--guard-measure", choices=("objective", "lightness"), default="objective",
+    ap.add_argument("--guard-measure", choices=GUARD_MEASURES, default="objective",
                     help="with --guard: what the guard keeps within RHO of none (thirteenth look: 'lightness', the "
                     "cube roots of each cone's light relative to white's)")
     ap.add_argument("--guard-pupils", action="store_true",

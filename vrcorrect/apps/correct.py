@@ -48,7 +48,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
     if out.suffix.lower() != ".png":
         raise ValidationError("--output", str(out), "a path ending in .png")
     check_writable(out, force=args.force)
-    _check_options(args)
+    rho = _check_options(args)
     check_readable(args.input)                      # before the heavy imports: a typo is told at once
     from ..solvers import make_problem, objective, solve  # on use: start-up time (apps/__init__)
     from ..solvers.guard import guard_blend  # on use: start-up time (apps/__init__)
@@ -69,7 +69,6 @@ def cmd_correct(args: argparse.Namespace) -> int:
         print(f"vrcorrect: {line}", flush=True)          # stdout: an error stays the one line on stderr
     t0 = time.perf_counter()
     design = build_design(args, eye, display, pupil, args.reference, band=band)
-    rho = parse_guard(args.guard)
     guards = _guard_designs(args, eye, display, pupil) if rho is not None else []
     kernel, reference = design.kernel, design.reference
     t1 = time.perf_counter()
@@ -229,7 +228,8 @@ def _guard_report(rho: float | None, guarded) -> dict | None:
             f"{m}_ratio_after": list(guarded.ratios("after"))}
 
 
-#: The guard eyes and the error, in words, by ``--guard-measure``.
+#: The guard eyes and the error, in words, by ``--guard-measure`` (its choices: the parser loads no solver, so
+#: this copies ``solvers.guard.GUARD_MEASURES``; tests/test_guard.py keeps the two in step).
 GUARD_WORDS = {"objective": ("the eyes with the sphere 0.5 D off", "by the objective"),
                "lightness": ("the eyes with the sphere 0.5 D off or a pupil of 2.5 to 5.5 mm",
                              "by the lightness-like error")}
@@ -262,8 +262,8 @@ def _solve_text(method: str, iterations: int) -> str:
     return f"{method} ({iterations} iterations)"
 
 
-def _check_options(args: argparse.Namespace) -> None:
-    """The report path and the solver options, checked before any work."""
+def _check_options(args: argparse.Namespace) -> float | None:
+    """The report path and the solver options, checked before any work; ``--guard``'s factor (None: off)."""
     if args.report:
         if Path(args.report).suffix.lower() != ".json":
             raise ValidationError("--report", args.report, "a path ending in .json")
@@ -282,7 +282,7 @@ def _check_options(args: argparse.Namespace) -> None:
     if args.model is not None and args.method != Method.LEARNED:
         raise ValidationError("--model", args.model, "only with --method learned")
     parse_pupil(args.pupil)
-    check_guard(args)
+    return check_guard(args)
 
 
 def _eye_and_model(args: argparse.Namespace):
@@ -331,7 +331,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     """Each frame of a clip solved on its own (the offline ceiling), into a folder of frames."""
     started = time.perf_counter()
     folder = clips.output_folder(args, plan)        # checked before any work
-    _check_options(args)
+    rho = _check_options(args)
     from ..solvers import objective, solve  # on use: start-up time (apps/__init__)
     from ..solvers.problem import (
         make_design_problem,  # on use: start-up time (apps/__init__: the parser loads no layer below)
@@ -344,7 +344,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     from ..solvers.guard import guard_blend  # on use: start-up time (apps/__init__)
 
     learned, rx_path, eye, display, age = _eye_and_model(args)
-    rho, guards, fixed = parse_guard(args.guard), {}, None
+    guards, fixed = {}, None
     clip = plan.clip
     print_notes(clip.notes)
     check_memory(args.method, clip.size[1], clip.size[0])
@@ -505,7 +505,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "way sees at most RHO (1 to 10) times the error it sees with no correction, by the "
                         "objective; 1.25 spares most eyes of sphere alone that are nearer focus than prescribed "
                         "(default off: the correction as designed)")
-    p.add_argument("--guard-measure", choices=("objective", "lightness"), default="objective",
+    p.add_argument("--guard-measure", choices=tuple(GUARD_WORDS), default="objective",
                    help="with --guard: the error kept within RHO of none's: objective (the default), or lightness, "
                         "the cube roots of each cone's light relative to white's, which sees errors on a dark "
                         "ground; lightness also guards the eye as prescribed through pupils of 2.5, 3, 4 and "

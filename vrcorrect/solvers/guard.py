@@ -69,7 +69,7 @@ class Guarded:
     measure: str = "objective"
 
     def ratios(self, which: str = "before") -> tuple[float, ...]:
-        """Each guard eye's objective over none's (``inf`` where none's is 0 and the image's is not)."""
+        """Each guard eye's error by :attr:`measure` over none's (``inf`` where none's is 0 and the image's is not)."""
         values = self.before if which == "before" else self.after
         return tuple(v / n if n > 0 else (1.0 if v <= 0 else math.inf) for v, n in zip(values, self.none))
 
