@@ -157,11 +157,56 @@ def test_the_lightness_guard_blacks_out_light_added_to_black_and_leaves_white(ne
         assert np.array_equal(guarded.image, flat)
 
 
+def _visible(image: np.ndarray, problem) -> float:
+    """The visibility scale of what ``problem``'s eye sees of ``image``, by its own simulation."""
+    from vrcorrect.vision.forward import simulate_lms
+    from vrcorrect.vision.visibility import ViewingLight, visibility_error
+
+    seen = simulate_lms(image, problem.kernel, "fft")[0]
+    return visibility_error(seen, problem.target_lms, problem.kernel.matrix.sum(axis=1),
+                            ViewingLight.of(get_display("desktop")))
+
+
+@pytest.mark.parametrize("rho", [1.0, 1.25])
+def test_the_visibility_guard_keeps_each_eye_within_rho_of_none_with_the_largest_weight(near_focus_case, rho):
+    from vrcorrect.vision.visibility import ViewingLight
+
+    target, shown, problems = near_focus_case
+    guarded = guard_blend(shown, target, problems, rho, measure="visibility",
+                          viewing=ViewingLight.of(get_display("desktop")))
+    assert guarded.measure == "visibility" and max(guarded.ratios("before")) > rho
+    assert 0.0 < guarded.weight < 1.0
+    none = [_visible(target, p) for p in problems]
+    assert np.allclose(none, guarded.none, rtol=1e-4)
+    after = [_visible(guarded.image, p) / n for p, n in zip(problems, none)]
+    assert max(after) <= rho * (1 + 1e-4)
+    assert np.allclose(after, guarded.ratios("after"), rtol=1e-4)
+    more = (target + np.float32(min(guarded.weight + 0.03, 1.0)) * (shown - target)).astype(np.float32)
+    assert max(_visible(more, p) / n for p, n in zip(problems, none)) > rho
+
+
+def test_the_visibility_guard_blacks_out_light_added_to_black_leaves_white_and_needs_the_viewing(near_focus_case):
+    from vrcorrect.plumbing.errors import ValidationError
+    from vrcorrect.vision.visibility import ViewingLight
+
+    target, shown, problems = near_focus_case
+    light = ViewingLight.of(get_display("desktop"))
+    for level, shown_level, weight in ((0.0, 0.2, 0.0), (1.0, 1.0, 1.0)):
+        flat = np.full((SIZE, SIZE, 3), level, np.float32)
+        flat_problems = [make_problem(flat, p.kernel, p.reference_kernel) for p in problems]
+        guarded = guard_blend(np.full_like(flat, shown_level), flat, flat_problems, 1.0, measure="visibility",
+                              viewing=light)
+        assert guarded.weight == weight
+        assert np.array_equal(guarded.image, flat)
+    with pytest.raises(ValidationError, match="viewing"):
+        guard_blend(shown, target, problems, 1.0, measure="visibility")
+
+
 def test_an_unknown_measure_is_refused(near_focus_case):
     from vrcorrect.plumbing.errors import ValidationError
 
     target, shown, problems = near_focus_case
-    with pytest.raises(ValidationError, match="measure.*objective, lightness"):
+    with pytest.raises(ValidationError, match="measure.*objective, lightness, visibility"):
         guard_blend(shown, target, problems, 1.0, measure="jod")
 
 
@@ -209,7 +254,7 @@ def test_correct_with_a_guard_reports_the_blend_and_without_one_says_why_it_migh
     assert main(["correct", str(picture), "-o", str(tmp_path / "plain.png"), "--rx", str(rx), "--pupil", "3",
                  "--robust", "off"]) == 0
     said = capsys.readouterr()
-    assert "eye of sphere alone" in said.err and "--guard 1.25" in said.err and "--guard-measure lightness" in said.err
+    assert "eye of sphere alone" in said.err and "--guard 1.25" in said.err and "--guard-measure visibility (or lightness)" in said.err
     plain = np.asarray(Image.open(tmp_path / "plain.png"), np.float64)
     guarded = np.asarray(Image.open(out), np.float64)
     source = np.asarray(Image.open(picture), np.float64)
@@ -218,7 +263,7 @@ def test_correct_with_a_guard_reports_the_blend_and_without_one_says_why_it_migh
 
 
 @pytest.mark.cvvdp                                   # a clip's --report scores it with ColorVideoVDP
-@pytest.mark.parametrize("measure", ["objective", "lightness"])
+@pytest.mark.parametrize("measure", ["objective", "lightness", "visibility"])
 def test_a_clip_is_guarded_frame_by_frame_as_each_still_is(tmp_path, sphere_alone, capsys, measure):
     """Each frame of a clip corrected with --guard is the guarded still of that frame; the report gives
     each frame's weight and the output how many frames were blended."""
@@ -250,25 +295,29 @@ def test_a_guard_measure_without_a_guard_is_refused(tmp_path, sphere_alone, caps
 
 
 @pytest.mark.cvvdp                                   # --report judges what the eye sees with ColorVideoVDP
-def test_correct_with_the_lightness_guard_reports_six_guard_eyes_within_none(tmp_path, sphere_alone, capsys):
-    """--guard 1 --guard-measure lightness: the six guard eyes (the sphere 0.5 D off either way, then the
-    pupils 2.5, 3, 4, 5.5 mm) each see at most none's lightness-like error after the blend; the weight is
-    on the grid; the eye as designed (3 mm, the prescribed sphere) sees the correction better than none
-    before any blend."""
+@pytest.mark.parametrize("measure", ["lightness", "visibility"])
+def test_correct_with_a_pupil_guard_reports_six_guard_eyes_within_none(tmp_path, sphere_alone, capsys, measure):
+    """--guard 1 --guard-measure lightness or visibility: the six guard eyes (the sphere 0.5 D off either
+    way, then the pupils 2.5, 3, 4, 5.5 mm) each see at most none's error after the blend; lightness's
+    weight is on its grid; the eye as designed (3 mm, the prescribed sphere) sees the correction better
+    than none before any blend."""
     picture, rx = sphere_alone
     out, report = tmp_path / "out.png", tmp_path / "r.json"
     assert main(["correct", str(picture), "-o", str(out), "--rx", str(rx), "--pupil", "3", "--robust", "off",
-                 "--guard", "1", "--guard-measure", "lightness", "--report", str(report)]) == 0
+                 "--guard", "1", "--guard-measure", measure, "--report", str(report)]) == 0
     said = capsys.readouterr().out
     guard = json.loads(report.read_text())["guard"]
-    assert guard["measure"] == "lightness" and guard["pupils_mm"] == [2.5, 3.0, 4.0, 5.5]
+    assert guard["measure"] == measure and guard["pupils_mm"] == [2.5, 3.0, 4.0, 5.5]
     assert guard["sphere_offsets_D"] == [-0.5, 0.5]
-    before, after = guard["lightness_ratio_before"], guard["lightness_ratio_after"]
+    before, after = guard[f"{measure}_ratio_before"], guard[f"{measure}_ratio_after"]
     assert len(before) == len(after) == 6
     assert before[3] < 1.0                           # the 3 mm eye: the one designed for
-    assert max(before) > 1.0 and max(after) <= 1.0 + 1e-9
-    assert 0.0 <= guard["weight"] < 1.0 and (guard["weight"] * 40) == pytest.approx(round(guard["weight"] * 40))
-    assert "lightness-like error" in said and "a pupil of 2.5 to 5.5 mm" in said
+    assert max(before) > 1.0 and max(after) <= 1.0 + 1e-6
+    assert 0.0 <= guard["weight"] < 1.0
+    if measure == "lightness":
+        assert (guard["weight"] * 40) == pytest.approx(round(guard["weight"] * 40))
+    words = {"lightness": "lightness-like error", "visibility": "visibility scale"}[measure]
+    assert words in said and "a pupil of 2.5 to 5.5 mm" in said
 
 
 def test_the_guard_says_the_picture_is_shown_uncorrected_when_no_part_of_the_correction_is_kept():

@@ -52,6 +52,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
     check_readable(args.input)                      # before the heavy imports: a typo is told at once
     from ..solvers import make_problem, objective, solve  # on use: start-up time (apps/__init__)
     from ..solvers.guard import guard_blend  # on use: start-up time (apps/__init__)
+    from ..vision.visibility import ViewingLight  # on use: start-up time (apps/__init__)
     from ..solvers.problem import (
         make_design_problem,  # on use: start-up time (apps/__init__: the parser loads no layer below)
     )
@@ -97,7 +98,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
     guarded = None
     if rho is not None:
         guarded = guard_blend(result.image, target, _guard_problems(target, guards, args.contrast), rho,
-                              args.guard_measure)
+                              args.guard_measure, ViewingLight.of(display))
         result.image = guarded.image
         result.objective = objective(result.image, problem)
     t3 = time.perf_counter()
@@ -144,8 +145,8 @@ def cmd_correct(args: argparse.Namespace) -> int:
 #: What ``correct`` says, without ``--guard``, for an eye of sphere alone (docs/realtime.md, "Eyes of sphere alone").
 SPHERE_ALONE_NOTE = ("an eye of sphere alone may see this correction worse than none if it is 0.5 D nearer focus "
                      "than prescribed; --guard 1.25 blends the correction towards the picture where the objective "
-                     "sees that harm, and --guard 1 --guard-measure lightness spares more such views at a larger "
-                     "cost to the gain (docs/realtime.md, 'Eyes of sphere alone')")
+                     "sees that harm, and --guard 1 --guard-measure visibility (or lightness) spares more such "
+                     "views at a larger cost to the gain (docs/realtime.md, 'Eyes of sphere alone')")
 
 
 def _sphere_alone(eye) -> bool:
@@ -182,10 +183,11 @@ def _guard_offsets() -> list[float]:
 
 
 def _guard_pupils(measure: str) -> list[float]:
-    """The pupils (mm) through which the prescribed eye is a guard eye too: the lightness guard's."""
-    from ..solvers.guard import GUARD_PUPILS_MM  # on use: start-up time (apps/__init__)
+    """The pupils (mm) through which the prescribed eye is a guard eye too: the lightness and visibility
+    guards'."""
+    from ..solvers.guard import GUARD_PUPILS_MM, PUPIL_GUARD_MEASURES  # on use: start-up time (apps/__init__)
 
-    return list(GUARD_PUPILS_MM) if measure == "lightness" else []
+    return list(GUARD_PUPILS_MM) if measure in PUPIL_GUARD_MEASURES else []
 
 
 def _guard_designs(args: argparse.Namespace, eye, display, pupil: float, fixed: list | None = None) -> list:
@@ -198,7 +200,8 @@ def _guard_designs(args: argparse.Namespace, eye, display, pupil: float, fixed: 
 
 
 def _pupil_guards(args: argparse.Namespace, eye, display) -> list:
-    """With ``--guard-measure lightness``, the prescribed eye through each pupil of :func:`_guard_pupils`."""
+    """With ``--guard-measure lightness`` or ``visibility``, the prescribed eye through each pupil of
+    :func:`_guard_pupils`."""
     return [build_design(args, eye, display, q, args.reference, robust=False)
             for q in _guard_pupils(args.guard_measure)]
 
@@ -232,7 +235,9 @@ def _guard_report(rho: float | None, guarded) -> dict | None:
 #: this copies ``solvers.guard.GUARD_MEASURES``; tests/test_guard.py keeps the two in step).
 GUARD_WORDS = {"objective": ("the eyes with the sphere 0.5 D off", "by the objective"),
                "lightness": ("the eyes with the sphere 0.5 D off or a pupil of 2.5 to 5.5 mm",
-                             "by the lightness-like error")}
+                             "by the lightness-like error"),
+               "visibility": ("the eyes with the sphere 0.5 D off or a pupil of 2.5 to 5.5 mm",
+                              "by the visibility scale")}
 
 
 def _guard_text(rho: float, guarded) -> str:
@@ -342,6 +347,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     )
 
     from ..solvers.guard import guard_blend  # on use: start-up time (apps/__init__)
+    from ..vision.visibility import ViewingLight  # on use: start-up time (apps/__init__)
 
     learned, rx_path, eye, display, age = _eye_and_model(args)
     guards, fixed = {}, None
@@ -381,7 +387,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
                             fixed = _pupil_guards(args, eye, display)
                         guards[pupil] = _guard_designs(args, eye, display, pupil, fixed)
                     guarded = guard_blend(result.image, linear, _guard_problems(linear, guards[pupil], args.contrast),
-                                          rho, args.guard_measure)
+                                          rho, args.guard_measure, ViewingLight.of(display))
                     result.image, result.objective = guarded.image, objective(guarded.image, problem)
                 entry = {"source_frame": source, "objective": result.objective, "band": _band_name(design),
                          "guard_weight": guarded.weight if rho is not None else None,
@@ -508,9 +514,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--guard-measure", choices=tuple(GUARD_WORDS), default="objective",
                    help="with --guard: the error kept within RHO of none's: objective (the default), or lightness, "
                         "the cube roots of each cone's light relative to white's, which sees errors on a dark "
-                        "ground; lightness also guards the eye as prescribed through pupils of 2.5, 3, 4 and "
-                        "5.5 mm (with --guard 1 it lifts most falls below none, at a cost to the gain: "
-                        "docs/realtime.md, 'Eyes of sphere alone')")
+                        "ground; or visibility, each band's contrast against the picture's local light weighted "
+                        "by the eye's contrast sensitivity there; lightness and visibility also guard the eye as "
+                        "prescribed through pupils of 2.5, 3, 4 and 5.5 mm (with --guard 1 they lift most falls "
+                        "below none, at a cost to the gain: docs/realtime.md, 'Eyes of sphere alone')")
     p.add_argument("--16bit", dest="sixteen_bit", action="store_true", help="write a 16-bit PNG")
     clips.add_clip_options(p, fps_help="a clip: resample it in time to F frames per second (source frames "
                                        "repeated or dropped by presentation time; default: each source frame once)")

@@ -17,7 +17,10 @@ in it.  ``measure="lightness"`` guards a lightness-like error instead (:func:`li
 cube roots of each cone's light relative to white's, plus :data:`LIGHTNESS_FLOOR`), which is not
 quadratic in ``b``; the eye's cone image still is linear in ``b``, so two simulations an eye give
 the error at every ``b`` of a grid of :data:`LIGHTNESS_STEPS` steps, and ``b`` is the largest grid
-point every eye allows (the thirteenth look of ``docs/realtime.md``).
+point every eye allows (the thirteenth look of ``docs/realtime.md``).  ``measure="visibility"``
+guards the same six eyes on :func:`~vrcorrect.vision.visibility.visibility_error` (each band's
+contrast against the goal's local light, weighted by the eye's contrast sensitivity there), which is
+quadratic in ``b`` like the objective, so three points give ``b`` exactly (the fourteenth look).
 
 Layer 4: numpy.
 """
@@ -32,10 +35,11 @@ import numpy as np
 
 from ..plumbing.errors import ValidationError
 from ..vision.forward import simulate_lms
+from ..vision.visibility import ViewingLight, visibility_error
 from .problem import Problem, objective
 
-__all__ = ["GUARD_MEASURES", "GUARD_PUPILS_MM", "GUARD_SPHERE_D", "LIGHTNESS_FLOOR", "LIGHTNESS_STEPS", "Guarded",
-           "guard_blend", "lightness_error"]
+__all__ = ["GUARD_MEASURES", "GUARD_PUPILS_MM", "GUARD_SPHERE_D", "LIGHTNESS_FLOOR", "LIGHTNESS_STEPS",
+           "PUPIL_GUARD_MEASURES", "Guarded", "guard_blend", "lightness_error"]
 
 #: The guard eyes: the prescription's sphere this far off, either way (the ``Done when`` of issue 44).
 GUARD_SPHERE_D = 0.5
@@ -45,7 +49,10 @@ GUARD_SPHERE_D = 0.5
 GUARD_PUPILS_MM = (2.5, 3.0, 4.0, 5.5)
 
 #: What the guard keeps each eye's view of the blend within ``rho`` times none's of.
-GUARD_MEASURES = ("objective", "lightness")
+GUARD_MEASURES = ("objective", "lightness", "visibility")
+
+#: The measures that guard the prescribed eye through :data:`GUARD_PUPILS_MM` too.
+PUPIL_GUARD_MEASURES = ("lightness", "visibility")
 
 #: The lightness-like error's floor, of white's light: a cone's light ``q`` of white's ``w`` counts
 #: as ``(q / w + LIGHTNESS_FLOOR) ** (1/3)``, so that black's slope stays finite (CIELAB's cube root
@@ -140,14 +147,37 @@ def _guard_lightness(x: np.ndarray, t: np.ndarray, problems: Sequence[Problem], 
                    measure="lightness")
 
 
+def _guard_visibility(x: np.ndarray, t: np.ndarray, problems: Sequence[Problem], rho: float,
+                      viewing: ViewingLight) -> Guarded:
+    """:func:`guard_blend` on the visibility scale: each eye's error at ``b`` = 0, 1/2, 1 from two
+    simulations (the cone image is linear in ``b``, the error quadratic in it)."""
+    weight, curves = 1.0, []
+    for problem in problems:
+        seen, white = _seen_by(problem)
+        seen_t, seen_x = seen(t).astype(np.float64), seen(x).astype(np.float64)
+
+        def error(b: float, seen_t=seen_t, seen_x=seen_x, problem=problem, white=white) -> float:
+            return visibility_error(seen_t + b * (seen_x - seen_t), problem.target_lms, white, viewing)
+
+        f0, fh, f1 = error(0.0), error(0.5), error(1.0)
+        curves.append((error, f0, f1))
+        weight = min(weight, _largest_weight(f0, fh, f1, rho))
+    image = x if weight >= 1.0 else (t + np.float32(weight) * (x - t)).astype(np.float32)
+    return Guarded(image=image, weight=float(weight), before=tuple(f1 for _, _, f1 in curves),
+                   after=tuple(f1 if weight >= 1.0 else error(weight) for error, _, f1 in curves),
+                   none=tuple(f0 for _, f0, _ in curves), measure="visibility")
+
+
 def guard_blend(shown: np.ndarray, target: np.ndarray, problems: Sequence[Problem], rho: float,
-                measure: str = "objective") -> Guarded:
+                measure: str = "objective", viewing: ViewingLight | None = None) -> Guarded:
     """``t + b (x - t)`` for a correction ``shown`` (``x``, linear display RGB in [0, 1]) of ``target``
     (``t``), with the largest ``b`` in [0, 1] that keeps every guard eye's objective (``problems``: one
     :class:`~vrcorrect.solvers.problem.Problem` per guard eye, of ``target``) at most ``rho`` times
     its objective for ``t``.  float64 for the objectives, float32 for the image.  ``measure``
-    (:data:`GUARD_MEASURES`): ``"objective"`` (exact ``b``) or ``"lightness"`` (:func:`lightness_error`,
-    ``b`` on a grid of :data:`LIGHTNESS_STEPS`)."""
+    (:data:`GUARD_MEASURES`): ``"objective"`` (exact ``b``), ``"lightness"`` (:func:`lightness_error`,
+    ``b`` on a grid of :data:`LIGHTNESS_STEPS`) or ``"visibility"``
+    (:func:`~vrcorrect.vision.visibility.visibility_error` at ``viewing``, the display's light and pixels
+    per degree; exact ``b``)."""
     if not (isinstance(rho, (int, float)) and math.isfinite(rho) and rho >= 1.0):
         raise ValidationError("guard", rho, "a finite factor of at least 1 (the most objective, times none's, a "
                                             "guard eye may see)")
@@ -159,6 +189,11 @@ def guard_blend(shown: np.ndarray, target: np.ndarray, problems: Sequence[Proble
         raise ValidationError("measure", measure, f"one of {', '.join(GUARD_MEASURES)}")
     if measure == "lightness":
         return _guard_lightness(x, t, problems, float(rho))
+    if measure == "visibility":
+        if not isinstance(viewing, ViewingLight):
+            raise ValidationError("viewing", viewing, "the display's ViewingLight (its light and pixels per degree) for "
+                                                      "the visibility guard")
+        return _guard_visibility(x, t, problems, float(rho), viewing)
     half = (t + np.float32(0.5) * (x - t)).astype(np.float32)
     weight, before, none = 1.0, [], []
     for problem in problems:
