@@ -440,6 +440,15 @@ every eye also keeps 50 % at 3 mm).  Least gain, unguarded -> guarded (desktop; 
 -1.50: -0.05 -> -0.00; -0.29 -> +0.01.  -2.00: -0.12 -> +0.00; -0.20 -> -0.03.  (a) holds (six of eight
 lifted), (b) holds, (c) fails: the bench eye on retina in the Quest 2 keeps 29 % at 3 mm where it kept
 87 %.  An option, not the default; eyes of sphere alone keep 0-34 % at 3 mm on desktop.
+
+Fourteenth look (2026-12-04): the visibility guard, ``--guard 1 --guard-measure visibility --guard-pupils``
+against the same with ``lightness``, on four more fresh pictures (matplotlib's grace_hopper; scikit-image's
+cell, gravel, brick: ``--no-builtin --image``), the same five eyes (``--rx`` for the four of sphere alone,
+age 40).  Rule written before the runs: keep it as an option if it lifts at least as many (eye, display)
+cases below -0.05 as lightness and keeps the bench eye's least 3 mm share at least as high on each display.
+Each lifts six of eight; the bench eye's least share is 13 / 0 % (desktop, visibility / lightness) and
+0 / 0 % (quest2: the 5.5 mm eye binds on gravel and brick).  Kept as an option; the guard stays off.  The
+-1.00 D eye on desktop falls 1.51 JOD below none on brick without a guard.  Details: docs/realtime.md.
 """
 
 from __future__ import annotations
@@ -616,15 +625,16 @@ def _band_title(text: str, band: RobustBand | None) -> str:
             + (f", under the paper cap x{paper:g}" if paper is not None else ""))
 
 
-def guarded(shown: np.ndarray, target: np.ndarray, guards, rho: float,
-            measure: str = "objective") -> tuple[np.ndarray, float]:
+def guarded(shown: np.ndarray, target: np.ndarray, guards, rho: float, measure: str = "objective",
+            display=None) -> tuple[np.ndarray, float]:
     """``t + b (x - t)`` with the largest ``b`` in [0, 1] that keeps every guard eye's objective (or
     ``measure``) at most ``rho`` times its value for the target shown as it is (the product's guard,
     :func:`vrcorrect.solvers.guard.guard_blend`, which ``vrcorrect correct --guard`` runs), and ``b``."""
     from vrcorrect.solvers.guard import guard_blend
+    from vrcorrect.vision.visibility import ViewingLight
 
     done = guard_blend(shown, target, [make_problem(target, d.nominal, d.nominal_reference) for d in guards], rho,
-                       measure)
+                       measure, None if display is None else ViewingLight.of(display))
     return done.image, done.weight
 
 
@@ -692,7 +702,8 @@ def _arguments(argv: list[str]) -> argparse.Namespace:
                     "0.5 D off either way (at the light's pupil) at most RHO times none's")
     ap.add_argument("--guard-measure", choices=GUARD_MEASURES, default="objective",
                     help="with --guard: what the guard keeps within RHO of none (thirteenth look: 'lightness', the "
-                    "cube roots of each cone's light relative to white's)")
+                    "cube roots of each cone's light relative to white's; fourteenth look: 'visibility', the contrast "
+                    "sensitivity-weighted band contrast of vrcorrect.vision.visibility)")
     ap.add_argument("--guard-pupils", action="store_true",
                     help="with --guard: the eyes at the pupils 2.5, 3, 4 and 5.5 mm are guard eyes too (all six "
                     "eyes judged)")
@@ -807,7 +818,7 @@ def main(argv: list[str]) -> int:
                 if args.guard is not None:                                       # the objective guard
                     shown, beta = guarded(shown, target, [e for (e, _, _), (q, o) in zip(seen, SEEN)
                                                           if o != 0.0 or (args.guard_pupils and q is not None)],
-                                          args.guard, args.guard_measure)
+                                          args.guard, args.guard_measure, display)
                 gains, share, plain, plain_share = [], float("nan"), [], float("nan")
                 for exact, none, ceiling in seen:
                     gain = evaluate_seen(shown, target, exact.nominal, display)[0].jod - none
