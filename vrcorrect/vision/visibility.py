@@ -57,9 +57,9 @@ class ViewingLight:
     pixels_per_degree: float
 
     def __post_init__(self) -> None:
-        for name, value, low in (("peak_cd_m2", self.peak_cd_m2, 0.0), ("floor_cd_m2", self.floor_cd_m2, 0.0),
-                                 ("pixels_per_degree", self.pixels_per_degree, 0.0)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > low):
+        for name in ("peak_cd_m2", "floor_cd_m2", "pixels_per_degree"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
                 raise ValidationError(f"viewing.{name}", value, "a finite number above 0")
 
     @classmethod
