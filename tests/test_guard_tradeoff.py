@@ -1,0 +1,70 @@
+"""The study tool of the guard's trade (tools/guard_tradeoff.py): its summary of falls lifted and gain
+kept, and its refusals before any work."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _tool():
+    """tools/guard_tradeoff.py as a module; it imports robust_band_choice from its folder, which is
+    loaded the same way (sys.path is left alone)."""
+    for name in ("robust_band_choice", "guard_tradeoff"):
+        if name not in sys.modules:
+            spec = importlib.util.spec_from_file_location(name, ROOT / "tools" / f"{name}.py")
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module
+            spec.loader.exec_module(module)
+    return sys.modules["guard_tradeoff"]
+
+
+def _case(eye: str, display: str, unguarded: list[float], ceiling: float) -> dict:
+    return dict(eye=eye, display_name=display, gains=unguarded, ceiling=ceiling)
+
+
+def test_the_summary_counts_falls_lifted_and_the_share_of_the_3mm_gain_kept():
+    tool = _tool()
+    cases = [_case("bench", "desktop", [0.5, 0.8, 0.3, 0.1, 0.2, -0.12], 1.0),    # a fall
+             _case("bench", "quest2", [0.5, 0.9, 0.3, 0.1, 0.2, 0.3], 1.0),
+             _case("-1.00", "desktop", [0.1, 0.05, 0.0, 0.0, -0.8, 0.1], 0.08),   # a fall; a gain too small to read
+             _case("-1.00", "quest2", [0.3, 0.4, 0.2, 0.1, 0.1, -0.04], 0.5)]     # not a fall: within 0.05
+    guarded = {id(cases[0]): [0.4, 0.6, 0.2, 0.1, 0.1, 0.00],                    # lifted, 60 % kept
+               id(cases[1]): [0.5, 0.9, 0.3, 0.1, 0.2, 0.3],                     # untouched
+               id(cases[2]): [0.0, 0.0, 0.0, 0.0, -0.06, 0.0],                   # not lifted
+               id(cases[3]): [0.1, 0.1, 0.1, 0.0, 0.0, 0.0]}                     # 20 % kept
+    s = tool._summary(cases, lambda c: guarded[id(c)])
+    assert (s["falls"], s["lifted"]) == (2, 1)
+    assert s["worst"] == pytest.approx(-0.06)
+    assert s["median"] == pytest.approx(0.6) and s["least"] == pytest.approx(0.2)        # 0.6, 0.9, 0.2
+    assert s["bench"] == pytest.approx({"desktop": 0.6, "quest2": 0.9})
+    none = tool._summary(cases, lambda c: c["gains"])
+    assert (none["falls"], none["lifted"]) == (2, 0) and none["worst"] == pytest.approx(-0.8)
+    assert np.isclose(none["median"], 0.8)
+
+
+@pytest.mark.parametrize("extra, said", [(["--rho", "0.5"], "--rho: factors from 1 to 10"),
+                                         (["--image", "missing.png"], "--image missing.png"),
+                                         (["--measure", "jod"], "invalid choice")])
+def test_the_tool_refuses_bad_input_in_one_line_before_any_work(tmp_path, extra, said):
+    picture = ROOT / "vrcorrect" / "data" / "sample.png"
+    args = ["--image", str(picture)] if "--image" not in extra else []
+    done = subprocess.run([sys.executable, str(ROOT / "tools" / "guard_tradeoff.py"), *args, *extra],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert done.returncode == 2, done.stderr
+    assert said in done.stderr and "Traceback" not in done.stderr
+
+
+def test_an_existing_plot_is_kept_without_force(tmp_path):
+    plot = tmp_path / "trade.png"
+    plot.write_bytes(b"mine")
+    done = subprocess.run([sys.executable, str(ROOT / "tools" / "guard_tradeoff.py"), "--image", "x.png",
+                           "--plot", str(plot)], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert done.returncode == 2 and "--force" in done.stderr and plot.read_bytes() == b"mine"

@@ -1,0 +1,190 @@
+"""The guard's trade (issue 44): how many falls below no correction each guard lifts, against how much
+of the exact 3 mm gain it keeps, for a range of factors RHO.
+
+For the bench's eye (-2.00/-1.00 x 120) and each ``--rx`` eye, on desktop and quest2, and each
+``--image`` (256 px), the default correction (``fast``, the default band, the pupil from the picture's
+light at the pupil bank's nearest entry) is seen by the six eyes of issue 44's floor (pupils 2.5, 3, 4,
+5.5 mm; the sphere 0.5 D off either way at the light's pupil) and judged with ColorVideoVDP against
+none, as ``tools/robust_band_choice.py`` does.  Then each ``--measure`` guards it over those six eyes
+(``--guard RHO --guard-measure M`` of ``vrcorrect correct``, with the pupil guards) at each ``--rho``.
+Printed per (measure, RHO): the (eye, display, picture) views whose least gain was below -0.05 and
+how many the guard lifts to -0.05 or above; the median and least share of the exact 3 mm gain kept
+(cases whose exact gain is at least 0.1 JOD); the bench eye's least share on each display.  ``--plot``
+draws falls lifted against the median share kept, a line per measure.
+
+    .venv/bin/python tools/guard_tradeoff.py --image a.png --image b.png --rx rx.json --plot trade.png
+
+A study, not a judge: the pictures it is run on are spent for choosing a guard.  Slow: about a minute
+per (eye, display, picture) on 2 cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import robust_band_choice as rb  # tools/: this script's folder
+from vrcorrect.apps.common import load_eye_and_age
+from vrcorrect.physics.robust import design_eye
+from vrcorrect.plumbing.errors import VrcorrectError
+from vrcorrect.runtime.pupil_bank import nearest_bank_pupil
+from vrcorrect.solvers import make_problem, solve
+from vrcorrect.solvers.guard import GUARD_MEASURES, guard_blend
+from vrcorrect.solvers.problem import make_design_problem
+from vrcorrect.vision.metrics import evaluate_seen
+from vrcorrect.vision.visibility import ViewingLight
+
+FALL = -0.05          # issue 44's floor: a view below none by more than this falls
+SHARE_FROM = 0.1      # a 3 mm share is read only where the exact 3 mm gain is at least this (JOD)
+
+
+def _arguments(argv: list[str]) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog="guard_tradeoff", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--image", action="append", default=[], required=True, help="a picture (repeatable)")
+    ap.add_argument("--rx", action="append", default=[], help="a prescription whose right eye is swept too, at its "
+                                                              "age_years (repeatable)")
+    ap.add_argument("--measure", action="append", choices=GUARD_MEASURES, help="a guard measure (repeatable; "
+                                                                               "default visibility and lightness)")
+    ap.add_argument("--rho", type=float, nargs="+", default=[1.0, 1.1, 1.25, 1.5, 2.0], help="the guard factors")
+    ap.add_argument("--plot", type=Path, help="write the trade as a PNG here")
+    ap.add_argument("--force", action="store_true", help="overwrite --plot")
+    return ap.parse_args(argv)
+
+
+def _cases(images: list[str], eyes: list[tuple[str, object, float | None]]):
+    """Each (eye, display, picture): the unguarded correction, the target, the six seen eyes' problems,
+    none's JOD for each, the exact 3 mm gain, and the unguarded gains."""
+    for tag, eye, age in eyes:
+        rb._eye.update(eye=eye, age=age)
+        rb._cases.clear()
+        for display_name in rb.DISPLAYS:
+            for name in images:
+                t0 = time.perf_counter()
+                display, target, p, seen = rb._case(display_name, name)
+                design = design_eye(eye, display, nearest_bank_pupil(p), band=None, kernels=rb._kernels, robust=True)
+                shown = solve(make_design_problem(target, design), "fast").image
+                problems = [make_problem(target, e.nominal, e.nominal_reference) for e, _, _ in seen]
+                gains = [evaluate_seen(shown, target, e.nominal, display)[0].jod - none for e, none, _ in seen]
+                ceiling = next(c for _, _, c in seen if c is not None)
+                print(f"  {tag:6s} {display_name:8s} {name:14s} least {min(gains):+.2f}  "
+                      f"({time.perf_counter() - t0:.0f} s)", flush=True)
+                yield dict(eye=tag, display=display, display_name=display_name, picture=name, shown=shown,
+                           target=target, seen=seen, problems=problems, gains=gains, ceiling=ceiling)
+
+
+def _guarded_gains(case: dict, measure: str, rho: float, memo: dict) -> tuple[float, list[float]]:
+    """The guard's weight and each seen eye's gain over none for the guarded image (JOD, memoised by weight)."""
+    done = guard_blend(case["shown"], case["target"], case["problems"], rho, measure,
+                       ViewingLight.of(case["display"]))
+    if done.weight >= 1.0:
+        return 1.0, case["gains"]
+    key = (id(case), round(done.weight, 6))
+    if key not in memo:
+        memo[key] = [evaluate_seen(done.image, case["target"], e.nominal, case["display"])[0].jod - none
+                     for e, none, _ in case["seen"]]
+    return done.weight, memo[key]
+
+
+def _summary(cases: list[dict], gains_of) -> dict:
+    """Falls below -0.05 and how many are lifted, shares of the exact 3 mm gain kept (3 mm is the second
+    seen eye), the bench eye's least share per display."""
+    falls = lifted = 0
+    shares, bench = [], {}
+    worst = np.inf
+    for case in cases:
+        gains = gains_of(case)
+        worst = min(worst, min(gains))
+        if min(case["gains"]) < FALL:
+            falls += 1
+            lifted += min(gains) >= FALL
+        if case["ceiling"] >= SHARE_FROM:
+            share = gains[1] / case["ceiling"]
+            shares.append(share)
+            if case["eye"] == "bench":
+                bench[case["display_name"]] = min(bench.get(case["display_name"], np.inf), share)
+    return dict(falls=falls, lifted=lifted, median=float(np.median(shares)) if shares else np.nan,
+                least=float(min(shares)) if shares else np.nan, bench=bench, worst=float(worst))
+
+
+def _line(label: str, s: dict) -> str:
+    bench = "  ".join(f"{d} {v:4.0%}" for d, v in sorted(s["bench"].items()))
+    return (f"{label:24s} falls lifted {s['lifted']:2d} of {s['falls']:2d}  worst {s['worst']:+.2f}  3 mm share kept: "
+            f"median {s['median']:4.0%}, least {s['least']:5.0%}  bench eye's least: {bench}")
+
+
+def main(argv: list[str]) -> int:
+    args = _arguments(argv)
+    measures = args.measure or ["visibility", "lightness"]
+    if any(not (1.0 <= r <= 10.0) for r in args.rho):
+        print("guard_tradeoff: --rho: factors from 1 to 10", file=sys.stderr)
+        return 2
+    if args.plot is not None and args.plot.exists() and not args.force:
+        print(f"guard_tradeoff: --plot {args.plot}: exists (--force to overwrite)", file=sys.stderr)
+        return 2
+    eyes = [("bench", rb.EYE, None)]
+    for path in args.rx:
+        try:
+            _, eye, age = load_eye_and_age(argparse.Namespace(rx=path, eye="right"))
+        except (VrcorrectError, OSError) as e:
+            print(f"guard_tradeoff: --rx {path}: {e}", file=sys.stderr)
+            return 2
+        eyes.append((f"{eye.sphere_D:+.2f}", eye, age))
+    names = []
+    for path in args.image:
+        name = Path(path).stem
+        rb._files[name] = path
+        try:
+            rb.choice_image(name)
+        except (VrcorrectError, OSError) as e:
+            print(f"guard_tradeoff: --image {path}: {e}", file=sys.stderr)
+            return 2
+        names.append(name)
+    print(f"{len(eyes)} eyes x 2 displays x {len(names)} pictures; the default correction, unguarded:", flush=True)
+    cases = list(_cases(names, eyes))
+    rows = {("none", 0.0): _summary(cases, lambda c: c["gains"])}
+    print(_line("unguarded", rows[("none", 0.0)]), flush=True)
+    memo: dict = {}
+    for measure in measures:
+        for rho in args.rho:
+            rows[(measure, rho)] = _summary(cases, lambda c: _guarded_gains(c, measure, rho, memo)[1])
+            print(_line(f"{measure} {rho:g}", rows[(measure, rho)]), flush=True)
+    if args.plot is not None:
+        _plot(rows, measures, args.rho, args.plot)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def _plot(rows: dict, measures: list[str], rhos: list[float], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
+    base = rows[("none", 0.0)]
+    ax.plot([100 * base["median"]], [base["lifted"]], "ks", label="no guard")
+    for measure in measures:
+        xs = [100 * rows[(measure, r)]["median"] for r in rhos]
+        ys = [rows[(measure, r)]["lifted"] for r in rhos]
+        ax.plot(xs, ys, "o-", label=f"--guard-measure {measure}")
+        for x, y, r in zip(xs, ys, rhos):
+            ax.annotate(f"{r:g}", (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+    ax.axhline(base["falls"], color="0.6", ls=":", lw=1)
+    ax.set_xlabel("median share of the exact 3 mm gain kept (%)")
+    ax.set_ylabel(f"falls lifted to {FALL} JOD or above (of {base['falls']})")
+    ax.set_title("The guard's trade: falls lifted against gain kept (labels: RHO)", fontsize=10)
+    ax.legend(fontsize=8, loc="lower left")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    tmp = path.with_name(path.name + ".tmp.png")
+    fig.savefig(tmp)
+    plt.close(fig)
+    tmp.replace(path)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
