@@ -351,6 +351,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
 
     learned, rx_path, eye, display, age = _eye_and_model(args)
     guards, fixed = {}, None
+    viewing = ViewingLight.of(display)                 # the guard's light and pixels per degree, for every frame
     clip = plan.clip
     print_notes(clip.notes)
     check_memory(args.method, clip.size[1], clip.size[0])
@@ -387,7 +388,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
                             fixed = _pupil_guards(args, eye, display)
                         guards[pupil] = _guard_designs(args, eye, display, pupil, fixed)
                     guarded = guard_blend(result.image, linear, _guard_problems(linear, guards[pupil], args.contrast),
-                                          rho, args.guard_measure, ViewingLight.of(display))
+                                          rho, args.guard_measure, viewing)
                     result.image, result.objective = guarded.image, objective(guarded.image, problem)
                 entry = {"source_frame": source, "objective": result.objective, "band": _band_name(design),
                          "guard_weight": guarded.weight if rho is not None else None,

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -130,6 +130,11 @@ def _lightness_curve(x: np.ndarray, t: np.ndarray, problem: Problem, steps: int)
     return out
 
 
+def _blend(x: np.ndarray, t: np.ndarray, b: float) -> np.ndarray:
+    """``t + b (x - t)`` in float32 (``x`` itself at ``b`` = 1)."""
+    return x if b >= 1.0 else (t + np.float32(b) * (x - t)).astype(np.float32)
+
+
 def _guard_lightness(x: np.ndarray, t: np.ndarray, problems: Sequence[Problem], rho: float) -> Guarded:
     """:func:`guard_blend` on the lightness-like error."""
     steps = LIGHTNESS_STEPS
@@ -141,31 +146,34 @@ def _guard_lightness(x: np.ndarray, t: np.ndarray, problems: Sequence[Problem], 
         allowed &= curve <= rho * curve[0] * (1.0 + 1e-12)
     k = int(np.flatnonzero(allowed).max())               # b = 0 is always allowed
     weight = k / steps
-    image = x if k == steps else (t + np.float32(weight) * (x - t)).astype(np.float32)
-    return Guarded(image=image, weight=weight, before=tuple(float(c[-1]) for c in curves),
+    return Guarded(image=_blend(x, t, weight), weight=weight, before=tuple(float(c[-1]) for c in curves),
                    after=tuple(float(c[k]) for c in curves), none=tuple(float(c[0]) for c in curves),
                    measure="lightness")
 
 
-def _guard_visibility(x: np.ndarray, t: np.ndarray, problems: Sequence[Problem], rho: float,
-                      viewing: ViewingLight) -> Guarded:
-    """:func:`guard_blend` on the visibility scale: each eye's error at ``b`` = 0, 1/2, 1 from two
-    simulations (the cone image is linear in ``b``, the error quadratic in it)."""
+def _guard_quadratic(x: np.ndarray, t: np.ndarray, problems: Sequence[Problem], rho: float,
+                     error_of: Callable[[Problem], Callable[[float], float]], measure: str) -> Guarded:
+    """:func:`guard_blend` on an error quadratic in ``b``: ``error_of(problem)`` is that eye's error of
+    ``t + b (x - t)`` as a function of ``b``; three values an eye (``b`` = 0, 1/2, 1) give ``b`` exactly."""
     weight, curves = 1.0, []
     for problem in problems:
-        seen, white = _seen_by(problem)
-        seen_t, seen_x = seen(t).astype(np.float64), seen(x).astype(np.float64)
-
-        def error(b: float, seen_t=seen_t, seen_x=seen_x, problem=problem, white=white) -> float:
-            return visibility_error(seen_t + b * (seen_x - seen_t), problem.target_lms, white, viewing)
-
+        error = error_of(problem)
         f0, fh, f1 = error(0.0), error(0.5), error(1.0)
         curves.append((error, f0, f1))
         weight = min(weight, _largest_weight(f0, fh, f1, rho))
-    image = x if weight >= 1.0 else (t + np.float32(weight) * (x - t)).astype(np.float32)
-    return Guarded(image=image, weight=float(weight), before=tuple(f1 for _, _, f1 in curves),
+    return Guarded(image=_blend(x, t, weight), weight=float(weight), before=tuple(f1 for _, _, f1 in curves),
                    after=tuple(f1 if weight >= 1.0 else error(weight) for error, _, f1 in curves),
-                   none=tuple(f0 for _, f0, _ in curves), measure="visibility")
+                   none=tuple(f0 for _, f0, _ in curves), measure=measure)
+
+
+def _visibility_of(x: np.ndarray, t: np.ndarray, viewing: ViewingLight) -> Callable[[Problem], Callable[[float], float]]:
+    """Each eye's visibility error of ``t + b (x - t)`` as a function of ``b``, from two simulations (the
+    cone image is linear in ``b``)."""
+    def error_of(problem: Problem) -> Callable[[float], float]:
+        seen, white = _seen_by(problem)
+        seen_t, seen_x = seen(t).astype(np.float64), seen(x).astype(np.float64)
+        return lambda b: visibility_error(seen_t + b * (seen_x - seen_t), problem.target_lms, white, viewing)
+    return error_of
 
 
 def guard_blend(shown: np.ndarray, target: np.ndarray, problems: Sequence[Problem], rho: float,
@@ -193,14 +201,6 @@ def guard_blend(shown: np.ndarray, target: np.ndarray, problems: Sequence[Proble
         if not isinstance(viewing, ViewingLight):
             raise ValidationError("viewing", viewing, "the display's ViewingLight (its light and pixels per degree) for "
                                                       "the visibility guard")
-        return _guard_visibility(x, t, problems, float(rho), viewing)
-    half = (t + np.float32(0.5) * (x - t)).astype(np.float32)
-    weight, before, none = 1.0, [], []
-    for problem in problems:
-        f0, fh, f1 = objective(t, problem), objective(half, problem), objective(x, problem)
-        before.append(f1)
-        none.append(f0)
-        weight = min(weight, _largest_weight(f0, fh, f1, float(rho)))
-    image = x if weight >= 1.0 else (t + np.float32(weight) * (x - t)).astype(np.float32)
-    after = tuple(before) if weight >= 1.0 else tuple(objective(image, p) for p in problems)
-    return Guarded(image=image, weight=float(weight), before=tuple(before), after=after, none=tuple(none))
+        return _guard_quadratic(x, t, problems, float(rho), _visibility_of(x, t, viewing), "visibility")
+    return _guard_quadratic(x, t, problems, float(rho),
+                            lambda problem: (lambda b: objective(_blend(x, t, b), problem)), "objective")
