@@ -26,28 +26,39 @@ def _tool():
     return sys.modules["guard_tradeoff"]
 
 
-def _case(eye: str, display: str, unguarded: list[float], ceiling: float) -> dict:
-    return dict(eye=eye, display_name=display, gains=unguarded, ceiling=ceiling)
+def _scores(jod: list[float], flip: float = -0.01, objective: float = 0.5) -> dict:
+    """Six seen eyes' scores: the JOD gains given, every FLIP change and objective ratio alike but the last."""
+    return dict(jod=jod, flip=[-0.02] * 5 + [flip], objective=[0.4] * 5 + [objective])
+
+
+def _case(eye: str, display: str, unguarded: dict, ceiling: float) -> dict:
+    return dict(eye=eye, display_name=display, scores=unguarded, ceiling=ceiling)
 
 
 def test_the_summary_counts_falls_lifted_and_the_share_of_the_3mm_gain_kept():
     tool = _tool()
-    cases = [_case("bench", "desktop", [0.5, 0.8, 0.3, 0.1, 0.2, -0.12], 1.0),    # a fall
-             _case("bench", "quest2", [0.5, 0.9, 0.3, 0.1, 0.2, 0.3], 1.0),
-             _case("-1.00", "desktop", [0.1, 0.05, 0.0, 0.0, -0.8, 0.1], 0.08),   # a fall; a gain too small to read
-             _case("-1.00", "quest2", [0.3, 0.4, 0.2, 0.1, 0.1, -0.04], 0.5)]     # not a fall: within 0.05
-    guarded = {id(cases[0]): [0.4, 0.6, 0.2, 0.1, 0.1, 0.00],                    # lifted, 60 % kept
-               id(cases[1]): [0.5, 0.9, 0.3, 0.1, 0.2, 0.3],                     # untouched
-               id(cases[2]): [0.0, 0.0, 0.0, 0.0, -0.06, 0.0],                   # not lifted
-               id(cases[3]): [0.1, 0.1, 0.1, 0.0, 0.0, 0.0]}                     # 20 % kept
+    cases = [_case("bench", "desktop", _scores([0.5, 0.8, 0.3, 0.1, 0.2, -0.12], 0.03, 1.4), 1.0),   # a fall
+             _case("bench", "quest2", _scores([0.5, 0.9, 0.3, 0.1, 0.2, 0.3]), 1.0),
+             _case("-1.00", "desktop", _scores([0.1, 0.05, 0.0, 0.0, -0.8, 0.1], 0.004, 1.2), 0.08),  # too small to read
+             _case("-1.00", "quest2", _scores([0.3, 0.4, 0.2, 0.1, 0.1, -0.04]), 0.5)]      # not a fall: within 0.05
+    guarded = {id(cases[0]): _scores([0.4, 0.6, 0.2, 0.1, 0.1, 0.00], 0.001, 0.9),          # lifted, 60 % kept
+               id(cases[1]): cases[1]["scores"],                                             # untouched
+               id(cases[2]): _scores([0.0, 0.0, 0.0, 0.0, -0.06, 0.0], 0.006, 1.05),         # not lifted
+               id(cases[3]): _scores([0.1, 0.1, 0.1, 0.0, 0.0, 0.0])}                        # 20 % kept
     s = tool._summary(cases, lambda c: guarded[id(c)])
     assert (s["falls"], s["lifted"]) == (2, 1)
     assert s["worst"] == pytest.approx(-0.06)
     assert s["median"] == pytest.approx(0.6) and s["least"] == pytest.approx(0.2)        # 0.6, 0.9, 0.2
     assert s["bench"] == pytest.approx({"desktop": 0.6, "quest2": 0.9})
-    none = tool._summary(cases, lambda c: c["gains"])
+    # FLIP and the objective beside the JOD: one case each left worse than none (0.006 > 0.005; x1.05)
+    assert (s["flip_falls"], s["objective_falls"]) == (1, 1)
+    assert s["flip_worst"] == pytest.approx(0.006) and s["objective_worst"] == pytest.approx(1.05)
+    none = tool._summary(cases, lambda c: c["scores"])
     assert (none["falls"], none["lifted"]) == (2, 0) and none["worst"] == pytest.approx(-0.8)
     assert np.isclose(none["median"], 0.8)
+    assert (none["flip_falls"], none["objective_falls"]) == (1, 2)       # FLIP +0.004 is within 0.005
+    assert none["flip_worst"] == pytest.approx(0.03) and none["objective_worst"] == pytest.approx(1.4)
+    assert "by FLIP 1 (worst +0.030), by the objective 2 (worst x1.40)" in tool._line("unguarded", none)
 
 
 @pytest.mark.parametrize("extra, said", [(["--rho", "0.5"], "--rho: factors from 1 to 10"),

@@ -9,7 +9,9 @@ none, as ``tools/robust_band_choice.py`` does.  Then each ``--measure`` guards i
 (``--guard RHO --guard-measure M`` of ``vrcorrect correct``, with the pupil guards) at each ``--rho``.
 Printed per (measure, RHO): the (eye, display, picture) views whose least gain was below -0.05 and
 how many the guard lifts to -0.05 or above; the median and least share of the exact 3 mm gain kept
-(cases whose exact gain is at least 0.1 JOD); the bench eye's least share on each display.  ``--plot``
+(cases whose exact gain is at least 0.1 JOD); the bench eye's least share on each display; and beside
+the JOD, the other two judges: the views some seen eye sees worse than none by FLIP (by more than
+0.005) and by the objective (each against the ideal view, as the JOD), with the worst of each.  ``--plot``
 draws falls lifted against the median share kept, a line per measure.
 
     .venv/bin/python tools/guard_tradeoff.py --image a.png --image b.png --rx rx.json --plot trade.png
@@ -35,11 +37,11 @@ from vrcorrect.runtime.pupil_bank import nearest_bank_pupil
 from vrcorrect.solvers import make_problem, solve
 from vrcorrect.solvers.guard import GUARD_MEASURES, guard_blend
 from vrcorrect.solvers.problem import make_design_problem
-from vrcorrect.vision.metrics import evaluate_seen
 from vrcorrect.vision.visibility import ViewingLight
 
 FALL = -0.05          # issue 44's floor: a view below none by more than this falls
 SHARE_FROM = 0.1      # a 3 mm share is read only where the exact 3 mm gain is at least this (JOD)
+FLIP_FALL = 0.005     # a seen eye's FLIP above none's by more than this counts as worse than none
 
 
 def _arguments(argv: list[str]) -> argparse.Namespace:
@@ -57,7 +59,7 @@ def _arguments(argv: list[str]) -> argparse.Namespace:
 
 def _cases(images: list[str], eyes: list[tuple[str, object, float | None]]):
     """Each (eye, display, picture): the unguarded correction, the target, the six seen eyes' problems,
-    none's JOD for each, the exact 3 mm gain, and the unguarded gains."""
+    none's JOD, FLIP and objective for each, the exact 3 mm gain, and the unguarded scores."""
     for tag, eye, age in eyes:
         rb._eye.update(eye=eye, age=age)
         rb._cases.clear()
@@ -68,37 +70,53 @@ def _cases(images: list[str], eyes: list[tuple[str, object, float | None]]):
                 design = design_eye(eye, display, nearest_bank_pupil(p), band=None, kernels=rb._kernels, robust=True)
                 shown = solve(make_design_problem(target, design), "fast").image
                 problems = [make_problem(target, e.nominal, e.nominal_reference) for e, _, _ in seen]
-                gains = [evaluate_seen(shown, target, e.nominal, display)[0].jod - none for e, none, _ in seen]
-                ceiling = next(c for _, _, c in seen if c is not None)
-                print(f"  {tag:6s} {display_name:8s} {name:14s} least {min(gains):+.2f}  "
+                case = dict(eye=tag, display=display, display_name=display_name, picture=name, shown=shown,
+                            target=target, seen=seen, problems=problems,
+                            none=rb.seen_metrics(target, target, seen, display, with_jod=False),
+                            ceiling=next(c for _, _, c in seen if c is not None))
+                case["scores"] = _scores(shown, case)
+                print(f"  {tag:6s} {display_name:8s} {name:14s} least {min(case['scores']['jod']):+.2f}  "
                       f"({time.perf_counter() - t0:.0f} s)", flush=True)
-                yield dict(eye=tag, display=display, display_name=display_name, picture=name, shown=shown,
-                           target=target, seen=seen, problems=problems, gains=gains, ceiling=ceiling)
+                yield case
 
 
-def _guarded_gains(case: dict, measure: str, rho: float, memo: dict) -> tuple[float, list[float]]:
-    """The guard's weight and each seen eye's gain over none for the guarded image (JOD, memoised by weight)."""
+def _scores(image: np.ndarray, case: dict) -> dict[str, list[float]]:
+    """What each seen eye sees of ``image`` against none: the JOD gain, the FLIP change (above 0: worse)
+    and the objective over none's (each against the ideal view, as the JOD)."""
+    seen = rb.seen_metrics(image, case["target"], case["seen"], case["display"])
+    return dict(jod=[m.jod - none for m, (_, none, _) in zip(seen, case["seen"])],
+                flip=[m.flip - n.flip for m, n in zip(seen, case["none"])],
+                objective=[m.objective / n.objective if n.objective > 0 else 1.0 for m, n in zip(seen, case["none"])])
+
+
+def _guarded_scores(case: dict, measure: str, rho: float, memo: dict) -> tuple[float, dict[str, list[float]]]:
+    """The guard's weight and each seen eye's :func:`_scores` of the guarded image (memoised by weight)."""
     done = guard_blend(case["shown"], case["target"], case["problems"], rho, measure,
                        ViewingLight.of(case["display"]))
     if done.weight >= 1.0:
-        return 1.0, case["gains"]
+        return 1.0, case["scores"]
     key = (id(case), round(done.weight, 6))
     if key not in memo:
-        memo[key] = [evaluate_seen(done.image, case["target"], e.nominal, case["display"])[0].jod - none
-                     for e, none, _ in case["seen"]]
+        memo[key] = _scores(done.image, case)
     return done.weight, memo[key]
 
 
-def _summary(cases: list[dict], gains_of) -> dict:
-    """Falls below -0.05 and how many are lifted, shares of the exact 3 mm gain kept (3 mm is the second
-    seen eye), the bench eye's least share per display."""
-    falls = lifted = 0
+def _summary(cases: list[dict], scores_of) -> dict:
+    """Falls below -0.05 JOD and how many are lifted, shares of the exact 3 mm gain kept (3 mm is the
+    second seen eye), the bench eye's least share per display; beside the JOD, the cases some seen eye
+    sees worse than none by FLIP (more than :data:`FLIP_FALL`) and by the objective, with the worst of each."""
+    falls = lifted = flip_falls = objective_falls = 0
     shares, bench = [], {}
-    worst = np.inf
+    worst, flip_worst, objective_worst = np.inf, -np.inf, 0.0
     for case in cases:
-        gains = gains_of(case)
+        scores = scores_of(case)
+        gains = scores["jod"]
         worst = min(worst, min(gains))
-        if min(case["gains"]) < FALL:
+        flip_worst = max(flip_worst, max(scores["flip"]))
+        flip_falls += max(scores["flip"]) > FLIP_FALL
+        objective_worst = max(objective_worst, max(scores["objective"]))
+        objective_falls += max(scores["objective"]) > 1.0
+        if min(case["scores"]["jod"]) < FALL:
             falls += 1
             lifted += min(gains) >= FALL
         if case["ceiling"] >= SHARE_FROM:
@@ -107,13 +125,17 @@ def _summary(cases: list[dict], gains_of) -> dict:
             if case["eye"] == "bench":
                 bench[case["display_name"]] = min(bench.get(case["display_name"], np.inf), share)
     return dict(falls=falls, lifted=lifted, median=float(np.median(shares)) if shares else np.nan,
-                least=float(min(shares)) if shares else np.nan, bench=bench, worst=float(worst))
+                least=float(min(shares)) if shares else np.nan, bench=bench, worst=float(worst),
+                flip_falls=int(flip_falls), flip_worst=float(flip_worst), objective_falls=int(objective_falls),
+                objective_worst=float(objective_worst))
 
 
 def _line(label: str, s: dict) -> str:
     bench = "  ".join(f"{d} {v:4.0%}" for d, v in sorted(s["bench"].items()))
     return (f"{label:24s} falls lifted {s['lifted']:2d} of {s['falls']:2d}  worst {s['worst']:+.2f}  3 mm share kept: "
-            f"median {s['median']:4.0%}, least {s['least']:5.0%}  bench eye's least: {bench}")
+            f"median {s['median']:4.0%}, least {s['least']:5.0%}  bench eye's least: {bench}  worse than none by "
+            f"FLIP {s['flip_falls']} (worst {s['flip_worst']:+.3f}), by the objective {s['objective_falls']} "
+            f"(worst x{s['objective_worst']:.2f})")
 
 
 def main(argv: list[str]) -> int:
@@ -145,12 +167,12 @@ def main(argv: list[str]) -> int:
         names.append(name)
     print(f"{len(eyes)} eyes x 2 displays x {len(names)} pictures; the default correction, unguarded:", flush=True)
     cases = list(_cases(names, eyes))
-    rows = {("none", 0.0): _summary(cases, lambda c: c["gains"])}
+    rows = {("none", 0.0): _summary(cases, lambda c: c["scores"])}
     print(_line("unguarded", rows[("none", 0.0)]), flush=True)
     memo: dict = {}
     for measure in measures:
         for rho in args.rho:
-            rows[(measure, rho)] = _summary(cases, lambda c: _guarded_gains(c, measure, rho, memo)[1])
+            rows[(measure, rho)] = _summary(cases, lambda c: _guarded_scores(c, measure, rho, memo)[1])
             print(_line(f"{measure} {rho:g}", rows[(measure, rho)]), flush=True)
     if args.plot is not None:
         _plot(rows, measures, args.rho, args.plot)

@@ -660,6 +660,17 @@ def _case(display_name: str, name: str):
     return _cases[key]
 
 
+def seen_metrics(shown: np.ndarray, target: np.ndarray, seen, display, with_jod: bool = True) -> list:
+    """What each seen eye (``seen``: :func:`_case`'s (design, none's JOD, ceiling)) sees of ``shown``
+    against the ideal view of ``target``: JOD, FLIP and the objective (:func:`evaluate_seen`'s metrics)."""
+    return [evaluate_seen(shown, target, exact.nominal, display, with_jod=with_jod)[0] for exact, _, _ in seen]
+
+
+def seen_gains(shown: np.ndarray, target: np.ndarray, seen, display) -> list[float]:
+    """Each seen eye's JOD gain over none for ``shown``."""
+    return [m.jod - none for m, (_, none, _) in zip(seen_metrics(shown, target, seen, display), seen)]
+
+
 def _twin_frames(solver: str) -> int | None:
     """``--solver``'s frames of the real-time twin (None: ``fast``; -1: not a solver this takes)."""
     if solver == "fast":
@@ -819,15 +830,13 @@ def main(argv: list[str]) -> int:
                     shown, beta = guarded(shown, target, [e for (e, _, _), (q, o) in zip(seen, SEEN)
                                                           if o != 0.0 or (args.guard_pupils and q is not None)],
                                           args.guard, args.guard_measure, display)
-                gains, share, plain, plain_share = [], float("nan"), [], float("nan")
-                for exact, none, ceiling in seen:
-                    gain = evaluate_seen(shown, target, exact.nominal, display)[0].jod - none
-                    gains.append(gain)
-                    # with the guard acting, the unguarded correction too (blend 1: the same image)
-                    plain.append(gain if beta >= 1.0 else
-                                 evaluate_seen(unguarded, target, exact.nominal, display)[0].jod - none)
+                gains = seen_gains(shown, target, seen, display)
+                # with the guard acting, the unguarded correction too (blend 1: the same image)
+                plain = gains if beta >= 1.0 else seen_gains(unguarded, target, seen, display)
+                share, plain_share = float("nan"), float("nan")
+                for gain, plain_gain, (_, _, ceiling) in zip(gains, plain, seen):
                     if ceiling is not None:
-                        share, plain_share = gain / ceiling, plain[-1] / ceiling
+                        share, plain_share = gain / ceiling, plain_gain / ceiling
                 print(f"  {display_name:8s} {name:15s} light {p:.2f} mm  least {min(gains):+.3f}  share at 3 mm "
                       f"{share:4.0%}  gains " + " ".join(f"{g:+.2f}" for g in gains) + (f"  {judged}" if judged else "")
                       + (f"  blend {beta:.2f} (unguarded: least {min(plain):+.3f}, share {plain_share:4.0%})"
