@@ -481,6 +481,19 @@ def test_rx_new_writes_a_template_that_validates(tmp_path, capsys):
     assert err == ""
 
 
+def test_rx_validate_says_each_eyes_accommodation_and_whether_it_came_from_the_age(tmp_path, capsys):
+    doc = json.loads(strip_comment_lines(template_text()))
+    doc["age_years"] = 50
+    doc["right"]["accommodation_D"] = 1.25
+    path = tmp_path / "rx.json"
+    path.write_text(json.dumps(doc))
+    rc, out, err = run(capsys, "rx", "validate", path)
+    assert rc == 0, err
+    right, left = (line for line in out.splitlines() if line.lstrip().startswith(("right", "left")))
+    assert right.endswith("accommodation 1.25 D")                                    # as stated
+    assert left.endswith("accommodation 3.50 D (expected at age 50: none stated)")   # 18.5 - 0.3 x 50
+
+
 def test_rx_new_refuses_to_overwrite_and_force_overwrites(tmp_path, capsys):
     path = tmp_path / "rx.json"
     path.write_text("my real prescription")

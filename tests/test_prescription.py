@@ -635,6 +635,54 @@ def test_to_json_text_shape():
 
 
 # ---------------------------------------------------------------------------
+# Accommodation from age (Hofstetter 1950, mean amplitude 18.5 - 0.3 x age)
+# ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("age, amplitude", [(40, 6.5), (50, 3.5), (25, 11.0), (60, 0.5),
+                                            (10, 15.0),      # 15.5 held at the field's 15 D
+                                            (90, 0.0), (1, 15.0), (120, 0.0), (61.6, 0.02)])
+def test_an_eye_without_accommodation_gets_hofstetters_mean_for_the_files_age(age, amplitude):
+    doc = set_path(set_path(valid_doc(), "right.accommodation_D", MISSING), "age_years", age)
+    rx = parse_prescription(doc)
+    assert rx.right.accommodation_D == pytest.approx(amplitude, abs=1e-9)     # by hand from the formula
+    assert rx.left.accommodation_D == pytest.approx(amplitude, abs=1e-9)      # the left eye never gave one
+    assert rx.accommodation_from_age == ("right", "left")
+
+
+def test_a_stated_accommodation_and_a_file_without_age_keep_their_amplitude():
+    doc = set_path(set_path(valid_doc(), "right.accommodation_D", 2.0), "age_years", 30)
+    rx = parse_prescription(doc)
+    assert rx.right.accommodation_D == 2.0 and rx.left.accommodation_D == pytest.approx(9.5)
+    assert rx.accommodation_from_age == ("left",)
+    stated_zero = parse_prescription(set_path(valid_doc(), "age_years", 30))      # right states 0: a presbyope
+    assert stated_zero.right.accommodation_D == 0.0
+    no_age = parse_prescription(valid_doc())
+    assert no_age.left.accommodation_D == 0.0 and no_age.accommodation_from_age == ()
+
+
+def test_an_amplitude_from_age_is_left_out_when_written_and_comes_back_from_the_age(tmp_path):
+    rx = parse_prescription(set_path(valid_doc(), "age_years", 40))
+    doc = json.loads(to_json_text(rx))
+    assert "accommodation_D" not in doc["left"] and doc["right"]["accommodation_D"] == 0.0
+    again = parse_prescription(doc)
+    assert again == rx and again.accommodation_from_age == ("left",) and again.left.accommodation_D == 6.5
+    older = parse_prescription({**doc, "age_years": 55})               # the age edited: the amplitude follows
+    assert older.left.accommodation_D == pytest.approx(2.0)
+
+
+def test_accommodation_from_age_refuses_what_is_not_an_age_and_a_claim_without_one():
+    from vrcorrect.specs.prescription.model import accommodation_from_age
+
+    for bad in (float("nan"), "40", True, None):
+        with pytest.raises(ValidationError, match="age_years"):
+            accommodation_from_age(bad)
+    with pytest.raises(ValidationErrors, match="accommodation_from_age"):
+        Prescription(right=eye(), left=eye(), accommodation_from_age=("right",))        # no age to come from
+    with pytest.raises(ValidationErrors, match="accommodation_from_age"):
+        Prescription(right=eye(), left=eye(), age_years=30, accommodation_from_age=("both",))
+
+
+# ---------------------------------------------------------------------------
 # Template and sample
 # ---------------------------------------------------------------------------
 

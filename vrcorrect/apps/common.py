@@ -98,15 +98,21 @@ def _eye_text(e: EyeRx) -> str:
 
 
 def load_eye(args: argparse.Namespace) -> tuple[Path, EyeRx]:
-    path = rx_path(args)
-    return path, load_prescription(path).eye(args.eye)
+    path, eye, _ = load_eye_and_age(args)
+    return path, eye
 
 
 def load_eye_and_age(args: argparse.Namespace) -> tuple[Path, "EyeRx", float | None]:
-    """:func:`load_eye` and the prescription's ``age_years`` (None where it gives none)."""
+    """The ``--rx`` file's ``--eye`` and the prescription's ``age_years`` (None where it gives none); a
+    note on standard error when that eye's accommodation comes from the age."""
     path = rx_path(args)
     rx = load_prescription(path)
-    return path, rx.eye(args.eye), rx.age_years
+    eye = rx.eye(args.eye)
+    if args.eye in rx.accommodation_from_age:
+        print_notes([f"the {args.eye} eye states no accommodation_D: {eye.accommodation_D:.2f} D, the amplitude "
+                     f"expected at age {rx.age_years:g} (Hofstetter's mean, 18.5 - 0.3 x age); state accommodation_D "
+                     f"to set it (0 for an eye that cannot focus)"])
+    return path, eye, rx.age_years
 
 
 def kernel_options(args: argparse.Namespace) -> KernelOptions:

@@ -33,7 +33,8 @@ def cmd_rx_validate(args: argparse.Namespace) -> int:
         e = rx.eye(name)
         pv = e.power_vector()
         print(f"  {name:5s} {e.sphere_D:+.2f} / {e.cylinder_D:+.2f} x {e.axis_deg:g}, pupil {e.pupil_diameter_mm:g} mm"
-              f"  (M {pv.M_D:+.2f}, J0 {pv.J0_D:+.2f}, J45 {pv.J45_D:+.2f} D)")
+              f"  (M {pv.M_D:+.2f}, J0 {pv.J0_D:+.2f}, J45 {pv.J45_D:+.2f} D), accommodation {e.accommodation_D:.2f} D"
+              + (f" (expected at age {rx.age_years:g}: none stated)" if name in rx.accommodation_from_age else ""))
     return 0
 
 

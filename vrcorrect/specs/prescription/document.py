@@ -22,6 +22,7 @@ from .model import (
     EyeRx,
     HigherOrder,
     Prescription,
+    accommodation_from_age,
     check_j,
     join_field,
     parse_j,
@@ -159,7 +160,9 @@ def problems_in(doc: object) -> list[FieldProblem]:
     return problems
 
 
-def _eye_from_doc(doc: Mapping[str, Any]) -> EyeRx:
+def _eye_from_doc(doc: Mapping[str, Any], age_years: float | None) -> EyeRx:
+    """The eye of a checked eye document; without ``accommodation_D``, its amplitude from
+    ``age_years`` (:func:`~.model.accommodation_from_age`) where the document gives the age, else 0."""
     ho = None
     if "higher_order" in doc:
         h = doc["higher_order"]
@@ -172,7 +175,8 @@ def _eye_from_doc(doc: Mapping[str, Any]) -> EyeRx:
         cylinder_D=doc["cylinder_D"],
         axis_deg=doc["axis_deg"],
         pupil_diameter_mm=doc["pupil_diameter_mm"],
-        accommodation_D=doc.get("accommodation_D", 0.0),
+        accommodation_D=doc["accommodation_D"] if "accommodation_D" in doc
+        else (accommodation_from_age(age_years) if age_years is not None else 0.0),
         higher_order=ho,
     )
 
@@ -197,11 +201,13 @@ def parse_prescription(doc: object, source: str | None = None) -> Prescription:
         raise ValidationErrors(problems, source)
     assert isinstance(doc, Mapping)
     try:
+        age = doc.get("age_years")
         return Prescription(
-            right=_eye_from_doc(doc["right"]),
-            left=_eye_from_doc(doc["left"]),
+            right=_eye_from_doc(doc["right"], age),
+            left=_eye_from_doc(doc["left"], age),
             notes=doc.get("notes", ""),
-            age_years=doc.get("age_years"),
+            age_years=age,
+            accommodation_from_age=tuple(e for e in names(Eye) if age is not None and "accommodation_D" not in doc[e]),
         )
     except ValidationErrors as exc:  # pragma: no cover - problems_in is stricter
         raise ValidationErrors(exc.problems, source) from None

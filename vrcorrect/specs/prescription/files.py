@@ -17,6 +17,7 @@ from typing import Any
 from ...plumbing.errors import InputError, FieldProblem, json_error_location
 from ...plumbing.fileio import package_data, write_text_atomic
 from ..validation import FileWording, read_utf8_text
+from ..vocabulary import Eye, names
 from .document import parse_prescription, problems_in
 from .model import SCHEMA, EyeRx, Prescription
 
@@ -127,14 +128,17 @@ def validate_file(path: str | PathLike[str]) -> list[FieldProblem]:
     return problems_in(doc)
 
 
-def _eye_to_dict(eye: EyeRx) -> dict[str, Any]:
+def _eye_to_dict(eye: EyeRx, from_age: bool = False) -> dict[str, Any]:
+    """An eye's document; ``from_age``: its amplitude came from the age, so it is left out (it comes
+    from the age again when read back)."""
     out: dict[str, Any] = {
         "sphere_D": eye.sphere_D,
         "cylinder_D": eye.cylinder_D,
         "axis_deg": eye.axis_deg,
         "pupil_diameter_mm": eye.pupil_diameter_mm,
-        "accommodation_D": eye.accommodation_D,
     }
+    if not from_age:
+        out["accommodation_D"] = eye.accommodation_D
     if eye.higher_order is not None:
         out["higher_order"] = {
             "pupil_diameter_mm": eye.higher_order.pupil_diameter_mm,
@@ -149,7 +153,8 @@ def to_json_text(rx: Prescription) -> str:
     Keys in a fixed order, floats written exactly (shortest round-trip form),
     two-space indent, trailing newline.
     """
-    doc = {"schema": SCHEMA, "notes": rx.notes, "right": _eye_to_dict(rx.right), "left": _eye_to_dict(rx.left)}
+    doc = {"schema": SCHEMA, "notes": rx.notes, **{e: _eye_to_dict(rx.eye(e), e in rx.accommodation_from_age)
+                                                     for e in names(Eye)}}
     if rx.age_years is not None:
         doc = {"schema": SCHEMA, "notes": rx.notes, "age_years": rx.age_years, "right": doc["right"],
                "left": doc["left"]}
@@ -183,8 +188,14 @@ _TEMPLATE = """\
 //                      view through from the display's light instead (about 3
 //                      mm for a bright monitor or a headset, more when dim).
 //   accommodation_D    optional: how many dioptres the eye can still focus by
-//                      itself (accommodation amplitude), 0 to 15; default 0,
-//                      which assumes none (the safe choice for presbyopes).
+//                      itself (accommodation amplitude), 0 to 15. Left out, it
+//                      is the amplitude expected at age_years (Hofstetter's
+//                      mean, 18.5 - 0.3 x age: 6.5 D at 40, 0 from about 62)
+//                      when the file gives an age, else 0 (none, as a
+//                      presbyope). An eye that focuses on the display by
+//                      itself sees it sharp, and a correction designed for
+//                      blur it does not see makes its view worse: give your
+//                      age, or your measured amplitude.
 //   higher_order       optional: higher-order aberrations from an aberrometer,
 //                      for example
 //                        "higher_order": {"pupil_diameter_mm": 6.0,
@@ -202,7 +213,8 @@ _TEMPLATE = """\
 //
 // "notes" is optional free text. "age_years" is optional too: the wearer's age
 // (1 to 120), which the viewing pupil's formula uses (older eyes have smaller
-// pupils); leave it out to use the formula's reference age.
+// pupils), and the accommodation of an eye that states none; leave it out to
+// use the formula's reference age and no accommodation.
 {
   "schema": "vrcorrect.prescription/1",
   "notes": "Template: replace the numbers with your own prescription.",
@@ -210,15 +222,13 @@ _TEMPLATE = """\
     "sphere_D": 0.0,
     "cylinder_D": 0.0,
     "axis_deg": 0,
-    "pupil_diameter_mm": 4.0,
-    "accommodation_D": 0.0
+    "pupil_diameter_mm": 4.0
   },
   "left": {
     "sphere_D": 0.0,
     "cylinder_D": 0.0,
     "axis_deg": 0,
-    "pupil_diameter_mm": 4.0,
-    "accommodation_D": 0.0
+    "pupil_diameter_mm": 4.0
   }
 }
 """

@@ -19,7 +19,8 @@ from ...plumbing.errors import FieldProblem, ValidationError, ValidationErrors
 from ..validation import Range, check_number, unknown_key_problem
 from ..vocabulary import Eye, either, names
 
-__all__ = ["SCHEMA", "J_MIN", "J_MAX", "PowerVector", "HigherOrder", "EyeRx", "Prescription"]
+__all__ = ["SCHEMA", "J_MIN", "J_MAX", "PowerVector", "HigherOrder", "EyeRx", "Prescription",
+           "accommodation_from_age"]
 
 SCHEMA = "vrcorrect.prescription/1"
 
@@ -41,6 +42,26 @@ ACCOMMODATION = Range(0.0, 15.0, "a finite number from 0 to 15 (dioptres of acco
 HO_PUPIL = Range(1.0, 9.0, "a finite number from 1 to 9 (millimetres; the pupil the coefficients were measured at)")
 AGE = Range(1.0, 120.0, "a finite number of years from 1 to 120")
 COEFFICIENT = Range(-10.0, 10.0, "a finite number from -10 to 10 (micrometres)")
+
+#: Hofstetter's (1950) mean amplitude of accommodation by age: ``18.5 - 0.30 age`` dioptres (his
+#: least and greatest: ``15 - 0.25 age`` and ``25 - 0.40 age``).
+HOFSTETTER_MEAN = (18.5, 0.30)
+
+
+def accommodation_from_age(age_years: float) -> float:
+    """The accommodation amplitude an eye of ``age_years`` is expected to have, dioptres: Hofstetter's
+    mean, ``18.5 - 0.30 age`` (Hofstetter 1950, from Duane's measurements), held within the field's
+    0 to 15 D (15 D up to age 11, 0 from about 62).
+
+    Why the mean and not 0 when a prescription states no amplitude: an eye that focuses on the display
+    by itself sees it sharp, and a correction designed for the blur it does not see over-sharpens what
+    it sees, which is worse than none (docs/realtime.md, "Accommodation from age"); an amplitude
+    assumed too large only leaves blur uncorrected that the eye would have gained from correcting."""
+    if isinstance(age_years, bool) or not isinstance(age_years, (int, float)) or not math.isfinite(age_years):
+        raise ValidationError("age_years", age_years, AGE.allowed)
+    base, slope = HOFSTETTER_MEAN
+    return float(min(max(base - slope * float(age_years), ACCOMMODATION.lo), ACCOMMODATION.hi))
+
 
 J_ALLOWED = (
     f"an integer OSA/ANSI single index j from {J_MIN} to {J_MAX} (radial orders 3 to 10), "
@@ -383,13 +404,18 @@ class Prescription:
         Free text.
     age_years
         The wearer's age (1 to 120), or None: the viewing pupil's formula then uses its reference
-        age (:mod:`vrcorrect.physics.pupil`).
+        age (:mod:`vrcorrect.physics.pupil`).  A prescription file that gives it, for an eye that
+        states no ``accommodation_D``, sets that eye's amplitude to :func:`accommodation_from_age`.
+    accommodation_from_age
+        The eyes (``"right"``, ``"left"``) whose amplitude was so set rather than stated (not
+        compared: the same eyes are equal however their amplitude came).
     """
 
     right: EyeRx
     left: EyeRx
     notes: str = ""
     age_years: float | None = None
+    accommodation_from_age: tuple[str, ...] = dataclasses.field(default=(), compare=False)
 
     def __post_init__(self) -> None:
         problems: list[FieldProblem] = []
@@ -402,6 +428,10 @@ class Prescription:
             age = check_number(problems, "age_years", self.age_years, AGE)
             if age is not None:
                 object.__setattr__(self, "age_years", age)
+        if any(e not in names(Eye) for e in self.accommodation_from_age) or \
+                (self.accommodation_from_age and self.age_years is None):
+            problems.append(FieldProblem("accommodation_from_age", self.accommodation_from_age,
+                                         "right and/or left, with age_years given"))
         if problems:
             raise ValidationErrors(problems)
 
