@@ -91,3 +91,52 @@ def test_correct_never_overwrites_without_force(tmp_path, small_png, capsys):
     assert "--force" in capsys.readouterr().err
     assert run("correct", str(small_png), "-o", str(out), "--method", "wiener", "--force") == 0
     assert out.read_bytes() != b"mine"
+
+
+def _sphere_alone_rx(tmp_path: Path, **eye_fields) -> Path:
+    """A -1.00 D eye of sphere alone, 40 years old: 0.67 D from focus at the desktop's 0.6 m, which an
+    eye of 40 (6.5 D of accommodation expected) focuses away; ``eye_fields`` added to each eye."""
+    eye = {"sphere_D": -1.0, "cylinder_D": 0.0, "axis_deg": 0, "pupil_diameter_mm": 4.0, **eye_fields}
+    rx = tmp_path / "rx.json"
+    rx.write_text(json.dumps({"schema": "vrcorrect.prescription/1", "age_years": 40, "right": eye, "left": eye}))
+    return rx
+
+
+def test_an_eye_that_focuses_on_the_display_gets_the_picture_as_it_is_and_says_why(tmp_path, small_png, capsys):
+    """The eye's amplitude from its age (none stated) takes the desktop into focus: the output is the
+    input to the code value, the command says there is nothing to correct and where the amplitude came
+    from, and gives no note about eyes of sphere alone.  Stated as 0 (a presbyope), the same eye is
+    corrected and the note is given."""
+    out = tmp_path / "out.png"
+    assert run("correct", str(small_png), "-o", str(out), "--rx", str(_sphere_alone_rx(tmp_path)),
+               "--display", "desktop") == 0
+    said = capsys.readouterr()
+    assert np.array_equal(np.asarray(Image.open(out)), np.asarray(Image.open(small_png)))
+    assert "the picture as it is" in said.out and "nothing to correct" in said.out
+    assert "6.50 D, the amplitude expected at age 40" in said.err and "eye of sphere alone" not in said.err
+    presbyope = tmp_path / "presbyope"
+    presbyope.mkdir()
+    corrected = tmp_path / "corrected.png"
+    assert run("correct", str(small_png), "-o", str(corrected), "--display", "desktop",
+               "--rx", str(_sphere_alone_rx(presbyope, accommodation_D=0.0))) == 0
+    said = capsys.readouterr()
+    assert not np.array_equal(np.asarray(Image.open(corrected)), np.asarray(Image.open(small_png)))
+    assert "nothing to correct" not in said.out and "eye of sphere alone" in said.err
+    assert "amplitude expected" not in said.err
+
+
+def test_a_clip_for_an_eye_in_focus_is_shown_as_it_is_frame_by_frame(tmp_path, small_png, capsys):
+    source = np.asarray(Image.open(small_png))
+    clip = tmp_path / "clip"
+    clip.mkdir()
+    for i in range(2):
+        Image.fromarray(np.roll(source, 2 * i, axis=1)).save(clip / f"shot{i + 1}.png")
+    out, report = tmp_path / "shown", tmp_path / "r.json"
+    assert run("correct", str(clip), "-o", str(out), "--rx", str(_sphere_alone_rx(tmp_path)), "--display", "desktop",
+               "--report", str(report)) == 0
+    said = capsys.readouterr()
+    assert "2 of 2 frames shown as they are" in said.out and "eye of sphere alone" not in said.err
+    for i in range(2):
+        assert np.array_equal(np.asarray(Image.open(out / f"frame_{i:05d}.png")),
+                              np.asarray(Image.open(clip / f"shot{i + 1}.png")))
+    assert all(f["nothing_to_correct"] and f["iterations"] == 0 for f in json.loads(report.read_text())["frames"])

@@ -90,13 +90,15 @@ def cmd_correct(args: argparse.Namespace) -> int:
             bar.n = done
             bar.refresh()
     t2 = time.perf_counter()
+    aside = design.sees_as_with_glasses and args.method != Method.NONE
     try:
-        result = solve(problem, args.method, progress=progress, **options)
+        result = _as_it_is(target, problem, args.method) if aside else \
+            solve(problem, args.method, progress=progress, **options)
     finally:
         if bar is not None:
             bar.close()
     guarded = None
-    if rho is not None:
+    if rho is not None and not aside:
         guarded = guard_blend(result.image, target, _guard_problems(target, guards, args.contrast), rho,
                               args.guard_measure, ViewingLight.of(display))
         result.image = guarded.image
@@ -126,20 +128,39 @@ def cmd_correct(args: argparse.Namespace) -> int:
     design_text = (f"designed for a {pupil:.2f} mm pupil" + (f", robust over {len(design.members)} eyes"
                                                                if design.robust else "")
                    + (" of the page band" if _band_name(design) == "page" else ""))
-    parts = [f"eye model {duration_text(t1 - t0)}", f"{_solve_text(result.method, result.iterations)} "
-             f"{duration_text(t3 - t2)}"]
+    parts = [f"eye model {duration_text(t1 - t0)}", "no solve" if aside else
+             f"{_solve_text(result.method, result.iterations)} {duration_text(t3 - t2)}"]
     if args.report:
         parts.append(f"report (what the eye sees, judged) {duration_text(t4 - t3)}")
     rest = time.perf_counter() - started - (t1 - t0) - (t3 - t2) - (t4 - t3 if args.report else 0.0)
     parts.append(f"start-up, reading and writing {duration_text(rest)}")
-    print(f"wrote {out}: {result.method} correction for the {args.eye} eye on {display.title}, {design_text} "
-          f"(objective {result.objective:.3g})" + (f"; report {args.report}" if args.report else ""))
+    if aside:
+        print(f"wrote {out}: the picture as it is for the {args.eye} eye on {display.title}: {NOTHING_TO_CORRECT}"
+              + (f"; report {args.report}" if args.report else ""))
+    else:
+        print(f"wrote {out}: {result.method} correction for the {args.eye} eye on {display.title}, {design_text} "
+              f"(objective {result.objective:.3g})" + (f"; report {args.report}" if args.report else ""))
     if guarded is not None:
         print("  " + _guard_text(rho, guarded))
-    elif _sphere_alone(eye):
+    elif _sphere_alone(eye) and not aside:
         print_notes([SPHERE_ALONE_NOTE])
     print(f"  took {duration_text(time.perf_counter() - started)}: " + ", ".join(parts))
     return 0
+
+
+#: What ``correct`` says where every eye it designs for sees the display as well as with glasses.
+NOTHING_TO_CORRECT = ("this eye sees the display as well as with its glasses (in focus there, after its accommodation), "
+                      "so there is nothing to correct")
+
+
+def _as_it_is(target: np.ndarray, problem, method: str):
+    """The picture shown as it is (nothing to correct): a result of no iterations, the method's name kept."""
+    from ..solvers import objective  # on use: start-up time (apps/__init__)
+    from ..solvers.problem import SolveResult  # on use: start-up time (apps/__init__)
+
+    image = np.asarray(target, np.float32)
+    return SolveResult(image=image, method=method, seconds=0.0, iterations=0, objective=objective(image, problem),
+                       settings={"nothing_to_correct": True})
 
 
 #: What ``correct`` says, without ``--guard``, for an eye of sphere alone (docs/realtime.md, "Eyes of sphere alone").
@@ -368,7 +389,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
         return encode("srgb", lms_to_display(lms, kernel)).astype(np.float32)
 
     per_frame: list[dict] = []
-    last_source, result, entry, last_design = -1, None, None, None
+    last_source, result, entry, last_design, asides = -1, None, None, None, 0
     bits = 16 if args.sixteen_bit else 8
     with folder, clips.frames_bar(f"correct ({args.method})", plan.count) as bar:
         for index, (source, frame) in enumerate(clips.planned_frames(plan)):
@@ -381,8 +402,10 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
                     options = _solver_options(args, learned, eye.with_changes(pupil_diameter_mm=pupil), display,
                                               design.kernel, design.reference, problem.capped)
                 last_design = design
-                result = solve(problem, args.method, **options)
-                if rho is not None:                 # the guard eyes at this frame's pupil, built once per pupil
+                aside = design.sees_as_with_glasses and args.method != Method.NONE
+                result = _as_it_is(linear, problem, args.method) if aside else solve(problem, args.method, **options)
+                asides += aside
+                if rho is not None and not aside:   # the guard eyes at this frame's pupil, built once per pupil
                     if pupil not in guards:
                         if fixed is None:
                             fixed = _pupil_guards(args, eye, display)
@@ -391,7 +414,8 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
                                           rho, args.guard_measure, viewing)
                     result.image, result.objective = guarded.image, objective(guarded.image, problem)
                 entry = {"source_frame": source, "objective": result.objective, "band": _band_name(design),
-                         "guard_weight": guarded.weight if rho is not None else None,
+                         "guard_weight": guarded.weight if rho is not None and not aside else None,
+                         "nothing_to_correct": aside,
                          "objective_uncorrected": objective(problem.target, problem) if args.report else None,
                          "iterations": result.iterations, "seconds": result.seconds}
                 if scored:
@@ -419,11 +443,14 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     print(f"  took {duration_text(time.perf_counter() - started)}: eye model {duration_text(design_for.seconds)}, "
           f"{_solve_text(args.method, int(np.median([f['iterations'] for f in per_frame])))} "
           f"{duration_text(sum(f['seconds'] for f in per_frame))} for the frames")
-    if rho is not None:
-        weights = [f["guard_weight"] for f in per_frame]
+    shown_as_is = sum(f["nothing_to_correct"] for f in per_frame)
+    if shown_as_is:
+        print(f"  {shown_as_is} of {len(per_frame)} frames shown as they are: {NOTHING_TO_CORRECT}")
+    weights = [f["guard_weight"] for f in per_frame if f["guard_weight"] is not None]
+    if rho is not None and weights:
         print(f"  guard {rho:g}: {sum(w < 1.0 for w in weights)} of {len(weights)} frames blended towards the "
               f"picture (the least weight {min(weights):.2f})")
-    elif _sphere_alone(eye):
+    elif rho is None and _sphere_alone(eye) and asides < len({f["source_frame"] for f in per_frame}):
         print_notes([SPHERE_ALONE_NOTE])
     return 0
 

@@ -213,6 +213,16 @@ class Design:
         (:attr:`RobustBand.light_cap`); one eye's never is (the box [0, 1])."""
         return self.robust and self.band is not None and self.band.light_cap
 
+    @property
+    def sees_as_with_glasses(self) -> bool:
+        """Whether the kernel solved for equals its glasses reference (to 1e-9): every eye designed for
+        sees the display as well as with its glasses (in focus after accommodation, its chromatic blur
+        left alone as glasses leave it), so there is nothing to correct."""
+        k, r = self.kernel, self.reference
+        return r is not None and r.kernel.shape == k.kernel.shape and bool(
+            np.allclose(r.kernel, k.kernel, rtol=0.0, atol=1e-9)) and bool(np.allclose(r.matrix, k.matrix, rtol=0.0,
+                                                                                        atol=1e-12))
+
     def member_kernels(self, member: Member) -> tuple[EyeKernel, EyeKernel | None]:
         """A member's kernel and glasses kernel (None: the ideal target), as the design built them."""
         return self._kernels[(member.pupil_mm, member.sphere_offset_D)]
