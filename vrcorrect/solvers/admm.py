@@ -41,7 +41,7 @@ from typing import Callable
 
 import numpy as np
 
-from .problem import LIGHT_CAP_FLOOR, Correction, Problem, guard_weight, light_cap
+from .problem import LIGHT_CAP_FLOOR, Correction, Problem, guard_weight, light_cap, objective
 from .spectral import (Blur, apply3, conj_transpose, hermitian_inverse, irfft_grid, kernel_spectrum, margin_shape,
                        mirror_fill, padded_shape, rfft_grid, spectral_norm_squared)
 
@@ -290,7 +290,9 @@ def fast(problem: Problem, tolerance: float = 1e-2, max_iterations: int = 200, r
     """ADMM for the LMS objective in the box (see the module docstring).  Stops when an iteration
     lowers the best objective by less than ``tolerance`` (relative), after :data:`PATIENCE`
     iterations without a new best, or after ``max_iterations`` on the full-resolution level;
-    returns the best iterate.  A robust problem (``problem.members``) is solved on its effective
+    returns the best iterate, or the target itself where that is no worse by the problem's objective
+    (an eye in focus or nearly so, whose over-relaxed first steps leave an optimum that no later
+    iterate regains within the tolerance).  A robust problem (``problem.members``) is solved on its effective
     kernel (:mod:`vrcorrect.physics.robust`), as the real-time path solves it, and in its box
     (``problem.capped``: below the light cap, :func:`~vrcorrect.solvers.problem.light_cap`)."""
     K = problem.kernel.kernel
@@ -304,4 +306,9 @@ def fast(problem: Problem, tolerance: float = 1e-2, max_iterations: int = 200, r
                 "spectral_norm_squared": norm2, "tolerance": tolerance,
                 "box": "0 to the light cap min(1, 2 t + %g)" % LIGHT_CAP_FLOOR if problem.capped else "0 to 1",
                 "warm_start": ", then ".join(notes)}
-    return Correction(np.moveaxis(z, 0, 2).astype(np.float32), iterations, settings, history)
+    image = np.moveaxis(z, 0, 2).astype(np.float32)
+    shown = np.asarray(problem.target, np.float32)
+    if objective(shown, problem) <= objective(image, problem):      # never worse than the picture itself: an
+        settings["kept"] = "the target itself (no iterate was better by the objective)"   # eye near focus
+        image = shown.copy()
+    return Correction(image, iterations, settings, history)
