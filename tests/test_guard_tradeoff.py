@@ -63,6 +63,8 @@ def test_the_summary_counts_falls_lifted_and_the_share_of_the_3mm_gain_kept():
 
 @pytest.mark.parametrize("extra, said", [(["--rho", "0.5"], "--rho: factors from 1 to 10"),
                                          (["--image", "missing.png"], "--image missing.png"),
+                                         (["--image", "no_such_picture"], "nor a scikit-image picture"),
+                                         (["--image", "motorcycle"], "held out for vrcorrect bench robust"),
                                          (["--measure", "jod"], "invalid choice")])
 def test_the_tool_refuses_bad_input_in_one_line_before_any_work(tmp_path, extra, said):
     picture = ROOT / "vrcorrect" / "data" / "sample.png"

@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from skimage import data as skimage_data
 
 import robust_band_choice as rb  # tools/: this script's folder
 from vrcorrect.apps.common import load_eye_and_age
@@ -46,7 +47,8 @@ FLIP_FALL = 0.005     # a seen eye's FLIP above none's by more than this counts 
 
 def _arguments(argv: list[str]) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="guard_tradeoff", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--image", action="append", default=[], required=True, help="a picture (repeatable)")
+    ap.add_argument("--image", action="append", default=[], required=True,
+                    help="a picture file, or a scikit-image picture by name (repeatable)")
     ap.add_argument("--rx", action="append", default=[], help="a prescription whose right eye is swept too, at its "
                                                               "age_years (repeatable)")
     ap.add_argument("--measure", action="append", choices=GUARD_MEASURES, help="a guard measure (repeatable; "
@@ -75,7 +77,7 @@ def _cases(images: list[str], eyes: list[tuple[str, object, float | None]]):
                             none=rb.seen_metrics(target, target, seen, display, with_jod=False),
                             ceiling=next(c for _, _, c in seen if c is not None))
                 case["scores"] = _scores(shown, case)
-                print(f"  {tag:6s} {display_name:8s} {name:14s} least {min(case['scores']['jod']):+.2f}  "
+                print(f"  {tag:10s} {display_name:8s} {name:20s} least {min(case['scores']['jod']):+.2f}  "
                       f"({time.perf_counter() - t0:.0f} s)", flush=True)
                 yield case
 
@@ -154,11 +156,18 @@ def main(argv: list[str]) -> int:
         except (VrcorrectError, OSError) as e:
             print(f"guard_tradeoff: --rx {path}: {e}", file=sys.stderr)
             return 2
-        eyes.append((f"{eye.sphere_D:+.2f}", eye, age))
+        eyes.append((f"{eye.sphere_D:+.2f}/{eye.accommodation_D:g}D", eye, age))      # sphere / accommodation
     names = []
     for path in args.image:
         name = Path(path).stem
-        rb._files[name] = path
+        if name in rb.HELD_OUT:
+            print(f"guard_tradeoff: --image {path}: held out for vrcorrect bench robust", file=sys.stderr)
+            return 2
+        if Path(path).exists() or Path(path).suffix:
+            rb._files[name] = path                          # a picture file
+        elif not hasattr(skimage_data, path):               # else a scikit-image picture by name
+            print(f"guard_tradeoff: --image {path}: no such file, nor a scikit-image picture", file=sys.stderr)
+            return 2
         try:
             rb.choice_image(name)
         except (VrcorrectError, OSError) as e:
