@@ -671,7 +671,7 @@ def test_an_amplitude_from_age_is_left_out_when_written_and_comes_back_from_the_
 
 
 def test_accommodation_from_age_refuses_what_is_not_an_age_and_a_claim_without_one():
-    from vrcorrect.specs.prescription.model import accommodation_from_age
+    from vrcorrect.specs.prescription import accommodation_from_age
 
     for bad in (float("nan"), "40", True, None):
         with pytest.raises(ValidationError, match="age_years"):

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 from .document import MISSING, parse_prescription, problems_in
 from .files import bundled_sample_path, load_prescription, template_text, to_json_text, validate_file, write_template
+from .model import accommodation_from_age
 from .model import J_MAX, J_MIN, SCHEMA, EyeRx, HigherOrder, PowerVector, Prescription  # noqa: F401  (importable from here, as before, though not in __all__)
 
 __all__ = [
@@ -47,6 +48,7 @@ __all__ = [
     "HigherOrder",
     "EyeRx",
     "Prescription",
+    "accommodation_from_age",
     "parse_prescription",
     "problems_in",
     "load_prescription",
