@@ -92,7 +92,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
     t2 = time.perf_counter()
     aside = design.sees_as_with_glasses and args.method != Method.NONE
     try:
-        result = _as_it_is(target, problem, args.method) if aside else \
+        result = _as_it_is(problem, args.method) if aside else \
             solve(problem, args.method, progress=progress, **options)
     finally:
         if bar is not None:
@@ -153,12 +153,13 @@ NOTHING_TO_CORRECT = ("this eye sees the display as well as with its glasses (in
                       "so there is nothing to correct")
 
 
-def _as_it_is(target: np.ndarray, problem, method: str):
-    """The picture shown as it is (nothing to correct): a result of no iterations, the method's name kept."""
+def _as_it_is(problem, method: str):
+    """The picture shown as it is (nothing to correct; under ``--contrast``, as that scales it): a result
+    of no iterations, the method's name kept."""
     from ..solvers import objective  # on use: start-up time (apps/__init__)
     from ..solvers.problem import SolveResult  # on use: start-up time (apps/__init__)
 
-    image = np.asarray(target, np.float32)
+    image = np.asarray(problem.target, np.float32)
     return SolveResult(image=image, method=method, seconds=0.0, iterations=0, objective=objective(image, problem),
                        settings={"nothing_to_correct": True})
 
@@ -403,7 +404,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
                                               design.kernel, design.reference, problem.capped)
                 last_design = design
                 aside = design.sees_as_with_glasses and args.method != Method.NONE
-                result = _as_it_is(linear, problem, args.method) if aside else solve(problem, args.method, **options)
+                result = _as_it_is(problem, args.method) if aside else solve(problem, args.method, **options)
                 asides += aside
                 if rho is not None and not aside:   # the guard eyes at this frame's pupil, built once per pupil
                     if pupil not in guards:
