@@ -492,6 +492,11 @@ def test_rx_validate_says_each_eyes_accommodation_and_whether_it_came_from_the_a
     right, left = (line for line in out.splitlines() if line.lstrip().startswith(("right", "left")))
     assert right.endswith("accommodation 1.25 D")                                    # as stated
     assert left.endswith("accommodation 3.50 D (expected at age 50: none stated)")   # 18.5 - 0.3 x 50
+    assert "no age_years" not in out
+    del doc["age_years"]                                                             # the left eye: 0, and said
+    path.write_text(json.dumps(doc))
+    rc, out, err = run(capsys, "rx", "validate", path)
+    assert rc == 0 and "accommodation 0.00 D" in out and "no age_years: an eye with accommodation 0" in out
 
 
 def test_rx_new_refuses_to_overwrite_and_force_overwrites(tmp_path, capsys):

@@ -35,6 +35,10 @@ def cmd_rx_validate(args: argparse.Namespace) -> int:
         print(f"  {name:5s} {e.sphere_D:+.2f} / {e.cylinder_D:+.2f} x {e.axis_deg:g}, pupil {e.pupil_diameter_mm:g} mm"
               f"  (M {pv.M_D:+.2f}, J0 {pv.J0_D:+.2f}, J45 {pv.J45_D:+.2f} D), accommodation {e.accommodation_D:.2f} D"
               + (f" (expected at age {rx.age_years:g}: none stated)" if name in rx.accommodation_from_age else ""))
+    if rx.age_years is None and any(rx.eye(name).accommodation_D == 0.0 for name in Eye):
+        print("  no age_years: an eye with accommodation 0 is modelled as one that cannot focus (a presbyope's); if "
+              "yours can, give age_years (or accommodation_D), or a correction may sharpen what the eye already "
+              "focuses sharp")
     return 0
 
 
