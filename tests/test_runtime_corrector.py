@@ -175,6 +175,33 @@ def test_zero_prescription_returns_the_input(gl, tmp_path, images):
         c.release()
 
 
+def test_an_eye_that_focuses_on_the_monitor_by_its_age_gets_frames_as_they_are(gl, tmp_path, images):
+    """-1.00 D of sphere alone at the desktop's 0.6 m is 0.67 D from focus on the near side: an eye of 40
+    stating no accommodation (6.5 D from its age) focuses it away, and the real-time path passes its
+    frames through; the same eye stated as a presbyope (accommodation 0) is corrected."""
+    doc = rx_doc(-1.0)
+    doc["age_years"] = 40
+    path = tmp_path / "rx.json"
+    path.write_text(json.dumps(doc))
+    c = Corrector(gl, path, "desktop", "right")
+    try:
+        assert c.model.identity and c.model.eye.accommodation_D == 6.5
+        assert any("as well as with its glasses" in n for n in c.model.notes), c.model.notes
+        for _, img in images[:2]:
+            assert np.abs(run(gl, c, img).astype(int) - img).max() <= 1
+    finally:
+        c.release()
+    for eye in ("right", "left"):
+        doc[eye]["accommodation_D"] = 0.0
+    path.write_text(json.dumps(doc))
+    c = Corrector(gl, path, "desktop", "right")
+    try:
+        assert not c.model.identity
+        assert np.abs(run(gl, c, images[0][1]).astype(int) - images[0][1]).max() > 10
+    finally:
+        c.release()
+
+
 def test_no_gpu_allocations_after_warm_up(gl, evaluation_corrector, images):
     c = evaluation_corrector
     img = images[0][1]
