@@ -93,12 +93,13 @@ def test_correct_never_overwrites_without_force(tmp_path, small_png, capsys):
     assert out.read_bytes() != b"mine"
 
 
-def _sphere_alone_rx(tmp_path: Path, **eye_fields) -> Path:
+def _sphere_alone_rx(tmp_path: Path, age: float | None = 40, **eye_fields) -> Path:
     """A -1.00 D eye of sphere alone, 40 years old: 0.67 D from focus at the desktop's 0.6 m, which an
     eye of 40 (6.5 D of accommodation expected) focuses away; ``eye_fields`` added to each eye."""
     eye = {"sphere_D": -1.0, "cylinder_D": 0.0, "axis_deg": 0, "pupil_diameter_mm": 4.0, **eye_fields}
     rx = tmp_path / "rx.json"
-    rx.write_text(json.dumps({"schema": "vrcorrect.prescription/1", "age_years": 40, "right": eye, "left": eye}))
+    doc = {"schema": "vrcorrect.prescription/1", "right": eye, "left": eye}
+    rx.write_text(json.dumps(doc if age is None else {**doc, "age_years": age}))
     return rx
 
 
@@ -122,7 +123,14 @@ def test_an_eye_that_focuses_on_the_display_gets_the_picture_as_it_is_and_says_w
     said = capsys.readouterr()
     assert not np.array_equal(np.asarray(Image.open(corrected)), np.asarray(Image.open(small_png)))
     assert "nothing to correct" not in said.out and "eye of sphere alone" in said.err
-    assert "amplitude expected" not in said.err
+    assert "amplitude expected" not in said.err and "cannot focus" not in said.err      # stated, with an age
+    unknown = tmp_path / "unknown"                                 # no age and no amplitude: modelled as 0, and said
+    unknown.mkdir()
+    assert run("correct", str(small_png), "-o", str(unknown / "out.png"), "--display", "desktop",
+               "--rx", str(_sphere_alone_rx(unknown, age=None))) == 0
+    said = capsys.readouterr()
+    assert "eye of sphere alone" in said.err and "modelled as one that cannot focus" in said.err
+    assert "give the prescription's age_years" in said.err
 
 
 def test_a_clip_for_an_eye_in_focus_is_shown_as_it_is_frame_by_frame(tmp_path, small_png, capsys):

@@ -143,7 +143,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
     if guarded is not None:
         print("  " + _guard_text(rho, guarded))
     elif _sphere_alone(eye) and not aside:
-        print_notes([SPHERE_ALONE_NOTE])
+        print_notes(_sphere_alone_notes(eye, age))
     print(f"  took {duration_text(time.perf_counter() - started)}: " + ", ".join(parts))
     return 0
 
@@ -169,6 +169,17 @@ SPHERE_ALONE_NOTE = ("an eye of sphere alone may see this correction worse than 
                      "than prescribed; --guard 1.1 --guard-measure visibility blends the correction towards the "
                      "picture where it sees that harm (on fresh pictures it spared 13 of 15 such views and kept "
                      "about a third of the gain at 3 mm: docs/realtime.md, 'Eyes of sphere alone')")
+
+
+#: What ``correct`` adds for such an eye modelled as one that cannot focus, without an age to say otherwise.
+NO_AGE_NOTE = ("this eye is modelled as one that cannot focus (accommodation 0, no age_years): if it can, give the "
+               "prescription's age_years (or accommodation_D): an eye that focuses on the display by itself needs "
+               "no correction, and one designed for blur it focuses away makes its view worse")
+
+
+def _sphere_alone_notes(eye, age: float | None) -> list[str]:
+    """The notes for an eye of sphere alone: the guard's, and :data:`NO_AGE_NOTE` where it may apply."""
+    return [SPHERE_ALONE_NOTE] + ([NO_AGE_NOTE] if age is None and eye.accommodation_D == 0.0 else [])
 
 
 def _sphere_alone(eye) -> bool:
@@ -452,7 +463,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
         print(f"  guard {rho:g}: {sum(w < 1.0 for w in weights)} of {len(weights)} frames blended towards the "
               f"picture (the least weight {min(weights):.2f})")
     elif rho is None and _sphere_alone(eye) and asides < len({f["source_frame"] for f in per_frame}):
-        print_notes([SPHERE_ALONE_NOTE])
+        print_notes(_sphere_alone_notes(eye, age))
     return 0
 
 
