@@ -331,3 +331,21 @@ def test_wiener_designs_filters_only_where_the_image_is_large_beside_the_eye(des
     side = _first_design_grid(myope_kernel, None)
     large = make_problem(decode("srgb", photo("astronaut", side)), myope_kernel)
     assert wiener(large).settings["filter_size"] is not None
+
+
+def test_fast_returns_the_target_for_an_eye_that_sees_as_with_its_glasses(desktop):
+    """-0.50 D of sphere alone with 8 D of accommodation at the desktop's 0.6 m: in focus, its kernel is
+    its glasses reference, the target is the optimum (objective 0), and fast returns it exactly, where its
+    iterates alone had left it by up to 0.25 (its first steps leave the optimum and the stopping rule ends
+    the run before they come back)."""
+    e = dataclasses.replace(eye(-0.5), accommodation_D=8.0)
+    kernel, reference = build_kernel(e, desktop), build_reference_kernel(e, desktop)
+    assert np.array_equal(kernel.kernel, reference.kernel)
+    target = decode(desktop, photo("astronaut", 96)).astype(np.float32)
+    result = solve(make_problem(target, kernel, reference), "fast")
+    assert np.array_equal(result.image, target) and result.objective == 0.0
+    assert "target itself" in result.settings["kept"]
+    # an eye that does not see as with its glasses is corrected: the target is kept only where no worse
+    myope = dataclasses.replace(eye(-2.0), accommodation_D=8.0)
+    corrected = solve(make_problem(target, build_kernel(myope, desktop), build_reference_kernel(myope, desktop)), "fast")
+    assert "kept" not in corrected.settings and not np.array_equal(corrected.image, target)
