@@ -173,8 +173,9 @@ SPHERE_ALONE_NOTE = ("an eye of sphere alone may see this correction worse than 
 
 #: What ``correct`` adds for such an eye modelled as one that cannot focus, without an age to say otherwise.
 NO_AGE_NOTE = ("this eye is modelled as one that cannot focus (accommodation 0, no age_years): if it can, give the "
-               "prescription's age_years (or accommodation_D): an eye that focuses on the display by itself needs "
-               "no correction, and one designed for blur it focuses away makes its view worse")
+               "prescription's age_years and leave accommodation_D out (or state its amplitude): an eye that focuses on "
+               "the display by itself needs no correction, and one designed for blur it focuses away makes its view "
+               "worse")
 
 
 def _sphere_alone_notes(eye, age: float | None) -> list[str]:

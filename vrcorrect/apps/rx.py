@@ -37,8 +37,8 @@ def cmd_rx_validate(args: argparse.Namespace) -> int:
               + (f" (expected at age {rx.age_years:g}: none stated)" if name in rx.accommodation_from_age else ""))
     if rx.age_years is None and any(rx.eye(name).accommodation_D == 0.0 for name in Eye):
         print("  no age_years: an eye with accommodation 0 is modelled as one that cannot focus (a presbyope's); if "
-              "yours can, give age_years (or accommodation_D), or a correction may sharpen what the eye already "
-              "focuses sharp")
+              "yours can, give age_years and leave accommodation_D out (or state its amplitude), or a correction may "
+              "sharpen what the eye already focuses sharp")
     return 0
 
 
