@@ -73,7 +73,7 @@ def _cases(images: list[str], eyes: list[tuple[str, object, float | None]]):
                 shown = solve(make_design_problem(target, design), "fast").image
                 problems = [make_problem(target, e.nominal, e.nominal_reference) for e, _, _ in seen]
                 case = dict(eye=tag, display=display, display_name=display_name, picture=name, shown=shown,
-                            target=target, seen=seen, problems=problems,
+                            target=target, seen=seen, problems=problems, viewing=ViewingLight.of(display),
                             none=rb.seen_metrics(target, target, seen, display, with_jod=False),
                             ceiling=next(c for _, _, c in seen if c is not None))
                 case["scores"] = _scores(shown, case)
@@ -93,8 +93,7 @@ def _scores(image: np.ndarray, case: dict) -> dict[str, list[float]]:
 
 def _guarded_scores(case: dict, measure: str, rho: float, memo: dict) -> tuple[float, dict[str, list[float]]]:
     """The guard's weight and each seen eye's :func:`_scores` of the guarded image (memoised by weight)."""
-    done = guard_blend(case["shown"], case["target"], case["problems"], rho, measure,
-                       ViewingLight.of(case["display"]))
+    done = guard_blend(case["shown"], case["target"], case["problems"], rho, measure, case["viewing"])
     if done.weight >= 1.0:
         return 1.0, case["scores"]
     key = (id(case), round(done.weight, 6))

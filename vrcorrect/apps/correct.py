@@ -90,7 +90,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
             bar.n = done
             bar.refresh()
     t2 = time.perf_counter()
-    aside = design.sees_as_with_glasses and args.method != Method.NONE
+    aside = _stands_aside(design, args.method)
     try:
         result = _as_it_is(problem, args.method) if aside else \
             solve(problem, args.method, progress=progress, **options)
@@ -151,6 +151,12 @@ def cmd_correct(args: argparse.Namespace) -> int:
 #: What ``correct`` says where every eye it designs for sees the display as well as with glasses.
 NOTHING_TO_CORRECT = ("this eye sees the display as well as with its glasses (in focus there, after its accommodation), "
                       "so there is nothing to correct")
+
+
+def _stands_aside(design, method: str) -> bool:
+    """Whether the picture is shown as it is: every eye designed for sees as with its glasses (and a method
+    other than ``none``, which shows it so anyway)."""
+    return design.sees_as_with_glasses and method != Method.NONE
 
 
 def _as_it_is(problem, method: str):
@@ -402,7 +408,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
         return encode("srgb", lms_to_display(lms, kernel)).astype(np.float32)
 
     per_frame: list[dict] = []
-    last_source, result, entry, last_design, asides = -1, None, None, None, 0
+    last_source, result, entry, last_design = -1, None, None, None
     bits = 16 if args.sixteen_bit else 8
     with folder, clips.frames_bar(f"correct ({args.method})", plan.count) as bar:
         for index, (source, frame) in enumerate(clips.planned_frames(plan)):
@@ -415,9 +421,8 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
                     options = _solver_options(args, learned, eye.with_changes(pupil_diameter_mm=pupil), display,
                                               design.kernel, design.reference, problem.capped)
                 last_design = design
-                aside = design.sees_as_with_glasses and args.method != Method.NONE
+                aside = _stands_aside(design, args.method)
                 result = _as_it_is(problem, args.method) if aside else solve(problem, args.method, **options)
-                asides += aside
                 if rho is not None and not aside:   # the guard eyes at this frame's pupil, built once per pupil
                     if pupil not in guards:
                         if fixed is None:
@@ -463,7 +468,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     if rho is not None and weights:
         print(f"  guard {rho:g}: {sum(w < 1.0 for w in weights)} of {len(weights)} frames blended towards the "
               f"picture (the least weight {min(weights):.2f})")
-    elif rho is None and _sphere_alone(eye) and asides < len({f["source_frame"] for f in per_frame}):
+    elif rho is None and _sphere_alone(eye) and shown_as_is < len(per_frame):
         print_notes(_sphere_alone_notes(eye, age))
     return 0
 

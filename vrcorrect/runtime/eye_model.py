@@ -552,8 +552,7 @@ def build_eye_model(eye_rx: EyeRx, display: DisplayProfile,
 
     if kernel.identity or kernel.size == 1:
         return nothing_to_correct("the eye is sharp at this display (identity kernel)")
-    if reference is not None and reference.kernel.shape == kernel.kernel.shape and \
-            np.allclose(reference.kernel, kernel.kernel, rtol=0, atol=1e-9):
+    if design.sees_as_with_glasses:
         return nothing_to_correct("the eye sees as well as with its glasses (nothing to correct)")
     if not designs:
         notes.append("the ONNX model corrects (no regulariser, blend or filters designed)")
