@@ -176,6 +176,43 @@ def test_the_wearers_age_comes_from_the_prescription_unless_the_options_give_it(
             source.close()
 
 
+def test_the_options_age_gives_eyes_that_state_no_accommodation_that_ages_amplitude(rx, monkeypatch):
+    """An age in the options (the OpenXR layer's ``age_years``) is the wearer's for the eyes' focus too:
+    each eye that states no ``accommodation_D`` is designed with the amplitude expected at that age,
+    at the start and after a reload; a stated amplitude stays."""
+    eyes = []
+    real = ES.build_eye_model
+
+    def recording(eye, display, options, **kw):
+        eyes.append((eye, kw.get("age_years")))
+        return real(eye, display, options, **kw)
+
+    monkeypatch.setattr(ES, "build_eye_model", recording)
+    doc = json.loads(json.dumps(RX))
+    doc["left"]["accommodation_D"] = 1.0                                  # stated: kept
+    edit(rx, doc)
+    source = EyeSource(rx, get_display("quest2"), CorrectorOptions(filter="admm", age_years=40),
+                       eyes=("right", "left"), worker=False)
+    try:
+        assert source.prescription.right.accommodation_D == pytest.approx(6.5)   # 18.5 - 0.3 x 40
+        assert source.prescription.left.accommodation_D == 1.0
+        source.build("right")
+        assert eyes[-1][0].accommodation_D == pytest.approx(6.5) and eyes[-1][1] == 40
+        doc["right"]["sphere_D"] = -2.5                                   # an edit: the reload follows the age too
+        edit(rx, doc)
+        updates, messages = drain(source)
+        assert not messages and {u.eye for u in updates} == {"right", "left"}
+        assert [round(e.accommodation_D, 6) for e, _ in eyes[-2:]] in ([6.5, 1.0], [1.0, 6.5])
+        assert source.prescription.right.sphere_D == -2.5 and source.prescription.right.accommodation_D == 6.5
+    finally:
+        source.close()
+    without = EyeSource(rx, get_display("quest2"), OPTIONS, eyes=("right",), worker=False)   # no age anywhere: 0
+    try:
+        assert without.prescription.right.accommodation_D == 0.0
+    finally:
+        without.close()
+
+
 def test_designs_run_off_the_callers_thread_and_polling_never_waits(rx, monkeypatch):
     """While the worker is held inside a design, poll returns at once, nothing installed; once let
     go, the design arrives."""

@@ -670,16 +670,34 @@ def test_an_amplitude_from_age_is_left_out_when_written_and_comes_back_from_the_
     assert older.left.accommodation_D == pytest.approx(2.0)
 
 
-def test_accommodation_from_age_refuses_what_is_not_an_age_and_a_claim_without_one():
+def test_accommodation_from_age_refuses_what_is_not_an_age_and_unstated_eyes_that_are_not_eyes():
     from vrcorrect.specs.prescription import accommodation_from_age
 
     for bad in (float("nan"), "40", True, None):
         with pytest.raises(ValidationError, match="age_years"):
             accommodation_from_age(bad)
-    with pytest.raises(ValidationErrors, match="accommodation_from_age"):
-        Prescription(right=eye(), left=eye(), accommodation_from_age=("right",))        # no age to come from
-    with pytest.raises(ValidationErrors, match="accommodation_from_age"):
-        Prescription(right=eye(), left=eye(), age_years=30, accommodation_from_age=("both",))
+    with pytest.raises(ValidationErrors, match="accommodation_unstated"):
+        Prescription(right=eye(), left=eye(), age_years=30, accommodation_unstated=("both",))
+    with pytest.raises(ValidationErrors, match="accommodation_unstated"):
+        Prescription(right=eye(), left=eye(), accommodation_unstated="right")      # a string, not a tuple of eyes
+    # without an age an unstated eye's amplitude is 0, and none is said to come from an age
+    assert Prescription(right=eye(), left=eye(), accommodation_unstated=("right",)).accommodation_from_age == ()
+
+
+def test_with_age_gives_unstated_eyes_the_ages_amplitude_and_keeps_stated_ones():
+    no_age = parse_prescription(valid_doc())             # the right eye states 0, the left none; no age
+    assert no_age.accommodation_unstated == ("left",) and no_age.left.accommodation_D == 0.0
+    aged = no_age.with_age(40)
+    assert aged.age_years == 40 and aged.left.accommodation_D == pytest.approx(6.5)      # 18.5 - 0.3 x 40
+    assert aged.right.accommodation_D == 0.0                                             # stated: a presbyope's
+    assert aged.accommodation_from_age == ("left",)
+    assert aged.left.sphere_D == no_age.left.sphere_D and aged.notes == no_age.notes
+    assert aged.with_age(90).left.accommodation_D == 0.0                                  # follows a later age
+    written = json.loads(to_json_text(aged))                                              # still unstated in a file
+    assert "accommodation_D" not in written["left"] and written["age_years"] == 40
+    for bad in (0, 121, float("nan"), "40"):
+        with pytest.raises((ValidationError, ValidationErrors), match="age_years"):
+            no_age.with_age(bad)
 
 
 # ---------------------------------------------------------------------------

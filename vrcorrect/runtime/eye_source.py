@@ -95,7 +95,9 @@ class EyeSource:
         Prescription JSON path, :class:`~vrcorrect.specs.prescription.Prescription` or
         :class:`~vrcorrect.runtime.rx_snapshot.RxSnapshot` (read once; watched from then on).
     display, options
-        What every eye is designed for; ``display`` may be a function that returns the profile,
+        What every eye is designed for (an age in ``options`` is the wearer's: each eye that states no
+        accommodation gets that age's amplitude, :meth:`Prescription.with_age`); ``display`` may be a
+        function that returns the profile,
         called once on first use (on the worker for :meth:`design_all`; a failure there refuses
         that start and is tried again on the next use).
     eyes
@@ -114,7 +116,9 @@ class EyeSource:
                  options: CorrectorOptions = CorrectorOptions(), eyes: tuple[str, ...] = VIEW_ORDER,
                  check: Callable[[EyeRx], object] | None = None, design: Designer | None = None,
                  worker: bool = True):
+        self.options = options
         snapshot = load_rx(rx)
+        snapshot = RxSnapshot(self._aged(snapshot.prescription), snapshot.path, snapshot.stamp)
         self.snapshot: RxSnapshot = snapshot
         self.eyes = tuple(eyes)
         self._display = display
@@ -337,8 +341,13 @@ class EyeSource:
             if generation != self._file_generation:         # poll saw a later stamp meanwhile: that job reads
                 return
             self._stamp = stamp                             # what is read now; poll need not queue it again
-        self._design_every(lambda: load_prescription(path), "reload",
+        self._design_every(lambda: self._aged(load_prescription(path)), "reload",
                            f"{path}: not reloaded, keeping the last good prescription")
+
+    def _aged(self, rx: Prescription) -> Prescription:
+        """``rx`` for the options' wearer's age where they set one (:meth:`Prescription.with_age`: the
+        pupil's formula and each eye that states no amplitude follow it), else as it is."""
+        return rx if self.options.age_years is None else rx.with_age(self.options.age_years)
 
     def _start(self) -> None:
         self._design_every(lambda: self.prescription, "start", "the eye models were not designed")

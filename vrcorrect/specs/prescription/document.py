@@ -207,7 +207,7 @@ def parse_prescription(doc: object, source: str | None = None) -> Prescription:
             left=_eye_from_doc(doc["left"], age),
             notes=doc.get("notes", ""),
             age_years=age,
-            accommodation_from_age=tuple(e for e in names(Eye) if age is not None and "accommodation_D" not in doc[e]),
+            accommodation_unstated=tuple(e for e in names(Eye) if "accommodation_D" not in doc[e]),
         )
     except ValidationErrors as exc:  # pragma: no cover - problems_in is stricter
         raise ValidationErrors(exc.problems, source) from None

@@ -128,16 +128,16 @@ def validate_file(path: str | PathLike[str]) -> list[FieldProblem]:
     return problems_in(doc)
 
 
-def _eye_to_dict(eye: EyeRx, from_age: bool = False) -> dict[str, Any]:
-    """An eye's document; ``from_age``: its amplitude came from the age, so it is left out (it comes
-    from the age again when read back)."""
+def _eye_to_dict(eye: EyeRx, unstated: bool = False) -> dict[str, Any]:
+    """An eye's document; ``unstated``: its file stated no amplitude (it came from the age, or is 0
+    without one), so it is left out and comes from the age again when read back."""
     out: dict[str, Any] = {
         "sphere_D": eye.sphere_D,
         "cylinder_D": eye.cylinder_D,
         "axis_deg": eye.axis_deg,
         "pupil_diameter_mm": eye.pupil_diameter_mm,
     }
-    if not from_age:
+    if not unstated:
         out["accommodation_D"] = eye.accommodation_D
     if eye.higher_order is not None:
         out["higher_order"] = {
@@ -153,7 +153,7 @@ def to_json_text(rx: Prescription) -> str:
     Keys in a fixed order, floats written exactly (shortest round-trip form),
     two-space indent, trailing newline.
     """
-    doc = {"schema": SCHEMA, "notes": rx.notes, **{e: _eye_to_dict(rx.eye(e), e in rx.accommodation_from_age)
+    doc = {"schema": SCHEMA, "notes": rx.notes, **{e: _eye_to_dict(rx.eye(e), e in rx.accommodation_unstated)
                                                      for e in names(Eye)}}
     if rx.age_years is not None:
         doc = {"schema": SCHEMA, "notes": rx.notes, "age_years": rx.age_years, "right": doc["right"],

@@ -406,16 +406,17 @@ class Prescription:
         The wearer's age (1 to 120), or None: the viewing pupil's formula then uses its reference
         age (:mod:`vrcorrect.physics.pupil`).  A prescription file that gives it, for an eye that
         states no ``accommodation_D``, sets that eye's amplitude to :func:`accommodation_from_age`.
-    accommodation_from_age
-        The eyes (``"right"``, ``"left"``) whose amplitude was so set rather than stated (not
-        compared: the same eyes are equal however their amplitude came).
+    accommodation_unstated
+        The eyes (``"right"``, ``"left"``) whose file states no amplitude: theirs is the one expected
+        at ``age_years`` (:attr:`accommodation_from_age`), or 0 without an age, and follows the age
+        (:meth:`with_age`).  Not compared: the same eyes are equal however their amplitude came.
     """
 
     right: EyeRx
     left: EyeRx
     notes: str = ""
     age_years: float | None = None
-    accommodation_from_age: tuple[str, ...] = dataclasses.field(default=(), compare=False)
+    accommodation_unstated: tuple[str, ...] = dataclasses.field(default=(), compare=False)
 
     def __post_init__(self) -> None:
         problems: list[FieldProblem] = []
@@ -428,12 +429,34 @@ class Prescription:
             age = check_number(problems, "age_years", self.age_years, AGE)
             if age is not None:
                 object.__setattr__(self, "age_years", age)
-        if any(e not in names(Eye) for e in self.accommodation_from_age) or \
-                (self.accommodation_from_age and self.age_years is None):
-            problems.append(FieldProblem("accommodation_from_age", self.accommodation_from_age,
-                                         "right and/or left, with age_years given"))
+        if not isinstance(self.accommodation_unstated, tuple) or \
+                any(e not in names(Eye) for e in self.accommodation_unstated):
+            problems.append(FieldProblem("accommodation_unstated", self.accommodation_unstated,
+                                         "a tuple of right and/or left"))
         if problems:
             raise ValidationErrors(problems)
+
+    @property
+    def accommodation_from_age(self) -> tuple[str, ...]:
+        """The eyes whose amplitude is the one expected at ``age_years`` (:func:`accommodation_from_age`):
+        those that state none, where an age is given."""
+        return self.accommodation_unstated if self.age_years is not None else ()
+
+    def with_age(self, age_years: float) -> "Prescription":
+        """This prescription for a wearer of ``age_years`` (1 to 120): the age replaced, and each eye that
+        states no amplitude (:attr:`accommodation_unstated`) given the one expected at that age; a
+        stated amplitude is kept.  (An option that sets the wearer's age, the OpenXR layer's
+        ``age_years``, sets both the viewing pupil's formula and these amplitudes.)
+
+        Raises
+        ------
+        ValidationError
+            For an age that is not a number of years from 1 to 120.
+        """
+        amplitude = accommodation_from_age(age_years)
+        eyes = {name: self.eye(name).with_changes(accommodation_D=amplitude) if name in self.accommodation_unstated
+                else self.eye(name) for name in names(Eye)}
+        return dataclasses.replace(self, age_years=age_years, **eyes)
 
     def eye(self, name: str) -> EyeRx:
         """The eye called ``"right"`` or ``"left"``.
