@@ -139,6 +139,38 @@ def _line(label: str, s: dict) -> str:
             f"(worst x{s['objective_worst']:.2f})")
 
 
+def eyes_and_pictures(args: argparse.Namespace, prog: str) -> tuple[list, list[str]] | None:
+    """The bench's eye and each ``--rx`` file's right eye (tag, eye, age), and each ``--image``'s name (a
+    file's stem, registered with robust_band_choice, or a scikit-image picture's); None (said on standard
+    error) for a file that cannot be read or a picture that does not exist or is held out."""
+    eyes = [("bench", rb.EYE, None)]
+    for path in args.rx:
+        try:
+            _, eye, age = load_eye_and_age(argparse.Namespace(rx=path, eye="right"))
+        except (VrcorrectError, OSError) as e:
+            print(f"{prog}: --rx {path}: {e}", file=sys.stderr)
+            return None
+        eyes.append((f"{eye.sphere_D:+.2f}/{eye.accommodation_D:g}D", eye, age))      # sphere / accommodation
+    names = []
+    for path in args.image:
+        name = Path(path).stem
+        if name in rb.HELD_OUT:
+            print(f"{prog}: --image {path}: held out for vrcorrect bench robust", file=sys.stderr)
+            return None
+        if Path(path).exists() or Path(path).suffix:
+            rb._files[name] = path                          # a picture file
+        elif not hasattr(skimage_data, path):               # else a scikit-image picture by name
+            print(f"{prog}: --image {path}: no such file, nor a scikit-image picture", file=sys.stderr)
+            return None
+        try:
+            rb.choice_image(name)
+        except (VrcorrectError, OSError) as e:
+            print(f"{prog}: --image {path}: {e}", file=sys.stderr)
+            return None
+        names.append(name)
+    return eyes, names
+
+
 def main(argv: list[str]) -> int:
     args = _arguments(argv)
     measures = args.measure or ["visibility", "lightness"]
@@ -148,31 +180,10 @@ def main(argv: list[str]) -> int:
     if args.plot is not None and args.plot.exists() and not args.force:
         print(f"guard_tradeoff: --plot {args.plot}: exists (--force to overwrite)", file=sys.stderr)
         return 2
-    eyes = [("bench", rb.EYE, None)]
-    for path in args.rx:
-        try:
-            _, eye, age = load_eye_and_age(argparse.Namespace(rx=path, eye="right"))
-        except (VrcorrectError, OSError) as e:
-            print(f"guard_tradeoff: --rx {path}: {e}", file=sys.stderr)
-            return 2
-        eyes.append((f"{eye.sphere_D:+.2f}/{eye.accommodation_D:g}D", eye, age))      # sphere / accommodation
-    names = []
-    for path in args.image:
-        name = Path(path).stem
-        if name in rb.HELD_OUT:
-            print(f"guard_tradeoff: --image {path}: held out for vrcorrect bench robust", file=sys.stderr)
-            return 2
-        if Path(path).exists() or Path(path).suffix:
-            rb._files[name] = path                          # a picture file
-        elif not hasattr(skimage_data, path):               # else a scikit-image picture by name
-            print(f"guard_tradeoff: --image {path}: no such file, nor a scikit-image picture", file=sys.stderr)
-            return 2
-        try:
-            rb.choice_image(name)
-        except (VrcorrectError, OSError) as e:
-            print(f"guard_tradeoff: --image {path}: {e}", file=sys.stderr)
-            return 2
-        names.append(name)
+    parsed = eyes_and_pictures(args, "guard_tradeoff")
+    if parsed is None:
+        return 2
+    eyes, names = parsed
     print(f"{len(eyes)} eyes x 2 displays x {len(names)} pictures; the default correction, unguarded:", flush=True)
     cases = list(_cases(names, eyes))
     rows = {("none", 0.0): _summary(cases, lambda c: c["scores"])}
