@@ -25,7 +25,7 @@ import sys
 import numpy as np
 
 import robust_band_choice as rb  # tools/: this script's folder
-from guard_tradeoff import eyes_and_pictures
+from guard_tradeoff import eyes_and_pictures, picture_arguments
 from vrcorrect.physics.robust import design_eye
 from vrcorrect.runtime.pupil_bank import nearest_bank_pupil
 from vrcorrect.solvers import make_problem, solve
@@ -53,10 +53,7 @@ def _verdict(path, ceiling: float) -> str:
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="bars_frontier", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--image", action="append", default=[], required=True,
-                    help="a picture file, or a scikit-image picture by name (repeatable)")
-    ap.add_argument("--rx", action="append", default=[], help="a prescription whose right eye is swept too, at its "
-                                                              "age_years (repeatable)")
+    picture_arguments(ap)
     ap.add_argument("--no-bench", action="store_true", help="leave out the bench's eye")
     ap.add_argument("--display", choices=rb.DISPLAYS, action="append", help="the displays (default both)")
     args = ap.parse_args(argv)

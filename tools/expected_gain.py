@@ -19,7 +19,7 @@ import argparse
 import sys
 
 import robust_band_choice as rb  # tools/: this script's folder
-from guard_tradeoff import eyes_and_pictures
+from guard_tradeoff import eyes_and_pictures, picture_arguments
 from vrcorrect.physics.robust import design_eye
 from vrcorrect.runtime.pupil_bank import nearest_bank_pupil
 from vrcorrect.solvers import solve
@@ -28,10 +28,7 @@ from vrcorrect.solvers.problem import make_design_problem, objective
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="expected_gain", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--image", action="append", default=[], required=True,
-                    help="a picture file, or a scikit-image picture by name (repeatable)")
-    ap.add_argument("--rx", action="append", default=[], help="a prescription whose right eye is swept too, at its "
-                                                              "age_years (repeatable)")
+    picture_arguments(ap)
     args = ap.parse_args(argv)
     parsed = eyes_and_pictures(args, "expected_gain")
     if parsed is None:

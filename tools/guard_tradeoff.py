@@ -45,12 +45,17 @@ SHARE_FROM = 0.1      # a 3 mm share is read only where the exact 3 mm gain is a
 FLIP_FALL = 0.005     # a seen eye's FLIP above none's by more than this counts as worse than none
 
 
-def _arguments(argv: list[str]) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(prog="guard_tradeoff", description=__doc__.split("\n\n")[0])
+def picture_arguments(ap: argparse.ArgumentParser) -> None:
+    """``--image`` and ``--rx``, as :func:`eyes_and_pictures` reads them."""
     ap.add_argument("--image", action="append", default=[], required=True,
                     help="a picture file, or a scikit-image picture by name (repeatable)")
     ap.add_argument("--rx", action="append", default=[], help="a prescription whose right eye is swept too, at its "
                                                               "age_years (repeatable)")
+
+
+def _arguments(argv: list[str]) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog="guard_tradeoff", description=__doc__.split("\n\n")[0])
+    picture_arguments(ap)
     ap.add_argument("--measure", action="append", choices=GUARD_MEASURES, help="a guard measure (repeatable; "
                                                                                "default visibility and lightness)")
     ap.add_argument("--rho", type=float, nargs="+", default=[1.0, 1.1, 1.25, 1.5, 2.0], help="the guard factors")
