@@ -338,6 +338,8 @@ def test_fast_returns_the_target_for_an_eye_that_sees_as_with_its_glasses(deskto
     its glasses reference, the target is the optimum (objective 0), and fast returns it exactly, where its
     iterates alone had left it by up to 0.25 (its first steps leave the optimum and the stopping rule ends
     the run before they come back)."""
+    from vrcorrect.solvers import objective
+
     e = dataclasses.replace(eye(-0.5), accommodation_D=8.0)
     kernel, reference = build_kernel(e, desktop), build_reference_kernel(e, desktop)
     assert np.array_equal(kernel.kernel, reference.kernel)
@@ -349,3 +351,6 @@ def test_fast_returns_the_target_for_an_eye_that_sees_as_with_its_glasses(deskto
     myope = dataclasses.replace(eye(-2.0), accommodation_D=8.0)
     corrected = solve(make_problem(target, build_kernel(myope, desktop), build_reference_kernel(myope, desktop)), "fast")
     assert "kept" not in corrected.settings and not np.array_equal(corrected.image, target)
+    # the objective fast evaluated for that comparison is the one solve reports: the result's, exactly
+    problem = make_problem(target, build_kernel(myope, desktop), build_reference_kernel(myope, desktop))
+    assert corrected.objective == objective(corrected.image, problem) < objective(target, problem)

@@ -308,7 +308,8 @@ def fast(problem: Problem, tolerance: float = 1e-2, max_iterations: int = 200, r
                 "warm_start": ", then ".join(notes)}
     image = np.moveaxis(z, 0, 2).astype(np.float32)
     shown = np.asarray(problem.target, np.float32)
-    if objective(shown, problem) <= objective(image, problem):      # never worse than the picture itself: an
+    none, corrected = objective(shown, problem), objective(image, problem)
+    if none <= corrected:                                           # never worse than the picture itself: an
         settings["kept"] = "the target itself (no iterate was better by the objective)"   # eye near focus
-        image = shown.copy()
-    return Correction(image, iterations, settings, history)
+        image, corrected = shown.copy(), none
+    return Correction(image, iterations, settings, history, objective=corrected)

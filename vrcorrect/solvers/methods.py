@@ -120,8 +120,10 @@ def solve(problem: Problem, method: str = Method.FAST, progress: Callable[[int, 
     found = fn(problem, progress=progress, **options)
     seconds = time.perf_counter() - t0
     image = np.clip(found.image, 0.0, 1.0).astype(np.float32)
+    known = found.objective is not None and np.array_equal(image, found.image)     # the method's own, unclipped
     return SolveResult(image=image, method=method, seconds=seconds, iterations=found.iterations,
-                       objective=objective(image, problem), settings=found.settings, history=found.history)
+                       objective=found.objective if known else objective(image, problem), settings=found.settings,
+                       history=found.history)
 
 
 # Peak resident memory of ``vrcorrect correct`` by method, measured on the development machine

@@ -175,12 +175,16 @@ class Correction:
         What the method chose and was given, for reports.
     history
         The objective (or the method's own loss) after each iteration.
+    objective
+        The problem's objective of ``image`` where the method evaluated it (``fast`` does, to compare
+        its result with the target); None: :func:`vrcorrect.solvers.solve` evaluates it.
     """
 
     image: np.ndarray
     iterations: int = 0
     settings: dict = field(default_factory=dict)
     history: list[float] = field(default_factory=list)
+    objective: float | None = None
 
 
 @dataclass
