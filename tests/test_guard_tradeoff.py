@@ -81,3 +81,32 @@ def test_an_existing_plot_is_kept_without_force(tmp_path):
     done = subprocess.run([sys.executable, str(ROOT / "tools" / "guard_tradeoff.py"), "--image", "x.png",
                            "--plot", str(plot)], capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert done.returncode == 2 and "--force" in done.stderr and plot.read_bytes() == b"mine"
+
+
+@pytest.mark.parametrize("tool", ["bars_frontier", "expected_gain"])
+@pytest.mark.parametrize("extra, said", [(["--image", "missing.png"], "--image missing.png"),
+                                         (["--image", "no_such_picture"], "nor a scikit-image picture"),
+                                         (["--image", "motorcycle"], "held out for vrcorrect bench robust"),
+                                         (["--rx", "missing.json"], "--rx missing.json")])
+def test_the_other_studies_refuse_bad_input_in_one_line_before_any_work(tmp_path, tool, extra, said):
+    """tools/bars_frontier.py and tools/expected_gain.py read --image and --rx as guard_tradeoff does."""
+    picture = ROOT / "vrcorrect" / "data" / "sample.png"
+    args = ["--image", str(picture)] if "--image" not in extra else []
+    done = subprocess.run([sys.executable, str(ROOT / "tools" / f"{tool}.py"), *args, *extra],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert done.returncode == 2, done.stderr
+    assert said in done.stderr and "Traceback" not in done.stderr
+
+
+def test_the_frontier_reads_where_a_path_first_keeps_80_percent_and_how_far_it_stays_safe():
+    """bars_frontier's verdict on a path of blends: the 3 mm eye (the second seen eye) gains the blend
+    times the ceiling; the least seen eye 0.1 - 0.2 x blend, below the floor (-0.05) past 0.75."""
+    _tool()
+    spec = importlib.util.spec_from_file_location("bars_frontier", ROOT / "tools" / "bars_frontier.py")
+    frontier = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(frontier)
+    path = [(b, [0.5, b * 0.6, 0.4, 0.1 - 0.2 * b, 0.3, 0.2]) for b in frontier.BETAS]
+    said = frontier._verdict(path, 0.6)
+    assert "80 % from blend 0.8, least there -0.06" in said and "safe up to 0.7, 3 mm share there  70%" in said
+    weak = [(b, [0.1, b * 0.1, 0.1, 0.1, 0.1, 0.1]) for b in frontier.BETAS]     # never 80 % of 0.6, always safe
+    assert frontier._verdict(weak, 0.6).startswith("never 80 %") and "safe up to 1.0" in frontier._verdict(weak, 0.6)
