@@ -110,3 +110,11 @@ def test_the_frontier_reads_where_a_path_first_keeps_80_percent_and_how_far_it_s
     assert "80 % from blend 0.8, least there -0.06" in said and "safe up to 0.7, 3 mm share there  70%" in said
     weak = [(b, [0.1, b * 0.1, 0.1, 0.1, 0.1, 0.1]) for b in frontier.BETAS]     # never 80 % of 0.6, always safe
     assert frontier._verdict(weak, 0.6).startswith("never 80 %") and "safe up to 1.0" in frontier._verdict(weak, 0.6)
+
+
+def test_the_frontier_keeps_an_existing_plot_without_force(tmp_path):
+    plot = tmp_path / "frontier.png"
+    plot.write_bytes(b"mine")
+    done = subprocess.run([sys.executable, str(ROOT / "tools" / "bars_frontier.py"), "--image", "x.png",
+                           "--plot", str(plot)], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert done.returncode == 2 and "--force" in done.stderr and plot.read_bytes() == b"mine"

@@ -11,7 +11,10 @@ or above -0.05, with its 3 mm share.  Where even the exact design's blend that k
 seen eye fall, the two bars cannot both be met by blending that correction, and a design chosen by
 the eye's blur alone (the exact one is the best any design does at 3 mm) has no room between them.
 
-    .venv/bin/python tools/bars_frontier.py --image rocket --image retina --rx rx.json
+    .venv/bin/python tools/bars_frontier.py --image rocket --image retina --rx rx.json --plot frontier.png
+
+``--plot`` draws each case's two paths as the 3 mm share against the least seen gain, one panel a case,
+with the region where both bars hold shaded.
 
 A study, not a judge; the pictures it is run on should be spent ones (it chooses nothing).  About a
 minute and a half per (eye, display, picture) on 2 cores.
@@ -21,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -56,7 +60,12 @@ def main(argv: list[str]) -> int:
     picture_arguments(ap)
     ap.add_argument("--no-bench", action="store_true", help="leave out the bench's eye")
     ap.add_argument("--display", choices=rb.DISPLAYS, action="append", help="the displays (default both)")
+    ap.add_argument("--plot", type=Path, help="write the paths as a PNG here")
+    ap.add_argument("--force", action="store_true", help="overwrite --plot")
     args = ap.parse_args(argv)
+    if args.plot is not None and args.plot.exists() and not args.force:
+        print(f"bars_frontier: --plot {args.plot}: exists (--force to overwrite)", file=sys.stderr)
+        return 2
     parsed = eyes_and_pictures(args, "bars_frontier")
     if parsed is None:
         return 2
@@ -64,6 +73,7 @@ def main(argv: list[str]) -> int:
     if args.no_bench:
         eyes = eyes[1:]
     conflicts = cases = 0
+    panels = []
     for tag, eye, age in eyes:
         rb._eye.update(eye=eye, age=age)
         rb._cases.clear()
@@ -80,15 +90,60 @@ def main(argv: list[str]) -> int:
                 design = design_eye(eye, display, nearest_bank_pupil(p), band=None, kernels=rb._kernels, robust=True)
                 default = solve(make_design_problem(target, design), "fast").image
                 exact_path = _path(best, target, seen, display)
+                default_path = _path(default, target, seen, display)
                 cases += 1
                 keeping = [g for b, g in exact_path if g[1] >= SHARE * ceiling]
                 conflicts += bool(keeping) and min(keeping[0]) < FALL
                 print(f"  {tag:12s} {display_name:8s} {name:22s} exact 3 mm gain {ceiling:+.2f}", flush=True)
                 print(f"      exact 3 mm design: {_verdict(exact_path, ceiling)}", flush=True)
-                print(f"      default:           {_verdict(_path(default, target, seen, display), ceiling)}",
-                      flush=True)
+                print(f"      default:           {_verdict(default_path, ceiling)}", flush=True)
+                panels.append((f"{tag} {display_name} {name}", ceiling, exact_path, default_path))
     print(f"{conflicts} of {cases} cases: the exact design's blend that keeps 80 % at 3 mm makes a seen eye fall")
+    if args.plot is not None and panels:
+        _plot(panels, args.plot)
+        print(f"wrote {args.plot}")
     return 0
+
+
+def _plot(panels: list, path: Path) -> None:
+    """One panel a case: each path's blends as (3 mm share, least seen gain), the region of both bars shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    columns = min(4, len(panels))
+    rows = (len(panels) + columns - 1) // columns
+    fig, axes = plt.subplots(rows, columns, figsize=(3.0 * columns, 2.5 * rows), dpi=110, squeeze=False)
+    for ax, (title, ceiling, exact_path, default_path) in zip(axes.flat, panels):
+        ax.axhline(FALL, color="0.5", lw=0.8, ls=":")
+        ax.axvline(100 * SHARE, color="0.5", lw=0.8, ls=":")
+        for label, blends, style in (("exact 3 mm design", exact_path, "o-"), ("default", default_path, "s-")):
+            xs = [100 * g[1] / ceiling for _, g in blends]
+            ys = [min(g) for _, g in blends]
+            ax.plot(xs, ys, style, ms=3, lw=1, label=label)
+        low, high = ax.get_ylim()
+        high = max(high, 0.05)
+        ax.fill_between([100 * SHARE, 130], FALL, high, color="0.88", zorder=0)     # both bars hold here
+        ax.set_ylim(min(low, FALL - 0.05), high)
+        ax.set_title(title, fontsize=8)
+        ax.set_xlim(-5, 130)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+    for ax in axes.flat[len(panels):]:
+        ax.set_axis_off()
+    for ax in axes[:, 0]:
+        ax.set_ylabel("least seen gain (JOD)", fontsize=7)
+    for ax in axes[-1, :]:
+        ax.set_xlabel("3 mm share of the exact gain (%)", fontsize=7)
+    axes.flat[0].legend(fontsize=6, loc="lower left")
+    fig.suptitle("Blends of the picture with each correction, 0.1 to 1 of it;\n shaded: both bars hold "
+                 f"(80 % of the exact gain at 3 mm, every seen eye at {FALL} JOD or above)", fontsize=9)
+    fig.tight_layout()
+    tmp = path.with_name(path.name + ".tmp.png")
+    fig.savefig(tmp)
+    plt.close(fig)
+    tmp.replace(path)
 
 
 if __name__ == "__main__":

@@ -450,8 +450,8 @@ class Prescription:
 
         Raises
         ------
-        ValidationError
-            For an age that is not a number of years from 1 to 120.
+        ValidationError, ValidationErrors
+            For an age that is not a number (the first), or not one of years from 1 to 120.
         """
         amplitude = accommodation_from_age(age_years)
         eyes = {name: self.eye(name).with_changes(accommodation_D=amplitude) if name in self.accommodation_unstated
