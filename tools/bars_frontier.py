@@ -139,7 +139,7 @@ def _plot(panels: list, path: Path) -> None:
     axes.flat[0].legend(fontsize=6, loc="lower left")
     fig.suptitle("Blends of the picture with each correction, 0.1 to 1 of it;\n shaded: both bars hold "
                  f"(80 % of the exact gain at 3 mm, every seen eye at {FALL} JOD or above)", fontsize=9)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.35 / fig.get_figheight()))      # room for the two-line title
     tmp = path.with_name(path.name + ".tmp.png")
     fig.savefig(tmp)
     plt.close(fig)
