@@ -75,10 +75,11 @@ def test_the_tool_refuses_bad_input_in_one_line_before_any_work(tmp_path, extra,
     assert said in done.stderr and "Traceback" not in done.stderr
 
 
-def test_an_existing_plot_is_kept_without_force(tmp_path):
+@pytest.mark.parametrize("tool", ["guard_tradeoff", "bars_frontier"])
+def test_an_existing_plot_is_kept_without_force(tmp_path, tool):
     plot = tmp_path / "trade.png"
     plot.write_bytes(b"mine")
-    done = subprocess.run([sys.executable, str(ROOT / "tools" / "guard_tradeoff.py"), "--image", "x.png",
+    done = subprocess.run([sys.executable, str(ROOT / "tools" / f"{tool}.py"), "--image", "x.png",
                            "--plot", str(plot)], capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert done.returncode == 2 and "--force" in done.stderr and plot.read_bytes() == b"mine"
 
@@ -111,10 +112,3 @@ def test_the_frontier_reads_where_a_path_first_keeps_80_percent_and_how_far_it_s
     weak = [(b, [0.1, b * 0.1, 0.1, 0.1, 0.1, 0.1]) for b in frontier.BETAS]     # never 80 % of 0.6, always safe
     assert frontier._verdict(weak, 0.6).startswith("never 80 %") and "safe up to 1.0" in frontier._verdict(weak, 0.6)
 
-
-def test_the_frontier_keeps_an_existing_plot_without_force(tmp_path):
-    plot = tmp_path / "frontier.png"
-    plot.write_bytes(b"mine")
-    done = subprocess.run([sys.executable, str(ROOT / "tools" / "bars_frontier.py"), "--image", "x.png",
-                           "--plot", str(plot)], capture_output=True, text=True, cwd=tmp_path, timeout=120)
-    assert done.returncode == 2 and "--force" in done.stderr and plot.read_bytes() == b"mine"

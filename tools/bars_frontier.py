@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 import robust_band_choice as rb  # tools/: this script's folder
-from guard_tradeoff import eyes_and_pictures, picture_arguments
+from guard_tradeoff import eyes_and_pictures, picture_arguments, save_figure
 from vrcorrect.physics.robust import design_eye
 from vrcorrect.runtime.pupil_bank import nearest_bank_pupil
 from vrcorrect.solvers import make_problem, solve
@@ -63,9 +63,6 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--plot", type=Path, help="write the paths as a PNG here")
     ap.add_argument("--force", action="store_true", help="overwrite --plot")
     args = ap.parse_args(argv)
-    if args.plot is not None and args.plot.exists() and not args.force:
-        print(f"bars_frontier: --plot {args.plot}: exists (--force to overwrite)", file=sys.stderr)
-        return 2
     parsed = eyes_and_pictures(args, "bars_frontier")
     if parsed is None:
         return 2
@@ -140,10 +137,7 @@ def _plot(panels: list, path: Path) -> None:
     fig.suptitle("Blends of the picture with each correction, 0.1 to 1 of it;\n shaded: both bars hold "
                  f"(80 % of the exact gain at 3 mm, every seen eye at {FALL} JOD or above)", fontsize=9)
     fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.35 / fig.get_figheight()))      # room for the two-line title
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    tmp.replace(path)
+    save_figure(fig, path)
 
 
 if __name__ == "__main__":

@@ -147,7 +147,12 @@ def _line(label: str, s: dict) -> str:
 def eyes_and_pictures(args: argparse.Namespace, prog: str) -> tuple[list, list[str]] | None:
     """The bench's eye and each ``--rx`` file's right eye (tag, eye, age), and each ``--image``'s name (a
     file's stem, registered with robust_band_choice, or a scikit-image picture's); None (said on standard
-    error) for a file that cannot be read or a picture that does not exist or is held out."""
+    error) for a file that cannot be read, a picture that does not exist or is held out, or a ``--plot``
+    that exists without ``--force``."""
+    plot = getattr(args, "plot", None)
+    if plot is not None and plot.exists() and not args.force:
+        print(f"{prog}: --plot {plot}: exists (--force to overwrite)", file=sys.stderr)
+        return None
     eyes = [("bench", rb.EYE, None)]
     for path in args.rx:
         try:
@@ -181,9 +186,6 @@ def main(argv: list[str]) -> int:
     measures = args.measure or ["visibility", "lightness"]
     if any(not (1.0 <= r <= 10.0) for r in args.rho):
         print("guard_tradeoff: --rho: factors from 1 to 10", file=sys.stderr)
-        return 2
-    if args.plot is not None and args.plot.exists() and not args.force:
-        print(f"guard_tradeoff: --plot {args.plot}: exists (--force to overwrite)", file=sys.stderr)
         return 2
     parsed = eyes_and_pictures(args, "guard_tradeoff")
     if parsed is None:
@@ -226,6 +228,13 @@ def _plot(rows: dict, measures: list[str], rhos: list[float], path: Path) -> Non
     ax.legend(fontsize=8, loc="lower left")
     ax.grid(alpha=0.3)
     fig.tight_layout()
+    save_figure(fig, path)
+
+
+def save_figure(fig, path: Path) -> None:
+    """Write ``fig`` to ``path`` whole or not at all (through a file beside it), and close it."""
+    import matplotlib.pyplot as plt
+
     tmp = path.with_name(path.name + ".tmp.png")
     fig.savefig(tmp)
     plt.close(fig)
