@@ -29,9 +29,7 @@ from pathlib import Path
 import numpy as np
 
 import robust_band_choice as rb  # tools/: this script's folder
-from guard_tradeoff import eyes_and_pictures, picture_arguments, save_figure
-from vrcorrect.physics.robust import design_eye
-from vrcorrect.runtime.pupil_bank import nearest_bank_pupil
+from guard_tradeoff import default_design, each_case, eyes_and_pictures, picture_arguments, save_figure
 from vrcorrect.solvers import make_problem, solve
 from vrcorrect.solvers.problem import make_design_problem
 
@@ -45,8 +43,13 @@ def _path(x: np.ndarray, target: np.ndarray, seen, display) -> list[tuple[float,
     return [(b, rb.seen_gains(target + np.float32(b) * (x - target), target, seen, display)) for b in BETAS]
 
 
+def _keeping(path, ceiling: float) -> list[tuple[float, list[float]]]:
+    """The blends of ``path`` that keep :data:`SHARE` of the exact gain at 3 mm (the second seen eye)."""
+    return [(b, g) for b, g in path if g[1] >= SHARE * ceiling]
+
+
 def _verdict(path, ceiling: float) -> str:
-    keeping = [(b, g) for b, g in path if g[1] >= SHARE * ceiling]
+    keeping = _keeping(path, ceiling)
     safe = [(b, g) for b, g in path if min(g) >= FALL]
     first = (f"80 % from blend {keeping[0][0]:.1f}, least there {min(keeping[0][1]):+.2f}" if keeping
              else "never 80 %")
@@ -71,30 +74,24 @@ def main(argv: list[str]) -> int:
         eyes = eyes[1:]
     conflicts = cases = 0
     panels = []
-    for tag, eye, age in eyes:
-        rb._eye.update(eye=eye, age=age)
-        rb._cases.clear()
-        for display_name in args.display or rb.DISPLAYS:
-            for name in names:
-                display, target, p, seen = rb._case(display_name, name)
-                ceiling = next(c for _, _, c in seen if c is not None)
-                if ceiling < 0.1:
-                    print(f"  {tag:12s} {display_name:8s} {name:22s} exact 3 mm gain {ceiling:+.2f}: no share worth "
-                          "reading", flush=True)
-                    continue
-                exact3 = next(e for (e, _, c) in seen if c is not None)
-                best = solve(make_problem(target, exact3.kernel, exact3.reference), "fast").image
-                design = design_eye(eye, display, nearest_bank_pupil(p), band=None, kernels=rb._kernels, robust=True)
-                default = solve(make_design_problem(target, design), "fast").image
-                exact_path = _path(best, target, seen, display)
-                default_path = _path(default, target, seen, display)
-                cases += 1
-                keeping = [g for b, g in exact_path if g[1] >= SHARE * ceiling]
-                conflicts += bool(keeping) and min(keeping[0]) < FALL
-                print(f"  {tag:12s} {display_name:8s} {name:22s} exact 3 mm gain {ceiling:+.2f}", flush=True)
-                print(f"      exact 3 mm design: {_verdict(exact_path, ceiling)}", flush=True)
-                print(f"      default:           {_verdict(default_path, ceiling)}", flush=True)
-                panels.append((f"{tag} {display_name} {name}", ceiling, exact_path, default_path))
+    for tag, eye, display_name, name, display, target, p, seen in each_case(eyes, names, args.display or rb.DISPLAYS):
+        ceiling = next(c for _, _, c in seen if c is not None)
+        if ceiling < 0.1:
+            print(f"  {tag:12s} {display_name:8s} {name:22s} exact 3 mm gain {ceiling:+.2f}: no share worth "
+                  "reading", flush=True)
+            continue
+        exact3 = next(e for (e, _, c) in seen if c is not None)
+        best = solve(make_problem(target, exact3.kernel, exact3.reference), "fast").image
+        default = solve(make_design_problem(target, default_design(eye, display, p)), "fast").image
+        exact_path = _path(best, target, seen, display)
+        default_path = _path(default, target, seen, display)
+        cases += 1
+        keeping = _keeping(exact_path, ceiling)
+        conflicts += bool(keeping) and min(keeping[0][1]) < FALL
+        print(f"  {tag:12s} {display_name:8s} {name:22s} exact 3 mm gain {ceiling:+.2f}", flush=True)
+        print(f"      exact 3 mm design: {_verdict(exact_path, ceiling)}", flush=True)
+        print(f"      default:           {_verdict(default_path, ceiling)}", flush=True)
+        panels.append((f"{tag} {display_name} {name}", ceiling, exact_path, default_path))
     print(f"{conflicts} of {cases} cases: the exact design's blend that keeps 80 % at 3 mm makes a seen eye fall")
     if args.plot is not None and panels:
         _plot(panels, args.plot)

@@ -19,9 +19,7 @@ import argparse
 import sys
 
 import robust_band_choice as rb  # tools/: this script's folder
-from guard_tradeoff import eyes_and_pictures, picture_arguments
-from vrcorrect.physics.robust import design_eye
-from vrcorrect.runtime.pupil_bank import nearest_bank_pupil
+from guard_tradeoff import default_design, each_case, eyes_and_pictures, picture_arguments
 from vrcorrect.solvers import solve
 from vrcorrect.solvers.problem import make_design_problem, objective
 
@@ -36,24 +34,19 @@ def main(argv: list[str]) -> int:
     eyes, names = parsed
     print("ratio: fast's expected error over none's; ceiling: the exact 3 mm design's JOD gain; the six seen "
           "eyes' JOD gains", flush=True)
-    for tag, eye, age in eyes:
-        rb._eye.update(eye=eye, age=age)
-        rb._cases.clear()
-        for display_name in rb.DISPLAYS:
-            for name in names:
-                display, target, p, seen = rb._case(display_name, name)
-                design = design_eye(eye, display, nearest_bank_pupil(p), band=None, kernels=rb._kernels, robust=True)
-                if design.sees_as_with_glasses:
-                    print(f"  {tag:12s} {display_name:8s} {name:22s} in focus: shown as it is", flush=True)
-                    continue
-                problem = make_design_problem(target, design)
-                shown = solve(problem, "fast").image
-                ratio = objective(shown, problem) / max(objective(target, problem), 1e-30)
-                gains = rb.seen_gains(shown, target, seen, display)
-                ceiling = next(c for _, _, c in seen if c is not None)
-                print(f"  {tag:12s} {display_name:8s} {name:22s} light {p:.2f} mm  ratio {ratio:.3f}"
-                      f"  ceiling {ceiling:+.2f}  least {min(gains):+.2f}"
-                      "  gains " + " ".join(f"{g:+.2f}" for g in gains), flush=True)
+    for tag, eye, display_name, name, display, target, p, seen in each_case(eyes, names):
+        design = default_design(eye, display, p)
+        if design.sees_as_with_glasses:
+            print(f"  {tag:12s} {display_name:8s} {name:22s} in focus: shown as it is", flush=True)
+            continue
+        problem = make_design_problem(target, design)
+        shown = solve(problem, "fast").image
+        ratio = objective(shown, problem) / max(objective(target, problem), 1e-30)
+        gains = rb.seen_gains(shown, target, seen, display)
+        ceiling = next(c for _, _, c in seen if c is not None)
+        print(f"  {tag:12s} {display_name:8s} {name:22s} light {p:.2f} mm  ratio {ratio:.3f}"
+              f"  ceiling {ceiling:+.2f}  least {min(gains):+.2f}"
+              "  gains " + " ".join(f"{g:+.2f}" for g in gains), flush=True)
     return 0
 
 

@@ -64,27 +64,38 @@ def _arguments(argv: list[str]) -> argparse.Namespace:
     return ap.parse_args(argv)
 
 
-def _cases(images: list[str], eyes: list[tuple[str, object, float | None]]):
-    """Each (eye, display, picture): the unguarded correction, the target, the six seen eyes' problems,
-    none's JOD, FLIP and objective for each, the exact 3 mm gain, and the unguarded scores."""
+def each_case(eyes: list[tuple[str, object, float | None]], names: list[str], displays=rb.DISPLAYS):
+    """Each (eye, display, picture) in turn, as robust_band_choice's case: (tag, eye, display name, picture
+    name, display, target, the light's pupil, the six seen eyes)."""
     for tag, eye, age in eyes:
         rb._eye.update(eye=eye, age=age)
         rb._cases.clear()
-        for display_name in rb.DISPLAYS:
-            for name in images:
-                t0 = time.perf_counter()
-                display, target, p, seen = rb._case(display_name, name)
-                design = design_eye(eye, display, nearest_bank_pupil(p), band=None, kernels=rb._kernels, robust=True)
-                shown = solve(make_design_problem(target, design), "fast").image
-                problems = [make_problem(target, e.nominal, e.nominal_reference) for e, _, _ in seen]
-                case = dict(eye=tag, display=display, display_name=display_name, picture=name, shown=shown,
-                            target=target, seen=seen, problems=problems, viewing=ViewingLight.of(display),
-                            none=rb.seen_metrics(target, target, seen, display, with_jod=False),
-                            ceiling=next(c for _, _, c in seen if c is not None))
-                case["scores"] = _scores(shown, case)
-                print(f"  {tag:10s} {display_name:8s} {name:20s} least {min(case['scores']['jod']):+.2f}  "
-                      f"({time.perf_counter() - t0:.0f} s)", flush=True)
-                yield case
+        for display_name in displays:
+            for name in names:
+                yield (tag, eye, display_name, name, *rb._case(display_name, name))
+
+
+def default_design(eye, display, light_pupil_mm: float):
+    """The default's design for the light's pupil: the default band at the pupil bank's nearest entry."""
+    return design_eye(eye, display, nearest_bank_pupil(light_pupil_mm), band=None, kernels=rb._kernels, robust=True)
+
+
+def _cases(images: list[str], eyes: list[tuple[str, object, float | None]]):
+    """Each (eye, display, picture): the unguarded correction, the target, the six seen eyes' problems,
+    none's JOD, FLIP and objective for each, the exact 3 mm gain, and the unguarded scores."""
+    t0 = time.perf_counter()
+    for tag, eye, display_name, name, display, target, p, seen in each_case(eyes, images):
+        shown = solve(make_design_problem(target, default_design(eye, display, p)), "fast").image
+        problems = [make_problem(target, e.nominal, e.nominal_reference) for e, _, _ in seen]
+        case = dict(eye=tag, display=display, display_name=display_name, picture=name, shown=shown,
+                    target=target, seen=seen, problems=problems, viewing=ViewingLight.of(display),
+                    none=rb.seen_metrics(target, target, seen, display, with_jod=False),
+                    ceiling=next(c for _, _, c in seen if c is not None))
+        case["scores"] = _scores(shown, case)
+        print(f"  {tag:10s} {display_name:8s} {name:20s} least {min(case['scores']['jod']):+.2f}  "
+              f"({time.perf_counter() - t0:.0f} s)", flush=True)
+        yield case
+        t0 = time.perf_counter()
 
 
 def _scores(image: np.ndarray, case: dict) -> dict[str, list[float]]:

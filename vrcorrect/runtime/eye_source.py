@@ -123,7 +123,7 @@ class EyeSource:
         self.eyes = tuple(eyes)
         self._display = display
         self._display_lock = threading.Lock()
-        self.options, self.check, self.design = options, check, design
+        self.check, self.design = check, design
         self.offsets: dict[str, Offset] = {}         # each eye's live changes, as last asked for
         self._handed: dict[str, Offset] = {}         # ... as in the last model of each eye handed over
         self.poll_interval_s: float | None = None
