@@ -185,6 +185,31 @@ def test_a_corrector_warmed_up_then_reset_starts_cold_as_a_fresh_one(setup):
     assert not np.array_equal(fresh[0], fresh[2])          # frames that differ: the iterations went on
 
 
+def test_an_eye_sources_key_names_its_prescriptions_age(tmp_path):
+    """The key the layer's builder stores a design under, at a start and after a reload alike
+    (a reload once stored without the age, so a later launch missed it): two prescriptions
+    that differ in the wearer's age alone are two keys, each the one a start computes."""
+    from vrcorrect.runtime import eye_cache
+    from vrcorrect.runtime.eye_model import CorrectorOptions
+    from vrcorrect.runtime.eye_source import EyeSource
+    from vrcorrect.specs.display import get_display
+    from vrcorrect.specs.prescription import load_prescription
+
+    keys = []
+    for age in (35, 70):
+        rx = tmp_path / f"rx{age}.json"
+        rx.write_text(json.dumps(dict(RX, age_years=age)))
+        source = EyeSource(rx, get_display("quest2"), CorrectorOptions(), worker=False)
+        try:
+            keys.append(eye_cache.source_key(source, "quest2", (96, 64)))
+        finally:
+            source.close()
+        loaded = load_prescription(rx)
+        eyes = {eye: loaded.eye(eye) for eye in ("right", "left")}
+        assert keys[-1] == eye_cache.key(eyes, "quest2", (96, 64), CorrectorOptions(), age_years=loaded.age_years)
+    assert keys[0] != keys[1]
+
+
 def test_eye_models_are_kept_under_a_key_of_everything_they_depend_on(setup, tmp_path):
     from dataclasses import replace
 

@@ -74,6 +74,13 @@ def key(eyes: Mapping[str, Any], display: str | None, view_size: tuple[int, int]
     return digest.hexdigest()
 
 
+def source_key(source: Any, display: str | None, view_size: tuple[int, int]) -> str:
+    """:func:`key` of an :class:`~vrcorrect.runtime.eye_source.EyeSource`'s current design (its eyes
+    as designed, its prescription's age, its options): the same key at a start and after a reload."""
+    eyes = {eye: source.eye_rx(eye) for eye in source.eyes}
+    return key(eyes, display, view_size, source.options, source.prescription.age_years)
+
+
 def _path(cache_key: str, env: Mapping[str, str] | None, folder: str = "eyes") -> Path:
     return cache_dir(env) / folder / f"{cache_key}.pickle"
 

@@ -143,9 +143,7 @@ class Builder:
         source, config = self.source, self.config
         assert source is not None
         t0 = time.perf_counter()
-        eyes = {eye: source.eye_rx(eye) for eye in source.eyes}
-        cache_key = eye_cache.key(eyes, config.display, self.engine.view_size, source.options,
-                                   source.prescription.age_years)
+        cache_key = eye_cache.source_key(source, config.display, self.engine.view_size)
         cached = eye_cache.load(cache_key, self.engine.env)
         models: dict[str, tuple[Any, Any]] | None = None
         design_s = 0.0
@@ -180,8 +178,7 @@ class Builder:
             if reloads and models is not None:
                 models.update({eye: (u.model, u.prescription) for eye, u in reloads.items()})
                 pending = True
-                eyes = {eye: source.eye_rx(eye) for eye in source.eyes}
-                eye_cache.store(eye_cache.key(eyes, config.display, self.engine.view_size, source.options),
+                eye_cache.store(eye_cache.source_key(source, config.display, self.engine.view_size),
                                 source.display, self.display_holder.get("why", ""),
                                 {eye: m for eye, (m, _) in models.items()}, self.engine.env)
             if models is not None:
