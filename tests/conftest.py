@@ -46,7 +46,8 @@ SLOW_TESTS = ("test_unusual_but_valid_images_are_corrected", "test_closing_a_ban
               "test_every_accepted_prescription_is_modelled_on_every_display_preset")
 """Tests (name prefixes) that take seconds each in modules of quick ones: ``slow``."""
 SERIAL_MODULES = ("test_runtime_budget.py", "test_cli_signals.py", "test_xr_layer_wheel.py", "test_xr_runtime_gaze.py")
-SERIAL_TESTS = ("test_a_long_gl_call_lets_other_python_threads_run", "test_progress_says_it_is_still_working")
+SERIAL_TESTS = ("test_a_long_gl_call_lets_other_python_threads_run", "test_progress_says_it_is_still_working",
+                "test_a_stall_trace_writes")
 """Tests whose assertions read a clock (a frame budget held, a signal sent at a fraction of a timed
 run, a launch within seconds, a thread's ticks): ``serial``. ``tools/test.sh`` runs them alone, after
 the rest has run in parallel, so that a neighbour's load does not move their times. Also the test

@@ -578,3 +578,41 @@ def test_the_priming_budget_reads_seconds_or_converge_and_names_a_bad_value():
     for bad in ("-1", "soon", "nan", "61"):
         with pytest.raises(ValidationError, match=f"{PRIME_ENV}.*{bad}.*seconds from 0 to 60, or 'converge'"):
             prime_budget({PRIME_ENV: bad})
+
+
+def test_a_stall_trace_writes_every_threads_stack_for_a_frame_that_outlasts_it_and_nothing_otherwise(tmp_path):
+    """``VRCORRECT_LAYER_STALL_TRACE``'s watchdog (config.StallTrace): a frame disarmed in time leaves the
+    file as it was; one that lasts past its seconds finds in it the stacks of the frame's thread
+    (here, sleeping in this test) and of every other thread (one waiting in a function of its own),
+    followed by which frame it was and how long it took."""
+    import threading
+    import time
+
+    from vrcorrect.runtime.layer.config import StallTrace
+
+    release = threading.Event()
+
+    def a_worker_waiting_here():
+        release.wait(30)
+
+    worker = threading.Thread(target=a_worker_waiting_here)
+    worker.start()
+    trace = StallTrace(tmp_path / "stalls" / "trace.txt", seconds=0.05)
+    try:
+        trace.arm(7)
+        assert trace.disarm() is False                     # at once: nothing written
+        assert trace.path.read_text() == ""
+        trace.arm(8)
+        time.sleep(0.5)                                     # ten times the watch
+        assert trace.disarm() is True
+        assert trace.disarm() is False                      # disarmed once
+    finally:
+        release.set()
+        worker.join()
+        trace.close()
+    text = trace.path.read_text()
+    assert "Timeout (0:00:00.050000)!" in text
+    assert "a_stall_trace_writes_every_threads_stack" in text and "a_worker_waiting_here" in text
+    said = re.search(r"the frame after 8 corrected ones, ([\d.]+) s in the layer; written 0.05 s into it", text)
+    assert said and float(said.group(1)) >= 0.5, text
+    assert "after 7 " not in text

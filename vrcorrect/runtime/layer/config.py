@@ -1,6 +1,6 @@
 """The OpenXR API layer's configuration and environment: the layer's names, the variables it reads
 (``VRCORRECT_LAYER_CONFIG``, ``VRCORRECT_RX``, ``VRCORRECT_LAYER_OFF``, ``VRCORRECT_LAYER_LOG``,
-``VRCORRECT_LAYER_PRIME_S``), where its configuration, off switch and log lie, the configuration
+``VRCORRECT_LAYER_PRIME_S``, ``VRCORRECT_LAYER_STALL_TRACE``), where its configuration, off switch and log lie, the configuration
 itself (:class:`LayerConfig`, :func:`read_config`), its log (one line a reason) and the display
 chosen for the runtime's view size.
 
@@ -34,7 +34,7 @@ from ...specs.vocabulary import VIEW_ORDER
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from ...specs.display import DisplayProfile
 
-__all__ = ["BUILD_NICE", "CAPTURE_WAIT_S", "CLOSE_WAIT_S", "CONFIG_ENV", "DISABLE_ENV", "LAYER_NAME", "LOG_ENV",
+__all__ = ["BUILD_NICE", "STALL_TRACE_ENV", "STALL_TRACE_S", "StallTrace", "CAPTURE_WAIT_S", "CLOSE_WAIT_S", "CONFIG_ENV", "DISABLE_ENV", "LAYER_NAME", "LOG_ENV",
            "LAYER_DEFAULTS", "LayerConfig", "LayerLog", "LIGHT_WAIT_S", "OFF_ENV", "PRIME_BUDGET_S", "PRIME_ENV", "PRIME_MAX_FRAMES", "RX_ENV",
            "choose_display", "config_path", "eye_of_view", "log_path", "off_file", "one_line",
            "one_line_text", "prime_budget", "read_config"]
@@ -46,6 +46,11 @@ OFF_ENV = "VRCORRECT_LAYER_OFF"              # the engine's live off switch (the
 CONFIG_ENV = "VRCORRECT_LAYER_CONFIG"
 RX_ENV = "VRCORRECT_RX"
 LOG_ENV = "VRCORRECT_LAYER_LOG"
+STALL_TRACE_ENV = "VRCORRECT_LAYER_STALL_TRACE"
+STALL_TRACE_S = 0.5
+"""A frame whose part in the layer (``xrEndFrame``, from the frame's start to its end) lasts
+longer than this many seconds has every thread's Python stack written to the file named by
+``VRCORRECT_LAYER_STALL_TRACE`` (:class:`StallTrace`): where a host's frame waited on the layer."""
 LAYER_DEFAULTS: Mapping[str, Any] = {"pupil": "auto", "robust": True, "band": "auto"}
 """The corrector options the layer uses where its configuration's ``options`` do not say otherwise: the
 viewing pupil followed from the light of the frames shown, the robust design and its band by the
@@ -258,3 +263,49 @@ def one_line(exc: BaseException) -> str:
 
 def one_line_text(text: str) -> str:
     return " ".join(text.split())
+
+
+class StallTrace:
+    """Opt-in (``VRCORRECT_LAYER_STALL_TRACE=FILE``): a diagnostic of frames the layer held the host up
+    in.  :meth:`arm` at a frame's start has :mod:`faulthandler` write every thread's Python
+    stack to the file if :meth:`disarm` has not come within ``seconds`` (from a C watchdog thread: it
+    writes even while a thread holds Python's lock or waits inside GL); :meth:`disarm` adds which
+    frame it was and how long it lasted.  One such watchdog exists per process, so this is off unless
+    asked for (an application of its own using ``faulthandler.dump_traceback_later`` loses it)."""
+
+    def __init__(self, path: str | os.PathLike[str], seconds: float = STALL_TRACE_S):
+        self.path, self.seconds = Path(path), float(seconds)
+        self._file: Any = None
+        self._armed: tuple[int, float, int] | None = None      # (frame, start, the file's size then)
+
+    def arm(self, frame: int) -> None:
+        import faulthandler  # opt-in: a diagnostic nobody else loads
+
+        if self._file is None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = open(self.path, "a", encoding="utf-8")
+        self._file.flush()
+        self._armed = (frame, time.perf_counter(), os.fstat(self._file.fileno()).st_size)
+        faulthandler.dump_traceback_later(self.seconds, repeat=False, file=self._file)
+
+    def disarm(self) -> bool:
+        """End the frame's watch; True when its stacks were written (the frame outlasted ``seconds``)."""
+        import faulthandler  # as above
+
+        if self._armed is None:
+            return False
+        faulthandler.cancel_dump_traceback_later()
+        frame, start, size = self._armed
+        self._armed = None
+        if os.fstat(self._file.fileno()).st_size == size:
+            return False
+        self._file.write(f"(the stacks above: the frame after {frame} corrected ones, {time.perf_counter() - start:.3f} "
+                         f"s in the layer; written {self.seconds:g} s into it)\n\n")
+        self._file.flush()
+        return True
+
+    def close(self) -> None:
+        self.disarm()
+        if self._file is not None:
+            self._file.close()
+            self._file = None

@@ -50,8 +50,10 @@ from .config import (
     CLOSE_WAIT_S,
     PRIME_MAX_FRAMES,
     RX_ENV,
+    STALL_TRACE_ENV,
     LayerConfig,
     LayerLog,
+    StallTrace,
     _off,
     config_path,
     eye_of_view,
@@ -108,6 +110,7 @@ class Engine(VulkanFrames):
         self._sync_ms: list[tuple[float, float, float]] = []
         self._frame_ms: list[float] = []
         self._last_report = time.monotonic()
+        self._stall = StallTrace(self.env[STALL_TRACE_ENV]) if self.env.get(STALL_TRACE_ENV) else None
         self._gaze_uv: dict[str, tuple[float, float]] = {}   # the eye tracker's gaze this frame, per eye
         self._gaze_said: str | None = None
         self.frames = 0
@@ -359,7 +362,22 @@ class Engine(VulkanFrames):
     def begin_frame(self) -> int:
         """What the shim does with this frame: 1 correct it, 0 pass it through (the reason is logged
         once), 2 hand its views to :meth:`capture_gl`/:meth:`capture_vulkan` and pass it through (the
-        first pipeline is being built and primes itself on them)."""
+        first pipeline is being built and primes itself on them).  A stall trace (``StallTrace``) watches
+        the frame from here to :meth:`end_frame`, or to here alone where it passes through."""
+        if self._stall is None:
+            return self._mode()
+        self._stall.arm(self.frames)
+        mode = self._mode()
+        if mode == 0:                            # no end_frame for this one
+            self._stall_said()
+        return mode
+
+    def _stall_said(self) -> None:
+        if self._stall is not None and self._stall.disarm():
+            self.log.line(f"a frame took over {self._stall.seconds:g} s in the layer: every thread's stack is in "
+                          f"{self._stall.path}")
+
+    def _mode(self) -> int:
         try:
             reason = self._check()
         except Exception as exc:  # noqa: BLE001
@@ -499,6 +517,7 @@ class Engine(VulkanFrames):
         request = self.capture
         if request is not None and request.views and not request.ready.is_set():
             request.ready.set()                  # this frame's views are the builder's to take
+        self._stall_said()
         try:
             if not corrected:
                 return
@@ -574,4 +593,6 @@ class Engine(VulkanFrames):
             deadline = time.monotonic() + CLOSE_WAIT_S
             if not all(s.join(max(0.0, deadline - time.monotonic())) for s in running):
                 self.log.line(f"an eye model build still running after {CLOSE_WAIT_S:g} s; closing anyway")
+        if self._stall is not None:
+            self._stall.close()
         self.log.line(f"closed after {self.frames} corrected frames")
