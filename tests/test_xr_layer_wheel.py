@@ -197,6 +197,7 @@ def _launch(kit, out: Path, venv: Path, home: Path, api: str, display: str) -> t
                   PATH=str(venv / "bin"), prime=None,                  # the layer's default priming budget
                   VRCORRECT_LAYER_STALL_TRACE=str(out / "stalls.txt"))  # where a frame over 0.5 s waited
     environ.pop("MESA_SHADER_CACHE_DIR")                   # Mesa's own cache in the fresh HOME, as a user's
+    before = _cpu_ticks()
     result = run([_hello_xr(), "-g", api], out, environ, corrected=3, stop_env="XRTEST_STOP_FILE", stdin=True)
     assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
     log = layer_log(out)
@@ -218,7 +219,24 @@ def _launch(kit, out: Path, venv: Path, home: Path, api: str, display: str) -> t
     assert priming, ready[0]
     # the default follows the light: its design is in use from the first corrected frame, not seconds later
     assert "designed for the light's pupil while priming" in ready[0], ready[0]
+    (out / "machine.txt").write_text(_machine_said(before, _cpu_ticks()))
     return (arrival[first] - arrival[times[0][0]]) / 1e3, gap, float(priming.group(1)), pace
+
+
+def _cpu_ticks() -> list[int]:
+    """/proc/stat's first line: the machine's CPU ticks (user, nice, system, idle, iowait, irq, softirq,
+    steal, ...)."""
+    return [int(v) for v in Path("/proc/stat").read_text().splitlines()[0].split()[1:]]
+
+
+def _machine_said(before: list[int], after: list[int]) -> str:
+    """What the machine did during a launch, for a failure's message: its load average at the end and
+    the shares of its CPU time that were busy and that a virtual machine's host took (steal)."""
+    spent = [a - b for a, b in zip(after, before)]
+    total = max(1, sum(spent[:8]))
+    busy = total - spent[3] - spent[4]
+    return (f"load average {' '.join(f'{v:.2f}' for v in os.getloadavg())}; during the launch the CPUs were "
+            f"{busy / total:.0%} busy, {spent[7] / total:.1%} taken by the host (steal)")
 
 
 @pytest.mark.parametrize("api", ["Vulkan", "OpenGL"])
@@ -243,6 +261,7 @@ def test_hello_xr_corrected_from_the_wheel_never_stalls_and_starts_again_within_
     # on a failure, what the layer said of its build and its first frames (where the time went)
     said = [line for launch in ("first", "second") for line in layer_log(tmp_path / launch)
             if "correcting with" in line or "first corrected" in line or "1 frames corrected" in line]
+    said += [f"{launch} launch: {(tmp_path / launch / 'machine.txt').read_text()}" for launch in ("first", "second")]
     said += [f"{launch} launch's stall trace:\n{path.read_text()[-6000:]}" for launch in ("first", "second")
              if (path := tmp_path / launch / "stalls.txt").is_file() and path.stat().st_size]
     assert first_gap <= 1.0 and second_gap <= 1.0, (first_gap, second_gap, said)
