@@ -597,22 +597,30 @@ def test_a_stall_trace_writes_every_threads_stack_for_a_frame_that_outlasts_it_a
 
     worker = threading.Thread(target=a_worker_waiting_here)
     worker.start()
-    trace = StallTrace(tmp_path / "stalls" / "trace.txt", seconds=0.05)
+    path = tmp_path / "stalls" / "trace.txt"
+    trace = StallTrace(path, seconds=0.05)
     try:
-        trace.arm(7)
-        assert trace.disarm() is False                     # at once: nothing written
-        assert trace.path.read_text() == ""
-        trace.arm(8)
+        assert trace.arm(7) == ""
+        assert trace.disarm() == ""                         # at once: nothing written
+        assert path.read_text() == ""
+        assert trace.arm(8) == ""
         time.sleep(0.5)                                     # ten times the watch
-        assert trace.disarm() is True
-        assert trace.disarm() is False                      # disarmed once
+        assert trace.disarm() == f"a frame took over 0.05 s in the layer: every thread's stack is in {path}"
+        assert trace.disarm() == ""                         # disarmed once
     finally:
         release.set()
         worker.join()
         trace.close()
-    text = trace.path.read_text()
+    text = path.read_text()
     assert "Timeout (0:00:00.050000)!" in text
     assert "a_stall_trace_writes_every_threads_stack" in text and "a_worker_waiting_here" in text
     said = re.search(r"the frame after 8 corrected ones, ([\d.]+) s in the layer; written 0.05 s into it", text)
     assert said and float(said.group(1)) >= 0.5, text
     assert "after 7 " not in text
+    # not asked for: nothing; a file that cannot be written: off, said once, never an exception
+    assert StallTrace(None).arm(1) == "" and StallTrace(None).disarm() == ""
+    (tmp_path / "a_file").write_text("")
+    blocked = StallTrace(tmp_path / "a_file" / "trace.txt")
+    said = blocked.arm(1)
+    assert "VRCORRECT_LAYER_STALL_TRACE" in said and "a_file" in said, said
+    assert blocked.arm(2) == "" and blocked.disarm() == "" and blocked.path is None

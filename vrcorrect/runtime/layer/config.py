@@ -1,8 +1,9 @@
 """The OpenXR API layer's configuration and environment: the layer's names, the variables it reads
 (``VRCORRECT_LAYER_CONFIG``, ``VRCORRECT_RX``, ``VRCORRECT_LAYER_OFF``, ``VRCORRECT_LAYER_LOG``,
-``VRCORRECT_LAYER_PRIME_S``, ``VRCORRECT_LAYER_STALL_TRACE``), where its configuration, off switch and log lie, the configuration
-itself (:class:`LayerConfig`, :func:`read_config`), its log (one line a reason) and the display
-chosen for the runtime's view size.
+``VRCORRECT_LAYER_PRIME_S``, ``VRCORRECT_LAYER_STALL_TRACE``), where its configuration, off switch
+and log lie, the configuration itself (:class:`LayerConfig`, :func:`read_config`), its log (one line
+a reason), the display chosen for the runtime's view size and the opt-in stall trace
+(:class:`StallTrace`).
 
 Configuration (:class:`LayerConfig`): ``$XDG_CONFIG_HOME/vrcorrect/layer.json`` (or the file named by
 ``VRCORRECT_LAYER_CONFIG``) with ``rx`` (prescription path), ``display`` (preset or profile path;
@@ -34,7 +35,8 @@ from ...specs.vocabulary import VIEW_ORDER
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from ...specs.display import DisplayProfile
 
-__all__ = ["BUILD_NICE", "STALL_TRACE_ENV", "STALL_TRACE_S", "StallTrace", "CAPTURE_WAIT_S", "CLOSE_WAIT_S", "CONFIG_ENV", "DISABLE_ENV", "LAYER_NAME", "LOG_ENV",
+__all__ = ["BUILD_NICE", "CAPTURE_WAIT_S", "CLOSE_WAIT_S", "CONFIG_ENV", "DISABLE_ENV", "LAYER_NAME", "LOG_ENV",
+           "STALL_TRACE_ENV", "STALL_TRACE_S", "StallTrace",
            "LAYER_DEFAULTS", "LayerConfig", "LayerLog", "LIGHT_WAIT_S", "OFF_ENV", "PRIME_BUDGET_S", "PRIME_ENV", "PRIME_MAX_FRAMES", "RX_ENV",
            "choose_display", "config_path", "eye_of_view", "log_path", "off_file", "one_line",
            "one_line_text", "prime_budget", "read_config"]
@@ -267,42 +269,53 @@ def one_line_text(text: str) -> str:
 
 class StallTrace:
     """Opt-in (``VRCORRECT_LAYER_STALL_TRACE=FILE``): a diagnostic of frames the layer held the host up
-    in.  :meth:`arm` at a frame's start has :mod:`faulthandler` write every thread's Python
-    stack to the file if :meth:`disarm` has not come within ``seconds`` (from a C watchdog thread: it
-    writes even while a thread holds Python's lock or waits inside GL); :meth:`disarm` adds which
-    frame it was and how long it lasted.  One such watchdog exists per process, so this is off unless
-    asked for (an application of its own using ``faulthandler.dump_traceback_later`` loses it)."""
+    in.  :meth:`arm` at a frame's start has :mod:`faulthandler` write every thread's Python stack to
+    ``path`` if :meth:`disarm` has not come within ``seconds`` (from a C watchdog thread: it writes
+    even while a thread holds Python's lock or waits inside GL); :meth:`disarm` adds which frame it
+    was and how long it lasted.  One such watchdog exists per process, so this is off unless asked
+    for (an application of its own using ``faulthandler.dump_traceback_later`` loses it).  With
+    ``path`` None (not asked for) or a file that cannot be written, it does nothing."""
 
-    def __init__(self, path: str | os.PathLike[str], seconds: float = STALL_TRACE_S):
-        self.path, self.seconds = Path(path), float(seconds)
+    def __init__(self, path: str | os.PathLike[str] | None, seconds: float = STALL_TRACE_S):
+        self.path, self.seconds = (Path(path) if path else None), float(seconds)
         self._file: Any = None
         self._armed: tuple[int, float, int] | None = None      # (frame, start, the file's size then)
 
-    def arm(self, frame: int) -> None:
+    def arm(self, frame: int) -> str:
+        """Watch the frame after ``frame`` corrected ones; returns '' or, once, why the trace is off
+        (its file cannot be written: a diagnostic never stops the correction)."""
         import faulthandler  # opt-in: a diagnostic nobody else loads
 
-        if self._file is None:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._file = open(self.path, "a", encoding="utf-8")
-        self._file.flush()
-        self._armed = (frame, time.perf_counter(), os.fstat(self._file.fileno()).st_size)
+        if self.path is None:
+            return ""
+        try:
+            if self._file is None:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self._file = open(self.path, "a", encoding="utf-8")
+            self._file.flush()
+            self._armed = (frame, time.perf_counter(), os.fstat(self._file.fileno()).st_size)
+        except OSError as exc:
+            self.path = None
+            return f"no stall trace ({STALL_TRACE_ENV}): {one_line(exc)}"
         faulthandler.dump_traceback_later(self.seconds, repeat=False, file=self._file)
+        return ""
 
-    def disarm(self) -> bool:
-        """End the frame's watch; True when its stacks were written (the frame outlasted ``seconds``)."""
+    def disarm(self) -> str:
+        """End the frame's watch; returns '' or, where the frame outlasted ``seconds`` (its stacks
+        were written), the log's line saying so."""
         import faulthandler  # as above
 
         if self._armed is None:
-            return False
+            return ""
         faulthandler.cancel_dump_traceback_later()
         frame, start, size = self._armed
         self._armed = None
         if os.fstat(self._file.fileno()).st_size == size:
-            return False
+            return ""
         self._file.write(f"(the stacks above: the frame after {frame} corrected ones, {time.perf_counter() - start:.3f} "
                          f"s in the layer; written {self.seconds:g} s into it)\n\n")
         self._file.flush()
-        return True
+        return f"a frame took over {self.seconds:g} s in the layer: every thread's stack is in {self.path}"
 
     def close(self) -> None:
         self.disarm()

@@ -110,7 +110,7 @@ class Engine(VulkanFrames):
         self._sync_ms: list[tuple[float, float, float]] = []
         self._frame_ms: list[float] = []
         self._last_report = time.monotonic()
-        self._stall = StallTrace(self.env[STALL_TRACE_ENV]) if self.env.get(STALL_TRACE_ENV) else None
+        self._stall = StallTrace(self.env.get(STALL_TRACE_ENV))     # off unless asked for
         self._gaze_uv: dict[str, tuple[float, float]] = {}   # the eye tracker's gaze this frame, per eye
         self._gaze_said: str | None = None
         self.frames = 0
@@ -362,20 +362,18 @@ class Engine(VulkanFrames):
     def begin_frame(self) -> int:
         """What the shim does with this frame: 1 correct it, 0 pass it through (the reason is logged
         once), 2 hand its views to :meth:`capture_gl`/:meth:`capture_vulkan` and pass it through (the
-        first pipeline is being built and primes itself on them).  A stall trace (``StallTrace``) watches
-        the frame from here to :meth:`end_frame`, or to here alone where it passes through."""
-        if self._stall is None:
-            return self._mode()
-        self._stall.arm(self.frames)
+        first pipeline is being built and primes itself on them).  The stall trace watches the frame
+        from here to :meth:`end_frame`, or to here alone where it passes through."""
+        if said := self._stall.arm(self.frames):
+            self.log.line(said)
         mode = self._mode()
         if mode == 0:                            # no end_frame for this one
             self._stall_said()
         return mode
 
     def _stall_said(self) -> None:
-        if self._stall is not None and self._stall.disarm():
-            self.log.line(f"a frame took over {self._stall.seconds:g} s in the layer: every thread's stack is in "
-                          f"{self._stall.path}")
+        if said := self._stall.disarm():
+            self.log.line(said)
 
     def _mode(self) -> int:
         try:
@@ -593,6 +591,5 @@ class Engine(VulkanFrames):
             deadline = time.monotonic() + CLOSE_WAIT_S
             if not all(s.join(max(0.0, deadline - time.monotonic())) for s in running):
                 self.log.line(f"an eye model build still running after {CLOSE_WAIT_S:g} s; closing anyway")
-        if self._stall is not None:
-            self._stall.close()
+        self._stall.close()
         self.log.line(f"closed after {self.frames} corrected frames")
