@@ -438,6 +438,26 @@ def test_an_admm_frame_is_counted_as_its_passes(gl, clip):
         r.release()
 
 
+def test_each_frame_names_its_longest_pass_call(gl, clip):
+    """``Gpu.longest`` (the layer's stall trace reports it): set afresh at each frame's start, it names
+    one of that frame's passes, with a time within the frame's."""
+    import time
+
+    r = Run(gl, "half", 2, early_stop=True)
+    try:
+        r.frame(clip[0])
+        r.c.ledger = ledger = CostLedger()
+        r.c.gpu.longest = (1e9, "an earlier frame's pass")
+        t0 = time.perf_counter()
+        r.frame(clip[1])
+        frame_ms = 1e3 * (time.perf_counter() - t0)
+        ms, name = r.c.gpu.longest
+        assert name in {rec.name for rec in ledger.records}, (name, ledger.records)
+        assert 0.0 < ms <= frame_ms
+    finally:
+        r.release()
+
+
 def test_a_cold_frame_reads_no_previous_state_and_a_shifted_one_reads_the_other_textures(gl, clip):
     """The first (cold) frame does not read the last frame's state; a shifted warm start reads it
     from the other texture of each pair (w, q; the last t and T)."""

@@ -260,7 +260,8 @@ def test_hello_xr_corrected_from_the_wheel_never_stalls_and_starts_again_within_
     assert any("correcting with" in line and ", 0 compiled" in line for line in second_log), second_log
     # on a failure, what the layer said of its build and its first frames (where the time went)
     said = [line for launch in ("first", "second") for line in layer_log(tmp_path / launch)
-            if "correcting with" in line or "first corrected" in line or "1 frames corrected" in line]
+            if "correcting with" in line or "first corrected" in line or "1 frames corrected" in line
+            or "took over" in line]
     said += [f"{launch} launch: {(tmp_path / launch / 'machine.txt').read_text()}" for launch in ("first", "second")]
     said += [f"{launch} launch's stall trace:\n{path.read_text()[-6000:]}" for launch in ("first", "second")
              if (path := tmp_path / launch / "stalls.txt").is_file() and path.stat().st_size]

@@ -478,6 +478,7 @@ class Corrector:
         ``None`` or ``(0, 0)``: the plain warm start.  Other methods ignore it.  On a scene cut call
         :meth:`reset` instead."""
         t0 = time.perf_counter()
+        self.gpu.longest = (0.0, "")
         if self.budget is not None:
             self._budget_frame()
         self._set_motion(motion_px)

@@ -163,6 +163,11 @@ class Gpu:
         """When a dict: every pass runs between two ``glFinish`` calls and its wall time in ms is
         appended under its name (``vrcorrect bench cost --frames``: where a frame's time goes; the
         waits make the frame itself slower, so never while timing whole frames)."""
+        self.longest: tuple[float, str] = (0.0, "")
+        """The longest call of a pass since it was last set to ``(0.0, "")`` (:meth:`Corrector.apply
+        <vrcorrect.runtime.corrector.Corrector.apply>` does at each frame's start): (ms, pass name).
+        On a real GPU a call only queues its work; a software renderer (llvmpipe) compiles and runs it
+        inside the call, so there it names where a slow frame's time went (the layer's stall trace)."""
 
     def begin(self, stage: str) -> None:
         """The passes that follow belong to ``stage``; the stage before it is over."""
@@ -174,18 +179,22 @@ class Gpu:
         """The frame's last stage is over."""
         self.begin("")
 
-    def _pass_start(self) -> float | None:
-        """With :attr:`pass_times` set: wait for the GPU and read the clock (else nothing)."""
-        if self.pass_times is None:
-            return None
-        self.ctx.finish()
+    def _pass_start(self) -> float:
+        """The clock before a pass's call (with :attr:`pass_times` set, after waiting for the GPU)."""
+        if self.pass_times is not None:
+            self.ctx.finish()
         return time.perf_counter()
 
-    def _pass_end(self, name: str, t0: float | None) -> None:
-        """With a clock read by :meth:`_pass_start`: wait for the pass and record its time."""
-        if t0 is not None and self.pass_times is not None:
+    def _pass_end(self, name: str, t0: float) -> None:
+        """After a pass's call: :attr:`longest`; with :attr:`pass_times` set, wait for the pass and
+        record its time."""
+        if self.pass_times is not None:
             self.ctx.finish()
-            self.pass_times.setdefault(name, []).append(1e3 * (time.perf_counter() - t0))
+        ms = 1e3 * (time.perf_counter() - t0)
+        if self.pass_times is not None:
+            self.pass_times.setdefault(name, []).append(ms)
+        if ms > self.longest[0]:
+            self.longest = (ms, name)
 
     def _count(self, name: str, groups: tuple[int, ...], read: int, written: int, round_trip: bool,
                kind: str) -> None:

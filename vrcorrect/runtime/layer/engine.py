@@ -373,6 +373,8 @@ class Engine(VulkanFrames):
 
     def _stall_said(self) -> None:
         if said := self._stall.disarm():
+            if self.pipeline is not None:
+                said += f"; each eye's longest pass call in its last correction: {self.pipeline.longest_calls()}"
             self.log.line(said)
 
     def _mode(self) -> int:

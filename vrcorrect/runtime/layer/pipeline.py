@@ -254,6 +254,12 @@ class Pipeline:
                     texture.release()
         self.ctx.finish()
 
+    def longest_calls(self) -> str:
+        """Each eye's longest pass call in its last correction (:attr:`Gpu.longest
+        <vrcorrect.runtime.dispatch.Gpu.longest>`), in words."""
+        return "; ".join(f"{eye} {c.gpu.longest[1] or '-'} {c.gpu.longest[0]:.0f} ms"
+                         for eye, c in sorted(self.correctors.items()))
+
     def _private_texture(self, code: int, fmt: SwapchainFormat, width: int, height: int) -> "moderngl.Texture":
         """A texture of the engine's own as the application's images are stored (OpenGL: the swapchain's
         internal format; Vulkan: the shared images' R32UI or RGBA16F)."""
