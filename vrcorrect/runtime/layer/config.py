@@ -284,10 +284,10 @@ class StallTrace:
     def arm(self, frame: int) -> str:
         """Watch the frame after ``frame`` corrected ones; returns '' or, once, why the trace is off
         (its file cannot be written: a diagnostic never stops the correction)."""
+        if self.path is None:                      # off (every frame passes here): nothing
+            return ""
         import faulthandler  # opt-in: a diagnostic nobody else loads
 
-        if self.path is None:
-            return ""
         try:
             if self._file is None:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -303,10 +303,10 @@ class StallTrace:
     def disarm(self) -> str:
         """End the frame's watch; returns '' or, where the frame outlasted ``seconds`` (its stacks
         were written), the log's line saying so."""
-        import faulthandler  # as above
-
         if self._armed is None:
             return ""
+        import faulthandler  # as above
+
         faulthandler.cancel_dump_traceback_later()
         frame, start, size = self._armed
         self._armed = None
