@@ -30,7 +30,7 @@ import numpy as np
 
 import robust_band_choice as rb  # tools/: this script's folder
 from guard_tradeoff import default_design, each_case, eyes_and_pictures, picture_arguments, save_figure
-from vrcorrect.solvers import make_problem, solve
+from vrcorrect.solvers import solve
 from vrcorrect.solvers.problem import make_design_problem
 
 BETAS = tuple(round(b, 2) for b in np.linspace(0.1, 1.0, 10))
@@ -75,13 +75,12 @@ def main(argv: list[str]) -> int:
     conflicts = cases = 0
     panels = []
     for tag, eye, display_name, name, display, target, p, seen in each_case(eyes, names, args.display or rb.DISPLAYS):
-        ceiling = next(c for _, _, c in seen if c is not None)
+        ceiling = rb.ceiling_of(seen)
         if ceiling < 0.1:
             print(f"  {tag:12s} {display_name:8s} {name:22s} exact 3 mm gain {ceiling:+.2f}: no share worth "
                   "reading", flush=True)
             continue
-        exact3 = next(e for (e, _, c) in seen if c is not None)
-        best = solve(make_problem(target, exact3.kernel, exact3.reference), "fast").image
+        best = rb.exact_shown(display_name, name)
         default = solve(make_design_problem(target, default_design(eye, display, p)), "fast").image
         exact_path = _path(best, target, seen, display)
         default_path = _path(default, target, seen, display)

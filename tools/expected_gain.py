@@ -43,7 +43,7 @@ def main(argv: list[str]) -> int:
         shown = solve(problem, "fast").image
         ratio = objective(shown, problem) / max(objective(target, problem), 1e-30)
         gains = rb.seen_gains(shown, target, seen, display)
-        ceiling = next(c for _, _, c in seen if c is not None)
+        ceiling = rb.ceiling_of(seen)
         print(f"  {tag:12s} {display_name:8s} {name:22s} light {p:.2f} mm  ratio {ratio:.3f}"
               f"  ceiling {ceiling:+.2f}  least {min(gains):+.2f}"
               "  gains " + " ".join(f"{g:+.2f}" for g in gains), flush=True)

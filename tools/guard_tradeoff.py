@@ -70,6 +70,7 @@ def each_case(eyes: list[tuple[str, object, float | None]], names: list[str], di
     for tag, eye, age in eyes:
         rb._eye.update(eye=eye, age=age)
         rb._cases.clear()
+        rb._exact_shown.clear()
         for display_name in displays:
             for name in names:
                 yield (tag, eye, display_name, name, *rb._case(display_name, name))
@@ -90,7 +91,7 @@ def _cases(images: list[str], eyes: list[tuple[str, object, float | None]]):
         case = dict(eye=tag, display=display, display_name=display_name, picture=name, shown=shown,
                     target=target, seen=seen, problems=problems, viewing=ViewingLight.of(display),
                     none=rb.seen_metrics(target, target, seen, display, with_jod=False),
-                    ceiling=next(c for _, _, c in seen if c is not None))
+                    ceiling=rb.ceiling_of(seen))
         case["scores"] = _scores(shown, case)
         print(f"  {tag:10s} {display_name:8s} {name:20s} least {min(case['scores']['jod']):+.2f}  "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)

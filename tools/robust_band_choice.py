@@ -483,6 +483,7 @@ SEEN = ((2.5, 0.0), (3.0, 0.0), (4.0, 0.0), (5.5, 0.0), (None, -0.5), (None, 0.5
 BANDS = ("pf=0.8,1,1.25;pp=1,2,1;so=-0.25,0,0.25;sp=1,2,1", "")                      # "": the default
 _kernels: dict = {}
 _cases: dict = {}
+_exact_shown: dict = {}                                                          # (display, picture) -> fast's image
 _files: dict[str, str] = {}                                                      # --image: name -> path
 _eye = {"eye": EYE, "age": None}                                                 # --rx: the right eye, its age
 
@@ -654,10 +655,22 @@ def _case(display_name: str, name: str):
             ceiling = None
             if (q, s) == (3.0, 0.0):
                 best = solve(make_problem(target, exact.kernel, exact.reference), "fast").image
+                _exact_shown[key] = best
                 ceiling = evaluate_seen(best, target, exact.nominal, display)[0].jod - none
             seen.append((exact, none, ceiling))
         _cases[key] = (display, target, p, seen)
     return _cases[key]
+
+
+def ceiling_of(seen) -> float:
+    """The exact 3 mm design's JOD gain over none among :func:`_case`'s seen eyes (the share's 100 %)."""
+    return next(c for _, _, c in seen if c is not None)
+
+
+def exact_shown(display_name: str, name: str) -> np.ndarray:
+    """What ``fast`` shows for the exact 3 mm design of :func:`_case`'s picture (solved there once)."""
+    _case(display_name, name)
+    return _exact_shown[(display_name, name)]
 
 
 def seen_metrics(shown: np.ndarray, target: np.ndarray, seen, display, with_jod: bool = True) -> list:
