@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -390,6 +391,11 @@ def test_render_command_writes_each_view(tmp_path, images, capsys):
     printed = capsys.readouterr().out
     # the default: ADMM, 10 frames of the still picture (a settled view)
     assert "ADMM, 2 iteration(s) per frame, 10 frame(s) warm-started, 4 FFT round trips a frame" in printed
+    # the time is told apart: the first frame (its programs' first run on llvmpipe) and the nine after it
+    times = re.search(r"10 frame\(s\) ([\d.]+) ms: the first ([\d.]+) ms \(.*\), then ([\d.]+) ms a frame", printed)
+    assert times, printed
+    total, first, rest = map(float, times.groups())
+    assert abs(first + 9 * rest - total) < 0.6, times.group(0)
     assert "wrote" in printed
     assert not np.array_equal(outs["corrected"], images[0][1])
     assert not np.array_equal(outs["seen-corrected"], outs["seen-uncorrected"])

@@ -32,13 +32,14 @@ from .realtime_options import (
 METHOD_TITLES = {Filter.ADMM: "ADMM", Filter.FISTA: "projected gradient (FISTA)"}
 #: The headset rate a clip is played at unless ``--fps`` says otherwise.
 DEFAULT_FPS = 90.0
-#: Seconds a frame of the default (ADMM, 2 iterations a frame) took on Mesa's llvmpipe for changing content (a
-#: pan: every frame iterates; a settled still view costs less), by the FFT grid's pixels (the image plus the
-#: kernel, padded to powers of two as the grids were then: 96x64 -> 128x128, 256x256 -> 512x512, 512x512 ->
-#: 1024x1024; issue 43's smaller 5-smooth grids make the estimate an upper bound), on a 2-core AMD
-#: EPYC shared with other jobs (load average 3 to 4), 2026-11-28 (docs/realtime.md): what ``render`` says before
-#: its first frames, interpolated in log-log, scaled by the FFT round trips a frame (iterations + 2).
-SOFTWARE_S_PER_FRAME = ((128 * 128, 0.30), (512 * 512, 6.0), (1024 * 1024, 36.0))
+#: Seconds a frame of the default (ADMM, 2 iterations a frame) takes on Mesa's llvmpipe for changing content (a
+#: pan played at its own rate: every frame iterates; a settled still view costs less), keyed by the FFT grid's
+#: pixels of an image with a 27 px kernel padded to powers of two (96x64 -> 128x128, 256x256 -> 512x512,
+#: 512x512 -> 1024x1024), measured with ``vrcorrect render --fps 30`` on the project's 2-core AMD EPYC with
+#: nothing else running, 2026-12-05 (0.23, 0.74, 2.35 s; on 2026-11-28, before issue 43's engine and shared
+#: with two other jobs, 0.3, 6.0 and 36 s): what ``render`` says before its first frames, interpolated in
+#: log-log, scaled by the FFT round trips a frame (iterations + 2).
+SOFTWARE_S_PER_FRAME = ((128 * 128, 0.23), (512 * 512, 0.74), (1024 * 1024, 2.35))
 
 
 def _software_seconds(size: tuple[int, int], kernel_px: int = 27) -> float:
@@ -64,9 +65,10 @@ def estimate_text(renderer: str, size: tuple[int, int], frames: int, options: di
     if method not in (Filter.ADMM, Filter.FISTA):
         return f"on {name} (software rendering on the CPU): the time a frame takes is measured on the first frames"
     k = options.get("iterations_per_frame") or DEFAULT_ITERATIONS.get(method, 2)
-    per = _software_seconds(size) * (k + 2) / 4
-    if method == Filter.FISTA:
-        per *= 4.9                    # a FISTA frame took about 5 times the default's (docs/benchmarks.md)
+    if method == Filter.FISTA:        # k = 4 took 0.46-0.77 of the default's frame (the table's day: 0.18, 0.40, 1.09 s)
+        per = _software_seconds(size) * 0.6 * k / 4
+    else:
+        per = _software_seconds(size) * (k + 2) / 4
     return (f"on {name} (software rendering on the CPU) expect roughly {duration_text(per)} a frame while the "
             f"picture changes, {duration_text(per * frames)} for the {frames} frames, plus the shaders' first "
             "compile; measured on the first frames from here on")
@@ -134,9 +136,14 @@ def cmd_render(args: argparse.Namespace) -> int:
               + chosen)
     for note in info["notes"][:-1] if designed else info["notes"]:
         print(f"  - {note}")
-    per = f", {1e3 * info['frame_s'] / frames:.1f} ms per frame" if frames > 1 else ""
+    first = info.get("first_frame_s")
+    if frames > 1 and first is not None:
+        per = (f": the first {1e3 * first:.1f} ms (the upload and its programs' first run), then "
+               f"{1e3 * (info['frame_s'] - first) / (frames - 1):.1f} ms a frame")
+    else:
+        per = ""
     print(f"  build {info['build_s']:.2f} s, {frames} frame(s) {1e3 * info['frame_s']:.1f} ms{per} "
-          "(incl. upload and read-back)")
+          "(incl. read-back)")
     print(f"wrote {out} ({info['view']})")
     return 0
 

@@ -69,7 +69,8 @@ def render_frame(image: np.ndarray, rx: RxSource, display: str | os.PathLike[str
     """Correct (or simulate) one ``(H, W, 3)`` image of sRGB code values in [0, 1] (float) or
     uint8, ``frames`` times as a still video (the last frame is returned); returns the 8-bit result
     ``(H, W, 3)`` and what was built (``Corrector.describe()`` plus ``build_s``, ``frame_s`` (all
-    frames, with the upload and the read-back), ``frames`` and ``objective_fraction``: the last
+    frames, with the upload and the read-back), ``first_frame_s`` (the first of them, with the upload and
+    its programs' first run), ``frames`` and ``objective_fraction``: the last
     frame's objective over uncorrected where the GPU computes it (``filter="fista"`` and the
     per-frame blend), else None).  ``ctx``: an existing context (default: a new headless one);
     ``progress(done, total)`` is called after each frame.  With ``pupil="auto"`` the first design is
@@ -85,13 +86,17 @@ def render_frame(image: np.ndarray, rx: RxSource, display: str | os.PathLike[str
         tex, fbo = render_target(ctx, width=img.shape[1], height=img.shape[0])
         held += [tex, fbo]
         total = frames if view != "seen-uncorrected" else 1
+        first_s = None
         for done in range(1, total + 1):
             if view == "corrected":
                 corrector.apply(src, fbo)
             else:
                 corrector.simulate(src, fbo, corrected=view == "seen-corrected")
-            if progress is not None:
+            if progress is not None or done == 1:
                 ctx.finish()
+            if done == 1:
+                first_s = time.perf_counter() - t1
+            if progress is not None:
                 progress(done, total)
         out = read_framebuffer(fbo)
         t2 = time.perf_counter()
@@ -99,7 +104,7 @@ def render_frame(image: np.ndarray, rx: RxSource, display: str | os.PathLike[str
         info = corrector.describe()
         fraction = corrector.last_objective_fraction((img.shape[1], img.shape[0])) \
             if view != "seen-uncorrected" and corrector.enabled else None
-        info.update(build_s=build_s, frame_s=t2 - t1, renderer=ctx.info.get("GL_RENDERER", "?"), view=view,
+        info.update(build_s=build_s, frame_s=t2 - t1, first_frame_s=first_s, renderer=ctx.info.get("GL_RENDERER", "?"), view=view,
                     frames=frames, objective_fraction=fraction)
         return out, info
 
