@@ -138,7 +138,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"  - {note}")
     first = info.get("first_frame_s")
     if frames > 1 and first is not None:
-        per = (f": the first {1e3 * first:.1f} ms (the upload and its programs' first run), then "
+        per = (f": the first {1e3 * first:.1f} ms (the upload, the cold start and its programs' first run), then "
                f"{1e3 * (info['frame_s'] - first) / (frames - 1):.1f} ms a frame")
     else:
         per = ""

@@ -70,7 +70,7 @@ def render_frame(image: np.ndarray, rx: RxSource, display: str | os.PathLike[str
     uint8, ``frames`` times as a still video (the last frame is returned); returns the 8-bit result
     ``(H, W, 3)`` and what was built (``Corrector.describe()`` plus ``build_s``, ``frame_s`` (all
     frames, with the upload and the read-back), ``first_frame_s`` (the first of them, with the upload and
-    its programs' first run), ``frames`` and ``objective_fraction``: the last
+    the cold start and its programs' first run), ``frames`` and ``objective_fraction``: the last
     frame's objective over uncorrected where the GPU computes it (``filter="fista"`` and the
     per-frame blend), else None).  ``ctx``: an existing context (default: a new headless one);
     ``progress(done, total)`` is called after each frame.  With ``pupil="auto"`` the first design is
