@@ -79,16 +79,16 @@ def test_bench_robust_sweeps_the_eye_asked_for(tmp_path):
 
 
 def test_an_eye_the_learned_model_does_not_take_leaves_its_column_empty_and_says_why(tmp_path):
-    """``bench robust --rx`` with an accommodating eye (the shipped model was trained on presbyopes'
-    accommodation 0): the sweep runs, the learned column is empty, and the case says why."""
+    """``bench robust --rx`` with an eye outside the shipped model's range (cylinder -3.5 D; it was
+    trained on -3 to 0): the sweep runs, the learned column is empty, and the case says why."""
     from vrcorrect.specs.prescription import EyeRx
 
-    young = EyeRx(sphere_D=-1.5, cylinder_D=0.0, axis_deg=0.0, pupil_diameter_mm=4.0, accommodation_D=3.0)
-    rep = run_robust_bench(tmp_path / "a.md", write=False, eye=young, displays=("quest2",), images=("page",),
+    strong = EyeRx(sphere_D=-0.5, cylinder_D=-3.5, axis_deg=0.0, pupil_diameter_mm=4.0)
+    rep = run_robust_bench(tmp_path / "a.md", write=False, eye=strong, displays=("quest2",), images=("page",),
                            boundary=False, size=64, seen_pupils=(3.0,), seen_spheres=(0.5,))
     case = rep["cases"][0]
     assert all("learned" not in r["scores"] and "default" in r["scores"] for r in case["rows"])
-    assert "learned: not run" in case["design"] and "accommodation_D" in case["design"]
+    assert "learned: not run" in case["design"] and "cylinder_D" in case["design"]
     assert case["checks"]["least_learned"] is None and case["checks"]["share_at_3mm_learned"] is None
     assert not math.isnan(case["checks"]["least_default"])
     json.dumps(case["checks"], allow_nan=False)                   # --json: strict JSON, no NaN

@@ -109,6 +109,27 @@ def test_default_model_refuses_an_eye_outside_its_range(model, tmp_path):
     assert len(lines) == 1 and "cylinder_D" in lines[0] and "-3 to 0 D" in lines[0] and "Traceback" not in run.stderr
 
 
+def test_a_prescription_with_an_age_is_corrected_by_the_learned_model(tmp_path):
+    """The README's tour asks for ``age_years`` and then runs ``--method learned``: a myope of 45, whose
+    amplitude (5 D) cannot help at the Valve Index's 2 m (its far point is nearer), is corrected as
+    the same eye that cannot focus (the model's training eyes), not refused; the two shown images are
+    the same."""
+    eye = {"sphere_D": -2.0, "cylinder_D": -1.0, "axis_deg": 120, "pupil_diameter_mm": 4.0}
+    sample = str(ROOT / "vrcorrect" / "data" / "sample.png")
+    shown = {}
+    for tag, doc in (("aged", {"age_years": 45, "right": eye, "left": eye}),
+                     ("stated", {"right": {**eye, "accommodation_D": 0}, "left": eye})):
+        rx = tmp_path / f"{tag}.json"
+        rx.write_text(json.dumps({"schema": "vrcorrect.prescription/1", **doc}))
+        out = tmp_path / f"{tag}.png"
+        run = subprocess.run([str(Path(sys.executable).parent / "vrcorrect"), "correct", sample, "-o", str(out),
+                              "--rx", str(rx), "--eye", "right", "--display", "index", "--method", "learned",
+                              "--pupil", "3"], capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0, run.stderr[-2000:]
+        shown[tag] = read_image(out)
+    np.testing.assert_array_equal(shown["aged"], shown["stated"])
+
+
 def test_mirror_runs_the_default_model_per_eye(x_display, tmp_path):
     """`vrcorrect mirror --backend onnx` with no --model: the shipped model corrects both eyes."""
     import os

@@ -153,6 +153,34 @@ def test_plus_cylinder_form_is_the_same_eye():
     np.testing.assert_allclose(eye_features(plus, SamplingRanges()), eye_features(e, SamplingRanges()), atol=1e-6)
 
 
+def test_an_eye_that_can_focus_is_taken_as_the_eye_that_cannot_and_sees_the_display_alike():
+    """The model was trained on eyes that cannot focus. Given the display's distance, an eye that can
+    is checked as one that cannot, with the accommodation it uses there taken off its sphere: a myope
+    whose far point is nearer than the display uses none (its sphere stays), a hyperope uses all it
+    has; the kernel at the display is the same either way, so the model is told of the eye it sees."""
+    from vrcorrect.physics.kernel import build_kernel
+    from vrcorrect.specs.display import get_display
+
+    quest2 = get_display("quest2")                            # 1.3 m: 0.77 D of vergence
+    myope = EyeRx(-2.0, -1.0, 120.0, 3.0, accommodation_D=5.0)
+    assert check_eye(myope, SamplingRanges(), distance_m=quest2.distance_m) == myope.with_changes(accommodation_D=0.0)
+    hyperope = EyeRx(2.0, -0.5, 90.0, 3.0, accommodation_D=1.0)
+    taken = check_eye(hyperope, SamplingRanges(), distance_m=quest2.distance_m)
+    assert taken.accommodation_D == 0.0 and taken.sphere_D == pytest.approx(1.0)
+    np.testing.assert_allclose(build_kernel(taken, quest2).kernel, build_kernel(hyperope, quest2).kernel, atol=1e-12)
+    with pytest.raises(ValidationError) as err:               # with no distance, as before: refused
+        check_eye(hyperope, SamplingRanges())
+    assert err.value.field == "accommodation_D"
+
+
+def test_an_eye_out_of_range_after_its_focus_is_taken_off_says_so():
+    with pytest.raises(ValidationError) as err:
+        check_eye(EyeRx(10.0, 0.0, 0.0, 3.0, accommodation_D=2.0), SamplingRanges(), distance_m=1.3)
+    text = str(err.value)
+    assert err.value.field == "sphere_D" and "= 8" in text and "-6 to 6 D" in text
+    assert "the 2.00 D of its 2.00 D of accommodation the eye uses at the display taken off" in text
+
+
 # --------------------------------------------------------------------------
 # Model and training
 # --------------------------------------------------------------------------

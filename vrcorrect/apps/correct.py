@@ -29,6 +29,7 @@ from .common import (
     check_not_input,
     finite_json,
     kernel_decisions,
+    kernel_options,
     load_eye_and_age,
     parse_pupil,
     print_notes,
@@ -337,7 +338,7 @@ def _eye_and_model(args: argparse.Namespace):
     rx_path, eye, age = load_eye_and_age(args)
     display = get_display(args.display)
     if learned is not None:                         # the model's range and display, before any work
-        learned.check(eye, display)
+        learned.check(eye, display, kernel_options(args).optics.viewing_distance_m)
     return learned, rx_path, eye, display, age
 
 

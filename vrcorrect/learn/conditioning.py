@@ -28,6 +28,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..physics.kernel import EyeKernel
+from ..physics.refraction import refractive_state
 from ..plumbing.errors import ValidationError
 from ..solvers import make_problem
 from ..solvers.fista import gradient_plan, gradient_step, projected_gradient
@@ -102,20 +103,47 @@ class SamplingRanges:
         return EyeRx(sphere_D=s, cylinder_D=c, axis_deg=min(a, 180.0), pupil_diameter_mm=p)
 
 
-def check_eye(eye: EyeRx, ranges: SamplingRanges, what: str = "the learned model") -> EyeRx:
+def without_accommodation(eye: EyeRx, distance_m: float) -> EyeRx:
+    """An eye that cannot focus and sees a display at ``distance_m`` as ``eye`` does: the
+    accommodation ``eye`` uses there (:func:`~vrcorrect.physics.refraction.refractive_state`) folded
+    into its sphere. Its residual error at the display, so its kernel there, is ``eye``'s; an eye that
+    uses none of its amplitude there (a myope whose far point is nearer than the display) keeps its
+    sphere. The learned model was trained on eyes that cannot focus: this is the eye it is told of."""
+    if eye.accommodation_D == 0.0:
+        return eye
+    used = refractive_state(eye, distance_m).accommodation_used_D
+    return eye.with_changes(sphere_D=eye.sphere_D - used, accommodation_D=0.0)
+
+
+def kernel_distance_m(kernel: EyeKernel) -> float:
+    """The viewing distance a kernel was built for (from its refractive state's vergence)."""
+    vergence = kernel.state.vergence_D
+    return math.inf if vergence == 0.0 else 1.0 / vergence
+
+
+def check_eye(eye: EyeRx, ranges: SamplingRanges, what: str = "the learned model",
+              distance_m: float | None = None) -> EyeRx:
     """The eye in minus-cylinder form if ``ranges`` hold it, else a :class:`ValidationError`.
 
     The error names the field, the value, the range and the methods that have no range
-    limit (``wiener`` or ``fast``).  Accommodation and higher-order aberrations are refused
-    too: the model was trained without them.
+    limit (``wiener`` or ``fast``).  Higher-order aberrations are refused: the model was trained
+    without them. So is accommodation, unless the display's ``distance_m`` is given: then the eye
+    checked and returned is :func:`without_accommodation`'s, which sees that display alike.
     """
     e = eye.minus_cylinder()
     hint = f"(the range {what} was trained on); for other eyes use --method wiener or fast"
+    folded = ""
+    if distance_m is not None and e.accommodation_D != 0.0:
+        e, amplitude = without_accommodation(e, distance_m), e.accommodation_D
+        if e.sphere_D != eye.minus_cylinder().sphere_D:
+            folded = (f" (the sphere with the {eye.minus_cylinder().sphere_D - e.sphere_D:.2f} D of its "
+                      f"{amplitude:.2f} D of accommodation the eye uses at the display taken off)")
     for name, unit in (("sphere_D", "D"), ("cylinder_D", "D"), ("axis_deg", "deg"), ("pupil_diameter_mm", "mm")):
         lo, hi = getattr(ranges, name)
         value = getattr(e, name)
         if not (lo - 1e-9 <= value <= hi + 1e-9):
-            raise ValidationError(name, value, f"{lo:g} to {hi:g} {unit} {hint}")
+            raise ValidationError(name, value, f"{lo:g} to {hi:g} {unit} {hint}" + (folded if name == "sphere_D"
+                                                                                     else ""))
     if e.accommodation_D != 0.0:
         raise ValidationError("accommodation_D", e.accommodation_D, f"0 {hint}")
     if e.higher_order is not None and e.higher_order.coefficients_um:

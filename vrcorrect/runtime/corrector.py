@@ -185,10 +185,7 @@ class Corrector:
 
             self._cold_model = UnrolledModel(self.options.cold_start_model)
         eye_rx = self.source.eye_rx(eye)
-        if self._learned is not None:                       # an eye outside the trained range: refused first
-            self._learned.check(eye_rx, self.display)
-        if self._cold_model is not None:
-            self._cold_model.check(eye_rx, self.display)
+        self.check_eye(eye_rx)                              # an eye outside the learned range: refused first
         self.frame_time_s: float | None = None
         """The time between frames for the pupil's dynamics (``pupil="auto"``): None, the wall clock
         between :meth:`apply` calls; a batch render sets its clip's frame time."""
@@ -295,10 +292,12 @@ class Corrector:
     def check_eye(self, eye: EyeRx) -> None:
         """Refuse (``ValidationError``) an eye this corrector cannot correct: outside the learned
         model's range with that backend; any eye otherwise."""
+        kernels = self.options.kernel_options
+        distance = kernels.optics.viewing_distance_m if kernels is not None else None  # None: the display's
         if self._learned is not None:
-            self._learned.check(eye, self.display)
+            self._learned.check(eye, self.display, distance)
         if self._cold_model is not None:
-            self._cold_model.check(eye, self.display)
+            self._cold_model.check(eye, self.display, distance)
 
     def install(self, model: EyeModel) -> None:
         """Correct with ``model`` from the next frame on (GL work only: what the CPU designs is in

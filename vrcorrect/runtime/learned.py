@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from ..learn.conditioning import SamplingRanges, check_eye, eye_features, model_inputs
+from ..learn.conditioning import SamplingRanges, check_eye, eye_features, kernel_distance_m, model_inputs
 from ..physics.kernel import EyeKernel, build_kernel, build_reference_kernel
 from ..plumbing.errors import InputError, ValidationError
 from ..solvers.fista import GradientPlan, gradient_plan
@@ -134,11 +134,13 @@ class LearnedModel:
         self.metadata = meta
         self.providers = self.session.get_providers()
 
-    def check(self, eye: EyeRx, display: DisplayProfile) -> EyeRx:
+    def check(self, eye: EyeRx, display: DisplayProfile, distance_m: float | None = None) -> EyeRx:
         """Refuse, before any kernel is built, an eye outside the trained range or a display other
         than the trained one (one line naming the range and suggesting ``wiener`` or ``fast``);
-        returns the eye as checked."""
-        e = check_eye(eye, self.ranges, f"the model {self.path.name}")
+        returns the eye as checked, one that can focus as one that cannot and sees the display (at
+        ``distance_m``, else its own distance) alike."""
+        e = check_eye(eye, self.ranges, f"the model {self.path.name}",
+                      display.distance_m if distance_m is None else distance_m)
         if display.name != self.display.get("name"):
             raise ValidationError("display", display.name, f"{self.display.get('name')} (the display the model "
                                   f"{self.path.name} was trained for); for other displays use --method wiener or fast")
@@ -155,7 +157,7 @@ class LearnedModel:
         ValidationError
             The eye is outside the trained range, or the display is not the trained one.
         """
-        e = self.check(eye, display)
+        e = self.check(eye, display, None if kernel is None else kernel_distance_m(kernel))
         kernel = kernel if kernel is not None else build_kernel(e, display)
         if reference_kernel is None and self.reference == "glasses":
             reference_kernel = build_reference_kernel(e, display)

@@ -31,6 +31,7 @@ from ..learn.conditioning import (
     UNROLLED_INPUTS_V3,
     SamplingRanges,
     check_eye,
+    kernel_distance_m,
     unrolled_features,
     unrolled_spectra,
 )
@@ -81,10 +82,13 @@ class UnrolledModel:
         self.reference = "glasses"                     # the target it was trained on: the eye with glasses
         self.providers = self.session.get_providers()
 
-    def check(self, eye: EyeRx, display: DisplayProfile) -> EyeRx:
+    def check(self, eye: EyeRx, display: DisplayProfile, distance_m: float | None = None) -> EyeRx:
         """Refuse, before any kernel is built, an eye outside the trained ranges or a display the
-        model was not trained on; returns the eye as checked."""
-        e = check_eye(eye, self.ranges, f"the model {self.path.name}")
+        model was not trained on; returns the eye as checked: an eye that can focus as one that
+        cannot and sees the display (at ``distance_m``, else the display's own distance) alike
+        (:func:`~vrcorrect.learn.conditioning.without_accommodation`)."""
+        e = check_eye(eye, self.ranges, f"the model {self.path.name}",
+                      display.distance_m if distance_m is None else distance_m)
         if self.displays is not None and display.name not in self.displays:
             raise ValidationError("display", display.name, f"one of {', '.join(self.displays)} (the displays the model "
                                   f"{self.path.name} was trained for); for others use --method wiener or fast")
@@ -97,7 +101,7 @@ class UnrolledModel:
         at every stage, where the model can (:attr:`takes_cap`; a v3 model runs uncapped)."""
         if reference_kernel is None:
             raise ValidationError("reference", "ideal", "glasses (the target the model was trained on)")
-        return UnrolledEye(self, self.check(eye, display), kernel, reference_kernel, capped)
+        return UnrolledEye(self, self.check(eye, display, kernel_distance_m(kernel)), kernel, reference_kernel, capped)
 
     def correct(self, image: np.ndarray, eye: EyeRx, kernel: EyeKernel, reference_kernel: EyeKernel,
                 capped: bool = False) -> np.ndarray:
@@ -105,7 +109,7 @@ class UnrolledModel:
         ``(H, W, 3)``) seen by ``eye`` through ``kernel`` (``reference_kernel``: the same eye with
         glasses, which sets the target; ``capped``: as :meth:`for_eye`). An eye outside the trained
         ranges is refused."""
-        e = check_eye(eye, self.ranges, f"the model {self.path.name}")
+        e = check_eye(eye, self.ranges, f"the model {self.path.name}", kernel_distance_m(kernel))
         img = _checked_image(image)
         return self._run(img, unrolled_features(e, kernel.size, self.ranges), unrolled_spectra(kernel.kernel, img.shape[:2]),
                          kernel, reference_kernel, capped and self.takes_cap)
