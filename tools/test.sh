@@ -11,7 +11,7 @@
 #                                cores): the order of a plain pytest run
 #   bash tools/test.sh --fast    the developer's loop: the tests that need no OpenGL, X display, OpenXR,
 #                                torch or ColorVideoVDP and are not marked slow (tests/conftest.py marks
-#                                them), on every core (pytest-xdist); about 550 tests in under 2 minutes
+#                                them), on every core (pytest-xdist); about 660 tests in under 2 minutes
 #                                on 2 cores. Extra arguments go to pytest.
 #   bash tools/test.sh ARGS      pytest ARGS after the set-up (for example tests/test_budget.py -x)
 set -euo pipefail
