@@ -104,8 +104,8 @@ def render_frame(image: np.ndarray, rx: RxSource, display: str | os.PathLike[str
         info = corrector.describe()
         fraction = corrector.last_objective_fraction((img.shape[1], img.shape[0])) \
             if view != "seen-uncorrected" and corrector.enabled else None
-        info.update(build_s=build_s, frame_s=t2 - t1, first_frame_s=first_s, renderer=ctx.info.get("GL_RENDERER", "?"), view=view,
-                    frames=frames, objective_fraction=fraction)
+        info.update(build_s=build_s, frame_s=t2 - t1, first_frame_s=first_s, renderer=ctx.info.get("GL_RENDERER", "?"),
+                    view=view, frames=frames, objective_fraction=fraction)
         return out, info
 
 
