@@ -396,6 +396,7 @@ def test_render_command_writes_each_view(tmp_path, images, capsys):
     assert times, printed
     total, first, rest = map(float, times.groups())
     assert abs(first + 9 * rest - total) < 0.6, times.group(0)
+    assert re.search(r"build [\d.]+ s, 1 frame\(s\) [\d.]+ ms \(incl\. read-back\)", printed), printed  # blur alone
     assert "wrote" in printed
     assert not np.array_equal(outs["corrected"], images[0][1])
     assert not np.array_equal(outs["seen-corrected"], outs["seen-uncorrected"])

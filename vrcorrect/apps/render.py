@@ -137,12 +137,13 @@ def cmd_render(args: argparse.Namespace) -> int:
     for note in info["notes"][:-1] if designed else info["notes"]:
         print(f"  - {note}")
     first = info.get("first_frame_s")
-    if frames > 1 and first is not None:
+    ran = frames if args.view != "seen-uncorrected" else 1          # the eye's blur alone is one frame
+    if ran > 1 and first is not None:
         per = (f": the first {1e3 * first:.1f} ms (the upload, the cold start and its programs' first run), then "
-               f"{1e3 * (info['frame_s'] - first) / (frames - 1):.1f} ms a frame")
+               f"{1e3 * (info['frame_s'] - first) / (ran - 1):.1f} ms a frame")
     else:
         per = ""
-    print(f"  build {info['build_s']:.2f} s, {frames} frame(s) {1e3 * info['frame_s']:.1f} ms{per} "
+    print(f"  build {info['build_s']:.2f} s, {ran} frame(s) {1e3 * info['frame_s']:.1f} ms{per} "
           "(incl. read-back)")
     print(f"wrote {out} ({info['view']})")
     return 0
