@@ -98,7 +98,7 @@ def test_an_eye_the_learned_model_does_not_take_leaves_its_column_empty_and_says
 def test_the_boundary_gap_is_not_shared_out_of_no_gain():
     """An eye in focus at the display: the exact expectation gains nothing over none (its solution ended a
     little above none's tiny objective in a run of 2026-12-05, where the share read -1.4e24 %)."""
-    from vrcorrect.studies.bench.robust import gap_left
+    from vrcorrect.studies.bench.robust_boundary import gap_left
 
     assert gap_left({"none": 2.052e-07, "effective": 2.052e-07, "exact": 2.323e-07}) == "- (no gain)"
     assert gap_left({"none": 1.0, "effective": 1.0, "exact": 1.0}) == "- (no gain)"

@@ -481,6 +481,48 @@ def test_rx_new_writes_a_template_that_validates(tmp_path, capsys):
     assert err == ""
 
 
+def test_rx_new_writes_the_file_from_a_spectacle_prescription(tmp_path, capsys):
+    """``rx new --right --left --age``: the lines of a spectacle prescription, no JSON to edit; the file
+    keeps the template's comments and loads as those eyes (the left given in plus-cylinder form, the
+    same eye as its minus form)."""
+    from vrcorrect.specs.prescription import load_prescription
+
+    path = tmp_path / "rx.json"
+    rc, out, err = run(capsys, "rx", "new", path, "--right", "-2.00 -1.00 x 120", "--left", "-3.00/+0.50x60",
+                       "--age", "45")
+    assert rc == 0, err
+    text = path.read_text()
+    assert text.startswith(template_text().split("{")[0])                              # the comments, as in the template
+    rx = load_prescription(path)
+    right, left = rx.eye("right"), rx.eye("left")
+    assert (right.sphere_D, right.cylinder_D, right.axis_deg) == (-2.0, -1.0, 120.0)
+    assert (left.sphere_D, left.cylinder_D, left.axis_deg) == (-3.0, 0.5, 60.0)
+    assert left.power_vector().M_D == pytest.approx(-2.75) and rx.age_years == 45
+    assert right.accommodation_D == pytest.approx(18.5 - 0.3 * 45)                    # from the age, as validate says
+    assert "right -2.00 / -1.00 x 120" in out and "expected at age 45" in out and "placeholder" not in out
+
+
+def test_rx_new_with_one_eye_says_the_other_is_a_placeholder(tmp_path, capsys):
+    path = tmp_path / "rx.json"
+    rc, out, err = run(capsys, "rx", "new", path, "--right", "plano -0.75 x 90")
+    assert rc == 0, err
+    assert "the left eye is plano (0.00) as a placeholder: give --left" in out
+    assert "no age_years" in out
+
+
+@pytest.mark.parametrize("argv, field", [
+    (["--right", "-2.00 -1.00"], "--right"),                       # a cylinder without its axis
+    (["--left", "two dioptres"], "--left"),
+    (["--right", "-2.00 -1.00 x 200"], "--right axis"),
+    (["--right", "-25"], "right.sphere_D"),                        # read, but out of a prescription's range
+    (["--right", "-1.00", "--age", "150"], "age_years"),
+])
+def test_rx_new_refuses_a_bad_prescription_line_and_writes_nothing(argv, field, tmp_path, capsys):
+    rc, out, err = run(capsys, "rx", "new", tmp_path / "rx.json", *argv)
+    assert rc == 2 and field in err and "Traceback" not in err, err
+    assert listing(tmp_path) == set()
+
+
 def test_rx_validate_says_each_eyes_accommodation_and_whether_it_came_from_the_age(tmp_path, capsys):
     doc = json.loads(strip_comment_lines(template_text()))
     doc["age_years"] = 50

@@ -225,3 +225,21 @@ def test_layer_install_help_names_the_default_method():
     text = " ".join(result.stdout.split())
     assert "FISTA" not in text and "ADMM by default" in text and "2 for ADMM" in text
     assert "write the layer's manifest" in _cli(["layer", "--help"], ROOT).stdout.replace("\n", " ").replace("  ", " ")
+
+
+# --------------------------------------------------------------------------- the tour's first step
+
+def test_the_tours_prescription_line_writes_a_file_that_validates(tmp_path):
+    """The README's step 1, exactly as written there: the lines of a spectacle prescription and an age,
+    no JSON to edit; then ``rx validate`` accepts the file and names both eyes as given."""
+    import shlex
+
+    lines = [line.split("#")[0].strip() for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+             if line.startswith("vrcorrect rx new ")]
+    assert len(lines) == 1, lines
+    made = _cli(shlex.split(lines[0])[1:], tmp_path)
+    assert made.returncode == 0, made.stderr[-2000:]
+    checked = _cli(["rx", "validate", "my_rx.json"], tmp_path)
+    assert checked.returncode == 0, checked.stderr[-2000:]
+    assert "right -2.00 / -1.00 x 120" in checked.stdout and "left  -1.50 / +0.00 x 0" in checked.stdout
+    assert "expected at age 45" in checked.stdout

@@ -756,3 +756,41 @@ def test_bundled_sample_loads():
     assert rx.notes
     # mirror-symmetric astigmatism axes: J45 has opposite signs
     assert rx.right.power_vector().J45_D > 0 > rx.left.power_vector().J45_D
+
+
+# ---------------------------------------------------------------- a spectacle prescription's line (rx new --right)
+
+@pytest.mark.parametrize("text, eye", [
+    ("-2.00 -1.00 x 120", (-2.0, -1.0, 120.0)),
+    ("-2.00/-1.00x120", (-2.0, -1.0, 120.0)),
+    ("+1.25 -0.50 × 180", (1.25, -0.5, 180.0)),
+    ("−2.00 −1.00 x 120", (-2.0, -1.0, 120.0)),             # typeset minus signs, as copied from a document
+    ("-2.00D -1.00DC x 120", (-2.0, -1.0, 120.0)),
+    ("-2.00 -1.00 @ 120", (-2.0, -1.0, 120.0)),
+    ("-2.00 +1.00 axis 30", (-2.0, 1.0, 30.0)),              # plus-cylinder form, kept as written
+    ("plano -0.75 x 90", (0.0, -0.75, 90.0)),
+    ("-1.50", (-1.5, 0.0, 0.0)),
+    ("-1.50 DS", (-1.5, 0.0, 0.0)),
+    ("+0.75 sph", (0.75, 0.0, 0.0)),
+    ("PL", (0.0, 0.0, 0.0)),
+    ("0", (0.0, 0.0, 0.0)),
+])
+def test_a_spectacle_prescription_line_reads_as_sphere_cylinder_axis(text, eye):
+    from vrcorrect.specs.prescription.notation import parse_spectacle_rx
+
+    assert parse_spectacle_rx(text, "--right") == eye
+
+
+@pytest.mark.parametrize("text, field, says", [
+    ("-2.00 -1.00", "--right", "axis"),                       # a cylinder without its axis
+    ("-2.00 x 120", "--right", "SPHERE CYLINDER x AXIS"),
+    ("-2.00 -1.00 x 181", "--right axis", "0 to 180"),
+    ("", "--right", "SPHERE"),
+    ("-2.00 -1.00 x 120 x 3", "--right", "SPHERE"),
+])
+def test_a_line_that_is_not_a_prescription_is_refused_naming_the_forms(text, field, says):
+    from vrcorrect.specs.prescription.notation import parse_spectacle_rx
+
+    with pytest.raises(ValidationError) as err:
+        parse_spectacle_rx(text, "--right")
+    assert err.value.field == field and says in str(err.value)

@@ -61,7 +61,7 @@ def _interrupted(exc: BaseException) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(rx.join_line_values(list(sys.argv[1:] if argv is None else argv)))
     try:
         with command_signals():
             return int(args.func(args) or 0)

@@ -10,13 +10,28 @@ from pathlib import Path
 
 from ..plumbing.errors import ValidationErrors
 from ..specs.prescription import load_prescription, validate_file, write_template
+from ..specs.prescription.files import TEMPLATE_NOTES
+from ..specs.prescription.notation import parse_spectacle_rx
 from ..specs.vocabulary import Eye
 
 
 def cmd_rx_new(args: argparse.Namespace) -> int:
-    write_template(Path(args.path), force=args.force)
-    print(f"wrote {args.path}: a commented prescription template; fill in both eyes, then run "
-          f"'vrcorrect rx validate {args.path}'")
+    eyes = {name: None if text is None else parse_spectacle_rx(text, f"--{name}")
+            for name, text in ((Eye.RIGHT, args.right), (Eye.LEFT, args.left))}
+    if all(e is None for e in eyes.values()) and args.age is None:
+        write_template(Path(args.path), force=args.force)
+        print(f"wrote {args.path}: a commented prescription template; fill in both eyes, then run "
+              f"'vrcorrect rx validate {args.path}' (or write it from your glasses' prescription: "
+              f"vrcorrect rx new {args.path} --force --right \"-2.00 -1.00 x 120\" --left \"-1.50\" --age 45)")
+        return 0
+    given = [f"{name} '{text}'" for name, text in ((Eye.RIGHT, args.right), (Eye.LEFT, args.left)) if text is not None]
+    notes = "From a spectacle prescription: " + ", ".join(given) + "." if given else TEMPLATE_NOTES
+    write_template(Path(args.path), force=args.force, notes=notes, age_years=args.age, **eyes)
+    print(f"wrote {args.path}: a commented prescription file" + (f" from {', '.join(given)}" if given else ""))
+    _print_eyes(load_prescription(Path(args.path)))
+    missing = [name for name, e in eyes.items() if e is None]
+    for name in missing:
+        print(f"  the {name} eye is plano (0.00) as a placeholder: give --{name}, or edit the file")
     return 0
 
 
@@ -29,6 +44,12 @@ def cmd_rx_validate(args: argparse.Namespace) -> int:
 
     rx = load_prescription(Path(args.path))
     print(f"{args.path}: valid")
+    _print_eyes(rx)
+    return 0
+
+
+def _print_eyes(rx) -> None:
+    """Both eyes in words, and what their accommodation is taken to be."""
     for name in Eye:
         e = rx.eye(name)
         pv = e.power_vector()
@@ -39,7 +60,28 @@ def cmd_rx_validate(args: argparse.Namespace) -> int:
         print("  no age_years: an eye with accommodation 0 is modelled as one that cannot focus (a presbyope's); if "
               "yours can, give age_years and leave accommodation_D out (or state its amplitude), or a correction may "
               "sharpen what the eye already focuses sharp")
-    return 0
+
+
+#: ``rx new``'s options whose value is a prescription line, which may start with a minus sign.
+LINE_OPTIONS = ("--right", "--left")
+
+
+def join_line_values(argv: list[str]) -> list[str]:
+    """``rx new --left -3.00/+0.50x60`` as ``--left=-3.00/+0.50x60``: argparse would take a value that starts
+    with a minus sign and has no space for an option of its own (\"expected one argument\")."""
+    if argv[:2] != ["rx", "new"]:
+        return argv
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        if argv[i] in LINE_OPTIONS and i + 1 < len(argv) and argv[i + 1].startswith("-") and argv[i + 1] not in (
+                *LINE_OPTIONS, "--age", "--force", "-h", "--help"):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -48,8 +90,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "prescription file and report every problem in it at once (validate).")
     rsub = p.add_subparsers(dest="rx_command", metavar="ACTION")
     rsub.required = True
-    q = rsub.add_parser("new", help="write a commented prescription template")
+    q = rsub.add_parser("new", help="write a commented prescription template, or a file from your glasses' "
+                        "prescription (--right, --left, --age)")
     q.add_argument("path", metavar="PATH")
+    q.add_argument("--right", metavar="RX", help="the right eye (OD) as a spectacle prescription writes it: SPHERE, "
+                   "or SPHERE CYLINDER x AXIS, e.g. \"-2.00 -1.00 x 120\", \"-1.50 DS\", \"plano -0.75 x 90\" "
+                   "(either cylinder form)")
+    q.add_argument("--left", metavar="RX", help="the left eye (OS), as --right")
+    q.add_argument("--age", type=float, metavar="YEARS", help="the wearer's age (age_years, 1 to 120): it sets the "
+                   "viewing pupil and how far each eye still focuses")
     q.add_argument("--force", action="store_true", help="overwrite PATH if it exists")
     q.set_defaults(func=cmd_rx_new)
     q = rsub.add_parser("validate", help="check a prescription file and report every problem")

@@ -14,7 +14,7 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
-from ...plumbing.errors import InputError, FieldProblem, json_error_location
+from ...plumbing.errors import FieldProblem, InputError, ValidationErrors, json_error_location
 from ...plumbing.fileio import package_data, write_text_atomic
 from ..validation import FileWording, read_utf8_text
 from ..vocabulary import Eye, names
@@ -215,40 +215,55 @@ _TEMPLATE = """\
 // (1 to 120), which the viewing pupil's formula uses (older eyes have smaller
 // pupils), and the accommodation of an eye that states none; leave it out to
 // use the formula's reference age and no accommodation.
-{
-  "schema": "vrcorrect.prescription/1",
-  "notes": "Template: replace the numbers with your own prescription.",
-  "right": {
-    "sphere_D": 0.0,
-    "cylinder_D": 0.0,
-    "axis_deg": 0,
-    "pupil_diameter_mm": 4.0
-  },
-  "left": {
-    "sphere_D": 0.0,
-    "cylinder_D": 0.0,
-    "axis_deg": 0,
-    "pupil_diameter_mm": 4.0
-  }
-}
 """
 
 
-def template_text() -> str:
-    """A commented prescription template that loads as a valid Prescription."""
-    return _TEMPLATE
+#: The notes of a template with no eye given.
+TEMPLATE_NOTES = "Template: replace the numbers with your own prescription."
+
+#: The pupil a template's eyes are modelled through with ``--pupil rx`` (mm).
+TEMPLATE_PUPIL_MM = 4.0
 
 
-def write_template(path: str | PathLike[str], force: bool = False) -> None:
-    """Write :func:`template_text` to ``path`` atomically.
+def _eye_block(name: str, eye: tuple[float, float, float] | None) -> str:
+    s, c, a = eye if eye is not None else (0.0, 0.0, 0.0)
+    return (f'  "{name}": {{\n    "sphere_D": {float(s)!r},\n    "cylinder_D": {float(c)!r},\n'
+            f'    "axis_deg": {a:g},\n    "pupil_diameter_mm": {TEMPLATE_PUPIL_MM!r}\n  }}')
+
+
+def template_text(right: tuple[float, float, float] | None = None, left: tuple[float, float, float] | None = None,
+                  age_years: float | None = None, notes: str = TEMPLATE_NOTES) -> str:
+    """A commented prescription template that loads as a valid Prescription: each eye that is given as
+    ``(sphere_D, cylinder_D, axis_deg)`` filled in (else zeros to replace), ``age_years`` if given.
+    The values are checked where the file is loaded, not here."""
+    head = [f'  "schema": "{SCHEMA}"', f'  "notes": {json.dumps(notes, ensure_ascii=False)}']
+    if age_years is not None:
+        head.append(f'  "age_years": {float(age_years):g}')
+    body = ",\n".join(head + [_eye_block("right", right), _eye_block("left", left)])
+    return _TEMPLATE + "{\n" + body + "\n}\n"
+
+
+def template_problems(text: str) -> list[FieldProblem]:
+    """Every problem in a template's text (:func:`template_text` filled with values out of range, say)."""
+    return problems_in(json.loads(_strip_comments(text), object_pairs_hook=_object_no_duplicates))
+
+
+def write_template(path: str | PathLike[str], force: bool = False, **filled: Any) -> None:
+    """Write :func:`template_text` (``filled``: its eyes, age and notes) to ``path`` atomically.
 
     Raises
     ------
     InputError
         If ``path`` exists and ``force`` is false (the message names
         ``--force``), or the folder is missing or not writable.
+    ValidationErrors
+        Every value given that a prescription does not allow (nothing is written).
     """
-    write_text_atomic(Path(path), template_text(), force=force)
+    text = template_text(**filled)
+    problems = template_problems(text)
+    if problems:
+        raise ValidationErrors(problems)
+    write_text_atomic(Path(path), text, force=force)
 
 
 def bundled_sample_path() -> Path:

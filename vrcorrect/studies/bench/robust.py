@@ -52,13 +52,13 @@ from ...physics.pupil import pupil_from_light
 from ...physics.robust import design_eye
 from ...plumbing.errors import ValidationError
 from ...solvers import make_problem, objective, solve
-from ...solvers.expectation import fast_expectation
 from ...solvers.problem import make_design_problem
 from ...solvers.realtime import AdmmFrames
 from ...specs.display import decode, get_display
 from ...specs.prescription import EyeRx
 from ...vision.metrics import evaluate_seen
 from . import machine_description, markdown_table, publish
+from .robust_boundary import boundary_case, gap_left
 
 __all__ = ["EYE", "IMAGES", "DISPLAYS", "SEEN_PUPILS_MM", "SEEN_SPHERES_D", "run_robust_bench"]
 
@@ -202,30 +202,6 @@ def _checks(case: dict) -> dict[str, Any]:
             "share_at_3mm": _gain(at3, "default") / ceiling if ceiling > 0 else None,
             "share_at_3mm_realtime": _gain(at3, "real time") / ceiling if ceiling > 0 else None,
             "share_at_3mm_learned": _gain(at3, "learned") / ceiling if ceiling > 0 and "learned" in at3["scores"] else None}
-
-
-def _boundary(case: dict) -> dict[str, Any]:
-    """The expectation for the effective kernel's solution and the exact expectation's."""
-    problem, design = case["_problem"], case["_default"]
-    effective = solve(problem, "fast", tolerance=1e-3).image
-    t0 = time.perf_counter()
-    exact, iterations, _, _ = fast_expectation(problem.target, problem.members, design.kernel, problem.target_lms,
-                                               tolerance=1e-3, max_iterations=60, capped=problem.capped)
-    seconds = time.perf_counter() - t0
-    none = objective(problem.target, problem)
-    return {"display": case["display"], "image": case["image"], "none": none,
-            "effective": objective(effective, problem), "exact": objective(exact, problem),
-            "exact_iterations": iterations, "exact_seconds": seconds}
-
-
-def gap_left(bound: dict) -> str:
-    """The boundary table's "gap left": the effective kernel's expectation above the exact one's, as a share
-    of the exact one's gain over no correction; "-" where that gain is under 0.1 % of none's (an eye in focus
-    at the display: nothing to share)."""
-    gain = bound["none"] - bound["exact"]
-    if not gain > 1e-3 * bound["none"]:
-        return "- (no gain)"
-    return f"{100 * (bound['effective'] - bound['exact']) / gain:.1f} %"
 
 
 VIDEO_DISPLAY = "desktop"
@@ -489,7 +465,7 @@ def run_robust_bench(out: Path, write: bool = True, plot: Path | None = None, di
         for d in displays:
             for name in images:
                 cases.append(_case(d, name, bar, kernels, size, seen_pupils, seen_spheres, eye, age_years))
-    bounds = [_boundary(c) for c in cases] if boundary else []
+    bounds = [boundary_case(c) for c in cases] if boundary else []
     seconds = time.perf_counter() - t0
     lines = ["## The eye as it is: a correction against the eye it meets (`vrcorrect bench robust`)", "",
              f"Machine: {machine_description()}. {len(cases)} cases in {seconds / 60:.0f} min. The eye: right "

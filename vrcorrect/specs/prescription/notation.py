@@ -1,0 +1,64 @@
+"""A spectacle prescription as an optician writes it, read into sphere, cylinder and axis.
+
+``vrcorrect rx new --right "-2.00 -1.00 x 120" --left "-1.50 DS"`` writes a prescription file from the
+lines on a spectacle prescription, so that nobody has to edit JSON to start.  Accepted, case and
+spaces aside:
+
+- ``SPHERE`` alone: ``-1.50``, ``+0.75``, ``-1.50 DS`` (dioptre sphere), ``-1.50 sph``, ``plano``
+  (also ``pl``, ``0``): no cylinder;
+- ``SPHERE CYLINDER x AXIS``: ``-2.00 -1.00 x 120``, ``-2.00/-1.00x120``, ``+1.25 -0.50 × 180``,
+  ``plano -0.75 x 90``, ``-2.00 -1.00 @ 120``; the cylinder in either form (minus, as optometrists
+  write it, or plus), the axis in whole degrees 0 to 180 (TABO), a ``D`` or ``DC`` after a power
+  allowed (``-2.00D -1.00DC x 120``).
+
+Anything else is refused with the text, the field it came from and the forms above; the values'
+ranges are :class:`~vrcorrect.specs.prescription.model.EyeRx`'s, checked where the eye is made.
+
+Layer 1: the standard library.
+"""
+
+from __future__ import annotations
+
+import re
+
+from ...plumbing.errors import ValidationError
+
+__all__ = ["FORMS", "parse_spectacle_rx"]
+
+#: What the refusal lists as the accepted forms.
+FORMS = ("a spectacle prescription: SPHERE, or SPHERE CYLINDER x AXIS, e.g. '-1.50', '-1.50 DS', 'plano', "
+         "'-2.00 -1.00 x 120', '-2.00/-1.00x120', 'plano -0.75 x 90'")
+
+_POWER = r"(?:[+-]?(?:\d+(?:\.\d*)?|\.\d+)|plano|pl)"
+_SPHERE_ONLY = re.compile(rf"^\s*(?P<s>{_POWER})\s*(?:d|ds|dsph|sph|sphere)?\s*$", re.IGNORECASE)
+_FULL = re.compile(rf"^\s*(?P<s>{_POWER})\s*(?:d|ds|dsph|sph)?\s*[/\s]\s*(?P<c>[+-]?(?:\d+(?:\.\d*)?|\.\d+))\s*"
+                   r"(?:d|dc|dcyl|cyl)?\s*(?:x|×|@|\*|ax|axis)\s*(?P<a>\d+(?:\.\d*)?)\s*°?\s*$", re.IGNORECASE)
+
+_NO_AXIS = re.compile(rf"^\s*{_POWER}\s*(?:d|ds|dsph|sph)?\s*[/\s]\s*[+-]?(?:\d+(?:\.\d*)?|\.\d+)\s*(?:d|dc|dcyl|cyl)?\s*$",
+                      re.IGNORECASE)
+
+
+def _power(text: str) -> float:
+    return 0.0 if text.lower() in ("plano", "pl") else float(text)
+
+
+def parse_spectacle_rx(text: str, field: str) -> tuple[float, float, float]:
+    """``(sphere_D, cylinder_D, axis_deg)`` of one eye's line of a spectacle prescription (the forms in
+    this module's docstring); a :class:`ValidationError` naming ``field`` (e.g. ``--right``), the text
+    and the accepted forms for anything else."""
+    if not isinstance(text, str):
+        raise ValidationError(field, text, FORMS)
+    cleaned = text.replace("−", "-").replace("–", "-").strip()   # a typeset minus or dash, as copied from a document
+    m = _SPHERE_ONLY.match(cleaned)
+    if m:
+        return _power(m["s"]), 0.0, 0.0
+    m = _FULL.match(cleaned)
+    if m:
+        axis = float(m["a"])
+        if not 0.0 <= axis <= 180.0:
+            raise ValidationError(f"{field} axis", m["a"], "0 to 180 degrees (TABO: 0 and 180 are horizontal)")
+        return _power(m["s"]), float(m["c"]), axis
+    if _NO_AXIS.match(cleaned):
+        raise ValidationError(field, text, "the cylinder's axis after it, 'x AXIS' in degrees 0 to 180 (e.g. "
+                                           "'-2.00 -1.00 x 120'): a cylinder without its axis is not an eye")
+    raise ValidationError(field, text, FORMS)
