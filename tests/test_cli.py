@@ -745,3 +745,33 @@ def test_bench_inside_the_repository_updates_its_benchmarks_file(capsys, monkeyp
     rc, _, err = run(capsys, "bench", "kernel")
     assert rc == 0, err
     assert kernel_bench_calls == [(REPO / "docs" / "benchmarks.md", True)]
+
+
+# ---------------------------------------------------------------- correct --panel
+
+def test_correct_panel_shows_the_goal_none_and_the_correction_side_by_side(tmp_path, capsys):
+    """``correct --panel``: one picture of three columns (with glasses, no correction, this correction),
+    each the picture's size with its FLIP map under it, written with the output; its captions carry the
+    report's own scores."""
+    src = write_colour_png(tmp_path / "in.png")
+    rc, out, err = run(capsys, "correct", src, "-o", tmp_path / "shown.png", "--display", "desktop", "--pupil", "4",
+                       "--panel", tmp_path / "panel.png", "--report", tmp_path / "r.json")
+    assert rc == 0, err
+    assert listing(tmp_path) == {"in.png", "shown.png", "panel.png", "r.json"}
+    assert "; panel " in out
+    with Image.open(tmp_path / "panel.png") as im:
+        w, h = im.size
+        panel = np.asarray(im.convert("RGB"))
+    assert w == 3 * 40 + 2 * 6 and h > 2 * 32                                  # three 40 px columns, map under each
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["metrics"]["jod"] > report["metrics_uncorrected"]["jod"]
+    none, corrected = (panel[h - 32:, x:x + 40] for x in (46, 92))                # the FLIP maps
+    assert np.abs(none.astype(int) - corrected.astype(int)).sum() > 0
+
+
+@pytest.mark.parametrize("panel, says", [("panel.jpg", ".png"), ("shown.png", "other than"), ("in.png", "other than")])
+def test_correct_panel_is_refused_where_it_would_overwrite_or_is_not_png(panel, says, tmp_path, capsys):
+    src = write_colour_png(tmp_path / "in.png")
+    before = listing(tmp_path)
+    rc, out, err = run(capsys, "correct", src, "-o", tmp_path / "shown.png", "--panel", tmp_path / panel, "--force")
+    assert_clean_failure(rc, out, err, tmp_path, before, contains=("--panel", says))

@@ -36,6 +36,7 @@ from .common import (
     small_image_note,
     viewing_pupil,
 )
+from .correct_panel import check_panel, panel_writer
 from .progress import duration_text
 
 
@@ -106,10 +107,17 @@ def cmd_correct(args: argparse.Namespace) -> int:
         result.objective = objective(result.image, problem)
     t3 = time.perf_counter()
     outputs = [(out, png_writer(out, encode(display, result.image), bits=16 if args.sixteen_bit else 8))]
-    if args.report:
+    if args.report or args.panel:
         seen = design.nominal
-        corrected, _ = evaluate_seen(result.image, target, seen, display, target_lms=seen_problem.target_lms)
-        uncorrected, _ = evaluate_seen(target, target, seen, display, target_lms=seen_problem.target_lms)
+        corrected, corrected_images = evaluate_seen(result.image, target, seen, display,
+                                                    target_lms=seen_problem.target_lms)
+        uncorrected, uncorrected_images = evaluate_seen(target, target, seen, display,
+                                                        target_lms=seen_problem.target_lms)
+    if args.panel:
+        outputs.append((Path(args.panel), panel_writer(args, eye, display, pupil, [
+            ("no correction", uncorrected, uncorrected_images),
+            ("the picture as it is" if aside else f"{result.method} correction", corrected, corrected_images)])))
+    if args.report:
         report = {
             "input": str(args.input), "output": str(out), "prescription": str(rx_path), "eye": args.eye,
             "display": display.name, "method": result.method, "reference": problem.reference,
@@ -131,16 +139,16 @@ def cmd_correct(args: argparse.Namespace) -> int:
                    + (" of the page band" if _band_name(design) == "page" else ""))
     parts = [f"eye model {duration_text(t1 - t0)}", "no solve" if aside else
              f"{_solve_text(result.method, result.iterations)} {duration_text(t3 - t2)}"]
-    if args.report:
-        parts.append(f"report (what the eye sees, judged) {duration_text(t4 - t3)}")
-    rest = time.perf_counter() - started - (t1 - t0) - (t3 - t2) - (t4 - t3 if args.report else 0.0)
+    if args.report or args.panel:
+        parts.append(f"{'report' if args.report else 'panel'} (what the eye sees, judged) {duration_text(t4 - t3)}")
+    rest = time.perf_counter() - started - (t1 - t0) - (t3 - t2) - (t4 - t3 if args.report or args.panel else 0.0)
     parts.append(f"start-up, reading and writing {duration_text(rest)}")
     if aside:
         print(f"wrote {out}: the picture as it is for the {args.eye} eye on {display.title}: {NOTHING_TO_CORRECT}"
-              + (f"; report {args.report}" if args.report else ""))
+              + _also(args))
     else:
         print(f"wrote {out}: {result.method} correction for the {args.eye} eye on {display.title}, {design_text} "
-              f"(objective {result.objective:.3g})" + (f"; report {args.report}" if args.report else ""))
+              f"(objective {result.objective:.3g})" + _also(args))
     if guarded is not None:
         print("  " + _guard_text(rho, guarded))
     elif _sphere_alone(eye) and not aside:
@@ -314,6 +322,7 @@ def _check_options(args: argparse.Namespace) -> float | None:
         if Path(args.report).suffix.lower() != ".json":
             raise ValidationError("--report", args.report, "a path ending in .json")
         check_writable(Path(args.report), force=args.force)
+    check_panel(args)
     if args.iterations is not None and not (1 <= args.iterations <= 100000):
         raise ValidationError("--iterations", args.iterations, "1 to 100000")
     if not (0.0 < args.contrast <= 1.0):
@@ -357,6 +366,11 @@ def _solver_options(args: argparse.Namespace, learned, eye, display, kernel, ref
     return options
 
 
+def _also(args: argparse.Namespace) -> str:
+    """The other files ``correct`` wrote, for its line."""
+    return "".join(f"; {what} {path}" for what, path in (("report", args.report), ("panel", args.panel)) if path)
+
+
 def _report_writer(report: dict, notes: list[str]):
     """The report as strict JSON (non-finite numbers null, each explained in ``notes``)."""
     report_notes = list(notes)                      # what was said about the input, then the JSON repairs
@@ -377,6 +391,7 @@ def _correct_clip(args: argparse.Namespace, plan: clips.ClipPlan) -> int:
     """Each frame of a clip solved on its own (the offline ceiling), into a folder of frames."""
     started = time.perf_counter()
     folder = clips.output_folder(args, plan)        # checked before any work
+    check_panel(args, clip=True)
     rho = _check_options(args)
     from ..solvers import objective, solve  # on use: start-up time (apps/__init__)
     from ..solvers.problem import (
@@ -553,6 +568,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--reference", choices=("glasses", "ideal"), default="glasses",
                    help="target: what the eye sees with glasses (default) or the paper's blur-free A t")
     p.add_argument("--report", metavar="REPORT.json", help="write metrics, timings and settings")
+    p.add_argument("--panel", metavar="PANEL.png", help="write a picture of what the eye sees with its glasses, with "
+                   "no correction and with this one, side by side, each with its JOD, FLIP and objective and its "
+                   "FLIP error map (a still only)")
     p.add_argument("--guard", default="off", metavar="RHO|off",
                    help="blend the correction towards the picture until the eye with the sphere 0.5 D off either "
                         "way sees at most RHO (1 to 10) times the error it sees with no correction, by the "

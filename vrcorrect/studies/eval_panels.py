@@ -12,7 +12,7 @@ from typing import Sequence
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-__all__ = ["panel_size", "magma", "legend", "compose_panel", "score_lines"]
+__all__ = ["panel_size", "magma", "legend", "compose_panel", "score_lines", "correction_panel"]
 
 _GAP_PX = 6
 
@@ -111,3 +111,15 @@ def compose_panel(title: str, columns: Sequence[tuple[list[str], np.ndarray, np.
 
 def score_lines(label: str, m) -> list[str]:
     return [label, f"JOD {m.jod:.2f}  FLIP {m.flip:.3f}", f"SSIM {m.ssim:.3f}  PSNR {m.psnr:.2f} dB"]
+
+
+def correction_panel(title: str, goal: str, seen: Sequence[tuple[str, object, dict]]):
+    """``vrcorrect correct --panel``: what the eye sees with its glasses (``goal``: the column's caption),
+    then each ``(label, metrics, images)`` of :func:`~vrcorrect.vision.metrics.evaluate_seen` (no
+    correction, this correction): the view, its scores, its FLIP map under it. A PIL image."""
+    images = seen[0][2]
+    h, w = images["target_srgb"].shape[:2]
+    columns = [([goal, "the target: what every", "other column is judged by"], images["target_srgb"], legend(h, w))]
+    columns += [(score_lines(label, m)[:2] + [f"objective {m.objective:.3g}"], im["seen_srgb"], magma(im["flip_map"]))
+                for label, m, im in seen]
+    return compose_panel(title, columns)
