@@ -510,6 +510,19 @@ def test_rx_new_with_one_eye_says_the_other_is_a_placeholder(tmp_path, capsys):
     assert "no age_years" in out
 
 
+def test_rx_new_reads_a_line_with_a_reading_addition_and_says_the_add_is_not_used(tmp_path, capsys):
+    from vrcorrect.specs.prescription import load_prescription
+
+    path = tmp_path / "rx.json"
+    rc, out, err = run(capsys, "rx", "new", path, "--right", "-2.00 -1.00 x 120 ADD +2.00", "--left", "-1.00",
+                       "--age", "60")
+    assert rc == 0, err
+    right = load_prescription(path).eye("right")
+    assert (right.sphere_D, right.cylinder_D, right.axis_deg) == (-2.0, -1.0, 120.0)     # the distance lens
+    assert "the right eye's ADD +2.00 (the reading addition) is not used" in out
+    assert "left eye's ADD" not in out
+
+
 @pytest.mark.parametrize("argv, field", [
     (["--right", "-2.00 -1.00"], "--right"),                       # a cylinder without its axis
     (["--left", "two dioptres"], "--left"),

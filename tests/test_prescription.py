@@ -794,3 +794,17 @@ def test_a_line_that_is_not_a_prescription_is_refused_naming_the_forms(text, fie
     with pytest.raises(ValidationError) as err:
         parse_spectacle_rx(text, "--right")
     assert err.value.field == field and says in str(err.value)
+
+
+@pytest.mark.parametrize("text, line, add", [
+    ("-2.00 -1.00 x 120 ADD +2.00", "-2.00 -1.00 x 120", 2.0),
+    ("-2.00 -1.00 x 120, add 2.25", "-2.00 -1.00 x 120", 2.25),
+    ("+1.00 DS Add: +2.50D", "+1.00 DS", 2.5),
+    ("-2.00 -1.00 x 120", "-2.00 -1.00 x 120", None),
+])
+def test_a_reading_addition_is_split_off_the_distance_prescription(text, line, add):
+    from vrcorrect.specs.prescription.notation import parse_spectacle_rx, split_add
+
+    got_line, got_add = split_add(text)
+    assert got_add == add and got_line.strip() == line
+    assert parse_spectacle_rx(got_line, "--right") == parse_spectacle_rx(line, "--right")

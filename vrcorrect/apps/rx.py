@@ -11,13 +11,15 @@ from pathlib import Path
 from ..plumbing.errors import ValidationErrors
 from ..specs.prescription import load_prescription, validate_file, write_template
 from ..specs.prescription.files import TEMPLATE_NOTES
-from ..specs.prescription.notation import parse_spectacle_rx
+from ..specs.prescription.notation import parse_spectacle_rx, split_add
 from ..specs.vocabulary import Eye
 
 
 def cmd_rx_new(args: argparse.Namespace) -> int:
-    eyes = {name: None if text is None else parse_spectacle_rx(text, f"--{name}")
-            for name, text in ((Eye.RIGHT, args.right), (Eye.LEFT, args.left))}
+    eyes, adds = {}, {}
+    for name, text in ((Eye.RIGHT, args.right), (Eye.LEFT, args.left)):
+        line, adds[name] = split_add(text)
+        eyes[name] = None if text is None else parse_spectacle_rx(line, f"--{name}")
     if all(e is None for e in eyes.values()) and args.age is None:
         write_template(Path(args.path), force=args.force)
         print(f"wrote {args.path}: a commented prescription template; fill in both eyes, then run "
@@ -29,6 +31,11 @@ def cmd_rx_new(args: argparse.Namespace) -> int:
     write_template(Path(args.path), force=args.force, notes=notes, age_years=args.age, **eyes)
     print(f"wrote {args.path}: a commented prescription file" + (f" from {', '.join(given)}" if given else ""))
     _print_eyes(load_prescription(Path(args.path)))
+    for name, add in adds.items():
+        if add is not None:
+            print(f"  the {name} eye's ADD {add:+.2f} (the reading addition) is not used: vrcorrect corrects the "
+                  "distance prescription at the display's distance, and takes the eye's own focus from --age "
+                  "(or accommodation_D in the file)")
     missing = [name for name, e in eyes.items() if e is None]
     for name in missing:
         print(f"  the {name} eye is plano (0.00) as a placeholder: give --{name}, or edit the file")
@@ -95,7 +102,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     q.add_argument("path", metavar="PATH")
     q.add_argument("--right", metavar="RX", help="the right eye (OD) as a spectacle prescription writes it: SPHERE, "
                    "or SPHERE CYLINDER x AXIS, e.g. \"-2.00 -1.00 x 120\", \"-1.50 DS\", \"plano -0.75 x 90\" "
-                   "(either cylinder form)")
+                   "(either cylinder form; a reading addition after it, ADD +2.00, is read and not used)")
     q.add_argument("--left", metavar="RX", help="the left eye (OS), as --right")
     q.add_argument("--age", type=float, metavar="YEARS", help="the wearer's age (age_years, 1 to 120): it sets the "
                    "viewing pupil and how far each eye still focuses")

@@ -9,7 +9,9 @@ spaces aside:
 - ``SPHERE CYLINDER x AXIS``: ``-2.00 -1.00 x 120``, ``-2.00/-1.00x120``, ``+1.25 -0.50 × 180``,
   ``plano -0.75 x 90``, ``-2.00 -1.00 @ 120``; the cylinder in either form (minus, as optometrists
   write it, or plus), the axis in whole degrees 0 to 180 (TABO), a ``D`` or ``DC`` after a power
-  allowed (``-2.00D -1.00DC x 120``).
+  allowed (``-2.00D -1.00DC x 120``);
+- either of them followed by a reading addition, ``ADD +2.00`` (:func:`split_add` takes it off; the
+  distance prescription is what vrcorrect models).
 
 Anything else is refused with the text, the field it came from and the forms above; the values'
 ranges are :class:`~vrcorrect.specs.prescription.model.EyeRx`'s, checked where the eye is made.
@@ -23,7 +25,7 @@ import re
 
 from ...plumbing.errors import ValidationError
 
-__all__ = ["FORMS", "parse_spectacle_rx"]
+__all__ = ["FORMS", "parse_spectacle_rx", "split_add"]
 
 #: What the refusal lists as the accepted forms.
 FORMS = ("a spectacle prescription: SPHERE, or SPHERE CYLINDER x AXIS, e.g. '-1.50', '-1.50 DS', 'plano', "
@@ -36,6 +38,23 @@ _FULL = re.compile(rf"^\s*(?P<s>{_POWER})\s*(?:d|ds|dsph|sph)?\s*[/\s]\s*(?P<c>[
 
 _NO_AXIS = re.compile(rf"^\s*{_POWER}\s*(?:d|ds|dsph|sph)?\s*[/\s]\s*[+-]?(?:\d+(?:\.\d*)?|\.\d+)\s*(?:d|dc|dcyl|cyl)?\s*$",
                       re.IGNORECASE)
+
+
+_ADD = re.compile(r"\s*(?:,|;)?\s*\badd\b\s*:?\s*(?P<add>[+-]?(?:\d+(?:\.\d*)?|\.\d+))\s*(?:d\b)?\s*$", re.IGNORECASE)
+
+
+def split_add(text: str) -> tuple[str, float | None]:
+    """A line and its reading addition (``... ADD +2.00``, the near add of a presbyope's prescription), if
+    it ends with one: ``(the line without it, the add in dioptres or None)``. vrcorrect models the
+    distance prescription at the display's distance, and the eye's own focus from its age or
+    ``accommodation_D``; the add is read so that a line copied whole is not refused, and said to be
+    unused by the caller."""
+    if not isinstance(text, str):
+        return text, None
+    m = _ADD.search(text.replace("−", "-"))
+    if m is None:
+        return text, None
+    return text.replace("−", "-")[:m.start()], float(m["add"])
 
 
 def _power(text: str) -> float:
