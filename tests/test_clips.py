@@ -425,6 +425,7 @@ BAD_CLIPS = [
     ("output folder taken", ["correct", "{d}/clip", "-o", "{d}/taken"], ("taken", "--force")),
     ("output parent missing", ["render", "{d}/clip", "-o", "{d}/no/out"], ("does not exist",)),
     ("output is the input", ["simulate", "{d}/taken", "-o", "{d}/taken", "--force"], ("--output", "input")),
+    ("--panel on a clip", ["correct", "{d}/clip", "-o", "{d}/out", "--panel", "{d}/p.png"], ("--panel", "clip")),
 ]
 
 
