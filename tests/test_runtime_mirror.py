@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import subprocess
 import sys
 import time
@@ -971,6 +972,9 @@ def test_cli_renders_n_frames_and_exits(x_display, tmp_path, mirror_image):
     assert first.startswith("vrcorrect: using the sample prescription"), out
     assert rest.startswith("keys:") and "Esc / q" in rest
     assert "3 frame(s)" in out and "correct left" in out and "correct right" in out
+    times = re.search(r"3 frame\(s\) in [\d.]+ s \(median ([\d.]+) ms a frame after the first, ([\d.]+) ms on "
+                      r"average; set-up", out)
+    assert times and float(times[1]) > 0 and float(times[2]) > 0, out       # the median of the two frames after the first
 
 
 # --------------------------------------------------------------------------

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import statistics
 import time
 
 from ..runtime.gl import format_ms
@@ -69,7 +70,8 @@ def cmd_mirror(args: argparse.Namespace) -> int:
         mirror.run()
         t2 = time.perf_counter()
         n = mirror.frame
-        print(f"{n} frame(s) in {t2 - t1:.2f} s ({1e3 * (t2 - t1) / max(n, 1):.1f} ms per frame; "
+        median = f"median {statistics.median(mirror.frame_ms):.1f} ms a frame after the first, " if mirror.frame_ms else ""
+        print(f"{n} frame(s) in {t2 - t1:.2f} s ({median}{1e3 * (t2 - t1) / max(n, 1):.1f} ms on average; "
               f"set-up {t1 - t0:.1f} s) on {mirror.ctx.info.get('GL_RENDERER', '?')}")
         for name, (gpu, cpu) in mirror.timings_ms.items():
             print(f"  {name:<15} gpu {format_ms(gpu)} ms, cpu {cpu:.2f} ms (last frame)")

@@ -350,6 +350,8 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
         self._times: StageTimes | None = None
         self._frame_ms: float | None = None
         self._last_frame_end: float | None = None
+        self.frame_ms: list[float] = []
+        """Each frame's time from the end of the one before (ms; the first frame has none)."""
         self._scene_s = 0.0                               # the scene's clock (wall time, or stepped)
         self._scene_wall: float | None = None
         self.stepped = False                              # the last frame stepped the clock (slow frames)
@@ -515,6 +517,7 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
         now = time.perf_counter()
         if self._last_frame_end is not None:
             ms = 1e3 * (now - self._last_frame_end)
+            self.frame_ms.append(ms)
             self._frame_ms = ms if self._frame_ms is None else self._frame_ms + 0.1 * (ms - self._frame_ms)
         self._last_frame_end = now
 
