@@ -529,6 +529,7 @@ def test_rx_new_reads_a_line_with_a_reading_addition_and_says_the_add_is_not_use
     (["--right", "-2.00 -1.00 x 200"], "--right axis"),
     (["--right", "-25"], "right.sphere_D"),                        # read, but out of a prescription's range
     (["--right", "-1.00", "--age", "150"], "age_years"),
+    (["--right", "-1.00", "--age", "nan"], "--age"),
 ])
 def test_rx_new_refuses_a_bad_prescription_line_and_writes_nothing(argv, field, tmp_path, capsys):
     rc, out, err = run(capsys, "rx", "new", tmp_path / "rx.json", *argv)

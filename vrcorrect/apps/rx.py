@@ -6,9 +6,10 @@ problem at once under a ``vrcorrect: error: PATH: N problems:`` line."""
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
-from ..plumbing.errors import ValidationErrors
+from ..plumbing.errors import ValidationError, ValidationErrors
 from ..specs.prescription import load_prescription, validate_file, write_template
 from ..specs.prescription.files import TEMPLATE_NOTES
 from ..specs.prescription.notation import parse_spectacle_rx, split_add
@@ -16,6 +17,8 @@ from ..specs.vocabulary import Eye
 
 
 def cmd_rx_new(args: argparse.Namespace) -> int:
+    if args.age is not None and not math.isfinite(args.age):
+        raise ValidationError("--age", args.age, "a number of years from 1 to 120")
     eyes, adds = {}, {}
     for name, text in ((Eye.RIGHT, args.right), (Eye.LEFT, args.left)):
         line, adds[name] = split_add(text)
