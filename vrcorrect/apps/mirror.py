@@ -70,7 +70,9 @@ def cmd_mirror(args: argparse.Namespace) -> int:
         mirror.run()
         t2 = time.perf_counter()
         n = mirror.frame
-        median = f"median {statistics.median(mirror.frame_ms):.1f} ms a frame after the first, " if mirror.frame_ms else ""
+        times = mirror.frame_ms
+        which = "after the first" if len(times) == max(n - 1, 0) else f"over the last {len(times)}"
+        median = f"median {statistics.median(times):.1f} ms a frame {which}, " if times else ""
         print(f"{n} frame(s) in {t2 - t1:.2f} s ({median}{1e3 * (t2 - t1) / max(n, 1):.1f} ms on average; "
               f"set-up {t1 - t0:.1f} s) on {mirror.ctx.info.get('GL_RENDERER', '?')}")
         for name, (gpu, cpu) in mirror.timings_ms.items():

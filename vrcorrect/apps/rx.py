@@ -19,8 +19,9 @@ from ..specs.vocabulary import Eye
 def cmd_rx_new(args: argparse.Namespace) -> int:
     if args.age is not None and not math.isfinite(args.age):
         raise ValidationError("--age", args.age, "a number of years from 1 to 120")
+    lines = {Eye.RIGHT: args.right, Eye.LEFT: args.left}
     eyes, adds = {}, {}
-    for name, text in ((Eye.RIGHT, args.right), (Eye.LEFT, args.left)):
+    for name, text in lines.items():
         line, adds[name] = split_add(text)
         eyes[name] = None if text is None else parse_spectacle_rx(line, f"--{name}")
     if all(e is None for e in eyes.values()) and args.age is None:
@@ -29,7 +30,7 @@ def cmd_rx_new(args: argparse.Namespace) -> int:
               f"'vrcorrect rx validate {args.path}' (or write it from your glasses' prescription: "
               f"vrcorrect rx new {args.path} --force --right \"-2.00 -1.00 x 120\" --left \"-1.50\" --age 45)")
         return 0
-    given = [f"{name} '{text}'" for name, text in ((Eye.RIGHT, args.right), (Eye.LEFT, args.left)) if text is not None]
+    given = [f"{name} '{text}'" for name, text in lines.items() if text is not None]
     notes = "From a spectacle prescription: " + ", ".join(given) + "." if given else TEMPLATE_NOTES
     write_template(Path(args.path), force=args.force, notes=notes, age_years=args.age, **eyes)
     print(f"wrote {args.path}: a commented prescription file" + (f" from {', '.join(given)}" if given else ""))

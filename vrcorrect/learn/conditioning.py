@@ -134,10 +134,10 @@ def check_eye(eye: EyeRx, ranges: SamplingRanges, what: str = "the learned model
     hint = f"(the range {what} was trained on); for other eyes use --method wiener or fast"
     folded = ""
     if distance_m is not None and e.accommodation_D != 0.0:
-        e, amplitude = without_accommodation(e, distance_m), e.accommodation_D
-        if e.sphere_D != eye.minus_cylinder().sphere_D:
-            folded = (f" (the sphere with the {eye.minus_cylinder().sphere_D - e.sphere_D:.2f} D of its "
-                      f"{amplitude:.2f} D of accommodation the eye uses at the display taken off)")
+        given, e = e, without_accommodation(e, distance_m)
+        if e.sphere_D != given.sphere_D:
+            folded = (f" (the sphere with the {given.sphere_D - e.sphere_D:.2f} D of its "
+                      f"{given.accommodation_D:.2f} D of accommodation the eye uses at the display taken off)")
     for name, unit in (("sphere_D", "D"), ("cylinder_D", "D"), ("axis_deg", "deg"), ("pupil_diameter_mm", "mm")):
         lo, hi = getattr(ranges, name)
         value = getattr(e, name)

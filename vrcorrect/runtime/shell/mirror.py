@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Mapping
@@ -283,6 +284,9 @@ class MirrorConfig:
             raise ValidationError("platform", self.platform, "None, 'x11' or 'wayland'")
 
 
+#: The frame times a mirror keeps for its summary's median (about 2 minutes at 90 Hz).
+FRAME_TIMES_KEPT = 10_000
+
 SLOW_FRAME_S = 0.05
 """Frames further apart than this (under 20 a second: a software renderer) step the scene's clock
 by :data:`SLOW_FRAME_STEP_S` instead of the wall clock: with frames seconds apart the demo scene
@@ -350,8 +354,9 @@ class Mirror(KeyedWindowApp[MirrorState, Action]):
         self._times: StageTimes | None = None
         self._frame_ms: float | None = None
         self._last_frame_end: float | None = None
-        self.frame_ms: list[float] = []
-        """Each frame's time from the end of the one before (ms; the first frame has none)."""
+        self.frame_ms: deque[float] = deque(maxlen=FRAME_TIMES_KEPT)
+        """Each frame's time from the end of the one before (ms; the first frame has none), the last
+        :data:`FRAME_TIMES_KEPT` (a mirror may run for hours)."""
         self._scene_s = 0.0                               # the scene's clock (wall time, or stepped)
         self._scene_wall: float | None = None
         self.stepped = False                              # the last frame stepped the clock (slow frames)
