@@ -502,6 +502,23 @@ def test_rx_new_writes_the_file_from_a_spectacle_prescription(tmp_path, capsys):
     assert "right -2.00 / -1.00 x 120" in out and "expected at age 45" in out and "placeholder" not in out
 
 
+def test_rx_new_writes_a_measured_lag_and_validate_says_it(tmp_path, capsys):
+    from vrcorrect.specs.prescription import load_prescription
+
+    path = tmp_path / "rx.json"
+    rc, out, err = run(capsys, "rx", "new", path, "--right", "-1.00", "--left", "-1.25", "--age", "30", "--lag", "0.75")
+    assert rc == 0, err
+    rx = load_prescription(path)
+    assert rx.right.accommodative_lag_D == 0.75 == rx.left.accommodative_lag_D
+    assert out.count("lag 0.75 D at 40 cm") == 2
+    rc, out, err = run(capsys, "rx", "validate", path)
+    assert rc == 0 and out.count("lag 0.75 D at 40 cm") == 2
+    for bad, field in (("2.5", "accommodative_lag_D = 2.5"), ("nan", "--lag = nan")):
+        other = tmp_path / f"bad{bad}.json"
+        rc, out, err = run(capsys, "rx", "new", other, "--right", "-1.00", "--lag", bad)
+        assert rc == 2 and field in err and "Traceback" not in err and not other.exists()
+
+
 def test_rx_new_with_one_eye_says_the_other_is_a_placeholder(tmp_path, capsys):
     path = tmp_path / "rx.json"
     rc, out, err = run(capsys, "rx", "new", path, "--right", "plano -0.75 x 90")

@@ -133,6 +133,20 @@ def test_an_eye_that_focuses_on_the_display_gets_the_picture_as_it_is_and_says_w
     assert "give the prescription's age_years" in said.err
 
 
+def test_an_eye_that_focuses_with_a_lag_is_corrected_for_what_it_leaves_out_of_focus(tmp_path, small_png, capsys):
+    """The eye above, in focus at the desktop without a lag, with 1.50 D of lag at 40 cm: it focuses
+    0.4 of the 0.67 D asked and is left +0.27 D from focus, so it is corrected, and what it sees is
+    judged better than none; the report's eye states the lag."""
+    out, report = tmp_path / "out.png", tmp_path / "r.json"
+    assert run("correct", str(small_png), "-o", str(out), "--display", "desktop", "--report", str(report),
+               "--rx", str(_sphere_alone_rx(tmp_path, accommodative_lag_D=1.5))) == 0
+    said = capsys.readouterr()
+    assert "nothing to correct" not in said.out
+    assert not np.array_equal(np.asarray(Image.open(out)), np.asarray(Image.open(small_png)))
+    r = json.loads(report.read_text())
+    assert r["objective"] < r["objective_uncorrected"]
+
+
 def test_a_clip_for_an_eye_in_focus_is_shown_as_it_is_frame_by_frame(tmp_path, small_png, capsys):
     source = np.asarray(Image.open(small_png))
     clip = tmp_path / "clip"

@@ -152,6 +152,15 @@ def test_decisions_are_explained(quest2):
         assert phrase in text
 
 
+def test_explain_says_the_lag_and_the_residual_it_leaves(quest2):
+    geometric = KernelOptions(optics=OpticsOptions(psf_model="geometric"))
+    k = build_kernel(eye(0.0, accommodation_D=5.0, accommodative_lag_D=1.0), quest2, geometric)
+    text = "\n".join(explain(k.report))
+    # 1/1.3 = 0.769 D asked, 0.4 of it (1 D of lag at 2.5 D) left: +0.31 D, 0.46 D focused
+    assert "accommodation used 0.46 of 5.00 D (lag 1.00 D at 40 cm)" in text and "M +0.31 D" in text, text
+    assert "lag" not in "\n".join(explain(build_kernel(eye(0.0, accommodation_D=5.0), quest2, geometric).report))
+
+
 def test_explain_counts_the_kernels_psfs_in_every_line(quest2):
     """Issue 26: the step line counted the kernel's PSFs ("20 PSFs"), the PSF-model line every PSF
     computed while the step was chosen, coarser steps' nodes included ("21 of 21")."""

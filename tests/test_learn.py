@@ -173,6 +173,29 @@ def test_an_eye_that_can_focus_is_taken_as_the_eye_that_cannot_and_sees_the_disp
     assert err.value.field == "accommodation_D"
 
 
+def test_the_learned_model_is_told_of_a_lagging_eye_as_the_eye_that_sees_the_display_alike():
+    """A lag leaves part of the demand unfocused (0.75 D of lag at 40 cm: 0.3 of it); the eye told of
+    has the focused part taken off its sphere and keeps the residual, so the kernel is the same. An
+    eye asked for nothing (its far point nearer than the display) keeps its sphere."""
+    from vrcorrect.physics.kernel import build_kernel
+    from vrcorrect.specs.display import get_display
+
+    quest2 = get_display("quest2")
+    lagging = EyeRx(-0.5, -1.0, 120.0, 3.0, accommodation_D=5.0, accommodative_lag_D=0.75)
+    taken = check_eye(lagging, SamplingRanges(), distance_m=quest2.distance_m)
+    asked = 1.0 / quest2.distance_m - 1.0                     # M = -1.00 (S -0.50, C -1.00): 0.769 - 1.0 < 0
+    assert asked < 0 and taken.sphere_D == -0.5              # nothing asked of it: nothing folded
+    near = EyeRx(0.0, -0.5, 90.0, 3.0, accommodation_D=5.0, accommodative_lag_D=0.75)
+    taken = check_eye(near, SamplingRanges(), distance_m=quest2.distance_m)
+    asked = 1.0 / quest2.distance_m - 0.25                    # M = -0.25
+    assert taken.accommodation_D == 0.0 and taken.accommodative_lag_D == 0.0
+    assert taken.sphere_D == pytest.approx(-asked * 0.7)      # the 0.7 of the demand it focuses, taken off
+    np.testing.assert_allclose(build_kernel(taken, quest2).kernel, build_kernel(near, quest2).kernel, atol=1e-12)
+    with pytest.raises(ValidationError) as err:               # with no distance: refused, by name
+        check_eye(near.with_changes(accommodation_D=0.0), SamplingRanges())
+    assert err.value.field == "accommodative_lag_D"
+
+
 def test_an_eye_out_of_range_after_its_focus_is_taken_off_says_so():
     with pytest.raises(ValidationError) as err:
         check_eye(EyeRx(10.0, 0.0, 0.0, 3.0, accommodation_D=2.0), SamplingRanges(), distance_m=1.3)

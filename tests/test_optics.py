@@ -132,6 +132,30 @@ def test_viewing_distance_and_accommodation():
     assert st_.residual.M_D == pytest.approx(-3.0) and st_.accommodation_used_D == 0.0
 
 
+def test_an_accommodative_lag_leaves_its_share_of_the_demand_as_hyperopic_defocus():
+    # An emmetrope at 0.6 m is asked for 1/0.6 = 1.667 D; a lag of 0.75 D at 40 cm (2.5 D) is 0.3 of
+    # the demand: it accommodates 1.167 D and is left +0.5 D from focus (the display behind the retina).
+    st_ = refractive_state(eye(0.0, accommodation_D=5.0, accommodative_lag_D=0.75), 0.6)
+    assert st_.accommodation_used_D == pytest.approx(7.0 / 6.0) and st_.residual.M_D == pytest.approx(0.5)
+    # A -1 D myope there is asked for 0.667 D and lags 0.2 D; at 1.3 m (a headset) the emmetrope lags 0.23 D.
+    assert refractive_state(eye(-1.0, accommodation_D=5.0, accommodative_lag_D=0.75), 0.6).residual.M_D == \
+        pytest.approx(0.2)
+    assert refractive_state(eye(0.0, accommodation_D=5.0, accommodative_lag_D=0.75), 1.3).residual.M_D == \
+        pytest.approx(0.3 / 1.3)
+    # No lag where the eye need not accommodate: a -3 D myope at 0.6 m, or any eye at optical infinity.
+    assert refractive_state(eye(-3.0, accommodation_D=5.0, accommodative_lag_D=2.0), 0.6).residual.M_D == \
+        pytest.approx(-3.0 + 1.0 / 0.6)
+    assert refractive_state(eye(0.0, accommodation_D=5.0, accommodative_lag_D=2.0), math.inf).residual.M_D == 0.0
+    # An eye at the end of its amplitude uses all of it, lag or not (a presbyope's 1 D at 0.6 m: +0.667 D left).
+    for lag in (0.0, 0.5):
+        st_ = refractive_state(eye(0.0, accommodation_D=1.0, accommodative_lag_D=lag), 0.6)
+        assert st_.accommodation_used_D == 1.0 and st_.residual.M_D == pytest.approx(2.0 / 3.0)
+    # The extremes of the field: 2 D of lag is 0.8 of the demand, and 0 D is the eye without lag.
+    assert refractive_state(eye(0.0, accommodation_D=15.0, accommodative_lag_D=2.0), 0.4).residual.M_D == \
+        pytest.approx(2.0)
+    assert refractive_state(eye(0.0, accommodation_D=15.0, accommodative_lag_D=0.0), 0.4).residual.M_D == 0.0
+
+
 def test_lca_sign_and_magnitude():
     """Thibos 1992: ~1.2 D between 450 and 650 nm; blue is focused in front (more myopic)."""
     diff = chromatic_refraction_D(650.0) - chromatic_refraction_D(450.0)

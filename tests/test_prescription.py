@@ -808,3 +808,28 @@ def test_a_reading_addition_is_split_off_the_distance_prescription(text, line, a
     got_line, got_add = split_add(text)
     assert got_add == add and got_line.strip() == line
     assert parse_spectacle_rx(got_line, "--right") == parse_spectacle_rx(line, "--right")
+
+
+def test_an_accommodative_lag_is_read_written_back_and_refused_out_of_its_range(tmp_path):
+    rx = parse_prescription(set_path(valid_doc(), "right.accommodative_lag_D", 0.5))
+    assert rx.right.accommodative_lag_D == 0.5 and rx.left.accommodative_lag_D == 0.0       # left out: 0
+    doc = json.loads(to_json_text(rx))
+    assert doc["right"]["accommodative_lag_D"] == 0.5 and "accommodative_lag_D" not in doc["left"]
+    assert parse_prescription(doc) == rx
+    for bad in (-0.25, 2.5, float("nan"), "0.5", True):
+        problems = problems_in(set_path(valid_doc(), "left.accommodative_lag_D", bad))
+        assert [p.field for p in problems] == ["left.accommodative_lag_D"]
+        assert "0 to 2" in problems[0].allowed and "MEM" in problems[0].allowed
+    for edge in (0.0, 2.0):
+        assert parse_prescription(set_path(valid_doc(), "left.accommodative_lag_D", edge)).left.accommodative_lag_D == edge
+    with pytest.raises(ValidationErrors, match="accommodative_lag_D"):
+        eye().with_changes(accommodative_lag_D=3.0)
+
+
+def test_the_template_explains_the_lag_and_writes_it_when_given():
+    assert "accommodative_lag_D" in template_text() and "MEM retinoscopy" in template_text()
+    body = "\n".join(line for line in template_text().splitlines() if not line.lstrip().startswith("//"))
+    assert "accommodative_lag_D" not in body                       # explained, but not in the file's values
+    filled = parse_prescription(json.loads("\n".join(
+        line for line in template_text(right=(-1.0, 0.0, 0.0), lag_D=0.75).splitlines() if not line.lstrip().startswith("//"))))
+    assert filled.right.accommodative_lag_D == 0.75 and filled.left.accommodative_lag_D == 0.75

@@ -19,12 +19,14 @@ from ..specs.vocabulary import Eye
 def cmd_rx_new(args: argparse.Namespace) -> int:
     if args.age is not None and not math.isfinite(args.age):
         raise ValidationError("--age", args.age, "a number of years from 1 to 120")
+    if args.lag is not None and not math.isfinite(args.lag):
+        raise ValidationError("--lag", args.lag, "a number of dioptres from 0 to 2")
     lines = {Eye.RIGHT: args.right, Eye.LEFT: args.left}
     eyes, adds = {}, {}
     for name, text in lines.items():
         line, adds[name] = split_add(text)
         eyes[name] = None if text is None else parse_spectacle_rx(line, f"--{name}")
-    if all(e is None for e in eyes.values()) and args.age is None:
+    if all(e is None for e in eyes.values()) and args.age is None and args.lag is None:
         write_template(Path(args.path), force=args.force)
         print(f"wrote {args.path}: a commented prescription template; fill in both eyes, then run "
               f"'vrcorrect rx validate {args.path}' (or write it from your glasses' prescription: "
@@ -32,14 +34,14 @@ def cmd_rx_new(args: argparse.Namespace) -> int:
         return 0
     given = [f"{name} '{text}'" for name, text in lines.items() if text is not None]
     notes = "From a spectacle prescription: " + ", ".join(given) + "." if given else TEMPLATE_NOTES
-    write_template(Path(args.path), force=args.force, notes=notes, age_years=args.age, **eyes)
+    write_template(Path(args.path), force=args.force, notes=notes, age_years=args.age, lag_D=args.lag, **eyes)
     print(f"wrote {args.path}: a commented prescription file" + (f" from {', '.join(given)}" if given else ""))
     _print_eyes(load_prescription(Path(args.path)))
     for name, add in adds.items():
         if add is not None:
             print(f"  the {name} eye's ADD {add:+.2f} (the reading addition) is not used: vrcorrect corrects the "
                   "distance prescription at the display's distance, and takes the eye's own focus from --age "
-                  "(or accommodation_D in the file)")
+                  "(or accommodation_D in the file), and its lag from --lag")
     missing = [name for name, e in eyes.items() if e is None]
     for name in missing:
         print(f"  the {name} eye is plano (0.00) as a placeholder: give --{name}, or edit the file")
@@ -66,7 +68,8 @@ def _print_eyes(rx) -> None:
         pv = e.power_vector()
         print(f"  {name:5s} {e.sphere_D:+.2f} / {e.cylinder_D:+.2f} x {e.axis_deg:g}, pupil {e.pupil_diameter_mm:g} mm"
               f"  (M {pv.M_D:+.2f}, J0 {pv.J0_D:+.2f}, J45 {pv.J45_D:+.2f} D), accommodation {e.accommodation_D:.2f} D"
-              + (f" (expected at age {rx.age_years:g}: none stated)" if name in rx.accommodation_from_age else ""))
+              + (f" (expected at age {rx.age_years:g}: none stated)" if name in rx.accommodation_from_age else "")
+              + (f", lag {e.accommodative_lag_D:.2f} D at 40 cm" if e.accommodative_lag_D else ""))
     if rx.age_years is None and any(rx.eye(name).accommodation_D == 0.0 for name in Eye):
         print("  no age_years: an eye with accommodation 0 is modelled as one that cannot focus (a presbyope's); if "
               "yours can, give age_years and leave accommodation_D out (or state its amplitude), or a correction may "
@@ -86,7 +89,7 @@ def join_line_values(argv: list[str]) -> list[str]:
     i = 0
     while i < len(argv):
         if argv[i] in LINE_OPTIONS and i + 1 < len(argv) and argv[i + 1].startswith("-") and argv[i + 1] not in (
-                *LINE_OPTIONS, "--age", "--force", "-h", "--help"):
+                *LINE_OPTIONS, "--age", "--lag", "--force", "-h", "--help"):
             out.append(f"{argv[i]}={argv[i + 1]}")
             i += 2
         else:
@@ -110,6 +113,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--left", metavar="RX", help="the left eye (OS), as --right")
     q.add_argument("--age", type=float, metavar="YEARS", help="the wearer's age (age_years, 1 to 120): it sets the "
                    "viewing pupil and how far each eye still focuses")
+    q.add_argument("--lag", type=float, metavar="D", help="both eyes' accommodative lag (accommodative_lag_D, 0 to 2 "
+                   "D): how far behind a near card at 40 cm they focus, as MEM retinoscopy measures it; left out, 0")
     q.add_argument("--force", action="store_true", help="overwrite PATH if it exists")
     q.set_defaults(func=cmd_rx_new)
     q = rsub.add_parser("validate", help="check a prescription file and report every problem")

@@ -108,11 +108,12 @@ def without_accommodation(eye: EyeRx, distance_m: float) -> EyeRx:
     accommodation ``eye`` uses there (:func:`~vrcorrect.physics.refraction.refractive_state`) folded
     into its sphere. Its residual error at the display, so its kernel there, is ``eye``'s; an eye that
     uses none of its amplitude there (a myope whose far point is nearer than the display) keeps its
-    sphere. The learned model was trained on eyes that cannot focus: this is the eye it is told of."""
-    if eye.accommodation_D == 0.0:
+    sphere. An accommodative lag is folded with it (the accommodation used is what the lagging eye
+    uses). The learned model was trained on eyes that cannot focus: this is the eye it is told of."""
+    if eye.accommodation_D == 0.0 and eye.accommodative_lag_D == 0.0:
         return eye
     used = refractive_state(eye, distance_m).accommodation_used_D
-    return eye.with_changes(sphere_D=eye.sphere_D - used, accommodation_D=0.0)
+    return eye.with_changes(sphere_D=eye.sphere_D - used, accommodation_D=0.0, accommodative_lag_D=0.0)
 
 
 def kernel_distance_m(kernel: EyeKernel) -> float:
@@ -133,7 +134,7 @@ def check_eye(eye: EyeRx, ranges: SamplingRanges, what: str = "the learned model
     e = eye.minus_cylinder()
     hint = f"(the range {what} was trained on); for other eyes use --method wiener or fast"
     folded = ""
-    if distance_m is not None and e.accommodation_D != 0.0:
+    if distance_m is not None and (e.accommodation_D != 0.0 or e.accommodative_lag_D != 0.0):
         given, e = e, without_accommodation(e, distance_m)
         if e.sphere_D != given.sphere_D:
             folded = (f" (the sphere with the {given.sphere_D - e.sphere_D:.2f} D of its "
@@ -144,8 +145,9 @@ def check_eye(eye: EyeRx, ranges: SamplingRanges, what: str = "the learned model
         if not (lo - 1e-9 <= value <= hi + 1e-9):
             raise ValidationError(name, value, f"{lo:g} to {hi:g} {unit} {hint}" + (folded if name == "sphere_D"
                                                                                      else ""))
-    if e.accommodation_D != 0.0:
-        raise ValidationError("accommodation_D", e.accommodation_D, f"0 {hint}")
+    for name in ("accommodation_D", "accommodative_lag_D"):
+        if getattr(e, name) != 0.0:
+            raise ValidationError(name, getattr(e, name), f"0 {hint}")
     if e.higher_order is not None and e.higher_order.coefficients_um:
         raise ValidationError("higher_order", "present", f"none {hint}")
     return e

@@ -178,7 +178,8 @@ def build_kernel(eye: EyeRx, display: DisplayProfile, options: KernelOptions | N
     weights = normalised_weights(display.primaries)
     A = weights.sum(axis=2)
     viewing = Viewing(distance_m=distance, vergence_D=state.vergence_D,
-                      accommodation_used_D=state.accommodation_used_D, accommodation_D=eye.accommodation_D)
+                      accommodation_used_D=state.accommodation_used_D, accommodation_D=eye.accommodation_D,
+                      accommodative_lag_D=eye.accommodative_lag_D)
 
     band = significant_band_nm(weights)
     worst = max(max_meridian_power_D(state.at_wavelength(lam, opt))
@@ -306,6 +307,7 @@ def build_reference_kernel(eye: EyeRx, display: DisplayProfile, options: KernelO
     eye would see", the target of the product's corrections.
     """
     options = options or KernelOptions()
-    corrected = dataclasses.replace(eye, sphere_D=0.0, cylinder_D=0.0, axis_deg=0.0, accommodation_D=0.0)
+    corrected = dataclasses.replace(eye, sphere_D=0.0, cylinder_D=0.0, axis_deg=0.0, accommodation_D=0.0,
+                                    accommodative_lag_D=0.0)
     optics = dataclasses.replace(options.optics, viewing_distance_m=math.inf)
     return build_kernel(corrected, display, dataclasses.replace(options, optics=optics))

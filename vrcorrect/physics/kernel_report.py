@@ -39,6 +39,7 @@ class Viewing:
     vergence_D: float                # 1 / distance
     accommodation_used_D: float
     accommodation_D: float           # the eye's amplitude
+    accommodative_lag_D: float = 0.0  # the eye's lag at 40 cm (MEM); the residual keeps its share at the display
 
 
 @dataclass(frozen=True)
@@ -141,7 +142,8 @@ def explain(report: KernelReport) -> list[str]:
     dist_txt = "infinity" if math.isinf(v.distance_m) else f"{v.distance_m:.2f} m"
     lines.append(
         f"viewing distance {dist_txt} -> vergence {v.vergence_D:.2f} D; accommodation used "
-        f"{v.accommodation_used_D:.2f} of {v.accommodation_D:.2f} D")
+        f"{v.accommodation_used_D:.2f} of {v.accommodation_D:.2f} D"
+        + (f" (lag {v.accommodative_lag_D:.2f} D at 40 cm)" if v.accommodative_lag_D else ""))
     r = f.residual
     lines.append(
         f"residual refraction at {f.reference_wavelength_nm:.0f} nm: M {r.M_D:+.2f} D, J0 {r.J0_D:+.2f} D, "

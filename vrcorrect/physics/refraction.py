@@ -7,7 +7,9 @@ Physics and conventions (docs/architecture.md, 'Physics conventions'):
   is ``M + J0 cos 2 theta + J45 sin 2 theta``.
 * Viewing distance ``d`` (m): the refraction that would make the display sharp is ``R = M + 1/d``
   (``1/d`` is the vergence, 0 at infinity).  Accommodation removes positive ``R`` up to its
-  amplitude, never negative ``R`` (:func:`refractive_state`).
+  amplitude, never negative ``R`` (:func:`refractive_state`); an eye with an accommodative lag
+  responds to ``R`` with ``R (1 - lag / 2.5 D)`` (the lag as MEM retinoscopy measures it at 40 cm,
+  growing in proportion to the demand), the residual ``R`` it leaves is the lag at the display.
 * Longitudinal chromatic aberration: Thibos et al. (1992) "chromatic eye",
   ``Rx(lambda) = p - q / (lambda - c)`` with ``p = 1.68524 D``, ``q = 633.46 D nm``,
   ``c = 214.102 nm``: about -1.0 D at 450 nm and +0.23 D at 650 nm relative to 590 nm (short
@@ -32,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..specs.prescription import EyeRx, PowerVector
+from ..specs.prescription import LAG_MEASURED_AT_D, EyeRx, PowerVector
 from .options import OpticsOptions
 from .sampling import pixel_angle_rad
 from .zernike import osa_nm, zernike
@@ -77,12 +79,16 @@ def refractive_state(eye: EyeRx, distance_m: float) -> RefractiveState:
     """Residual refraction of ``eye`` looking at a display at ``distance_m``.
 
     ``R = M + 1/d``; accommodation removes positive ``R`` up to
-    ``eye.accommodation_D``, never negative ``R``.
+    ``eye.accommodation_D``, never negative ``R``.  An eye with an accommodative lag
+    (``eye.accommodative_lag_D``, measured at :data:`~vrcorrect.specs.prescription.LAG_MEASURED_AT_D`)
+    responds with ``R (1 - lag / 2.5)``, still at most its amplitude: it leaves ``R lag / 2.5`` of
+    hyperopic defocus (the display focused behind the retina), none where it need not accommodate.
     """
     pv = eye.power_vector()
     vergence = 0.0 if math.isinf(distance_m) else 1.0 / distance_m
     R = pv.M_D + vergence
-    used = min(max(R, 0.0), eye.accommodation_D)
+    response = max(R, 0.0) * (1.0 - eye.accommodative_lag_D / LAG_MEASURED_AT_D)
+    used = min(response, eye.accommodation_D)
     return RefractiveState(PowerVector(R - used, pv.J0_D, pv.J45_D), used, vergence)
 
 

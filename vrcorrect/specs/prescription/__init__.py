@@ -9,6 +9,7 @@ version and one object per eye::
       "right": {"sphere_D": -2.5, "cylinder_D": -1.0, "axis_deg": 20,
                 "pupil_diameter_mm": 4.0,
                 "accommodation_D": 0.0,
+                "accommodative_lag_D": 0.5,
                 "higher_order": {"pupil_diameter_mm": 6.0,
                                  "coefficients_um": {"7": 0.10, "12": -0.05}}},
       "left": {...}
@@ -38,7 +39,7 @@ from __future__ import annotations
 
 from .document import MISSING, parse_prescription, problems_in
 from .files import bundled_sample_path, load_prescription, template_text, to_json_text, validate_file, write_template
-from .model import accommodation_from_age
+from .model import LAG_MEASURED_AT_D, accommodation_from_age
 from .model import J_MAX, J_MIN, SCHEMA, EyeRx, HigherOrder, PowerVector, Prescription  # noqa: F401  (importable from here, as before, though not in __all__)
 
 __all__ = [
@@ -49,6 +50,7 @@ __all__ = [
     "EyeRx",
     "Prescription",
     "accommodation_from_age",
+    "LAG_MEASURED_AT_D",
     "parse_prescription",
     "problems_in",
     "load_prescription",

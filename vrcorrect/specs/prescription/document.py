@@ -58,7 +58,7 @@ _TOP_KEYS = ("schema", "notes", "age_years") + names(Eye)
 
 _EYE_ALLOWED = (
     "an object with sphere_D, cylinder_D, axis_deg, pupil_diameter_mm "
-    "and optionally accommodation_D and higher_order"
+    "and optionally accommodation_D, accommodative_lag_D and higher_order"
 )
 _HO_ALLOWED = (
     "an object with pupil_diameter_mm and coefficients_um "
@@ -178,6 +178,7 @@ def _eye_from_doc(doc: Mapping[str, Any], age_years: float | None) -> EyeRx:
         accommodation_D=doc["accommodation_D"] if "accommodation_D" in doc
         else (accommodation_from_age(age_years) if age_years is not None else 0.0),
         higher_order=ho,
+        accommodative_lag_D=doc.get("accommodative_lag_D", 0.0),
     )
 
 

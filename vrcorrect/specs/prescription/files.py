@@ -139,6 +139,8 @@ def _eye_to_dict(eye: EyeRx, unstated: bool = False) -> dict[str, Any]:
     }
     if not unstated:
         out["accommodation_D"] = eye.accommodation_D
+    if eye.accommodative_lag_D:
+        out["accommodative_lag_D"] = eye.accommodative_lag_D
     if eye.higher_order is not None:
         out["higher_order"] = {
             "pupil_diameter_mm": eye.higher_order.pupil_diameter_mm,
@@ -196,6 +198,13 @@ _TEMPLATE = """\
 //                      itself sees it sharp, and a correction designed for
 //                      blur it does not see makes its view worse: give your
 //                      age, or your measured amplitude.
+//   accommodative_lag_D
+//                      optional: how far behind a near card at 40 cm the eye
+//                      focuses, in dioptres, 0 to 2, as MEM retinoscopy
+//                      measures it (0.25 to 0.75 is usual; left out, 0: the
+//                      eye focuses exactly). The lag is taken to grow with
+//                      how far the eye must focus (2.5 D at 40 cm), so it
+//                      counts for less at a monitor, less still in a headset.
 //   higher_order       optional: higher-order aberrations from an aberrometer,
 //                      for example
 //                        "higher_order": {"pupil_diameter_mm": 6.0,
@@ -225,21 +234,23 @@ TEMPLATE_NOTES = "Template: replace the numbers with your own prescription."
 TEMPLATE_PUPIL_MM = 4.0
 
 
-def _eye_block(name: str, eye: tuple[float, float, float] | None) -> str:
+def _eye_block(name: str, eye: tuple[float, float, float] | None, lag_D: float | None = None) -> str:
     s, c, a = eye if eye is not None else (0.0, 0.0, 0.0)
+    lag = "" if lag_D is None else f',\n    "accommodative_lag_D": {float(lag_D)!r}'
     return (f'  "{name}": {{\n    "sphere_D": {float(s)!r},\n    "cylinder_D": {float(c)!r},\n'
-            f'    "axis_deg": {a:g},\n    "pupil_diameter_mm": {TEMPLATE_PUPIL_MM!r}\n  }}')
+            f'    "axis_deg": {a:g},\n    "pupil_diameter_mm": {TEMPLATE_PUPIL_MM!r}{lag}\n  }}')
 
 
 def template_text(right: tuple[float, float, float] | None = None, left: tuple[float, float, float] | None = None,
-                  age_years: float | None = None, notes: str = TEMPLATE_NOTES) -> str:
+                  age_years: float | None = None, notes: str = TEMPLATE_NOTES, lag_D: float | None = None) -> str:
     """A commented prescription template that loads as a valid Prescription: each eye that is given as
-    ``(sphere_D, cylinder_D, axis_deg)`` filled in (else zeros to replace), ``age_years`` if given.
-    The values are checked where the file is loaded, not here."""
+    ``(sphere_D, cylinder_D, axis_deg)`` filled in (else zeros to replace), ``age_years`` if given,
+    and both eyes' ``accommodative_lag_D`` if ``lag_D`` is given.  The values are checked where the
+    file is loaded, not here."""
     head = [f'  "schema": "{SCHEMA}"', f'  "notes": {json.dumps(notes, ensure_ascii=False)}']
     if age_years is not None:
         head.append(f'  "age_years": {float(age_years):g}')
-    body = ",\n".join(head + [_eye_block("right", right), _eye_block("left", left)])
+    body = ",\n".join(head + [_eye_block("right", right, lag_D), _eye_block("left", left, lag_D)])
     return _TEMPLATE + "{\n" + body + "\n}\n"
 
 

@@ -20,7 +20,7 @@ from ..validation import Range, check_number, unknown_key_problem
 from ..vocabulary import Eye, either, names
 
 __all__ = ["SCHEMA", "J_MIN", "J_MAX", "PowerVector", "HigherOrder", "EyeRx", "Prescription",
-           "accommodation_from_age"]
+           "accommodation_from_age", "LAG_MEASURED_AT_D"]
 
 SCHEMA = "vrcorrect.prescription/1"
 
@@ -39,6 +39,8 @@ CYLINDER = Range(-10.0, 10.0, "a finite number from -10 to 10 (dioptres; minus- 
 AXIS = Range(0.0, 180.0, "a finite number from 0 to 180 (degrees, TABO / ISO 8429)")
 PUPIL = Range(1.0, 9.0, "a finite number from 1 to 9 (millimetres)")
 ACCOMMODATION = Range(0.0, 15.0, "a finite number from 0 to 15 (dioptres of accommodation amplitude)")
+LAG = Range(0.0, 2.0, "a finite number from 0 to 2 (dioptres of accommodative lag at 40 cm, as MEM "
+            "retinoscopy measures it; 0.25 to 0.75 is usual)")
 HO_PUPIL = Range(1.0, 9.0, "a finite number from 1 to 9 (millimetres; the pupil the coefficients were measured at)")
 AGE = Range(1.0, 120.0, "a finite number of years from 1 to 120")
 COEFFICIENT = Range(-10.0, 10.0, "a finite number from -10 to 10 (micrometres)")
@@ -46,6 +48,11 @@ COEFFICIENT = Range(-10.0, 10.0, "a finite number from -10 to 10 (micrometres)")
 #: Hofstetter's (1950) mean amplitude of accommodation by age: ``18.5 - 0.30 age`` dioptres (his
 #: least and greatest: ``15 - 0.25 age`` and ``25 - 0.40 age``).
 HOFSTETTER_MEAN = (18.5, 0.30)
+
+#: The demand an ``accommodative_lag_D`` is measured at, dioptres: a near card at 40 cm, as MEM
+#: (monocular estimate method) retinoscopy does it.  The eye's response to a demand ``A`` is taken as
+#: ``A (1 - lag / LAG_MEASURED_AT_D)`` (:func:`vrcorrect.physics.refraction.refractive_state`).
+LAG_MEASURED_AT_D = 2.5
 
 
 def accommodation_from_age(age_years: float) -> float:
@@ -76,6 +83,7 @@ EYE_FIELDS: dict[str, tuple[Range, bool]] = {
     "axis_deg": (AXIS, True),
     "pupil_diameter_mm": (PUPIL, True),
     "accommodation_D": (ACCOMMODATION, False),
+    "accommodative_lag_D": (LAG, False),
 }
 COEFFS_ALLOWED = (
     "an object mapping OSA/ANSI index j (a string key, 6 to 65) to a coefficient in micrometres"
@@ -259,6 +267,10 @@ class EyeRx:
     higher_order
         Optional higher-order aberrations; their measured pupil must be at
         least ``pupil_diameter_mm``.
+    accommodative_lag_D
+        How far behind a near card at 40 cm the eye focuses, dioptres, 0 to 2 (default 0: it focuses
+        exactly; MEM retinoscopy measures it, 0.25 to 0.75 D is usual).  The lag is taken to grow with
+        the demand (:data:`LAG_MEASURED_AT_D`), and to apply only while the eye accommodates.
 
     Raises
     ------
@@ -272,6 +284,7 @@ class EyeRx:
     pupil_diameter_mm: float
     accommodation_D: float = 0.0
     higher_order: HigherOrder | None = None
+    accommodative_lag_D: float = 0.0
 
     def __post_init__(self) -> None:
         problems: list[FieldProblem] = []
