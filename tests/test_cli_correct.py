@@ -147,6 +147,26 @@ def test_an_eye_that_focuses_with_a_lag_is_corrected_for_what_it_leaves_out_of_f
     assert r["objective"] < r["objective_uncorrected"]
 
 
+def test_render_says_an_eye_in_focus_has_nothing_to_correct_and_a_lagging_one_is_corrected(tmp_path, small_png, capsys):
+    """``render`` on llvmpipe: the eye of 40 in focus at the desktop is shown as it is, and the summary
+    says so (no solver line, no note on the image's size against a kernel it does not use); with a
+    lag stated, the summary names the eye's focus and the frames are corrected."""
+    out = tmp_path / "out.png"
+    assert run("render", str(small_png), "-o", str(out), "--frames", "2", "--display", "desktop",
+               "--rx", str(_sphere_alone_rx(tmp_path))) == 0
+    said = capsys.readouterr().out
+    assert "the picture as it is, nothing to correct)" in said and "iteration(s) per frame" not in said
+    assert "accommodation 6.50 D on desktop" in said
+    assert np.abs(np.asarray(Image.open(out), dtype=int) - np.asarray(Image.open(small_png), dtype=int)).max() <= 1
+    lagging = tmp_path / "lagging"
+    lagging.mkdir()
+    assert run("render", str(small_png), "-o", str(lagging / "out.png"), "--frames", "2", "--display", "desktop",
+               "--rx", str(_sphere_alone_rx(lagging, accommodative_lag_D=1.5))) == 0
+    said = capsys.readouterr().out
+    assert "accommodation 6.50 D, lag 1.50 D at 40 cm on desktop" in said and "nothing to correct" not in said
+    assert "iteration(s) per frame" in said
+
+
 def test_a_clip_for_an_eye_in_focus_is_shown_as_it_is_frame_by_frame(tmp_path, small_png, capsys):
     source = np.asarray(Image.open(small_png))
     clip = tmp_path / "clip"

@@ -112,7 +112,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         ctx.release()
     write_png(out, result / 255.0, bits=8, force=args.force)
     small = small_image_note(w, h, int(info.get("kernel_size", 1)), "the correction")
-    if small:
+    if small and not info["identity"]:
         print_notes([small])
     _print_eye(args, info)
     fraction = info.get("objective_fraction")
@@ -122,7 +122,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     # that note said; other notes (an identity correction and why, the ONNX model) are printed as they are.
     designed = args.backend == Backend.GLSL and not info["identity"]
     chosen = " (chosen by wiener on the sample image)" if designed else ""
-    if args.backend == Backend.GLSL and info["filter"] in ITERATIVE_FILTERS:
+    if info["identity"]:
+        pass                                # the eye model's note says why there is nothing to correct
+    elif args.backend == Backend.GLSL and info["filter"] in ITERATIVE_FILTERS:
         storage = f", {info['precision']} precision storage" if info.get("precision") else ""
         print(f"  {METHOD_TITLES[info['filter']]}, {info.get('iterations_per_frame', '-')} iteration(s) per frame, "
               f"{frames} frame(s) warm-started, {info.get('fft_round_trips_per_frame', '-')} FFT round trips a frame"
@@ -145,7 +147,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         per = ""
     print(f"  build {info['build_s']:.2f} s, {ran} frame(s) {1e3 * info['frame_s']:.1f} ms{per} "
           "(incl. read-back)")
-    print(f"wrote {out} ({info['view']})")
+    print(f"wrote {out} ({info['view']}{AS_IT_IS if info['identity'] and args.view == 'corrected' else ''})")
     return 0
 
 
@@ -193,9 +195,15 @@ def _rate_note(args: argparse.Namespace, plan: clips.ClipPlan) -> str:
             "source frame)")
 
 
+#: What ``wrote`` adds for an eye with nothing to correct: the frames are the picture as it is.
+AS_IT_IS = ": the picture as it is, nothing to correct"
+
+
 def _print_eye(args: argparse.Namespace, info: dict) -> None:
+    focus = (f", accommodation {info['accommodation_D']:.2f} D" if info.get("accommodation_D") else "") + (
+        f", lag {info['accommodative_lag_D']:.2f} D at 40 cm" if info.get("accommodative_lag_D") else "")
     print(f"{info['renderer']}: {args.eye} eye, sphere {info['sphere_D']:+.2f} D, cylinder {info['cylinder_D']:+.2f} "
-          f"D, axis {info['axis_deg']:g} deg on {info['display']}; backend {info['backend']}")
+          f"D, axis {info['axis_deg']:g} deg{focus} on {info['display']}; backend {info['backend']}")
     if getattr(args, "cold_start_note", ""):
         print(f"  cold start: {args.cold_start_note}")
     if info.get("pupil_status"):
@@ -237,7 +245,9 @@ def _print_clip_summary(args: argparse.Namespace, plan: clips.ClipPlan, info: di
     _print_eye(args, info)
     print(f"  {plan.text}")
     iterative = args.backend == Backend.GLSL and info["filter"] in ITERATIVE_FILTERS and args.view != "seen-uncorrected"
-    if iterative:
+    if info["identity"] and args.view != "seen-uncorrected":
+        print("  the eye sees the display as well as with its glasses: nothing to correct, each frame shown as it is")
+    elif iterative:
         title = METHOD_TITLES[info["filter"]]
         if info["motion_tracked"]:
             cuts = info["cuts"]
@@ -260,7 +270,8 @@ def _print_clip_summary(args: argparse.Namespace, plan: clips.ClipPlan, info: di
     print(f"  median {ms:.1f} ms per frame (upload, correction and read-back)"
           + (f" on {renderer.split(' (')[0]}, Mesa's software renderer on the CPU: a GPU is far faster" if soft else "")
           + f"; build {info['build_s']:.2f} s")
-    print(f"wrote {args.output} ({info['frames']} frames, {info['view']})")
+    print(f"wrote {args.output} ({info['frames']} frames, {info['view']}"
+          f"{AS_IT_IS if info['identity'] and args.view == 'corrected' else ''})")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

@@ -536,7 +536,8 @@ class Corrector:
         """What was built: prescription, regulariser, blend, strategy and its cost figures."""
         m = self.model
         info = {"eye": self.eye_name, "sphere_D": m.eye.sphere_D, "cylinder_D": m.eye.cylinder_D,
-                "axis_deg": m.eye.axis_deg, "pupil_mm": m.pupil_mm, "pupil": self.options.pupil,
+                "axis_deg": m.eye.axis_deg, "accommodation_D": m.eye.accommodation_D,
+                "accommodative_lag_D": m.eye.accommodative_lag_D, "pupil_mm": m.pupil_mm, "pupil": self.options.pupil,
                 "pupil_status": self.pupil_status, "robust": self.options.robust, "band": m.band,
                 "band_option": self.options.band, "display": self.display.name,
                 "backend": self.backend,
