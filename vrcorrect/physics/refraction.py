@@ -9,7 +9,7 @@ Physics and conventions (docs/architecture.md, 'Physics conventions'):
   (``1/d`` is the vergence, 0 at infinity).  Accommodation removes positive ``R`` up to its
   amplitude, never negative ``R`` (:func:`refractive_state`); an eye with an accommodative lag
   responds to ``R`` with ``R (1 - lag / 2.5 D)`` (the lag as MEM retinoscopy measures it at 40 cm,
-  growing in proportion to the demand), the residual ``R`` it leaves is the lag at the display.
+  growing in proportion to the demand), and the part of ``R`` it leaves is its lag at the display.
 * Longitudinal chromatic aberration: Thibos et al. (1992) "chromatic eye",
   ``Rx(lambda) = p - q / (lambda - c)`` with ``p = 1.68524 D``, ``q = 633.46 D nm``,
   ``c = 214.102 nm``: about -1.0 D at 450 nm and +0.23 D at 650 nm relative to 590 nm (short
