@@ -115,6 +115,7 @@ def test_an_eye_that_focuses_on_the_display_gets_the_picture_as_it_is_and_says_w
     assert np.array_equal(np.asarray(Image.open(out)), np.asarray(Image.open(small_png)))
     assert "the picture as it is" in said.out and "nothing to correct" in said.out
     assert "6.50 D, the amplitude expected at age 40" in said.err and "eye of sphere alone" not in said.err
+    assert "accommodative_lag_D" in said.err                       # the lag it may have, and how to state it
     presbyope = tmp_path / "presbyope"
     presbyope.mkdir()
     corrected = tmp_path / "corrected.png"
@@ -145,6 +146,7 @@ def test_an_eye_that_focuses_with_a_lag_is_corrected_for_what_it_leaves_out_of_f
     assert not np.array_equal(np.asarray(Image.open(out)), np.asarray(Image.open(small_png)))
     r = json.loads(report.read_text())
     assert r["objective"] < r["objective_uncorrected"]
+    assert "accommodative_lag_D" not in said.err                   # stated: no note asking for it
 
 
 def test_render_says_an_eye_in_focus_has_nothing_to_correct_and_a_lagging_one_is_corrected(tmp_path, small_png, capsys):

@@ -146,6 +146,7 @@ def cmd_correct(args: argparse.Namespace) -> int:
     if aside:
         print(f"wrote {out}: the picture as it is for the {args.eye} eye on {display.title}: {NOTHING_TO_CORRECT}"
               + _also(args))
+        print_notes([LAG_NOTE] if eye.accommodative_lag_D == 0.0 and eye.accommodation_D > 0.0 else [])
     else:
         print(f"wrote {out}: {result.method} correction for the {args.eye} eye on {display.title}, {design_text} "
               f"(objective {result.objective:.3g})" + _also(args))
@@ -160,6 +161,10 @@ def cmd_correct(args: argparse.Namespace) -> int:
 #: What ``correct`` says where every eye it designs for sees the display as well as with glasses.
 NOTHING_TO_CORRECT = ("this eye sees the display as well as with its glasses (in focus there, after its accommodation), "
                       "so there is nothing to correct")
+
+#: What ``correct`` adds where an eye that focuses on the display states no lag (docs/usage.md).
+LAG_NOTE = ("modelled as focusing exactly on the display; most eyes lag behind a near display (0.25-0.75 D at 40 cm): "
+            "if yours was measured (MEM retinoscopy), state it as accommodative_lag_D or with rx new --lag")
 
 
 def _stands_aside(design, method: str) -> bool:
