@@ -495,11 +495,36 @@ def test_rx_new_writes_the_file_from_a_spectacle_prescription(tmp_path, capsys):
     assert text.startswith(template_text().split("{")[0])                              # the comments, as in the template
     rx = load_prescription(path)
     right, left = rx.eye("right"), rx.eye("left")
-    assert (right.sphere_D, right.cylinder_D, right.axis_deg) == (-2.0, -1.0, 120.0)
-    assert (left.sphere_D, left.cylinder_D, left.axis_deg) == (-3.0, 0.5, 60.0)
-    assert left.power_vector().M_D == pytest.approx(-2.75) and rx.age_years == 45
+    # the lenses 12 mm in front of the eye (the default), each meridian's F / (1 - 0.012 F), by hand:
+    # -2.00 -> -1.953, -3.00 -> -2.896 (cylinder -0.943); -3.00 -> -2.896, -2.50 -> -2.427 (cylinder +0.469)
+    assert (right.sphere_D, right.cylinder_D, right.axis_deg) == (-1.953, -0.943, 120.0)
+    assert (left.sphere_D, left.cylinder_D, left.axis_deg) == (-2.896, 0.469, 60.0)
+    assert left.power_vector().M_D == pytest.approx(-2.6615) and rx.age_years == 45
     assert right.accommodation_D == pytest.approx(18.5 - 0.3 * 45)                    # from the age, as validate says
-    assert "right -2.00 / -1.00 x 120" in out and "expected at age 45" in out and "placeholder" not in out
+    assert "right -1.95 / -0.94 x 120" in out and "expected at age 45" in out and "placeholder" not in out
+    assert "12 mm in front of the eye" in out and "the powers here are at the eye" in path.read_text()
+    rc, out, err = run(capsys, "rx", "new", path, "--force", "--right", "-2.00 -1.00 x 120", "--left",
+                       "-3.00/+0.50x60", "--vertex", "0")                          # a contact-lens prescription
+    assert rc == 0, err
+    rx = load_prescription(path)
+    assert (rx.right.sphere_D, rx.right.cylinder_D) == (-2.0, -1.0) and (rx.left.sphere_D, rx.left.cylinder_D) == (-3.0, 0.5)
+    assert "in front of the eye" not in out and "(--vertex 0)" in path.read_text()
+
+
+def test_rx_new_moves_a_strong_spectacle_prescription_to_the_eye(tmp_path, capsys):
+    """A -8.00 lens 14 mm from the eye is a -7.19 eye (-8 / 1.112); a +8.00 one a +9.01 eye (8 / 0.888);
+    a vertex distance out of 0 to 25 mm is refused naming --vertex, nothing written."""
+    from vrcorrect.specs.prescription import load_prescription
+
+    path = tmp_path / "rx.json"
+    rc, out, err = run(capsys, "rx", "new", path, "--right", "-8.00", "--left", "+8.00", "--vertex", "14")
+    assert rc == 0, err
+    rx = load_prescription(path)
+    assert rx.right.sphere_D == pytest.approx(-8.0 / 1.112, abs=5e-4) and rx.left.sphere_D == pytest.approx(8.0 / 0.888, abs=5e-4)
+    for bad in ("30", "-1", "nan"):
+        other = tmp_path / f"v{bad}.json"
+        rc, out, err = run(capsys, "rx", "new", other, "--right", "-8.00", "--vertex", bad)
+        assert rc == 2 and "--vertex" in err and "0 to 25 mm" in err and not other.exists(), err
 
 
 def test_rx_new_writes_a_measured_lag_and_validate_says_it(tmp_path, capsys):
@@ -535,7 +560,7 @@ def test_rx_new_reads_a_line_with_a_reading_addition_and_says_the_add_is_not_use
                        "--age", "60")
     assert rc == 0, err
     right = load_prescription(path).eye("right")
-    assert (right.sphere_D, right.cylinder_D, right.axis_deg) == (-2.0, -1.0, 120.0)     # the distance lens
+    assert (right.sphere_D, right.cylinder_D, right.axis_deg) == (-1.953, -0.943, 120.0)  # the distance lens, at the eye
     assert "the right eye's ADD +2.00 (the reading addition) is not used" in out
     assert "left eye's ADD" not in out
 
@@ -544,7 +569,9 @@ def test_rx_new_reads_a_line_with_a_reading_addition_and_says_the_add_is_not_use
     (["--right", "-2.00 -1.00"], "--right"),                       # a cylinder without its axis
     (["--left", "two dioptres"], "--left"),
     (["--right", "-2.00 -1.00 x 200"], "--right axis"),
-    (["--right", "-25"], "right.sphere_D"),                        # read, but out of a prescription's range
+    (["--right", "-25", "--vertex", "0"], "right.sphere_D = -25"),  # read, but out of a prescription's range
+    (["--right", "-30"], "right.sphere_D (at the eye, from the lens's -30.00 D 12 mm in front of it) = -22.059"),
+    (["--left", "+18.00"], "left.sphere_D (at the eye, from the lens's +18.00 D 12 mm in front of it) = 22.959"),
     (["--right", "-1.00", "--age", "150"], "age_years"),
     (["--right", "-1.00", "--age", "nan"], "--age"),
 ])

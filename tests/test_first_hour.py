@@ -231,7 +231,7 @@ def test_layer_install_help_names_the_default_method():
 
 def test_the_tours_prescription_line_writes_a_file_that_validates(tmp_path):
     """The README's step 1, exactly as written there: the lines of a spectacle prescription and an age,
-    no JSON to edit; then ``rx validate`` accepts the file and names both eyes as given."""
+    no JSON to edit; then ``rx validate`` accepts the file and names both eyes, moved from the lenses to the eye."""
     import shlex
 
     lines = [line.split("#")[0].strip() for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
@@ -241,5 +241,6 @@ def test_the_tours_prescription_line_writes_a_file_that_validates(tmp_path):
     assert made.returncode == 0, made.stderr[-2000:]
     checked = _cli(["rx", "validate", "my_rx.json"], tmp_path)
     assert checked.returncode == 0, checked.stderr[-2000:]
-    assert "right -2.00 / -1.00 x 120" in checked.stdout and "left  -1.50 / +0.00 x 0" in checked.stdout
+    # the lenses moved to the eye, 12 mm behind them: -2.00/-3.00 meridians -> -1.953/-2.896, -1.50 -> -1.473
+    assert "right -1.95 / -0.94 x 120" in checked.stdout and "left  -1.47 / +0.00 x 0" in checked.stdout
     assert "expected at age 45" in checked.stdout

@@ -781,6 +781,30 @@ def test_a_spectacle_prescription_line_reads_as_sphere_cylinder_axis(text, eye):
     assert parse_spectacle_rx(text, "--right") == eye
 
 
+@pytest.mark.parametrize("lens, vertex, eye", [
+    ((-6.0, 0.0, 0.0), 12.0, (-5.597, 0.0, 0.0)),             # -6 / 1.072, by hand
+    ((6.0, 0.0, 0.0), 12.0, (6.466, 0.0, 0.0)),               # 6 / 0.928
+    ((-2.0, -1.0, 120.0), 12.0, (-1.953, -0.943, 120.0)),     # meridians -2 / 1.024 and -3 / 1.036
+    ((-4.0, 2.0, 45.0), 14.0, (-3.788, 1.842, 45.0)),         # plus-cylinder form: -4 / 1.056, -2 / 1.028 = -1.946
+    ((-2.0, -1.0, 120.0), 0.0, (-2.0, -1.0, 120.0)),          # 0: the powers are at the eye already
+    ((-20.0, 0.0, 0.0), 25.0, (-13.333, 0.0, 0.0)),           # the extremes: -20 / 1.5
+    ((20.0, 0.0, 0.0), 25.0, (40.0, 0.0, 0.0)),               # 20 / 0.5 (then refused by the eye's range)
+])
+def test_a_spectacle_line_moves_to_the_eye_meridian_by_meridian(lens, vertex, eye):
+    from vrcorrect.specs.prescription.notation import at_eye
+
+    assert at_eye(*lens, vertex) == pytest.approx(eye, abs=5e-4)
+
+
+@pytest.mark.parametrize("vertex", [-1.0, 25.5, float("nan"), float("inf"), True, "12"])
+def test_a_vertex_distance_out_of_range_is_refused_naming_the_option(vertex):
+    from vrcorrect.specs.prescription.notation import at_eye
+
+    with pytest.raises(ValidationError) as err:
+        at_eye(-6.0, 0.0, 0.0, vertex)
+    assert err.value.field == "--vertex" and "0 to 25 mm" in str(err.value)
+
+
 @pytest.mark.parametrize("text, field, says", [
     ("-2.00 -1.00", "--right", "axis"),                       # a cylinder without its axis
     ("-2.00 x 120", "--right", "SPHERE CYLINDER x AXIS"),

@@ -9,10 +9,10 @@ import argparse
 import math
 from pathlib import Path
 
-from ..plumbing.errors import ValidationError, ValidationErrors
+from ..plumbing.errors import FieldProblem, ValidationError, ValidationErrors
 from ..specs.prescription import load_prescription, validate_file, write_template
 from ..specs.prescription.files import TEMPLATE_NOTES
-from ..specs.prescription.notation import parse_spectacle_rx, split_add
+from ..specs.prescription.notation import DEFAULT_VERTEX_MM, at_eye, parse_spectacle_rx, split_add
 from ..specs.vocabulary import Eye
 
 
@@ -22,10 +22,11 @@ def cmd_rx_new(args: argparse.Namespace) -> int:
     if args.lag is not None and not math.isfinite(args.lag):
         raise ValidationError("--lag", args.lag, "a number of dioptres from 0 to 2")
     lines = {Eye.RIGHT: args.right, Eye.LEFT: args.left}
-    eyes, adds = {}, {}
+    eyes, adds, lenses = {}, {}, {}
     for name, text in lines.items():
         line, adds[name] = split_add(text)
-        eyes[name] = None if text is None else parse_spectacle_rx(line, f"--{name}")
+        lenses[name] = None if text is None else parse_spectacle_rx(line, f"--{name}")
+        eyes[name] = None if text is None else at_eye(*lenses[name], args.vertex)
     if all(e is None for e in eyes.values()) and args.age is None and args.lag is None:
         write_template(Path(args.path), force=args.force)
         print(f"wrote {args.path}: a commented prescription template; fill in both eyes, then run "
@@ -33,9 +34,17 @@ def cmd_rx_new(args: argparse.Namespace) -> int:
               f"vrcorrect rx new {args.path} --force --right \"-2.00 -1.00 x 120\" --left \"-1.50\" --age 45)")
         return 0
     given = [f"{name} '{text}'" for name, text in lines.items() if text is not None]
-    notes = "From a spectacle prescription: " + ", ".join(given) + "." if given else TEMPLATE_NOTES
-    write_template(Path(args.path), force=args.force, notes=notes, age_years=args.age, lag_D=args.lag, **eyes)
+    notes = ("From a spectacle prescription: " + ", ".join(given) + (
+        f", the lenses {args.vertex:g} mm from the eye; the powers here are at the eye." if args.vertex else
+        ", the powers at the eye (--vertex 0).") if given else TEMPLATE_NOTES)
+    try:
+        write_template(Path(args.path), force=args.force, notes=notes, age_years=args.age, lag_D=args.lag, **eyes)
+    except ValidationErrors as err:
+        raise ValidationErrors(_said_at_eye(p, lenses, eyes, args.vertex) for p in err.problems) from None
     print(f"wrote {args.path}: a commented prescription file" + (f" from {', '.join(given)}" if given else ""))
+    if args.vertex and any(eyes[name] != lenses[name] for name in lines):
+        print(f"  the powers moved from the lenses, {args.vertex:g} mm in front of the eye, to the eye (each "
+              "principal meridian's F / (1 - d F); --vertex 0 keeps them, as for a contact-lens prescription):")
     _print_eyes(load_prescription(Path(args.path)))
     for name, add in adds.items():
         if add is not None:
@@ -46,6 +55,17 @@ def cmd_rx_new(args: argparse.Namespace) -> int:
     for name in missing:
         print(f"  the {name} eye is plano (0.00) as a placeholder: give --{name}, or edit the file")
     return 0
+
+
+def _said_at_eye(problem: FieldProblem, lenses: dict, eyes: dict, vertex_mm: float) -> FieldProblem:
+    """A problem with an eye's sphere or cylinder, which were moved from the lenses to the eye, told with
+    the lens's power it came from (a -30.00 lens is a -22.06 eye at 12 mm: the user typed the first)."""
+    name, _, key = problem.field.partition(".")
+    index = {"sphere_D": 0, "cylinder_D": 1}.get(key)
+    if index is None or lenses.get(name) is None or lenses[name] == eyes[name]:
+        return problem
+    return FieldProblem(f"{problem.field} (at the eye, from the lens's {lenses[name][index]:+.2f} D {vertex_mm:g} mm "
+                        "in front of it)", problem.value, problem.allowed)
 
 
 def cmd_rx_validate(args: argparse.Namespace) -> int:
@@ -89,7 +109,7 @@ def join_line_values(argv: list[str]) -> list[str]:
     i = 0
     while i < len(argv):
         if argv[i] in LINE_OPTIONS and i + 1 < len(argv) and argv[i + 1].startswith("-") and argv[i + 1] not in (
-                *LINE_OPTIONS, "--age", "--lag", "--force", "-h", "--help"):
+                *LINE_OPTIONS, "--age", "--lag", "--vertex", "--force", "-h", "--help"):
             out.append(f"{argv[i]}={argv[i + 1]}")
             i += 2
         else:
@@ -115,6 +135,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "viewing pupil and how far each eye still focuses")
     q.add_argument("--lag", type=float, metavar="D", help="both eyes' accommodative lag (accommodative_lag_D, 0 to 2 "
                    "D): how far behind a near card at 40 cm they focus, as MEM retinoscopy measures it; left out, 0")
+    q.add_argument("--vertex", type=float, metavar="MM", default=DEFAULT_VERTEX_MM,
+                   help="the lenses' distance in front of the eye (BVD, 0 to 25 mm; default %(default)g): the "
+                   "file holds the eye's own refraction, so each line's powers are moved there (a -6.00 lens at 12 "
+                   "mm is a -5.60 eye); 0 for a contact-lens prescription")
     q.add_argument("--force", action="store_true", help="overwrite PATH if it exists")
     q.set_defaults(func=cmd_rx_new)
     q = rsub.add_parser("validate", help="check a prescription file and report every problem")

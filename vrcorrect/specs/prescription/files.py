@@ -168,8 +168,13 @@ _TEMPLATE = """\
 //
 // Lines whose first non-blank characters are // are comments. Everything else
 // is standard JSON: double-quoted keys, no trailing commas, no comment after a
-// value on the same line. Replace the numbers below with your own; all four
-// numbers per eye are on a spectacle (not contact-lens) prescription.
+// value on the same line. Replace the numbers below with your own: the first
+// three per eye are the eye's own refraction, at the cornea. A contact-lens
+// prescription gives them as they are; a spectacle lens sits about 12 mm in
+// front of the eye, where a power F corrects an eye of F / (1 - 0.012 F): a
+// -6.00 lens is a -5.60 eye (under 4 D the two differ by less than 0.2 D).
+// 'vrcorrect rx new PATH --right "-2.00 -1.00 x 120" --left ...' writes this
+// file from a spectacle prescription's lines and moves them to the eye.
 //
 // "right" is the right eye (OD), "left" the left eye (OS). Per eye:
 //

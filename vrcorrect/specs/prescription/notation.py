@@ -16,16 +16,30 @@ spaces aside:
 Anything else is refused with the text, the field it came from and the forms above; the values'
 ranges are :class:`~vrcorrect.specs.prescription.model.EyeRx`'s, checked where the eye is made.
 
+A spectacle lens sits in front of the eye (the vertex distance, about 12 mm), where a power ``F``
+corrects an eye whose own refraction, at the cornea, is ``F / (1 - d F)`` (``d`` in metres): a
+-6.00 D lens is a -5.60 D eye, a +6.00 D lens a +6.45 D eye.  A prescription file holds the eye's
+own refraction (docs/architecture.md, 'Physics conventions'), so :func:`at_eye` moves a line's two
+principal meridians there.
+
 Layer 1: the standard library.
 """
 
 from __future__ import annotations
 
+import math
 import re
 
 from ...plumbing.errors import ValidationError
 
-__all__ = ["FORMS", "parse_spectacle_rx", "split_add"]
+__all__ = ["FORMS", "DEFAULT_VERTEX_MM", "VERTEX_ALLOWED", "at_eye", "parse_spectacle_rx", "split_add"]
+
+#: The lenses' distance from the eye a spectacle prescription is taken at when none is given, mm (the
+#: usual fitting; a prescription of 4 D or more often states its own, as BVD).
+DEFAULT_VERTEX_MM = 12.0
+
+#: The vertex distances :func:`at_eye` takes, in words.
+VERTEX_ALLOWED = "a finite distance from 0 to 25 mm (the lenses from the cornea; 0: the powers are at the eye already)"
 
 #: What the refusal lists as the accepted forms.
 FORMS = ("a spectacle prescription: SPHERE, or SPHERE CYLINDER x AXIS, e.g. '-1.50', '-1.50 DS', 'plano', "
@@ -81,3 +95,21 @@ def parse_spectacle_rx(text: str, field: str) -> tuple[float, float, float]:
         raise ValidationError(field, text, "the cylinder's axis after it, 'x AXIS' in degrees 0 to 180 (e.g. "
                                            "'-2.00 -1.00 x 120'): a cylinder without its axis is not an eye")
     raise ValidationError(field, text, FORMS)
+
+
+def at_eye(sphere_D: float, cylinder_D: float, axis_deg: float, vertex_mm: float,
+           field: str = "--vertex") -> tuple[float, float, float]:
+    """A spectacle line ``(sphere_D, cylinder_D, axis_deg)`` worn ``vertex_mm`` in front of the eye, as
+    the eye's own refraction: each principal meridian's power ``F`` becomes ``F / (1 - d F)``, the
+    axis stays (rounded to a thousandth of a dioptre). A :class:`ValidationError` naming ``field`` for
+    a distance out of :data:`VERTEX_ALLOWED`."""
+    if isinstance(vertex_mm, bool) or not isinstance(vertex_mm, (int, float)) or not math.isfinite(vertex_mm) \
+            or not 0.0 <= vertex_mm <= 25.0:
+        raise ValidationError(field, vertex_mm, VERTEX_ALLOWED)
+    d = vertex_mm / 1000.0
+
+    def moved(power: float) -> float:
+        return power / (1.0 - d * power)          # 1 - d F > 0.4 for |F| <= 20 D and d <= 25 mm
+
+    first, second = moved(sphere_D), moved(sphere_D + cylinder_D)
+    return round(first, 3) + 0.0, round(second - first, 3) + 0.0, axis_deg
