@@ -527,6 +527,26 @@ def test_rx_new_moves_a_strong_spectacle_prescription_to_the_eye(tmp_path, capsy
         assert rc == 2 and "--vertex" in err and "0 to 25 mm" in err and not other.exists(), err
 
 
+def test_rx_validate_says_what_a_strong_hand_written_prescription_would_be_at_the_eye(tmp_path, capsys):
+    """A file written by hand with -8.00 D (the old template asked for the glasses' numbers): validate says
+    the eye's would be -7.30 (-8 / 1.096) if they are; a file rx new wrote, already at the eye, gets no
+    such line, nor does a weak prescription."""
+    doc = json.loads(strip_comment_lines(template_text()))
+    doc["right"]["sphere_D"] = -8.0
+    path = tmp_path / "rx.json"
+    path.write_text(json.dumps(doc))
+    rc, out, err = run(capsys, "rx", "validate", path)
+    assert rc == 0 and "the right eye's powers reach 4 D" in out and "-7.30 / +0.00 x 0 for the right eye" in out
+    made = tmp_path / "made.json"
+    assert run(capsys, "rx", "new", made, "--right", "-8.00", "--left", "-8.00")[0] == 0
+    rc, out, err = run(capsys, "rx", "validate", made)
+    assert rc == 0 and "powers reach" not in out
+    doc["right"]["sphere_D"] = -3.75
+    path.write_text(json.dumps(doc))
+    rc, out, err = run(capsys, "rx", "validate", path)
+    assert rc == 0 and "powers reach" not in out
+
+
 def test_rx_new_writes_a_measured_lag_and_validate_says_it(tmp_path, capsys):
     from vrcorrect.specs.prescription import load_prescription
 

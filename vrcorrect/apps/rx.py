@@ -78,7 +78,28 @@ def cmd_rx_validate(args: argparse.Namespace) -> int:
     rx = load_prescription(Path(args.path))
     print(f"{args.path}: valid")
     _print_eyes(rx)
+    strong = [name for name in Eye if _strongest_meridian(rx.eye(name)) >= STRONG_D]
+    if strong and not any(mark in rx.notes for mark in AT_EYE_MARKS):
+        e = rx.eye(strong[0])
+        moved = at_eye(e.sphere_D, e.cylinder_D, e.axis_deg, DEFAULT_VERTEX_MM)
+        print(f"  the {' and '.join(strong)} eye's powers reach {STRONG_D:g} D: they are modelled as the eye's own, at "
+              f"the cornea. If they are your glasses' (the lenses about {DEFAULT_VERTEX_MM:g} mm in front of the eye), "
+              f"the eye's are {moved[0]:+.2f} / {moved[1]:+.2f} x {moved[2]:g} for the {strong[0]} eye: 'vrcorrect "
+              "rx new PATH --right ... --left ...' writes them (--vertex MM if your prescription states its BVD)")
     return 0
+
+
+#: Where ``rx validate`` says a spectacle prescription would differ at the eye: a meridian of this many
+#: dioptres or more (below it the two differ by under 0.2 D at 12 mm).
+STRONG_D = 4.0
+
+#: What ``rx new`` writes in the notes once the powers are at the eye (then ``validate`` says nothing).
+AT_EYE_MARKS = ("the powers here are at the eye", "the powers at the eye (--vertex 0)", "the powers are the eyes' own")
+
+
+def _strongest_meridian(eye) -> float:
+    """The larger of an eye's two principal meridians' powers, in magnitude."""
+    return max(abs(eye.sphere_D), abs(eye.sphere_D + eye.cylinder_D))
 
 
 def _print_eyes(rx) -> None:
