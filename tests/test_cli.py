@@ -592,6 +592,7 @@ def test_rx_new_reads_a_line_with_a_reading_addition_and_says_the_add_is_not_use
     (["--right", "-25", "--vertex", "0"], "right.sphere_D = -25"),  # read, but out of a prescription's range
     (["--right", "-30"], "right.sphere_D (at the eye, from the lens's -30.00 D 12 mm in front of it) = -22.059"),
     (["--left", "+18.00"], "left.sphere_D (at the eye, from the lens's +18.00 D 12 mm in front of it) = 22.959"),
+    (["--left", "+40", "--vertex", "25"], "left.sphere_D = 40"),   # a lens focusing at the eye: as written, refused
     (["--right", "-1.00", "--age", "150"], "age_years"),
     (["--right", "-1.00", "--age", "nan"], "--age"),
 ])

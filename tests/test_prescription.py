@@ -789,6 +789,8 @@ def test_a_spectacle_prescription_line_reads_as_sphere_cylinder_axis(text, eye):
     ((-2.0, -1.0, 120.0), 0.0, (-2.0, -1.0, 120.0)),          # 0: the powers are at the eye already
     ((-20.0, 0.0, 0.0), 25.0, (-13.333, 0.0, 0.0)),           # the extremes: -20 / 1.5
     ((20.0, 0.0, 0.0), 25.0, (40.0, 0.0, 0.0)),               # 20 / 0.5 (then refused by the eye's range)
+    ((40.0, 0.0, 0.0), 25.0, (40.0, 0.0, 0.0)),               # 1 - d F = 0: left as written, no division
+    ((45.0, -10.0, 90.0), 25.0, (45.0, -10.0, 90.0)),         # 1 - d F < 0.25 for both: as written
 ])
 def test_a_spectacle_line_moves_to_the_eye_meridian_by_meridian(lens, vertex, eye):
     from vrcorrect.specs.prescription.notation import at_eye

@@ -102,14 +102,17 @@ def at_eye(sphere_D: float, cylinder_D: float, axis_deg: float, vertex_mm: float
     """A spectacle line ``(sphere_D, cylinder_D, axis_deg)`` worn ``vertex_mm`` in front of the eye, as
     the eye's own refraction: each principal meridian's power ``F`` becomes ``F / (1 - d F)``, the
     axis stays (rounded to a thousandth of a dioptre). A :class:`ValidationError` naming ``field`` for
-    a distance out of :data:`VERTEX_ALLOWED`."""
+    a distance out of :data:`VERTEX_ALLOWED`; a meridian of ``1 / d`` dioptres or more (beyond any
+    prescription's range: +40 D at 25 mm) is left as written, never divided by zero."""
     if isinstance(vertex_mm, bool) or not isinstance(vertex_mm, (int, float)) or not math.isfinite(vertex_mm) \
             or not 0.0 <= vertex_mm <= 25.0:
         raise ValidationError(field, vertex_mm, VERTEX_ALLOWED)
     d = vertex_mm / 1000.0
 
     def moved(power: float) -> float:
-        return power / (1.0 - d * power)          # 1 - d F > 0.4 for |F| <= 20 D and d <= 25 mm
+        # 1 - d F >= 0.5 for |F| <= 20 D (a prescription's range) and d <= 25 mm; a power so strong that
+        # the lens would focus at or behind the eye is left as written, for the eye's range to refuse
+        return power / (1.0 - d * power) if 1.0 - d * power >= 0.25 else power
 
     first, second = moved(sphere_D), moved(sphere_D + cylinder_D)
     return round(first, 3) + 0.0, round(second - first, 3) + 0.0, axis_deg
