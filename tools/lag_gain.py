@@ -27,10 +27,10 @@ import time
 import numpy as np
 
 import robust_band_choice as rb  # tools/: this script's folder
+from guard_tradeoff import default_design
 from vrcorrect.physics.perception import luminance_weights
 from vrcorrect.physics.pupil import pupil_from_light
 from vrcorrect.physics.robust import design_eye
-from vrcorrect.runtime.pupil_bank import nearest_bank_pupil
 from vrcorrect.solvers import solve
 from vrcorrect.solvers.problem import make_design_problem
 from vrcorrect.specs.display import decode, get_display
@@ -42,16 +42,22 @@ SPHERES = (0.0, -1.0, 1.0)
 MEASUREMENT_D = 0.25
 
 
-def _shown(eye: EyeRx, display, target: np.ndarray, pupil_mm: float, kernels: dict) -> np.ndarray:
-    design = design_eye(eye, display, nearest_bank_pupil(pupil_mm), band=None, kernels=kernels, robust=True)
+def _shown(eye: EyeRx, display, target: np.ndarray, pupil_mm: float) -> np.ndarray:
+    """What the default shows for ``eye`` (the picture as it is where the eye needs nothing)."""
+    design = default_design(eye, display, pupil_mm)
     if design.sees_as_with_glasses:
         return target
     return solve(make_design_problem(target, design), "fast").image
 
 
-def _jod(shown: np.ndarray, target: np.ndarray, eye: EyeRx, display, pupil_mm: float, kernels: dict) -> float:
-    seen = design_eye(eye, display, pupil_mm, robust=False, kernels=kernels)
-    return evaluate_seen(shown, target, seen.nominal, display)[0].jod
+def _seen(eye: EyeRx, display, pupil_mm: float):
+    """The kernel of ``eye`` as it is, through exactly the light's pupil (its kernels kept in ``rb``'s cache)."""
+    return design_eye(eye, display, pupil_mm, robust=False, kernels=rb._kernels).nominal
+
+
+def _jod(shown: np.ndarray, target: np.ndarray, eye: EyeRx, display, pupil_mm: float) -> float:
+    """The JOD of what ``eye`` sees of ``shown`` against its view of ``target`` with its glasses."""
+    return evaluate_seen(shown, target, _seen(eye, display, pupil_mm), display)[0].jod
 
 
 def main(argv: list[str]) -> int:
@@ -62,7 +68,6 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--sphere", type=float, nargs="+", default=list(SPHERES), help="the eyes' spheres, D")
     args = ap.parse_args(argv)
     images = args.image or ["astronaut", "words"]
-    kernels: dict = {}
     amplitude = accommodation_from_age(AGE)
     print(f"age {AGE:g} ({amplitude:.1f} D of amplitude); JOD of none, and each correction's gain over none", flush=True)
     print(f"{'sphere':>6s} {'lag':>5s} {'display':8s} {'picture':12s} {'pupil':>6s} {'residual':>8s} {'none':>6s} "
@@ -75,19 +80,17 @@ def main(argv: list[str]) -> int:
             p = pupil_from_light(light, display, AGE).diameter_mm
             for sphere in args.sphere:
                 plain = EyeRx(sphere, 0.0, 0.0, 4.0, accommodation_D=amplitude)
-                ignored = _shown(plain, display, target, p, kernels)
+                ignored = _shown(plain, display, target, p)
                 for lag in args.lag:
                     t0 = time.perf_counter()
                     eye = plain.with_changes(accommodative_lag_D=lag)
-                    modelled = _shown(eye, display, target, p, kernels)
-                    none = _jod(target, target, eye, display, p, kernels)
-                    gains = [_jod(modelled, target, eye, display, p, kernels) - none,
-                             _jod(ignored, target, eye, display, p, kernels) - none]
+                    modelled = _shown(eye, display, target, p)
+                    none = _jod(target, target, eye, display, p)
+                    gains = [_jod(modelled, target, eye, display, p) - none, _jod(ignored, target, eye, display, p) - none]
                     for d in (-MEASUREMENT_D, MEASUREMENT_D):
                         off = eye.with_changes(accommodative_lag_D=min(max(lag + d, 0.0), 2.0))
-                        off_none = _jod(target, target, off, display, p, kernels)
-                        gains.append(_jod(modelled, target, off, display, p, kernels) - off_none)
-                    residual = design_eye(eye, display, p, robust=False, kernels=kernels).nominal.state.residual.M_D
+                        gains.append(_jod(modelled, target, off, display, p) - _jod(target, target, off, display, p))
+                    residual = _seen(eye, display, p).state.residual.M_D
                     print(f"{sphere:+6.2f} {lag:5.2f} {display_name:8s} {name:12s} {p:4.2f}mm {residual:+8.2f} "
                           f"{none:6.2f} " + " ".join(f"{g:+{w}.2f}" for g, w in zip(gains, (9, 8, 6, 6)))
                           + f"   ({time.perf_counter() - t0:.0f} s)", flush=True)

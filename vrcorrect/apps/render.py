@@ -122,18 +122,16 @@ def cmd_render(args: argparse.Namespace) -> int:
     # that note said; other notes (an identity correction and why, the ONNX model) are printed as they are.
     designed = args.backend == Backend.GLSL and not info["identity"]
     chosen = " (chosen by wiener on the sample image)" if designed else ""
-    if info["identity"]:
-        pass                                # the eye model's note says why there is nothing to correct
-    elif args.backend == Backend.GLSL and info["filter"] in ITERATIVE_FILTERS:
+    if designed and info["filter"] in ITERATIVE_FILTERS:   # (an identity: its note says why, below)
         storage = f", {info['precision']} precision storage" if info.get("precision") else ""
         print(f"  {METHOD_TITLES[info['filter']]}, {info.get('iterations_per_frame', '-')} iteration(s) per frame, "
               f"{frames} frame(s) warm-started, {info.get('fft_round_trips_per_frame', '-')} FFT round trips a frame"
               + storage + (f"; last frame's objective {fraction:.3f} of uncorrected" if fraction is not None else ""))
         _print_fovea(info)
-    elif args.backend == Backend.GLSL and "ranks" in info:
+    elif designed and "ranks" in info:
         print(f"  separable filters {info['filter_size']} px, ranks {info['ranks']} ({info['taps_per_pixel']} "
               f"taps/pixel), regulariser {info['mu_rel']:g}, blend {info['beta']:.3f}{chosen}")
-    elif args.backend == Backend.GLSL:
+    elif designed:
         print(f"  FFT filter, margin {info['margin']} px, regulariser {info['mu_rel']:g}, blend {info['beta']:.3f}"
               + chosen)
     for note in info["notes"][:-1] if designed else info["notes"]:
@@ -147,7 +145,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         per = ""
     print(f"  build {info['build_s']:.2f} s, {ran} frame(s) {1e3 * info['frame_s']:.1f} ms{per} "
           "(incl. read-back)")
-    print(f"wrote {out} ({info['view']}{AS_IT_IS if info['identity'] and args.view == 'corrected' else ''})")
+    print(f"wrote {out} ({_view_said(args, info)})")
     return 0
 
 
@@ -195,8 +193,10 @@ def _rate_note(args: argparse.Namespace, plan: clips.ClipPlan) -> str:
             "source frame)")
 
 
-#: What ``wrote`` adds for an eye with nothing to correct: the frames are the picture as it is.
-AS_IT_IS = ": the picture as it is, nothing to correct"
+def _view_said(args: argparse.Namespace, info: dict) -> str:
+    """The view ``wrote`` names; for an eye with nothing to correct, that its frames are the picture as it is."""
+    return info["view"] + (": the picture as it is, nothing to correct"
+                           if info["identity"] and args.view == "corrected" else "")
 
 
 def _print_eye(args: argparse.Namespace, info: dict) -> None:
@@ -270,8 +270,7 @@ def _print_clip_summary(args: argparse.Namespace, plan: clips.ClipPlan, info: di
     print(f"  median {ms:.1f} ms per frame (upload, correction and read-back)"
           + (f" on {renderer.split(' (')[0]}, Mesa's software renderer on the CPU: a GPU is far faster" if soft else "")
           + f"; build {info['build_s']:.2f} s")
-    print(f"wrote {args.output} ({info['frames']} frames, {info['view']}"
-          f"{AS_IT_IS if info['identity'] and args.view == 'corrected' else ''})")
+    print(f"wrote {args.output} ({info['frames']} frames, {_view_said(args, info)})")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

@@ -35,8 +35,8 @@ def cmd_rx_new(args: argparse.Namespace) -> int:
         return 0
     given = [f"{name} '{text}'" for name, text in lines.items() if text is not None]
     notes = ("From a spectacle prescription: " + ", ".join(given) + (
-        f", the lenses {args.vertex:g} mm from the eye; the powers here are at the eye." if args.vertex else
-        ", the powers at the eye (--vertex 0).") if given else TEMPLATE_NOTES)
+        f", the lenses {args.vertex:g} mm from the eye; {MOVED_TO_EYE}." if args.vertex else
+        f", {GIVEN_AT_EYE}.") if given else TEMPLATE_NOTES)
     try:
         write_template(Path(args.path), force=args.force, notes=notes, age_years=args.age, lag_D=args.lag, **eyes)
     except ValidationErrors as err:
@@ -78,7 +78,9 @@ def cmd_rx_validate(args: argparse.Namespace) -> int:
     rx = load_prescription(Path(args.path))
     print(f"{args.path}: valid")
     _print_eyes(rx)
-    strong = [name for name in Eye if _strongest_meridian(rx.eye(name)) >= STRONG_D]
+    from ..physics.refraction import max_meridian_power_D  # on use: start-up time (apps/__init__)
+
+    strong = [name for name in Eye if max_meridian_power_D(rx.eye(name).power_vector()) >= STRONG_D]
     if strong and not any(mark in rx.notes for mark in AT_EYE_MARKS):
         e = rx.eye(strong[0])
         moved = at_eye(e.sphere_D, e.cylinder_D, e.axis_deg, DEFAULT_VERTEX_MM)
@@ -93,13 +95,14 @@ def cmd_rx_validate(args: argparse.Namespace) -> int:
 #: dioptres or more (below it the two differ by under 0.2 D at 12 mm).
 STRONG_D = 4.0
 
-#: What ``rx new`` writes in the notes once the powers are at the eye (then ``validate`` says nothing).
-AT_EYE_MARKS = ("the powers here are at the eye", "the powers at the eye (--vertex 0)", "the powers are the eyes' own")
+#: What ``rx new`` writes in the notes once it has moved the lenses' powers to the eye, and where they
+#: were given at the eye (``--vertex 0``).
+MOVED_TO_EYE = "the powers here are at the eye"
+GIVEN_AT_EYE = "the powers at the eye (--vertex 0)"
 
-
-def _strongest_meridian(eye) -> float:
-    """The larger of an eye's two principal meridians' powers, in magnitude."""
-    return max(abs(eye.sphere_D), abs(eye.sphere_D + eye.cylinder_D))
+#: Notes that say a file's powers are the eye's own (``rx new``'s, the bundled sample's): then ``validate``
+#: says nothing of spectacle lenses.
+AT_EYE_MARKS = (MOVED_TO_EYE, GIVEN_AT_EYE, "the powers are the eyes' own")
 
 
 def _print_eyes(rx) -> None:
